@@ -1,0 +1,27 @@
+"""Hardware boundary: channel map and calibration, the DaqBackend protocol, the nidaqmx backend."""
+
+from daq.backend import DaqBackend
+from daq.channels import (
+    AnalogInput,
+    AnalogOutput,
+    ChannelKind,
+    ChannelMap,
+    DeviceSpec,
+    DigitalOutput,
+    default_channel_map,
+    load_channel_map,
+)
+from daq.errors import (
+    ChannelConfigError,
+    DaqBufferOverflowError,
+    DaqConnectionError,
+    DaqError,
+    DaqTimeoutError,
+    DaqUnderflowError,
+)
+
+__all__ = [
+    "AnalogInput", "AnalogOutput", "ChannelConfigError", "ChannelKind", "ChannelMap",
+    "DaqBackend", "DaqBufferOverflowError", "DaqConnectionError", "DaqError", "DaqTimeoutError",
+    "DaqUnderflowError", "DeviceSpec", "DigitalOutput", "default_channel_map", "load_channel_map",
+]

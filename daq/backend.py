@@ -1,0 +1,56 @@
+"""The one seam between logic and hardware: the `DaqBackend` protocol.
+
+Life cycle: ``configure(channel_map)`` -> ``write_ao(prefill)`` -> ``start()`` -> loop
+{``read_ai(n)``; ``write_ao(block)``} -> ``stop()`` -> ``close()``.
+
+- AI is hardware-timed and continuous; ``read_ai`` returns the next ``n`` samples per channel, in
+  volts, shape ``(n_ai, n)``, in channel-map order, with no gap: a lost sample is an exception
+  (`daq.errors.DaqBufferOverflowError`), never a silent jump.
+- AO streams without regeneration on the AI sample clock and AI start trigger, so sample ``k`` of
+  the AO stream is generated at the instant AI sample ``k`` is taken. The caller keeps the AO
+  buffer ahead of the generation; running dry raises `daq.errors.DaqUnderflowError`.
+- ``set_do`` switches a relay line at once (software-timed).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from daq.channels import ChannelMap
+
+
+@runtime_checkable
+class DaqBackend(Protocol):
+    """Hardware-timed AI, streaming AO on the same clock, and relay lines."""
+
+    @property
+    def channel_map(self) -> ChannelMap: ...
+
+    @property
+    def sample_rate_hz(self) -> float: ...
+
+    def configure(self, channel_map: ChannelMap) -> None:
+        """Create the AI, AO and DO tasks for ``channel_map``; nothing starts yet."""
+
+    def start(self) -> None:
+        """Start AO (armed on the AI start trigger), then AI. Prefill AO first."""
+
+    def write_ao(self, block: np.ndarray) -> None:
+        """Queue the next AO samples, volts, shape ``(n_ao, n)``; never regenerated."""
+
+    def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
+        """The next ``n`` AI samples per channel, volts, shape ``(n_ai, n)``."""
+
+    def set_do(self, name: str, value: bool) -> None:
+        """Set the relay line called ``name`` in the channel map."""
+
+    def ao_backlog(self) -> int:
+        """Samples written to AO but not yet generated."""
+
+    def stop(self) -> None:
+        """Stop the tasks; the last AO samples written stay on the outputs (write zeros first)."""
+
+    def close(self) -> None:
+        """Release every task; safe to call twice."""

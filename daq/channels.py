@@ -1,0 +1,329 @@
+"""The rig's channel map and sensor calibration: pydantic models loadable from TOML.
+
+Calibration convention, for every analog channel: ``volts = gain_v_per_unit * value + offset_v``,
+so ``value = (volts - offset_v) / gain_v_per_unit``, in the channel's engineering units (SI, except
+flow in L/min and temperature in degC, as the rig's instruments read).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from daq.errors import ChannelConfigError
+
+
+class ChannelKind(StrEnum):
+    LOAD_CELL = "load_cell"
+    EDDY_CURRENT_PROBE = "eddy_current_probe"
+    ACCELEROMETER = "accelerometer"
+    PRESSURE_4_20MA = "pressure_4_20mA"
+    FLOW = "flow"
+    THERMOCOUPLE = "thermocouple"
+    SHAKER_DRIVE = "shaker_drive"
+    RELAY = "relay"
+
+
+#: Engineering units each kind of channel may carry.
+UNITS_BY_KIND: dict[ChannelKind, tuple[str, ...]] = {
+    ChannelKind.LOAD_CELL: ("N",),
+    ChannelKind.EDDY_CURRENT_PROBE: ("m",),
+    ChannelKind.ACCELEROMETER: ("m/s^2",),
+    ChannelKind.PRESSURE_4_20MA: ("Pa",),
+    ChannelKind.FLOW: ("L/min",),
+    ChannelKind.THERMOCOUPLE: ("degC",),
+    ChannelKind.SHAKER_DRIVE: ("V",),
+    ChannelKind.RELAY: ("bool",),
+}
+
+AI_KINDS = {
+    ChannelKind.LOAD_CELL,
+    ChannelKind.EDDY_CURRENT_PROBE,
+    ChannelKind.ACCELEROMETER,
+    ChannelKind.PRESSURE_4_20MA,
+    ChannelKind.FLOW,
+    ChannelKind.THERMOCOUPLE,
+}
+
+Name = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,31}$")]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class DeviceSpec(_Strict):
+    """What the DAQ board can do. Default: an NI PXIe-6358 (16 simultaneous AI, 1.25 MS/s/ch)."""
+
+    name: str = Field("Dev1", pattern=r"^[A-Za-z][A-Za-z0-9_]*$")
+    product: str = "PXIe-6358"
+    ai_count: int = Field(16, ge=1, le=256)
+    ao_count: int = Field(2, ge=0, le=64)
+    do_ports: int = Field(1, ge=0, le=8)
+    do_lines_per_port: int = Field(8, ge=0, le=32)
+    max_rate_hz: float = Field(1.25e6, gt=0, description="max AI sample rate per channel [S/s]")
+    min_rate_hz: float = Field(10.0, gt=0, description="min sample clock rate [S/s]")
+    ai_range_v: float = Field(10.0, gt=0, le=10.0, description="largest AI input range [V]")
+    ao_range_v: float = Field(10.0, gt=0, le=10.0, description="largest AO output range [V]")
+    ai_bits: int = Field(16, ge=8, le=24)
+
+    def ai_channels(self) -> list[str]:
+        return [f"{self.name}/ai{i}" for i in range(self.ai_count)]
+
+    def ao_channels(self) -> list[str]:
+        return [f"{self.name}/ao{i}" for i in range(self.ao_count)]
+
+    def do_lines(self) -> list[str]:
+        return [
+            f"{self.name}/port{p}/line{i}"
+            for p in range(self.do_ports)
+            for i in range(self.do_lines_per_port)
+        ]
+
+
+class AnalogInput(_Strict):
+    """One analog input channel and its sensor calibration."""
+
+    name: Name
+    physical_channel: str = Field(description="e.g. Dev1/ai0")
+    kind: ChannelKind
+    units: str
+    gain_v_per_unit: float = Field(gt=0, description="sensitivity [V per engineering unit]")
+    offset_v: float = Field(0.0, description="output at zero of the measurand [V]")
+    range_v: tuple[float, float] = Field((-10.0, 10.0), description="input range [V]")
+    sensor: str = Field("", description="make, model or serial number")
+
+    @field_validator("kind")
+    @classmethod
+    def _ai_kind(cls, kind: ChannelKind) -> ChannelKind:
+        if kind not in AI_KINDS:
+            raise ValueError(f"kind {kind.value!r} is not an analog-input kind")
+        return kind
+
+    @model_validator(mode="after")
+    def _units_and_range(self) -> AnalogInput:
+        allowed = UNITS_BY_KIND[self.kind]
+        if self.units not in allowed:
+            raise ValueError(
+                f"units {self.units!r} not allowed for kind {self.kind.value!r} (use {allowed})"
+            )
+        lo, hi = self.range_v
+        if not lo < hi:
+            raise ValueError(f"range_v {self.range_v} must be (min, max) with min < max")
+        return self
+
+    def to_units(self, volts: np.ndarray) -> np.ndarray:
+        return (volts - self.offset_v) / self.gain_v_per_unit
+
+    def to_volts(self, value: np.ndarray) -> np.ndarray:
+        return self.gain_v_per_unit * value + self.offset_v
+
+
+class AnalogOutput(_Strict):
+    """One shaker-drive output; the nominal force gain is the controller's first guess only."""
+
+    name: Name
+    physical_channel: str = Field(description="e.g. Dev1/ao0")
+    kind: ChannelKind = ChannelKind.SHAKER_DRIVE
+    units: str = "V"
+    range_v: tuple[float, float] = (-10.0, 10.0)
+    nominal_force_n_per_v: float = Field(50.0, gt=0, description="amplifier+shaker gain [N/V]")
+    axis: str = Field(pattern=r"^[xy]$")
+
+    @model_validator(mode="after")
+    def _check(self) -> AnalogOutput:
+        if self.kind is not ChannelKind.SHAKER_DRIVE:
+            raise ValueError(f"kind {self.kind.value!r} is not an analog-output kind")
+        if self.units != "V":
+            raise ValueError(f"units {self.units!r} not allowed for an analog output (use 'V')")
+        lo, hi = self.range_v
+        if not lo < hi:
+            raise ValueError(f"range_v {self.range_v} must be (min, max) with min < max")
+        return self
+
+
+class DigitalOutput(_Strict):
+    name: Name
+    physical_channel: str = Field(description="e.g. Dev1/port0/line0")
+    kind: ChannelKind = ChannelKind.RELAY
+    units: str = "bool"
+
+    @model_validator(mode="after")
+    def _check(self) -> DigitalOutput:
+        if self.kind is not ChannelKind.RELAY:
+            raise ValueError(f"kind {self.kind.value!r} is not a digital-output kind")
+        if self.units != "bool":
+            raise ValueError(f"units {self.units!r} not allowed for a relay (use 'bool')")
+        return self
+
+
+class ChannelMap(_Strict):
+    """The whole acquisition configuration: board, sample clock and every channel."""
+
+    device: DeviceSpec = DeviceSpec()
+    sample_rate_hz: float = Field(10_000.0, gt=0, description="shared AI/AO sample clock [S/s]")
+    grpc_target: str | None = Field(
+        None, description="host:port of an NI gRPC Device Server; None for the local driver"
+    )
+    ai: tuple[AnalogInput, ...]
+    ao: tuple[AnalogOutput, ...]
+    do: tuple[DigitalOutput, ...] = ()
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ChannelMap:
+        dev = self.device
+        if not dev.min_rate_hz <= self.sample_rate_hz <= dev.max_rate_hz:
+            raise ValueError(
+                f"sample_rate_hz = {self.sample_rate_hz:g} is outside what the {dev.product} "
+                f"can do ({dev.min_rate_hz:g} to {dev.max_rate_hz:g} S/s)"
+            )
+        names: set[str] = set()
+        physical: set[str] = set()
+        valid = {
+            "ai": set(dev.ai_channels()),
+            "ao": set(dev.ao_channels()),
+            "do": set(dev.do_lines()),
+        }
+        groups: dict[str, tuple[Any, ...]] = {"ai": self.ai, "ao": self.ao, "do": self.do}
+        for group, chans in groups.items():
+            for i, ch in enumerate(chans):
+                where = f"{group}[{i}] ({ch.name})"
+                if ch.name in names:
+                    raise ValueError(f"{where}: duplicate channel name {ch.name!r}")
+                names.add(ch.name)
+                if ch.physical_channel in physical:
+                    raise ValueError(
+                        f"{where}: duplicate physical_channel {ch.physical_channel!r}"
+                    )
+                physical.add(ch.physical_channel)
+                if ch.physical_channel not in valid[group]:
+                    raise ValueError(
+                        f"{where}: physical_channel {ch.physical_channel!r} is not a "
+                        f"{group.upper()} channel of device {dev.name} ({dev.product})"
+                    )
+                rng = dev.ai_range_v if group == "ai" else dev.ao_range_v
+                if group != "do" and (ch.range_v[0] < -rng or ch.range_v[1] > rng):
+                    raise ValueError(
+                        f"{where}: range_v {ch.range_v} exceeds the board's +/-{rng:g} V"
+                    )
+        axes = [ao.axis for ao in self.ao]
+        if len(set(axes)) != len(axes):
+            raise ValueError(f"ao: two shaker drives on the same axis {axes}")
+        return self
+
+    # --- lookups -------------------------------------------------------------------------
+    @property
+    def ai_names(self) -> list[str]:
+        return [c.name for c in self.ai]
+
+    @property
+    def ao_names(self) -> list[str]:
+        return [c.name for c in self.ao]
+
+    def ai_index(self, name: str) -> int:
+        for i, c in enumerate(self.ai):
+            if c.name == name:
+                return i
+        raise KeyError(f"no analog input named {name!r} (have {self.ai_names})")
+
+    def ai_channel(self, name: str) -> AnalogInput:
+        return self.ai[self.ai_index(name)]
+
+    def ai_of_kind(self, kind: ChannelKind) -> list[AnalogInput]:
+        return [c for c in self.ai if c.kind is kind]
+
+    def ao_for_axis(self, axis: str) -> int:
+        for i, c in enumerate(self.ao):
+            if c.axis == axis:
+                return i
+        raise KeyError(f"no shaker drive for axis {axis!r}")
+
+    def relay(self, name: str = "pump") -> DigitalOutput:
+        for c in self.do:
+            if c.name == name:
+                return c
+        raise KeyError(f"no relay named {name!r} (have {[c.name for c in self.do]})")
+
+    def to_engineering(self, volts: np.ndarray) -> np.ndarray:
+        """Convert an AI block of shape (n_ai, n) from volts to engineering units."""
+        gains = np.array([c.gain_v_per_unit for c in self.ai])[:, None]
+        offsets = np.array([c.offset_v for c in self.ai])[:, None]
+        return (volts - offsets) / gains
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return self.model_dump(mode="json")
+
+
+# Probe gains from Table A1 (mV/mil -> V/m): 202, 195, 204 mV/mil; Y2 not given, nominal 200.
+_MIL = 25.4e-6
+
+
+def default_channel_map() -> ChannelMap:
+    """The report's rig: 14 AI channels, two shaker drives and the pump relay on Dev1."""
+
+    def ai(i: int, name: str, kind: ChannelKind, units: str, gain: float, offset: float = 0.0,
+           sensor: str = "") -> AnalogInput:
+        return AnalogInput(name=name, physical_channel=f"Dev1/ai{i}", kind=kind, units=units,
+                           gain_v_per_unit=gain, offset_v=offset, sensor=sensor)
+
+    k = ChannelKind
+    # 4-20 mA across 250 ohm = 1-5 V over 0-206.8 kPa (0-30 psig): 4 V / 206.8 kPa.
+    p_gain = 4.0 / 206_843.0
+    return ChannelMap(
+        ai=(
+            ai(0, "fx", k.LOAD_CELL, "N", 0.02, sensor="load cell X, 20 mV/N"),
+            ai(1, "fy", k.LOAD_CELL, "N", 0.02, sensor="load cell Y, 20 mV/N"),
+            ai(2, "x1", k.EDDY_CURRENT_PROBE, "m", 0.202 / _MIL, sensor="H-108912"),
+            ai(3, "x2", k.EDDY_CURRENT_PROBE, "m", 0.195 / _MIL, sensor="H-108877"),
+            ai(4, "y1", k.EDDY_CURRENT_PROBE, "m", 0.204 / _MIL, sensor="H-108913"),
+            ai(5, "y2", k.EDDY_CURRENT_PROBE, "m", 0.200 / _MIL, sensor="H-108914 (nominal)"),
+            ai(6, "ax", k.ACCELEROMETER, "m/s^2", 0.1 / 9.80665, sensor="100 mV/g"),
+            ai(7, "ay", k.ACCELEROMETER, "m/s^2", 0.1 / 9.80665, sensor="100 mV/g"),
+            ai(8, "p_in", k.PRESSURE_4_20MA, "Pa", p_gain, 1.0, sensor="Omega PX-215, 250 ohm"),
+            ai(9, "p_rec", k.PRESSURE_4_20MA, "Pa", p_gain, 1.0, sensor="Omega PX-215, 250 ohm"),
+            ai(10, "q_in", k.FLOW, "L/min", 10.0 / 11.36, sensor="turbine 0.3-3 GPM, 0-10 V"),
+            ai(11, "q_out", k.FLOW, "L/min", 10.0 / 11.36, sensor="turbine 0.3-3 GPM, 0-10 V"),
+            ai(12, "t_oil", k.THERMOCOUPLE, "degC", 0.01, sensor="type K, 10 mV/degC"),
+            ai(13, "hammer", k.LOAD_CELL, "N", 0.0023, sensor="impact hammer, 2.3 mV/N"),
+        ),
+        ao=(
+            AnalogOutput(name="shaker_x", physical_channel="Dev1/ao0", axis="x"),
+            AnalogOutput(name="shaker_y", physical_channel="Dev1/ao1", axis="y"),
+        ),
+        do=(DigitalOutput(name="pump", physical_channel="Dev1/port0/line0"),),
+    )
+
+
+def describe_validation_error(err: ValidationError, source: str) -> str:
+    """One line per problem: where (source and field path), what value, and why."""
+    lines = [f"invalid channel map in {source}:"]
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        value = e.get("input")
+        shown = repr(value) if not isinstance(value, dict) else "{...}"
+        lines.append(f"  {loc} = {shown}: {e['msg']}")
+    return "\n".join(lines)
+
+
+def channel_map_from_dict(data: dict[str, Any], source: str = "<dict>") -> ChannelMap:
+    try:
+        return ChannelMap.model_validate(data)
+    except ValidationError as err:
+        raise ChannelConfigError(describe_validation_error(err, source)) from None
+
+
+def load_channel_map(path: str | Path) -> ChannelMap:
+    """Load a channel map from TOML; raise `ChannelConfigError` naming the field and value."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise ChannelConfigError(f"{path}: not valid TOML: {err}") from None
+    except OSError as err:
+        raise ChannelConfigError(f"{path}: cannot read: {err.strerror}") from None
+    return channel_map_from_dict(data, str(path))

@@ -1,0 +1,5 @@
+import sys
+
+from sfdrig.cli import main
+
+sys.exit(main())

@@ -1,0 +1,180 @@
+"""`SimulatedBackend`: the `DaqBackend` protocol in process, on the simulated rig.
+
+Fast mode (``realtime=False``) simulates a block the moment it is read: a 40 s sweep takes well
+under a second. Paced mode (``realtime=True``) behaves as hardware does: samples become available
+as the wall clock advances, a read waits for them (timeout -> DAQmx -200284), a reader that falls
+more than the buffer behind loses data (-200279), and an AO writer that falls behind the
+generation underflows (-200290). The clock and the sleep are injectable for tests.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from daq.channels import ChannelMap
+from daq.errors import (
+    INPUT_BUFFER_OVERWRITTEN,
+    OUTPUT_UNDERFLOW,
+    READ_TIMEOUT,
+    DaqError,
+    error_for_code,
+)
+from simulated_hw.params import RigParams
+from simulated_hw.rig import RigModel
+
+
+class SimulatedBackend:
+    """The simulated rig behind the `daq.DaqBackend` protocol."""
+
+    def __init__(
+        self,
+        params: RigParams | None = None,
+        seed: int = 0,
+        realtime: bool = False,
+        buffer_s: float = 10.0,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        self.params = params if params is not None else RigParams()
+        self.seed = seed
+        self.realtime = realtime
+        self.buffer_s = buffer_s
+        self._clock = clock
+        self._sleep = sleep
+        self._map: ChannelMap | None = None
+        self.rig: RigModel | None = None
+        self._ao_chunks: list[np.ndarray] = []
+        self._ao_queued = 0
+        self._running = False
+        self._t0 = 0.0
+        self._read = 0  # samples handed to the reader
+        self._closed = False
+
+    # --- protocol -------------------------------------------------------------------------
+    @property
+    def channel_map(self) -> ChannelMap:
+        if self._map is None:
+            raise DaqError("backend not configured: call configure(channel_map) first")
+        return self._map
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return self.channel_map.sample_rate_hz
+
+    def configure(self, channel_map: ChannelMap) -> None:
+        if self._running:
+            raise DaqError("cannot reconfigure while running; stop first")
+        self._map = channel_map
+        self.rig = RigModel(self.params, channel_map, self.seed)
+        self._ao_chunks, self._ao_queued, self._read = [], 0, 0
+
+    def start(self) -> None:
+        self._require_rig()
+        self._running = True
+        self._t0 = self._clock()
+
+    def write_ao(self, block: np.ndarray) -> None:
+        cm = self.channel_map
+        arr = np.asarray(block, dtype=np.float64)
+        if arr.ndim != 2 or arr.shape[0] != len(cm.ao):
+            raise ValueError(f"AO block must have shape ({len(cm.ao)}, n), got {arr.shape}")
+        for row, ch in enumerate(cm.ao):
+            lo, hi = ch.range_v
+            if arr.size and (arr[row].min() < lo or arr[row].max() > hi):
+                raise error_for_code(
+                    f"{ch.name}: AO sample outside the channel range {ch.range_v} V", -200561
+                )
+        if self.realtime and self._running:
+            generated = self._generated()
+            if generated > self._read + self._ao_queued:
+                raise error_for_code("AO generation ran past the samples written", OUTPUT_UNDERFLOW)
+        self._ao_chunks.append(arr.copy())
+        self._ao_queued += arr.shape[1]
+
+    def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
+        rig = self._require_rig()
+        if not self._running:
+            raise DaqError("read_ai before start()")
+        if n <= 0:
+            raise ValueError(f"read_ai: n must be positive, got {n}")
+        if self.realtime:
+            self._wait_for(self._read + n, timeout_s)
+        if self._ao_queued < n:
+            raise error_for_code(
+                f"AO buffer ran dry: {self._ao_queued} samples queued, {n} needed",
+                OUTPUT_UNDERFLOW,
+            )
+        ao = self._take_ao(n)
+        self._read += n
+        return rig.process(ao)
+
+    def set_do(self, name: str, value: bool) -> None:
+        self.channel_map.relay(name)  # KeyError names the missing relay
+        self._require_rig().set_relay(name, value)
+
+    def ao_backlog(self) -> int:
+        return self._ao_queued
+
+    def stop(self) -> None:
+        self._running = False
+
+    def close(self) -> None:
+        self._running = False
+        self._closed = True
+
+    # --- simulation-only helpers ----------------------------------------------------------
+    @property
+    def samples_read(self) -> int:
+        return self._read
+
+    def _require_rig(self) -> RigModel:
+        if self.rig is None:
+            raise DaqError("backend not configured: call configure(channel_map) first")
+        if self._closed:
+            raise DaqError("backend is closed")
+        return self.rig
+
+    def _generated(self) -> int:
+        return int((self._clock() - self._t0) * self.sample_rate_hz)
+
+    def _wait_for(self, needed: int, timeout_s: float) -> None:
+        fs = self.sample_rate_hz
+        behind = self._generated() - self._read
+        if behind > self.buffer_s * fs:
+            raise error_for_code(
+                f"input buffer overwritten: reader {behind / fs:.2f} s behind, buffer "
+                f"{self.buffer_s:g} s",
+                INPUT_BUFFER_OVERWRITTEN,
+            )
+        deadline = self._clock() + timeout_s
+        while True:
+            now = self._clock()
+            ready_at = self._t0 + needed / fs
+            if now >= ready_at:
+                return
+            if ready_at > deadline:
+                wait = deadline - now
+                if wait > 0:
+                    self._sleep(wait)
+                raise error_for_code(
+                    f"read of {needed - self._read} samples timed out after {timeout_s:g} s",
+                    READ_TIMEOUT,
+                )
+            self._sleep(ready_at - now)
+
+    def _take_ao(self, n: int) -> np.ndarray:
+        parts, got = [], 0
+        while got < n:
+            chunk = self._ao_chunks[0]
+            take = min(n - got, chunk.shape[1])
+            parts.append(chunk[:, :take])
+            if take == chunk.shape[1]:
+                self._ao_chunks.pop(0)
+            else:
+                self._ao_chunks[0] = chunk[:, take:]
+            got += take
+        self._ao_queued -= n
+        return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]

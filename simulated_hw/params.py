@@ -1,0 +1,244 @@
+"""Parameters of the simulated rig, loadable from TOML. Defaults are the reference report's.
+
+Sources: M, K_sx, K_sy (Tables 1-2, eq. 6 footnote); C_rv and F_mu (Table 4); film geometry,
+density and viscosity (section III.2, Table 5); fluid mass M_f (section VI.2); added mass by
+eq. 15; film damping by eq. 16; shaker rating 448 N (section III).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+VISCOSITY_SLOPE_PER_C = 0.01665  # eq. 1 exponent [1/degC]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class Structure(_Model):
+    mass_kg: float = Field(9.7, gt=0, description="housing effective mass M (Table 1) [kg]")
+    stiffness_x_n_per_m: float = Field(788e3, gt=0, description="K_sx (static tests) [N/m]")
+    stiffness_y_n_per_m: float = Field(823e3, gt=0, description="K_sy (static tests) [N/m]")
+    residual_damping_ns_per_m: float = Field(370.0, ge=0, description="C_rv (Table 4) [N.s/m]")
+
+
+class Seal(_Model):
+    enabled: bool = True
+    friction_force_n: float = Field(26.0, ge=0, description="F_mu, dry friction (Table 4) [N]")
+
+
+class Film(_Model):
+    diameter_m: float = Field(0.127, gt=0)
+    length_m: float = Field(0.0254, gt=0)
+    clearance_m: float = Field(127e-6, gt=0)
+    density_kg_per_m3: float = Field(736.0, gt=0)
+    viscosity_source: Literal["table5", "eq1"] = Field(
+        "table5",
+        description="table5: 3.17 cP at 24 degC as the report's tests quote; eq1: 2.8 cP at 23.6 degC",
+    )
+    fluid_mass_kg: float = Field(0.62, ge=0, description="M_f, oil in plenum and annulus [kg]")
+    added_mass_kg: float | None = Field(None, ge=0, description="D; None: eq. 15 [kg]")
+    damping_scale: float = Field(1.0, gt=0, description="multiplies eq. 16 (1 = the formula)")
+    eccentricity_law: bool = Field(
+        True, description="eq. 16's (1+2 eps^2)/(1-eps^2)^2 with the instantaneous eps = |r|/c"
+    )
+
+    def reference_viscosity(self) -> tuple[float, float]:
+        """(viscosity [Pa.s], at temperature [degC]) that anchors eq. 1's temperature law."""
+        return (3.17e-3, 24.0) if self.viscosity_source == "table5" else (2.8e-3, 23.6)
+
+    def viscosity_pa_s(self, temperature_c: float) -> float:
+        mu0, t0 = self.reference_viscosity()
+        return mu0 * math.exp(-VISCOSITY_SLOPE_PER_C * (temperature_c - t0))
+
+    def eq15_added_mass_kg(self) -> float:
+        r = self.diameter_m / 2
+        return 0.5 * self.density_kg_per_m3 * math.pi * r * (2 * self.length_m) ** 3 / (
+            10 * self.clearance_m
+        )
+
+    def added_mass(self) -> float:
+        return self.eq15_added_mass_kg() if self.added_mass_kg is None else self.added_mass_kg
+
+    def eq16_damping_centred(self, viscosity_pa_s: float) -> float:
+        """C_rr at eps = 0 (eq. 16) [N.s/m], times ``damping_scale``."""
+        c = self.clearance_m
+        return (
+            self.damping_scale * viscosity_pa_s * self.diameter_m
+            * (self.length_m / c) ** 3 * math.pi / 2
+        )
+
+    def eq5_flow_m3_per_s(self, dp_pa: float, viscosity_pa_s: float) -> float:
+        return math.pi * self.diameter_m * self.clearance_m**3 * dp_pa / (
+            12 * viscosity_pa_s * self.length_m
+        )
+
+
+class Oil(_Model):
+    supply_pressure_pa: float = Field(15.5e3, ge=0, description="inlet P_s, pump on (Table 5)")
+    recirculation_pressure_pa: float = Field(5.7e3, ge=0, description="P_r, pump on (Table 5)")
+    pressure_time_constant_s: float = Field(0.5, gt=0)
+    fill_time_constant_s: float = Field(1.0, gt=0, description="film filling once pressurised")
+    drain_time_constant_s: float = Field(5.0, gt=0, description="film draining, pump off")
+    initially_filled: bool = False
+    initial_temperature_c: float = Field(24.0, ge=-20, le=120)
+    warming_c_per_hour: float = Field(1.0, description="slow warming while the pump runs")
+
+
+class Shaker(_Model):
+    force_per_volt_n: float = Field(50.0, gt=0, description="amplifier + shaker gain [N/V]")
+    max_force_n: float = Field(448.0, gt=0, description="rating, 100 lbf (section III) [N]")
+    bandwidth_hz: float = Field(1000.0, gt=0, description="first-order corner of the drive")
+
+
+class SensorNoise(_Model):
+    """RMS noise per kind, in the channel's engineering units."""
+
+    load_cell: float = Field(0.05, ge=0)
+    eddy_current_probe: float = Field(0.05e-6, ge=0)
+    accelerometer: float = Field(0.02, ge=0)
+    pressure_4_20mA: float = Field(30.0, ge=0)
+    flow: float = Field(0.002, ge=0)
+    thermocouple: float = Field(0.02, ge=0)
+
+
+# --- switchable effects (all off by default) ------------------------------------------------
+class CubicStiffness(_Model):
+    enabled: bool = False
+    k3_n_per_m3: float = Field(0.0, description="F = k3 z^3 per axis [N/m^3]")
+
+
+class QuadraticStiffness(_Model):
+    enabled: bool = False
+    k2_n_per_m2: float = Field(0.0, description="F = k2 z^2 per axis [N/m^2]")
+
+
+class CrossCoupling(_Model):
+    enabled: bool = False
+    c_xy_ns_per_m: float = 0.0
+    c_yx_ns_per_m: float = 0.0
+    d_xy_kg: float = 0.0
+    d_yx_kg: float = 0.0
+
+
+class SecondMode(_Model):
+    """The frame under the rods as a second mass on its own spring (section IV.3: ~39 Hz)."""
+
+    enabled: bool = False
+    frequency_hz: float = Field(39.0, gt=0)
+    modal_mass_kg: float = Field(40.0, gt=0)
+    damping_ratio: float = Field(0.03, ge=0, lt=1)
+
+
+class AirEntrainment(_Model):
+    """Effective film length L_eff = L (1 - alpha), alpha = min(max, k * mean |v|)."""
+
+    enabled: bool = False
+    coefficient_s_per_m: float = Field(0.0, ge=0, description="alpha per m/s of mean speed")
+    max_fraction: float = Field(0.9, ge=0, lt=1)
+    time_constant_s: float = Field(0.05, gt=0, description="averaging of |v|")
+
+
+class ViscosityDrift(_Model):
+    """Oil warming faster than the default, viscosity following eq. 1."""
+
+    enabled: bool = False
+    warming_c_per_s: float = Field(0.0, description="oil temperature rate [degC/s]")
+
+
+class ProbeGainError(_Model):
+    enabled: bool = False
+    channel: str = "x1"
+    gain_ratio: float = Field(1.0, gt=0, description="recorded / true")
+
+
+class ChannelDelay(_Model):
+    enabled: bool = False
+    channel: str = "x1"
+    delay_s: float = Field(0.0, ge=0, le=0.01)
+
+
+class Effects(_Model):
+    cubic_stiffness: CubicStiffness = CubicStiffness()
+    quadratic_stiffness: QuadraticStiffness = QuadraticStiffness()
+    cross_coupling: CrossCoupling = CrossCoupling()
+    second_mode: SecondMode = SecondMode()
+    air_entrainment: AirEntrainment = AirEntrainment()
+    viscosity_drift: ViscosityDrift = ViscosityDrift()
+    probe_gain_error: ProbeGainError = ProbeGainError()
+    channel_delay: ChannelDelay = ChannelDelay()
+
+
+class RigParams(_Model):
+    """Everything the simulated rig needs. ``RigParams()`` is the report's rig."""
+
+    structure: Structure = Structure()
+    seal: Seal = Seal()
+    film: Film = Film()
+    oil: Oil = Oil()
+    shaker: Shaker = Shaker()
+    noise: SensorNoise = SensorNoise()
+    effects: Effects = Effects()
+    substeps: int = Field(2, ge=1, le=32, description="integration steps per sample")
+
+    def to_toml(self) -> str:
+        return _to_toml(self.model_dump(mode="json", exclude_none=True))
+
+
+class RigParamsError(ValueError):
+    """An invalid rig file; the message names the field and value."""
+
+
+def rig_params_from_dict(data: dict[str, Any], source: str = "<dict>") -> RigParams:
+    try:
+        return RigParams.model_validate(data)
+    except ValidationError as err:
+        lines = [f"invalid rig parameters in {source}:"]
+        for e in err.errors():
+            loc = ".".join(str(p) for p in e["loc"])
+            lines.append(f"  {loc} = {e.get('input')!r}: {e['msg']}")
+        raise RigParamsError("\n".join(lines)) from None
+
+
+def load_rig_params(path: str | Path) -> RigParams:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise RigParamsError(f"{path}: not valid TOML: {err}") from None
+    except OSError as err:
+        raise RigParamsError(f"{path}: cannot read: {err.strerror}") from None
+    return rig_params_from_dict(data, str(path))
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _to_toml(data: dict[str, Any], prefix: str = "") -> str:
+    """A small TOML writer for nested tables of scalars (enough for RigParams)."""
+    scalars = [f"{k} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    out = []
+    if prefix and scalars:
+        out.append(f"[{prefix}]")
+    out.extend(scalars)
+    text = "\n".join(out) + ("\n" if out else "")
+    for k, v in data.items():
+        if isinstance(v, dict):
+            sub = _to_toml(v, f"{prefix}.{k}" if prefix else k)
+            text += ("\n" if text else "") + sub
+    return text

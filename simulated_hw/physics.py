@@ -1,0 +1,186 @@
+"""The rig's equations of motion, integrated sample by sample (numba-compiled).
+
+Per axis z in {x, y}, relative to the journal (which sits on the frame):
+    (M + f (M_f + D)) z'' + (C_rv + f C_sfd) z' + K_s z + F_seal + F_effects = F_in
+with f the film fill fraction (0 dry, 1 full). The seal's dry friction F_mu acts against the 2-D
+relative velocity vector: it sticks while the force it must hold stays below F_mu, and slips
+otherwise. Coulomb friction is integrated implicitly (a velocity-level projection, as in
+Moreau's time stepping), so sticking is exact rather than smoothed.
+
+Approximations, stated: the film's added mass acts on the housing's absolute acceleration (the
+frame's motion is small and only present with the second-mode effect); with cross-coupled mass the
+slip direction of the friction step is taken from the trial velocity (exact without cross mass).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+# Indices into the parameter vector handed to the kernel.
+(P_M, P_MF, P_D, P_DXY, P_DYX, P_KX, P_KY, P_CRV, P_C0, P_CXY, P_CYX, P_FMU, P_CLEAR, P_ECC,
+ P_K3, P_K2, P_AIR_K, P_AIR_MAX, P_AIR_TAU, P_FRAME_ON, P_FRAME_M, P_FRAME_K, P_FRAME_C,
+ P_DT, P_NSUB) = range(25)
+N_PARAMS = 25
+
+# Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|.
+S_X, S_Y, S_VX, S_VY, S_XF, S_YF, S_VXF, S_VYF, S_VBAR = range(9)
+N_STATE = 9
+
+# Rows of the output array.
+(O_X, O_Y, O_VX, O_VY, O_AX, O_AY, O_FRICX, O_FRICY, O_FILMX, O_FILMY, O_CFILM) = range(11)
+N_OUT = 11
+
+
+@numba.njit(cache=True, fastmath=False)
+def integrate(
+    force: np.ndarray,  # (2, n) external force on the housing [N]
+    fill: np.ndarray,  # (n,) film fill fraction 0..1
+    visc: np.ndarray,  # (n,) film damping C0 scale (viscosity / reference viscosity)
+    p: np.ndarray,  # (N_PARAMS,)
+    s: np.ndarray,  # (N_STATE,) updated in place
+    out: np.ndarray,  # (N_OUT, n)
+) -> None:
+    n = force.shape[1]
+    nsub = int(p[P_NSUB])
+    h = p[P_DT] / nsub
+    frame_on = p[P_FRAME_ON] > 0.5
+    inv_mf = 1.0 / p[P_FRAME_M] if frame_on else 0.0
+    x, y, vx, vy = s[S_X], s[S_Y], s[S_VX], s[S_VY]
+    xf, yf, vxf, vyf, vbar = s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR]
+    fmu = p[P_FMU]
+    clear = p[P_CLEAR]
+    air_alpha_k = h / p[P_AIR_TAU]
+    for i in range(n):
+        fx_in = force[0, i]
+        fy_in = force[1, i]
+        fi = fill[i]
+        ax = ay = 0.0
+        frx = fry = 0.0
+        flx = fly = 0.0
+        cfilm = 0.0
+        for _ in range(nsub):
+            # film coefficients at this instant
+            ecc2 = (x * x + y * y) / (clear * clear)
+            if ecc2 > 0.9025:  # eps capped at 0.95: the formula diverges at contact
+                ecc2 = 0.9025
+            efac = 1.0
+            if p[P_ECC] > 0.5:
+                efac = (1.0 + 2.0 * ecc2) / ((1.0 - ecc2) * (1.0 - ecc2))
+            afac = 1.0
+            if p[P_AIR_K] > 0.0:
+                alpha = p[P_AIR_K] * vbar
+                if alpha > p[P_AIR_MAX]:
+                    alpha = p[P_AIR_MAX]
+                afac = (1.0 - alpha) ** 3
+            cfilm = fi * visc[i] * p[P_C0] * efac * afac
+            dfilm = fi * p[P_D] * afac
+            # housing mass matrix and its inverse
+            m11 = p[P_M] + fi * p[P_MF] + dfilm
+            m22 = m11
+            m12 = fi * p[P_DXY] * afac
+            m21 = fi * p[P_DYX] * afac
+            det = m11 * m22 - m12 * m21
+            i11 = m22 / det
+            i12 = -m12 / det
+            i21 = -m21 / det
+            i22 = m11 / det
+            # forces other than friction, on the housing
+            rvx = vx - vxf
+            rvy = vy - vyf
+            flx = -cfilm * rvx - fi * p[P_CXY] * rvy
+            fly = -cfilm * rvy - fi * p[P_CYX] * rvx
+            fx = (fx_in - p[P_KX] * x - p[P_CRV] * rvx + flx
+                  - p[P_K3] * x * x * x - p[P_K2] * x * x)
+            fy = (fy_in - p[P_KY] * y - p[P_CRV] * rvy + fly
+                  - p[P_K3] * y * y * y - p[P_K2] * y * y)
+            # absolute housing acceleration before friction; frame's own
+            ahx = i11 * fx + i12 * fy
+            ahy = i21 * fx + i22 * fy
+            afx = afy = 0.0
+            if frame_on:
+                afx = (-p[P_FRAME_K] * xf - p[P_FRAME_C] * vxf - (fx - fx_in)) * inv_mf
+                afy = (-p[P_FRAME_K] * yf - p[P_FRAME_C] * vyf - (fy - fy_in)) * inv_mf
+            vhx = vx + vxf + h * ahx  # absolute housing velocity (x is relative)
+            vhy = vy + vyf + h * ahy
+            nvxf = vxf + h * afx
+            nvyf = vyf + h * afy
+            # dry friction: implicit, on the relative velocity
+            tx = vhx - nvxf
+            ty = vhy - nvyf
+            jx = jy = 0.0
+            if fmu > 0.0:
+                w11 = i11 + inv_mf
+                w12 = i12
+                w21 = i21
+                w22 = i22 + inv_mf
+                wdet = w11 * w22 - w12 * w21
+                # impulse that would stop the relative motion
+                sx = -(w22 * tx - w12 * ty) / wdet
+                sy = -(-w21 * tx + w11 * ty) / wdet
+                smag = np.sqrt(sx * sx + sy * sy)
+                if smag <= fmu * h:
+                    jx, jy = sx, sy  # stick
+                else:
+                    tmag = np.sqrt(tx * tx + ty * ty)
+                    jx = -fmu * h * tx / tmag
+                    jy = -fmu * h * ty / tmag
+            vhx += i11 * jx + i12 * jy
+            vhy += i21 * jx + i22 * jy
+            nvxf -= jx * inv_mf
+            nvyf -= jy * inv_mf
+            frx = jx / h
+            fry = jy / h
+            ax = ahx + (i11 * jx + i12 * jy) / h
+            ay = ahy + (i21 * jx + i22 * jy) / h
+            vx = vhx - nvxf
+            vy = vhy - nvyf
+            vxf = nvxf
+            vyf = nvyf
+            x += h * vx
+            y += h * vy
+            xf += h * vxf
+            yf += h * vyf
+            vbar += air_alpha_k * (np.sqrt(vx * vx + vy * vy) - vbar)
+        out[O_X, i] = x
+        out[O_Y, i] = y
+        out[O_VX, i] = vx
+        out[O_VY, i] = vy
+        out[O_AX, i] = ax
+        out[O_AY, i] = ay
+        out[O_FRICX, i] = frx
+        out[O_FRICY, i] = fry
+        out[O_FILMX, i] = flx
+        out[O_FILMY, i] = fly
+        out[O_CFILM, i] = cfilm
+    s[S_X], s[S_Y], s[S_VX], s[S_VY] = x, y, vx, vy
+    s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR] = xf, yf, vxf, vyf, vbar
+
+
+@dataclass
+class Truth:
+    """The rig's true state per sample (what the sensors would see without error).
+
+    Attributes are arrays of shape (n,) unless noted: relative displacement ``x_m``, ``y_m``;
+    relative velocity ``vx_m_per_s``, ``vy_m_per_s``; absolute housing acceleration ``ax_m_per_s2``,
+    ``ay_m_per_s2``; stinger forces ``fx_n``, ``fy_n``; seal friction force on the housing
+    ``friction_x_n``, ``friction_y_n``; film force ``film_x_n``, ``film_y_n``; instantaneous
+    film damping ``film_damping_ns_per_m``; hammer force ``hammer_n``.
+    """
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    vx_m_per_s: np.ndarray
+    vy_m_per_s: np.ndarray
+    ax_m_per_s2: np.ndarray
+    ay_m_per_s2: np.ndarray
+    fx_n: np.ndarray
+    fy_n: np.ndarray
+    friction_x_n: np.ndarray
+    friction_y_n: np.ndarray
+    film_x_n: np.ndarray
+    film_y_n: np.ndarray
+    film_damping_ns_per_m: np.ndarray
+    hammer_n: np.ndarray
