@@ -1,4 +1,4 @@
-"""The rig in software: physics, the in-process SimulatedBackend, and the simulated NI gRPC server."""
+"""The rig in software: physics, the in-process SimulatedBackend, the simulated NI gRPC server."""
 
 from simulated_hw.backend import SimulatedBackend
 from simulated_hw.params import RigParams, RigParamsError, load_rig_params

@@ -40,7 +40,7 @@ class Film(_Model):
     density_kg_per_m3: float = Field(736.0, gt=0)
     viscosity_source: Literal["table5", "eq1"] = Field(
         "table5",
-        description="table5: 3.17 cP at 24 degC as the report's tests quote; eq1: 2.8 cP at 23.6 degC",
+        description="table5: 3.17 cP at 24 degC (Table 5); eq1: 2.8 cP at 23.6 degC (eq. 1)",
     )
     fluid_mass_kg: float = Field(0.62, ge=0, description="M_f, oil in plenum and annulus [kg]")
     added_mass_kg: float | None = Field(None, ge=0, description="D; None: eq. 15 [kg]")
