@@ -1,0 +1,23 @@
+"""HDF5 run files (SWMR writer, reader), the run catalog and importers of measured data.
+
+Imports no sibling package: channel metadata arrives as plain dicts / JSON.
+"""
+
+from storage.errors import ImportDataError, MissingSignalError, RunFileError
+from storage.reader import CANONICAL_SIGNALS, RunData, open_run
+from storage.runfile import EVENT_KINDS, FORMAT, FORMAT_VERSION, KINDS, STATUSES, RunWriter
+
+__all__ = [
+    "CANONICAL_SIGNALS",
+    "EVENT_KINDS",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "KINDS",
+    "STATUSES",
+    "ImportDataError",
+    "MissingSignalError",
+    "RunData",
+    "RunFileError",
+    "RunWriter",
+    "open_run",
+]

@@ -1,0 +1,621 @@
+"""Run-file writer: one HDF5 file per run, written in SWMR mode (contract B).
+
+Layout (``format="sfdrig-run"``, ``format_version=1``)::
+
+    /                 root attrs: run_id, kind, start/stop time, operator, notes, software_version,
+                      sample_rate_hz, channel_map, rig_config, test_spec (JSON), lubricated,
+                      status, status_reason
+    /channels/<ai>    float64 1-D, engineering units; attrs units, kind, sensor, gain_v_per_unit,
+                      offset_v, physical_channel
+    /drive/<ao>       float64 1-D, drive volts written, same time base
+    /steps            compound, one row per dwell
+    /step_harmonics   complex128 (n_steps, n_ai, 5), attr ``channels`` (JSON list)
+    /step_drive_v     complex128 (n_steps, n_ao), attr ``channels`` (JSON list)
+    /events           compound (time, sample, kind, message)
+    /results          empty group, for analysis only
+
+SWMR forbids creating objects or attributes once it is switched on, so everything is created first;
+the final status and stop time are written after the SWMR session is closed (file reopened r+).
+
+`RunWriter` implements the sweep listener (contract A): ``on_block``, ``on_step``, ``on_event``.
+Blocks are buffered and appended in whole chunks; the file is flushed at every step and event, and
+at least every ``flush_interval_s`` seconds (a background thread covers pauses between blocks), so a
+writer killed mid-run leaves a readable file holding everything up to the last flush.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+FORMAT = "sfdrig-run"
+FORMAT_VERSION = 1
+KINDS = ("sweep", "static", "impact", "probe_calibration", "flow", "imported")
+STATUSES = ("running", "completed", "aborted", "failed")
+EVENT_KINDS = ("state", "limit_trip", "abort", "pump", "operator", "warning", "error", "info")
+N_HARMONICS = 5
+STEP_KEYS = (
+    "index", "freq_hz", "target_kind", "target_value", "motion", "first_sample", "last_sample",
+    "updates", "converged", "reason",
+)
+CHANNEL_ATTRS = ("units", "kind", "sensor", "gain_v_per_unit", "offset_v", "physical_channel")
+
+# Fixed-length UTF-8 strings: variable-length data lives in the global heap, which SWMR readers
+# cannot follow safely while the file grows.
+_REASON_BYTES = 512
+_EXTRA_BYTES = 4096
+_MESSAGE_BYTES = 1024
+STEP_DTYPE = np.dtype([
+    ("index", "<i8"),
+    ("freq_hz", "<f8"),
+    ("target_kind", h5py.string_dtype("utf-8", 16)),
+    ("target_value", "<f8"),
+    ("motion", h5py.string_dtype("utf-8", 24)),
+    ("first_sample", "<i8"),
+    ("last_sample", "<i8"),
+    ("updates", "<i8"),
+    ("converged", "?"),
+    ("reason", h5py.string_dtype("utf-8", _REASON_BYTES)),
+    ("extra", h5py.string_dtype("utf-8", _EXTRA_BYTES)),  # JSON of keys beyond contract A
+])
+EVENT_DTYPE = np.dtype([
+    ("time", h5py.string_dtype("utf-8", 32)),
+    ("sample", "<i8"),
+    ("kind", h5py.string_dtype("utf-8", 16)),
+    ("message", h5py.string_dtype("utf-8", _MESSAGE_BYTES)),
+])
+
+
+def utc_now_iso() -> str:
+    """Current UTC time, ISO 8601 with milliseconds (e.g. ``2026-01-02T03:04:05.678+00:00``)."""
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
+
+
+def installed_software_version() -> str:
+    """Installed sfdrig version (read from package metadata, not by importing sfdrig)."""
+    try:
+        return f"sfdrig {metadata.version('sfdrig')}"
+    except metadata.PackageNotFoundError:
+        return "sfdrig (unknown version)"
+
+
+def _fit_utf8(text: str, n_bytes: int) -> bytes:
+    """UTF-8 bytes of ``text`` cut to at most ``n_bytes`` on a character boundary."""
+    raw = str(text).encode("utf-8")
+    if len(raw) <= n_bytes:
+        return raw
+    marker = b" [truncated]"
+    return raw[: n_bytes - len(marker)].decode("utf-8", errors="ignore").encode() + marker
+
+
+def _json_attr(value: Any, what: str) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, str):
+        if value:
+            try:
+                json.loads(value)
+            except json.JSONDecodeError as err:
+                raise ValueError(f"{what} is a string but not valid JSON: {err}") from None
+        return value
+    if hasattr(value, "model_dump"):  # a pydantic model, without importing pydantic here
+        value = value.model_dump(mode="json")
+    try:
+        return json.dumps(value, sort_keys=True)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{what} cannot be written as JSON: {err}") from None
+
+
+def _check_name(name: Any, what: str) -> str:
+    if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
+        raise ValueError(f"{what}: invalid name {name!r} (non-empty, no '/')")
+    return name
+
+
+def default_chunk_samples(sample_rate_hz: float) -> int:
+    """About one second of samples per chunk (a power of two in [4096, 131072]), so the
+    once-a-second flush writes close to whole chunks."""
+    n = 2 ** round(math.log2(max(sample_rate_hz, 1.0)))
+    return int(min(max(n, 4096), 131072))
+
+
+class RunWriter:
+    """Writes one run to an HDF5 file in SWMR mode; a sweep listener (contract A).
+
+    Create with `RunWriter.create`; feed with `on_block`, `on_step`, `on_event`; finish with
+    `close`. Also a context manager: leaving the ``with`` block on an exception closes the run
+    with status ``"failed"``, otherwise ``"completed"`` (unless `close` was called already).
+    Thread-safe: calls may come from the acquisition thread and others.
+    """
+
+    def __init__(self) -> None:  # use RunWriter.create
+        raise TypeError("use RunWriter.create(path, run_id, kind, channels, ao_names, ...)")
+
+    @classmethod
+    def create(
+        cls,
+        path: str | Path,
+        run_id: str,
+        kind: str,
+        channels: Sequence[Mapping[str, Any] | str],
+        ao_names: Sequence[str],
+        sample_rate_hz: float,
+        *,
+        operator: str = "",
+        notes: str = "",
+        software_version: str | None = None,
+        channel_map: Mapping[str, Any] | str | None = None,
+        rig_config: Any = None,
+        test_spec: Any = None,
+        lubricated: bool = False,
+        start_time: str | None = None,
+        compression: str = "lzf",
+        chunk_samples: int | None = None,
+        flush_interval_s: float = 1.0,
+        overwrite: bool = False,
+        swmr: bool = True,
+    ) -> RunWriter:
+        """Create the run file with every dataset and attribute, then switch SWMR on.
+
+        Parameters
+        ----------
+        path : str or Path
+            The ``.h5`` file to create. Refused if it exists, unless ``overwrite``.
+        run_id : str
+            Unique run identifier.
+        kind : str
+            One of ``KINDS`` ("sweep", "static", "impact", "probe_calibration", "flow",
+            "imported").
+        channels : sequence of dict
+            Analog inputs in channel-map order (the row order of ``ai`` in `on_block`). Each dict
+            has ``name`` and optionally ``units``, ``kind``, ``sensor``, ``gain_v_per_unit`` [V per
+            unit], ``offset_v`` [V], ``physical_channel`` (e.g. the ``ai`` entries of
+            ``ChannelMap.to_json_dict()``). A bare string is a name without metadata.
+        ao_names : sequence of str
+            Analog-output (shaker drive) names, the row order of ``ao`` in `on_block`; may be
+            empty.
+        sample_rate_hz : float
+            Shared sample clock [S/s]; ``t = sample_index / sample_rate_hz``.
+        operator, notes : str
+            Who ran the test; free-text notes.
+        software_version : str, optional
+            Defaults to the installed sfdrig version.
+        channel_map : dict or JSON str, optional
+            The full channel map; defaults to one built from ``channels`` and ``ao_names``.
+        rig_config : dict, JSON str, pydantic model or None
+            The simulated rig's parameters (``RigParams``); None (stored as "") on real hardware.
+        test_spec : dict, JSON str, pydantic model or None
+            The sweep/test description.
+        lubricated : bool
+            Whether the test ran with the oil film.
+        start_time : str, optional
+            ISO 8601 UTC; defaults to now.
+        compression : {"lzf", "gzip"}
+            Filter for the channel datasets (byte shuffle is always on). lzf is fast; gzip
+            (level 1) is smaller and readable by every HDF5 tool.
+        chunk_samples : int, optional
+            Samples per chunk; defaults to about one second of data.
+        flush_interval_s : float
+            Longest time [s] data may stay unflushed. 0 disables the background flusher (data
+            is then flushed only on steps, events, chunk boundaries and close).
+        overwrite : bool
+            Replace an existing file.
+        swmr : bool
+            Write in SWMR mode (readers may open the file while it grows).
+        """
+        self = object.__new__(cls)
+        path = Path(path)
+        if kind not in KINDS:
+            raise ValueError(f"kind {kind!r} is not one of {KINDS}")
+        if not isinstance(run_id, str) or not run_id:
+            raise ValueError(f"run_id must be a non-empty string, got {run_id!r}")
+        if not (isinstance(sample_rate_hz, int | float) and math.isfinite(sample_rate_hz)
+                and sample_rate_hz > 0):
+            raise ValueError(f"sample_rate_hz must be a positive number, got {sample_rate_hz!r}")
+        if compression not in ("lzf", "gzip"):
+            raise ValueError(f"compression {compression!r} is not 'lzf' or 'gzip'")
+        chans: list[dict[str, Any]] = []
+        for i, ch in enumerate(channels):
+            meta = {"name": ch} if isinstance(ch, str) else dict(ch)
+            _check_name(meta.get("name"), f"channels[{i}]")
+            chans.append(meta)
+        if not chans:
+            raise ValueError("a run needs at least one analog-input channel")
+        ai_names = [c["name"] for c in chans]
+        ao_list = [_check_name(n, f"ao_names[{i}]") for i, n in enumerate(ao_names)]
+        for label, names in (("channels", ai_names), ("ao_names", ao_list)):
+            dup = {n for n in names if names.count(n) > 1}
+            if dup:
+                raise ValueError(f"{label}: duplicate names {sorted(dup)}")
+        if chunk_samples is None:
+            chunk_samples = default_chunk_samples(float(sample_rate_hz))
+        if chunk_samples < 1:
+            raise ValueError(f"chunk_samples must be >= 1, got {chunk_samples}")
+        if channel_map is None:
+            channel_map = {
+                "sample_rate_hz": float(sample_rate_hz),
+                "ai": chans,
+                "ao": [{"name": n} for n in ao_list],
+            }
+
+        self.path = path
+        self.run_id = run_id
+        self.kind = kind
+        self.sample_rate_hz = float(sample_rate_hz)
+        self.ai_names = ai_names
+        self.ao_names = ao_list
+        self.chunk_samples = int(chunk_samples)
+        self.flush_interval_s = float(flush_interval_s)
+        self._lock = threading.RLock()
+        self._flushed = threading.Condition(self._lock)
+        self._pending: list[np.ndarray] = []  # (n_ai + n_ao, n) blocks not yet in the file
+        self._pending_n = 0
+        self._pending_since = 0.0
+        self._next_sample = 0  # expected first_sample of the next block
+        self._written = 0  # samples appended to the datasets
+        self._samples_flushed = 0
+        self._n_steps = 0
+        self._n_events = 0
+        self._closed = False
+        self.status: str | None = None
+        self.flush_error: Exception | None = None
+
+        mode = "w" if overwrite else "w-"
+        try:
+            f = h5py.File(path, mode, libver="latest")
+        except FileExistsError:
+            raise FileExistsError(
+                f"{path}: run file exists already (pass overwrite=True)"
+            ) from None
+        except OSError as err:
+            if path.exists() and not overwrite:
+                raise FileExistsError(f"{path}: run file exists already") from None
+            raise OSError(f"{path}: cannot create run file: {err}") from None
+        self._file = f
+        try:
+            self._create_layout(
+                f, chans, compression,
+                attrs={
+                    "format": FORMAT,
+                    "format_version": FORMAT_VERSION,
+                    "run_id": run_id,
+                    "kind": kind,
+                    "start_time": start_time or utc_now_iso(),
+                    "stop_time": "",
+                    "operator": str(operator),
+                    "notes": str(notes),
+                    "software_version": software_version or installed_software_version(),
+                    "sample_rate_hz": float(sample_rate_hz),
+                    "channel_map": _json_attr(channel_map, "channel_map"),
+                    "rig_config": _json_attr(rig_config, "rig_config"),
+                    "test_spec": _json_attr(test_spec, "test_spec"),
+                    "lubricated": bool(lubricated),
+                    "status": "running",
+                    "status_reason": "",
+                },
+            )
+            f.flush()
+            if swmr:
+                f.swmr_mode = True
+        except BaseException:
+            f.close()
+            path.unlink(missing_ok=True)
+            raise
+        self.status = "running"
+        self._last_flush = time.monotonic()
+        self._stop = threading.Event()
+        self._flusher: threading.Thread | None = None
+        if self.flush_interval_s > 0:
+            self._flusher = threading.Thread(
+                target=self._flush_loop, name=f"RunWriter-flush-{run_id}", daemon=True
+            )
+            self._flusher.start()
+        return self
+
+    def _create_layout(
+        self, f: h5py.File, chans: list[dict[str, Any]], compression: str, attrs: dict[str, Any]
+    ) -> None:
+        for key, value in attrs.items():
+            f.attrs[key] = value
+        opts: dict[str, Any] = {"compression": compression, "shuffle": True}
+        if compression == "gzip":
+            opts["compression_opts"] = 1
+        self._dsets: list[h5py.Dataset] = []
+        g = f.create_group("channels")
+        for meta in chans:
+            ds = g.create_dataset(
+                meta["name"], shape=(0,), maxshape=(None,), dtype="<f8",
+                chunks=(self.chunk_samples,), **opts,
+            )
+            for key in CHANNEL_ATTRS:
+                value = meta.get(key)
+                if key in ("gain_v_per_unit", "offset_v"):
+                    ds.attrs[key] = float("nan") if value is None else float(value)
+                else:
+                    ds.attrs[key] = "" if value is None else str(value)
+            self._dsets.append(ds)
+        g = f.create_group("drive")
+        for name in self.ao_names:
+            ds = g.create_dataset(
+                name, shape=(0,), maxshape=(None,), dtype="<f8", chunks=(self.chunk_samples,),
+                **opts,
+            )
+            ds.attrs["units"] = "V"
+            ds.attrs["kind"] = "shaker_drive"
+            self._dsets.append(ds)
+        n_ai, n_ao = len(self.ai_names), len(self.ao_names)
+        self._steps = f.create_dataset(
+            "steps", shape=(0,), maxshape=(None,), dtype=STEP_DTYPE, chunks=(64,),
+            compression="gzip", compression_opts=4,
+        )
+        self._harm = f.create_dataset(
+            "step_harmonics", shape=(0, n_ai, N_HARMONICS), maxshape=(None, n_ai, N_HARMONICS),
+            dtype="<c16", chunks=(16, n_ai, N_HARMONICS),
+        )
+        self._harm.attrs["channels"] = json.dumps(self.ai_names)
+        self._harm.attrs["harmonics"] = "1X..5X, complex amplitude Z = z_c - i z_s"
+        if n_ao:
+            self._drive_v = f.create_dataset(
+                "step_drive_v", shape=(0, n_ao), maxshape=(None, n_ao), dtype="<c16",
+                chunks=(64, n_ao),
+            )
+        else:  # chunk dimensions must be positive: an empty fixed dataset
+            self._drive_v = f.create_dataset("step_drive_v", shape=(0, 0), dtype="<c16")
+        self._drive_v.attrs["channels"] = json.dumps(self.ao_names)
+        self._events = f.create_dataset(
+            "events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(64,),
+            compression="gzip", compression_opts=4,
+        )
+        f.create_group("results")
+
+    # --- contract A ---------------------------------------------------------------------------
+    def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray | None) -> None:
+        """Append one block of samples.
+
+        Parameters
+        ----------
+        first_sample : int
+            Index of the block's first sample from 0 at run start; blocks must be contiguous.
+        ai : ndarray, shape (n_ai, n)
+            Engineering units, channel order as given to `create`.
+        ao : ndarray, shape (n_ao, n), or None when the run has no drives
+            Drive volts written for the same samples [V].
+        """
+        ai = np.asarray(ai, dtype=np.float64)
+        n_ai, n_ao = len(self.ai_names), len(self.ao_names)
+        if ai.ndim != 2 or ai.shape[0] != n_ai:
+            raise ValueError(f"{self.path}: ai block has shape {ai.shape}, expected ({n_ai}, n)")
+        n = ai.shape[1]
+        if ao is None:
+            ao = np.empty((0, n))
+        ao = np.asarray(ao, dtype=np.float64)
+        if ao.shape != (n_ao, n):
+            raise ValueError(f"{self.path}: ao block has shape {ao.shape}, expected ({n_ao}, {n})")
+        with self._lock:
+            self._check_open()
+            if first_sample != self._next_sample:
+                raise ValueError(
+                    f"{self.path}: block starts at sample {first_sample}, expected "
+                    f"{self._next_sample} (blocks must be contiguous and in order)"
+                )
+            if n == 0:
+                return
+            if not self._pending:
+                self._pending_since = time.monotonic()
+            # Copy: the caller may reuse its buffers.
+            self._pending.append(np.concatenate((ai, ao)) if n_ao else ai.copy())
+            self._pending_n += n
+            self._next_sample += n
+            if self._pending_n >= self.chunk_samples:
+                self._write_pending(whole_chunks_only=True)
+            if time.monotonic() - self._last_flush >= self.flush_interval_s > 0:
+                self._flush_locked()
+
+    def on_step(self, step: Mapping[str, Any]) -> None:
+        """Append one dwell's result (contract A step dict) and flush the file."""
+        row = np.zeros((), dtype=STEP_DTYPE)
+        harm = np.full((len(self.ai_names), N_HARMONICS), np.nan + 1j * np.nan)
+        drive = np.full(len(self.ao_names), np.nan + 1j * np.nan)
+        extra: dict[str, Any] = {k: v for k, v in step.items()
+                                 if k not in STEP_KEYS and k not in ("harmonics", "drive_v")}
+        try:
+            row["index"] = int(step.get("index", self._n_steps))
+            row["freq_hz"] = _float(step.get("freq_hz"))
+            row["target_kind"] = _fit_utf8(step.get("target_kind") or "", 16)
+            row["target_value"] = _float(step.get("target_value"))
+            row["motion"] = _fit_utf8(step.get("motion") or "", 24)
+            row["first_sample"] = int(step.get("first_sample", -1))
+            row["last_sample"] = int(step.get("last_sample", -1))
+            row["updates"] = int(step.get("updates", 0))
+            row["converged"] = bool(step.get("converged", False))
+            row["reason"] = _fit_utf8(step.get("reason") or "", _REASON_BYTES)
+            unknown: dict[str, Any] = {}
+            for name, values in (step.get("harmonics") or {}).items():
+                if name not in self.ai_names:
+                    unknown[name] = values
+                    continue
+                for k, reim in enumerate(list(values)[:N_HARMONICS]):
+                    harm[self.ai_names.index(name), k] = complex(reim[0], reim[1])
+            if unknown:
+                extra["harmonics"] = unknown
+            for name, reim in (step.get("drive_v") or {}).items():
+                if name in self.ao_names:
+                    drive[self.ao_names.index(name)] = complex(reim[0], reim[1])
+                else:
+                    extra.setdefault("drive_v", {})[name] = reim
+        except (TypeError, ValueError, IndexError) as err:
+            raise ValueError(f"{self.path}: malformed step dict: {err}") from None
+        text = json.dumps(extra, default=str) if extra else ""
+        if len(text.encode()) > _EXTRA_BYTES:
+            text = json.dumps({"_dropped": f"extra keys too long ({len(text)} chars)"})
+        row["extra"] = text.encode()
+        with self._lock:
+            self._check_open()
+            i = self._n_steps
+            self._steps.resize((i + 1,))
+            self._steps[i] = row
+            self._harm.resize((i + 1, *self._harm.shape[1:]))
+            self._harm[i] = harm
+            if self.ao_names:
+                self._drive_v.resize((i + 1, len(self.ao_names)))
+                self._drive_v[i] = drive
+            self._n_steps = i + 1
+            self._flush_locked()
+
+    def on_event(self, kind: str, message: str, sample: int) -> None:
+        """Log one event (kind from `EVENT_KINDS`; others are kept as given) and flush."""
+        row = np.zeros((), dtype=EVENT_DTYPE)
+        row["time"] = utc_now_iso().encode()
+        row["sample"] = int(sample)
+        row["kind"] = _fit_utf8(kind, 16)
+        row["message"] = _fit_utf8(message, _MESSAGE_BYTES)
+        with self._lock:
+            self._check_open()
+            i = self._n_events
+            self._events.resize((i + 1,))
+            self._events[i] = row
+            self._n_events = i + 1
+            self._flush_locked()
+
+    # --- flushing -----------------------------------------------------------------------------
+    @property
+    def samples_received(self) -> int:
+        """Samples passed to `on_block` so far."""
+        return self._next_sample
+
+    @property
+    def samples_flushed(self) -> int:
+        """Samples made durable and visible to readers by the last flush."""
+        return self._samples_flushed
+
+    def flush(self) -> None:
+        """Write every buffered sample and flush the file to disk (readers see it all)."""
+        with self._lock:
+            self._check_open()
+            self._flush_locked()
+
+    def wait_flushed(self, n_samples: int, timeout_s: float) -> bool:
+        """Block until at least ``n_samples`` are flushed; False on timeout."""
+        with self._flushed:
+            return self._flushed.wait_for(
+                lambda: self._samples_flushed >= n_samples or self._closed, timeout_s
+            ) and self._samples_flushed >= n_samples
+
+    def _write_pending(self, whole_chunks_only: bool = False) -> None:
+        if not self._pending:
+            return
+        data = self._pending[0] if len(self._pending) == 1 else np.concatenate(self._pending, 1)
+        n = data.shape[1]
+        if whole_chunks_only:
+            # Keep the writes aligned with chunks: a partly filled chunk would be compressed
+            # now and again once it is full.
+            n_write = ((self._written + n) // self.chunk_samples) * self.chunk_samples
+            n_write -= self._written
+        else:
+            n_write = n
+        if n_write <= 0:
+            self._pending = [data]
+            return
+        start, stop = self._written, self._written + n_write
+        for row, ds in enumerate(self._dsets):
+            ds.resize((stop,))
+            ds[start:stop] = data[row, :n_write]
+        self._written = stop
+        rest = data[:, n_write:]
+        self._pending = [rest] if rest.shape[1] else []
+        self._pending_n = rest.shape[1]
+        if self._pending:
+            self._pending_since = time.monotonic()
+
+    def _flush_locked(self) -> None:
+        self._write_pending()
+        self._file.flush()
+        self._last_flush = time.monotonic()
+        self._samples_flushed = self._written
+        self._flushed.notify_all()
+
+    def _flush_loop(self) -> None:
+        while not self._stop.wait(self.flush_interval_s / 4):
+            with self._lock:
+                if self._closed:
+                    return
+                due = time.monotonic() - self._last_flush >= self.flush_interval_s
+                if due and (self._pending or self._samples_flushed < self._written):
+                    try:
+                        self._flush_locked()
+                    except Exception as err:  # e.g. a full disk: reported by the next call
+                        self.flush_error = err
+                        return
+
+    # --- closing ------------------------------------------------------------------------------
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError(f"{self.path}: run writer is closed")
+        if self.flush_error is not None:
+            raise OSError(f"{self.path}: background flush failed: {self.flush_error}")
+
+    def close(self, status: str = "completed", reason: str = "") -> None:
+        """Flush everything, end the SWMR session, and record the final status and stop time.
+
+        Parameters
+        ----------
+        status : {"completed", "aborted", "failed"}
+            How the run ended.
+        reason : str
+            Why, when it did not complete ("" otherwise).
+        """
+        if status not in STATUSES[1:]:
+            raise ValueError(f"close status {status!r} is not one of {STATUSES[1:]}")
+        with self._lock:
+            if self._closed:
+                return
+            try:
+                self._flush_locked()
+            finally:
+                self._closed = True
+                self._stop.set()
+                self._file.close()
+                self._flushed.notify_all()
+        if self._flusher is not None and self._flusher is not threading.current_thread():
+            self._flusher.join()
+        # Attributes cannot change under SWMR: reopen without it for the final word.
+        with h5py.File(self.path, "r+", libver="latest") as f:
+            f.attrs["stop_time"] = utc_now_iso()
+            f.attrs["status"] = status
+            f.attrs["status_reason"] = str(reason)
+        self.status = status
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> RunWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: BaseException | None, tb: Any) -> None:
+        if self._closed:
+            return
+        if exc is None:
+            self.close("completed")
+        elif isinstance(exc, KeyboardInterrupt):
+            self.close("aborted", "interrupted (KeyboardInterrupt)")
+        else:
+            self.close("failed", f"{type(exc).__name__}: {exc}")
+
+    def __repr__(self) -> str:
+        state = "closed" if self._closed else "open"
+        return f"<RunWriter {self.run_id!r} {self.path} {state}, {self._next_sample} samples>"
+
+
+def _float(value: Any) -> float:
+    return float("nan") if value is None else float(value)
