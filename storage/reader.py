@@ -22,6 +22,8 @@ from storage.runfile import FORMAT, FORMAT_VERSION, N_HARMONICS, STEP_KEYS
 #: Canonical signals and where they come from.
 CANONICAL_SIGNALS = ("fx", "fy", "x", "y", "ax", "ay", "t_oil")
 _REQUIRED_ATTRS = ("format", "format_version", "run_id", "kind", "sample_rate_hz")
+# What h5py raises on damaged files (RuntimeError for e.g. a bad global heap).
+_H5_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError)
 _REQUIRED_OBJECTS = ("channels", "drive", "steps", "step_harmonics", "step_drive_v", "events")
 
 
@@ -78,9 +80,9 @@ class RunData:
         except RunFileError:
             self._file.close()
             raise
-        except (OSError, KeyError, ValueError, TypeError) as err:
+        except _H5_ERRORS as err:
             self._file.close()
-            raise RunFileError(f"{self.path}: damaged run file: {err}") from None
+            raise RunFileError(f"{self.path}: damaged run file (truncated?): {err}") from None
 
     # --- loading and validation -------------------------------------------------------------
     def _fail(self, what: str) -> RunFileError:
@@ -223,7 +225,7 @@ class RunData:
         start = min(max(start, 0), stop)
         try:
             return np.asarray(ds[start:stop], dtype=np.float64)
-        except OSError as err:
+        except _H5_ERRORS as err:
             raise self._fail(f"cannot read /{ds.name.lstrip('/')}[{start}:{stop}]: {err}") from None
 
     def channel_attrs(self, name: str) -> dict[str, Any]:

@@ -589,10 +589,16 @@ class RunWriter:
         if self._flusher is not None and self._flusher is not threading.current_thread():
             self._flusher.join()
         # Attributes cannot change under SWMR: reopen without it for the final word.
-        with h5py.File(self.path, "r+", libver="latest") as f:
-            f.attrs["stop_time"] = utc_now_iso()
-            f.attrs["status"] = status
-            f.attrs["status_reason"] = str(reason)
+        final = {"stop_time": utc_now_iso(), "status": status, "status_reason": str(reason)}
+        try:
+            f = h5py.File(self.path, "r+", libver="latest")
+        except BlockingIOError:
+            # A live SWMR reader (another process) holds a shared lock. It reads the root
+            # attributes only when it opens, so rewriting them under it is safe.
+            f = h5py.File(self.path, "r+", libver="latest", locking=False)
+        with f:
+            for key, value in final.items():
+                f.attrs[key] = value
         self.status = status
 
     @property

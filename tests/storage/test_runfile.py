@@ -1,0 +1,428 @@
+"""Run-file writer and reader: round trips, SWMR live reading, kill -9 recovery, broken files."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from storage import MissingSignalError, RunFileError, RunWriter, open_run
+from storage.runfile import FORMAT, FORMAT_VERSION
+from tests.storage import _writer_proc as proc
+
+HELPER = Path(proc.__file__)
+
+CHANNELS = [
+    {"name": "fx", "units": "N", "kind": "load_cell", "sensor": "LC-X", "gain_v_per_unit": 0.02,
+     "offset_v": 0.0, "physical_channel": "Dev1/ai0"},
+    {"name": "x1", "units": "m", "kind": "eddy_current_probe", "gain_v_per_unit": 7952.7,
+     "offset_v": 0.1, "physical_channel": "Dev1/ai2"},
+    {"name": "x2", "units": "m", "kind": "eddy_current_probe", "gain_v_per_unit": 7677.2,
+     "offset_v": -0.1, "physical_channel": "Dev1/ai3"},
+    {"name": "t_oil", "units": "degC", "kind": "thermocouple", "gain_v_per_unit": 0.01},
+]
+
+
+def _step(i: int, first: int, last: int, names: list[str], ao: list[str]) -> dict:
+    return {
+        "index": i, "freq_hz": 10.0 + i, "target_kind": "displacement", "target_value": 2e-5,
+        "motion": "circular_forward", "first_sample": first, "last_sample": last, "updates": 3 + i,
+        "converged": i % 2 == 0, "reason": "" if i % 2 == 0 else "max updates (8) reached",
+        "harmonics": {n: [[0.5 * k + c, -0.25 * k - i] for k in range(5)]
+                      for c, n in enumerate(names)},
+        "drive_v": {n: [0.1 * (c + 1), -0.2 * i] for c, n in enumerate(ao)},
+    }
+
+
+def _make(path: Path, **kw) -> RunWriter:
+    args = dict(operator="A. Tester", notes="baseline", rig_config={"structure": {"mass_kg": 9.7}},
+                test_spec={"freqs_hz": [10, 20]}, lubricated=True, flush_interval_s=0)
+    args.update(kw)
+    return RunWriter.create(path, "run-001", "sweep", CHANNELS, ["shaker_x", "shaker_y"],
+                            5000.0, **args)
+
+
+# --- round trip ------------------------------------------------------------------------------
+def test_metadata_blocks_steps_events_round_trip(tmp_path: Path) -> None:
+    path = tmp_path / "run.h5"
+    rng = np.random.default_rng(1)
+    ai = rng.normal(size=(4, 12_345))
+    ao = rng.normal(size=(2, 12_345))
+    with _make(path, chunk_samples=1024) as w:
+        w.on_event("state", "running", 0)
+        w.on_block(0, ai[:, :5000], ao[:, :5000])
+        w.on_step(_step(0, 0, 5000, ["fx", "x1"], ["shaker_x", "shaker_y"]))
+        w.on_block(5000, ai[:, 5000:], ao[:, 5000:])
+        w.on_event("limit_trip", "force fx 460 N > 448 N", 12_000)
+    with open_run(path) as run:
+        assert run.kind == "sweep" and run.run_id == "run-001"
+        assert run.sample_rate_hz == 5000.0
+        assert run.channel_names == ["fx", "x1", "x2", "t_oil"]
+        assert run.drive_names == ["shaker_x", "shaker_y"]
+        assert run.n_samples == 12_345
+        assert run.duration_s == pytest.approx(12_345 / 5000.0)
+        for i, name in enumerate(run.channel_names):
+            np.testing.assert_array_equal(run.channel(name), ai[i])
+        np.testing.assert_array_equal(run.channel("shaker_y"), ao[1])
+        np.testing.assert_array_equal(run.signal("x"), (ai[1] + ai[2]) / 2)
+        np.testing.assert_array_equal(run.signal("fx"), ai[0])
+        np.testing.assert_array_equal(run.channel("fx", 100, 200), ai[0, 100:200])
+        a = run.attrs
+        assert a["format"] == FORMAT and a["format_version"] == FORMAT_VERSION
+        assert a["operator"] == "A. Tester" and a["notes"] == "baseline"
+        assert a["status"] == "completed" and a["status_reason"] == ""
+        assert a["stop_time"] >= a["start_time"] != ""
+        assert a["lubricated"] is True or a["lubricated"] == 1
+        assert a["software_version"].startswith("sfdrig")
+        assert run.rig_config == {"structure": {"mass_kg": 9.7}}
+        assert run.test_spec == {"freqs_hz": [10, 20]}
+        assert [c["name"] for c in run.channel_map["ai"]] == ["fx", "x1", "x2", "t_oil"]
+        ca = run.channel_attrs("x1")
+        assert ca["units"] == "m" and ca["gain_v_per_unit"] == 7952.7 and ca["offset_v"] == 0.1
+        assert ca["physical_channel"] == "Dev1/ai2" and ca["kind"] == "eddy_current_probe"
+        assert run.units("shaker_x") == "V"
+        assert run.steps == [_step(0, 0, 5000, ["fx", "x1"], ["shaker_x", "shaker_y"])]
+        ev = run.events
+        assert [(e["kind"], e["message"], e["sample"]) for e in ev] == [
+            ("state", "running", 0), ("limit_trip", "force fx 460 N > 448 N", 12_000)]
+        assert ev[0]["time"].endswith("+00:00")
+        # chunked, compressed, as contract B asks
+        ds = run.h5["channels/fx"]
+        assert ds.chunks == (1024,) and ds.compression == "lzf" and ds.maxshape == (None,)
+
+
+@given(
+    n_ai=st.integers(1, 3),
+    n_ao=st.integers(0, 2),
+    chunk=st.integers(1, 300),
+    ops=st.lists(
+        st.one_of(
+            st.tuples(st.just("block"), st.integers(0, 700)),
+            st.tuples(st.just("step"), st.integers(0, 3)),
+            st.tuples(st.just("event"), st.text(max_size=40)),
+            st.tuples(st.just("flush"), st.just(0)),
+        ),
+        max_size=25,
+    ),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_round_trip_property(n_ai: int, n_ao: int, chunk: int, ops: list, seed: int) -> None:
+    """Any sequence of blocks (any sizes, including empty), steps and events reads back equal."""
+    rng = np.random.default_rng(seed)
+    names = [f"c{i}" for i in range(n_ai)]
+    ao_names = [f"d{i}" for i in range(n_ao)]
+    ai_all, ao_all, steps, events = [], [], [], []
+    first = 0
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "p.h5"
+        with RunWriter.create(path, "p", "static", names, ao_names, 100.0,
+                              chunk_samples=chunk, flush_interval_s=0) as w:
+            for op, arg in ops:
+                if op == "block":
+                    ai = rng.normal(size=(n_ai, arg))
+                    ao = rng.normal(size=(n_ao, arg))
+                    w.on_block(first, ai, ao if n_ao else None)
+                    first += arg
+                    ai_all.append(ai)
+                    ao_all.append(ao)
+                elif op == "step":
+                    s = _step(len(steps), max(0, first - arg), first, names[: arg + 1], ao_names)
+                    w.on_step(s)
+                    steps.append(s)
+                elif op == "event":
+                    w.on_event("operator", arg, first)
+                    events.append(("operator", arg, first))
+                else:
+                    w.flush()
+        with open_run(path) as run:
+            assert run.n_samples == first
+            ai_ref = np.concatenate(ai_all, 1) if ai_all else np.empty((n_ai, 0))
+            ao_ref = np.concatenate(ao_all, 1) if ao_all else np.empty((n_ao, 0))
+            for i, n in enumerate(names):
+                np.testing.assert_array_equal(run.channel(n), ai_ref[i])
+            for i, n in enumerate(ao_names):
+                np.testing.assert_array_equal(run.channel(n), ao_ref[i])
+            assert run.steps == steps
+            assert [(e["kind"], e["message"], e["sample"]) for e in run.events] == events
+            assert run.status == "completed"
+
+
+def test_extra_step_keys_and_unknown_harmonics_are_kept(tmp_path: Path) -> None:
+    step = _step(0, 0, 10, ["fx"], ["shaker_x"])
+    step["phase_deg"] = 12.5
+    step["harmonics"]["hammer"] = [[1.0, 2.0]] * 5
+    with _make(tmp_path / "e.h5") as w:
+        w.on_block(0, np.zeros((4, 10)), np.zeros((2, 10)))
+        w.on_step(step)
+    with open_run(tmp_path / "e.h5") as run:
+        assert run.steps == [step]
+
+
+def test_long_texts_are_truncated_not_lost_silently(tmp_path: Path) -> None:
+    with _make(tmp_path / "t.h5") as w:
+        w.on_event("warning", "é" * 2000, 0)
+    with open_run(tmp_path / "t.h5") as run:
+        msg = run.events[0]["message"]
+        assert msg.endswith("[truncated]") and msg.startswith("éé")
+        assert len(msg.encode()) <= 1024
+
+
+# --- writer checks ---------------------------------------------------------------------------
+def test_writer_rejects_bad_blocks_and_arguments(tmp_path: Path) -> None:
+    with _make(tmp_path / "b.h5") as w:
+        with pytest.raises(ValueError, match=r"ai block has shape \(3, 5\), expected \(4, n\)"):
+            w.on_block(0, np.zeros((3, 5)), np.zeros((2, 5)))
+        with pytest.raises(ValueError, match=r"ao block has shape \(2, 4\), expected \(2, 5\)"):
+            w.on_block(0, np.zeros((4, 5)), np.zeros((2, 4)))
+        w.on_block(0, np.zeros((4, 5)), np.zeros((2, 5)))
+        with pytest.raises(ValueError, match="starts at sample 7, expected 5"):
+            w.on_block(7, np.zeros((4, 5)), np.zeros((2, 5)))
+        with pytest.raises(ValueError, match="close status 'done'"):
+            w.close("done")
+    with pytest.raises(RuntimeError, match="closed"):
+        w.on_block(5, np.zeros((4, 5)), np.zeros((2, 5)))
+    with pytest.raises(FileExistsError, match="exists already"):
+        _make(tmp_path / "b.h5")
+    with pytest.raises(ValueError, match="kind 'sweeep'"):
+        RunWriter.create(tmp_path / "k.h5", "r", "sweeep", ["a"], [], 10.0)
+    with pytest.raises(ValueError, match=r"duplicate names \['a'\]"):
+        RunWriter.create(tmp_path / "k.h5", "r", "sweep", ["a", "a"], [], 10.0)
+    with pytest.raises(ValueError, match="sample_rate_hz must be a positive"):
+        RunWriter.create(tmp_path / "k.h5", "r", "sweep", ["a"], [], 0.0)
+    with pytest.raises(ValueError, match="invalid name 'a/b'"):
+        RunWriter.create(tmp_path / "k.h5", "r", "sweep", ["a/b"], [], 10.0)
+    assert not (tmp_path / "k.h5").exists()
+
+
+def test_context_manager_records_failure(tmp_path: Path) -> None:
+    with pytest.raises(ZeroDivisionError), _make(tmp_path / "f.h5") as w:
+        w.on_block(0, np.ones((4, 3)), np.ones((2, 3)))
+        1 / 0  # noqa: B018
+    with open_run(tmp_path / "f.h5") as run:
+        assert run.status == "failed"
+        assert run.attrs["status_reason"] == "ZeroDivisionError: division by zero"
+        assert run.n_samples == 3
+
+
+def test_aborted_close_keeps_reason(tmp_path: Path) -> None:
+    w = _make(tmp_path / "a.h5")
+    w.close("aborted", "operator pressed abort")
+    w.close("completed")  # second close is a no-op
+    with open_run(tmp_path / "a.h5") as run:
+        assert (run.status, run.attrs["status_reason"]) == ("aborted", "operator pressed abort")
+
+
+def test_background_flush_makes_a_lone_block_visible(tmp_path: Path) -> None:
+    """A block that fills no chunk and is followed by nothing is flushed within the interval."""
+    path = tmp_path / "bg.h5"
+    w = _make(path, flush_interval_s=0.05, chunk_samples=4096)
+    try:
+        w.on_block(0, np.full((4, 100), 3.0), np.zeros((2, 100)))
+        assert w.wait_flushed(100, timeout_s=10.0)
+        with open_run(path) as run:
+            assert run.status == "running" and run.stop_time == ""
+            np.testing.assert_array_equal(run.channel("fx"), np.full(100, 3.0))
+    finally:
+        w.close()
+
+
+# --- SWMR: live reading ----------------------------------------------------------------------
+def test_swmr_reader_in_same_process_sees_growth(tmp_path: Path) -> None:
+    path = tmp_path / "live.h5"
+    w = _make(path, chunk_samples=256)
+    try:
+        w.on_block(0, np.ones((4, 300)), np.zeros((2, 300)))
+        w.flush()
+        with open_run(path) as run:
+            assert run.n_samples == 300 and run.status == "running"
+            w.on_block(300, np.full((4, 200), 2.0), np.zeros((2, 200)))
+            w.on_step(_step(0, 0, 500, ["fx"], []))
+            run.refresh()
+            assert run.n_samples == 500 and len(run.steps) == 1
+            assert run.channel("x2")[-1] == 2.0
+    finally:
+        w.close()
+
+
+def test_swmr_reader_in_another_process_while_writing(tmp_path: Path) -> None:
+    path = tmp_path / "live2.h5"
+    w = RunWriter.create(path, "live", "sweep", [f"c{i}" for i in range(proc.N_AI)],
+                         [f"d{i}" for i in range(proc.N_AO)], proc.FS_HZ, flush_interval_s=0,
+                         chunk_samples=1500)
+    reader = None
+    try:
+        w.on_block(0, *proc.expected_block(0, 1000))
+        w.flush()
+        reader = subprocess.Popen([sys.executable, str(HELPER), "reader", str(path)],
+                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        first = 1000
+        for round_ in range(3):
+            reader.stdin.write("read\n")
+            reader.stdin.flush()
+            n, n_steps, n_events, total = reader.stdout.readline().split()
+            assert (int(n), int(n_steps), int(n_events)) == (first, round_, round_)
+            assert float(total) == pytest.approx(proc.expected_block(0, first)[0][0].sum(),
+                                                 rel=1e-12)
+            w.on_block(first, *proc.expected_block(first, 2500))
+            first += 2500
+            w.on_event("info", f"round {round_}", first)
+            w.on_step({"index": round_, "freq_hz": 5.0})
+        w.close()
+        reader.stdin.write("read\nquit\n")
+        reader.stdin.flush()
+        n, n_steps, n_events, _ = reader.stdout.readline().split()
+        assert (int(n), int(n_steps), int(n_events)) == (first, 3, 3)
+        assert reader.wait(timeout=30) == 0
+    finally:
+        if not w.closed:
+            w.close()
+        if reader is not None and reader.poll() is None:
+            reader.kill()
+            reader.wait()
+        if reader is not None:
+            reader.stdin.close()
+            reader.stdout.close()
+
+
+# --- kill -9 ---------------------------------------------------------------------------------
+def test_writer_killed_mid_run_leaves_every_flushed_block(tmp_path: Path) -> None:
+    path = tmp_path / "killed.h5"
+    child = subprocess.Popen([sys.executable, str(HELPER), "writer", str(path)],
+                             stdout=subprocess.PIPE, text=True)
+    last = 0
+    try:
+        # Kill while it is writing, once at least 100 000 samples (5 steps) are known flushed.
+        for line in child.stdout:
+            last = int(line.split()[1])
+            if last >= 100_000:
+                break
+        os.kill(child.pid, signal.SIGKILL)
+    finally:
+        child.wait()
+        child.stdout.close()
+    assert child.returncode == -signal.SIGKILL
+    assert last >= 100_000
+    with open_run(path) as run:
+        assert run.status == "running" and run.stop_time == ""
+        n = run.n_samples
+        assert n >= last
+        ai, ao = proc.expected_block(0, n)
+        for i in range(proc.N_AI):
+            np.testing.assert_array_equal(run.channel(f"c{i}"), ai[i])
+        for i in range(proc.N_AO):
+            np.testing.assert_array_equal(run.channel(f"d{i}"), ao[i])
+        steps = run.steps
+        assert len(steps) >= last // 20_000
+        assert [s["last_sample"] for s in steps] == [20_000 * (k + 1) for k in range(len(steps))]
+
+
+# --- broken files ----------------------------------------------------------------------------
+@pytest.fixture
+def good_run(tmp_path: Path) -> Path:
+    path = tmp_path / "good.h5"
+    with _make(path, chunk_samples=512) as w:
+        w.on_block(0, np.ones((4, 20_000)), np.zeros((2, 20_000)))
+        w.on_step(_step(0, 0, 100, ["fx"], ["shaker_x"]))
+    return path
+
+
+def test_missing_file_and_directory(tmp_path: Path) -> None:
+    with pytest.raises(RunFileError, match=r"nope\.h5: no such file"):
+        open_run(tmp_path / "nope.h5")
+    with pytest.raises(RunFileError, match="is a directory"):
+        open_run(tmp_path)
+
+
+def test_not_hdf5(tmp_path: Path) -> None:
+    p = tmp_path / "notes.h5"
+    p.write_text("time_s,fx_N\n0,1\n")
+    with pytest.raises(RunFileError, match=r"notes\.h5: not an HDF5 file"):
+        open_run(p)
+
+
+def test_truncated_file(good_run: Path) -> None:
+    size = good_run.stat().st_size
+    with open(good_run, "r+b") as f:
+        f.truncate(size // 3)
+    with (pytest.raises(RunFileError, match=r"good\.h5: .*(truncated|damaged)"),
+          open_run(good_run) as run):
+        run.channel("fx")
+
+
+def test_wrong_format_attr(good_run: Path) -> None:
+    with h5py.File(good_run, "r+") as f:
+        f.attrs["format"] = "other-format"
+    with pytest.raises(RunFileError, match="format attribute is 'other-format', expected"):
+        open_run(good_run)
+
+
+def test_hdf5_without_format(tmp_path: Path) -> None:
+    p = tmp_path / "plain.h5"
+    with h5py.File(p, "w") as f:
+        f["x"] = [1.0]
+    with pytest.raises(RunFileError, match=r"plain\.h5: not an sfdrig run file"):
+        open_run(p)
+
+
+def test_newer_format_version(good_run: Path) -> None:
+    with h5py.File(good_run, "r+") as f:
+        f.attrs["format_version"] = FORMAT_VERSION + 1
+    with pytest.raises(RunFileError, match="format_version 2 is newer"):
+        open_run(good_run)
+
+
+@pytest.mark.parametrize("obj", ["steps", "events", "channels", "step_harmonics"])
+def test_missing_dataset(good_run: Path, obj: str) -> None:
+    with h5py.File(good_run, "r+") as f:
+        del f[obj]
+    with pytest.raises(RunFileError, match=rf"good\.h5: missing /{obj}"):
+        open_run(good_run)
+
+
+def test_missing_channel_dataset(good_run: Path) -> None:
+    with h5py.File(good_run, "r+") as f:
+        del f["channels/x2"]
+    with pytest.raises(RunFileError, match=r"/channels holds \['fx', 't_oil', 'x1'\]"):
+        open_run(good_run)
+
+
+def test_missing_attribute_and_bad_json(good_run: Path) -> None:
+    with h5py.File(good_run, "r+") as f:
+        f.attrs["channel_map"] = "{not json"
+    with pytest.raises(RunFileError, match="'channel_map' is not valid JSON"):
+        open_run(good_run)
+    with h5py.File(good_run, "r+") as f:
+        del f.attrs["sample_rate_hz"]
+    with pytest.raises(RunFileError, match=r"missing root attribute\(s\) \['sample_rate_hz'\]"):
+        open_run(good_run)
+
+
+def test_missing_signal_names_what_exists(good_run: Path) -> None:
+    with open_run(good_run) as run:
+        with pytest.raises(MissingSignalError, match=r"no signal 'y': neither a channel 'y' nor"):
+            run.signal("y")
+        with pytest.raises(KeyError):
+            run.channel("p_in")
+        with pytest.raises(RunFileError, match="'z' is not a canonical signal"):
+            run.signal("z")
+        assert run.has_signal("x") and not run.has_signal("y")
+
+
+def test_channel_map_json_is_stored_verbatim(tmp_path: Path) -> None:
+    cmap = {"sample_rate_hz": 10.0, "ai": [{"name": "a"}], "ao": [], "device": {"name": "Dev1"}}
+    with RunWriter.create(tmp_path / "c.h5", "c", "flow", ["a"], [], 10.0,
+                          channel_map=json.dumps(cmap), flush_interval_s=0):
+        pass
+    with open_run(tmp_path / "c.h5") as run:
+        assert run.channel_map == cmap and run.rig_config is None and run.test_spec is None
+        assert run.drive_names == [] and run.steps == []
