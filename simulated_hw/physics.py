@@ -25,9 +25,10 @@ import numpy as np
  P_DT, P_NSUB) = range(25)
 N_PARAMS = 25
 
-# Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|.
-S_X, S_Y, S_VX, S_VY, S_XF, S_YF, S_VXF, S_VYF, S_VBAR = range(9)
-N_STATE = 9
+# Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|;
+# the previous sample's force (the force is interpolated linearly between samples).
+S_X, S_Y, S_VX, S_VY, S_XF, S_YF, S_VXF, S_VYF, S_VBAR, S_FPX, S_FPY = range(11)
+N_STATE = 11
 
 # Rows of the output array.
 (O_X, O_Y, O_VX, O_VY, O_AX, O_AY, O_FRICX, O_FRICY, O_FILMX, O_FILMY, O_CFILM) = range(11)
@@ -53,15 +54,20 @@ def integrate(
     fmu = p[P_FMU]
     clear = p[P_CLEAR]
     air_alpha_k = h / p[P_AIR_TAU]
+    fpx, fpy = s[S_FPX], s[S_FPY]
     for i in range(n):
-        fx_in = force[0, i]
-        fy_in = force[1, i]
+        # sample i is taken at the end of the interval; the force ramps from the previous sample
+        dfx = (force[0, i] - fpx) / nsub
+        dfy = (force[1, i] - fpy) / nsub
         fi = fill[i]
         ax = ay = 0.0
+        afx = afy = 0.0
         frx = fry = 0.0
         flx = fly = 0.0
         cfilm = 0.0
-        for _ in range(nsub):
+        for k in range(nsub):
+            fx_in = fpx + (k + 0.5) * dfx
+            fy_in = fpy + (k + 0.5) * dfy
             # film coefficients at this instant
             ecc2 = (x * x + y * y) / (clear * clear)
             if ecc2 > 0.9025:  # eps capped at 0.95: the formula diverges at contact
@@ -99,7 +105,8 @@ def integrate(
             # absolute housing acceleration before friction; frame's own
             ahx = i11 * fx + i12 * fy
             ahy = i21 * fx + i22 * fy
-            afx = afy = 0.0
+            afx = 0.0
+            afy = 0.0
             if frame_on:
                 afx = (-p[P_FRAME_K] * xf - p[P_FRAME_C] * vxf - (fx - fx_in)) * inv_mf
                 afy = (-p[P_FRAME_K] * yf - p[P_FRAME_C] * vyf - (fy - fy_in)) * inv_mf
@@ -144,10 +151,13 @@ def integrate(
             xf += h * vxf
             yf += h * vyf
             vbar += air_alpha_k * (np.sqrt(vx * vx + vy * vy) - vbar)
+        fpx = force[0, i]
+        fpy = force[1, i]
         out[O_X, i] = x
         out[O_Y, i] = y
-        out[O_VX, i] = vx
-        out[O_VY, i] = vy
+        # the symplectic step's velocity is the mean over the last substep: move it to t_i
+        out[O_VX, i] = vx + 0.5 * h * (ax - afx)
+        out[O_VY, i] = vy + 0.5 * h * (ay - afy)
         out[O_AX, i] = ax
         out[O_AY, i] = ay
         out[O_FRICX, i] = frx
@@ -157,6 +167,46 @@ def integrate(
         out[O_CFILM, i] = cfilm
     s[S_X], s[S_Y], s[S_VX], s[S_VY] = x, y, vx, vy
     s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR] = xf, yf, vxf, vyf, vbar
+    s[S_FPX], s[S_FPY] = fpx, fpy
+
+
+@numba.njit(cache=True)
+def shaker_force(cmd: np.ndarray, pole: float, max_force: float, state: np.ndarray,
+                 out: np.ndarray) -> None:
+    """Commanded force (2, n) through the drive's first-order lag, clipped at the rating."""
+    for a in range(cmd.shape[0]):
+        y = state[a]
+        for i in range(cmd.shape[1]):
+            y = pole * y + (1.0 - pole) * cmd[a, i]
+            out[a, i] = min(max(y, -max_force), max_force)
+        state[a] = y
+
+
+@numba.njit(cache=True)
+def sensor_volts(true: np.ndarray, gain: np.ndarray, offset: np.ndarray, noise: np.ndarray,
+                 sigma: np.ndarray, lsb: float, lo: np.ndarray, hi: np.ndarray,
+                 out: np.ndarray) -> None:
+    """Sensor output: gain, offset, noise, ADC quantisation and range clipping, in volts."""
+    for c in range(true.shape[0]):
+        for i in range(true.shape[1]):
+            v = true[c, i] * gain[c] + offset[c] + noise[c, i] * sigma[c]
+            v = np.round(v / lsb) * lsb
+            out[c, i] = min(max(v, lo[c]), hi[c])
+
+
+@numba.njit(cache=True)
+def fill_track(pressurised: np.ndarray, k_fill: float, k_drain: float, f0: float,
+               out: np.ndarray) -> None:
+    """Film fill fraction: first order towards 1 while pressurised, towards 0 otherwise."""
+    f = f0
+    a_fill = 1.0 - np.exp(-k_fill)
+    a_drain = 1.0 - np.exp(-k_drain)
+    for i in range(pressurised.size):
+        if pressurised[i]:
+            f += a_fill * (1.0 - f)
+        else:
+            f -= a_drain * f
+        out[i] = f
 
 
 @dataclass

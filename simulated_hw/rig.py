@@ -9,7 +9,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 from daq.channels import ChannelKind, ChannelMap
 from simulated_hw import physics
@@ -52,7 +51,7 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
         p[physics.P_FRAME_K] = sm.modal_mass_kg * wn**2
         p[physics.P_FRAME_C] = 2 * sm.damping_ratio * sm.modal_mass_kg * wn
     p[physics.P_DT] = 1.0 / sample_rate_hz
-    p[physics.P_NSUB] = params.substeps
+    p[physics.P_NSUB] = params.steps_per_sample(sample_rate_hz)
     return p
 
 
@@ -106,8 +105,8 @@ class RigModel:
         self.sample_index = 0
         # shakers: first-order drive dynamics, one filter state per axis
         a = math.exp(-2 * math.pi * params.shaker.bandwidth_hz * self.dt)
-        self._shaker_ba = (np.array([1 - a]), np.array([1.0, -a]))
-        self._shaker_zi = np.zeros((2, 1))
+        self._shaker_pole = a
+        self._shaker_state = np.zeros(2)
         self._ao_axis = [ao.axis for ao in channel_map.ao]
         # oil system
         self.pump_on = False
@@ -163,8 +162,8 @@ class RigModel:
         cmd = np.zeros((2, n))
         for row, axis in enumerate(self._ao_axis):
             cmd[0 if axis == "x" else 1] = sh.force_per_volt_n * ao[row]
-        force, self._shaker_zi = lfilter(*self._shaker_ba, cmd, axis=1, zi=self._shaker_zi)
-        np.clip(force, -sh.max_force_n, sh.max_force_n, out=force)
+        force = np.empty_like(cmd)
+        physics.shaker_force(cmd, self._shaker_pole, sh.max_force_n, self._shaker_state, force)
         hammer = self._hammer_block(n)
         external = force + hammer
         fill, visc, p_in, p_rec, temp = self._oil_block(n)
@@ -207,10 +206,12 @@ class RigModel:
         decay = np.exp(-t / oil.pressure_time_constant_s)
         p_in = target_in + (self._p_in - target_in) * decay
         p_rec = target_rec + (self._p_rec - target_rec) * decay
-        pressurised = self._p_in > 0.5 * oil.supply_pressure_pa
-        tau = oil.fill_time_constant_s if pressurised else oil.drain_time_constant_s
-        target_fill = 1.0 if pressurised else 0.0
-        fill = target_fill + (self._fill - target_fill) * np.exp(-t / tau)
+        # the film fills while the inlet is pressurised and drains otherwise, sample by sample
+        pressurised = p_in > 0.5 * oil.supply_pressure_pa if oil.supply_pressure_pa > 0 else (
+            np.zeros(n, dtype=bool))
+        fill = np.empty(n)
+        physics.fill_track(pressurised, self.dt / oil.fill_time_constant_s,
+                           self.dt / oil.drain_time_constant_s, self._fill, fill)
         rate = (oil.warming_c_per_hour / 3600.0) if self.pump_on else 0.0
         drift = self.params.effects.viscosity_drift
         if drift.enabled:
@@ -260,11 +261,11 @@ class RigModel:
             if eff.channel_delay.enabled and eff.channel_delay.channel == ch.name:
                 d = eff.channel_delay.delay_s
             delays.append(d)
-        self._gain = np.array(gains)[:, None]
-        self._offset = np.array(offsets)[:, None]
-        self._sigma = np.array(sigmas, dtype=np.float32)[:, None]
-        self._lo = np.array(lo)[:, None]
-        self._hi = np.array(hi)[:, None]
+        self._gain = np.array(gains)
+        self._offset = np.array(offsets)
+        self._sigma = np.array(sigmas)
+        self._lo = np.array(lo)
+        self._hi = np.array(hi)
         bits = cm.device.ai_bits
         self._lsb = (2 * cm.device.ai_range_v) / 2**bits
         # fractional delays: keep enough history per delayed channel
@@ -278,10 +279,9 @@ class RigModel:
         for i, d in self._delays.items():
             true[i] = self._delay(i, true[i], d)
         noise = self._rng.standard_normal((len(self._sources), n), dtype=np.float32)
-        volts = true * self._gain + self._offset + noise * self._sigma
-        np.round(volts / self._lsb, out=volts)
-        volts *= self._lsb
-        np.clip(volts, self._lo, self._hi, out=volts)
+        volts = np.empty_like(true)
+        physics.sensor_volts(true, self._gain, self._offset, noise, self._sigma, self._lsb,
+                             self._lo, self._hi, volts)
         return volts
 
     def _delay(self, i: int, sig: np.ndarray, d: float) -> np.ndarray:
