@@ -1,0 +1,139 @@
+"""SimulatedBackend: the DaqBackend protocol, paced timing errors with DAQmx codes, determinism."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from daq import (
+    DaqBackend,
+    DaqBufferOverflowError,
+    DaqTimeoutError,
+    DaqUnderflowError,
+    default_channel_map,
+)
+from daq.errors import DaqError
+from simulated_hw import RigParams, SimulatedBackend, load_rig_params
+from simulated_hw.params import RigParamsError, rig_params_from_dict
+
+CM = default_channel_map()
+
+
+class FakeClock:
+    """Simulated wall clock: sleep advances it, so paced tests run instantly and exactly."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+        self.slept: list[float] = []
+
+    def __call__(self) -> float:
+        return self.now
+
+    def sleep(self, s: float) -> None:
+        self.slept.append(s)
+        self.now += s
+
+
+def paced(clock: FakeClock, buffer_s: float = 1.0) -> SimulatedBackend:
+    be = SimulatedBackend(seed=1, realtime=True, buffer_s=buffer_s, clock=clock, sleep=clock.sleep)
+    be.configure(CM)
+    return be
+
+
+def test_is_a_daq_backend():
+    be = SimulatedBackend()
+    be.configure(CM)
+    assert isinstance(be, DaqBackend)
+
+
+def test_paced_read_waits_for_the_samples():
+    clock = FakeClock()
+    be = paced(clock)
+    be.write_ao(np.zeros((2, 5000)))
+    be.start()
+    block = be.read_ai(1000, timeout_s=1.0)
+    assert block.shape == (14, 1000)
+    assert clock.now - 100.0 == pytest.approx(0.1)  # 1000 samples at 10 kS/s
+
+
+def test_paced_read_timeout_is_daqmx_200284():
+    clock = FakeClock()
+    be = paced(clock)
+    be.write_ao(np.zeros((2, 50_000)))
+    be.start()
+    with pytest.raises(DaqTimeoutError) as err:
+        be.read_ai(20_000, timeout_s=0.5)  # 2 s of data cannot come in 0.5 s
+    assert err.value.code == -200284
+    assert isinstance(err.value, TimeoutError)
+
+
+def test_reader_falling_behind_the_buffer_is_daqmx_200279():
+    clock = FakeClock()
+    be = paced(clock, buffer_s=1.0)
+    be.write_ao(np.zeros((2, 50_000)))
+    be.start()
+    clock.now += 2.5  # the application stalls for 2.5 s with a 1 s buffer
+    with pytest.raises(DaqBufferOverflowError) as err:
+        be.read_ai(1000)
+    assert err.value.code == -200279
+
+
+def test_ao_underflow_is_daqmx_200290():
+    be = SimulatedBackend(seed=1)
+    be.configure(CM)
+    be.write_ao(np.zeros((2, 500)))
+    be.start()
+    with pytest.raises(DaqUnderflowError) as err:
+        be.read_ai(1000)
+    assert err.value.code == -200290
+
+
+def test_ao_outside_range_and_bad_shapes_refused():
+    be = SimulatedBackend(seed=1)
+    be.configure(CM)
+    with pytest.raises(DaqError, match="shaker_x: AO sample outside the channel range"):
+        be.write_ao(np.full((2, 10), 11.0))
+    with pytest.raises(ValueError, match=r"AO block must have shape \(2, n\)"):
+        be.write_ao(np.zeros((3, 10)))
+    with pytest.raises(KeyError, match="no relay named 'heater'"):
+        be.set_do("heater", True)
+
+
+def test_use_before_configure_names_the_problem():
+    with pytest.raises(DaqError, match="not configured"):
+        SimulatedBackend().read_ai(10)
+
+
+def test_block_partition_does_not_change_the_physics():
+    """The rig's response to the same drive is the same whatever the read block size (noise
+    differs with the partition; the truth does not)."""
+    params = RigParams()
+    t = np.arange(4000) / 1e4
+    ao = np.vstack([4 * np.sin(2 * np.pi * 50 * t), 4 * np.cos(2 * np.pi * 50 * t)])
+    truths = []
+    for blk in (4000, 250):
+        be = SimulatedBackend(params, seed=3)
+        be.configure(CM)
+        be.write_ao(ao)
+        be.start()
+        xs = []
+        for _ in range(4000 // blk):
+            be.read_ai(blk)
+            assert be.rig is not None and be.rig.last_truth is not None
+            xs.append(be.rig.last_truth.x_m.copy())
+        truths.append(np.concatenate(xs))
+    np.testing.assert_allclose(truths[0], truths[1], rtol=0, atol=1e-15)
+
+
+def test_rig_params_toml_round_trip_and_errors(tmp_path):
+    p = RigParams()
+    p.effects.cubic_stiffness.enabled = True
+    p.effects.cubic_stiffness.k3_n_per_m3 = 2.5e13
+    f = tmp_path / "rig.toml"
+    f.write_text(p.to_toml())
+    q = load_rig_params(f)
+    assert q == p
+    with pytest.raises(RigParamsError, match=r"structure.mass_kg = -1.0"):
+        rig_params_from_dict({"structure": {"mass_kg": -1.0}}, "x.toml")
+    with pytest.raises(RigParamsError, match=r"seal.frction_force_n"):
+        rig_params_from_dict({"seal": {"frction_force_n": 20}}, "x.toml")
