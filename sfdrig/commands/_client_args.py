@@ -1,0 +1,58 @@
+"""Shared wiring of the client commands (sweep, watch, pump, status, abort): where the daemon is
+and which keys to use. Not a command itself (the CLI loads only the modules it lists)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from control.client import CommandClient, Subscriber
+from control.security import ClientKeys, load_client_keys
+
+DEFAULT_RUNS_DIR = Path("runs")
+STATE_FILE_NAME = "daemon.json"
+
+
+def add_connection_arguments(parser: argparse.ArgumentParser, data: bool = False) -> None:
+    g = parser.add_argument_group("connection")
+    g.add_argument("--runs-dir", type=Path, default=DEFAULT_RUNS_DIR,
+                   help="the daemon's runs directory; its daemon.json names the endpoints "
+                        "(default: %(default)s)")
+    g.add_argument("--command-endpoint", help="daemon command endpoint, e.g. tcp://host:5555")
+    if data:
+        g.add_argument("--data-endpoint",
+                       help="live-data endpoint (the daemon's, or a proxy's XPUB)")
+    g.add_argument("--keys", type=Path, help="CURVE key directory (made by `sfdrig keys`)")
+    g.add_argument("--key-name", default="operator",
+                   help="this client's key name in KEYS/clients (default: %(default)s)")
+    g.add_argument("--timeout", type=float, default=5.0,
+                   help="seconds to wait for a reply (default: %(default)s)")
+
+
+def _state(args: argparse.Namespace) -> dict[str, str]:
+    path = Path(args.runs_dir) / STATE_FILE_NAME
+    try:
+        return dict(json.loads(path.read_text()))
+    except FileNotFoundError:
+        raise SystemExit(
+            f"no daemon state file {path}: is `sfdrig daemon --runs-dir {args.runs_dir}` running? "
+            f"(or pass --command-endpoint/--data-endpoint)"
+        ) from None
+    except (OSError, ValueError) as err:
+        raise SystemExit(f"cannot read {path}: {err}") from None
+
+
+def keys(args: argparse.Namespace) -> ClientKeys | None:
+    return load_client_keys(args.keys, args.key_name) if args.keys else None
+
+
+def command_client(args: argparse.Namespace) -> CommandClient:
+    endpoint = args.command_endpoint or _state(args)["command"]
+    return CommandClient(endpoint, timeout_s=args.timeout, keys=keys(args))
+
+
+def subscriber(args: argparse.Namespace, topics: list[str] | None = None,
+               rcvhwm: int = 1000) -> Subscriber:
+    endpoint = getattr(args, "data_endpoint", None) or _state(args)["data"]
+    return Subscriber(endpoint, topics=topics, rcvhwm=rcvhwm, keys=keys(args))

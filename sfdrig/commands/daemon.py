@@ -1,0 +1,104 @@
+"""`sfdrig daemon`: the composition root of the acquisition daemon.
+
+Chooses the backend from the command line (the simulated rig, paced to the wall clock or as fast
+as possible, or NI-DAQmx through the local driver or a gRPC device server), loads the channel map
+and rig configuration, and serves `control.daemon.Daemon` until SIGTERM or Ctrl-C, which shut
+down the safe way (drives ramped to zero, run file closed valid, marked aborted with the reason).
+
+The first line on stdout is ``command=<endpoint> data=<endpoint>``; the same endpoints go to
+``RUNS_DIR/daemon.json`` for the client commands.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from control.daemon import Daemon, DaemonConfig
+from control.security import KeyFileError, load_server_keys
+from daq.channels import ChannelMap, default_channel_map, load_channel_map
+from daq.errors import ChannelConfigError
+from sfdrig.commands._client_args import DEFAULT_RUNS_DIR, STATE_FILE_NAME
+
+NAME = "daemon"
+HELP = "run the acquisition daemon (state machine, sweeps, live data, run files)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--backend", choices=["sim", "nidaqmx"], default="sim",
+                        help="sim: the simulated rig; nidaqmx: NI-DAQmx (default: %(default)s)")
+    parser.add_argument("--grpc-target", metavar="HOST:PORT",
+                        help="with --backend nidaqmx: an NI gRPC device server instead of the "
+                             "local driver")
+    parser.add_argument("--fast", action="store_true",
+                        help="simulated rig as fast as possible, not paced to the wall clock "
+                             "(tests, demo)")
+    parser.add_argument("--command-endpoint", default="tcp://127.0.0.1:0",
+                        help="ROUTER bind address; port 0 picks a free port (default: "
+                             "%(default)s)")
+    parser.add_argument("--data-endpoint", default="tcp://127.0.0.1:0",
+                        help="PUB bind address; port 0 picks a free port (default: %(default)s)")
+    parser.add_argument("--runs-dir", type=Path, default=DEFAULT_RUNS_DIR,
+                        help="where run files go (default: %(default)s)")
+    parser.add_argument("--rig", type=Path, metavar="RIG.toml",
+                        help="simulated rig parameters (default: the report's rig)")
+    parser.add_argument("--channels", type=Path, metavar="CHANNELS.toml",
+                        help="channel map (default: the report's 14 AI channels)")
+    parser.add_argument("--seed", type=int, default=0, help="simulated rig noise seed")
+    parser.add_argument("--keys", type=Path,
+                        help="CURVE key directory (required to bind beyond loopback)")
+    parser.add_argument("--sndhwm", type=int, default=1000,
+                        help="PUB high-water mark per subscriber [messages]; 0 = unlimited "
+                             "(default: %(default)s)")
+    parser.add_argument("--log-level", default="WARNING", help="(default: %(default)s)")
+
+
+def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[Any, ChannelMap,
+                                                                               Any]:
+    """(backend, channel map, rig config or None), chosen from the arguments."""
+    if args.backend == "nidaqmx":
+        from daq.nidaqmx_backend import NidaqmxBackend
+
+        if args.grpc_target:
+            channel_map = channel_map.model_copy(update={"grpc_target": args.grpc_target})
+        return NidaqmxBackend(), channel_map, None
+    from simulated_hw.backend import SimulatedBackend
+    from simulated_hw.params import RigParams, load_rig_params
+
+    params = load_rig_params(args.rig) if args.rig else RigParams()
+    backend = SimulatedBackend(params, seed=args.seed, realtime=not args.fast)
+    return backend, channel_map, params
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    if args.grpc_target and args.backend != "nidaqmx":
+        print("daemon: --grpc-target needs --backend nidaqmx", file=sys.stderr)
+        return 2
+    try:
+        channel_map = load_channel_map(args.channels) if args.channels else default_channel_map()
+        keys = load_server_keys(args.keys) if args.keys else None
+        backend, channel_map, rig = build_backend(args, channel_map)
+    except (ChannelConfigError, KeyFileError, ValueError, OSError) as err:
+        print(f"daemon: {err}", file=sys.stderr)
+        return 2
+    config = DaemonConfig(
+        runs_dir=args.runs_dir, command_endpoint=args.command_endpoint,
+        data_endpoint=args.data_endpoint, keys=keys, rig_config=rig, sndhwm=args.sndhwm,
+        lossless_publish=args.fast, state_file=args.runs_dir / STATE_FILE_NAME,
+    )
+    try:
+        daemon = Daemon(backend, channel_map, config)
+    except PermissionError as err:
+        print(f"daemon: {err}", file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, lambda s, f: daemon.stop("SIGTERM received"))
+    signal.signal(signal.SIGINT, lambda s, f: daemon.stop("SIGINT (Ctrl-C) received"))
+    print(f"command={daemon.endpoints['command']} data={daemon.endpoints['data']}", flush=True)
+    daemon.serve()
+    return 0

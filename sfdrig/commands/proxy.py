@@ -1,0 +1,111 @@
+"""`sfdrig proxy`: fan the daemon's live data out to many subscribers, off the rig PC.
+
+Deployment
+----------
+The daemon runs on the rig PC, next to the DAQ hardware, and publishes every block once. The
+proxy runs on another host (a lab server): it subscribes to the daemon (XSUB) and re-publishes to
+any number of subscribers (XPUB), using ZeroMQ's own ``zmq.proxy``, so the cost of fan-out (copies,
+slow subscribers, network) lands on the proxy host and never on the acquisition loop. Subscribers
+(``sfdrig watch``, ``sfdrig sweep``, notebooks with `control.client.Subscriber`) connect to the
+proxy, anywhere on the network; commands still go straight to the daemon's command socket::
+
+    rig PC:       sfdrig daemon --backend nidaqmx --data-endpoint tcp://10.0.0.5:5556 \\
+                      --command-endpoint tcp://10.0.0.5:5555 --keys /etc/sfdrig/keys
+    lab server:   sfdrig proxy --upstream tcp://10.0.0.5:5556 --bind tcp://0.0.0.0:6556 \\
+                      --keys /etc/sfdrig/keys --key-name proxy
+    anywhere:     sfdrig watch --data-endpoint tcp://labserver:6556 --command-endpoint \\
+                      tcp://10.0.0.5:5555 --keys ~/keys --key-name operator
+
+Subscriptions travel upstream through the proxy, so each subscriber still receives only its
+topics. Sequence numbers pass through unchanged: a subscriber that falls behind the proxy sees its
+gaps exactly as it would on the daemon. With CURVE, the proxy is a client of the daemon (a reader
+key is enough) and a CURVE server to its own subscribers with the same key directory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from pathlib import Path
+
+import zmq
+
+from control.security import (
+    DATA_DOMAIN,
+    is_loopback,
+    load_client_keys,
+    load_server_keys,
+    secure_client_socket,
+    secure_server_socket,
+    start_authenticator,
+)
+
+NAME = "proxy"
+HELP = "relay the daemon's live data to many subscribers (ZeroMQ XSUB/XPUB proxy)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--upstream", required=True,
+                        help="the daemon's data endpoint, e.g. tcp://rigpc:5556")
+    parser.add_argument("--bind", default="tcp://127.0.0.1:0",
+                        help="where subscribers connect (default: %(default)s, a random port)")
+    parser.add_argument("--keys", type=Path, help="CURVE key directory (needed off loopback)")
+    parser.add_argument("--key-name", default="viewer",
+                        help="the proxy's own client key towards the daemon (default: "
+                             "%(default)s)")
+    parser.add_argument("--sndhwm", type=int, default=1000,
+                        help="per-subscriber send high-water mark [messages] (default: "
+                             "%(default)s)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if not is_loopback(args.bind) and args.keys is None:
+        print(f"proxy: binding {args.bind} beyond loopback requires --keys DIR", file=sys.stderr)
+        return 2
+    ctx = zmq.Context()
+    auth = None
+    xsub = ctx.socket(zmq.XSUB)
+    xpub = ctx.socket(zmq.XPUB)
+    ctrl_in = ctx.socket(zmq.PAIR)
+    ctrl_out = ctx.socket(zmq.PAIR)
+    for s in (xsub, xpub, ctrl_in, ctrl_out):
+        s.linger = 0
+    xpub.sndhwm = args.sndhwm
+    if args.keys is not None:
+        auth = start_authenticator(ctx, load_server_keys(args.keys))
+        secure_server_socket(xpub, load_server_keys(args.keys), DATA_DOMAIN)
+        secure_client_socket(xsub, load_client_keys(args.keys, args.key_name))
+    bind = args.bind[:-2] + ":*" if args.bind.endswith(":0") else args.bind
+    xpub.bind(bind)
+    xsub.connect(args.upstream)
+    ctrl_in.bind("inproc://sfdrig-proxy-control")
+    ctrl_out.connect("inproc://sfdrig-proxy-control")
+    print(f"data={xpub.last_endpoint.decode()} upstream={args.upstream}", flush=True)
+
+    stop = threading.Event()
+
+    def terminate(signum: int, frame: object) -> None:
+        stop.set()
+
+    old = {s: signal.signal(s, terminate) for s in (signal.SIGTERM, signal.SIGINT)}
+    # zmq.proxy_steerable blocks in C; a watcher thread turns the signal flag into TERMINATE.
+    watcher = threading.Thread(target=lambda: (stop.wait(), ctrl_in.send(b"TERMINATE")),
+                               name="sfdrig-proxy-stop", daemon=True)
+    watcher.start()
+    try:
+        zmq.proxy_steerable(xsub, xpub, None, ctrl_out)
+    except zmq.ContextTerminated:
+        pass
+    finally:
+        stop.set()
+        watcher.join(5)
+        for s, h in old.items():
+            signal.signal(s, h)
+        for s in (xsub, xpub, ctrl_in, ctrl_out):
+            s.close()
+        if auth is not None:
+            auth.stop()
+        ctx.term()
+    return 0

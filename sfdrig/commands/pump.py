@@ -1,0 +1,27 @@
+"""`sfdrig pump on|off`: switch the oil pump relay (refused off while the shakers run)."""
+
+from __future__ import annotations
+
+import argparse
+
+from control.client import CommandRefused, DaemonUnavailable
+from sfdrig.commands._client_args import add_connection_arguments, command_client
+
+NAME = "pump"
+HELP = "switch the oil pump on or off (off is refused while the shakers run)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("switch", choices=["on", "off"])
+    add_connection_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        with command_client(args) as client:
+            reply = client.pump(args.switch == "on")
+    except (DaemonUnavailable, CommandRefused) as err:
+        print(f"pump: {err}")
+        return 1
+    print(f"pump {'on' if reply.data['pump_on'] else 'off'}")
+    return 0

@@ -1,0 +1,45 @@
+"""`sfdrig status`: the daemon's state, current run and progress (one request, plain text)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from control.client import CommandRefused, DaemonUnavailable
+from sfdrig.commands._client_args import add_connection_arguments, command_client
+
+NAME = "status"
+HELP = "show the daemon's state, the current run and its progress"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_connection_arguments(parser)
+    parser.add_argument("--json", action="store_true", help="print the full status as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        with command_client(args) as client:
+            st = client.status()
+    except (DaemonUnavailable, CommandRefused) as err:
+        print(f"status: {err}")
+        return 1
+    if args.json:
+        print(json.dumps(st, indent=2))
+        return 0
+    print(f"state      {st['state']}")
+    print(f"pump       {'on' if st['pump_on'] else 'off'}")
+    if st["run_id"]:
+        p = st.get("progress", {})
+        print(f"run        {st['run_id']}  ({st['run_path']})")
+        print(f"samples    {st['samples']} at {st['sample_rate_hz']:g} S/s")
+        if p:
+            print("progress   " + "  ".join(f"{k}={v}" for k, v in p.items()))
+    if st.get("fault_reason"):
+        print(f"fault      {st['fault_reason']}")
+    last = st.get("last_run") or {}
+    if last:
+        print(f"last run   {last['run_id']}: {last['status']}"
+              + (f" ({last['reason']})" if last.get("reason") else ""))
+    print(f"endpoints  command={st['endpoints']['command']} data={st['endpoints']['data']}")
+    return 0

@@ -1,0 +1,205 @@
+"""The daemon in process, with a scripted sweep engine: state machine, replies, fan-out, files.
+
+The real engine is exercised end to end in tests/e2e; here a small engine that reads the
+simulated rig block by block makes every transition reachable and deterministic (it can hold a
+run at a gate until the test releases it, so nothing waits on wall-clock time)."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from pydantic import BaseModel, ConfigDict
+
+from control.client import CommandClient, CommandRefused, Subscriber
+from control.daemon import TRANSITIONS, Daemon, DaemonConfig, StateMachine, TransitionError
+from control.wire import DaemonState
+from daq.channels import default_channel_map
+from simulated_hw.backend import SimulatedBackend
+from storage.reader import open_run
+
+
+class ScriptSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    blocks: int
+    block_size: int = 500
+    hold_after: int | None = None  # wait at this block until aborted
+    lubricated: bool = False
+
+
+class ScriptEngine:
+    gates: dict[str, threading.Event] = {}
+
+    def __init__(self, backend, spec, limits=None, listener=None, pump=None):
+        self.backend, self.spec, self.listener, self.pump = backend, spec, listener, pump
+        self._aborted = threading.Event()
+        self._running = threading.Event()
+        self._running.set()
+        self.reason = ""
+        self.held = threading.Event()
+        ScriptEngine.last = self
+        self.progress = {"block": 0, "blocks": spec.blocks}
+
+    def run(self):
+        b, n = self.backend, self.spec.block_size
+        cm = b.channel_map
+        b.write_ao(np.zeros((2, n)))
+        b.start()
+        try:
+            for i in range(self.spec.blocks):
+                if self.spec.hold_after == i:
+                    self.held.set()
+                    self._aborted.wait()
+                self._running.wait()
+                if self._aborted.is_set():
+                    return SimpleNamespace(status="aborted", reason=self.reason)
+                ao = np.full((2, n), 0.01 * (i % 7))
+                b.write_ao(ao)
+                ai = cm.to_engineering(b.read_ai(n))
+                self.listener.on_block(i * n, ai, ao)
+                self.progress = {"block": i + 1, "blocks": self.spec.blocks}
+                if i % 4 == 3:
+                    self.listener.on_step({"index": i // 4, "freq_hz": 20.0})
+            return SimpleNamespace(status="completed", reason="")
+        finally:
+            b.stop()
+
+    def pause(self):
+        self._running.clear()
+
+    def resume(self):
+        self._running.set()
+
+    def abort(self, reason):
+        self.reason = reason
+        self._aborted.set()
+        self._running.set()
+
+
+class FakePump:
+    def __init__(self, backend):
+        self.is_on = False
+
+    def set(self, on):
+        self.is_on = on
+
+
+@pytest.fixture
+def daemon(tmp_path: Path):
+    backend = SimulatedBackend(seed=3)
+    cfg = DaemonConfig(runs_dir=tmp_path / "runs", sndhwm=0, lossless_publish=True,
+                       heartbeat_s=0.05)
+    d = Daemon(backend, default_channel_map(), cfg, engine_factory=ScriptEngine,
+               pump_factory=FakePump, spec_parser=ScriptSpec.model_validate)
+    t = threading.Thread(target=d.serve, name="test-daemon-serve")
+    t.start()
+    yield d
+    d.stop("test over")
+    t.join(30)
+
+
+def wait_state(client: CommandClient, sub: Subscriber, state: str) -> None:
+    """Wait on the PUB stream (no sleeps) until a status heartbeat shows ``state``."""
+    while True:
+        msg = sub.recv(timeout_s=10)
+        assert msg is not None, f"no message while waiting for state {state}"
+        if msg.topic == "status" and msg.header["status"]["state"] == state:
+            return
+
+
+def test_transition_table_refuses_what_it_does_not_list():
+    sm = StateMachine()
+    with pytest.raises(TransitionError, match="'pause' is not allowed while idle"):
+        sm.fire("pause")
+    assert sm.state is DaemonState.IDLE
+    assert sm.fire("start") is DaemonState.ARMING
+    assert sm.fire("armed") is DaemonState.RUNNING
+    assert sm.fire("pause") is DaemonState.PAUSED
+    assert sm.fire("abort") is DaemonState.ABORTING
+    assert sm.fire("finished") is DaemonState.IDLE
+    # every state can be left: no trap states
+    for state in DaemonState:
+        assert any(s is state for (s, _e) in TRANSITIONS), state
+
+
+def test_sweep_streams_every_block_and_the_file_matches(daemon: Daemon):
+    ep = daemon.endpoints
+    with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        reply = c.start_sweep({"blocks": 24, "block_size": 400}, operator="t")
+        run_id = reply.data["run_id"]
+        blocks, steps = [], []
+        while True:
+            msg = sub.recv(timeout_s=10)
+            assert msg is not None
+            if msg.topic == "block":
+                assert msg.header["run_id"] == run_id
+                blocks.append(msg)
+            elif msg.topic == "step":
+                steps.append(msg.header["step"])
+            elif msg.topic == "event" and msg.header["message"].startswith(f"run {run_id}"):
+                break
+        assert sub.lost == {}
+        assert [m.header["first_sample"] for m in blocks] == [400 * i for i in range(24)]
+        assert [s["index"] for s in steps] == list(range(6))
+        assert c.status()["state"] == "idle"
+        runs = c.list_runs()
+    assert runs[0]["run_id"] == run_id and runs[0]["status"] == "completed"
+    streamed = np.concatenate([m.array for m in blocks], axis=1)
+    with open_run(reply.data["path"]) as run:
+        assert run.n_samples == 24 * 400
+        names = run.channel_names
+        for i, name in enumerate(names):
+            np.testing.assert_array_equal(run.channel(name), streamed[i])
+        np.testing.assert_array_equal(run.h5["drive/shaker_x"][:], streamed[len(names)])
+
+
+def test_forbidden_requests_leave_the_state_unchanged(daemon: Daemon):
+    ep = daemon.endpoints
+    with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        for cmd in ("pause", "resume", "abort", "reset"):
+            with pytest.raises(CommandRefused, match=f"'{cmd}' is not allowed while idle"):
+                c.request(cmd)
+        with pytest.raises(CommandRefused, match=r"start\.spec\.blocks: Field required$"):
+            c.start_sweep({"block_size": 10})
+        assert c.status()["state"] == "idle"
+        c.start_sweep({"blocks": 10, "hold_after": 3})
+        assert ScriptEngine.last.held.wait(10)
+        with pytest.raises(CommandRefused, match="'start' is not allowed while running"):
+            c.start_sweep({"blocks": 1})
+        assert c.pause().state is DaemonState.PAUSED
+        with pytest.raises(CommandRefused, match="'pause' is not allowed while paused"):
+            c.pause()
+        assert c.resume().state is DaemonState.RUNNING
+        assert c.abort("test abort").state is DaemonState.ABORTING
+        wait_state(c, sub, "idle")
+        last = c.status()["last_run"]
+        assert (last["status"], last["reason"]) == ("aborted", "test abort")
+        with open_run(last["path"]) as run:
+            assert run.status == "aborted"
+            assert run.attrs["status_reason"] == "test abort"
+            assert run.n_samples == 3 * 500
+
+
+def test_malformed_frames_get_error_replies(daemon: Daemon):
+    with CommandClient(daemon.endpoints["command"]) as c:
+        cases = {
+            b"not json": "malformed",
+            b"[1, 2]": "malformed",
+            b'{"cmd": "fly"}': "invalid",
+            b'{"cmd": "pump"}': "invalid",
+            b'{"cmd": "pump", "on": "maybe"}': "invalid",
+            b'{"cmd": "status", "extra": 1}': "invalid",
+        }
+        for frame, kind in cases.items():
+            import json
+            reply = json.loads(c.send_raw([b"", frame]))
+            assert reply["ok"] is False and reply["error_kind"] == kind, (frame, reply)
+            assert reply["error"]
+        reply = json.loads(c.send_raw([b"", b"{}", b"{}"]))
+        assert reply["error"] == "expected one JSON request frame, got 2 frames"
+        assert c.status()["state"] == "idle"
