@@ -1,0 +1,336 @@
+"""`NidaqmxBackend`: the `DaqBackend` protocol on the official ``nidaqmx`` package.
+
+Runs against the local NI-DAQmx driver, or against an NI gRPC Device Server when the channel
+map names one (``ChannelMap.grpc_target = "host:port"``). Three tasks:
+
+- AI: one voltage channel per analog input (with its range), hardware-timed, continuous, on the
+  onboard clock; read with `AnalogMultiChannelReader` (no per-read attribute round trips).
+- AO: one voltage channel per shaker drive, non-regenerating, on ``/<dev>/ai/SampleClock`` and
+  armed on ``/<dev>/ai/StartTrigger``, so AO sample ``k`` is generated as AI sample ``k`` is taken;
+  written with `AnalogMultiChannelWriter`.
+- DO: one line per relay, software-timed.
+
+Task names carry a uuid, and gRPC sessions are created with ``INITIALIZE_SERVER_SESSION``, so
+a stale task left on a server by a crashed client is never re-attached. Every nidaqmx
+``DaqError`` reaches the caller as `daq.errors.DaqError` (the subclass for its code, via
+`daq.errors.error_for_code`); gRPC failures and a missing driver as `DaqConnectionError`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import uuid
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from daq.channels import ChannelMap
+from daq.errors import ChannelConfigError, DaqConnectionError, DaqError, error_for_code
+
+_log = logging.getLogger(__name__)
+
+#: gRPC message limit: one read of 100,000 samples x 16 channels is 12.8 MB of doubles.
+MAX_MESSAGE_BYTES = 256 * 1024 * 1024
+
+
+def _nidaqmx() -> Any:
+    """Import nidaqmx lazily, so the rest of the project never pays for it."""
+    try:
+        import nidaqmx
+        import nidaqmx.errors
+        import nidaqmx.stream_readers
+        import nidaqmx.stream_writers
+    except ImportError as err:  # pragma: no cover - a pinned dependency
+        raise DaqConnectionError(f"the nidaqmx package is not installed: {err}") from None
+    return nidaqmx
+
+
+@contextlib.contextmanager
+def translate_errors(action: str) -> Iterator[None]:
+    """Re-raise nidaqmx and gRPC errors as our typed errors; ``action`` says what we were doing.
+
+    ``nidaqmx.errors.DaqError`` (and its read/write subclasses) -> `error_for_code` with the
+    DAQmx code; ``RpcError`` (server unreachable or lacking a call) and a missing driver
+    -> `DaqConnectionError`.
+    """
+    nidaqmx = _nidaqmx()
+    errors = nidaqmx.errors
+    try:
+        yield
+    except errors.DaqError as err:
+        message = str(err).split("\n\nStatus Code:")[0].strip()
+        raise error_for_code(f"{action}: {message}", err.error_code) from err
+    except errors.RpcError as err:
+        raise DaqConnectionError(f"{action}: NI gRPC device server error: {err}") from err
+    except (errors.DaqNotFoundError, errors.DaqNotSupportedError) as err:
+        raise DaqConnectionError(f"{action}: NI-DAQmx driver not available: {err}") from err
+    except DaqError:
+        raise
+    except ConnectionError as err:
+        raise DaqConnectionError(f"{action}: {err}") from err
+
+
+class NidaqmxBackend:
+    """Hardware-timed AI, streaming AO on the AI clock and relay lines, through nidaqmx.
+
+    Parameters
+    ----------
+    buffer_s : float
+        Size of the AI and AO buffers on the device [s of samples]. A reader more than this
+        behind loses data (DAQmx -200279); the AO writer may run at most this far ahead.
+    connect_timeout_s : float
+        How long ``configure`` waits for a gRPC server to answer [s].
+    grpc_target : str, optional
+        ``"host:port"`` of an NI gRPC Device Server; overrides ``ChannelMap.grpc_target``.
+    """
+
+    def __init__(self, buffer_s: float = 10.0, connect_timeout_s: float = 5.0,
+                 grpc_target: str | None = None) -> None:
+        if buffer_s <= 0:
+            raise ValueError(f"buffer_s must be positive, got {buffer_s}")
+        self.buffer_s = buffer_s
+        self.connect_timeout_s = connect_timeout_s
+        self._grpc_override = grpc_target
+        self._map: ChannelMap | None = None
+        self._channel: Any = None  # grpc.Channel
+        self._ai: Any = None
+        self._ao: Any = None
+        self._do: Any = None
+        self._reader: Any = None
+        self._writer: Any = None
+        self._do_writer: Any = None
+        self._do_state: np.ndarray = np.zeros(0, dtype=bool)
+        self._ao_written = 0
+        self._running = False
+
+    # --- protocol -------------------------------------------------------------------------
+    @property
+    def channel_map(self) -> ChannelMap:
+        if self._map is None:
+            raise DaqError("backend not configured: call configure(channel_map) first")
+        return self._map
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return self.channel_map.sample_rate_hz
+
+    @property
+    def grpc_target(self) -> str | None:
+        if self._grpc_override is not None:
+            return self._grpc_override
+        return self._map.grpc_target if self._map is not None else None
+
+    def configure(self, channel_map: ChannelMap) -> None:
+        """Create the AI, AO and DO tasks for ``channel_map``; nothing starts yet.
+
+        Raises `DaqConnectionError` when no driver or server answers, and the typed
+        `DaqError` for what the device refuses (e.g. -200170 for a physical channel it lacks,
+        -200332 for a rate above its maximum); the message names the channel or setting.
+        """
+        if self._running:
+            raise DaqError("cannot reconfigure while running; stop first")
+        self.close()
+        self._map = channel_map
+        self._ao_written = 0
+        try:
+            self._create_tasks(channel_map)
+        except BaseException:
+            self.close()
+            self._map = channel_map
+            raise
+
+    def start(self) -> None:
+        """Arm AO on the AI start trigger, then start AI (write the AO prefill first)."""
+        self._require_tasks()
+        if self._ao is not None:
+            with translate_errors("starting the AO task"):
+                self._ao.start()
+        with translate_errors("starting the AI task"):
+            self._ai.start()
+        self._running = True
+
+    def write_ao(self, block: np.ndarray) -> None:
+        """Queue the next AO samples, volts, shape ``(n_ao, n)``; never regenerated."""
+        cm = self.channel_map
+        arr = np.ascontiguousarray(block, dtype=np.float64)
+        if arr.ndim != 2 or arr.shape[0] != len(cm.ao) or arr.shape[1] == 0:
+            raise ValueError(f"AO block must have shape ({len(cm.ao)}, n>0), got {arr.shape}")
+        if self._writer is None:
+            raise DaqError("write_ao: no AO task (configure a channel map with AO channels)")
+        with translate_errors(f"writing {arr.shape[1]} AO samples"):
+            written = self._writer.write_many_sample(arr, timeout=self.buffer_s)
+        self._ao_written += int(written)
+        if written != arr.shape[1]:
+            raise error_for_code(
+                f"writing AO: only {written} of {arr.shape[1]} samples were written", -200292
+            )
+
+    def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
+        """The next ``n`` AI samples per channel, volts, shape ``(n_ai, n)``."""
+        if n <= 0:
+            raise ValueError(f"read_ai: n must be positive, got {n}")
+        self._require_tasks()
+        out = np.empty((len(self.channel_map.ai), n))
+        with translate_errors(f"reading {n} AI samples"):
+            got = self._reader.read_many_sample(out, number_of_samples_per_channel=n,
+                                                timeout=timeout_s)
+        if got != n:  # never hand back a short block silently
+            raise error_for_code(f"reading AI: got {got} of {n} samples", -200284)
+        return out
+
+    def set_do(self, name: str, value: bool) -> None:
+        """Set the relay line called ``name`` in the channel map (software-timed, at once)."""
+        cm = self.channel_map
+        cm.relay(name)  # KeyError names the missing relay
+        index = [d.name for d in cm.do].index(name)
+        self._require_tasks()
+        state = self._do_state.copy()
+        state[index] = bool(value)
+        with translate_errors(f"setting relay {name} ({cm.do[index].physical_channel})"):
+            self._do_writer.write_one_sample_one_line(state, timeout=self.connect_timeout_s)
+        self._do_state = state
+
+    def ao_backlog(self) -> int:
+        """Samples written to AO but not yet generated (DAQmx TotalSampPerChanGenerated)."""
+        if self._ao is None:
+            return 0
+        if not self._running:
+            return self._ao_written
+        with translate_errors("asking for the AO samples generated"):
+            generated = int(self._ao.out_stream.total_samp_per_chan_generated)
+        return self._ao_written - generated
+
+    def stop(self) -> None:
+        """Stop AI, then AO; the last AO samples written stay on the outputs."""
+        first: DaqError | None = None
+        for task, what in ((self._ai, "AI"), (self._ao, "AO")):
+            if task is None:
+                continue
+            try:
+                with translate_errors(f"stopping the {what} task"):
+                    task.stop()
+            except DaqError as err:
+                first = first or err
+        self._running = False
+        if first is not None:
+            raise first
+
+    def close(self) -> None:
+        """Clear every task and close the gRPC channel; safe to call twice. Failures (e.g.
+        the server is gone) are logged, not raised: there is nothing left to release."""
+        for attr in ("_ai", "_ao", "_do"):
+            task = getattr(self, attr)
+            setattr(self, attr, None)
+            if task is None:
+                continue
+            try:
+                with translate_errors("clearing a task"):
+                    task.close()
+            except DaqError as err:
+                _log.warning("close: %s", err)
+        self._reader = self._writer = self._do_writer = None
+        self._running = False
+        if self._channel is not None:
+            self._channel.close()
+            self._channel = None
+
+    # --- internals ------------------------------------------------------------------------
+    def _require_tasks(self) -> None:
+        if self._map is None:
+            raise DaqError("backend not configured: call configure(channel_map) first")
+        if self._ai is None:
+            raise DaqError("backend is closed (or its configuration failed); configure again")
+
+    def _grpc_options(self, nidaqmx: Any) -> Any:
+        target = self.grpc_target
+        if target is None:
+            return None
+        if self._channel is None:
+            import grpc
+
+            if target.count(":") < 1 or not target.rsplit(":", 1)[1].isdigit():
+                raise ChannelConfigError(f"grpc_target {target!r} must be 'host:port'")
+            self._channel = grpc.insecure_channel(target, options=[
+                ("grpc.max_receive_message_length", MAX_MESSAGE_BYTES),
+                ("grpc.max_send_message_length", MAX_MESSAGE_BYTES),
+            ])
+            try:
+                grpc.channel_ready_future(self._channel).result(timeout=self.connect_timeout_s)
+            except grpc.FutureTimeoutError:
+                raise DaqConnectionError(
+                    f"no NI gRPC device server answers at {target} "
+                    f"(waited {self.connect_timeout_s:g} s)"
+                ) from None
+        return nidaqmx.GrpcSessionOptions(
+            self._channel, "",
+            initialization_behavior=nidaqmx.grpc_session_options.SessionInitializationBehavior
+            .INITIALIZE_SERVER_SESSION,
+        )
+
+    def _new_task(self, nidaqmx: Any, role: str) -> Any:
+        options = self._grpc_options(nidaqmx)
+        name = f"sfdrig-{role}-{uuid.uuid4().hex[:12]}"
+        where = f" on {self.grpc_target}" if self.grpc_target else ""
+        with translate_errors(f"creating the {role.upper()} task {name}{where}"):
+            if options is None:
+                return nidaqmx.Task(name)
+            return nidaqmx.Task(name, grpc_options=options)
+
+    def _create_tasks(self, cm: ChannelMap) -> None:
+        nidaqmx = _nidaqmx()
+        from nidaqmx.constants import AcquisitionType, LineGrouping, RegenerationMode
+
+        dev = cm.device.name
+        fs = cm.sample_rate_hz
+        buffer = max(int(round(self.buffer_s * fs)), 2)
+        # AI
+        self._ai = self._new_task(nidaqmx, "ai")
+        for ch in cm.ai:
+            lo, hi = ch.range_v
+            with translate_errors(f"AI channel {ch.name} on {ch.physical_channel}"):
+                self._ai.ai_channels.add_ai_voltage_chan(
+                    ch.physical_channel, name_to_assign_to_channel=ch.name, min_val=lo,
+                    max_val=hi)
+        with translate_errors(f"AI sample clock at {fs:g} S/s"):
+            self._ai.timing.cfg_samp_clk_timing(
+                fs, sample_mode=AcquisitionType.CONTINUOUS, samps_per_chan=buffer)
+            actual = float(self._ai.timing.samp_clk_rate)
+        if abs(actual - fs) > 1e-6 * fs:
+            raise ChannelConfigError(
+                f"sample_rate_hz = {fs:g}: the device coerced it to {actual:.9g} S/s; "
+                "choose a rate its timebase divides exactly"
+            )
+        self._reader = nidaqmx.stream_readers.AnalogMultiChannelReader(self._ai.in_stream)
+        self._reader.verify_array_shape = False
+        # AO, on the AI clock and start trigger
+        if cm.ao:
+            self._ao = self._new_task(nidaqmx, "ao")
+            for ao in cm.ao:
+                lo, hi = ao.range_v
+                with translate_errors(f"AO channel {ao.name} on {ao.physical_channel}"):
+                    self._ao.ao_channels.add_ao_voltage_chan(
+                        ao.physical_channel, name_to_assign_to_channel=ao.name, min_val=lo,
+                        max_val=hi)
+            with translate_errors(f"AO timing on /{dev}/ai/SampleClock"):
+                self._ao.timing.cfg_samp_clk_timing(
+                    fs, source=f"/{dev}/ai/SampleClock",
+                    sample_mode=AcquisitionType.CONTINUOUS, samps_per_chan=buffer)
+                self._ao.triggers.start_trigger.cfg_dig_edge_start_trig(f"/{dev}/ai/StartTrigger")
+                self._ao.out_stream.regen_mode = RegenerationMode.DONT_ALLOW_REGENERATION
+            self._writer = nidaqmx.stream_writers.AnalogMultiChannelWriter(
+                self._ao.out_stream, auto_start=False)
+            self._writer.verify_array_shape = False
+        # DO, one channel per relay line
+        if cm.do:
+            self._do = self._new_task(nidaqmx, "do")
+            for d in cm.do:
+                with translate_errors(f"relay {d.name} on {d.physical_channel}"):
+                    self._do.do_channels.add_do_chan(
+                        d.physical_channel, name_to_assign_to_lines=d.name,
+                        line_grouping=LineGrouping.CHAN_PER_LINE)
+            self._do_writer = nidaqmx.stream_writers.DigitalMultiChannelWriter(
+                self._do.out_stream, auto_start=True)
+            self._do_writer.verify_array_shape = False
+            self._do_state = np.zeros(len(cm.do), dtype=bool)

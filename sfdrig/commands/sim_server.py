@@ -1,0 +1,66 @@
+"""`sfdrig sim-server`: the simulated NI-DAQmx gRPC device server (the rig behind nidaqmx)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+NAME = "sim-server"
+HELP = ("Serve a simulated NI-DAQmx device (Dev1 wired to the simulated rig) over gRPC, for "
+        "the nidaqmx backend.")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", type=int, required=True,
+                        help="TCP port; 0 picks a free one (the first line of stdout says which)")
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="address to bind (default: %(default)s)")
+    parser.add_argument("--rig", help="rig parameters TOML (default: the report's rig)")
+    parser.add_argument("--channels",
+                        help="wiring: channel map TOML saying which sensor is on which terminal "
+                             "(default: the report's channel map)")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed (default: %(default)s)")
+    parser.add_argument("--fast", action="store_true",
+                        help="generate samples as fast as they are read instead of in real time")
+
+
+def run(args: argparse.Namespace) -> int:
+    from daq.channels import default_channel_map, load_channel_map
+    from daq.errors import ChannelConfigError
+    from simulated_hw.grpc_server import SimulatedDeviceServer
+    from simulated_hw.params import RigParams, RigParamsError, load_rig_params
+
+    if not 0 <= args.port <= 65535:
+        print(f"sim-server: --port {args.port} is not a TCP port (0..65535)", file=sys.stderr)
+        return 2
+    try:
+        params = load_rig_params(args.rig) if args.rig else RigParams()
+        wiring = load_channel_map(args.channels) if args.channels else default_channel_map()
+    except (RigParamsError, ChannelConfigError) as err:
+        print(f"sim-server: {err}", file=sys.stderr)
+        return 2
+    try:
+        server = SimulatedDeviceServer(args.host, args.port, params=params, seed=args.seed,
+                                       fast=args.fast, wiring=wiring)
+    except (OSError, RuntimeError) as err:
+        print(f"sim-server: cannot listen on {args.host}:{args.port}: {err}", file=sys.stderr)
+        return 1
+    done = threading.Event()
+
+    def _on_signal(signum: int, _frame: object) -> None:
+        done.set()
+
+    signal.signal(signal.SIGTERM, _on_signal)
+    signal.signal(signal.SIGINT, _on_signal)
+    server.start()
+    mode = "fast" if args.fast else "real time"
+    print(f"listening on {server.address}", flush=True)
+    print(f"device {wiring.device.name} ({wiring.device.product}), seed {args.seed}, {mode}; "
+          "stop with Ctrl-C or SIGTERM", flush=True)
+    while not done.wait(0.5):
+        pass
+    server.stop(grace_s=1.0)
+    print("sim-server stopped", flush=True)
+    return 0
