@@ -186,9 +186,9 @@ class RigParams(_Model):
     noise: SensorNoise = SensorNoise()
     effects: Effects = Effects()
     max_step_s: float = Field(
-        12.5e-6, gt=0, le=1e-3,
-        description="largest integration step; the symplectic scheme's damping error is ~K h/2 "
-        "per unit (h = 12.5 us: about 4 N.s/m on C_rv = 370 N.s/m)",
+        50e-6, gt=0, le=1e-3,
+        description="largest integration step (leapfrog); at 50 us the dynamic stiffness is "
+        "within 0.25 % at 60 Hz and the damping within 0.1 N.s/m",
     )
     substeps: int | None = Field(
         None, ge=1, le=4096, description="integration steps per sample; None: from max_step_s"

@@ -66,8 +66,9 @@ def integrate(
         flx = fly = 0.0
         cfilm = 0.0
         for k in range(nsub):
-            fx_in = fpx + (k + 0.5) * dfx
-            fy_in = fpy + (k + 0.5) * dfy
+            # the kick uses the force at the start of the substep, where x is (leapfrog)
+            fx_in = fpx + k * dfx
+            fy_in = fpy + k * dfy
             # film coefficients at this instant
             ecc2 = (x * x + y * y) / (clear * clear)
             if ecc2 > 0.9025:  # eps capped at 0.95: the formula diverges at contact
@@ -184,12 +185,21 @@ def shaker_force(cmd: np.ndarray, pole: float, max_force: float, state: np.ndarr
 
 @numba.njit(cache=True)
 def sensor_volts(true: np.ndarray, gain: np.ndarray, offset: np.ndarray, noise: np.ndarray,
-                 sigma: np.ndarray, lsb: float, lo: np.ndarray, hi: np.ndarray,
-                 out: np.ndarray) -> None:
-    """Sensor output: gain, offset, noise, ADC quantisation and range clipping, in volts."""
+                 starts: np.ndarray, sigma: np.ndarray, lsb: float, lo: np.ndarray,
+                 hi: np.ndarray, out: np.ndarray) -> None:
+    """Sensor output: gain, offset, noise, ADC quantisation and range clipping, in volts.
+
+    ``noise`` is a table of standard normal draws; channel c reads it from ``starts[c]`` on
+    (wrapping), a fresh random start per channel and block: as good as new draws for a sensor's
+    white noise, at a fraction of the cost of drawing 14 channels x 10 kS/s anew."""
+    m = noise.size
     for c in range(true.shape[0]):
+        j = starts[c]
         for i in range(true.shape[1]):
-            v = true[c, i] * gain[c] + offset[c] + noise[c, i] * sigma[c]
+            v = true[c, i] * gain[c] + offset[c] + noise[j] * sigma[c]
+            j += 1
+            if j == m:
+                j = 0
             v = np.round(v / lsb) * lsb
             out[c, i] = min(max(v, lo[c]), hi[c])
 
