@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -549,13 +550,19 @@ class RunWriter:
             with self._lock:
                 if self._closed:
                     return
-                due = time.monotonic() - self._last_flush >= self.flush_interval_s
-                if due and (self._pending or self._samples_flushed < self._written):
-                    try:
+                if time.monotonic() - self._last_flush < self.flush_interval_s:
+                    continue
+                try:
+                    if self._pending or self._samples_flushed < self._written:
                         self._flush_locked()
-                    except Exception as err:  # e.g. a full disk: reported by the next call
-                        self.flush_error = err
-                        return
+                    else:
+                        # Heartbeat: a fresh mtime tells the catalog the writer is alive even
+                        # while no samples arrive (a paused sweep).
+                        os.utime(self.path)
+                        self._last_flush = time.monotonic()
+                except Exception as err:  # e.g. a full disk: reported by the next call
+                    self.flush_error = err
+                    return
 
     # --- closing ------------------------------------------------------------------------------
     def _check_open(self) -> None:
