@@ -1,0 +1,360 @@
+"""The effect library: candidate terms of the rig model, each with named, fitted parameters.
+
+Every effect is a term the simulator itself has (``RigParams.effects``, the seal, the film, the
+structure) or a measurement-chain term (channel gain, channel delay), so a fitted effect writes
+straight into a rig TOML the simulator loads. Effect ids and parameter names are part of the JSON
+contract of ``sfdrig diagnose``:
+
+==========================  ==============================================================
+id                          parameters (main parameter first)
+==========================  ==============================================================
+coulomb_friction            friction_force_N (dry friction against the velocity vector)
+cubic_stiffness             k3_N_per_m3 (F = k3 z^3 per axis)
+quadratic_stiffness         k2_N_per_m2 (F = k2 z^2 per axis)
+amplitude_dependent_damping clearance_m: the c in the film's eccentricity law
+                            (1 + 2 eps^2) / (1 - eps^2)^2, eps = |r| / c, centred damping held
+added_mass                  added_mass_kg (mass added to the configured structure mass)
+cross_coupling              c_xy_Ns_per_m, c_yx_Ns_per_m, d_xy_kg, d_yx_kg (film cross terms)
+second_mode                 frequency_hz, modal_mass_kg (the frame as a second mass-spring)
+viscosity_drift             relative_change (film damping, end of data / start - 1)
+sensor_gain                 channel, gain_ratio (recorded / true)
+channel_delay               channel, delay_s
+air_entrainment             coefficient_s_per_m (L_eff = L (1 - k mean|v|))
+==========================  ==============================================================
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from analysis.diagnose.data import RunRecord
+from analysis.diagnose.model import Model, Param, get_path, set_path
+from simulated_hw.params import VISCOSITY_SLOPE_PER_C, RigParams
+
+
+@dataclass
+class Context:
+    """What the effects need to know about the data and the baseline."""
+
+    records: list[RunRecord]
+    base: Model  # the baseline model (configured masses etc. are read from it)
+    fitted_baseline: bool
+    duration_s: float
+    x_rms_m: float  # RMS displacement of the response channels
+    f_rms_n: float  # RMS force
+    f_typ_hz: float  # typical excitation frequency
+
+    @property
+    def lubricated(self) -> bool:
+        return any(r.lubricated for r in self.records)
+
+    @property
+    def two_axes(self) -> bool:
+        return any(len(r.axes) == 2 and np.any(r.force_n[1] != 0) for r in self.records)
+
+    def redundant_channels(self) -> list[str]:
+        """Response channels that share their axis with another channel in the same run."""
+        out: list[str] = []
+        for r in self.records:
+            for ch, ax in r.response_axis.items():
+                if sum(1 for a in r.response_axis.values() if a == ax) > 1 and ch not in out:
+                    out.append(ch)
+        return out
+
+
+@dataclass
+class Variant:
+    """One way to fit an effect: fixed labels (e.g. the channel), parameters, start models."""
+
+    labels: dict[str, Any]
+    params: list[Param]
+    starts: list[Model]
+
+
+@dataclass
+class Effect:
+    id: str
+    description: str
+    main: str  # main parameter name (recovered within `tolerance` in the hidden-effect tests)
+    tolerance: float  # relative tolerance documented for the main parameter
+    kind: str = "structure"  # "structure" | "measurement"
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def applicable(self, ctx: Context) -> str | None:
+        """None when the effect can be fitted on this data, else the reason it cannot."""
+        return _APPLICABLE[self.id](ctx)
+
+    def variants(self, ctx: Context, model: Model) -> list[Variant]:
+        return _VARIANTS[self.id](ctx, model)
+
+
+# --- helpers -----------------------------------------------------------------------------
+def _stiffness(ctx: Context) -> float:
+    st = ctx.base.rig.structure
+    return 0.5 * (st.stiffness_x_n_per_m + st.stiffness_y_n_per_m)
+
+
+def _enable(path: str) -> Any:
+    def setter(m: Model, v: float, _p: str = path) -> Model:
+        m = set_path(m, _p.rsplit(".", 1)[0] + ".enabled", True)
+        return set_path(m, _p, float(v))
+    return setter
+
+
+def _effect_param(name: str, path: str, scale: float, lo: float = -math.inf,
+                  hi: float = math.inf) -> Param:
+    def get(m: Model, _p: str = path) -> float:
+        enabled = get_path(m, _p.rsplit(".", 1)[0] + ".enabled")
+        return float(get_path(m, _p)) if enabled else 0.0
+    return Param(name, get, _enable(path), scale, lo, hi)
+
+
+def _needs_film(ctx: Context) -> str | None:
+    return None if ctx.lubricated else "no lubricated run: the film is off"
+
+
+def _always(ctx: Context) -> str | None:
+    return None
+
+
+# --- the library -------------------------------------------------------------------------
+def _friction(ctx: Context, m: Model) -> list[Variant]:
+    seal = m.rig.seal
+    f0 = seal.friction_force_n if seal.enabled else 0.0
+
+    def get(mm: Model) -> float:
+        return mm.rig.seal.friction_force_n if mm.rig.seal.enabled else 0.0
+
+    def put(mm: Model, v: float) -> Model:
+        return set_path(set_path(mm, "seal.enabled", True), "seal.friction_force_n", float(v))
+
+    scale = max(f0, 0.05 * ctx.f_rms_n)
+    start = f0 if f0 > 0 else 0.05 * ctx.f_rms_n
+    p = Param("friction_force_N", get, put, 0.3 * scale, 0.0)
+    return [Variant({}, [p], [put(m, start)])]
+
+
+def _cubic(ctx: Context, m: Model) -> list[Variant]:
+    scale = 0.1 * _stiffness(ctx) / ctx.x_rms_m**2
+    p = _effect_param("k3_N_per_m3", "effects.cubic_stiffness.k3_n_per_m3", scale)
+    return [Variant({}, [p], [p.set(m, p.get(m))])]
+
+
+def _quadratic(ctx: Context, m: Model) -> list[Variant]:
+    scale = 0.1 * _stiffness(ctx) / ctx.x_rms_m
+    p = _effect_param("k2_N_per_m2", "effects.quadratic_stiffness.k2_n_per_m2", scale)
+    return [Variant({}, [p], [p.set(m, p.get(m))])]
+
+
+def _clearance_setter(c0: float, scale0: float, d0: float):
+    def put(mm: Model, v: float) -> Model:
+        data = mm.rig.model_dump(mode="python")
+        film = data["film"]
+        film["clearance_m"] = float(v)
+        film["damping_scale"] = scale0 * (float(v) / c0) ** 3  # hold the centred damping
+        film["added_mass_kg"] = d0  # hold the added mass
+        film["eccentricity_law"] = True
+        return replace(mm, rig=RigParams.model_validate(data))
+    return put
+
+
+def _amp_damping(ctx: Context, m: Model) -> list[Variant]:
+    base_film = ctx.base.rig.film
+    put = _clearance_setter(base_film.clearance_m, base_film.damping_scale,
+                            base_film.added_mass())
+    # eps must stay below 1 over the data: the clearance exceeds the largest orbit radius
+    r_max = max(float(np.max(np.hypot(*_xy(r)))) for r in ctx.records)
+
+    def get(mm: Model) -> float:
+        return mm.rig.film.clearance_m if mm.rig.film.eccentricity_law else math.inf
+
+    c_now = m.rig.film.clearance_m
+    p = Param("clearance_m", get, put, 0.1 * base_film.clearance_m, 1.05 * r_max)
+    starts = [put(m, max(c_now, 1.1 * r_max))]
+    if not m.rig.film.eccentricity_law:
+        starts.append(put(m, max(0.5 * c_now, 1.2 * r_max)))
+    return [Variant({}, [p], starts)]
+
+
+def _xy(r: RunRecord) -> tuple[np.ndarray, np.ndarray]:
+    xs = [v for c, v in r.responses.items() if r.response_axis[c] == 0]
+    ys = [v for c, v in r.responses.items() if r.response_axis[c] == 1]
+    x = np.mean(xs, axis=0) if xs else np.zeros(r.n_samples)
+    y = np.mean(ys, axis=0) if ys else np.zeros(r.n_samples)
+    return x - np.mean(x), y - np.mean(y)
+
+
+def _added_mass(ctx: Context, m: Model) -> list[Variant]:
+    m0 = ctx.base.rig.structure.mass_kg
+
+    def get(mm: Model) -> float:
+        return mm.rig.structure.mass_kg - m0
+
+    def put(mm: Model, v: float) -> Model:
+        return set_path(mm, "structure.mass_kg", m0 + float(v))
+
+    p = Param("added_mass_kg", get, put, 0.05 * m0, -0.9 * m0)
+    return [Variant({}, [p], [m])]
+
+
+def _cross(ctx: Context, m: Model) -> list[Variant]:
+    c0 = ctx.base.rig.film.eq16_damping_centred(ctx.base.rig.film.reference_viscosity()[0])
+    d0 = max(ctx.base.rig.film.added_mass(), 1.0)
+    ps = [
+        _effect_param("c_xy_Ns_per_m", "effects.cross_coupling.c_xy_ns_per_m", 0.1 * c0),
+        _effect_param("c_yx_Ns_per_m", "effects.cross_coupling.c_yx_ns_per_m", 0.1 * c0),
+        _effect_param("d_xy_kg", "effects.cross_coupling.d_xy_kg", 0.1 * d0),
+        _effect_param("d_yx_kg", "effects.cross_coupling.d_yx_kg", 0.1 * d0),
+    ]
+    return [Variant({}, ps, [ps[0].set(m, ps[0].get(m))])]
+
+
+def _second_mode(ctx: Context, m: Model) -> list[Variant]:
+    fs = min(r.sample_rate_hz for r in ctx.records)
+    pf = _effect_param("frequency_hz", "effects.second_mode.frequency_hz", 3.0, 2.0, fs / 4)
+    pm = _effect_param("modal_mass_kg", "effects.second_mode.modal_mass_kg",
+                       0.3 * ctx.base.rig.structure.mass_kg, 0.05 * ctx.base.rig.structure.mass_kg)
+    mass0 = ctx.base.rig.effects.second_mode.modal_mass_kg
+    f_lo, f_hi = 0.3 * ctx.f_typ_hz, min(3.0 * ctx.f_typ_hz, fs / 4)
+    starts = []
+    for f in np.geomspace(f_lo, f_hi, 9):
+        starts.append(pm.set(pf.set(m, float(f)), mass0))
+    return [Variant({}, [pf, pm], starts)]
+
+
+def _visc_drift(ctx: Context, m: Model) -> list[Variant]:
+    p = Param("relative_change", lambda mm: mm.visc_relative_change,
+              lambda mm, v: replace(mm, visc_relative_change=float(v)), 0.05, -0.9, 10.0)
+    return [Variant({}, [p], [m])]
+
+
+def _sensor_gain(ctx: Context, m: Model) -> list[Variant]:
+    out = []
+    for ch in ctx.redundant_channels():
+        p = Param("gain_ratio", lambda mm, c=ch: mm.gain.get(c, 1.0),
+                  lambda mm, v, c=ch: replace(mm, gain={**mm.gain, c: float(v)}), 0.02, 0.2, 5.0)
+        out.append(Variant({"channel": ch}, [p], [m]))
+    return out
+
+
+def _delay(ctx: Context, m: Model) -> list[Variant]:
+    out = []
+    fs = min(r.sample_rate_hz for r in ctx.records)
+    for ch in ctx.redundant_channels():
+        p = Param("delay_s", lambda mm, c=ch: mm.delay_s.get(c, 0.0),
+                  lambda mm, v, c=ch: replace(mm, delay_s={**mm.delay_s, c: float(v)}),
+                  0.5 / fs, 0.0, 0.01)
+        out.append(Variant({"channel": ch}, [p], [p.set(m, 0.2 / fs), p.set(m, 2e-3)]))
+    return out
+
+
+def _air(ctx: Context, m: Model) -> list[Variant]:
+    v_mean = 2 * math.pi * ctx.f_typ_hz * ctx.x_rms_m * math.sqrt(2) * 2 / math.pi
+    scale = 0.05 / max(v_mean, 1e-9)
+    p = _effect_param("coefficient_s_per_m", "effects.air_entrainment.coefficient_s_per_m",
+                      scale, 0.0)
+    return [Variant({}, [p], [p.set(m, scale), p.set(m, 4 * scale)])]
+
+
+def _needs_config_mass(ctx: Context) -> str | None:
+    if ctx.fitted_baseline:
+        return "the fitted baseline fits the mass already"
+    return None
+
+
+def _needs_two_axes_film(ctx: Context) -> str | None:
+    if not ctx.two_axes:
+        return "needs motion and force on both axes"
+    return _needs_film(ctx)
+
+
+def _needs_redundant(ctx: Context) -> str | None:
+    if not ctx.redundant_channels():
+        return "no redundant sensor (two probes on one axis) to tell a sensor fault from the rig"
+    return None
+
+
+_APPLICABLE = {
+    "coulomb_friction": _always,
+    "cubic_stiffness": _always,
+    "quadratic_stiffness": _always,
+    "amplitude_dependent_damping": _needs_film,
+    "added_mass": _needs_config_mass,
+    "cross_coupling": _needs_two_axes_film,
+    "second_mode": _always,
+    "viscosity_drift": _needs_film,
+    "sensor_gain": _needs_redundant,
+    "channel_delay": _needs_redundant,
+    "air_entrainment": _needs_film,
+}
+_VARIANTS = {
+    "coulomb_friction": _friction,
+    "cubic_stiffness": _cubic,
+    "quadratic_stiffness": _quadratic,
+    "amplitude_dependent_damping": _amp_damping,
+    "added_mass": _added_mass,
+    "cross_coupling": _cross,
+    "second_mode": _second_mode,
+    "viscosity_drift": _visc_drift,
+    "sensor_gain": _sensor_gain,
+    "channel_delay": _delay,
+    "air_entrainment": _air,
+}
+
+#: The library, in a fixed order. Tolerances are those the hidden-effect tests hold each main
+#: parameter to (relative), at the magnitudes `tests/analysis/hidden_effects.py` draws.
+LIBRARY: dict[str, Effect] = {e.id: e for e in [
+    Effect("coulomb_friction", "dry friction (seal) against the velocity vector",
+           "friction_force_N", 0.10),
+    Effect("cubic_stiffness", "hardening or softening spring, F = k3 z^3", "k3_N_per_m3", 0.10),
+    Effect("quadratic_stiffness", "asymmetric spring, F = k2 z^2", "k2_N_per_m2", 0.10),
+    Effect("amplitude_dependent_damping",
+           "film damping rising with amplitude (eccentricity law, eq. 16)", "clearance_m", 0.10),
+    Effect("added_mass", "mass beyond the configured structure and film", "added_mass_kg", 0.10),
+    Effect("cross_coupling", "cross-coupled film damping and mass between x and y",
+           "c_xy_Ns_per_m", 0.15),
+    Effect("second_mode", "a second structural mode (the frame)", "frequency_hz", 0.10),
+    Effect("viscosity_drift", "film damping drifting over the data (oil warming)",
+           "relative_change", 0.15),
+    Effect("sensor_gain", "a response sensor whose gain is off (recorded / true)", "gain_ratio",
+           0.10, kind="measurement"),
+    Effect("channel_delay", "a response channel delayed in time", "delay_s", 0.10,
+           kind="measurement"),
+    Effect("air_entrainment", "film damping and added mass lost to air at speed",
+           "coefficient_s_per_m", 0.15),
+]}
+
+
+def parameters_of(variant: Variant, model: Model) -> dict[str, Any]:
+    """The finding's parameters (JSON-safe): labels first, then the fitted values."""
+    out: dict[str, Any] = dict(variant.labels)
+    for p in variant.params:
+        out[p.name] = float(p.get(model))
+    return out
+
+
+def extended_rig(model: Model, duration_s: float) -> RigParams:
+    """The rig configuration the simulator loads: model terms written into ``RigParams``.
+
+    Measurement terms become ``effects.probe_gain_error`` / ``effects.channel_delay`` (one
+    channel each, as the simulator supports); a viscosity drift becomes the warming rate that
+    gives the same damping change over ``duration_s`` through eq. 1.
+    """
+    data = model.rig.model_dump(mode="python")
+    eff = data["effects"]
+    for ch, g in model.gain.items():
+        if g != 1.0:
+            eff["probe_gain_error"] = {"enabled": True, "channel": ch, "gain_ratio": float(g)}
+    for ch, d in model.delay_s.items():
+        if d != 0.0:
+            eff["channel_delay"] = {"enabled": True, "channel": ch, "delay_s": float(d)}
+    if model.visc_relative_change != 0.0:
+        rate = -math.log1p(model.visc_relative_change) / (VISCOSITY_SLOPE_PER_C * duration_s)
+        prev = eff["viscosity_drift"]["warming_c_per_s"] if eff["viscosity_drift"]["enabled"] \
+            else 0.0
+        eff["viscosity_drift"] = {"enabled": True, "warming_c_per_s": prev + rate}
+    return RigParams.model_validate(data)

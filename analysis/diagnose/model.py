@@ -1,0 +1,267 @@
+"""The candidate model and its replay: measured force through the rig simulation.
+
+A `Model` is the rig configuration (`RigParams`, the same object the simulator loads) plus the
+parts of the measurement chain a diagnosis may change: per-channel recorded/true gain and time
+delay, a viscosity drift over the data, and a force offset (imported data). `Evaluator` replays
+the measured force of every run through `simulated_hw.simulate_response` (the simulator's own
+kernel), windowed around the segments it is asked about, and returns predicted response channels.
+
+Replay details, stated:
+- Sweep runs of the rig replay at the run's sample rate with the configured substeps, exactly as
+  the simulator integrates its own force samples.
+- Imported runs (low sample rates, e.g. 610 Hz) replay on a force oversampled by an integer
+  factor with a band-limited polyphase interpolator, one integration step per oversampled sample:
+  a linear or held force between samples 1.6 ms apart would distort a 60 Hz response by percent.
+- Each window starts ``warmup_s`` before its first segment from rest; the transient of starting
+  from rest is not scored (segments start after the warm-up).
+- Each response channel's mean offset (probe gap, amplifier offset) is fitted in closed form on
+  the training segments and applied unchanged to held-out segments.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy.signal import resample_poly
+
+from analysis.diagnose.data import RunRecord, Segment
+from simulated_hw import physics
+from simulated_hw.params import VISCOSITY_SLOPE_PER_C, RigParams
+from simulated_hw.rig import simulate_response
+
+
+@dataclass(frozen=True)
+class Model:
+    """Rig configuration plus measurement-chain terms (see module doc)."""
+
+    rig: RigParams
+    gain: dict[str, float] = field(default_factory=dict)  # channel -> recorded / true
+    delay_s: dict[str, float] = field(default_factory=dict)  # channel -> delay [s]
+    visc_relative_change: float = 0.0  # film damping change from start to end of the data
+    force_offset_n: tuple[float, float] = (0.0, 0.0)
+
+    def sim_key(self) -> str:
+        return f"{self.rig.model_dump_json()}|{self.visc_relative_change!r}|{self.force_offset_n}"
+
+
+def set_path(model: Model, path: str, value: Any) -> Model:
+    """A copy of ``model`` with the RigParams field at dotted ``path`` set to ``value``."""
+    data = model.rig.model_dump(mode="python")
+    node = data
+    keys = path.split(".")
+    for k in keys[:-1]:
+        node = node[k]
+    node[keys[-1]] = value
+    return replace(model, rig=RigParams.model_validate(data))
+
+
+def get_path(model: Model, path: str) -> Any:
+    node: Any = model.rig
+    for k in path.split("."):
+        node = getattr(node, k)
+    return node
+
+
+@dataclass(frozen=True)
+class Param:
+    """One fitted number: JSON name, how to read and write it on a Model, and its scale."""
+
+    name: str
+    get: Callable[[Model], float]
+    set: Callable[[Model, float], Model]
+    scale: float
+    lo: float = -math.inf
+    hi: float = math.inf
+
+
+def rig_param(name: str, path: str, scale: float, lo: float = -math.inf,
+              hi: float = math.inf) -> Param:
+    return Param(name, lambda m: float(get_path(m, path)),
+                 lambda m, v: set_path(m, path, float(v)), scale, lo, hi)
+
+
+@dataclass
+class Prediction:
+    """Predicted response channels per segment (before offsets)."""
+
+    channels: dict[Segment, dict[str, np.ndarray]]
+
+
+class Evaluator:
+    """Replays runs under a Model; caches simulations (measurement-only changes are free).
+
+    Parameters
+    ----------
+    records : list of RunRecord
+    warmup_s : float
+        Simulated time before each window's first segment [s].
+    oversample : dict of int -> int
+        Per run index: the force oversampling factor (1: replay at the run's rate).
+    """
+
+    def __init__(self, records: list[RunRecord], warmup_s: float = 0.5,
+                 oversample: dict[int, int] | None = None) -> None:
+        self.records = records
+        self.warmup_s = warmup_s
+        self.oversample = oversample or {}
+        self.duration_s = max(r.n_samples / r.sample_rate_hz for r in records)
+        self._cache: dict[tuple[str, int, int, int], np.ndarray] = {}
+        self._up_cache: dict[tuple[int, int, int], np.ndarray] = {}
+        self.simulations = 0
+
+    # --- windows --------------------------------------------------------------------------
+    def windows(self, segs: list[Segment]) -> list[tuple[int, int, int, list[Segment]]]:
+        """Merge segments into simulation windows (run, start, stop, segments)."""
+        out: list[tuple[int, int, int, list[Segment]]] = []
+        for seg in sorted(segs, key=lambda s: (s.run, s.start)):
+            warm = int(self.warmup_s * self.records[seg.run].sample_rate_hz)
+            a = max(0, seg.start - warm)
+            if out and out[-1][0] == seg.run and a <= out[-1][2]:
+                run, wa, wb, lst = out[-1]
+                out[-1] = (run, wa, max(wb, seg.stop), [*lst, seg])
+            else:
+                out.append((seg.run, a, seg.stop, [seg]))
+        return out
+
+    # --- simulation -----------------------------------------------------------------------
+    def _fill(self, rec: RunRecord) -> float:
+        return 1.0 if rec.lubricated else 0.0
+
+    def _viscosity_scale(self, model: Model, rec: RunRecord, a: int, b: int) -> np.ndarray:
+        t = np.arange(a, b) / rec.sample_rate_hz
+        oil = model.rig.oil
+        _, t_ref = model.rig.film.reference_viscosity()
+        warming = oil.warming_c_per_hour / 3600.0 if rec.lubricated else 0.0
+        drift = model.rig.effects.viscosity_drift
+        if drift.enabled:
+            warming += drift.warming_c_per_s
+        temp = oil.initial_temperature_c + warming * t
+        scale = np.exp(-VISCOSITY_SLOPE_PER_C * (temp - t_ref))
+        if model.visc_relative_change != 0.0:
+            scale = scale * (1.0 + model.visc_relative_change) ** (t / self.duration_s)
+        return scale
+
+    def truth(self, model: Model, run: int, a: int, b: int) -> np.ndarray:
+        """Simulated relative displacement (2, b - a) [m] of run ``run`` from rest at ``a``."""
+        key = (model.sim_key(), run, a, b)
+        hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        rec = self.records[run]
+        force = rec.force_n[:, a:b] + np.asarray(model.force_offset_n)[:, None]
+        visc = self._viscosity_scale(model, rec, a, b)
+        up = self.oversample.get(run, 1)
+        self.simulations += 1
+        if up <= 1:
+            tr, _ = simulate_response(force, model.rig, rec.sample_rate_hz, self._fill(rec), visc)
+            xy = np.vstack([tr.x_m, tr.y_m])
+        else:
+            fup = self._upsampled(run, a, b, up)
+            fup = fup + np.asarray(model.force_offset_n)[:, None]
+            rig1 = model.rig.model_copy(update={"substeps": 1})
+            vup = np.repeat(visc, up)
+            tr, _ = simulate_response(fup, rig1, rec.sample_rate_hz * up, self._fill(rec), vup)
+            # Sample i of the run is oversampled index i*up; the kernel reports the state at
+            # the end of each step (linear-force kernel) or after it (held-force kernel).
+            shift = 0 if hasattr(physics, "S_FPX") else -1
+            idx = np.arange(b - a) * up + shift
+            idx[idx < 0] = 0
+            xy = np.vstack([tr.x_m[idx], tr.y_m[idx]])
+        if len(self._cache) > 4096:
+            self._cache.clear()
+        self._cache[key] = xy
+        return xy
+
+    def _upsampled(self, run: int, a: int, b: int, up: int) -> np.ndarray:
+        key = (run, a, b)
+        hit = self._up_cache.get(key)
+        if hit is None:
+            f = self.records[run].force_n[:, a:b]
+            hit = resample_poly(f, up, 1, axis=1)
+            self._up_cache[key] = hit
+        return hit
+
+    def predict(self, model: Model, segs: list[Segment]) -> dict[Segment, dict[str, np.ndarray]]:
+        """Predicted response channels (without offsets) for each segment [m]."""
+        out: dict[Segment, dict[str, np.ndarray]] = {}
+        for run, a, b, lst in self.windows(segs):
+            rec = self.records[run]
+            xy = self.truth(model, run, a, b)
+            t_win = np.arange(a, b) / rec.sample_rate_hz
+            chans: dict[str, np.ndarray] = {}
+            pge, cde = model.rig.effects.probe_gain_error, model.rig.effects.channel_delay
+            for ch, axis in rec.response_axis.items():
+                sig = xy[axis]
+                d = model.delay_s.get(ch, 0.0)
+                if cde.enabled and cde.channel == ch:
+                    d += cde.delay_s
+                if d != 0.0:
+                    sig = np.interp(t_win - d, t_win, sig, left=0.0)
+                g = model.gain.get(ch, 1.0)
+                if pge.enabled and pge.channel == ch:
+                    g *= pge.gain_ratio
+                chans[ch] = sig * g
+            for seg in lst:
+                i0, i1 = seg.start - a, seg.stop - a
+                out[seg] = {ch: v[i0:i1] for ch, v in chans.items()}
+        return out
+
+    def measured(self, seg: Segment) -> dict[str, np.ndarray]:
+        rec = self.records[seg.run]
+        return {ch: v[seg.start:seg.stop] for ch, v in rec.responses.items()}
+
+
+@dataclass
+class Residuals:
+    """Measured minus predicted, per segment and channel [m], with the offsets applied."""
+
+    per_segment: dict[Segment, dict[str, np.ndarray]]
+    predicted: dict[Segment, dict[str, np.ndarray]]
+    offsets: dict[tuple[int, str], float]
+
+    def sse(self, seg: Segment) -> tuple[float, int]:
+        chans = self.per_segment[seg]
+        return (float(sum(np.dot(v, v) for v in chans.values())),
+                int(sum(v.size for v in chans.values())))
+
+    def rms(self, segs: list[Segment] | None = None) -> float:
+        segs = list(self.per_segment) if segs is None else segs
+        s = n = 0.0
+        for seg in segs:
+            a, b = self.sse(seg)
+            s += a
+            n += b
+        return math.sqrt(s / n) if n else float("nan")
+
+    def vector(self) -> np.ndarray:
+        return np.concatenate([v for chans in self.per_segment.values() for v in chans.values()])
+
+
+def residuals(ev: Evaluator, model: Model, train: list[Segment],
+              segs: list[Segment] | None = None,
+              offsets: dict[tuple[int, str], float] | None = None) -> Residuals:
+    """Residuals on ``segs`` (default: ``train``) with per-channel offsets fitted on ``train``."""
+    segs = train if segs is None else segs
+    if offsets is None:
+        pred_train = ev.predict(model, train)
+        acc: dict[tuple[int, str], list[float]] = {}
+        for seg, chans in pred_train.items():
+            meas = ev.measured(seg)
+            for ch, p in chans.items():
+                a = acc.setdefault((seg.run, ch), [0.0, 0.0])
+                a[0] += float(np.sum(meas[ch] - p))
+                a[1] += p.size
+        offsets = {k: v[0] / v[1] for k, v in acc.items()}
+        pred = pred_train if segs is train else ev.predict(model, segs)
+    else:
+        pred = ev.predict(model, segs)
+    per: dict[Segment, dict[str, np.ndarray]] = {}
+    for seg, chans in pred.items():
+        meas = ev.measured(seg)
+        per[seg] = {ch: meas[ch] - p - offsets.get((seg.run, ch), 0.0)
+                    for ch, p in chans.items()}
+    return Residuals(per, pred, offsets)

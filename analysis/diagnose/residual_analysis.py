@@ -1,0 +1,107 @@
+"""What the model gets wrong, in numbers: per dwell, per harmonic, against amplitude/frequency/time.
+
+Per dwell (segments with a frequency), the measured and predicted responses of each channel are
+decomposed into their mean and harmonics 1X..5X by least squares on the dwell's samples
+(``z(t) = Re(Z e^{i k w t})``, ``Z = z_c - i z_s``, t from sample 0 of the run, as eq. 12-13). The
+fundamental's amplitude error (predicted / measured - 1) and phase error (predicted - measured)
+and the residual's harmonic amplitudes follow. What the harmonics do not explain in the measured
+signal is the noise floor (non-periodic content) of that dwell.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from analysis.diagnose.data import RunRecord, Segment
+from analysis.diagnose.model import Residuals
+
+N_HARMONICS = 5
+
+
+def harmonics(sig: np.ndarray, start: int, fs: float, freq_hz: float,
+              n_harm: int = N_HARMONICS) -> tuple[np.ndarray, float, float]:
+    """Complex amplitudes (n_harm,), mean, and RMS of what the fit leaves (noise) of ``sig``."""
+    t = (start + np.arange(sig.size)) / fs
+    cols = [np.ones_like(t)]
+    for k in range(1, n_harm + 1):
+        w = 2 * math.pi * k * freq_hz
+        cols += [np.cos(w * t), np.sin(w * t)]
+    a = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(a, sig, rcond=None)
+    rest = sig - a @ coef
+    z = coef[1::2] - 1j * coef[2::2]
+    return z, float(coef[0]), float(np.sqrt(np.mean(rest**2)))
+
+
+def dwell_table(records: list[RunRecord], res: Residuals, segs: list[Segment]) -> list[dict]:
+    """One row per dwell and channel: frequency, amplitude, time, errors, harmonics, noise."""
+    rows: list[dict[str, Any]] = []
+    for seg in segs:
+        if seg.freq_hz is None or seg.freq_hz <= 0:
+            continue
+        rec = records[seg.run]
+        fs = rec.sample_rate_hz
+        if seg.n < fs / seg.freq_hz:
+            continue
+        for ch, r in res.per_segment[seg].items():
+            meas = rec.responses[ch][seg.start:seg.stop]
+            zm, _, noise = harmonics(meas, seg.start, fs, seg.freq_hz)
+            zr, mean_r, _ = harmonics(r, seg.start, fs, seg.freq_hz)
+            zp = zm - zr  # predicted harmonics (residual = measured - predicted)
+            amp_m = abs(zm[0])
+            rows.append({
+                "segment": seg.label, "run": seg.run, "channel": ch, "set": "",
+                "freq_hz": seg.freq_hz, "motion": seg.motion,
+                "time_s": 0.5 * (seg.start + seg.stop) / fs,
+                "amplitude_m": amp_m,
+                "amplitude_error": abs(zp[0]) / amp_m - 1.0 if amp_m > 0 else math.nan,
+                "phase_error_deg": math.degrees(float(np.angle(zp[0] / zm[0])))
+                if amp_m > 0 else math.nan,
+                "residual_harmonics_m": [abs(z) for z in zr],
+                "residual_mean_m": mean_r,
+                "residual_rms_m": float(np.sqrt(np.mean(r**2))),
+                "noise_rms_m": noise,
+            })
+    return rows
+
+
+def segment_table(records: list[RunRecord], res: Residuals, segs: list[Segment]) -> list[dict]:
+    """One row per segment: time, measured RMS and residual RMS over its channels."""
+    rows = []
+    for seg in segs:
+        rec = records[seg.run]
+        chans = res.per_segment[seg]
+        meas = np.concatenate([rec.responses[ch][seg.start:seg.stop] for ch in chans])
+        resid = np.concatenate(list(chans.values()))
+        rows.append({
+            "segment": seg.label, "run": seg.run,
+            "time_s": 0.5 * (seg.start + seg.stop) / rec.sample_rate_hz,
+            "freq_hz": seg.freq_hz,
+            "measured_rms_m": float(np.sqrt(np.mean((meas - meas.mean()) ** 2))),
+            "residual_rms_m": float(np.sqrt(np.mean(resid**2))),
+        })
+    return rows
+
+
+def noise_floor(rows: list[dict]) -> float | None:
+    """RMS of the non-periodic part of the measured responses over dwells (None: no dwells)."""
+    if not rows:
+        return None
+    return float(np.sqrt(np.mean([r["noise_rms_m"] ** 2 for r in rows])))
+
+
+def summary(rows: list[dict]) -> dict[str, Any]:
+    """Per-harmonic residual amplitude (RMS over dwells) and the fundamental's errors."""
+    if not rows:
+        return {}
+    h = np.array([r["residual_harmonics_m"] for r in rows])
+    return {
+        "dwells": len({(r["run"], r["segment"]) for r in rows}),
+        "residual_harmonic_rms_m": [float(v) for v in np.sqrt(np.mean(h**2, axis=0))],
+        "amplitude_error_rms": float(np.sqrt(np.mean([r["amplitude_error"] ** 2 for r in rows]))),
+        "phase_error_rms_deg": float(np.sqrt(np.mean([r["phase_error_deg"] ** 2
+                                                       for r in rows]))),
+    }
