@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 import zmq
+from zmq.utils.monitor import recv_monitor_message
 
 from control.security import ClientKeys, secure_client_socket
 from control.wire import TOPICS, Reply, decode_block
@@ -119,7 +120,7 @@ class CommandClient:
         refused = False
         if self._monitor is not None:
             while self._monitor.poll(0):
-                event = zmq.utils.monitor.recv_monitor_message(self._monitor)
+                event = recv_monitor_message(self._monitor)
                 refused |= event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH
         # A DEALER would deliver the stale request later: start afresh.
         self._sock.close(0)

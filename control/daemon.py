@@ -279,15 +279,11 @@ class Daemon:
         self.channel_map = channel_map
         self.cfg = config
         self.cfg.runs_dir.mkdir(parents=True, exist_ok=True)
-        if engine_factory is None or pump_factory is None or spec_parser is None:
-            from control.pump import PumpRelay
-            from control.sweep import SweepEngine, SweepSpec
-            engine_factory = engine_factory or SweepEngine
-            pump_factory = pump_factory or PumpRelay
-            spec_parser = spec_parser or SweepSpec.model_validate
         self._engine_factory = engine_factory
-        self._parse_spec = spec_parser
+        self._spec_parser = spec_parser
         self.backend.configure(channel_map)
+        if pump_factory is None:
+            from control.pump import PumpRelay as pump_factory
         self.pump = pump_factory(backend)
 
         self.sm = StateMachine(self._state_changed)
@@ -455,8 +451,12 @@ class Daemon:
     def _start(self, req: StartRequest) -> Reply:
         if not self.sm.allowed("start"):
             self.sm.fire("start")  # raises the TransitionError that names the state
+        if self._spec_parser is None or self._engine_factory is None:
+            from control.sweep import SweepEngine, SweepSpec  # resolved at first use
+            self._spec_parser = self._spec_parser or SweepSpec.model_validate
+            self._engine_factory = self._engine_factory or SweepEngine
         try:
-            spec = self._parse_spec(req.spec)
+            spec = self._spec_parser(req.spec)
         except ValidationError as err:
             return self._error(ErrorKind.INVALID, describe_errors(err, "start.spec"), req.cmd,
                                req.request_id)
@@ -538,6 +538,7 @@ class Daemon:
             "dropped_in_daemon": self.publisher.dropped,
             "sample_rate_hz": self.channel_map.sample_rate_hz,
             "channels": self.channel_map.ai_names,
+            "units": {c.name: c.units for c in (*self.channel_map.ai, *self.channel_map.ao)},
             "drives": self.channel_map.ao_names,
             "endpoints": self.endpoints,
             "pid": os.getpid(),

@@ -67,7 +67,8 @@ class ErrorKind(StrEnum):
 
 # --- requests ---------------------------------------------------------------------------------
 class _Request(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # strict: "on": "yes" or 1 must not switch a pump; only JSON true/false does.
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
     request_id: str = Field("", max_length=128, description="echoed in the reply")
 
 

@@ -63,9 +63,7 @@ def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[An
     if args.backend == "nidaqmx":
         from daq.nidaqmx_backend import NidaqmxBackend
 
-        if args.grpc_target:
-            channel_map = channel_map.model_copy(update={"grpc_target": args.grpc_target})
-        return NidaqmxBackend(), channel_map, None
+        return NidaqmxBackend(grpc_target=args.grpc_target), channel_map, None
     from simulated_hw.backend import SimulatedBackend
     from simulated_hw.params import RigParams, load_rig_params
 

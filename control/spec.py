@@ -1,0 +1,195 @@
+"""The sweep description (pydantic, loadable from TOML). Re-exported by `control.sweep`.
+
+Example (the report's lubricated tests, section VI.1)::
+
+    name = "lubricated X, 13-38 um"
+    motion = "x"
+    lubricated = true
+    amplitude_m = [13e-6, 19e-6, 25e-6, 32e-6, 38e-6]
+    freq_start_hz = 20.0
+    freq_stop_hz = 60.0
+    freq_step_hz = 10.0
+    settle_cycles = 10
+    record_cycles = 40
+
+Frequencies are either a list (``freq_hz``, run in the order given) or a range from
+``freq_start_hz`` to ``freq_stop_hz`` (downwards when start > stop) with ``freq_step_hz``
+(linear) or ``freq_points`` (linear or log ``spacing``). Targets: ``amplitude_m`` (hold the
+displacement) or ``load_n`` (hold the load), one or more values; each value is a whole sweep over
+the frequencies (``order = "amplitude_major"``) or each frequency runs every value
+(``"frequency_major"``).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal, Self
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from control.controller import Tolerance, motion_shape
+from control.errors import SpecError
+from control.plan import StepPlan
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
+class ControlSettings(BaseModel):
+    """How the controller works a step (defaults suit the report's rig)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    window_cycles: int = Field(2, ge=1, le=100, description="lock-in window per update [cycles]")
+    wait_cycles: int = Field(2, ge=0, le=100, description="wait after a drive change [cycles]")
+    min_ramp_s: float = Field(0.02, ge=0.0, le=2.0, description="shortest ramp [s]")
+    settle_tolerance_pct: float = Field(
+        0.3, gt=0, le=10, description="settled when successive windows agree within this [%]"
+    )
+    max_settle_cycles: int = Field(
+        200, ge=1, description="record anyway (with a warning) after this many cycles [cycles]"
+    )
+    initial_stiffness_n_per_m: float = Field(
+        1.0e6, gt=0,
+        description="first guess of |force / displacement|, first displacement step only [N/m]",
+    )
+    max_growth: float = Field(2.0, gt=0, le=10, description="largest relative drive change")
+    block_s: float = Field(0.01, ge=0.001, le=0.02, description="AO/AI block length [s]")
+    ahead_blocks: int = Field(1, ge=1, le=3, description="AO blocks written ahead")
+
+
+class SweepSpec(BaseModel):
+    """A multi-frequency, multi-amplitude sweep (see the module docstring for the TOML form)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = ""
+    motion: Literal["x", "y", "circular_forward", "circular_backward", "elliptical"] = "x"
+    lubricated: bool = Field(False, description="needs the pump on and inlet pressure")
+    amplitude_m: list[PositiveFloat] | None = Field(
+        None, min_length=1, description="displacement amplitudes to hold (of X; Y for 'y') [m]"
+    )
+    load_n: list[PositiveFloat] | None = Field(
+        None, min_length=1, description="load amplitudes to hold (of X; Y for 'y') [N]"
+    )
+    ellipse_ratio: PositiveFloat = Field(1.0, description="elliptical: |Y| / |X|")
+    ellipse_phase_deg: float = Field(
+        -90.0, ge=-180, le=180, description="elliptical: phase of Y relative to X [deg]"
+    )
+    freq_hz: list[PositiveFloat] | None = Field(None, min_length=1, description="[Hz]")
+    freq_start_hz: PositiveFloat | None = None
+    freq_stop_hz: PositiveFloat | None = None
+    freq_step_hz: PositiveFloat | None = None
+    freq_points: int | None = Field(None, ge=2, le=10_000)
+    spacing: Literal["linear", "log"] = "linear"
+    order: Literal["amplitude_major", "frequency_major"] = "amplitude_major"
+    settle_cycles: int = Field(10, ge=1, le=100_000, description="after the last change [cycles]")
+    record_cycles: int = Field(40, ge=1, le=100_000, description="recorded per step [cycles]")
+    tolerance_amplitude_pct: float = Field(1.0, gt=0, le=50, description="[%]")
+    tolerance_phase_deg: float = Field(1.0, gt=0, le=45, description="[deg]")
+    max_updates: int = Field(8, ge=1, le=1000, description="controller updates per step")
+    on_not_converged: Literal["abort", "continue"] = "abort"
+    control: ControlSettings = ControlSettings()
+
+    @model_validator(mode="after")
+    def _one_target_one_frequency_form(self) -> Self:
+        if (self.amplitude_m is None) == (self.load_n is None):
+            raise ValueError("give exactly one of amplitude_m (hold displacement) or load_n "
+                             "(hold load)")
+        ranged = [self.freq_start_hz, self.freq_stop_hz]
+        if self.freq_hz is not None:
+            if any(v is not None for v in [*ranged, self.freq_step_hz, self.freq_points]):
+                raise ValueError("give either freq_hz (a list) or a range "
+                                 "(freq_start_hz, freq_stop_hz, ...), not both")
+        else:
+            if any(v is None for v in ranged):
+                raise ValueError("give freq_hz (a list) or both freq_start_hz and freq_stop_hz")
+            if (self.freq_step_hz is None) == (self.freq_points is None):
+                if self.freq_start_hz != self.freq_stop_hz:
+                    raise ValueError("a frequency range needs exactly one of freq_step_hz or "
+                                     "freq_points")
+            if self.spacing == "log" and self.freq_points is None:
+                raise ValueError("log spacing needs freq_points")
+        return self
+
+    # --- derived ----------------------------------------------------------------------------
+    @property
+    def target_kind(self) -> Literal["displacement", "load"]:
+        return "displacement" if self.amplitude_m is not None else "load"
+
+    @property
+    def targets(self) -> list[float]:
+        vals = self.amplitude_m if self.amplitude_m is not None else self.load_n
+        assert vals is not None
+        return list(vals)
+
+    @property
+    def tolerance(self) -> Tolerance:
+        return Tolerance(self.tolerance_amplitude_pct / 100.0, self.tolerance_phase_deg)
+
+    def frequencies(self) -> list[float]:
+        """The excitation frequencies in the order they run [Hz]."""
+        if self.freq_hz is not None:
+            return list(self.freq_hz)
+        f0, f1 = self.freq_start_hz, self.freq_stop_hz
+        assert f0 is not None and f1 is not None
+        if f0 == f1:
+            return [f0]
+        if self.freq_points is not None:
+            if self.spacing == "log":
+                return [float(v) for v in np.geomspace(f0, f1, self.freq_points)]
+            return [float(v) for v in np.linspace(f0, f1, self.freq_points)]
+        step = self.freq_step_hz
+        assert step is not None
+        n = int(math.floor(abs(f1 - f0) / step + 1e-9))
+        sign = 1.0 if f1 > f0 else -1.0
+        return [round(f0 + sign * i * step, 9) for i in range(n + 1)]
+
+    def steps(self) -> list[StepPlan]:
+        """Every dwell of the sweep, in running order."""
+        freqs = self.frequencies()
+        pairs = (
+            [(a, f) for a in self.targets for f in freqs] if self.order == "amplitude_major"
+            else [(a, f) for f in freqs for a in self.targets]
+        )
+        return [
+            StepPlan(i, f, self.target_kind, a, self.motion,
+                     motion_shape(self.motion, a, self.ellipse_ratio, self.ellipse_phase_deg))
+            for i, (a, f) in enumerate(pairs)
+        ]
+
+    def ideal_step_s(self, freq_hz: float) -> float:
+        """Settling plus recording time of one step at ``freq_hz`` [s] (benchmark reference)."""
+        return (self.settle_cycles + self.record_cycles) / freq_hz
+
+
+def describe_validation_error(err: ValidationError, source: str) -> str:
+    lines = [f"invalid sweep spec in {source}:"]
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        value = e.get("input")
+        shown = repr(value) if not isinstance(value, dict) else "{...}"
+        lines.append(f"  {loc} = {shown}: {e['msg']}")
+    return "\n".join(lines)
+
+
+def sweep_spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> SweepSpec:
+    """Validate a sweep description; `SpecError` (a `TargetError`) names each bad field."""
+    try:
+        return SweepSpec.model_validate(data)
+    except ValidationError as err:
+        raise SpecError(describe_validation_error(err, source)) from None
+
+
+def load_sweep_spec(path: str | Path) -> SweepSpec:
+    """Load a sweep description from TOML; `SpecError` names the file, field and value."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise SpecError(f"{path}: not valid TOML: {err}") from None
+    except OSError as err:
+        raise SpecError(f"{path}: cannot read: {err.strerror}") from None
+    return sweep_spec_from_dict(data, str(path))

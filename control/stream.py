@@ -1,0 +1,199 @@
+"""The acquisition loop's I/O: synthesise a drive block, check it, write it, read the next AI
+block, convert, check, publish. The one place where AO is written.
+
+AO streams ahead of the generation by ``ahead_blocks`` blocks (default one 10 ms block): short,
+because a stream cannot be un-written, and any trip must reach zero drive within 100 ms. Samples
+read are kept for a while (`DriveStream.window`) so that the lock-in can look back over them.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from control.listener import SweepListener
+from control.safety import SafetyMonitor
+from control.synthesis import SineSynthesizer
+from daq.backend import DaqBackend
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _SynthState:
+    values: dict[str, object]
+
+
+def _snapshot(s: SineSynthesizer) -> _SynthState:
+    return _SynthState({k: (v.copy() if isinstance(v, np.ndarray) else v)
+                        for k, v in vars(s).items()})
+
+
+def _restore(s: SineSynthesizer, st: _SynthState) -> None:
+    for k, v in st.values.items():
+        setattr(s, k, v)
+
+
+class DriveStream:
+    """Block-wise AO/AI streaming with limit checks and a safe shutdown.
+
+    Parameters
+    ----------
+    backend : DaqBackend
+        Configured, not started.
+    synth : SineSynthesizer
+        The drive generator (its sample counter must be 0: it starts with the run).
+    monitor : SafetyMonitor
+        Checks AO blocks before writing and AI blocks on arrival.
+    listener : SweepListener
+        Receives every block.
+    block_samples : int
+        Samples per read and per write.
+    ahead_blocks : int
+        Blocks written ahead of the generation (the prefill).
+    keep_samples : int
+        How many past samples `window` can reach.
+    interrupt : callable, optional
+        Called after every block (outside shutdown); may raise to stop the caller.
+    """
+
+    def __init__(
+        self,
+        backend: DaqBackend,
+        synth: SineSynthesizer,
+        monitor: SafetyMonitor,
+        listener: SweepListener,
+        block_samples: int,
+        ahead_blocks: int = 1,
+        keep_samples: int = 0,
+        interrupt: Callable[[], None] | None = None,
+    ) -> None:
+        if block_samples < 1:
+            raise ValueError(f"block_samples must be >= 1, got {block_samples}")
+        if ahead_blocks < 1:
+            raise ValueError(f"ahead_blocks must be >= 1, got {ahead_blocks}")
+        self.backend = backend
+        self.cm = backend.channel_map
+        self.synth = synth
+        self.monitor = monitor
+        self.listener = listener
+        self.block = block_samples
+        self.ahead_blocks = ahead_blocks
+        self.keep = max(keep_samples, block_samples)
+        self.interrupt = interrupt
+        self.sample = 0  # next AI sample to be read (= samples read so far)
+        self.check_limits = True
+        self._fifo: deque[np.ndarray] = deque()
+        self._hist: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        self._hist_len = 0
+        self._started = False
+        self.zero_sample: int | None = None  # first sample of the final all-zero output
+
+    # --- running ----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Prefill the AO buffer (zeros from the synthesiser) and start the tasks."""
+        for _ in range(self.ahead_blocks):
+            self._write(self.synth.next_block(self.block), check=True)
+        self.backend.start()
+        self._started = True
+
+    def _write(self, ao: np.ndarray, check: bool) -> None:
+        if check:
+            self.monitor.check_ao(ao, self.synth.sample - ao.shape[1])
+        self.backend.write_ao(ao)
+        self._fifo.append(ao)
+
+    def cycle(self) -> None:
+        """Write the next drive block, read the next AI block, publish and check it."""
+        state = _snapshot(self.synth)
+        ao = self.synth.next_block(self.block)
+        try:
+            self._write(ao, check=True)
+        except BaseException:
+            _restore(self.synth, state)  # the fade must continue from what was written
+            raise
+        self._read_one(check=self.check_limits)
+        if self.interrupt is not None:
+            self.interrupt()
+
+    def advance_to(self, sample: int) -> None:
+        """Cycle until every sample before ``sample`` has been read."""
+        while self.sample < sample:
+            self.cycle()
+
+    def _read_one(self, check: bool) -> None:
+        volts = self.backend.read_ai(self.block)
+        eng = self.cm.to_engineering(volts)
+        ao = self._fifo.popleft()
+        first = self.sample
+        self.sample += self.block
+        self._hist.append((first, eng, ao))
+        self._hist_len += self.block
+        while self._hist_len - self._hist[0][1].shape[1] >= self.keep:
+            old = self._hist.popleft()
+            self._hist_len -= old[1].shape[1]
+        self.listener.on_block(first, eng, ao)
+        if check:
+            self.monitor.check_ai(eng, first)
+
+    def window(self, first: int, last: int) -> tuple[np.ndarray, np.ndarray]:
+        """AI (engineering units) and AO samples ``first <= k < last``, already read."""
+        if last > self.sample:
+            raise ValueError(f"window end {last} not read yet (read up to {self.sample})")
+        if not self._hist or first < self._hist[0][0]:
+            raise ValueError(f"window start {first} no longer kept")
+        ai_parts, ao_parts = [], []
+        for b0, eng, ao in self._hist:
+            b1 = b0 + eng.shape[1]
+            if b1 <= first or b0 >= last:
+                continue
+            lo, hi = max(first, b0) - b0, min(last, b1) - b0
+            ai_parts.append(eng[:, lo:hi])
+            ao_parts.append(ao[:, lo:hi])
+        return np.concatenate(ai_parts, axis=1), np.concatenate(ao_parts, axis=1)
+
+    # --- stopping ---------------------------------------------------------------------------
+    def ramp_down(self, ramp_s: float) -> None:
+        """Ramp both drives to zero (normal stop or pause) and keep streaming until they are."""
+        n = self.synth.fade_out(ramp_s)
+        self.advance_to(self.synth.sample + n + self.block * (self.ahead_blocks + 1))
+
+    def shutdown(self, fade_s: float) -> None:
+        """Fade both drives to zero, write a block of zeros, read out the buffer, stop the tasks.
+
+        Never raises: a failure on the way is logged, and the tasks are stopped regardless. The
+        first sample of the final zeros is kept in `zero_sample`.
+        """
+        try:
+            if self._started:
+                n = self.synth.fade_out(fade_s)
+                n_blocks = math.ceil(n / self.block) + 1
+                for _ in range(n_blocks):
+                    ao = self.synth.next_block(self.block)
+                    self.backend.write_ao(ao)
+                    self._fifo.append(ao)
+                    self._read_one(check=False)
+                zero = np.zeros((len(self.cm.ao), self.block))
+                self.zero_sample = self.synth.sample
+                self.backend.write_ao(zero)
+                self.synth.sample += self.block
+                self._fifo.append(zero)
+                while self._fifo:
+                    self._read_one(check=False)
+        except Exception:
+            log.exception("error while ramping the drives down; stopping the tasks")
+            try:
+                self.backend.write_ao(np.zeros((len(self.cm.ao), self.block)))
+            except Exception:
+                log.exception("could not write zeros")
+        finally:
+            try:
+                self.backend.stop()
+            except Exception:
+                log.exception("could not stop the tasks")
+            self._started = False

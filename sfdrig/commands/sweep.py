@@ -1,0 +1,193 @@
+"""`sfdrig sweep`: start a sweep on the daemon, then follow it on the live stream.
+
+Plain text that works without a TTY: a line per progress change (step bar and whole-sweep bar,
+frequency, controller updates), and a line per finished step with the achieved amplitudes. On a
+TTY the progress line is redrawn in place.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from control.client import CommandRefused, DaemonUnavailable, Subscriber
+from sfdrig.commands._client_args import add_connection_arguments, command_client, subscriber
+
+NAME = "sweep"
+HELP = "start a sweep (sweep file and/or KEY=VALUE fields) and follow it live"
+
+UM = 1e-6
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("sweep_file", nargs="?", type=Path, help="sweep TOML file")
+    parser.add_argument("--set", dest="fields", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="a sweep field given inline, VALUE in TOML syntax "
+                             "(e.g. --set 'freqs_hz=[20, 40]'); overrides the file")
+    parser.add_argument("--operator", default="", help="recorded in the run file")
+    parser.add_argument("--notes", default="", help="recorded in the run file")
+    parser.add_argument("--no-follow", action="store_true",
+                        help="start the sweep and return without following it")
+    add_connection_arguments(parser, data=True)
+
+
+def sweep_fields(path: Path | None, assignments: list[str]) -> dict[str, Any]:
+    """The sweep spec dict from a TOML file plus ``KEY=VALUE`` overrides (dotted keys nest)."""
+    spec: dict[str, Any] = {}
+    if path is not None:
+        try:
+            spec = tomllib.loads(path.read_text())
+        except (OSError, tomllib.TOMLDecodeError) as err:
+            raise SystemExit(f"sweep: cannot read {path}: {err}") from None
+    for a in assignments:
+        key, sep, value = a.partition("=")
+        if not sep or not key.strip():
+            raise SystemExit(f"sweep: --set {a!r} is not KEY=VALUE")
+        try:
+            parsed = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            parsed = value  # a bare word is a string
+        node = spec
+        *parents, leaf = key.strip().split(".")
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = parsed
+    if not spec:
+        raise SystemExit("sweep: give a sweep file or --set fields")
+    return spec
+
+
+# --- formatting shared with `watch` and `demo` ----------------------------------------------
+def amplitude(harmonics: dict[str, list[list[float]]], *names: str) -> float:
+    """|1X| of the complex mean of the named channels (NaN if none is present)."""
+    zs = [complex(*harmonics[n][0]) for n in names if n in harmonics]
+    return abs(sum(zs) / len(zs)) if zs else float("nan")
+
+
+def achieved(step: dict[str, Any]) -> dict[str, float]:
+    """Achieved 1X amplitudes of a step: x, y [m] (mean of the probes), fx, fy [N]."""
+    h = step.get("harmonics", {})
+    return {
+        "x_m": amplitude(h, "x1", "x2") if "x1" in h else amplitude(h, "x"),
+        "y_m": amplitude(h, "y1", "y2") if "y1" in h else amplitude(h, "y"),
+        "fx_n": amplitude(h, "fx"),
+        "fy_n": amplitude(h, "fy"),
+    }
+
+
+def step_line(step: dict[str, Any], total: int | None = None) -> str:
+    a = achieved(step)
+    unit = "um" if step.get("target_kind") == "displacement" else "N"
+    target = step.get("target_value", float("nan"))
+    target = target / UM if unit == "um" else target
+    of = f"/{total}" if total else ""
+    verdict = ("converged" if step.get("converged")
+               else f"NOT converged: {step.get('reason') or '?'}")
+    return (f"step {step.get('index', 0) + 1}{of}  {step.get('freq_hz', float('nan')):6.1f} Hz  "
+            f"{step.get('motion', '')} target {target:.3g} {unit}  achieved x {a['x_m'] / UM:6.2f}"
+            f" um  y {a['y_m'] / UM:6.2f} um  fx {a['fx_n']:6.1f} N  fy {a['fy_n']:6.1f} N  "
+            f"{step.get('updates', 0)} updates, {verdict}")
+
+
+def bar(fraction: float, width: int = 20) -> str:
+    f = min(max(fraction, 0.0), 1.0) if np.isfinite(fraction) else 0.0
+    n = int(round(f * width))
+    return "[" + "#" * n + "." * (width - n) + "]"
+
+
+def progress_line(progress: dict[str, Any]) -> str:
+    """Whole-sweep and step bars plus whatever the engine reports (freq, updates, error...)."""
+    total = progress.get("steps_total") or progress.get("n_steps") or 0
+    index = progress.get("step_index", progress.get("step", 0)) or 0
+    step_frac = progress.get("step_fraction")
+    if step_frac is None and progress.get("max_updates"):
+        step_frac = (progress.get("updates") or 0) / progress["max_updates"]
+    sweep_frac = (index + (step_frac or 0.0)) / total if total else float("nan")
+    shown = {k: v for k, v in progress.items()
+             if k not in ("steps_total", "n_steps", "step_index", "step", "step_fraction")}
+    extras = "  ".join(f"{k}={_fmt(v)}" for k, v in shown.items())
+    step_bar = bar(step_frac) if step_frac is not None else ""
+    return f"sweep {bar(sweep_frac)} step {index + 1}/{total or '?'} {step_bar} {extras}".rstrip()
+
+
+def _fmt(v: Any) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: float = 30.0
+           ) -> tuple[str, str, list[dict[str, Any]]]:
+    """Print progress and step results of ``run_id`` until it ends.
+
+    Returns
+    -------
+    (status, reason, steps)
+        How the run ended ("completed", "aborted", "failed") and its step dicts.
+    """
+    tty = out.isatty() if hasattr(out, "isatty") else False
+    steps: list[dict[str, Any]] = []
+    last_progress = ""
+    total = None
+    last_msg = time.monotonic()
+    while True:
+        msg = sub.recv(timeout_s=1.0)
+        if msg is None:
+            if time.monotonic() - last_msg > idle_timeout_s:
+                raise DaemonUnavailable(f"no live data for {idle_timeout_s:g} s")
+            continue
+        last_msg = time.monotonic()
+        h = msg.header
+        if msg.topic == "status":
+            st = h["status"]
+            last = st.get("last_run") or {}
+            if st["run_id"] != run_id and last.get("run_id") == run_id:
+                return last["status"], last.get("reason", ""), steps
+            if st["run_id"] == run_id and st.get("progress"):
+                total = st["progress"].get("steps_total") or total
+                line = progress_line(st["progress"])
+                if line != last_progress:
+                    last_progress = line
+                    print(("\r" + line + "\x1b[K") if tty else line, end="" if tty else "\n",
+                          file=out, flush=True)
+        elif msg.topic == "step" and h["run_id"] == run_id:
+            steps.append(h["step"])
+            print(("\r\x1b[K" if tty else "") + step_line(h["step"], total), file=out, flush=True)
+        elif msg.topic == "event" and h["run_id"] in (run_id, ""):
+            if h["kind"] in ("limit_trip", "abort", "error", "warning", "pump", "operator"):
+                print(("\r\x1b[K" if tty else "") + f"{h['kind']}: {h['message']}", file=out,
+                      flush=True)
+            prefix = f"run {run_id} "
+            if h["kind"] == "state" and h["message"].startswith(prefix):
+                status, _, reason = h["message"][len(prefix):].partition(": ")
+                return status, reason, steps
+
+
+def run(args: argparse.Namespace) -> int:
+    spec = sweep_fields(args.sweep_file, args.fields)
+    try:
+        with command_client(args) as client:
+            if args.no_follow:
+                reply = client.start_sweep(spec, args.operator, args.notes)
+                print(f"run {reply.data['run_id']} started: {reply.data['path']}")
+                return 0
+            with subscriber(args, topics=["step", "event", "status"]) as sub:
+                sub.wait_connected(timeout_s=args.timeout)
+                reply = client.start_sweep(spec, args.operator, args.notes)
+                run_id = reply.data["run_id"]
+                print(f"run {run_id} started: {reply.data['path']}", flush=True)
+                status, reason, steps = follow(sub, run_id)
+    except CommandRefused as err:
+        print(f"sweep: {err}")
+        return 1
+    except DaemonUnavailable as err:
+        print(f"sweep: {err}")
+        return 1
+    print(f"run {run_id} {status}" + (f": {reason}" if reason else "")
+          + f" ({len(steps)} steps)")
+    return 0 if status == "completed" else 1
