@@ -1129,8 +1129,9 @@ class SimulatedDeviceServer:
         options = [("grpc.max_send_message_length", max_message_bytes),
                    ("grpc.max_receive_message_length", max_message_bytes),
                    ("grpc.so_reuseport", 0)]
-        self._server = grpc.server(futures.ThreadPoolExecutor(max_workers=max_workers),
-                                   options=options)
+        self._executor = futures.ThreadPoolExecutor(max_workers=max_workers,
+                                                    thread_name_prefix="sim-daqmx")
+        self._server = grpc.server(self._executor, options=options)
         pb_grpc.add_NiDAQmxServicer_to_server(self.servicer, self._server)
         self.host = host
         self.port = self._server.add_insecure_port(f"{host}:{port}")
@@ -1149,6 +1150,7 @@ class SimulatedDeviceServer:
     def stop(self, grace_s: float | None = 1.0) -> None:
         self.device.shutdown()
         self._server.stop(grace_s).wait()
+        self._executor.shutdown(wait=True)
 
     def wait(self) -> None:
         self._server.wait_for_termination()
