@@ -199,6 +199,18 @@ def _resolve_fs(fs_hz: float | None, fs_found: float | None, what: str, where: s
     return float(fs_hz) if fs_hz is not None else float(fs_found)
 
 
+def _check_finite(columns: dict[str, np.ndarray], where: str, name_of: Any,
+                  place_of: Any) -> None:
+    """Measured samples must be finite numbers (NaN would poison every later fit)."""
+    for canon, values in columns.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            i = int(bad[0])
+            raise ImportDataError(
+                f"{where}, {place_of(i)}, {name_of(canon)}: {values[i]} is not a finite number"
+            )
+
+
 def _finish(columns: dict[str, np.ndarray], fs_hz: float, scale: Mapping[str, float],
             sources: dict[str, str], fmt: str, where: str, name_of: Any,
             time_offset_s: float = 0.0, start_time: str = "") -> MeasuredData:
@@ -208,13 +220,6 @@ def _finish(columns: dict[str, np.ndarray], fs_hz: float, scale: Mapping[str, fl
         raise ImportDataError(f"{where}: signals differ in length: {desc}")
     if next(iter(lengths.values())) == 0:
         raise ImportDataError(f"{where}: no samples")
-    for canon, values in columns.items():
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
-            raise ImportDataError(
-                f"{where}: {name_of(canon)} has a non-finite value ({values[bad[0]]}) at sample "
-                f"{int(bad[0])}"
-            )
     for canon in scale:
         if canon not in columns:
             raise ImportDataError(f"{where}: --scale {canon}: no such signal is imported")
@@ -324,6 +329,7 @@ def read_csv(path: str | Path, mapping: Mapping[str, str] | None = None,
         return f"line {int(line_no[i])}"
 
     where = str(path)
+    _check_finite(columns, where, name_of, line_of)
     fs_found, offset = None, 0.0
     if "time_s" in columns:
         t_col = idx["time_s"]
@@ -503,6 +509,7 @@ def read_mat(path: str | Path, mapping: Mapping[str, str] | None = None,
     def name_of(canon: str) -> str:
         return sources[canon]
 
+    _check_finite(columns, where, name_of, lambda i: f"sample {i}")
     fs_found, offset = None, 0.0
     if "time_s" in columns:
         t = columns["time_s"]
@@ -540,10 +547,15 @@ def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
     where = str(path)
     if not path.is_file():
         raise ImportDataError(f"{where}: no such file")
+    with open(path, "rb") as fh:
+        if fh.read(4) != b"TDSm":
+            raise ImportDataError(f"{where}: not a TDMS file (no 'TDSm' lead-in)")
     try:
         tdms = TdmsFile.read(path)
     except Exception as err:  # npTDMS raises ValueError, KeyError, struct.error... on bad files
         raise ImportDataError(f"{where}: not a readable TDMS file: {err}") from None
+    if not any(g.channels() for g in tdms.groups()):
+        raise ImportDataError(f"{where}: no channels (empty or damaged TDMS file)")
     by_full: dict[str, Any] = {}
     by_short: dict[str, list[Any]] = {}
     for group in tdms.groups():
@@ -581,6 +593,7 @@ def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
         t0 = ch.properties.get("wf_start_time")
         if t0 is not None and not start_time:
             start_time = _tdms_time(t0)
+    _check_finite(columns, where, sources.__getitem__, lambda i: f"sample {i}")
     fs_found = None
     what = ""
     if "time_s" in columns:
