@@ -34,6 +34,7 @@ import numpy as np
 import zmq
 from pydantic import ValidationError
 
+from control.errors import InterlockError, TargetError
 from control.publisher import Publisher
 from control.security import (
     COMMAND_DOMAIN,
@@ -182,10 +183,11 @@ class RunJob:
 
 class AcquisitionLoop:
     """The one acquisition thread: runs queued sweeps one at a time and reports how each ended
-    through ``on_done(job, status, reason)`` (status "completed", "aborted" or "failed")."""
+    through ``on_done(job, status, reason, fault)``: status "completed", "aborted" or "failed";
+    ``fault`` when the daemon must go to the fault state (a failure, not a refusal)."""
 
     def __init__(self, on_start: Callable[[RunJob], None],
-                 on_done: Callable[[RunJob, str, str], None]) -> None:
+                 on_done: Callable[[RunJob, str, str, bool], None]) -> None:
         self._jobs: queue.Queue[RunJob | None] = queue.Queue()
         self._on_start = on_start
         self._on_done = on_done
@@ -202,13 +204,17 @@ class AcquisitionLoop:
     def _loop(self) -> None:
         while (job := self._jobs.get()) is not None:
             self._on_start(job)
+            fault = False
             try:
                 outcome = job.engine.run()
                 status, reason = outcome_status(outcome)
+            except (TargetError, InterlockError) as err:  # refused before any output
+                status, reason = "failed", f"refused: {err}"
             except Exception as err:  # the engine ramped down already; record why it stopped
                 log.exception("sweep %s failed", job.run_id)
-                status, reason = "failed", f"{type(err).__name__}: {err}"
-            self._on_done(job, status, reason)
+                status, reason, fault = "failed", f"{type(err).__name__}: {err}", True
+            self._on_done(job, status, reason, fault or status == "failed"
+                          and not reason.startswith("refused"))
 
 
 def outcome_status(outcome: Any) -> tuple[str, str]:
@@ -462,6 +468,9 @@ class Daemon:
                                req.request_id)
         except ValueError as err:
             return self._error(ErrorKind.INVALID, f"start.spec: {err}", req.cmd, req.request_id)
+        refusal = self._refusal(spec)
+        if refusal is not None:
+            return self._error(refusal[0], refusal[1], req.cmd, req.request_id)
         run_id = new_run_id()
         path = self.cfg.runs_dir / f"{run_id}.h5"
         from storage.runfile import RunWriter
@@ -488,13 +497,28 @@ class Daemon:
         self.loop.submit(self._job)
         return self._ok(req, run_id=run_id, path=str(path))
 
+    def _refusal(self, spec: Any) -> tuple[ErrorKind, str] | None:
+        """Why a valid sweep must not start now (before a run file exists), or None."""
+        if getattr(spec, "lubricated", False) and not self.pump.is_on:
+            return ErrorKind.FORBIDDEN, "start: a lubricated sweep needs the pump on " \
+                "(send pump on first)"
+        if hasattr(spec, "steps"):
+            from control.safety import SafetyLimits, validate_targets
+
+            try:
+                validate_targets(spec.steps(), self.cfg.limits or SafetyLimits(),
+                                 self.channel_map)
+            except TargetError as err:
+                return ErrorKind.INVALID, f"start.spec: {err}"
+        return None
+
     # --- called from the acquisition thread ---------------------------------------------------
     def _run_started(self, job: RunJob) -> None:
         with self.sm.lock:
             if self.sm.state is S.ARMING:
                 self.sm.fire("armed")
 
-    def _run_done(self, job: RunJob, status: str, reason: str) -> None:
+    def _run_done(self, job: RunJob, status: str, reason: str, fault: bool) -> None:
         if status == "aborted" and not reason:
             reason = job.abort_reason or self._stop_reason or "aborted"
         try:
@@ -502,13 +526,14 @@ class Daemon:
         except Exception as err:
             log.exception("closing %s failed", job.path)
             status, reason = "failed", f"{reason}; run file close failed: {err}".lstrip("; ")
+            fault = True
         with self.sm.lock:
             self._last_run = {"run_id": job.run_id, "path": str(job.path), "status": status,
                               "reason": reason}
             self.publisher.on_event("state", f"run {job.run_id} {status}"
                                     + (f": {reason}" if reason else ""), job.fanout.last_sample)
             self._job = None
-            if status == "failed":
+            if fault:
                 self.fault_reason = reason
                 self.sm.fire("fault")
             else:
@@ -525,6 +550,10 @@ class Daemon:
         """What a late joiner needs: state, run, progress, pump, sequence numbers, endpoints."""
         job = self._job
         progress = as_dict(getattr(job.engine, "progress", None)) if job is not None else {}
+        max_updates = getattr(getattr(job.engine, "spec", None), "max_updates", None) \
+            if job is not None else None
+        if max_updates is not None:
+            progress["max_updates"] = max_updates
         return {
             "state": self.sm.state.value,
             "run_id": job.run_id if job is not None else "",
@@ -573,7 +602,8 @@ class Daemon:
     def _shutdown(self) -> None:
         job = self._job
         if job is not None:
-            job.engine.abort(self._stop_reason or "daemon shutdown")
+            reason = self._stop_reason or "daemon shutdown"
+            job.engine.abort(reason)  # the engine records the abort event at its sample
         self.loop.stop()
         self.publisher.on_event("state", f"daemon stopped: {self._stop_reason}", 0)
         self.publisher.close()

@@ -106,10 +106,10 @@ class SweepSpec(BaseModel):
         else:
             if any(v is None for v in ranged):
                 raise ValueError("give freq_hz (a list) or both freq_start_hz and freq_stop_hz")
-            if (self.freq_step_hz is None) == (self.freq_points is None):
-                if self.freq_start_hz != self.freq_stop_hz:
-                    raise ValueError("a frequency range needs exactly one of freq_step_hz or "
-                                     "freq_points")
+            if ((self.freq_step_hz is None) == (self.freq_points is None)
+                    and self.freq_start_hz != self.freq_stop_hz):
+                raise ValueError("a frequency range needs exactly one of freq_step_hz or "
+                                 "freq_points")
             if self.spacing == "log" and self.freq_points is None:
                 raise ValueError("log spacing needs freq_points")
         return self

@@ -1,0 +1,315 @@
+"""The amplitude controller: a small object fed with measured complex amplitudes, no I/O.
+
+The two shakers and the two controlled responses (displacement or load along X and Y) are treated
+as a 2x2 system around the operating point, ``dR = J dD`` with ``R`` the responses' complex
+amplitudes at the fundamental and ``D`` the drives' [V]. The controller keeps an estimate of ``J``
+(the drive-to-response matrix, including the seal's friction coupling and the frame's modes),
+corrects both drives together with a Newton step ``dD = J^-1 (R* - R)``, and refines ``J`` with
+Broyden's rank-one secant update from every correction it makes (so an affine plant, such as a
+housing held by dry friction, converges as fast as a linear one).
+
+Only the shape of the motion is prescribed: amplitudes and the phase of Y relative to X. The common
+phase is free, and each update takes the target ``R* = A exp(i alpha)`` with ``alpha`` the
+least-squares phase of the present response, so the controller never chases an absolute phase.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+Motion = Literal["x", "y", "circular_forward", "circular_backward", "elliptical"]
+MOTIONS: tuple[str, ...] = ("x", "y", "circular_forward", "circular_backward", "elliptical")
+
+
+def motion_shape(
+    motion: str, amplitude: float, ellipse_ratio: float = 1.0, ellipse_phase_deg: float = -90.0
+) -> np.ndarray:
+    """Complex target amplitudes (X, Y) of a motion, up to a common phase.
+
+    Conventions: ``x(t) = Re(X e^{iwt})``, ``y(t) = Re(Y e^{iwt})``. Forward circular motion
+    turns from +X towards +Y (x = A cos wt, y = A sin wt, so Y = -i X); backward turns the other
+    way (Y = +i X). Elliptical: |X| = amplitude, |Y| = ellipse_ratio * amplitude, and Y leads X by
+    ``ellipse_phase_deg`` (so -90 is forward circular when the ratio is 1).
+
+    Parameters
+    ----------
+    motion : str
+        One of "x", "y", "circular_forward", "circular_backward", "elliptical".
+    amplitude : float
+        Amplitude of the fundamental [m or N] (of X, or of Y for "y").
+    """
+    a = float(amplitude)
+    if motion == "x":
+        return np.array([a, 0.0], dtype=np.complex128)
+    if motion == "y":
+        return np.array([0.0, a], dtype=np.complex128)
+    if motion == "circular_forward":
+        return np.array([a, -1j * a], dtype=np.complex128)
+    if motion == "circular_backward":
+        return np.array([a, 1j * a], dtype=np.complex128)
+    if motion == "elliptical":
+        return np.array(
+            [a, ellipse_ratio * a * np.exp(1j * math.radians(ellipse_phase_deg))],
+            dtype=np.complex128,
+        )
+    raise ValueError(f"unknown motion {motion!r} (use one of {MOTIONS})")
+
+
+def active_axes(shape: np.ndarray) -> np.ndarray:
+    """Boolean mask of the axes a motion drives (non-zero target)."""
+    return np.abs(np.asarray(shape)) > 0
+
+
+def wrap_deg(angle_deg: float) -> float:
+    """Angle wrapped to (-180, 180] [deg]."""
+    a = math.fmod(angle_deg + 180.0, 360.0)
+    if a <= 0:
+        a += 360.0
+    return a - 180.0
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """Tolerance band of a converged step.
+
+    Attributes
+    ----------
+    amplitude_frac : float
+        Allowed relative amplitude error of each driven axis (0.01 = +/-1 %).
+    phase_deg : float
+        Allowed error of the phase of Y relative to X, two-axis motions only [deg].
+    """
+
+    amplitude_frac: float = 0.01
+    phase_deg: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.amplitude_frac < 1:
+            raise ValueError(f"amplitude_frac must be in (0, 1), got {self.amplitude_frac}")
+        if not 0 < self.phase_deg < 90:
+            raise ValueError(f"phase_deg must be in (0, 90), got {self.phase_deg}")
+
+
+@dataclass(frozen=True)
+class Assessment:
+    """How far a measured response is from its target.
+
+    Attributes
+    ----------
+    amplitude_error : array (2,)
+        |R| / |A| - 1 per axis (0 on undriven axes).
+    phase_error_deg : float
+        Error of arg(R_y / R_x) against the target's, wrapped [deg]; 0 for one-axis motions.
+    within : bool
+        Inside the tolerance band on every driven axis.
+    """
+
+    amplitude_error: np.ndarray
+    phase_error_deg: float
+    within: bool
+
+    def describe(self) -> str:
+        amp = ", ".join(f"{100 * e:+.2f} %" for e in self.amplitude_error)
+        return f"amplitude error [{amp}], phase error {self.phase_error_deg:+.2f} deg"
+
+
+@dataclass
+class AmplitudeController:
+    """Newton-Broyden amplitude and phase controller for two shakers.
+
+    Parameters
+    ----------
+    shape : complex array (2,)
+        Target complex amplitudes (X, Y) up to a common phase (`motion_shape`).
+    jacobian : complex array (2, 2)
+        First estimate of dR/dD [response unit per V].
+    tolerance : Tolerance
+        The band a measured response must be inside.
+    max_drive_v : float
+        Largest drive amplitude the controller will ask for [V].
+    max_growth : float
+        A single update changes a drive by at most ``max_growth`` times its amplitude (plus
+        ``min_step_v``), so one bad estimate cannot throw the drive far.
+    min_step_v : float
+        Allowed change of a drive that is still near zero [V].
+    """
+
+    shape: np.ndarray
+    jacobian: np.ndarray
+    tolerance: Tolerance = field(default_factory=Tolerance)
+    max_drive_v: float = 9.0
+    max_growth: float = 2.0
+    min_step_v: float = 0.2
+    updates: int = 0
+    saturated: bool = False
+    _last: tuple[np.ndarray, np.ndarray] | None = None
+
+    def __post_init__(self) -> None:
+        self.shape = np.asarray(self.shape, dtype=np.complex128).reshape(2)
+        self.jacobian = np.array(self.jacobian, dtype=np.complex128).reshape(2, 2)
+        self.active = active_axes(self.shape)
+        if not self.active.any():
+            raise ValueError("the target shape has no driven axis")
+
+    # --- assessment -------------------------------------------------------------------------
+    def assess(self, response: np.ndarray) -> Assessment:
+        """Compare measured complex amplitudes (2,) with the target shape."""
+        r = np.asarray(response, dtype=np.complex128)
+        err = np.zeros(2)
+        a = self.active
+        err[a] = np.abs(r[a]) / np.abs(self.shape[a]) - 1.0
+        phase_err = 0.0
+        if a.all():
+            if abs(r[0]) > 0 and abs(r[1]) > 0:
+                measured = math.degrees(np.angle(r[1] / r[0]))
+                wanted = math.degrees(np.angle(self.shape[1] / self.shape[0]))
+                phase_err = wrap_deg(measured - wanted)
+            else:
+                phase_err = 180.0
+        within = bool(
+            np.all(np.abs(err[a]) <= self.tolerance.amplitude_frac)
+            and abs(phase_err) <= self.tolerance.phase_deg
+        )
+        return Assessment(err, phase_err, within)
+
+    def target_for(self, response: np.ndarray) -> np.ndarray:
+        """R* = A exp(i alpha), alpha the least-squares common phase of ``response``."""
+        r = np.asarray(response, dtype=np.complex128)
+        inner = np.vdot(self.shape, r)  # sum conj(A) R
+        rot = inner / abs(inner) if abs(inner) > 0 else 1.0
+        return self.shape * rot
+
+    # --- update -----------------------------------------------------------------------------
+    def forget(self) -> None:
+        """Drop the last (drive, response) pair: the next measurement starts a new secant."""
+        self._last = None
+
+    def learn(self, drive: np.ndarray, response: np.ndarray) -> None:
+        """Broyden's rank-one update of J from the change since the last measurement."""
+        d = np.asarray(drive, dtype=np.complex128)
+        r = np.asarray(response, dtype=np.complex128)
+        if self._last is not None:
+            d0, r0 = self._last
+            a = self.active
+            dd = (d - d0)[a]
+            dr = (r - r0)[a]
+            norm2 = float(np.vdot(dd, dd).real)
+            if norm2 > (1e-4 * max(float(np.linalg.norm(d[a])), 1e-3)) ** 2:
+                j = self.jacobian[np.ix_(a, a)]
+                j_new = j + np.outer(dr - j @ dd, dd.conj()) / norm2
+                if _well_conditioned(j_new):
+                    self.jacobian[np.ix_(a, a)] = j_new
+        self._last = (d.copy(), r.copy())
+
+    def update(self, drive: np.ndarray, response: np.ndarray) -> np.ndarray:
+        """The next drive (2,) [V] from the present drive and its measured response.
+
+        The step first refines J (Broyden) from the previous call's pair, then takes the Newton
+        step towards the target, bounded by ``max_growth`` and ``max_drive_v``. Undriven axes
+        stay at zero.
+        """
+        d = np.asarray(drive, dtype=np.complex128).copy()
+        r = np.asarray(response, dtype=np.complex128)
+        self.learn(d, r)
+        a = self.active
+        target = self.target_for(r)
+        j = self.jacobian[np.ix_(a, a)]
+        step = np.linalg.solve(j, (target - r)[a])
+        bound = self.max_growth * np.abs(d[a]) + self.min_step_v
+        big = np.abs(step) > bound
+        if big.any():  # shrink the whole step (keeps its direction) to respect the bound
+            step *= float(np.min(bound[big] / np.abs(step[big])))
+        new = np.zeros(2, dtype=np.complex128)
+        new[a] = d[a] + step
+        peak = float(np.max(np.abs(new)))
+        self.saturated = peak > self.max_drive_v
+        if self.saturated:
+            new *= self.max_drive_v / peak
+        self.updates += 1
+        return new
+
+
+def _well_conditioned(j: np.ndarray) -> bool:
+    if not np.all(np.isfinite(j)):
+        return False
+    s = np.linalg.svd(j, compute_uv=False)
+    return bool(s[-1] > 0 and s[0] / s[-1] < 1e6)
+
+
+@dataclass
+class _Point:
+    freq_hz: float
+    shape: np.ndarray  # target (2,) complex, common phase removed
+    drive: np.ndarray  # drive (2,) for that target, same common phase [V]
+    jacobian: np.ndarray  # (2, 2)
+
+
+class DrivePredictor:
+    """Remembers converged steps and predicts the drive and the matrix J for the next one.
+
+    Prediction, in order of preference: (1) a converged step at the same frequency: move along
+    its tangent, ``D = D_i + J_i^-1 (A - A_i)`` (exact for an affine plant such as a housing with
+    dry friction); (2) the two nearest converged frequencies at the same target: linear
+    extrapolation of the drive in frequency; (3) the nearest frequency's tangent; (4) nothing:
+    the caller's prior.
+    """
+
+    def __init__(self) -> None:
+        self._points: list[_Point] = []
+
+    def __len__(self) -> int:
+        return len(self._points)
+
+    def remember(
+        self, freq_hz: float, shape: np.ndarray, response: np.ndarray, drive: np.ndarray,
+        jacobian: np.ndarray,
+    ) -> None:
+        """Store a converged step: target ``shape``, measured ``response``, ``drive`` and J."""
+        r = np.asarray(response, dtype=np.complex128)
+        s = np.asarray(shape, dtype=np.complex128)
+        inner = np.vdot(s, r)
+        rot = inner / abs(inner) if abs(inner) > 0 else 1.0
+        # express the drive for a response of exactly the target shape with zero common phase
+        self._points.append(_Point(
+            float(freq_hz), s.copy(), np.asarray(drive, dtype=np.complex128) / rot,
+            np.array(jacobian, dtype=np.complex128),
+        ))
+
+    def predict(self, freq_hz: float, shape: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(drive (2,), J (2, 2)) for target ``shape`` at ``freq_hz`` with zero common phase."""
+        if not self._points:
+            return None
+        s = np.asarray(shape, dtype=np.complex128)
+        a = active_axes(s)
+
+        def tangent(p: _Point) -> np.ndarray:
+            j = p.jacobian[np.ix_(a, a)]
+            out = np.zeros(2, dtype=np.complex128)
+            out[a] = p.drive[a] + np.linalg.solve(j, (s - p.shape)[a])
+            return out
+
+        def same_f(p: _Point) -> bool:
+            return abs(p.freq_hz - freq_hz) <= 1e-9 * max(1.0, freq_hz)
+
+        here = [p for p in self._points if same_f(p)]
+        if here:
+            best = min(here, key=lambda p: float(np.linalg.norm(p.shape - s)))
+            return tangent(best), best.jacobian.copy()
+        same_target = [p for p in self._points if np.allclose(p.shape, s, rtol=1e-9, atol=0)]
+        if len(same_target) >= 2:
+            near = sorted(same_target, key=lambda p: abs(p.freq_hz - freq_hz))[:2]
+            p1, p2 = near
+            if abs(p1.freq_hz - p2.freq_hz) > 0:
+                slope = (p1.drive - p2.drive) / (p1.freq_hz - p2.freq_hz)
+                drive = p1.drive + slope * (freq_hz - p1.freq_hz)
+                # never extrapolate to less than half or more than twice the nearest drive
+                ratio = np.linalg.norm(drive) / max(np.linalg.norm(p1.drive), 1e-12)
+                if 0.5 <= ratio <= 2.0:
+                    return drive, p1.jacobian.copy()
+                return p1.drive.copy(), p1.jacobian.copy()
+        nearest = min(self._points, key=lambda p: abs(p.freq_hz - freq_hz))
+        return tangent(nearest), nearest.jacobian.copy()

@@ -1,0 +1,315 @@
+"""One dwell of a sweep: ramp, converge, settle, record.
+
+    ramp      drive and frequency move to the predicted drive (ramped, phase-continuous)
+    converge  wait ``wait_cycles``, lock-in over ``window_cycles``, correct (Newton-Broyden),
+              until the controlled amplitudes are inside the tolerance band
+    settle    ``settle_cycles`` after the last change, and successive windows agree
+    record    ``record_cycles`` whole cycles; the step result is their lock-in
+
+A correction is an *update*; a step that needs more than ``max_updates`` fails with a reason.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from control.controller import AmplitudeController, Assessment, DrivePredictor
+from control.errors import OpenLoopError
+from control.lockin import LockIn, cycles_to_samples, relative_change
+from control.plan import StepPlan
+from control.safety import AxisSignals, SafetyLimits
+from control.spec import SweepSpec
+from control.stream import DriveStream
+
+
+@dataclass
+class StepResult:
+    """What a dwell achieved (contract A's step dict, via `to_dict`).
+
+    Attributes
+    ----------
+    plan : StepPlan
+    first_sample, last_sample : int
+        Half-open span of the recorded whole cycles (run sample indices).
+    updates : int
+        Controller corrections made in this step.
+    converged : bool
+    reason : str
+        Why not converged ("" when converged).
+    harmonics : complex array (n_ai, 5)
+        1X..5X of every AI channel over the span, engineering units.
+    drive_v : complex array (n_ao,)
+        1X of every drive over the span [V].
+    ai_names, ao_names : list of str
+    start_sample : int
+        Run sample at which the step began (its ramp).
+    """
+
+    plan: StepPlan
+    first_sample: int
+    last_sample: int
+    updates: int
+    converged: bool
+    reason: str
+    harmonics: np.ndarray
+    drive_v: np.ndarray
+    ai_names: list[str]
+    ao_names: list[str]
+    start_sample: int = 0
+    assessment: Assessment | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe dict in the layout of contract A."""
+        p = self.plan
+        return {
+            "index": int(p.index),
+            "freq_hz": float(p.freq_hz),
+            "target_kind": p.target_kind,
+            "target_value": float(p.target_value),
+            "motion": p.motion,
+            "first_sample": int(self.first_sample),
+            "last_sample": int(self.last_sample),
+            "updates": int(self.updates),
+            "converged": bool(self.converged),
+            "reason": self.reason,
+            "harmonics": {
+                name: [[float(z.real), float(z.imag)] for z in self.harmonics[i]]
+                for i, name in enumerate(self.ai_names)
+            },
+            "drive_v": {
+                name: [float(self.drive_v[i].real), float(self.drive_v[i].imag)]
+                for i, name in enumerate(self.ao_names)
+            },
+        }
+
+
+class StepRunner:
+    """Runs dwells on a `DriveStream`; keeps what it learns between them (`DrivePredictor`).
+
+    Parameters
+    ----------
+    stream : DriveStream
+    spec : SweepSpec
+    limits : SafetyLimits
+    emit : callable(kind, message, sample)
+        Event sink (warnings, info).
+    """
+
+    def __init__(
+        self,
+        stream: DriveStream,
+        spec: SweepSpec,
+        limits: SafetyLimits,
+        emit: Callable[[str, str, int], None],
+    ) -> None:
+        self.stream = stream
+        self.spec = spec
+        self.limits = limits
+        self.emit = emit
+        self.cm = stream.cm
+        self.fs = self.cm.sample_rate_hz
+        self.lockin = LockIn(self.fs)
+        self.signals = AxisSignals.from_channel_map(self.cm)
+        self.predictor = DrivePredictor()
+        self.cfg = spec.control
+        # drive row of each axis, and the nominal shaker gains [N/V]
+        self.ao_row = [self.cm.ao_for_axis("x"), self.cm.ao_for_axis("y")]
+        self.gain_n_per_v = np.array(
+            [self.cm.ao[r].nominal_force_n_per_v for r in self.ao_row]
+        )
+        self.open_loop_checked = np.zeros(2, dtype=bool)
+        self.on_update: Callable[[int], None] | None = None
+
+    # --- helpers ----------------------------------------------------------------------------
+    def _prior_jacobian(self, plan: StepPlan) -> np.ndarray:
+        g = self.gain_n_per_v
+        if plan.target_kind == "load":
+            return np.diag(g).astype(np.complex128)
+        return np.diag(g / self.cfg.initial_stiffness_n_per_m).astype(np.complex128)
+
+    def _axis_drive(self, phasors_rows: np.ndarray) -> np.ndarray:
+        """AO-row phasors -> (X, Y) drive."""
+        return np.asarray(phasors_rows, dtype=np.complex128)[self.ao_row]
+
+    def _rows_drive(self, drive_xy: np.ndarray) -> np.ndarray:
+        """(X, Y) drive -> AO-row phasors."""
+        out = np.zeros(len(self.cm.ao), dtype=np.complex128)
+        out[self.ao_row] = drive_xy
+        return out
+
+    def _ramp(self, target_rows: np.ndarray, freq_hz: float | None) -> int:
+        """Ramp to new phasors (synth frame) within the envelope-rate limit; the end sample."""
+        synth = self.stream.synth
+        delta = float(np.max(np.abs(target_rows - synth.phasors)))
+        ramp_s = max(self.cfg.min_ramp_s, delta / self.limits.max_drive_rate_v_per_s)
+        n = synth.ramp_to(target_rows, freq_hz, ramp_s)
+        return synth.sample + n
+
+    def _measure(self, plan: StepPlan, first: int, last: int) -> tuple[np.ndarray, ...]:
+        """Lock-in of [first, last): (controlled (2,), other (2,), drive (2,) abs, all AI 1X)."""
+        self.stream.advance_to(last)
+        ai, ao = self.stream.window(first, last)
+        f = plan.freq_hz
+        ctrl = self.lockin.fundamental(self.signals.controlled(ai, plan.target_kind), first, f)
+        other_kind = "load" if plan.target_kind == "displacement" else "displacement"
+        other = self.lockin.fundamental(self.signals.controlled(ai, other_kind), first, f)
+        drive = self._axis_drive(self.lockin.fundamental(ao, first, f))
+        return ctrl, other, drive
+
+    def _check_open_loop(self, plan: StepPlan, drive: np.ndarray, sample: int,
+                         first: int, last: int) -> None:
+        """Drive without load on a driven axis -> `OpenLoopError`."""
+        ai, _ = self.stream.window(first, last)
+        load = self.lockin.fundamental(self.signals.load(ai), first, plan.freq_hz)
+        expected = np.abs(drive) * self.gain_n_per_v
+        lim = self.limits
+        for axis in range(2):
+            if self.open_loop_checked[axis] or expected[axis] < lim.open_loop_min_load_n:
+                continue
+            if abs(load[axis]) < lim.open_loop_min_ratio * expected[axis]:
+                ao_name = self.cm.ao[self.ao_row[axis]].name
+                raise OpenLoopError(
+                    f"open loop: check the stinger and the amplifier ({ao_name} drives "
+                    f"{abs(drive[axis]):.3f} V, nominally {expected[axis]:.1f} N, but load cell "
+                    f"{self.signals.load_names[axis]} reads {abs(load[axis]):.2f} N)",
+                    sample, "open_loop",
+                )
+            self.open_loop_checked[axis] = True
+
+    # --- the dwell --------------------------------------------------------------------------
+    def run(self, plan: StepPlan) -> StepResult:
+        """Run one dwell; returns its result (converged or with the reason it did not)."""
+        spec, cfg, stream, synth = self.spec, self.cfg, self.stream, self.stream.synth
+        f = plan.freq_hz
+        start_sample = stream.sample
+
+        def cyc(c: float) -> int:
+            return cycles_to_samples(f, self.fs, c)
+
+        pred = self.predictor.predict(f, plan.shape)
+        if pred is not None:
+            guess, jac = pred
+        else:
+            jac = self._prior_jacobian(plan)
+            a = np.abs(plan.shape) > 0
+            guess = np.zeros(2, dtype=np.complex128)
+            guess[a] = np.linalg.solve(jac[np.ix_(a, a)], plan.shape[a])
+        ctl = AmplitudeController(
+            plan.shape, jac, spec.tolerance, max_drive_v=self.limits.max_drive_v,
+            max_growth=cfg.max_growth,
+        )
+        # the common phase is free: turn the guess towards the present drive
+        rows_guess = self._rows_drive(guess)
+        now = synth.target_phasors
+        inner = np.vdot(rows_guess, now)
+        if abs(inner) > 0:
+            rows_guess = rows_guess * (inner / abs(inner))
+        peak = float(np.max(np.abs(rows_guess)))
+        if peak > self.limits.max_drive_v:
+            rows_guess *= self.limits.max_drive_v / peak
+        change_end = self._ramp(rows_guess, f)
+
+        updates = 0
+        w = cyc(cfg.window_cycles)
+        settle_tol = cfg.settle_tolerance_pct / 100.0
+        scale_ctrl = np.where(np.abs(plan.shape) > 0, np.abs(plan.shape), np.inf)
+        prev_ok: tuple[np.ndarray, np.ndarray, int] | None = None  # in-tolerance window
+        next_free = change_end + cyc(cfg.wait_cycles)
+        while True:
+            settle_end = change_end + cyc(spec.settle_cycles)
+            # after an in-tolerance window, jump to the one that ends with the settling time
+            w0 = next_free if prev_ok is None else max(next_free, settle_end - w)
+            ctrl, other, drive = self._measure(plan, w0, w0 + w)
+            next_free = w0 + w
+            if not self.open_loop_checked[np.abs(plan.shape) > 0].all():
+                self._check_open_loop(plan, drive, w0, w0, w0 + w)
+            assess = ctl.assess(ctrl)
+            if assess.within:
+                if prev_ok is not None and next_free >= settle_end:
+                    p_ctrl, p_other, _ = prev_ok
+                    act = np.abs(plan.shape) > 0
+                    other_scale = np.maximum(np.abs(other), np.abs(p_other))[act] + 1e-12
+                    change = max(relative_change(p_ctrl[act], ctrl[act], scale_ctrl[act]),
+                                 relative_change(p_other[act], other[act], other_scale))
+                    waited = next_free - change_end
+                    if change <= settle_tol or waited >= cyc(cfg.max_settle_cycles):
+                        if change > settle_tol:
+                            self.emit("warning", f"{plan.describe()}: response not settled "
+                                      f"after {cfg.max_settle_cycles} cycles (successive "
+                                      f"windows differ by {100 * change:.2f} %); recording",
+                                      next_free)
+                        result = self._record(plan, ctl, next_free, updates, start_sample)
+                        if result.converged or updates >= spec.max_updates:
+                            if result.converged:
+                                self._remember(plan, result, ctl)
+                            return result
+                        # drifted out during the recording: correct and go round again
+                        rec_ctrl = self.lockin.fundamental(
+                            self.signals.controlled(
+                                self.stream.window(result.first_sample, result.last_sample)[0],
+                                plan.target_kind),
+                            result.first_sample, f)
+                        change_end, next_free = self._correct(
+                            ctl, self._axis_drive(synth.to_absolute(synth.phasors)), rec_ctrl)
+                        updates += 1
+                        prev_ok = None
+                        continue
+                prev_ok = (ctrl, other, w0)
+                continue
+            prev_ok = None
+            if updates >= spec.max_updates:
+                return self._failed(
+                    plan, w0, w0 + w, updates, start_sample,
+                    f"did not converge in {spec.max_updates} updates ({assess.describe()})",
+                    assess,
+                )
+            change_end, next_free = self._correct(ctl, drive, ctrl)
+            updates += 1
+            if self.on_update is not None:
+                self.on_update(updates)
+
+    def _correct(self, ctl: AmplitudeController, drive: np.ndarray,
+                 response: np.ndarray) -> tuple[int, int]:
+        """One controller update; returns (end of the ramp, first sample worth measuring)."""
+        synth = self.stream.synth
+        new = ctl.update(drive, response)
+        rows = synth.from_absolute(self._rows_drive(new))
+        end = self._ramp(rows, None)
+        return end, end + cycles_to_samples(synth.freq_hz, self.fs, self.cfg.wait_cycles)
+
+    def _record(self, plan: StepPlan, ctl: AmplitudeController, first: int, updates: int,
+                start_sample: int) -> StepResult:
+        last = first + cycles_to_samples(plan.freq_hz, self.fs, self.spec.record_cycles)
+        self.stream.advance_to(last)
+        ai, ao = self.stream.window(first, last)
+        harm, _ = self.lockin.demodulate(ai, first, plan.freq_hz)
+        drive_rows = self.lockin.fundamental(ao, first, plan.freq_hz)
+        ctrl = self.lockin.fundamental(
+            self.signals.controlled(ai, plan.target_kind), first, plan.freq_hz)
+        assess = ctl.assess(ctrl)
+        reason = "" if assess.within else (
+            f"recorded response outside the tolerance ({assess.describe()})")
+        return StepResult(
+            plan, first, last, updates, assess.within, reason, harm, drive_rows,
+            self.cm.ai_names, self.cm.ao_names, start_sample, assess,
+        )
+
+    def _failed(self, plan: StepPlan, first: int, last: int, updates: int, start_sample: int,
+                reason: str, assess: Assessment) -> StepResult:
+        ai, ao = self.stream.window(first, last)
+        harm, _ = self.lockin.demodulate(ai, first, plan.freq_hz)
+        drive_rows = self.lockin.fundamental(ao, first, plan.freq_hz)
+        return StepResult(plan, first, last, updates, False, reason, harm, drive_rows,
+                          self.cm.ai_names, self.cm.ao_names, start_sample, assess)
+
+    def _remember(self, plan: StepPlan, result: StepResult, ctl: AmplitudeController) -> None:
+        ai, _ = self.stream.window(result.first_sample, result.last_sample)
+        ctrl = self.lockin.fundamental(
+            self.signals.controlled(ai, plan.target_kind), result.first_sample, plan.freq_hz)
+        drive = self._axis_drive(result.drive_v)
+        self.predictor.remember(plan.freq_hz, plan.shape, ctrl, drive, ctl.jacobian)
+

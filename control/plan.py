@@ -1,0 +1,50 @@
+"""One planned dwell of a sweep: what to hold, at which frequency. Shared by spec, safety and
+engine (kept apart so that safety does not depend on the sweep module)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+TargetKind = Literal["displacement", "load"]
+
+
+@dataclass(frozen=True)
+class StepPlan:
+    """A dwell: hold ``shape`` (complex X, Y amplitudes up to a common phase) at ``freq_hz``.
+
+    Attributes
+    ----------
+    index : int
+        Position in the sweep (0-based).
+    freq_hz : float
+        Excitation frequency [Hz].
+    target_kind : "displacement" | "load"
+        What is held: the mean probe displacement [m] or the load-cell force [N].
+    target_value : float
+        Amplitude of the fundamental of the reference axis (X, or Y for motion "y") [m or N].
+    motion : str
+        "x", "y", "circular_forward", "circular_backward" or "elliptical".
+    shape : complex array (2,)
+        Target complex amplitudes of X and Y [m or N] (`controller.motion_shape`).
+    """
+
+    index: int
+    freq_hz: float
+    target_kind: TargetKind
+    target_value: float
+    motion: str
+    shape: np.ndarray
+
+    @property
+    def unit(self) -> str:
+        return "m" if self.target_kind == "displacement" else "N"
+
+    def describe(self) -> str:
+        value = (
+            f"{self.target_value * 1e6:.3g} um" if self.target_kind == "displacement"
+            else f"{self.target_value:.3g} N"
+        )
+        return f"step {self.index} ({self.motion}, {value} {self.target_kind}, {self.freq_hz:g} Hz)"

@@ -1,0 +1,388 @@
+"""The sweep engine: unattended multi-frequency, multi-amplitude tests (contract C).
+
+`SweepEngine.run()` is blocking and runs in the acquisition thread; `pause`, `resume` and `abort`
+may be called from any other thread. Whatever happens, the drives end ramped to zero: a limit
+trip, an open loop, an operator abort, a DAQ error or any other exception fades both drives to
+zero (within 100 ms of the offending sample for trips), reads the buffer out and stops the tasks.
+Every block, step and event goes to the listener (contract A).
+
+Refusals (bad targets, limits inconsistent with the channel map, the pump interlock with the pump
+off) raise `TargetError` / `InterlockError` before any output is written. Once output has started,
+`run` returns a `SweepOutcome` rather than raising.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from control.dwell import StepResult, StepRunner
+from control.errors import InterlockError, LimitTrip, TargetError
+from control.listener import NullListener, SweepListener
+from control.plan import StepPlan
+from control.pump import PumpRelay
+from control.safety import SafetyLimits, SafetyMonitor, validate_targets
+from control.spec import (
+    ControlSettings,
+    SweepSpec,
+    load_sweep_spec,
+    sweep_spec_from_dict,
+)
+from control.states import FINAL, State, StateMachine
+from control.stream import DriveStream
+from control.synthesis import SineSynthesizer
+from daq.backend import DaqBackend
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "ControlSettings", "SweepEngine", "SweepOutcome", "SweepProgress", "SweepSpec", "StepResult",
+    "load_sweep_spec", "sweep_spec_from_dict",
+]
+
+
+class _Abort(Exception):
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+class _Pause(Exception):
+    pass
+
+
+@dataclass(frozen=True)
+class SweepProgress:
+    """A snapshot of where the sweep is (safe to read from any thread)."""
+
+    state: str = State.IDLE.value
+    step_index: int = -1
+    steps_total: int = 0
+    freq_hz: float = 0.0
+    target_value: float = 0.0
+    updates: int = 0
+    sample: int = 0
+    steps_done: int = 0
+
+
+@dataclass
+class SweepOutcome:
+    """How a run ended.
+
+    Attributes
+    ----------
+    status : "completed" | "aborted" | "failed"
+    reason : str
+        "" when completed; otherwise why (trip, operator abort, error).
+    steps : list of StepResult
+    samples : int
+        Samples acquired in the run.
+    sample_rate_hz : float
+    """
+
+    status: str
+    reason: str
+    steps: list[StepResult] = field(default_factory=list)
+    samples: int = 0
+    sample_rate_hz: float = 0.0
+
+    @property
+    def rig_time_s(self) -> float:
+        return self.samples / self.sample_rate_hz if self.sample_rate_hz else 0.0
+
+
+class SweepEngine:
+    """Runs a `SweepSpec` on a backend, step by step, safely.
+
+    Parameters
+    ----------
+    backend : DaqBackend
+        Configured (its channel map is used), not started; the engine starts and stops it.
+    spec : SweepSpec or dict
+    limits : SafetyLimits, optional
+        Defaults to `SafetyLimits()`.
+    listener : SweepListener, optional
+        Receives the stream (use `control.listener.Fanout` for several).
+    pump : PumpRelay, optional
+        Required for a lubricated sweep; held on (interlocked) for the whole run.
+    """
+
+    def __init__(
+        self,
+        backend: DaqBackend,
+        spec: SweepSpec | dict[str, Any],
+        limits: SafetyLimits | None = None,
+        listener: SweepListener | None = None,
+        pump: PumpRelay | None = None,
+    ) -> None:
+        self.backend = backend
+        self.spec = spec if isinstance(spec, SweepSpec) else sweep_spec_from_dict(spec)
+        self.limits = limits if limits is not None else SafetyLimits()
+        self.listener: SweepListener = listener if listener is not None else NullListener()
+        self.pump = pump
+        self.plan: list[StepPlan] = self.spec.steps()
+        self._lock = threading.Lock()
+        self._abort_reason: str | None = None
+        self._pause = False
+        self._resume = threading.Event()
+        self._progress = SweepProgress(steps_total=len(self.plan))
+        self._machine = StateMachine(self._on_state)
+        self._stream: DriveStream | None = None
+        self.results: list[StepResult] = []
+
+    # --- thread-safe controls ---------------------------------------------------------------
+    @property
+    def progress(self) -> SweepProgress:
+        return self._progress
+
+    @property
+    def state(self) -> State:
+        return self._machine.state
+
+    def pause(self) -> None:
+        """Ramp the drives to zero and hold (acquisition continues) until `resume`."""
+        with self._lock:
+            self._pause = True
+            self._resume.clear()
+
+    def resume(self) -> None:
+        """Continue a paused sweep; the interrupted step is run again from its start."""
+        with self._lock:
+            self._pause = False
+            self._resume.set()
+
+    def abort(self, reason: str = "operator abort") -> None:
+        """Stop the sweep: drives ramp to zero, the outcome is "aborted" with ``reason``."""
+        with self._lock:
+            if self._abort_reason is None:
+                self._abort_reason = reason or "operator abort"
+            self._resume.set()
+
+    # --- internals --------------------------------------------------------------------------
+    def _sample(self) -> int:
+        return self._stream.sample if self._stream is not None else 0
+
+    def _emit(self, kind: str, message: str, sample: int | None = None) -> None:
+        self.listener.on_event(kind, message, self._sample() if sample is None else sample)
+
+    def _on_state(self, old: State, new: State) -> None:
+        self._progress = replace(self._progress, state=new.value, sample=self._sample())
+        self._emit("state", f"{old.value} -> {new.value}")
+
+    def _interrupt(self) -> None:
+        """Called after every block: operator abort or pause."""
+        if self._abort_reason is not None:
+            raise _Abort(self._abort_reason)
+        if self._pause and self._machine.state is State.RUNNING:
+            raise _Pause()
+        self._progress = replace(self._progress, sample=self._sample())
+
+    def _check_config(self) -> None:
+        cm = self.backend.channel_map
+        lim = self.limits
+        for ao in cm.ao:
+            lo, hi = ao.range_v
+            if lim.max_drive_v > min(-lo, hi):
+                raise TargetError(
+                    f"max_drive_v = {lim.max_drive_v:g} V exceeds the range {ao.range_v} of "
+                    f"AO channel {ao.name!r}"
+                )
+        for axis in "xy":
+            try:
+                cm.ao_for_axis(axis)
+            except KeyError:
+                raise TargetError(f"channel map has no shaker drive for axis {axis}") from None
+        block_s = self.spec.control.block_s
+        latency = block_s * (1 + self.spec.control.ahead_blocks) + lim.fade_s
+        if latency > 0.1 + 1e-12:
+            raise TargetError(
+                f"block_s x (1 + ahead_blocks) + fade_s = {latency * 1e3:.0f} ms exceeds the "
+                "100 ms shutdown budget"
+            )
+        validate_targets(self.plan, lim, cm)
+
+    def _check_interlock_before_start(self) -> None:
+        if not self.spec.lubricated:
+            return
+        if self.pump is None:
+            raise InterlockError("lubricated sweep refused: no pump relay given to the engine")
+        if not self.pump.is_on:
+            raise InterlockError("lubricated sweep refused: the pump is off (switch it on first)")
+        try:
+            self.backend.channel_map.ai_index("p_in")
+        except KeyError:
+            raise InterlockError(
+                "lubricated sweep refused: the channel map has no inlet pressure channel 'p_in'"
+            ) from None
+
+    def _prime(self, stream: DriveStream) -> None:
+        """Zero drive until p_in exceeds its threshold (bounded wait), then let the film fill."""
+        cm = self.backend.channel_map
+        row = cm.ai_index("p_in")
+        lim = self.limits
+        fs = cm.sample_rate_hz
+        deadline = stream.sample + int(lim.pressure_wait_s * fs)
+        while True:
+            assert self.pump is not None
+            if not self.pump.is_on:
+                raise InterlockError("the pump was switched off while waiting for pressure")
+            stream.cycle()
+            ai, _ = stream.window(stream.sample - stream.block, stream.sample)
+            p = float(np.mean(ai[row]))
+            if p >= lim.min_inlet_pressure_pa:
+                self._emit("pump", f"inlet pressure {p / 1e3:.2f} kPa reached (threshold "
+                                   f"{lim.min_inlet_pressure_pa / 1e3:.2f} kPa)")
+                break
+            if stream.sample >= deadline:
+                raise InterlockError(
+                    f"lubricated sweep refused: inlet pressure p_in = {p / 1e3:.2f} kPa, below "
+                    f"{lim.min_inlet_pressure_pa / 1e3:.2f} kPa after {lim.pressure_wait_s:g} s "
+                    "with the pump on"
+                )
+        stream.advance_to(stream.sample + int(lim.film_prime_s * fs))
+
+    def _hold_pump(self) -> Any:
+        if self.pump is None:
+            from contextlib import nullcontext
+
+            return nullcontext()
+        return self.pump.shakers_running()
+
+    # --- the run ----------------------------------------------------------------------------
+    def run(self) -> SweepOutcome:
+        """Run the sweep to the end, or until aborted or tripped (blocking).
+
+        Raises
+        ------
+        TargetError, InterlockError
+            When the sweep is refused, before any output is written.
+        """
+        if self._machine.state is not State.IDLE:
+            raise RuntimeError("a SweepEngine runs once; make a new one")
+        self._machine.to(State.CHECKING)
+        cm = self.backend.channel_map
+        fs = cm.sample_rate_hz
+        try:
+            self._check_config()
+            self._check_interlock_before_start()
+        except (TargetError, InterlockError) as err:
+            self._emit("abort", f"refused: {err}", 0)
+            self._machine.to(State.REFUSED)
+            raise
+        cfg = self.spec.control
+        block = max(1, int(round(cfg.block_s * fs)))
+        keep = int(fs * (self.spec.record_cycles + cfg.window_cycles + 2) / min(
+            p.freq_hz for p in self.plan)) + 4 * block
+        synth = SineSynthesizer(len(cm.ao), fs)
+        stream = DriveStream(
+            self.backend, synth, SafetyMonitor(self.limits, cm), self.listener, block,
+            cfg.ahead_blocks, keep, self._interrupt,
+        )
+        self._stream = stream
+        runner = StepRunner(stream, self.spec, self.limits, self._emit)
+        runner.on_update = self._on_update
+        status, reason = State.COMPLETED, ""
+        with self._hold_pump():
+            try:
+                stream.start()
+                if self.spec.lubricated:
+                    self._machine.to(State.PRIMING)
+                    self._prime(stream)
+                self._machine.to(State.RUNNING)
+                self._run_steps(runner, stream)
+                if not all(r.converged for r in self.results):
+                    bad = sum(not r.converged for r in self.results)
+                    reason = f"{bad} of {len(self.results)} steps did not converge"
+            except _Abort as ab:
+                status, reason = State.ABORTED, ab.reason
+                self._emit("abort", reason)
+            except LimitTrip as trip:
+                status, reason = State.ABORTED, str(trip)
+                self._emit("limit_trip", reason, trip.sample if trip.sample >= 0 else None)
+            except InterlockError as err:
+                status, reason = State.ABORTED, str(err)
+                self._emit("abort", reason)
+            except _StepFailed as err:
+                status, reason = State.ABORTED, str(err)
+                self._emit("abort", reason)
+            except Exception as err:  # noqa: BLE001 - any failure must end in a safe stop
+                log.exception("sweep failed")
+                status, reason = State.FAILED, f"{type(err).__name__}: {err}"
+                self._emit("error", reason)
+            finally:
+                if self._machine.state not in FINAL and self._machine.state is not State.STOPPING:
+                    self._machine.to(State.STOPPING)
+                stream.shutdown(self.limits.fade_s)
+                self._machine.to(status)
+        return SweepOutcome(status.value, reason, list(self.results), stream.sample, fs)
+
+    def _on_update(self, updates: int) -> None:
+        self._progress = replace(self._progress, updates=updates, sample=self._sample())
+
+    def _run_steps(self, runner: StepRunner, stream: DriveStream) -> None:
+        i = 0
+        while i < len(self.plan):
+            plan = self.plan[i]
+            self._progress = replace(
+                self._progress, step_index=plan.index, freq_hz=plan.freq_hz,
+                target_value=plan.target_value, updates=0, sample=stream.sample,
+            )
+            try:
+                result = runner.run(plan)
+            except _Pause:
+                self._paused(stream)
+                continue  # the interrupted step runs again from its start
+            self.results.append(result)
+            self.listener.on_step(result.to_dict())
+            self._progress = replace(self._progress, steps_done=len(self.results),
+                                     updates=result.updates)
+            if not result.converged:
+                msg = f"{plan.describe()}: {result.reason}"
+                if self.spec.on_not_converged == "abort":
+                    raise _StepFailed(msg)
+                self._emit("warning", msg)
+            i += 1
+        # normal end: ramp down at the envelope rate (the shutdown then only reads out zeros)
+        self._machine.to(State.STOPPING)
+        peak = float(np.max(np.abs(stream.synth.phasors))) if len(self.plan) else 0.0
+        stream.ramp_down(max(self.spec.control.min_ramp_s,
+                             peak / self.limits.max_drive_rate_v_per_s))
+
+    def _paused(self, stream: DriveStream) -> None:
+        self._machine.to(State.PAUSED)
+        self._emit("operator", "paused: drives ramping to zero")
+        peak = float(np.max(np.abs(stream.synth.phasors)))
+        stream.ramp_down(max(self.spec.control.min_ramp_s,
+                             peak / self.limits.max_drive_rate_v_per_s))
+        # keep acquiring with zero drive until resumed or aborted
+        while True:
+            with self._lock:
+                if self._abort_reason is not None:
+                    raise _Abort(self._abort_reason)
+                if not self._pause:
+                    break
+            stream.cycle()
+        self._machine.to(State.RUNNING)
+        self._emit("operator", "resumed: repeating the interrupted step")
+
+
+class _StepFailed(RuntimeError):
+    pass
+
+
+def summarize(outcome: SweepOutcome) -> str:
+    """One line per step: frequency, target, updates, converged (for logs and the CLI)."""
+    lines = [f"status {outcome.status}{': ' + outcome.reason if outcome.reason else ''}; "
+             f"{len(outcome.steps)} steps, {outcome.rig_time_s:.2f} s of rig time"]
+    for r in outcome.steps:
+        p = r.plan
+        a = r.assessment
+        err = "" if a is None else a.describe()
+        lines.append(f"  {p.index:3d} {p.freq_hz:8.2f} Hz {p.target_value:.4g} {p.unit} "
+                     f"updates {r.updates} {'ok' if r.converged else 'NOT converged'} {err}")
+    return "\n".join(lines)
+
