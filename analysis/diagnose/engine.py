@@ -1,0 +1,439 @@
+"""Diagnose: baseline, candidate effects fitted on training data and judged on held-out data.
+
+Procedure
+---------
+1. Baseline. ``config``: the rig configuration as it stands. ``fitted``: mass, damping and
+   stiffness per axis (and, for imported data, the force offset) fitted to the training data by
+   output error, starting (imported data) from an equation-error ARX estimate.
+2. Round after round (at most ``max_effects``): every applicable effect of the library not yet
+   found is fitted on the training segments, jointly with the effects already found (and the
+   baseline's own parameters when fitted). Each is judged on the held-out segments: RMS error,
+   and the criterion ``N ln(MSE_held_out) + k ln(N)`` (N held-out residual samples, k fitted
+   parameters), lowest first. The best is a finding only if it is significant: its criterion
+   beats the current model's, its held-out gain (RMS before / after) is at least ``min_gain``, and
+   the lower end of the bootstrap interval of the gain (held-out segments resampled with
+   replacement, seeded) exceeds ``min_gain_lo``. Samples of one segment are correlated, so the
+   criterion alone would be lax: the bootstrap over whole segments is the significance check.
+3. Unexplained: when a structured discrepancy remains, i.e. the held-out error after the findings
+   still exceeds half the baseline's (in the part above the noise floor, where dwells give one).
+   Findings are then marked low-confidence; so is a finding whose runner-up explains the held-out
+   data nearly as well (held-out MSE within 25 %).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from analysis.diagnose import residual_analysis as ra
+from analysis.diagnose.data import DiagnoseError, RunRecord, Segment, split_segments
+from analysis.diagnose.effects import (
+    LIBRARY,
+    Context,
+    Effect,
+    Variant,
+    extended_rig,
+    parameters_of,
+)
+from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit
+from analysis.diagnose.model import Evaluator, Model, Param, Residuals, residuals, rig_param
+from simulated_hw.params import RigParams
+
+
+@dataclass
+class Candidate:
+    effect: str
+    variant: Variant
+    fit: FitResult
+    test: Residuals
+    test_rms: float
+    criterion: float
+    k: int
+
+
+@dataclass
+class Finding:
+    effect: str
+    parameters: dict[str, Any]
+    error_before: float
+    error_after: float
+    gain: float
+    gain_interval: tuple[float, float]
+    evidence: dict[str, Any]
+    model: Model
+    variant: Variant
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"effect": self.effect, "parameters": self.parameters,
+                "error_before": self.error_before, "error_after": self.error_after,
+                "gain": self.gain, "gain_interval": list(self.gain_interval),
+                "evidence": self.evidence}
+
+
+@dataclass
+class Diagnosis:
+    baseline_kind: str
+    units: str
+    records: list[RunRecord]
+    train: list[Segment]
+    test: list[Segment]
+    baseline_model: Model
+    baseline_params: dict[str, float]
+    baseline_train: Residuals
+    baseline_test: Residuals
+    findings: list[Finding]
+    final_model: Model
+    final_test: Residuals
+    unexplained: bool
+    rounds: list[list[dict[str, Any]]]
+    skipped: dict[str, str]
+    noise_floor: float | None
+    extended_rig: RigParams
+    elapsed_s: float
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def baseline_rms(self) -> float:
+        return self.baseline_test.rms()
+
+    def to_dict(self, extended_model_path: str | None = None) -> dict[str, Any]:
+        return {
+            "baseline": {"kind": self.baseline_kind, "rms_error": self.baseline_rms,
+                         "units": self.units, "parameters": self.baseline_params,
+                         "train_rms_error": self.baseline_train.rms()},
+            "findings": [f.to_dict() for f in self.findings],
+            "unexplained": self.unexplained,
+            "extended_model": extended_model_path,
+            "final_rms_error": self.final_test.rms(),
+            "noise_floor": self.noise_floor,
+            "segments": {"train": len(self.train), "test": len(self.test)},
+            "candidates": self.rounds,
+            "not_applicable": self.skipped,
+            "elapsed_s": self.elapsed_s,
+            "notes": self.notes,
+        }
+
+
+# --- baseline ----------------------------------------------------------------------------
+def _imported(records: list[RunRecord], rig: RigParams | None) -> bool:
+    return rig is None and all(r.rig is None for r in records)
+
+
+def baseline_params(model: Model, records: list[RunRecord], imported: bool) -> list[Param]:
+    st = model.rig.structure
+    c_crit = 2 * math.sqrt(st.stiffness_x_n_per_m * st.mass_kg)
+    ps = [
+        rig_param("mass_kg", "structure.mass_kg", 0.05 * st.mass_kg, 1e-3 * st.mass_kg),
+        rig_param("damping_Ns_per_m", "structure.residual_damping_ns_per_m",
+                  0.1 * max(st.residual_damping_ns_per_m, 0.02 * c_crit), 0.0),
+        rig_param("stiffness_x_N_per_m", "structure.stiffness_x_n_per_m",
+                  0.02 * st.stiffness_x_n_per_m, 1e-3 * st.stiffness_x_n_per_m),
+    ]
+    if any(1 in r.axes for r in records):
+        ps.append(rig_param("stiffness_y_N_per_m", "structure.stiffness_y_n_per_m",
+                            0.02 * st.stiffness_y_n_per_m, 1e-3 * st.stiffness_y_n_per_m))
+    if imported:
+        f_rms = float(np.sqrt(np.mean(np.concatenate([r.force_n[0] for r in records]) ** 2)))
+        ps.append(Param("force_offset_N", lambda m: m.force_offset_n[0],
+                        lambda m, v: replace(m, force_offset_n=(float(v), m.force_offset_n[1])),
+                        0.01 * f_rms))
+    return ps
+
+
+def _fit_subset(ev: Evaluator, train: list[Segment], budget: float) -> list[Segment]:
+    """Evenly spread training segments whose simulation work stays within ``budget`` steps."""
+    def work(s: Segment) -> float:
+        rec = ev.records[s.run]
+        sub = ev.oversample.get(s.run, 1)
+        return (s.n + ev.warmup_s * rec.sample_rate_hz) * sub
+    total = sum(work(s) for s in train)
+    if total <= budget:
+        return train
+    k = max(2, int(len(train) * budget / total))
+    idx = np.unique(np.linspace(0, len(train) - 1, k).round().astype(int))
+    return [train[i] for i in idx]
+
+
+# --- significance ------------------------------------------------------------------------
+def bootstrap_gain(before: Residuals, after: Residuals, segs: list[Segment], seed: int,
+                   n_boot: int = 2000) -> tuple[float, float]:
+    """95 % percentile interval of RMS-before / RMS-after over resampled held-out segments."""
+    sb = np.array([before.sse(s)[0] for s in segs])
+    sa = np.array([after.sse(s)[0] for s in segs])
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(segs), size=(n_boot, len(segs)))
+    ratio = np.sqrt(sb[idx].sum(axis=1) / np.maximum(sa[idx].sum(axis=1), 1e-300))
+    lo, hi = np.percentile(ratio, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+def _criterion(res: Residuals, segs: list[Segment], k: int) -> tuple[float, int]:
+    s = n = 0
+    for seg in segs:
+        a, b = res.sse(seg)
+        s += a
+        n += b
+    return n * math.log(max(s / n, 1e-300)) + k * math.log(n), n
+
+
+# --- main --------------------------------------------------------------------------------
+def diagnose(
+    records: list[RunRecord],
+    baseline: str | None = None,
+    train_spans: list[tuple[int, int]] | None = None,
+    test_spans: list[tuple[int, int]] | None = None,
+    rig: RigParams | None = None,
+    seed: int = 0,
+    max_effects: int = 3,
+    effects: list[str] | None = None,
+    min_gain: float = 1.05,
+    min_gain_lo: float = 1.02,
+    fit_budget_steps: float = 4e5,
+    log: Any = None,
+) -> Diagnosis:
+    """Diagnose the discrepancy between the rig model and measured runs.
+
+    Parameters
+    ----------
+    records : list of RunRecord
+        Measured runs (`analysis.diagnose.data.load_run`).
+    baseline : {"config", "fitted"} or None
+        None: "config" when the runs carry a rig configuration (or ``rig`` is given), else
+        "fitted".
+    train_spans, test_spans : list of (start, stop) or None
+        Sample spans [samples] for fitting and for judging; None: whole dwells/blocks split.
+    rig : RigParams or None
+        Rig configuration overriding the runs' own.
+    seed : int
+        Seed of the bootstrap.
+    effects : list of str or None
+        Restrict the library to these effect ids.
+
+    Returns
+    -------
+    Diagnosis
+    """
+    t_start = time.perf_counter()
+    say = log or (lambda msg: None)
+    if not records:
+        raise DiagnoseError("no runs to diagnose")
+    imported = _imported(records, rig)
+    kind = baseline or ("fitted" if imported else "config")
+    if kind not in ("config", "fitted"):
+        raise DiagnoseError(f"--baseline must be 'config' or 'fitted', got {kind!r}")
+    if kind == "config" and imported:
+        raise DiagnoseError(
+            "--baseline config needs a rig configuration, and these runs carry none "
+            "(imported data): pass --rig RIG.toml or use --baseline fitted")
+    unknown = [e for e in (effects or []) if e not in LIBRARY]
+    if unknown:
+        raise DiagnoseError(f"unknown effect(s) {unknown}; the library has {list(LIBRARY)}")
+    rates = {r.sample_rate_hz for r in records}
+    notes: list[str] = []
+
+    base_rig = rig or records[0].rig or RigParams()
+    oversample: dict[int, int] = {}
+    if imported:
+        # imported data: no seal, no film, force interpolated between samples (see model.py)
+        base_rig = base_rig.model_copy(update={"seal": base_rig.seal.model_copy(
+            update={"enabled": False})})
+        for i, r in enumerate(records):
+            oversample[i] = int(min(32, max(1, math.ceil(4000.0 / r.sample_rate_hz))))
+            r.lubricated = False
+        notes.append("imported data: seal and film off; force oversampled "
+                     f"x{oversample[0]} for the replay")
+    if len(rates) > 1:
+        notes.append(f"runs at different sample rates {sorted(rates)}")
+    train, test = split_segments(records, train_spans, test_spans)
+    ev = Evaluator(records, warmup_s=0.5, oversample=oversample)
+    fit_train = _fit_subset(ev, train, fit_budget_steps)
+    if len(fit_train) < len(train):
+        notes.append(f"fitted on {len(fit_train)} of {len(train)} training segments "
+                     "(evenly spread) to bound the fitting time")
+    resp = np.concatenate([v[s.start:s.stop] - np.mean(v[s.start:s.stop])
+                           for s in fit_train for v in records[s.run].responses.values()])
+    scale_m = float(np.sqrt(np.mean(resp**2))) or 1.0
+    model = Model(rig=base_rig)
+    free: list[Param] = []
+    bparams: dict[str, float] = {}
+    if kind == "fitted":
+        if imported:
+            m_kg, c, k, f_off = arx_linear_guess(records[0], fit_train)
+            st = base_rig.structure.model_copy(update={
+                "mass_kg": m_kg, "residual_damping_ns_per_m": c,
+                "stiffness_x_n_per_m": k, "stiffness_y_n_per_m": k})
+            model = Model(rig=base_rig.model_copy(update={"structure": st}),
+                          force_offset_n=(f_off, 0.0))
+        free = baseline_params(model, records, imported)
+        say(f"fitting the linear baseline ({', '.join(p.name for p in free)})")
+        model = fit(ev, [model], free, fit_train, scale_m, max_nfev=60).model
+        bparams = {p.name: p.get(model) for p in free}
+    base_model = model
+    base_train = residuals(ev, model, fit_train)
+    base_test = residuals(ev, model, fit_train, test, base_train.offsets)
+    say(f"baseline ({kind}): held-out RMS error {base_test.rms():.4g}")
+
+    f_rms = float(np.sqrt(np.mean(np.concatenate(
+        [records[s.run].force_n[:, s.start:s.stop].ravel() for s in fit_train]) ** 2)))
+    freqs = [s.freq_hz for s in train if s.freq_hz]
+    ctx = Context(records=records, base=base_model, fitted_baseline=(kind == "fitted"),
+                  duration_s=ev.duration_s, x_rms_m=scale_m, f_rms_n=f_rms,
+                  f_typ_hz=float(np.median(freqs)) if freqs else _dominant_freq(records,
+                                                                                 fit_train))
+    lib: list[Effect] = [LIBRARY[e] for e in (effects or list(LIBRARY))]
+    skipped = {e.id: why for e in lib if (why := e.applicable(ctx)) is not None}
+    lib = [e for e in lib if e.id not in skipped]
+
+    findings: list[Finding] = []
+    rounds: list[list[dict[str, Any]]] = []
+    current, cur_test = model, base_test
+    cur_crit, _ = _criterion(cur_test, test, len(free))
+    for _round in range(max_effects):
+        cands: list[Candidate] = []
+        for eff in lib:
+            if any(f.effect == eff.id for f in findings):
+                continue
+            t0 = time.perf_counter()
+            best: tuple[FitResult, Variant] | None = None
+            for var in eff.variants(ctx, current):
+                params = free + var.params
+                res = fit(ev, var.starts, params, fit_train, scale_m)
+                if best is None or res.train_sse < best[0].train_sse:
+                    best = (res, var)
+            if best is None:
+                continue
+            res, var = best
+            test_res = residuals(ev, res.model, fit_train, test)
+            k = len(free) + len(var.params)
+            crit, _ = _criterion(test_res, test, k)
+            cands.append(Candidate(eff.id, var, res, test_res, test_res.rms(), crit, k))
+            say(f"  {eff.id:28s} held-out {test_res.rms():.4g}  "
+                f"({time.perf_counter() - t0:.1f} s, {res.nfev} evaluations)")
+        if not cands:
+            break
+        cands.sort(key=lambda c: c.criterion)
+        before = cur_test.rms()
+        rounds.append([{
+            "effect": c.effect, "parameters": parameters_of(c.variant, c.fit.model),
+            "held_out_error": c.test_rms, "gain": before / c.test_rms, "criterion": c.criterion,
+            "train_error": math.sqrt(c.fit.train_sse / c.fit.train_n), "n_params": c.k,
+        } for c in cands])
+        top = cands[0]
+        gain = before / top.test_rms
+        lo, hi = bootstrap_gain(cur_test, top.test, test, seed + len(findings))
+        significant = top.criterion < cur_crit and gain >= min_gain and lo > min_gain_lo
+        say(f"round {len(rounds)}: best {top.effect} gain {gain:.3g} [{lo:.3g}, {hi:.3g}]"
+            f"{'' if significant else ' (not significant)'}")
+        if not significant:
+            break
+        runner = cands[1] if len(cands) > 1 else None
+        evidence: dict[str, Any] = {
+            "train_error_before": math.sqrt(_sse(residuals(ev, current, fit_train))
+                                            / top.fit.train_n),
+            "train_error_after": math.sqrt(top.fit.train_sse / top.fit.train_n),
+            "criterion_before": cur_crit, "criterion_after": top.criterion,
+            "n_params": len(top.variant.params),
+            "held_out_segments": len(test),
+        }
+        if runner is not None:
+            evidence["runner_up"] = {"effect": runner.effect,
+                                     "gain": before / runner.test_rms,
+                                     "parameters": parameters_of(runner.variant,
+                                                                 runner.fit.model)}
+            evidence["ambiguous"] = bool(top.test_rms**2 > runner.test_rms**2 / 1.25)
+        evidence.update(_effect_evidence(top.effect, records, test, cur_test, top.test,
+                                         top.fit.model, ev.duration_s))
+        findings.append(Finding(top.effect, parameters_of(top.variant, top.fit.model), before,
+                                top.test_rms, gain, (lo, hi), evidence, top.fit.model,
+                                top.variant))
+        free = free + top.variant.params
+        current, cur_test, cur_crit = top.fit.model, top.test, top.criterion
+
+    # unexplained: a structured discrepancy left
+    rows_base = ra.dwell_table(records, base_test, test)
+    noise = ra.noise_floor(rows_base)
+    n2 = (noise or 0.0) ** 2
+    struct_before = max(base_test.rms() ** 2 - n2, 0.0)
+    struct_after = max(cur_test.rms() ** 2 - n2, 0.0)
+    discrepancy = struct_before > (0.25 * n2 if noise else 0.0) and struct_before > 0
+    unexplained = bool(discrepancy and struct_after > 0.25 * struct_before)
+    for f in findings:
+        f.evidence["confidence"] = "low" if (unexplained or f.evidence.get("ambiguous")) \
+            else "high"
+    if not findings and discrepancy:
+        notes.append("the baseline misses something that no effect of the library explains")
+    ext = extended_rig(current, ev.duration_s)
+    if imported:
+        ext = ext.model_copy(update={"substeps": int(min(32, max(oversample.values())))})
+    return Diagnosis(
+        baseline_kind=kind, units="m", records=records, train=train, test=test,
+        baseline_model=base_model, baseline_params=bparams, baseline_train=base_train,
+        baseline_test=base_test, findings=findings, final_model=current, final_test=cur_test,
+        unexplained=unexplained, rounds=rounds, skipped=skipped, noise_floor=noise,
+        extended_rig=ext, elapsed_s=time.perf_counter() - t_start, notes=notes,
+    )
+
+
+def _sse(res: Residuals) -> float:
+    v = res.vector()
+    return float(np.dot(v, v))
+
+
+def _dominant_freq(records: list[RunRecord], segs: list[Segment]) -> float:
+    s = segs[0]
+    rec = records[s.run]
+    x = next(iter(rec.responses.values()))[s.start:s.stop]
+    spec = np.abs(np.fft.rfft(x - x.mean()))
+    f = np.fft.rfftfreq(x.size, 1 / rec.sample_rate_hz)
+    return float(f[1:][np.argmax(spec[1:])])
+
+
+def _effect_evidence(effect: str, records: list[RunRecord], test: list[Segment],
+                     before: Residuals, after: Residuals, model: Model,
+                     duration_s: float) -> dict[str, Any]:
+    """Effect-specific corroboration: dwell errors before/after, redundant sensors, oil temp."""
+    out: dict[str, Any] = {}
+    rb = ra.summary(ra.dwell_table(records, before, test))
+    rf = ra.summary(ra.dwell_table(records, after, test))
+    if rb:
+        out["dwell_errors_before"] = rb
+        out["dwell_errors_after"] = rf
+    if effect == "sensor_gain":
+        out["accelerometer_check"] = _accel_check(records, test)
+    if effect == "viscosity_drift":
+        temps = [r.t_oil_c for r in records if r.t_oil_c is not None]
+        if temps:
+            t = temps[0]
+            rise = float(np.mean(t[-100:]) - np.mean(t[:100]))
+            out["oil_temperature_rise_c"] = rise
+            out["eq1_relative_change_from_temperature"] = math.expm1(-0.01665 * rise)
+    return out
+
+
+def _accel_check(records: list[RunRecord], segs: list[Segment]) -> dict[str, float]:
+    """Per probe: median of |displacement from the accelerometer| / |probe| at 1X over dwells.
+
+    The accelerometer is an independent sensor: -A / w^2 is the displacement it measures.
+    A probe whose ratio departs from 1 while its twin stays at 1 has the wrong gain.
+    """
+    ratios: dict[str, list[float]] = {}
+    for seg in segs:
+        if not seg.freq_hz:
+            continue
+        rec = records[seg.run]
+        w = 2 * math.pi * seg.freq_hz
+        for ch, axis in rec.response_axis.items():
+            acc_name = "ax" if axis == 0 else "ay"
+            if acc_name not in rec.accel:
+                continue
+            za, _, _ = ra.harmonics(rec.accel[acc_name][seg.start:seg.stop], seg.start,
+                                    rec.sample_rate_hz, seg.freq_hz, 1)
+            zx, _, _ = ra.harmonics(rec.responses[ch][seg.start:seg.stop], seg.start,
+                                    rec.sample_rate_hz, seg.freq_hz, 1)
+            if abs(zx[0]) > 0:
+                ratios.setdefault(ch, []).append(abs(zx[0]) / (abs(za[0]) / w**2))
+    return {ch: float(np.median(v)) for ch, v in ratios.items()}

@@ -1,0 +1,262 @@
+"""The diagnosis as JSON, an extended rig TOML, and an HTML page with PNG figures (matplotlib Agg).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from analysis.diagnose import residual_analysis as ra
+from analysis.diagnose.engine import Diagnosis
+from analysis.diagnose.model import Residuals
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def diagnosis_json(diag: Diagnosis, extended_model_path: str | None) -> dict[str, Any]:
+    """The JSON document of ``sfdrig diagnose --json`` (NaN/inf written as null)."""
+    return _jsonable(diag.to_dict(extended_model_path))
+
+
+def write_json(diag: Diagnosis, path: Path, extended_model_path: str | None) -> None:
+    path.write_text(json.dumps(diagnosis_json(diag, extended_model_path), indent=2) + "\n")
+
+
+def write_extended_model(diag: Diagnosis, path: Path) -> None:
+    """The extended rig model as TOML (`simulated_hw.load_rig_params` loads it as it is)."""
+    head = "# Extended rig model written by sfdrig diagnose"
+    found = ", ".join(f.effect for f in diag.findings) or "no effect found"
+    path.write_text(f"{head} ({diag.baseline_kind} baseline; {found})\n"
+                    + diag.extended_rig.to_toml())
+
+
+# --- figures -----------------------------------------------------------------------------
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _fig_time(diag: Diagnosis, path: Path) -> None:
+    plt = _plt()
+    seg = max(diag.test, key=lambda s: max(np.std(v) for v in diag.baseline_test.per_segment[s]
+                                          .values()))
+    rec = diag.records[seg.run]
+    ch = next(iter(diag.baseline_test.per_segment[seg]))
+    t = np.arange(seg.start, seg.stop) / rec.sample_rate_hz
+    n = min(seg.n, int(rec.sample_rate_hz * (4 / seg.freq_hz if seg.freq_hz else 0.5)))
+    meas = rec.responses[ch][seg.start:seg.stop]
+    fig, axs = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    axs[0].plot(t[:n], meas[:n], "k", lw=1.2, label="measured")
+    for res, lab in ((diag.baseline_test, "baseline"), (diag.final_test, "extended")):
+        axs[0].plot(t[:n], (meas - res.per_segment[seg][ch])[:n], lw=1, label=lab)
+        axs[1].plot(t[:n], res.per_segment[seg][ch][:n], lw=1, label=lab)
+    axs[0].set_ylabel(f"{ch} [{diag.units}]")
+    axs[1].set_ylabel("residual [m]")
+    axs[1].set_xlabel("time [s]")
+    axs[0].legend()
+    axs[0].set_title(f"held-out segment {seg.label}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _fig_dwell(rows_b: list[dict], rows_a: list[dict], path: Path) -> None:
+    plt = _plt()
+    fig, axs = plt.subplots(2, 3, figsize=(12, 6.5))
+    for rows, mk, lab in ((rows_b, "o", "baseline"), (rows_a, "x", "extended")):
+        for j, key in enumerate(("freq_hz", "amplitude_m", "time_s")):
+            x = [r[key] for r in rows]
+            axs[0, j].plot(x, [100 * r["amplitude_error"] for r in rows], mk, label=lab)
+            axs[1, j].plot(x, [r["phase_error_deg"] for r in rows], mk, label=lab)
+            axs[1, j].set_xlabel({"freq_hz": "frequency [Hz]", "amplitude_m": "amplitude [m]",
+                                  "time_s": "time [s]"}[key])
+    axs[0, 0].set_ylabel("1X amplitude error [%]")
+    axs[1, 0].set_ylabel("1X phase error [deg]")
+    axs[0, 0].legend()
+    fig.suptitle("held-out dwells: fundamental error against frequency, amplitude and time")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _fig_harmonics(rows_b: list[dict], rows_a: list[dict], path: Path) -> None:
+    plt = _plt()
+    sb, sa = ra.summary(rows_b), ra.summary(rows_a)
+    k = np.arange(1, ra.N_HARMONICS + 1)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.bar(k - 0.2, sb["residual_harmonic_rms_m"], 0.4, label="baseline")
+    ax.bar(k + 0.2, sa["residual_harmonic_rms_m"], 0.4, label="extended")
+    ax.set_yscale("log")
+    ax.set_xlabel("harmonic (kX)")
+    ax.set_ylabel("residual amplitude, RMS over dwells [m]")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _fig_segments(diag: Diagnosis, path: Path) -> None:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for res, mk, lab in ((diag.baseline_test, "o", "baseline"),
+                         (diag.final_test, "x", "extended")):
+        rows = ra.segment_table(diag.records, res, diag.test)
+        ax.semilogy([r["time_s"] for r in rows], [r["residual_rms_m"] for r in rows], mk,
+                    label=lab)
+    if diag.noise_floor:
+        ax.axhline(diag.noise_floor, color="gray", ls="--", label="noise floor")
+    ax.set_xlabel("time [s] (segment centre)")
+    ax.set_ylabel(f"held-out RMS residual [{diag.units}]")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _fig_spectrum(diag: Diagnosis, path: Path) -> None:
+    plt = _plt()
+    from scipy.signal import welch
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for res, lab in ((diag.baseline_test, "baseline"), (diag.final_test, "extended")):
+        seg = max(diag.test, key=lambda s: s.n)
+        fs = diag.records[seg.run].sample_rate_hz
+        sig = next(iter(res.per_segment[seg].values()))
+        f, p = welch(sig, fs=fs, nperseg=min(sig.size, 4096))
+        ax.semilogy(f, np.sqrt(p), label=lab)
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel(f"residual ASD [{diag.units}/sqrt(Hz)]")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _fig_gains(diag: Diagnosis, path: Path) -> None:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    labels = ["baseline"] + [f.effect for f in diag.findings]
+    errs = [diag.baseline_rms] + [f.error_after for f in diag.findings]
+    ax.bar(range(len(errs)), errs)
+    ax.set_xticks(range(len(errs)), labels, rotation=20)
+    ax.set_yscale("log")
+    ax.set_ylabel(f"held-out RMS error [{diag.units}]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _table(rows: list[dict], keys: list[str]) -> str:
+    def fmt(v: Any) -> str:
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return html.escape(str(v))
+    head = "".join(f"<th>{html.escape(k)}</th>" for k in keys)
+    body = "".join("<tr>" + "".join(f"<td>{fmt(r.get(k, ''))}</td>" for k in keys) + "</tr>"
+                   for r in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None) -> Path:
+    """Write ``index.html`` and its PNG figures into ``out_dir``; return the page's path."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows_b = ra.dwell_table(diag.records, diag.baseline_test, diag.test)
+    rows_a = ra.dwell_table(diag.records, diag.final_test, diag.test)
+    figs = [("time.png", "Measured and predicted response, and the residual, in time",
+             lambda p: _fig_time(diag, p)),
+            ("segments.png", "Held-out residual per segment against time",
+             lambda p: _fig_segments(diag, p)),
+            ("spectrum.png", "Residual spectrum (longest held-out segment)",
+             lambda p: _fig_spectrum(diag, p)),
+            ("errors.png", "Held-out error after each finding", lambda p: _fig_gains(diag, p))]
+    if rows_b:
+        figs += [("dwells.png", "Per dwell: fundamental's amplitude and phase error",
+                  lambda p: _fig_dwell(rows_b, rows_a, p)),
+                 ("harmonics.png", "Residual per harmonic",
+                  lambda p: _fig_harmonics(rows_b, rows_a, p))]
+    for name, _, fn in figs:
+        fn(out_dir / name)
+    doc = diagnosis_json(diag, extended_model_path)
+    u = diag.units
+    noise = f"{diag.noise_floor:.3g} {u}" if diag.noise_floor else "n/a (no dwells)"
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>sfdrig diagnose</title>",
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
+        "table{border-collapse:collapse;font-size:90%}td,th{border:1px solid #bbb;"
+        "padding:2px 6px}</style></head><body>",
+        "<h1>Model discrepancy</h1>",
+        f"<p>Runs: {html.escape(', '.join(r.name for r in diag.records))}. "
+        f"{len(diag.train)} training and {len(diag.test)} held-out segments.</p>",
+        f"<h2>Baseline ({diag.baseline_kind})</h2><p>Held-out RMS error "
+        f"<b>{diag.baseline_rms:.4g} {u}</b>; noise floor "
+        f"{noise}.</p>",
+    ]
+    if diag.baseline_params:
+        parts.append(_table([{"parameter": k, "value": v}
+                             for k, v in diag.baseline_params.items()], ["parameter", "value"]))
+    parts.append("<h2>Findings</h2>")
+    if diag.findings:
+        parts.append(_table([{
+            "effect": f.effect,
+            "parameters": ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                                    for k, v in f.parameters.items()),
+            "error before": f.error_before, "error after": f.error_after, "gain": f.gain,
+            "gain 95% interval": f"{f.gain_interval[0]:.3g} .. {f.gain_interval[1]:.3g}",
+            "confidence": f.evidence.get("confidence", ""),
+        } for f in diag.findings], ["effect", "parameters", "error before", "error after",
+                                    "gain", "gain 95% interval", "confidence"]))
+    else:
+        parts.append("<p>No effect of the library improves the held-out error significantly."
+                     "</p>")
+    verdict = ("Unexplained discrepancy remains." if diag.unexplained
+               else "No significant unexplained discrepancy.")
+    parts.append(f"<p><b>{verdict}</b></p>")
+    if extended_model_path:
+        parts.append(f"<p>Extended model: <code>{html.escape(extended_model_path)}</code></p>")
+    for i, rnd in enumerate(diag.rounds, 1):
+        parts.append(f"<h3>Round {i}: candidates (best first)</h3>")
+        parts.append(_table([{**c, "parameters": json.dumps(_jsonable(c["parameters"]))}
+                             for c in rnd], ["effect", "parameters", "held_out_error", "gain",
+                                             "criterion", "train_error", "n_params"]))
+    if diag.skipped:
+        parts.append("<h3>Not applicable</h3>" + _table(
+            [{"effect": k, "reason": v} for k, v in diag.skipped.items()], ["effect", "reason"]))
+    for name, title, _ in figs:
+        parts.append(f"<h2>{html.escape(title)}</h2><img src='{name}' alt='{html.escape(title)}'>")
+    if rows_b:
+        parts.append("<h2>Held-out dwells (baseline)</h2>")
+        parts.append(_table(rows_b, ["segment", "channel", "freq_hz", "amplitude_m",
+                                     "amplitude_error", "phase_error_deg", "residual_rms_m",
+                                     "noise_rms_m"]))
+    parts.append("<h2>JSON</h2><pre>" + html.escape(json.dumps(
+        {k: doc[k] for k in ("baseline", "findings", "unexplained", "extended_model")},
+        indent=1)) + "</pre>")
+    if diag.notes:
+        parts.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>"
+                                                    for n in diag.notes) + "</ul>")
+    parts.append("</body></html>")
+    page = out_dir / "index.html"
+    page.write_text("\n".join(parts))
+    return page
+
+
+__all__ = ["Residuals", "diagnosis_json", "write_extended_model", "write_json", "write_report"]

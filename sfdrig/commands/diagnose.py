@@ -1,0 +1,85 @@
+"""`sfdrig diagnose RUN.h5 [...]`: what the rig model gets wrong, its cause, and the gain.
+
+Thin wiring: the work is `analysis.diagnose`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+NAME = "diagnose"
+HELP = ("replay measured force through the rig model, find which effect explains the "
+        "discrepancy, write the extended rig model")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("runs", nargs="+", type=Path, metavar="RUN.h5", help="run files")
+    parser.add_argument("--rig", type=Path, help="rig TOML overriding the runs' rig_config")
+    parser.add_argument("--baseline", choices=("config", "fitted"),
+                        help="config: the rig configuration as it stands (default for runs "
+                             "recorded on this rig); fitted: mass, damping, stiffness fitted to "
+                             "the training data first (default for imported runs)")
+    parser.add_argument("--train", metavar="SPANS", help="training sample spans a:b,c:d")
+    parser.add_argument("--test", metavar="SPANS", help="held-out sample spans a:b,c:d")
+    parser.add_argument("--json", type=Path, metavar="FILE", help="write the result as JSON")
+    parser.add_argument("--report", type=Path, metavar="DIR", help="write an HTML report")
+    parser.add_argument("--model-out", type=Path, metavar="TOML",
+                        help="extended rig model path (default: beside --json/--report, or "
+                             "<first run>.extended.toml)")
+    parser.add_argument("--effects", metavar="IDS", help="comma-separated effect ids to consider")
+    parser.add_argument("--max-effects", type=int, default=3, help="effects to look for (3)")
+    parser.add_argument("--seed", type=int, default=0, help="bootstrap seed (0)")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def run(args: argparse.Namespace) -> int:
+    from analysis.diagnose import DiagnoseError, diagnose, load_run, parse_spans
+    from analysis.diagnose.report import write_extended_model, write_json, write_report
+    from simulated_hw.params import RigParamsError, load_rig_params
+
+    def log(msg: str) -> None:
+        if not args.quiet:
+            print(msg, file=sys.stderr)
+
+    try:
+        rig = load_rig_params(args.rig) if args.rig else None
+        records = [load_run(p, i) for i, p in enumerate(args.runs)]
+        effects = [e.strip() for e in args.effects.split(",")] if args.effects else None
+        diag = diagnose(records, args.baseline, parse_spans(args.train, "--train"),
+                        parse_spans(args.test, "--test"), rig=rig, seed=args.seed,
+                        max_effects=args.max_effects, effects=effects, log=log)
+    except (DiagnoseError, RigParamsError) as err:
+        print(f"sfdrig diagnose: {err}", file=sys.stderr)
+        return 2
+    if args.model_out:
+        model_path = args.model_out
+    elif args.json:
+        model_path = args.json.with_suffix(".extended.toml")
+    elif args.report:
+        model_path = args.report / "extended_rig.toml"
+    else:
+        model_path = args.runs[0].with_suffix(".extended.toml")
+    model_path.parent.mkdir(parents=True, exist_ok=True)
+    write_extended_model(diag, model_path)
+    if args.json:
+        write_json(diag, args.json, str(model_path))
+    if args.report:
+        page = write_report(diag, args.report, str(model_path))
+        log(f"report: {page}")
+    u = diag.units
+    print(f"baseline ({diag.baseline_kind}): held-out RMS error {diag.baseline_rms:.4g} {u}")
+    for f in diag.findings:
+        params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                           for k, v in f.parameters.items())
+        print(f"found {f.effect} ({params}): held-out {f.error_before:.4g} -> "
+              f"{f.error_after:.4g} {u}, gain {f.gain:.3g} "
+              f"[{f.gain_interval[0]:.3g}, {f.gain_interval[1]:.3g}] "
+              f"({f.evidence.get('confidence', '')} confidence)")
+    if not diag.findings:
+        print("no effect of the library explains the residual significantly")
+    if diag.unexplained:
+        print("unexplained: a structured discrepancy remains that the library does not explain")
+    print(f"extended model: {model_path}")
+    return 0
