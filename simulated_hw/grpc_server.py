@@ -75,6 +75,7 @@ NO_CHANS_IN_TASK = -200478
 NO_CHANS_OF_GIVEN_TYPE = -200611
 INVALID_ROUTING_SOURCE = -200040
 WRITE_NUM_CHANS_MISMATCH = -200524
+ATTR_INCONSISTENT = -200128  # ATTRIBUTE_INCONSISTENT_ACROSS_REPEATED_PHYSICAL_CHANNELS
 
 _ERROR_TEXT = {
     READ_TIMEOUT: "Wait Until Done did not indicate all samples were acquired/generated in the "
@@ -328,7 +329,8 @@ class SimDevice:
             )
 
     def terminal(self, name: str) -> str:
-        return "/" + self.spec.name.lower() + "/ai/" + name.lower()
+        """The device's AI timing terminal, e.g. ``/Dev1/ai/SampleClock`` (compare lower-case)."""
+        return f"/{self.spec.name}/ai/{name}"
 
     # --- start / stop ---------------------------------------------------------------------
     def start(self, task: SimTask, others: list[SimTask]) -> None:
@@ -356,7 +358,7 @@ class SimDevice:
             task.running = True
 
     def _arm_ao(self, task: SimTask) -> None:
-        if task.clock_source.lower() != self.terminal("SampleClock"):
+        if task.clock_source.lower() != self.terminal("SampleClock").lower():
             raise daq_error(
                 ATTR_NOT_SUPPORTED,
                 f"start {task.name!r}: the simulated {self.spec.name} generates hardware-timed "
@@ -824,7 +826,8 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
         where = f"CfgSampClkTiming on task {task.name!r}"
         self.device.check_rate(request.rate, where)
         source = request.source
-        if source and source.lower() not in ("onboardclock", self.device.terminal("SampleClock")):
+        clock = self.device.terminal("SampleClock").lower()
+        if source and source.lower() not in ("onboardclock", clock):
             raise daq_error(
                 INVALID_ROUTING_SOURCE,
                 f"{where}: sample clock source {source!r} is not available on the simulated "
@@ -843,7 +846,7 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
     @_reports_daq_errors
     def CfgDigEdgeStartTrig(self, request, context):  # noqa: N802
         task = self._task(request.task)
-        if request.trigger_source.lower() != self.device.terminal("StartTrigger"):
+        if request.trigger_source.lower() != self.device.terminal("StartTrigger").lower():
             raise daq_error(
                 INVALID_ROUTING_SOURCE,
                 f"CfgDigEdgeStartTrig on task {task.name!r}: trigger source "
@@ -883,17 +886,21 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
     @_reports_daq_errors
     def GetChanAttributeInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
-        ch = _find_channel(task, request.channel)
         types = {"ai": CHAN_AI, "ao": CHAN_AO, "do": CHAN_DO}
         attr = request.attribute_raw
-        if attr == ATTR_CHAN_TYPE:
-            value = types[ch.kind]
-        elif (attr == ATTR_AI_MEAS_TYPE and ch.kind == "ai") or (
-                attr == ATTR_AO_OUTPUT_TYPE and ch.kind == "ao"):
-            value = MEAS_VOLTAGE
-        else:
-            raise _unsupported("channel", attr)
-        return pb.GetChanAttributeInt32Response(value_raw=value)
+        values = set()
+        for ch in _find_channels(task, request.channel):
+            if attr == ATTR_CHAN_TYPE:
+                values.add(types[ch.kind])
+            elif (attr == ATTR_AI_MEAS_TYPE and ch.kind == "ai") or (
+                    attr == ATTR_AO_OUTPUT_TYPE and ch.kind == "ao"):
+                values.add(MEAS_VOLTAGE)
+            else:
+                raise _unsupported("channel", attr)
+        if len(values) != 1:
+            raise daq_error(ATTR_INCONSISTENT,
+                            f"channel attribute 0x{attr:04X} differs across {request.channel!r}")
+        return pb.GetChanAttributeInt32Response(value_raw=values.pop())
 
     @_reports_daq_errors
     def GetReadAttributeString(self, request, context):  # noqa: N802
@@ -1070,12 +1077,23 @@ def _channel_list(task: SimTask) -> str:
     return ", ".join(c.name for c in task.channels)
 
 
-def _find_channel(task: SimTask, name: str) -> SimChannel:
-    for ch in task.channels:
-        if ch.name == name or (len(ch.physical) == 1 and ch.physical[0].lower() == name.lower()):
-            return ch
-    raise daq_error(PHYSICAL_CHAN_DOES_NOT_EXIST,
-                    f"task {task.name!r} has no channel {name!r} (has {_channel_list(task)})")
+def _find_channels(task: SimTask, names: str) -> list[SimChannel]:
+    """The task's channels named in a channel string ("a, b", "probe0:2"; "" is all)."""
+    if not names:
+        return list(task.channels)
+    found = []
+    for name in unflatten_channel_string(names):
+        for ch in task.channels:
+            physical = ch.physical[0].lower() if len(ch.physical) == 1 else None
+            if name in (ch.name, physical) or physical == name.lower():
+                found.append(ch)
+                break
+        else:
+            raise daq_error(
+                PHYSICAL_CHAN_DOES_NOT_EXIST,
+                f"task {task.name!r} has no channel {name!r} (has {_channel_list(task)})",
+            )
+    return found
 
 
 _READ_ARRAY_TAG = b"\x12"  # field 2 (read_array), wire type 2 (packed)
