@@ -417,7 +417,7 @@ def _vector(arr: Any, ref: str, col: int | None, row: int | None, where: str) ->
         if a.ndim != 2:
             raise ImportDataError(f"{where}: {ref!r}: indexing needs a 2-D matrix, the variable "
                                   f"has shape {a.shape}")
-        k = (col if col is not None else row) - 1
+        k = (col if col is not None else row or 0) - 1
         axis_len = a.shape[1] if col is not None else a.shape[0]
         if k >= axis_len:
             raise ImportDataError(f"{where}: {ref!r}: index {k + 1} exceeds the variable's "
@@ -652,7 +652,7 @@ def dwell_steps(freq_hz: np.ndarray) -> list[dict[str, Any]]:
         return []
     change = np.flatnonzero(np.diff(f) != 0) + 1
     bounds = np.concatenate(([0], change, [f.size]))
-    steps = []
+    steps: list[dict[str, Any]] = []
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
         value = float(f[a])
         if not (math.isfinite(value) and value > 0):

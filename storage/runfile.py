@@ -139,12 +139,13 @@ class RunWriter:
     Thread-safe: calls may come from the acquisition thread and others.
     """
 
-    def __init__(self) -> None:  # use RunWriter.create
-        raise TypeError("use RunWriter.create(path, run_id, kind, channels, ao_names, ...)")
-
     @classmethod
-    def create(
-        cls,
+    def create(cls, *args: Any, **kwargs: Any) -> RunWriter:
+        """Create the run file and return its writer: same arguments as `RunWriter`."""
+        return cls(*args, **kwargs)
+
+    def __init__(
+        self,
         path: str | Path,
         run_id: str,
         kind: str,
@@ -165,7 +166,7 @@ class RunWriter:
         flush_interval_s: float = 1.0,
         overwrite: bool = False,
         swmr: bool = True,
-    ) -> RunWriter:
+    ) -> None:
         """Create the run file with every dataset and attribute, then switch SWMR on.
 
         Parameters
@@ -214,7 +215,6 @@ class RunWriter:
         swmr : bool
             Write in SWMR mode (readers may open the file while it grows).
         """
-        self = object.__new__(cls)
         path = Path(path)
         if kind not in KINDS:
             raise ValueError(f"kind {kind!r} is not one of {KINDS}")
@@ -321,7 +321,6 @@ class RunWriter:
                 target=self._flush_loop, name=f"RunWriter-flush-{run_id}", daemon=True
             )
             self._flusher.start()
-        return self
 
     def _create_layout(
         self, f: h5py.File, chans: list[dict[str, Any]], compression: str, attrs: dict[str, Any]

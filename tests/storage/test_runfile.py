@@ -121,7 +121,10 @@ def test_round_trip_property(n_ai: int, n_ao: int, chunk: int, ops: list, seed: 
     rng = np.random.default_rng(seed)
     names = [f"c{i}" for i in range(n_ai)]
     ao_names = [f"d{i}" for i in range(n_ao)]
-    ai_all, ao_all, steps, events = [], [], [], []
+    ai_all: list = []
+    ao_all: list = []
+    steps: list = []
+    events: list = []
     first = 0
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "p.h5"
@@ -265,11 +268,13 @@ def test_swmr_reader_in_another_process_while_writing(tmp_path: Path) -> None:
         w.flush()
         reader = subprocess.Popen([sys.executable, str(HELPER), "reader", str(path)],
                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        assert reader.stdin is not None and reader.stdout is not None
+        to_reader, from_reader = reader.stdin, reader.stdout
         first = 1000
         for round_ in range(3):
-            reader.stdin.write("read\n")
-            reader.stdin.flush()
-            n, n_steps, n_events, total = reader.stdout.readline().split()
+            to_reader.write("read\n")
+            to_reader.flush()
+            n, n_steps, n_events, total = from_reader.readline().split()
             assert (int(n), int(n_steps), int(n_events)) == (first, round_, round_)
             assert float(total) == pytest.approx(proc.expected_block(0, first)[0][0].sum(),
                                                  rel=1e-12)
@@ -278,9 +283,9 @@ def test_swmr_reader_in_another_process_while_writing(tmp_path: Path) -> None:
             w.on_event("info", f"round {round_}", first)
             w.on_step({"index": round_, "freq_hz": 5.0})
         w.close()
-        reader.stdin.write("read\nquit\n")
-        reader.stdin.flush()
-        n, n_steps, n_events, _ = reader.stdout.readline().split()
+        to_reader.write("read\nquit\n")
+        to_reader.flush()
+        n, n_steps, n_events, _ = from_reader.readline().split()
         assert (int(n), int(n_steps), int(n_events)) == (first, 3, 3)
         assert reader.wait(timeout=30) == 0
     finally:
@@ -289,9 +294,9 @@ def test_swmr_reader_in_another_process_while_writing(tmp_path: Path) -> None:
         if reader is not None and reader.poll() is None:
             reader.kill()
             reader.wait()
-        if reader is not None:
-            reader.stdin.close()
-            reader.stdout.close()
+        for stream in (reader.stdin, reader.stdout) if reader is not None else ():
+            if stream is not None:
+                stream.close()
 
 
 # --- kill -9 ---------------------------------------------------------------------------------
@@ -299,17 +304,19 @@ def test_writer_killed_mid_run_leaves_every_flushed_block(tmp_path: Path) -> Non
     path = tmp_path / "killed.h5"
     child = subprocess.Popen([sys.executable, str(HELPER), "writer", str(path)],
                              stdout=subprocess.PIPE, text=True)
+    assert child.stdout is not None
+    out = child.stdout
     last = 0
     try:
         # Kill while it is writing, once at least 100 000 samples (5 steps) are known flushed.
-        for line in child.stdout:
+        for line in out:
             last = int(line.split()[1])
             if last >= 100_000:
                 break
         os.kill(child.pid, signal.SIGKILL)
     finally:
         child.wait()
-        child.stdout.close()
+        out.close()
     assert child.returncode == -signal.SIGKILL
     assert last >= 100_000
     with open_run(path) as run:
