@@ -98,7 +98,21 @@ def test_metadata_blocks_steps_events_round_trip(tmp_path: Path) -> None:
         assert ev[0]["time"].endswith("+00:00")
         # chunked, compressed, as contract B asks
         ds = run.h5["channels/fx"]
-        assert ds.chunks == (1024,) and ds.compression == "lzf" and ds.maxshape == (None,)
+        assert ds.chunks == (1024,) and ds.compression == "gzip" and ds.maxshape == (None,)
+        assert ds.shuffle and run.h5["drive/shaker_x"].compression == "gzip"
+
+
+def test_lzf_option(tmp_path: Path) -> None:
+    data = np.arange(30.0).reshape(3, 10)
+    with RunWriter.create(tmp_path / "l.h5", "l", "sweep", ["a", "b"], ["d"], 10.0,
+                          compression="lzf", flush_interval_s=0) as w:
+        w.on_block(0, data[:2], data[2:])
+    with open_run(tmp_path / "l.h5") as run:
+        assert run.h5["channels/a"].compression == "lzf"
+        np.testing.assert_array_equal(run.channel("b"), data[1])
+        np.testing.assert_array_equal(run.channel("d"), data[2])
+    with pytest.raises(ValueError, match="compression 'zstd'"):
+        RunWriter.create(tmp_path / "z.h5", "z", "sweep", ["a"], [], 10.0, compression="zstd")
 
 
 @given(
@@ -215,6 +229,25 @@ def test_context_manager_records_failure(tmp_path: Path) -> None:
         assert run.status == "failed"
         assert run.attrs["status_reason"] == "ZeroDivisionError: division by zero"
         assert run.n_samples == 3
+
+
+def test_write_failure_at_close_still_ends_the_run(tmp_path: Path, monkeypatch) -> None:
+    """A disk-full error while flushing: the run is closed, marked failed, and the caller told."""
+    w = _make(tmp_path / "full.h5", chunk_samples=64)
+    w.on_block(0, np.ones((4, 200)), np.zeros((2, 200)))  # 192 samples written, 8 pending
+    w.flush()
+    w.on_block(200, np.ones((4, 10)), np.zeros((2, 10)))
+
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(w, "_write_pending", disk_full)
+    with pytest.raises(OSError, match="run closed with errors: .*No space left"):
+        w.close("completed")
+    with open_run(tmp_path / "full.h5") as run:
+        assert run.status == "failed"
+        assert "samples from 200 on may be lost" in run.attrs["status_reason"]
+        assert run.n_samples == 200
 
 
 def test_aborted_close_keeps_reason(tmp_path: Path) -> None:
