@@ -245,3 +245,17 @@ def nidaqmx_reset(address: str) -> None:
         GrpcStubInterpreter(nidaqmx.GrpcSessionOptions(channel, "")).reset_device("Dev1")
     finally:
         channel.close()
+
+
+def test_local_driver_missing_is_a_connection_error() -> None:
+    """Without grpc_target the backend uses the local NI-DAQmx driver; none is installed here."""
+    try:
+        nidaqmx.system.System.local().driver_version  # noqa: B018
+    except nidaqmx.errors.DaqNotFoundError:
+        pass
+    else:
+        pytest.skip("an NI-DAQmx driver is installed on this machine")
+    backend = NidaqmxBackend()
+    with pytest.raises(DaqConnectionError, match="NI-DAQmx driver not available"):
+        backend.configure(default_channel_map())
+    backend.close()
