@@ -144,6 +144,8 @@ class AmplitudeController:
     max_drive_v: float = 9.0
     max_growth: float = 2.0
     min_step_v: float = 0.2
+    stuck_fraction: float = 0.05
+    prior_only: bool = False
     updates: int = 0
     saturated: bool = False
     _last: tuple[np.ndarray, np.ndarray] | None = None
@@ -156,8 +158,11 @@ class AmplitudeController:
             raise ValueError("the target shape has no driven axis")
 
     # --- assessment -------------------------------------------------------------------------
-    def assess(self, response: np.ndarray) -> Assessment:
-        """Compare measured complex amplitudes (2,) with the target shape."""
+    def assess(self, response: np.ndarray, band: float = 1.0) -> Assessment:
+        """Compare measured complex amplitudes (2,) with the target shape.
+
+        ``band`` scales the tolerance (e.g. 0.5: inside half the band).
+        """
         r = np.asarray(response, dtype=np.complex128)
         err = np.zeros(2)
         a = self.active
@@ -171,8 +176,8 @@ class AmplitudeController:
             else:
                 phase_err = 180.0
         within = bool(
-            np.all(np.abs(err[a]) <= self.tolerance.amplitude_frac)
-            and abs(phase_err) <= self.tolerance.phase_deg
+            np.all(np.abs(err[a]) <= band * self.tolerance.amplitude_frac)
+            and abs(phase_err) <= band * self.tolerance.phase_deg
         )
         return Assessment(err, phase_err, within)
 
@@ -214,8 +219,15 @@ class AmplitudeController:
         """
         d = np.asarray(drive, dtype=np.complex128).copy()
         r = np.asarray(response, dtype=np.complex128)
-        self.learn(d, r)
         a = self.active
+        if np.all(np.abs(r[a]) < self.stuck_fraction * np.abs(self.shape[a])):
+            # nothing moves (e.g. the seal sticks): raise the drive, learn nothing from it
+            self._last = None
+            return self._bounded(d * (1.0 + self.max_growth))
+        if self.prior_only:
+            # J is only a nominal guess: take its diagonal from the measured ratio R / D first
+            self.calibrate_from_ratio(d, r)
+        self.learn(d, r)
         target = self.target_for(r)
         j = self.jacobian[np.ix_(a, a)]
         step = np.linalg.solve(j, (target - r)[a])
@@ -225,12 +237,30 @@ class AmplitudeController:
             step *= float(np.min(bound[big] / np.abs(step[big])))
         new = np.zeros(2, dtype=np.complex128)
         new[a] = d[a] + step
+        return self._bounded(new)
+
+    def _bounded(self, new: np.ndarray) -> np.ndarray:
+        new = np.where(self.active, new, 0.0).astype(np.complex128)
         peak = float(np.max(np.abs(new)))
         self.saturated = peak > self.max_drive_v
         if self.saturated:
             new *= self.max_drive_v / peak
         self.updates += 1
         return new
+
+    def calibrate_from_ratio(self, drive: np.ndarray, response: np.ndarray) -> None:
+        """Replace J by diag(R_j / D_j) on the driven axes (the secant through the origin)."""
+        a = self.active
+        d = np.asarray(drive, dtype=np.complex128)
+        r = np.asarray(response, dtype=np.complex128)
+        if np.any(np.abs(d[a]) == 0) or np.any(np.abs(r[a]) == 0):
+            return
+        j = np.zeros((2, 2), dtype=np.complex128)
+        j[a, a] = r[a] / d[a]
+        if _well_conditioned(j[np.ix_(a, a)]):
+            self.jacobian = np.where(np.outer(a, a), j, self.jacobian)
+            self._last = None
+        self.prior_only = False
 
 
 def _well_conditioned(j: np.ndarray) -> bool:

@@ -11,6 +11,7 @@ A correction is an *update*; a step that needs more than ``max_updates`` fails w
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,6 +25,8 @@ from control.plan import StepPlan
 from control.safety import AxisSignals, SafetyLimits
 from control.spec import SweepSpec
 from control.stream import DriveStream
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -200,7 +203,7 @@ class StepRunner:
             guess[a] = np.linalg.solve(jac[np.ix_(a, a)], plan.shape[a])
         ctl = AmplitudeController(
             plan.shape, jac, spec.tolerance, max_drive_v=self.limits.max_drive_v,
-            max_growth=cfg.max_growth,
+            max_growth=cfg.max_growth, prior_only=pred is None and plan.target_kind != "load",
         )
         # the common phase is free: turn the guess towards the present drive
         rows_guess = self._rows_drive(guess)
@@ -224,10 +227,13 @@ class StepRunner:
             # after an in-tolerance window, jump to the one that ends with the settling time
             w0 = next_free if prev_ok is None else max(next_free, settle_end - w)
             ctrl, other, drive = self._measure(plan, w0, w0 + w)
+            if log.isEnabledFor(logging.DEBUG):
+                log.debug("%s window %d-%d drive %s response %s", plan.describe(), w0, w0 + w,
+                          np.round(drive, 4), np.round(ctrl, 9))
             next_free = w0 + w
             if not self.open_loop_checked[np.abs(plan.shape) > 0].all():
                 self._check_open_loop(plan, drive, w0, w0, w0 + w)
-            assess = ctl.assess(ctrl)
+            assess = ctl.assess(ctrl, cfg.aim_fraction if prev_ok is None else 1.0)
             if assess.within:
                 if prev_ok is not None and next_free >= settle_end:
                     p_ctrl, p_other, _ = prev_ok

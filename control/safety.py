@@ -55,7 +55,7 @@ class SafetyLimits(BaseModel):
         2.0, gt=0, description="the open-loop check needs at least this nominal load [N]"
     )
     min_inlet_pressure_pa: float = Field(
-        8e3, gt=0, description="interlock: inlet pressure p_in a lubricated sweep needs [Pa]"
+        10e3, gt=0, description="interlock: inlet pressure p_in a lubricated sweep needs [Pa]"
     )
     pressure_wait_s: float = Field(
         10.0, gt=0, le=120, description="interlock: longest wait for the pressure to build [s]"
@@ -205,11 +205,13 @@ class SafetyMonitor:
         """Raise `LimitTrip` at the first sample whose load or orbit radius is over its limit."""
         lim = self.limits
         sig = self.signals
-        loads = np.abs(eng[sig.load_rows])
-        over = loads > lim.max_load_n
-        first = _first_true(over)
         disp = sig.displacement(eng)
         radius = np.hypot(disp[0], disp[1])
+        loads = np.abs(eng[sig.load_rows])
+        if loads.max() <= lim.max_load_n and radius.max() <= lim.displacement_limit_m:
+            return
+        over = loads > lim.max_load_n
+        first = _first_true(over)
         over_d = radius > lim.displacement_limit_m
         first_d = _first_true(over_d[None, :])
         if first is None and first_d is None:
@@ -254,6 +256,10 @@ class AxisSignals:
         self.probe_rows = probe_rows
         self.load_rows = load_rows
         self.load_names = load_names
+        # (2, n_ai) averaging matrix: displacement = W @ eng
+        self._w = np.zeros((2, len(names)))
+        for axis, rows in enumerate(probe_rows):
+            self._w[axis, rows] = 1.0 / len(rows)
 
     @classmethod
     def from_channel_map(cls, cm: ChannelMap) -> AxisSignals:
@@ -280,7 +286,7 @@ class AxisSignals:
 
     def displacement(self, eng: np.ndarray) -> np.ndarray:
         """(2, n) mean probe displacement X, Y [m] from an engineering block (n_ai, n)."""
-        return np.stack([eng[rows].mean(axis=0) for rows in self.probe_rows])
+        return self._w @ eng
 
     def load(self, eng: np.ndarray) -> np.ndarray:
         """(2, n) load X, Y [N]."""

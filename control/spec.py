@@ -55,6 +55,11 @@ class ControlSettings(BaseModel):
         1.0e6, gt=0,
         description="first guess of |force / displacement|, first displacement step only [N/m]",
     )
+    aim_fraction: float = Field(
+        0.5, gt=0, le=1,
+        description="stop correcting once inside this fraction of the tolerance band (the "
+                    "recording must be inside the whole band)",
+    )
     max_growth: float = Field(2.0, gt=0, le=10, description="largest relative drive change")
     block_s: float = Field(0.01, ge=0.001, le=0.02, description="AO/AI block length [s]")
     ahead_blocks: int = Field(1, ge=1, le=3, description="AO blocks written ahead")

@@ -1,0 +1,129 @@
+"""The amplitude controller on known plants, without any I/O."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from control.controller import (
+    AmplitudeController,
+    DrivePredictor,
+    Tolerance,
+    motion_shape,
+    wrap_deg,
+)
+
+# A coupled plant: dR = H dD, strong cross terms (friction coupling, frame modes), phases.
+H = np.array([[40e-6 * np.exp(-1.1j), 12e-6 * np.exp(0.4j)],
+              [-9e-6 * np.exp(2.0j), 35e-6 * np.exp(-0.7j)]])
+
+
+def _run(ctl: AmplitudeController, plant, drive: np.ndarray,
+         max_iter: int = 20) -> tuple[int, np.ndarray]:
+    for it in range(max_iter):
+        r = plant(drive)
+        if ctl.assess(r).within:
+            return it, drive
+        drive = ctl.update(drive, r)
+    raise AssertionError(f"no convergence: {ctl.assess(plant(drive)).describe()}")
+
+
+def test_motion_shapes_and_direction():
+    np.testing.assert_allclose(motion_shape("x", 2.0), [2.0, 0.0])
+    np.testing.assert_allclose(motion_shape("y", 2.0), [0.0, 2.0])
+    fwd = motion_shape("circular_forward", 1.0)
+    # forward: x = cos wt, y = sin wt -> turning from +X to +Y (positive angular velocity)
+    wt = np.linspace(0, 2 * np.pi, 100, endpoint=False)
+    x, y = (fwd[0] * np.exp(1j * wt)).real, (fwd[1] * np.exp(1j * wt)).real
+    assert np.all(x * np.gradient(y) - y * np.gradient(x) > 0)
+    bwd = motion_shape("circular_backward", 1.0)
+    assert np.angle(bwd[1] / bwd[0]) == pytest.approx(np.pi / 2)
+    ell = motion_shape("elliptical", 1.0, 0.5, 30.0)
+    assert abs(ell[1]) == pytest.approx(0.5)
+    assert np.degrees(np.angle(ell[1] / ell[0])) == pytest.approx(30.0)
+    with pytest.raises(ValueError, match="unknown motion"):
+        motion_shape("z", 1.0)
+    assert wrap_deg(270.0) == pytest.approx(-90.0)
+
+
+def test_2x2_update_converges_on_a_coupled_linear_plant():
+    shape = motion_shape("circular_forward", 30e-6)
+    # the controller starts from a diagonal guess with wrong magnitudes and no coupling
+    guess = np.diag([60e-6, 20e-6]).astype(complex)
+    ctl = AmplitudeController(shape, guess, Tolerance(0.01, 1.0), max_drive_v=10.0)
+    iters, drive = _run(ctl, lambda d: H @ d, np.array([0.3, 0.3j]))
+    assert iters <= 8
+    r = H @ drive
+    assert abs(abs(r[0]) / 30e-6 - 1) <= 0.01 and abs(abs(r[1]) / 30e-6 - 1) <= 0.01
+    assert abs(wrap_deg(np.degrees(np.angle(r[1] / r[0])) + 90.0)) <= 1.0
+    # without the 2x2 treatment (a fixed diagonal gain) the same plant is not brought in
+    diag = AmplitudeController(shape, guess, Tolerance(0.01, 1.0), max_drive_v=10.0)
+    d = np.array([0.3, 0.3j])
+    for _ in range(8):
+        diag.jacobian = guess.copy()  # forbid learning: a per-axis proportional loop
+        diag._last = None
+        d = diag.update(d, H @ d)
+    assert not diag.assess(H @ d).within
+
+
+def test_newton_step_is_exact_with_the_true_matrix():
+    shape = motion_shape("elliptical", 20e-6, 0.6, 45.0)
+    ctl = AmplitudeController(shape, H.copy(), Tolerance(0.001, 0.1), max_drive_v=10.0,
+                              max_growth=100.0)
+    d = np.array([0.2 + 0.1j, -0.1j])
+    d1 = ctl.update(d, H @ d)
+    a = ctl.assess(H @ d1)
+    assert a.within
+    assert np.max(np.abs(a.amplitude_error)) < 1e-9
+    assert abs(a.phase_error_deg) < 1e-7
+
+
+def test_affine_plant_with_a_dead_zone_converges():
+    """A housing held by dry friction: nothing moves below a threshold, then R grows affinely."""
+    shape = motion_shape("x", 13e-6)
+
+    def plant(d: np.ndarray) -> np.ndarray:
+        mag = max(abs(d[0]) - 0.56, 0.0) * 60e-6
+        return np.array([mag * np.exp(1j * (np.angle(d[0]) - 1.3)), 0.0])
+
+    ctl = AmplitudeController(shape, np.diag([50e-6, 50e-6]).astype(complex),
+                              Tolerance(0.01, 1.0), max_drive_v=9.0, prior_only=True)
+    iters, drive = _run(ctl, plant, np.array([0.26, 0.0]))
+    assert iters <= 6
+    assert abs(abs(plant(drive)[0]) / 13e-6 - 1) <= 0.01
+
+
+def test_drive_never_exceeds_the_limit_and_inactive_axis_stays_zero():
+    shape = motion_shape("y", 1.0)
+    ctl = AmplitudeController(shape, np.eye(2, dtype=complex) * 1e-3, max_drive_v=2.0,
+                              max_growth=100.0)
+    new = ctl.update(np.array([0.0, 0.5]), np.array([0.3, 1e-4]))
+    assert abs(new[1]) == pytest.approx(2.0)
+    assert new[0] == 0
+    assert ctl.saturated
+
+
+def test_assess_reports_amplitude_and_phase_errors():
+    ctl = AmplitudeController(motion_shape("circular_forward", 1.0), np.eye(2, dtype=complex))
+    a = ctl.assess(np.array([1.005, 0.98 * np.exp(-1j * np.radians(90.5))]))
+    np.testing.assert_allclose(a.amplitude_error, [0.005, -0.02], atol=1e-12)
+    assert a.phase_error_deg == pytest.approx(-0.5)
+    assert not a.within
+    assert ctl.assess(np.array([1.005, 0.995 * np.exp(-1j * np.radians(90.5))])).within
+
+
+def test_predictor_tangent_is_exact_on_an_affine_plant():
+    """Drive for a new amplitude at a known frequency, from J at the old one: exact if affine."""
+    b = np.array([0.3 + 0.2j, -0.1j])  # friction-like offset
+
+    def drive_for(r: np.ndarray) -> np.ndarray:  # inverse of R = H (D - b)
+        return np.linalg.solve(H, r) + b
+
+    pred = DrivePredictor()
+    s13 = motion_shape("circular_backward", 13e-6)
+    pred.remember(40.0, s13, s13, drive_for(s13), H)
+    s38 = motion_shape("circular_backward", 38e-6)
+    d, j = pred.predict(40.0, s38)
+    np.testing.assert_allclose(d, drive_for(s38), rtol=1e-12)
+    np.testing.assert_allclose(j, H)
+    assert DrivePredictor().predict(40.0, s38) is None
