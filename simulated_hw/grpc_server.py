@@ -461,6 +461,9 @@ class SimDevice:
         """Take samples ``generated..target``: consume AO, run the rig, fill the AI buffer."""
         task, ring, rig = self.ai_task, self.ring, self.rig
         assert task is not None and ring is not None and rig is not None
+        if task.error is not None:  # overwritten: the acquisition is dead until restarted
+            self.generated = max(self.generated, target)
+            return
         while self.generated < target:
             n = min(target - self.generated, MAX_CHUNK)
             hold = [self.ao_hold.get(c.physical_channel, 0.0) for c in self.wiring.ao]
