@@ -25,7 +25,8 @@ DYNAMIC_SIGNALS = ("fx", "fy", "x", "y", "ax", "ay")
 class Dwell:
     """One dwell of a run: its step description and the harmonics of its signals.
 
-    ``harmonics[name]`` is complex, shape (5,): 1X..5X, ``Z = z_c - i z_s`` (eq. 12-13), in SI.
+    ``harmonics[name]`` is complex, shape (n,), n >= 5: 1X..nX, ``Z = z_c - i z_s`` (eq. 12-13),
+    in SI.
     """
 
     run_id: str
@@ -126,7 +127,7 @@ def read_signal(run: RunData, name: str, start: int, stop: int, analysis: str, s
 
 def load_dwells(run: RunData, analysis: str, signals: tuple[str, ...] = DYNAMIC_SIGNALS,
                 skipped: list[Skipped] | None = None, min_cycles: int = MIN_CYCLES,
-                require: tuple[str, ...] = ()) -> list[Dwell]:
+                require: tuple[str, ...] = (), n_harmonics: int = N_HARMONICS) -> list[Dwell]:
     """The periodic dwells of a run with the harmonics of ``signals`` over whole cycles.
 
     Parameters
@@ -143,6 +144,8 @@ def load_dwells(run: RunData, analysis: str, signals: tuple[str, ...] = DYNAMIC_
         Fewest whole cycles a dwell must hold.
     require : tuple of str
         Signals without which a dwell is dropped altogether.
+    n_harmonics : int
+        Harmonics to resolve (at least 5; fewer than asked where they would pass 0.45 fs).
     """
     skipped = [] if skipped is None else skipped
     label = run_label(run)
@@ -186,7 +189,8 @@ def load_dwells(run: RunData, analysis: str, signals: tuple[str, ...] = DYNAMIC_
                                    ",".join(missing)))
             continue
         if rows:
-            amps, means = harmonics(np.vstack(rows), first, f, fs, N_HARMONICS)
+            nh = max(N_HARMONICS, min(n_harmonics, int(0.45 * fs / f)))
+            amps, means = harmonics(np.vstack(rows), first, f, fs, nh)
             for i, name in enumerate(names):
                 dw.harmonics[name] = amps[i]
                 dw.means[name] = float(means[i])
