@@ -232,7 +232,7 @@ class StepRunner:
                           np.round(drive, 4), np.round(ctrl, 9))
             next_free = w0 + w
             if not self.open_loop_checked[np.abs(plan.shape) > 0].all():
-                self._check_open_loop(plan, drive, w0, w0, w0 + w)
+                self._check_open_loop(plan, drive, w0 + w, w0, w0 + w)
             assess = ctl.assess(ctrl, cfg.aim_fraction if prev_ok is None else 1.0)
             if assess.within:
                 if prev_ok is not None and next_free >= settle_end:

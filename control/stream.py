@@ -166,24 +166,30 @@ class DriveStream:
     def shutdown(self, fade_s: float) -> None:
         """Fade both drives to zero, write a block of zeros, read out the buffer, stop the tasks.
 
-        Never raises: a failure on the way is logged, and the tasks are stopped regardless. The
+        Never raises: a failure on the way is logged, and the tasks are stopped regardless. If
+        reading fails (a stalled acquisition), the fade and the zeros are still written. The
         first sample of the final zeros is kept in `zero_sample`.
         """
+        reading = True
         try:
             if self._started:
                 n = self.synth.fade_out(fade_s)
-                n_blocks = math.ceil(n / self.block) + 1
-                for _ in range(n_blocks):
-                    ao = self.synth.next_block(self.block)
+                blocks = [self.synth.next_block(self.block)
+                          for _ in range(math.ceil(n / self.block) + 1)]
+                self.zero_sample = self.synth.sample
+                blocks.append(np.zeros((len(self.cm.ao), self.block)))
+                self.synth.sample += self.block
+                for ao in blocks:
                     self.backend.write_ao(ao)
                     self._fifo.append(ao)
-                    self._read_one(check=False)
-                zero = np.zeros((len(self.cm.ao), self.block))
-                self.zero_sample = self.synth.sample
-                self.backend.write_ao(zero)
-                self.synth.sample += self.block
-                self._fifo.append(zero)
-                while self._fifo:
+                    if reading:
+                        try:
+                            self._read_one(check=False)
+                        except Exception:
+                            log.exception("acquisition failed while ramping down; the fade is "
+                                          "still written")
+                            reading = False
+                while reading and self._fifo:
                     self._read_one(check=False)
         except Exception:
             log.exception("error while ramping the drives down; stopping the tasks")

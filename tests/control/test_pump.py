@@ -1,0 +1,74 @@
+"""The pump relay and its interlock with the shakers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from control.errors import InterlockError
+from control.listener import RecordingListener
+from control.pump import PumpRelay
+from control.sweep import SweepEngine
+from simulated_hw.params import RigParams
+from tests.control.conftest import make_backend
+
+LUB = {"motion": "x", "lubricated": True, "amplitude_m": [13e-6], "freq_hz": [30.0]}
+
+
+def test_relay_switches_the_rig_pump():
+    be = make_backend()
+    changes = []
+    pump = PumpRelay(be, on_change=lambda on, msg: changes.append((on, msg)))
+    pump.set(True)
+    assert pump.is_on and be.rig.pump_on
+    pump.set(False)
+    assert not be.rig.pump_on
+    assert changes == [(True, "pump 'pump' switched on"), (False, "pump 'pump' switched off")]
+    with pytest.raises(KeyError, match="no relay named 'oil'"):
+        PumpRelay(be, name="oil")
+
+
+def test_lubricated_sweep_refused_with_the_pump_off():
+    be = make_backend()
+    pump = PumpRelay(be)
+    with pytest.raises(InterlockError, match="the pump is off"):
+        SweepEngine(be, LUB, pump=pump).run()
+    with pytest.raises(InterlockError, match="no pump relay"):
+        SweepEngine(be, LUB).run()
+    assert be.written == [] and be.samples_read == 0
+
+
+def test_no_pressure_aborts_with_zero_drive():
+    params = RigParams.model_validate({"oil": {"supply_pressure_pa": 5000.0}})  # clogged filter
+    be = make_backend(params)
+    pump = PumpRelay(be)
+    pump.set(True)
+    rec = RecordingListener(keep_blocks=False)
+    out = SweepEngine(be, LUB, pump=pump, listener=rec).run()
+    assert out.status == "aborted"
+    assert "inlet pressure p_in = " in out.reason and "below 10.00 kPa after 10 s" in out.reason
+    assert np.all(be.ao_written() == 0)
+    assert 10 * 10_000 <= out.samples <= 10 * 10_000 + 1000
+
+
+def test_pump_cannot_be_switched_off_while_the_shakers_run():
+    be = make_backend(seed=3)
+    pump = PumpRelay(be)
+    pump.set(True)
+    refusals = []
+
+    class Operator(RecordingListener):
+        def on_block(self, first_sample, ai, ao):
+            super().on_block(first_sample, ai, ao)
+            if first_sample == 80_000:
+                try:
+                    pump.set(False)
+                except InterlockError as err:
+                    refusals.append(str(err))
+
+    out = SweepEngine(be, LUB, pump=pump, listener=Operator(keep_blocks=False)).run()
+    assert out.status == "completed"
+    assert refusals and "cannot be switched off while the shakers run" in refusals[0]
+    assert pump.is_on and be.rig.pump_on
+    pump.set(False)  # allowed once the run is over
+    assert not pump.is_on

@@ -1,0 +1,161 @@
+"""Safety: limit trips ramp to zero within 100 ms, open loop, bad targets refused up front."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from control.errors import LimitTrip, SpecError, TargetError
+from control.listener import RecordingListener
+from control.safety import SafetyLimits, SafetyMonitor
+from control.sweep import SweepEngine, SweepSpec
+from daq.channels import default_channel_map
+from daq.errors import DaqTimeoutError
+from simulated_hw.params import RigParams
+from tests.control.conftest import WriteLog, make_backend
+
+FS = 10_000
+
+
+def _assert_safe_ramp(ao: np.ndarray, trip_sample: int) -> None:
+    """Both drives at zero within 100 ms of the trip, and no step on the way down."""
+    assert np.any(ao[:, trip_sample - 200:trip_sample] != 0)  # it was driving
+    assert np.all(ao[:, trip_sample + FS // 10:] == 0)
+    fade = ao[:, trip_sample:trip_sample + FS // 10]
+    steady = np.abs(np.diff(ao[:, max(0, trip_sample - 2000):trip_sample], axis=1)).max()
+    assert np.abs(np.diff(fade, axis=1)).max() <= 1.05 * steady + 1e-12
+
+
+def test_displacement_trip_ramps_both_drives_to_zero_within_100_ms():
+    be = make_backend(seed=8)
+    rec = RecordingListener()
+    # dry, 40 N circular: the simulated housing passes 63.5 um (the default limit) near 30 Hz
+    spec = SweepSpec(motion="circular_forward", load_n=[40.0], freq_start_hz=20,
+                     freq_stop_hz=60, freq_step_hz=5)
+    out = SweepEngine(be, spec, listener=rec).run()
+    assert out.status == "aborted"
+    trips = rec.events_of("limit_trip")
+    assert len(trips) == 1 and "exceeds the 63.5 um limit" in trips[0][1]
+    k = trips[0][2]
+    # the trip is stamped at the first sample over the limit
+    ai = rec.ai()
+    cm = default_channel_map()
+    x = ai[[cm.ai_index("x1"), cm.ai_index("x2")]].mean(axis=0)
+    y = ai[[cm.ai_index("y1"), cm.ai_index("y2")]].mean(axis=0)
+    r = np.hypot(x, y)
+    assert r[k] > 63.5e-6 and np.all(r[:k] <= 63.5e-6)
+    written = be.ao_written()
+    np.testing.assert_array_equal(written, rec.ao())
+    _assert_safe_ramp(written, k)
+    assert out.reason == trips[0][1]
+
+
+def test_unhandled_exception_ramps_down_and_is_recorded():
+    be = make_backend(seed=1)
+
+    class Broken(RecordingListener):
+        def on_step(self, step):
+            super().on_step(step)
+            raise RuntimeError("disk full")
+
+    rec = Broken()
+    out = SweepEngine(be, SweepSpec(motion="x", load_n=[30.0], freq_hz=[50.0, 60.0]),
+                      listener=rec).run()
+    assert out.status == "failed" and out.reason == "RuntimeError: disk full"
+    err = rec.events_of("error")
+    assert err and err[0][1] == "RuntimeError: disk full"
+    _assert_safe_ramp(be.ao_written(), err[0][2])
+
+
+def test_stalled_acquisition_still_writes_the_fade_and_zeros():
+    class Stalls(WriteLog):
+        def read_ai(self, n, timeout_s=10.0):
+            if self.samples_read >= 5000:
+                raise DaqTimeoutError("read timed out", -200284)
+            return super().read_ai(n, timeout_s)
+
+    be = Stalls(RigParams(), seed=0)
+    be.configure(default_channel_map())
+    rec = RecordingListener()
+    out = SweepEngine(be, SweepSpec(motion="x", load_n=[30.0], freq_hz=[50.0]),
+                      listener=rec).run()
+    assert out.status == "failed" and "read timed out" in out.reason
+    written = be.ao_written()
+    assert np.all(written[:, -100:] == 0)
+    _assert_safe_ramp(written, 5000)
+
+
+def test_open_loop_is_detected():
+    params = RigParams.model_validate({"shaker": {"force_per_volt_n": 0.5}})  # amplifier dead
+    be = make_backend(params)
+    rec = RecordingListener(keep_blocks=False)
+    out = SweepEngine(be, SweepSpec(motion="x", load_n=[40.0], freq_hz=[30.0]),
+                      listener=rec).run()
+    assert out.status == "aborted"
+    assert out.reason.startswith("open loop: check the stinger and the amplifier")
+    trip = rec.events_of("limit_trip")[0]
+    assert trip[1].startswith("open loop") and "load cell fx reads" in trip[1]
+    _assert_safe_ramp(be.ao_written(), trip[2])
+
+
+@pytest.mark.parametrize(
+    ("spec", "limits", "message"),
+    [
+        ({"motion": "x", "amplitude_m": [10e-6], "freq_hz": [2600.0]},
+         SafetyLimits(max_freq_hz=5000), "above a quarter of the sample rate (2500 Hz"),
+        ({"motion": "x", "amplitude_m": [10e-6], "freq_hz": [20.0, 600.0]},
+         SafetyLimits(), "600 Hz is outside the permitted range 5-500 Hz"),
+        ({"motion": "x", "amplitude_m": [10e-6], "freq_hz": [3.0]},
+         SafetyLimits(), "3 Hz is outside the permitted range"),
+        ({"motion": "circular_forward", "amplitude_m": [13e-6, 70e-6], "freq_hz": [30.0]},
+         SafetyLimits(), "displacement 70 um exceeds the limit 63.5 um"),
+        ({"motion": "y", "load_n": [500.0], "freq_hz": [30.0]},
+         SafetyLimits(), "load 500 N exceeds the shaker rating 448 N"),
+        ({"motion": "y", "load_n": [100.0], "freq_hz": [30.0]},
+         SafetyLimits(max_load_n=80.0), "load 100 N exceeds the configured limit 80 N"),
+    ],
+)
+def test_bad_targets_are_refused_before_any_output(spec, limits, message):
+    be = make_backend()
+    rec = RecordingListener()
+    engine = SweepEngine(be, spec, limits=limits, listener=rec)
+    with pytest.raises(TargetError, match="sweep refused") as info:
+        engine.run()
+    assert message in str(info.value)
+    assert be.written == [] and be.samples_read == 0
+    assert engine.state.value == "refused"
+    assert rec.events_of("abort")[0][1].startswith("refused")
+
+
+@pytest.mark.parametrize("amp", [0.0, -13e-6])
+def test_non_positive_amplitude_is_refused(amp):
+    be = make_backend()
+    with pytest.raises(SpecError, match=r"amplitude_m\.0 = .*greater than 0"):
+        SweepEngine(be, {"motion": "x", "amplitude_m": [amp], "freq_hz": [30.0]})
+    with pytest.raises(SpecError, match=r"load_n\.1"):
+        SweepEngine(be, {"motion": "x", "load_n": [10.0, amp], "freq_hz": [30.0]})
+    assert be.written == []
+
+
+def test_limits_must_be_consistent():
+    with pytest.raises(ValueError, match="exceeds the shaker rating"):
+        SafetyLimits(max_load_n=500.0)
+    with pytest.raises(ValueError, match="min_freq_hz"):
+        SafetyLimits(min_freq_hz=100.0, max_freq_hz=50.0)
+    assert SafetyLimits().displacement_limit_m == pytest.approx(63.5e-6)
+
+
+def test_monitor_stamps_the_first_offending_sample():
+    cm = default_channel_map()
+    mon = SafetyMonitor(SafetyLimits(max_load_n=100.0), cm)
+    eng = np.zeros((len(cm.ai), 50))
+    eng[cm.ai_index("fy"), 30] = -120.0
+    eng[cm.ai_index("fx"), 40] = 150.0
+    with pytest.raises(LimitTrip, match="load fy = -120.0 N exceeds the 100 N limit") as info:
+        mon.check_ai(eng, 1000)
+    assert info.value.sample == 1030 and info.value.limit == "load_n"
+    with pytest.raises(LimitTrip, match="above the 9 V limit"):
+        mon.check_ao(np.full((2, 10), 9.5), 0)
+    mon2 = SafetyMonitor(SafetyLimits(), cm)
+    with pytest.raises(LimitTrip, match="slew"):
+        mon2.check_ao(np.array([[0.0, 8.0], [0.0, 0.0]]), 0)
