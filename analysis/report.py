@@ -216,3 +216,37 @@ def write_report(run_paths: Sequence[str | Path], out_dir: str | Path,
     if store_results:
         ident.skipped.extend(write_results(ident))
     return build_report(ident, out_dir)
+
+
+def summary_lines(ident: Identification) -> list[str]:
+    """A short text summary of what was identified (for the command line)."""
+    out = []
+    for s in ident.static:
+        out.append(f"static {s.axis}: K = {s.k_n_per_m / 1e3:.1f} +/- {s.u_k_n_per_m / 1e3:.1f} "
+                   f"kN/m (R2 {s.r2:.4f}), f_n* = {s.natural_freq_hz:.1f} Hz")
+    for i in ident.impact:
+        out.append(f"impact {i.axis}: K = {i.k_n_per_m / 1e3:.0f} kN/m, M = {i.m_kg:.2f} kg, "
+                   f"C = {i.c_ns_per_m:.0f} N.s/m, zeta = {i.damping_ratio:.3f}, f_n = "
+                   f"{i.natural_freq_hz:.1f} Hz (R2 {i.r2:.3f})")
+    for c in ident.probe:
+        out.append(f"probe {c.channel}: {c.gain_mv_per_mil:.1f} mV/mil (R2 {c.r2:.4f}; in use "
+                   f"{c.gain_in_use_v_per_m * 25.4e-3:.1f})")
+    for f in ident.flow:
+        out.append(f"flow: viscosity from eq. 5 fit {f.viscosity_fit_pa_s * 1e3:.2f} cP; eq. 1 "
+                   f"{f.viscosity_eq1_pa_s * 1e3:.2f} cP at {f.mean_temperature_c:.1f} degC; "
+                   f"flow ratio (eq. 1) {f.mean_flow_ratio_eq1:.3f}")
+    if ident.dry is not None:
+        d = ident.dry
+        out.append(f"dry: F_mu = {d.f_mu_n:.2f} +/- {d.u_f_mu_n:.2f} N, C_rv = "
+                   f"{d.c_rv_ns_per_m:.0f} +/- {d.u_c_rv_ns_per_m:.0f} N.s/m (r2 "
+                   f"{d.overall.r2 if d.overall else float('nan'):.4f}, {len(d.points)} dwells)")
+    if ident.lubricated is not None:
+        for m in ident.lubricated.mass_fits:
+            out.append(f"lubricated {m.axis} {m.amplitude_m * UM:.1f} um [{m.method}]: K = "
+                       f"{m.k_n_per_m / 1e3:.0f} kN/m, M_T = {m.m_t_kg:.2f} kg, D = "
+                       f"{m.added_mass_kg:.2f} +/- {m.u_added_mass_kg:.2f} kg (R2 {m.r2:.3f})")
+        for g in ident.lubricated.sfd_by_amplitude:
+            out.append(f"SFD damping {g['axis']} {g['amplitude_m'] * UM:.1f} um: "
+                       f"{g['eq9']['C_sfd_mean_Ns_per_m']:.0f} (eq. 9), "
+                       f"{g['stick_slip']['C_sfd_mean_Ns_per_m']:.0f} (stick-slip) N.s/m")
+    return out
