@@ -428,8 +428,10 @@ class SimDevice:
         self.t0 = self._clock()
 
     def stop(self, task: SimTask) -> None:
+        """Stop ``task``; its pending samples and its error go (it can be restarted)."""
         with self.lock:
             task.running = False
+            task.error = None
             if task is self.ai_task:
                 for ao_task in self.ao_tasks:
                     ao_task.running = False

@@ -84,6 +84,11 @@ def test_ao_underflow_is_typed(fast_server: SimulatedDeviceServer,
         backend.write_ao(np.zeros((N_AO, 1_000)))
     assert info.value.code == OUTPUT_UNDERFLOW == -200290
     assert "reached sample 1000" in str(info.value)
+    # stopping clears the error: the same tasks prefill and run again
+    backend.stop()
+    _prefill_and_start(backend, 1_000)
+    backend.read_ai(1_000)
+    backend.write_ao(np.zeros((N_AO, 1_000)))
 
 
 def test_ao_underflow_in_real_time(clocked_server: SimulatedDeviceServer, fake_clock: FakeClock,
