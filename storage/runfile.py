@@ -30,7 +30,9 @@ import math
 import os
 import threading
 import time
+import zlib
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
@@ -124,10 +126,11 @@ def _check_name(name: Any, what: str) -> str:
 
 
 def default_chunk_samples(sample_rate_hz: float) -> int:
-    """About one second of samples per chunk (a power of two in [4096, 131072]), so the
-    once-a-second flush writes close to whole chunks."""
-    n = 2 ** round(math.log2(max(sample_rate_hz, 1.0)))
-    return int(min(max(n, 4096), 131072))
+    """About 1/8 s of samples per chunk, a power of two in [4096, 16384] (32-128 kB of
+    float64): a completed chunk is compressed inside `RunWriter.on_block`, so small chunks
+    spread that work evenly over the blocks instead of stalling one block in every second."""
+    n = 2 ** round(math.log2(max(sample_rate_hz / 8.0, 1.0)))
+    return int(min(max(n, 4096), 16384))
 
 
 class RunWriter:
@@ -164,6 +167,7 @@ class RunWriter:
         compression: str = "gzip",
         chunk_samples: int | None = None,
         flush_interval_s: float = 1.0,
+        max_backlog_s: float = 30.0,
         overwrite: bool = False,
         swmr: bool = True,
     ) -> None:
@@ -207,10 +211,15 @@ class RunWriter:
             is built into every HDF5 tool (HDFView, MATLAB, h5dump); lzf is about twice as fast
             but only h5py (or a plugin) can read it.
         chunk_samples : int, optional
-            Samples per chunk; defaults to about one second of data.
+            Samples per chunk; defaults to `default_chunk_samples` (about 1/8 s).
         flush_interval_s : float
-            Longest time [s] data may stay unflushed. 0 disables the background flusher (data
-            is then flushed only on steps, events, chunk boundaries and close).
+            Longest time [s] data may stay unflushed. With a positive interval a background
+            I/O thread compresses and writes the blocks, so `on_block` only hands them over;
+            0 makes `on_block` write whole chunks itself and flushes only on steps, events,
+            `flush` and close.
+        max_backlog_s : float
+            Data [s] the I/O thread may fall behind before `on_block` raises (a disk or CPU
+            too slow for the sample rate), rather than filling memory.
         overwrite : bool
             Replace an existing file.
         swmr : bool
@@ -258,13 +267,32 @@ class RunWriter:
         self.ao_names = ao_list
         self.chunk_samples = int(chunk_samples)
         self.flush_interval_s = float(flush_interval_s)
-        self._lock = threading.RLock()
-        self._flushed = threading.Condition(self._lock)
-        self._pending: list[np.ndarray] = []  # (n_ai + n_ao, n) blocks not yet in the file
+        self.max_backlog_s = float(max_backlog_s)
+        # Two locks: _buf_lock guards the hand-over of blocks (all on_block ever takes, so the
+        # acquisition thread never waits for compression or disk); _io_lock serialises file
+        # I/O. Order: _io_lock before _buf_lock.
+        self._buf_lock = threading.Lock()
+        self._io_lock = threading.RLock()
+        self._flushed = threading.Condition()
+        self._wake = threading.Event()
+        n_ds = len(ai_names) + len(ao_list)
+        # Samples flow: on_block -> _pending (list of blocks) -> _tail (samples after the last
+        # chunk boundary; whole chunks leave it compressed and written directly) -> file.
+        self._pending: list[np.ndarray] = []  # (n_ds, n) blocks not yet merged into _tail
         self._pending_n = 0
-        self._pending_since = 0.0
+        self._tail = np.empty((n_ds, 0))
+        self._tail_start = 0  # sample index of _tail[:, 0], a multiple of chunk_samples
+        self._tail_written = 0  # leading samples of _tail already in the datasets (flushes)
         self._next_sample = 0  # expected first_sample of the next block
-        self._written = 0  # samples appended to the datasets
+        self._written = 0  # samples in the datasets
+        self._compression = compression
+        # gzip chunks are shuffled and deflated here, in threads (zlib releases the GIL), and
+        # handed to HDF5 ready-made; HDF5's own filter pipeline would run them one by one.
+        self._pool: ThreadPoolExecutor | None = None
+        if compression == "gzip" and (os.cpu_count() or 1) > 1:
+            self._pool = ThreadPoolExecutor(
+                max_workers=min(4, os.cpu_count() or 1), thread_name_prefix=f"RunWriter-{run_id}"
+            )
         self._samples_flushed = 0
         self._n_steps = 0
         self._n_events = 0
@@ -312,16 +340,17 @@ class RunWriter:
         except BaseException:
             f.close()
             path.unlink(missing_ok=True)
+            if self._pool is not None:
+                self._pool.shutdown()
             raise
         self.status = "running"
         self._last_flush = time.monotonic()
-        self._stop = threading.Event()
-        self._flusher: threading.Thread | None = None
+        self._io_thread: threading.Thread | None = None
         if self.flush_interval_s > 0:
-            self._flusher = threading.Thread(
-                target=self._flush_loop, name=f"RunWriter-flush-{run_id}", daemon=True
+            self._io_thread = threading.Thread(
+                target=self._io_loop, name=f"RunWriter-io-{run_id}", daemon=True
             )
-            self._flusher.start()
+            self._io_thread.start()
 
     def _create_layout(
         self, f: h5py.File, chans: list[dict[str, Any]], compression: str, attrs: dict[str, Any]
@@ -330,7 +359,9 @@ class RunWriter:
             f.attrs[key] = value
         opts: dict[str, Any] = {"compression": compression, "shuffle": True}
         if compression == "gzip":
-            opts["compression_opts"] = 1
+            # Whole chunks are written directly: no chunk cache that could hold a stale copy
+            # of a chunk partly written at a flush.
+            opts.update(compression_opts=1, rdcc_nbytes=0)
         self._dsets: list[h5py.Dataset] = []
         g = f.create_group("channels")
         for meta in chans:
@@ -402,7 +433,7 @@ class RunWriter:
         ao = np.asarray(ao, dtype=np.float64)
         if ao.shape != (n_ao, n):
             raise ValueError(f"{self.path}: ao block has shape {ao.shape}, expected ({n_ao}, {n})")
-        with self._lock:
+        with self._buf_lock:
             self._check_open()
             if first_sample != self._next_sample:
                 raise ValueError(
@@ -411,16 +442,23 @@ class RunWriter:
                 )
             if n == 0:
                 return
-            if not self._pending:
-                self._pending_since = time.monotonic()
+            backlog_s = (self._pending_n + n) / self.sample_rate_hz
+            if self._io_thread is not None and backlog_s > self.max_backlog_s:
+                raise OSError(
+                    f"{self.path}: the run writer is {backlog_s:.1f} s behind the acquisition "
+                    f"(limit {self.max_backlog_s:g} s): disk or CPU too slow for "
+                    f"{len(self._dsets)} channels at {self.sample_rate_hz:g} S/s"
+                )
             # Copy: the caller may reuse its buffers.
             self._pending.append(np.concatenate((ai, ao)) if n_ao else ai.copy())
             self._pending_n += n
             self._next_sample += n
-            if self._pending_n >= self.chunk_samples:
-                self._write_pending(whole_chunks_only=True)
-            if time.monotonic() - self._last_flush >= self.flush_interval_s > 0:
-                self._flush_locked()
+        if self._io_thread is not None:
+            self._wake.set()
+            return
+        with self._io_lock:  # no I/O thread: write completed chunks now
+            self._check_open()
+            self._write_pending(whole_chunks_only=True)
 
     def on_step(self, step: Mapping[str, Any]) -> None:
         """Append one dwell's result (contract A step dict) and flush the file."""
@@ -460,7 +498,7 @@ class RunWriter:
         if len(text.encode()) > _EXTRA_BYTES:
             text = json.dumps({"_dropped": f"extra keys too long ({len(text)} chars)"})
         row["extra"] = text.encode()
-        with self._lock:
+        with self._io_lock:
             self._check_open()
             i = self._n_steps
             self._steps.resize((i + 1,))
@@ -480,7 +518,7 @@ class RunWriter:
         row["sample"] = int(sample)
         row["kind"] = _fit_utf8(kind, 16)
         row["message"] = _fit_utf8(message, _MESSAGE_BYTES)
-        with self._lock:
+        with self._io_lock:
             self._check_open()
             i = self._n_events
             self._events.resize((i + 1,))
@@ -501,73 +539,101 @@ class RunWriter:
 
     def flush(self) -> None:
         """Write every buffered sample and flush the file to disk (readers see it all)."""
-        with self._lock:
+        with self._io_lock:
             self._check_open()
             self._flush_locked()
 
     def wait_flushed(self, n_samples: int, timeout_s: float) -> bool:
         """Block until at least ``n_samples`` are flushed; False on timeout."""
         with self._flushed:
-            return self._flushed.wait_for(
-                lambda: self._samples_flushed >= n_samples or self._closed, timeout_s
-            ) and self._samples_flushed >= n_samples
+            self._flushed.wait_for(
+                lambda: (self._samples_flushed >= n_samples or self._closed
+                         or self.flush_error is not None),
+                timeout_s,
+            )
+            return self._samples_flushed >= n_samples
 
     def _write_pending(self, whole_chunks_only: bool = False) -> None:
-        if not self._pending:
+        """Move buffered samples into the datasets: every completed chunk, and with
+        ``whole_chunks_only=False`` also the partly filled last chunk (for a flush)."""
+        with self._buf_lock:
+            blocks, self._pending, self._pending_n = self._pending, [], 0
+        if blocks:
+            self._tail = np.concatenate([self._tail, *blocks], axis=1)
+        chunk = self.chunk_samples
+        n_full = (self._tail.shape[1] // chunk) * chunk
+        if n_full:
+            self._write_chunks(self._tail_start, self._tail[:, :n_full])
+            self._tail = self._tail[:, n_full:].copy()
+            self._tail_start += n_full
+            self._tail_written = 0
+        n_tail = self._tail.shape[1]
+        if not whole_chunks_only and n_tail > self._tail_written:
+            a, b = self._tail_start + self._tail_written, self._tail_start + n_tail
+            for row, ds in enumerate(self._dsets):
+                ds.resize((b,))
+                ds[a:b] = self._tail[row, self._tail_written:]
+            self._tail_written = n_tail
+        self._written = self._tail_start + self._tail_written
+
+    def _write_chunks(self, start: int, data: np.ndarray) -> None:
+        """Write whole chunks ``data`` (n_ds, k * chunk_samples) at sample ``start``."""
+        stop = start + data.shape[1]
+        if self._compression != "gzip":
+            for row, ds in enumerate(self._dsets):
+                ds.resize((stop,))
+                ds[start:stop] = data[row]
             return
-        data = self._pending[0] if len(self._pending) == 1 else np.concatenate(self._pending, 1)
-        n = data.shape[1]
-        if whole_chunks_only:
-            # Keep the writes aligned with chunks: a partly filled chunk would be compressed
-            # now and again once it is full.
-            n_write = ((self._written + n) // self.chunk_samples) * self.chunk_samples
-            n_write -= self._written
-        else:
-            n_write = n
-        if n_write <= 0:
-            self._pending = [data]
-            return
-        start, stop = self._written, self._written + n_write
-        for row, ds in enumerate(self._dsets):
+        chunk = self.chunk_samples
+        jobs = [(row, k) for row in range(data.shape[0]) for k in range(0, data.shape[1], chunk)]
+
+        def compress(job: tuple[int, int]) -> bytes:
+            row, k = job
+            return _shuffle_deflate(data[row, k:k + chunk])
+
+        blobs = list(self._pool.map(compress, jobs) if self._pool else map(compress, jobs))
+        for ds in self._dsets:
             ds.resize((stop,))
-            ds[start:stop] = data[row, :n_write]
-        self._written = stop
-        rest = data[:, n_write:]
-        self._pending = [rest] if rest.shape[1] else []
-        self._pending_n = rest.shape[1]
-        if self._pending:
-            self._pending_since = time.monotonic()
+        for (row, k), blob in zip(jobs, blobs, strict=True):
+            self._dsets[row].id.write_direct_chunk((start + k,), blob, 0)
 
     def _flush_locked(self) -> None:
+        """Everything into the file, then flush (caller holds _io_lock)."""
         self._write_pending()
         self._file.flush()
         self._last_flush = time.monotonic()
-        self._samples_flushed = self._written
-        self._flushed.notify_all()
+        with self._flushed:
+            self._samples_flushed = self._written
+            self._flushed.notify_all()
 
-    def _flush_loop(self) -> None:
+    def _unflushed(self) -> bool:
+        return bool(self._pending_n or self._tail.shape[1] > self._tail_written
+                    or self._samples_flushed < self._written)
+
+    def _io_loop(self) -> None:
+        """Background I/O: write completed chunks as blocks arrive; flush when due."""
         interval = self.flush_interval_s
-        timeout = interval
-        while not self._stop.wait(timeout):
-            with self._lock:
+        while True:
+            self._wake.wait(max(0.0, self._last_flush + interval - time.monotonic()))
+            self._wake.clear()
+            with self._io_lock:
                 if self._closed:
                     return
-                wait_more = self._last_flush + interval - time.monotonic()
-                if wait_more > 0:  # flushed meanwhile (a step, an event, on_block)
-                    timeout = wait_more
-                    continue
                 try:
-                    if self._pending or self._samples_flushed < self._written:
-                        self._flush_locked()
-                    else:
-                        # Heartbeat: a fresh mtime tells the catalog the writer is alive even
-                        # while no samples arrive (a paused sweep).
-                        os.utime(self.path)
-                        self._last_flush = time.monotonic()
-                except Exception as err:  # e.g. a full disk: reported by the next call
+                    self._write_pending(whole_chunks_only=True)
+                    if time.monotonic() - self._last_flush >= interval:
+                        if self._unflushed():
+                            self._flush_locked()
+                        else:
+                            # Heartbeat: a fresh mtime tells the catalog the writer is alive
+                            # even while no samples arrive (a paused sweep).
+                            os.utime(self.path)
+                            self._last_flush = time.monotonic()
+                except Exception as err:  # e.g. a full disk: raised by the next call
                     self.flush_error = err
+                    with self._flushed:
+                        self._flushed.notify_all()
                     return
-                timeout = interval
 
     # --- closing ------------------------------------------------------------------------------
     def _check_open(self) -> None:
@@ -589,23 +655,28 @@ class RunWriter:
         if status not in STATUSES[1:]:
             raise ValueError(f"close status {status!r} is not one of {STATUSES[1:]}")
         error: BaseException | None = None
-        with self._lock:
+        with self._io_lock:
             if self._closed:
                 return
             try:
-                self._flush_locked()
+                if self.flush_error is None:
+                    self._flush_locked()
             except Exception as err:  # e.g. disk full: still end the run as cleanly as possible
                 error = err
             finally:
-                self._closed = True
-                self._stop.set()
+                with self._buf_lock:
+                    self._closed = True
+                self._wake.set()
                 try:
                     self._file.close()
                 except Exception as err:
                     error = error or err
-                self._flushed.notify_all()
-        if self._flusher is not None and self._flusher is not threading.current_thread():
-            self._flusher.join()
+                with self._flushed:
+                    self._flushed.notify_all()
+        if self._io_thread is not None and self._io_thread is not threading.current_thread():
+            self._io_thread.join()
+        if self._pool is not None:
+            self._pool.shutdown()
         error = error or self.flush_error
         if error is not None:
             lost = (f"samples from {self._samples_flushed} on may be lost: "
@@ -650,6 +721,14 @@ class RunWriter:
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
         return f"<RunWriter {self.run_id!r} {self.path} {state}, {self._next_sample} samples>"
+
+
+def _shuffle_deflate(x: np.ndarray) -> bytes:
+    """One chunk as HDF5's filter pipeline (shuffle, then deflate level 1) would store it."""
+    shuffled = np.ascontiguousarray(
+        np.ascontiguousarray(x, dtype="<f8").view(np.uint8).reshape(-1, 8).T
+    )
+    return zlib.compress(shuffled.data, 1)
 
 
 def _float(value: Any) -> float:

@@ -53,12 +53,13 @@ def _make(path: Path, **kw) -> RunWriter:
 
 
 # --- round trip ------------------------------------------------------------------------------
-def test_metadata_blocks_steps_events_round_trip(tmp_path: Path) -> None:
+@pytest.mark.parametrize("flush_interval_s", [0.0, 0.01])  # synchronous; background I/O thread
+def test_metadata_blocks_steps_events_round_trip(tmp_path: Path, flush_interval_s: float) -> None:
     path = tmp_path / "run.h5"
     rng = np.random.default_rng(1)
     ai = rng.normal(size=(4, 12_345))
     ao = rng.normal(size=(2, 12_345))
-    with _make(path, chunk_samples=1024) as w:
+    with _make(path, chunk_samples=1024, flush_interval_s=flush_interval_s) as w:
         w.on_event("state", "running", 0)
         w.on_block(0, ai[:, :5000], ao[:, :5000])
         w.on_step(_step(0, 0, 5000, ["fx", "x1"], ["shaker_x", "shaker_y"]))
@@ -219,6 +220,20 @@ def test_writer_rejects_bad_blocks_and_arguments(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="invalid name 'a/b'"):
         RunWriter.create(tmp_path / "k.h5", "r", "sweep", ["a/b"], [], 10.0)
     assert not (tmp_path / "k.h5").exists()
+
+
+def test_writer_falling_behind_raises_instead_of_filling_memory(tmp_path: Path) -> None:
+    w = _make(tmp_path / "slow.h5", flush_interval_s=0.05, max_backlog_s=1.0)
+    try:
+        with w._io_lock:  # the I/O thread is stuck (a stalled disk)
+            w.on_block(0, np.zeros((4, 4000)), np.zeros((2, 4000)))  # 0.8 s at 5 kS/s: fine
+            with pytest.raises(OSError, match=r"1\.2 s behind the acquisition \(limit 1 s\)"):
+                w.on_block(4000, np.zeros((4, 2000)), np.zeros((2, 2000)))
+        assert w.wait_flushed(4000, timeout_s=10.0)
+    finally:
+        w.close()
+    with open_run(tmp_path / "slow.h5") as run:
+        assert run.n_samples == 4000 and run.status == "completed"
 
 
 def test_context_manager_records_failure(tmp_path: Path) -> None:
