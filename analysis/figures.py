@@ -35,6 +35,12 @@ def _save(fig: plt.Figure, out_dir: Path, name: str) -> str:
     return name
 
 
+def _legend(ax: plt.Axes, fontsize: int) -> None:
+    """A legend only where something is labelled (matplotlib warns otherwise)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=fontsize)
+
+
 def _safe(label: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in label.split(" (")[0])[:40]
 
@@ -92,7 +98,7 @@ def synchronous(ident: Identification, out_dir: Path) -> list[Figure]:
     for ax in axes:
         ax.set_xlabel("excitation frequency [Hz]")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=6)
+        _legend(ax, 6)
     return [(_save(fig, out_dir, "synchronous.png"),
              "Synchronous (1X) load and displacement against frequency (cf. Figures 13-15, "
              "28-29).")]
@@ -119,7 +125,7 @@ def dry_figures(ident: Identification, out_dir: Path) -> list[Figure]:
     ax.set_ylabel("energy per cycle [mJ]")
     ax.set_title(f"F_mu = {dry.f_mu_n:.1f} +/- {dry.u_f_mu_n:.1f} N, C_rv = "
                  f"{dry.c_rv_ns_per_m:.0f} +/- {dry.u_c_rv_ns_per_m:.0f} N.s/m", fontsize=9)
-    ax.legend(fontsize=6)
+    _legend(ax, 6)
     ax.grid(alpha=0.3)
     figs.append((_save(fig, out_dir, "dry_work_energy.png"),
                  "Work of the input force and energy dissipated by the combined model "
@@ -140,7 +146,7 @@ def dry_figures(ident: Identification, out_dir: Path) -> list[Figure]:
     axes[1].set_ylabel("equivalent damping Im(F/X)/w [N.s/m]")
     for ax in axes:
         ax.set_xlabel("excitation frequency [Hz]")
-        ax.legend(fontsize=7)
+        _legend(ax, 7)
         ax.grid(alpha=0.3)
     figs.append((_save(fig, out_dir, "dry_im_f_over_x.png"),
                  "Imaginary part of F/X and equivalent viscous damping of the dry system "
@@ -178,7 +184,7 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
                       f"R2={fit.r2:.2f}")
     ax.set_xlabel("excitation frequency [Hz]")
     ax.set_ylabel("K - w^2 M_T = Re(F/Z) [MN/m]")
-    ax.legend(fontsize=6)
+    _legend(ax, 6)
     ax.grid(alpha=0.3)
     figs.append((_save(fig, out_dir, "dynamic_stiffness.png"),
                   "Dynamic stiffness from unidirectional tests and its fit (cf. Figure 30)."))
@@ -202,7 +208,7 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
     axes[1].set_ylabel("SFD damping C = C_t - C_seal - C_rv [kN.s/m]")
     for ax in axes:
         ax.set_xlabel("excitation frequency [Hz]")
-        ax.legend(fontsize=6)
+        _legend(ax, 6)
         ax.grid(alpha=0.3)
     figs.append((_save(fig, out_dir, "damping_vs_frequency.png"),
                  "System and squeeze-film damping against frequency, with 95 % uncertainty "
@@ -231,7 +237,7 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
     axes[1].set_ylabel("SFD damping [kN.s/m]")
     for ax in axes:
         ax.set_xlabel("displacement amplitude [um]")
-        ax.legend(fontsize=6)
+        _legend(ax, 6)
         ax.grid(alpha=0.3)
     figs.append((_save(fig, out_dir, "damping_vs_amplitude.png"),
                  "System and squeeze-film damping against amplitude with eq. 16 (cf. Figures "
@@ -250,7 +256,7 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
         ax.axhline(preds["eq15_added_mass_kg"], color="k", ls="--", label="eq. 15")
         ax.set_xlabel("displacement amplitude [um]")
         ax.set_ylabel("added mass D [kg]")
-        ax.legend(fontsize=7)
+        _legend(ax, 7)
         ax.grid(alpha=0.3)
         figs.append((_save(fig, out_dir, "added_mass_vs_amplitude.png"),
                      "Added mass against amplitude (cf. Figure F1, Table F1)."))
@@ -300,7 +306,7 @@ def structure_figures(ident: Identification, out_dir: Path) -> list[Figure]:
             ax.plot(ff, ff / s.k_n_per_m * UM, "-", lw=0.8)
         ax.set_xlabel("static load [N]")
         ax.set_ylabel("deflection [um]")
-        ax.legend(fontsize=7)
+        _legend(ax, 7)
         ax.grid(alpha=0.3)
         figs.append((_save(fig, out_dir, "static.png"),
                      "Deflection against static load (cf. Figure 6, Table 2)."))
@@ -316,7 +322,7 @@ def structure_figures(ident: Identification, out_dir: Path) -> list[Figure]:
         axes[1].plot(f, np.degrees(np.angle(hm)), "-")
         axes[1].set_ylabel("phase [deg]")
         axes[1].set_xlabel("frequency [Hz]")
-        axes[0].legend(fontsize=7)
+        _legend(axes[0], 7)
         for ax in axes:
             ax.grid(alpha=0.3)
         figs.append((_save(fig, out_dir, f"impact_{imp.axis}.png"),
@@ -330,7 +336,7 @@ def structure_figures(ident: Identification, out_dir: Path) -> list[Figure]:
                                            f"R2 = {c.r2:.4f}")
         ax.set_xlabel("reference displacement [um]")
         ax.set_ylabel("probe output [V]")
-        ax.legend(fontsize=7)
+        _legend(ax, 7)
         ax.grid(alpha=0.3)
         figs.append((_save(fig, out_dir, "probe_calibration.png"),
                      "Eddy-current probe output against reference displacement (cf. Figure A2)."))
@@ -354,7 +360,7 @@ def structure_figures(ident: Identification, out_dir: Path) -> list[Figure]:
         axes[1].set_xlabel("dP / P_s")
         axes[1].set_ylabel("flow ratio")
         for ax in axes:
-            ax.legend(fontsize=7)
+            _legend(ax, 7)
             ax.grid(alpha=0.3)
         figs.append((_save(fig, out_dir, "flow.png"),
                      "Flow against pressure difference beside eq. 5, and the flow ratio "
