@@ -8,7 +8,7 @@ import sys
 import threading
 
 NAME = "sim-server"
-HELP = ("Serve a simulated NI-DAQmx device (Dev1 wired to the simulated rig) over gRPC, for "
+HELP = ("serve a simulated NI-DAQmx device (Dev1 wired to the simulated rig) over gRPC, for "
         "the nidaqmx backend.")
 
 

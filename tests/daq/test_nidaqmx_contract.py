@@ -20,7 +20,7 @@ FS_HZ = 10_000.0
 DRIVE_HZ = 25.0  # 400 samples per cycle
 DRIVE_V = 2.0  # 100 N at 50 N/V
 BLOCK = 1_000
-PREFILL_BLOCKS = 10  # 1 s of AO ahead of the generation: margin for a loaded test machine
+PREFILL_BLOCKS = 20  # 2 s of AO ahead of the generation: margin for a loaded test machine
 SEED = 11
 
 

@@ -68,3 +68,17 @@ def test_sim_server_refuses_a_missing_rig_file(tmp_path) -> None:
     )
     assert proc.returncode == 2
     assert str(missing) in proc.stderr and proc.stdout == ""
+
+
+def test_sim_server_stops_cleanly_on_sigint() -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        assert proc.stdout.readline().startswith("listening on 127.0.0.1:")
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert "sim-server stopped" in out
