@@ -343,3 +343,32 @@ class DrivePredictor:
                 return p1.drive.copy(), p1.jacobian.copy()
         nearest = min(self._points, key=lambda p: abs(p.freq_hz - freq_hz))
         return tangent(nearest), nearest.jacobian.copy()
+
+
+@dataclass
+class ProportionalController(AmplitudeController):
+    """A plain proportional level controller, for comparison (the classic sine-control loop).
+
+    Each driven axis is scaled by the ratio of target to measured amplitude, independently of the
+    other; in two-axis motions the Y drive is also turned by the phase error. No matrix, no
+    learning: what a single-channel sine controller does on each shaker. ``gain`` 1 is the
+    plain ratio update ``D <- D A / |R|``; below 1 it moves only part of the way.
+    """
+
+    gain: float = 1.0
+
+    def update(self, drive: np.ndarray, response: np.ndarray) -> np.ndarray:
+        d = np.asarray(drive, dtype=np.complex128).copy()
+        r = np.asarray(response, dtype=np.complex128)
+        g = 1.0 + self.max_growth
+        new = d.copy()
+        for j in np.flatnonzero(self.active):
+            want = abs(self.shape[j])
+            if abs(r[j]) < self.stuck_fraction * want:
+                new[j] = d[j] * g
+            else:
+                ratio = 1.0 + self.gain * (want / abs(r[j]) - 1.0)
+                new[j] = d[j] * min(max(ratio, 1.0 / g), g)
+        if self.active.all():
+            new[1] *= np.exp(-1j * self.gain * math.radians(self.assess(r).phase_error_deg))
+        return self._bounded(new)

@@ -18,9 +18,14 @@ from typing import Any
 
 import numpy as np
 
-from control.controller import AmplitudeController, Assessment, DrivePredictor
+from control.controller import (
+    AmplitudeController,
+    Assessment,
+    DrivePredictor,
+    ProportionalController,
+)
 from control.errors import OpenLoopError
-from control.lockin import LockIn, cycles_to_samples, relative_change
+from control.lockin import LockIn, cycles_to_samples
 from control.plan import StepPlan
 from control.safety import AxisSignals, SafetyLimits
 from control.spec import SweepSpec
@@ -126,6 +131,8 @@ class StepRunner:
         )
         self.open_loop_checked = np.zeros(2, dtype=bool)
         self.on_update: Callable[[int], None] | None = None
+        self._last_drive: np.ndarray | None = None  # (X, Y) drive of the last converged step
+        self._last_jacobian: np.ndarray | None = None
 
     # --- helpers ----------------------------------------------------------------------------
     def _prior_jacobian(self, plan: StepPlan) -> np.ndarray:
@@ -153,15 +160,17 @@ class StepRunner:
         return synth.sample + n
 
     def _measure(self, plan: StepPlan, first: int, last: int) -> tuple[np.ndarray, ...]:
-        """Lock-in of [first, last): (controlled (2,), other (2,), drive (2,) abs, all AI 1X)."""
+        """Lock-in of [first, last): controlled (2,), other (2,), drive (2,) in the run's frame,
+        and the standard errors of controlled and other (2,) each."""
         self.stream.advance_to(last)
         ai, ao = self.stream.window(first, last)
         f = plan.freq_hz
-        ctrl = self.lockin.fundamental(self.signals.controlled(ai, plan.target_kind), first, f)
         other_kind = "load" if plan.target_kind == "displacement" else "displacement"
-        other = self.lockin.fundamental(self.signals.controlled(ai, other_kind), first, f)
+        both = np.concatenate([self.signals.controlled(ai, plan.target_kind),
+                               self.signals.controlled(ai, other_kind)])
+        z, sigma = self.lockin.fundamental_with_error(both, first, f)
         drive = self._axis_drive(self.lockin.fundamental(ao, first, f))
-        return ctrl, other, drive
+        return z[:2], z[2:], drive, sigma[:2], sigma[2:]
 
     def _check_open_loop(self, plan: StepPlan, drive: np.ndarray, sample: int,
                          first: int, last: int) -> None:
@@ -193,7 +202,9 @@ class StepRunner:
         def cyc(c: float) -> int:
             return cycles_to_samples(f, self.fs, c)
 
-        pred = self.predictor.predict(f, plan.shape)
+        pred = self.predictor.predict(f, plan.shape) if cfg.predict else None
+        if pred is None and not cfg.predict and self._last_drive is not None:
+            pred = self._last_drive, self._last_jacobian
         if pred is not None:
             guess, jac = pred
         else:
@@ -201,10 +212,17 @@ class StepRunner:
             a = np.abs(plan.shape) > 0
             guess = np.zeros(2, dtype=np.complex128)
             guess[a] = np.linalg.solve(jac[np.ix_(a, a)], plan.shape[a])
-        ctl = AmplitudeController(
-            plan.shape, jac, spec.tolerance, max_drive_v=self.limits.max_drive_v,
-            max_growth=cfg.max_growth, prior_only=pred is None and plan.target_kind != "load",
-        )
+        ctl: AmplitudeController
+        if cfg.algorithm == "proportional":
+            ctl = ProportionalController(
+                plan.shape, jac, spec.tolerance, max_drive_v=self.limits.max_drive_v,
+                max_growth=cfg.max_growth, gain=cfg.proportional_gain,
+            )
+        else:
+            ctl = AmplitudeController(
+                plan.shape, jac, spec.tolerance, max_drive_v=self.limits.max_drive_v,
+                max_growth=cfg.max_growth, prior_only=pred is None and plan.target_kind != "load",
+            )
         # the common phase is free: turn the guess towards the present drive
         rows_guess = self._rows_drive(guess)
         now = synth.target_phasors
@@ -220,13 +238,13 @@ class StepRunner:
         w = cyc(cfg.window_cycles)
         settle_tol = cfg.settle_tolerance_pct / 100.0
         scale_ctrl = np.where(np.abs(plan.shape) > 0, np.abs(plan.shape), np.inf)
-        prev_ok: tuple[np.ndarray, np.ndarray, int] | None = None  # in-tolerance window
+        prev_ok: tuple[np.ndarray, ...] | None = None  # the last in-tolerance window
         next_free = change_end + cyc(cfg.wait_cycles)
         while True:
             settle_end = change_end + cyc(spec.settle_cycles)
             # after an in-tolerance window, jump to the one that ends with the settling time
             w0 = next_free if prev_ok is None else max(next_free, settle_end - w)
-            ctrl, other, drive = self._measure(plan, w0, w0 + w)
+            ctrl, other, drive, s_ctrl, s_other = self._measure(plan, w0, w0 + w)
             if log.isEnabledFor(logging.DEBUG):
                 log.debug("%s window %d-%d drive %s response %s", plan.describe(), w0, w0 + w,
                           np.round(drive, 4), np.round(ctrl, 9))
@@ -236,11 +254,16 @@ class StepRunner:
             assess = ctl.assess(ctrl, cfg.aim_fraction if prev_ok is None else 1.0)
             if assess.within:
                 if prev_ok is not None and next_free >= settle_end:
-                    p_ctrl, p_other, _ = prev_ok
+                    p_ctrl, p_other, ps_ctrl, ps_other = prev_ok
                     act = np.abs(plan.shape) > 0
-                    other_scale = np.maximum(np.abs(other), np.abs(p_other))[act] + 1e-12
-                    change = max(relative_change(p_ctrl[act], ctrl[act], scale_ctrl[act]),
-                                 relative_change(p_other[act], other[act], other_scale))
+                    # a change within 3 standard errors of the two estimates is noise, not drift
+                    scale_o = np.maximum(np.abs(other), np.abs(p_other))[act] + 1e-12
+                    allow_c = 3 * np.hypot(s_ctrl, ps_ctrl)[act]
+                    allow_o = 3 * np.hypot(s_other, ps_other)[act]
+                    dc = np.maximum(np.abs(ctrl - p_ctrl)[act] - allow_c, 0.0)
+                    do = np.maximum(np.abs(other - p_other)[act] - allow_o, 0.0)
+                    change = max(float(np.max(dc / scale_ctrl[act])),
+                                 float(np.max(do / scale_o)))
                     waited = next_free - change_end
                     if change <= settle_tol or waited >= cyc(cfg.max_settle_cycles):
                         if change > settle_tol:
@@ -264,7 +287,7 @@ class StepRunner:
                         updates += 1
                         prev_ok = None
                         continue
-                prev_ok = (ctrl, other, w0)
+                prev_ok = (ctrl, other, s_ctrl, s_other)
                 continue
             prev_ok = None
             if updates >= spec.max_updates:
@@ -299,6 +322,15 @@ class StepRunner:
         assess = ctl.assess(ctrl)
         reason = "" if assess.within else (
             f"recorded response outside the tolerance ({assess.describe()})")
+        other_kind = "load" if plan.target_kind == "displacement" else "displacement"
+        act = np.abs(plan.shape) > 0
+        z, sigma = self.lockin.fundamental_with_error(
+            self.signals.controlled(ai, other_kind), first, plan.freq_hz)
+        rel = sigma[act] / np.maximum(np.abs(z[act]), 1e-300)
+        if np.max(rel) > 0.02:
+            self.emit("warning", f"{plan.describe()}: the {other_kind} is not periodic (its 1X "
+                      f"is uncertain by {100 * np.max(rel):.1f} % over the recording: stick-slip "
+                      "or a transient)", last)
         return StepResult(
             plan, first, last, updates, assess.within, reason, harm, drive_rows,
             self.cm.ai_names, self.cm.ao_names, start_sample, assess,
@@ -318,4 +350,5 @@ class StepRunner:
             self.signals.controlled(ai, plan.target_kind), result.first_sample, plan.freq_hz)
         drive = self._axis_drive(result.drive_v)
         self.predictor.remember(plan.freq_hz, plan.shape, ctrl, drive, ctl.jacobian)
+        self._last_drive, self._last_jacobian = drive, ctl.jacobian.copy()
 

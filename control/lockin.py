@@ -47,15 +47,19 @@ class LockIn:
             raise ValueError(f"n_harmonics must be >= 1, got {n_harmonics}")
         self.fs = float(sample_rate_hz)
         self.n_harmonics = n_harmonics
-        self._cache: OrderedDict[tuple[float, int], np.ndarray] = OrderedDict()
+        self._cache: OrderedDict[tuple[float, int], tuple[np.ndarray, np.ndarray]] = OrderedDict()
 
     def _projector(self, freq_hz: float, n: int) -> np.ndarray:
         """Pseudo-inverse of the local basis [1, cos(h w k), sin(h w k)], shape (1 + 2H, n)."""
+        return self._fit_matrices(freq_hz, n)[0]
+
+    def _fit_matrices(self, freq_hz: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(pseudo-inverse (1 + 2H, n), basis (n, 1 + 2H)) for a window of n samples."""
         key = (float(freq_hz), int(n))
-        proj = self._cache.get(key)
-        if proj is not None:
+        hit = self._cache.get(key)
+        if hit is not None:
             self._cache.move_to_end(key)
-            return proj
+            return hit
         h_max = self.n_harmonics
         nyquist_h = self.fs / 2 / freq_hz
         if n < 1 + 2 * h_max:
@@ -70,10 +74,10 @@ class LockIn:
                 cols += [np.zeros(n), np.zeros(n)]
         basis = np.stack(cols, axis=1)
         proj = np.linalg.pinv(basis)
-        self._cache[key] = proj
+        self._cache[key] = (proj, basis)
         if len(self._cache) > 64:
             self._cache.popitem(last=False)
-        return proj
+        return proj, basis
 
     def demodulate(
         self, block: np.ndarray, first_sample: int, freq_hz: float
@@ -111,6 +115,25 @@ class LockIn:
         if one_d:
             return harm[0], coef[0, 0]
         return harm, coef[:, 0]
+
+    def fundamental_with_error(
+        self, block: np.ndarray, first_sample: int, freq_hz: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """1X of every row of a 2-D block and its standard error.
+
+        The error is what the fit leaves unexplained (noise, harmonics above the fitted ones,
+        non-periodic motion): ``rms(residual) * sqrt(2 / n)`` per row, in the block's unit.
+        """
+        x = np.asarray(block, dtype=np.float64)
+        n = x.shape[1]
+        proj, basis = self._fit_matrices(freq_hz, n)
+        coef = x @ proj.T
+        resid = x - coef @ basis.T
+        dof = max(n - basis.shape[1], 1)
+        sigma = np.sqrt(np.sum(resid * resid, axis=1) / dof) * np.sqrt(2.0 / n)
+        frac = math.fmod(freq_hz * first_sample / self.fs, 1.0)
+        z = (coef[:, 1] - 1j * coef[:, 2]) * np.exp(-2j * np.pi * frac)
+        return z, sigma
 
     def fundamental(self, block: np.ndarray, first_sample: int, freq_hz: float) -> np.ndarray:
         """Complex amplitude of 1X of every row, shape (n_ch,) (scalar for 1-D input)."""

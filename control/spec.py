@@ -49,7 +49,7 @@ class ControlSettings(BaseModel):
         0.3, gt=0, le=10, description="settled when successive windows agree within this [%]"
     )
     max_settle_cycles: int = Field(
-        200, ge=1, description="record anyway (with a warning) after this many cycles [cycles]"
+        100, ge=1, description="record anyway (with a warning) after this many cycles [cycles]"
     )
     initial_stiffness_n_per_m: float = Field(
         1.0e6, gt=0,
@@ -61,6 +61,17 @@ class ControlSettings(BaseModel):
                     "recording must be inside the whole band)",
     )
     max_growth: float = Field(2.0, gt=0, le=10, description="largest relative drive change")
+    algorithm: Literal["newton_broyden", "proportional"] = Field(
+        "newton_broyden",
+        description="2x2 Newton-Broyden (default) or a plain per-axis proportional level loop",
+    )
+    proportional_gain: float = Field(
+        1.0, gt=0, le=1, description="gain of the proportional loop (1: D <- D x target/measured)"
+    )
+    predict: bool = Field(
+        True, description="start each step from the drive predicted by the steps already run "
+                          "(else from the previous step's drive)",
+    )
     block_s: float = Field(0.01, ge=0.001, le=0.02, description="AO/AI block length [s]")
     ahead_blocks: int = Field(1, ge=1, le=3, description="AO blocks written ahead")
 

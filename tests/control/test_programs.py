@@ -1,0 +1,198 @@
+"""The non-sweep test programmes on the simulated rig: each writes a run file of its kind that
+the matching analysis turns into the report's numbers (Tables 2, 3, A1; flow against eq. 5)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.structure import (
+    identify_flow,
+    identify_impact,
+    identify_probe_calibration,
+    identify_static,
+)
+from control.programs import (
+    FlowSpec,
+    ImpactSpec,
+    ProbeCalSpec,
+    StaticSpec,
+    create_run_writer,
+    run_flow_test,
+    run_impact_test,
+    run_probe_calibration,
+    run_static_test,
+)
+from daq.channels import default_channel_map
+from simulated_hw.backend import SimulatedBackend
+from simulated_hw.params import RigParams
+from storage import open_run
+
+MIL_M = 25.4e-6
+GAUGE_RESOLUTION_M = 0.0001 * 0.0254  # dial gauge, +/- 0.0001 in (Appendix A)
+
+
+def no_seal() -> RigParams:
+    """The report's static and impact tests ran without the journal, so without the seal."""
+    p = RigParams()
+    p.seal.enabled = False
+    return p
+
+
+def backend(params: RigParams, seed: int = 3) -> SimulatedBackend:
+    b = SimulatedBackend(params, seed=seed)
+    b.configure(default_channel_map())
+    return b
+
+
+def test_static_programme(tmp_path: Path) -> None:
+    params = no_seal()
+    b = backend(params)
+    spec = StaticSpec(forces_n=(-80.0, -40.0, 0.0, 40.0, 80.0), repeats=2, record_s=0.3)
+    w = create_run_writer(tmp_path / "s.h5", "static", b, run_id="s", rig_config=params,
+                          test_spec=spec)
+    out = run_static_test(b, w, spec)
+    w.close()
+    assert out.completed and out.steps == 2 * 2 * 5
+    with open_run(tmp_path / "s.h5") as r:
+        assert r.kind == "static"
+        steps = r.steps
+        assert [s["motion"] for s in steps[:10]] == ["x"] * 10
+        # the held force reached the target (drive corrected on the load cell)
+        for st in steps:
+            fx = r.signal("f" + st["motion"], st["first_sample"], st["last_sample"]).mean()
+            assert fx == pytest.approx(st["target_value"], abs=0.02 * 80)
+        # drives end at zero
+        assert r.channel("shaker_x")[-1] == 0.0 and r.channel("shaker_y")[-1] == 0.0
+        skipped: list = []
+        fits = identify_static(r, skipped, 9.7, 0.01)
+    assert skipped == []
+    k = {f.axis: f.k_n_per_m for f in fits}
+    assert k["x"] == pytest.approx(788e3, rel=0.01)
+    assert k["y"] == pytest.approx(823e3, rel=0.01)
+    assert fits[0].natural_freq_hz == pytest.approx(45.4, abs=0.3)
+
+
+def test_impact_programme(tmp_path: Path) -> None:
+    params = no_seal()
+    b = backend(params)
+    rig = b.rig
+    strikes: list[tuple[str, float]] = []
+
+    def strike(axis: str, peak_n: float) -> None:
+        strikes.append((axis, peak_n))
+        rig.schedule_impact(axis, peak_n, 0.002)
+
+    spec = ImpactSpec(strikes=2, window_s=1.0)
+    w = create_run_writer(tmp_path / "i.h5", "impact", b, run_id="i", rig_config=params)
+    out = run_impact_test(b, w, strike, spec)
+    w.close()
+    assert out.completed, out.reason
+    assert strikes == [("x", 300.0)] * 2 + [("y", 300.0)] * 2
+    with open_run(tmp_path / "i.h5") as r:
+        for st in r.steps:
+            assert st["trigger_sample"] - st["first_sample"] == int(0.02 * 10_000)
+            assert st["target_value"] == pytest.approx(300.0, rel=0.05)  # measured peak
+        skipped: list = []
+        fits = identify_impact(r, skipped)
+    assert skipped == []
+    by = {f.axis: f for f in fits}
+    m_true = params.structure.mass_kg
+    for axis, k_true in (("x", 788e3), ("y", 823e3)):
+        f = by[axis]
+        assert f.k_n_per_m == pytest.approx(k_true, rel=0.03)
+        assert f.m_kg == pytest.approx(m_true, rel=0.03)
+        assert f.c_ns_per_m == pytest.approx(370.0, rel=0.10)
+        assert f.natural_freq_hz == pytest.approx(math.sqrt(k_true / m_true) / 2 / math.pi,
+                                                  rel=0.01)
+        assert f.r2 > 0.98
+        assert f.n_impacts == 2
+
+
+def test_impact_without_strike_stops_safely(tmp_path: Path) -> None:
+    b = backend(no_seal())
+    w = create_run_writer(tmp_path / "i.h5", "impact", b, run_id="i")
+    out = run_impact_test(b, w, lambda axis, peak: None, ImpactSpec(wait_s=0.5))
+    w.close()
+    assert not out.completed
+    assert "impact step 0 (x, strike 1)" in out.reason and "no strike" in out.reason
+    with open_run(tmp_path / "i.h5") as r:
+        assert any(e["kind"] == "abort" and "no strike" in e["message"] for e in r.events)
+        assert r.channel("shaker_x")[-1] == 0.0
+
+
+def test_static_programme_stops_at_the_force_limit(tmp_path: Path) -> None:
+    b = backend(no_seal())
+    w = create_run_writer(tmp_path / "s.h5", "static", b, run_id="s")
+    out = run_static_test(b, w, StaticSpec(forces_n=(20.0, 120.0), max_force_n=100.0))
+    w.close()
+    assert not out.completed
+    assert "static step 1 (x, 120 N, pass 1)" in out.reason and "over the 100 N limit" in out.reason
+    assert out.steps == 1
+    with open_run(tmp_path / "s.h5") as r:
+        assert np.all(r.channel("shaker_x")[-100:] == 0.0)
+
+
+def test_probe_calibration_programme(tmp_path: Path) -> None:
+    params = no_seal()
+    params.effects.probe_gain_error.enabled = True  # x1 reads 3 % high: calibration finds it
+    params.effects.probe_gain_error.channel = "x1"
+    params.effects.probe_gain_error.gain_ratio = 1.03
+    b = backend(params)
+    rig = b.rig
+
+    def gauge(axis: str) -> float:
+        truth = rig.last_truth
+        z = float(np.mean(truth.x_m if axis == "x" else truth.y_m))
+        return round(z / GAUGE_RESOLUTION_M) * GAUGE_RESOLUTION_M
+
+    w = create_run_writer(tmp_path / "c.h5", "probe_calibration", b, run_id="c",
+                          rig_config=params)
+    out = run_probe_calibration(b, w, gauge, ProbeCalSpec())
+    w.close()
+    assert out.completed and out.steps == 14
+    with open_run(tmp_path / "c.h5") as r:
+        skipped: list = []
+        cals = {c.channel: c for c in identify_probe_calibration(r, skipped)}
+    assert skipped == []
+    table_a1 = {"x1": 202.0 * 1.03, "x2": 195.0, "y1": 204.0, "y2": 200.0}  # mV/mil
+    for ch, gain in table_a1.items():
+        assert cals[ch].gain_mv_per_mil == pytest.approx(gain, rel=0.01), ch
+        assert cals[ch].r2 > 0.99
+        assert 0 < cals[ch].u_gain_rel < 0.05
+    assert cals["x1"].gain_in_use_v_per_m * MIL_M * 1e3 == pytest.approx(202.0)
+
+
+def test_flow_programme(tmp_path: Path) -> None:
+    params = RigParams()
+    b = backend(params)
+    rig = b.rig
+    set_to: list[float] = []
+
+    def set_supply(pa: float) -> None:
+        set_to.append(pa)
+        rig.params.oil.supply_pressure_pa = pa
+
+    spec = FlowSpec(supply_pressures_pa=(10e3, 15.5e3, 20e3, 25e3), repeats=2, settle_s=2.5)
+    w = create_run_writer(tmp_path / "f.h5", "flow", b, run_id="f", rig_config=params,
+                          lubricated=True)
+    out = run_flow_test(b, w, set_supply, spec)
+    w.close()
+    assert out.completed and out.steps == 8
+    assert set_to == [10e3, 15.5e3, 20e3, 25e3] * 2
+    assert not rig.pump_on  # switched off at the end
+    with open_run(tmp_path / "f.h5") as r:
+        assert [e["message"] for e in r.events if e["kind"] == "pump"] == ["pump on", "pump off"]
+        skipped: list = []
+        fr = identify_flow(r, skipped, params)
+    assert skipped == []
+    assert len(fr.points) == 4 and all(p["n_repeats"] == 2 for p in fr.points)
+    # the simulated film follows eq. 5 with the configuration's viscosity (3.17 cP, Table 5)
+    assert fr.viscosity_fit_pa_s == pytest.approx(params.film.viscosity_pa_s(24.0), rel=0.02)
+    assert fr.mean_flow_ratio_config == pytest.approx(1.0, abs=0.02)
+    # eq. 1 gives 2.78 cP at 24 degC: the flow ratio against it shows the 12 % disagreement
+    assert fr.mean_flow_ratio_eq1 == pytest.approx(2.78 / 3.17, rel=0.02)
+    assert fr.r2 > 0.999
