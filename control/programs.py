@@ -327,8 +327,10 @@ def run_impact_test(backend: DaqBackend, listener: Listener,
         post = int(spec.window_s * stream.fs)
         for axis in spec.axes:
             for k in range(spec.strikes):
-                stream.hold(zero, spec.quiet_s, spec.ramp_s)
-                hist: deque[tuple[int, np.ndarray]] = deque(maxlen=max(pre // stream.block, 0) + 2)
+                q_first, q_ai = stream.hold(zero, spec.quiet_s, spec.ramp_s)
+                hist: deque[tuple[int, np.ndarray]] = deque(maxlen=pre // stream.block + 2)
+                for k0 in range(0, q_ai.shape[1], stream.block):  # pre-trigger history
+                    hist.append((q_first + k0, q_ai[:, k0:k0 + stream.block]))
                 strike(axis, spec.peak_force_n)
                 trig = None
                 waited = 0
