@@ -42,7 +42,7 @@ from nidaqmx._stubs import nidaqmx_pb2_grpc as pb_grpc
 from nidaqmx.utils import unflatten_channel_string
 from session_pb2 import Session
 
-from daq.channels import ChannelMap, DeviceSpec, default_channel_map
+from daq.channels import AnalogInput, ChannelMap, DeviceSpec, default_channel_map
 from daq.errors import (
     DEVICE_NOT_FOUND,
     INPUT_BUFFER_OVERWRITTEN,
@@ -398,7 +398,8 @@ class SimDevice:
                 f"{self.ai_task.name!r}",
             )
         wired_ai = {c.physical_channel: c for c in self.wiring.ai}
-        ai, self._rows = [], []
+        ai: list[AnalogInput] = []
+        self._rows = []
         for ch in task.channels:
             w = wired_ai.get(ch.physical[0])
             if w is None:
@@ -477,11 +478,11 @@ class SimDevice:
             wired = rig.process(drive)
             out = np.empty((len(self._rows), n))
             lsb = 2 * self.spec.ai_range_v / 2**self.spec.ai_bits
-            for i, row in enumerate(self._rows):
-                if row is None:
+            for i, wired_row in enumerate(self._rows):
+                if wired_row is None:
                     out[i] = np.round(self._floating_rng.normal(0.0, lsb, n) / lsb) * lsb
                 else:
-                    out[i] = wired[row]
+                    out[i] = wired[wired_row]
             self.generated += n
             ring.put(out)
             behind = self.generated - self.read_pos
@@ -1060,7 +1061,8 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
             )
         # software-timed: only the last sample stays on the lines
         if request.data_layout_raw == FILL_GROUP_BY_CHANNEL:
-            last, pos = [], 0
+            last: list[int] = []
+            pos = 0
             for c in task.channels:
                 k = len(c.physical)
                 last.extend(raw[pos + (n - 1) * k: pos + n * k])
