@@ -248,7 +248,7 @@ def _delay(ctx: Context, m: Model) -> list[Variant]:
         p = Param("delay_s", lambda mm, c=ch: mm.delay_s.get(c, 0.0),
                   lambda mm, v, c=ch: replace(mm, delay_s={**mm.delay_s, c: float(v)}),
                   0.5 / fs, 0.0, 0.01)
-        out.append(Variant({"channel": ch}, [p], [p.set(m, 0.2 / fs), p.set(m, 2e-3)]))
+        out.append(Variant({"channel": ch}, [p], [p.set(m, 0.5 / fs)]))
     return out
 
 
@@ -257,7 +257,7 @@ def _air(ctx: Context, m: Model) -> list[Variant]:
     scale = 0.05 / max(v_mean, 1e-9)
     p = _effect_param("coefficient_s_per_m", "effects.air_entrainment.coefficient_s_per_m",
                       scale, 0.0)
-    return [Variant({}, [p], [p.set(m, scale), p.set(m, 4 * scale)])]
+    return [Variant({}, [p], [p.set(m, 2 * scale)])]
 
 
 def _needs_config_mass(ctx: Context) -> str | None:

@@ -2,8 +2,10 @@
 
 The residual is measured minus simulated response on the training segments only, in units of the
 RMS measured response (so tolerances mean the same for micrometres and volts), minimised with
-`scipy.optimize.least_squares` (trust-region reflective, finite-difference Jacobian) over
-parameters normalised by their typical scale. Several start points are tried where the error
+a small Levenberg-Marquardt (finite-difference Jacobian, normal equations of size
+k x k, bounds by projection) over parameters normalised by their typical scale: the residual
+vectors are long (10^5 samples) and the parameters few, so the k x k normal equations keep the
+linear algebra negligible next to the simulations. Several start points are tried where the error
 surface has several minima (a mode's frequency); the best on training data wins.
 """
 
@@ -13,7 +15,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from analysis.diagnose.data import RunRecord, Segment
 from analysis.diagnose.model import Evaluator, Model, Param, residuals
@@ -33,24 +34,33 @@ def apply(model: Model, params: list[Param], values: np.ndarray) -> Model:
     return model
 
 
+def _finite(r: np.ndarray) -> np.ndarray:
+    # a diverging simulation (an unstable trial parameter) scores as a very bad fit
+    return np.nan_to_num(np.clip(r, -1e6, 1e6), nan=1e6)
+
+
 def train_sse(ev: Evaluator, model: Model, train: list[Segment]) -> tuple[float, int]:
     r = residuals(ev, model, train).vector()
+    if not np.all(np.isfinite(r)):
+        return math.inf, int(r.size)
     return float(np.dot(r, r)), int(r.size)
 
 
 def fit(ev: Evaluator, starts: list[Model], params: list[Param], train: list[Segment],
-        scale_m: float, max_nfev: int | None = None, screen: bool = True) -> FitResult:
+        scale_m: float, max_nfev: int | None = None, screen: bool = True,
+        step: int = 1) -> FitResult:
     """Fit ``params`` from each start model; return the best on training data.
 
     With ``screen`` and several starts, the starts are first ranked by their training error and
-    only the best two are refined.
+    only the best is refined. ``step`` decimates the residual vector (samples) the
+    least-squares problem sees; the reported training error uses every sample.
     """
     if not params:
         sse, n = train_sse(ev, starts[0], train)
         return FitResult(starts[0], sse, n, 1)
-    if screen and len(starts) > 2:
+    if screen and len(starts) > 1:
         ranked = sorted(starts, key=lambda m: train_sse(ev, m, train)[0])
-        starts = ranked[:2]
+        starts = ranked[:1]
     best: FitResult | None = None
     nfev_total = 0
     for start in starts:
@@ -66,13 +76,12 @@ def fit(ev: Evaluator, starts: list[Model], params: list[Param], train: list[Seg
         def fun(u: np.ndarray, _x0: np.ndarray = x0, _s: np.ndarray = scales,
                 _start: Model = start) -> np.ndarray:
             m = apply(_start, params, _x0 + u * _s)
-            return residuals(ev, m, train).vector() / scale_m
+            return _finite(residuals(ev, m, train).vector(step) / scale_m)
 
-        res = least_squares(fun, u0, bounds=(lo, hi), method="trf", diff_step=1e-3,
-                            x_scale=1.0, max_nfev=max_nfev or 12 * (len(params) + 1),
-                            xtol=1e-6, ftol=1e-8, gtol=1e-10)
-        nfev_total += int(res.nfev)
-        model = apply(start, params, x0 + res.x * scales)
+        x_opt, nfev = levenberg_marquardt(fun, u0, lo, hi,
+                                          max_nfev or 12 * (len(params) + 1))
+        nfev_total += nfev
+        model = apply(start, params, x0 + x_opt * scales)
         sse, n = train_sse(ev, model, train)
         if best is None or sse < best.train_sse:
             best = FitResult(model, sse, n, 0)
@@ -117,3 +126,55 @@ def arx_linear_guess(rec: RunRecord, segs: list[Segment]) -> tuple[float, float,
                          f"(ARX poles {z}); cannot start the fitted baseline")
     m = k / wn2
     return float(m), float(two_zeta_wn * m), float(k), float(c / bsum)
+
+
+def levenberg_marquardt(fun, u0: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_nfev: int,
+                        h: float = 1e-3) -> tuple[np.ndarray, int]:
+    """Minimise ``|fun(u)|^2`` over the box ``lo <= u <= hi``; return (u, evaluations).
+
+    Forward differences of step ``h`` (backward at an upper bound); damping ``lam`` on the
+    diagonal of J'J, raised on a failed step and lowered on a successful one.
+    """
+    u = np.clip(np.asarray(u0, dtype=float), lo, hi)
+    r = fun(u)
+    cost = float(np.dot(r, r))
+    nfev = 1
+    lam = 1e-3
+    k = u.size
+    while nfev + k + 1 <= max_nfev:
+        jac = np.empty((r.size, k))
+        for j in range(k):
+            step = h if u[j] + h <= hi[j] else -h
+            du = u.copy()
+            du[j] += step
+            jac[:, j] = (fun(du) - r) / step
+            nfev += 1
+        a = jac.T @ jac
+        g = jac.T @ r
+        diag = np.maximum(np.diag(a), 1e-12 * max(np.max(np.diag(a)), 1e-300))
+        improved = False
+        while nfev < max_nfev:
+            try:
+                delta = np.linalg.solve(a + lam * np.diag(diag), -g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            u_new = np.clip(u + delta, lo, hi)
+            r_new = fun(u_new)
+            nfev += 1
+            cost_new = float(np.dot(r_new, r_new))
+            if cost_new < cost:
+                rel = (cost - cost_new) / max(cost, 1e-300)
+                moved = float(np.max(np.abs(u_new - u)))
+                u, r, cost = u_new, r_new, cost_new
+                lam = max(lam / 5, 1e-9)
+                improved = True
+                if rel < 1e-7 or moved < 1e-7:
+                    return u, nfev
+                break
+            lam *= 5
+            if lam > 1e8:
+                break
+        if not improved:
+            break
+    return u, nfev

@@ -237,8 +237,9 @@ class Residuals:
             n += b
         return math.sqrt(s / n) if n else float("nan")
 
-    def vector(self) -> np.ndarray:
-        return np.concatenate([v for chans in self.per_segment.values() for v in chans.values()])
+    def vector(self, step: int = 1) -> np.ndarray:
+        return np.concatenate([v[::step] for chans in self.per_segment.values()
+                               for v in chans.values()])
 
 
 def residuals(ev: Evaluator, model: Model, train: list[Segment],

@@ -1,0 +1,174 @@
+"""Diagnose: inputs, splits, replay, bootstrap, JSON, extended model and the CLI."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from analysis.diagnose import DiagnoseError, diagnose, load_run, parse_spans
+from analysis.diagnose.data import Segment, records_from_arrays, split_segments
+from analysis.diagnose.engine import bootstrap_gain
+from analysis.diagnose.fitting import arx_linear_guess, levenberg_marquardt
+from analysis.diagnose.model import Evaluator, Model, Residuals, residuals
+from sfdrig.cli import main
+from simulated_hw import load_rig_params
+from simulated_hw.params import RigParams
+from tests.analysis.hidden_effects import make_case
+
+
+def test_parse_spans():
+    assert parse_spans("40650:105712, 1:5") == [(40650, 105712), (1, 5)]
+    assert parse_spans(None) is None and parse_spans(" ") is None
+    with pytest.raises(DiagnoseError, match=r"--test: '5:1' is empty"):
+        parse_spans("5:1", "--test")
+    with pytest.raises(DiagnoseError, match=r"--train: 'a:b' is not a sample span"):
+        parse_spans("a:b")
+
+
+def _sine_record(n=4096, fs=1000.0):
+    t = np.arange(n) / fs
+    return records_from_arrays(np.sin(2 * np.pi * 20 * t), {"x": 1e-6 * np.sin(t)}, fs)
+
+
+def test_split_rejects_overlap_and_out_of_range():
+    rec = _sine_record()
+    with pytest.raises(DiagnoseError, match="overlaps"):
+        split_segments([rec], [(0, 2000)], [(1500, 3000)])
+    with pytest.raises(DiagnoseError, match="runs past the end"):
+        split_segments([rec], [(0, 2000)], [(2000, 9000)])
+    with pytest.raises(DiagnoseError, match="both --train and --test"):
+        split_segments([rec], [(0, 2000)], None)
+
+
+def test_split_holds_out_whole_dwells():
+    rec = _sine_record()
+    rec.segments = [Segment(0, 100 * i, 100 * i + 80, f"d{i}", 20.0) for i in range(9)]
+    train, test = split_segments([rec])
+    assert [s.label for s in test] == ["d1", "d4", "d7"]
+    assert not {s.label for s in train} & {s.label for s in test}
+
+
+def test_span_blocks_cover_the_span_without_overlap():
+    rec = _sine_record(n=20000)
+    train, test = split_segments([rec], [(0, 10000)], [(10000, 20000)], block_s=2.0)
+    assert [(s.start, s.stop) for s in test] == [(10000, 12000), (12000, 14000),
+                                                  (14000, 16000), (16000, 18000),
+                                                  (18000, 20000)]
+    assert sum(s.n for s in train) == 10000
+
+
+def test_replay_of_the_simulator_is_exact_without_noise():
+    """The config replay of a force through the rig equals simulate_response itself."""
+    from simulated_hw import simulate_response
+
+    fs = 5000.0
+    rig = RigParams()
+    t = np.arange(6000) / fs
+    force = np.vstack([80 * np.sin(2 * np.pi * 30 * t), 60 * np.cos(2 * np.pi * 30 * t)])
+    truth, _ = simulate_response(force, rig, fs, 1.0)
+    rec = records_from_arrays(force, {"x1": truth.x_m, "y1": truth.y_m}, fs, kind="sweep",
+                              rig=rig, lubricated=True)
+    seg = Segment(0, 0, 6000, "all", 30.0)
+    ev = Evaluator([rec], warmup_s=0.0)
+    res = residuals(ev, Model(rig=rig), [seg])
+    assert res.rms() < 1e-15
+
+
+def test_bootstrap_is_seeded_and_brackets_the_gain():
+    segs = [Segment(0, i, i + 1, f"s{i}") for i in range(12)]
+    rng = np.random.default_rng(3)
+    before = Residuals({s: {"x": rng.normal(0, 2.0, 50)} for s in segs}, {}, {})
+    after = Residuals({s: {"x": rng.normal(0, 1.0, 50)} for s in segs}, {}, {})
+    lo, hi = bootstrap_gain(before, after, segs, seed=5)
+    assert (lo, hi) == bootstrap_gain(before, after, segs, seed=5)
+    gain = before.rms() / after.rms()
+    assert lo < gain < hi
+    assert lo > 1.5 and hi < 2.7
+
+
+def test_levenberg_marquardt_solves_a_bounded_fit():
+    x = np.linspace(0, 1, 200)
+
+    def fun(u):
+        return u[0] * np.exp(-u[1] * x) - 3.0 * np.exp(-2.0 * x)
+
+    u, nfev = levenberg_marquardt(fun, np.array([1.0, 1.0]), np.array([0.0, 0.0]),
+                                  np.array([10.0, 10.0]), 200)
+    assert np.allclose(u, [3.0, 2.0], rtol=1e-4) and nfev < 200
+    u, _ = levenberg_marquardt(fun, np.array([1.0, 1.0]), np.array([0.0, 0.0]),
+                               np.array([2.5, 10.0]), 200)
+    assert u[0] == pytest.approx(2.5)  # held on its bound
+
+
+def test_arx_guess_finds_a_linear_oscillator():
+    from simulated_hw import simulate_response
+
+    fs = 2000.0
+    rig = RigParams().model_copy(update={"seal": RigParams().seal.model_copy(
+        update={"enabled": False})})
+    rng = np.random.default_rng(0)
+    f = rng.normal(0, 10, 20000)
+    tr, _ = simulate_response(np.vstack([f, 0 * f]), rig, fs, 0.0)
+    rec = records_from_arrays(f, {"x": tr.x_m}, fs)
+    m, c, k, off = arx_linear_guess(rec, [Segment(0, 0, 20000, "all")])
+    assert k == pytest.approx(788e3, rel=0.05)
+    assert m == pytest.approx(9.7, rel=0.1)
+
+
+def test_config_baseline_needs_a_rig_for_imported_data():
+    rec = _sine_record()
+    with pytest.raises(DiagnoseError, match="--baseline config needs a rig configuration"):
+        diagnose([rec], "config", [(0, 2000)], [(2000, 4096)])
+    with pytest.raises(DiagnoseError, match="unknown effect"):
+        diagnose([rec], "fitted", [(0, 2000)], [(2000, 4096)], effects=["gremlins"])
+
+
+def test_load_run_errors_name_the_file(tmp_path):
+    bad = tmp_path / "nope.h5"
+    with pytest.raises(DiagnoseError, match="nope.h5"):
+        load_run(bad)
+
+
+def test_cli_json_report_and_extended_model(tmp_path, capsys):
+    """End to end: a hidden cubic spring; the JSON contract; the TOML loads in the simulator."""
+    case = make_case(tmp_path, ["cubic_stiffness"], 5, n_dwells=12)
+    out = tmp_path / "out.json"
+    rep = tmp_path / "report"
+    rc = main(["diagnose", str(case.paths[0]), "--json", str(out), "--report", str(rep),
+               "--quiet", "--effects", "cubic_stiffness,added_mass,sensor_gain",
+               "--max-effects", "2"])
+    assert rc == 0
+    doc = json.loads(out.read_text())
+    assert set(doc) >= {"baseline", "findings", "unexplained", "extended_model"}
+    assert doc["baseline"]["kind"] == "config" and doc["baseline"]["units"] == "m"
+    f = doc["findings"][0]
+    assert f["effect"] == "cubic_stiffness"
+    assert set(f) >= {"parameters", "error_before", "error_after", "gain", "gain_interval",
+                      "evidence"}
+    k3 = case.effects["cubic_stiffness"]["k3_N_per_m3"]
+    assert f["parameters"]["k3_N_per_m3"] == pytest.approx(k3, rel=0.1)
+    assert f["gain"] == pytest.approx(f["error_before"] / f["error_after"])
+    assert doc["baseline"]["rms_error"] == pytest.approx(f["error_before"])
+    ext = load_rig_params(doc["extended_model"])
+    assert ext.effects.cubic_stiffness.enabled
+    assert ext.effects.cubic_stiffness.k3_n_per_m3 == pytest.approx(k3, rel=0.1)
+    page = (rep / "index.html").read_text()
+    assert "cubic_stiffness" in page and "dwells.png" in page
+    for png in ("time.png", "dwells.png", "harmonics.png", "segments.png", "errors.png"):
+        assert (rep / png).read_bytes()[:4] == b"\x89PNG"
+    assert "found cubic_stiffness" in capsys.readouterr().out
+    # the extended model replays the data to the noise floor: diagnose it again
+    rc = main(["diagnose", str(case.paths[0]), "--rig", doc["extended_model"], "--json",
+               str(tmp_path / "again.json"), "--quiet", "--effects", "cubic_stiffness",
+               "--max-effects", "1"])
+    again = json.loads((tmp_path / "again.json").read_text())
+    assert rc == 0 and again["findings"] == []
+    assert again["baseline"]["rms_error"] == pytest.approx(f["error_after"], rel=0.05)
+
+
+def test_cli_bad_input_exits_2(tmp_path, capsys):
+    rc = main(["diagnose", str(tmp_path / "missing.h5")])
+    assert rc == 2
+    assert "missing.h5" in capsys.readouterr().err
