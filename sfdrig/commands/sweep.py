@@ -103,18 +103,21 @@ def bar(fraction: float, width: int = 20) -> str:
 
 
 def progress_line(progress: dict[str, Any]) -> str:
-    """Whole-sweep and step bars plus whatever the engine reports (freq, updates, error...)."""
-    total = progress.get("steps_total") or progress.get("n_steps") or 0
-    index = progress.get("step_index", progress.get("step", 0)) or 0
-    step_frac = progress.get("step_fraction")
-    if step_frac is None and progress.get("max_updates"):
-        step_frac = (progress.get("updates") or 0) / progress["max_updates"]
-    sweep_frac = (index + (step_frac or 0.0)) / total if total else float("nan")
-    shown = {k: v for k, v in progress.items()
-             if k not in ("steps_total", "n_steps", "step_index", "step", "step_fraction")}
-    extras = "  ".join(f"{k}={_fmt(v)}" for k, v in shown.items())
-    step_bar = bar(step_frac) if step_frac is not None else ""
-    return f"sweep {bar(sweep_frac)} step {index + 1}/{total or '?'} {step_bar} {extras}".rstrip()
+    """Whole-sweep bar (steps done), step bar (controller updates used), frequency, state."""
+    total = int(progress.get("steps_total") or 0)
+    done = int(progress.get("steps_done") or 0)
+    index = int(progress.get("step_index", -1))
+    updates = int(progress.get("updates") or 0)
+    max_updates = progress.get("max_updates")
+    sweep_frac = done / total if total else float("nan")
+    line = f"sweep {bar(sweep_frac)} {done}/{total or '?'} steps done"
+    if index >= 0:
+        line += f" | step {index + 1}: {float(progress.get('freq_hz', 0.0)):6.1f} Hz"
+        if max_updates:
+            line += f" updates {bar(updates / max_updates, 8)} {updates}/{max_updates}"
+        else:
+            line += f" updates {updates}"
+    return line + f" | {progress.get('state', '')}"
 
 
 def _fmt(v: Any) -> str:

@@ -1,0 +1,140 @@
+"""`sfdrig demo`: the whole chain on the simulated rig, as an operator would run it.
+
+Starts a daemon on the simulated rig as a real subprocess (fast mode), runs a dry circular-orbit
+load sweep (40 N, 20-200 Hz), switches the pump on, runs a lubricated unidirectional X sweep
+(20-60 Hz in 10 Hz steps at 13 and 38 um), stores both runs, prints a summary table, and, when the
+analysis package provides it, writes the identification report. The daemon is then stopped with
+SIGTERM (the safe shutdown).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import os
+import selectors
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from control.client import CommandClient, Subscriber
+from sfdrig.commands.sweep import UM, achieved, follow
+
+NAME = "demo"
+HELP = "run a dry and a lubricated sweep on the simulated rig, store them, summarise, report"
+
+DRY_SWEEP: dict[str, Any] = {
+    "name": "demo: dry circular orbit, 40 N",
+    "motion": "circular_forward", "lubricated": False, "load_n": [40.0],
+    "freq_start_hz": 20.0, "freq_stop_hz": 200.0, "freq_step_hz": 20.0,
+}
+LUBRICATED_SWEEP: dict[str, Any] = {
+    "name": "demo: lubricated unidirectional X, 13 and 38 um",
+    "motion": "x", "lubricated": True, "amplitude_m": [13e-6, 38e-6],
+    "freq_start_hz": 20.0, "freq_stop_hz": 60.0, "freq_step_hz": 10.0,
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, default=Path("demo-out"),
+                        help="output directory: runs/ and report/ (default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=0, help="simulated rig seed")
+    parser.add_argument("--paced", action="store_true",
+                        help="pace the simulated rig to the wall clock (slow: minutes)")
+
+
+def start_daemon(runs_dir: Path, seed: int, fast: bool) -> tuple[subprocess.Popen[str], str, str]:
+    """Start ``python -m sfdrig daemon`` and read its endpoint line (poll with a timeout)."""
+    cmd = [sys.executable, "-m", "sfdrig", "daemon", "--runs-dir", str(runs_dir),
+           "--seed", str(seed)] + (["--fast"] if fast else [])
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)  # type: ignore[arg-type]
+    ready = sel.select(60.0)
+    sel.close()
+    line = proc.stdout.readline() if ready else ""  # type: ignore[union-attr]
+    if not line.startswith("command="):
+        proc.kill()
+        proc.wait(10)
+        raise SystemExit(f"demo: the daemon did not start (said {line!r})")
+    fields = dict(part.split("=", 1) for part in line.split())
+    return proc, fields["command"], fields["data"]
+
+
+def run_sweep(client: CommandClient, sub: Subscriber, spec: dict[str, Any]) -> dict[str, Any]:
+    print(f"\n== {spec['name']}", flush=True)
+    reply = client.start_sweep(spec, operator="sfdrig demo", notes=spec["name"])
+    run_id = reply.data["run_id"]
+    status, reason, steps = follow(sub, run_id, idle_timeout_s=120)
+    print(f"run {run_id}: {status}" + (f" ({reason})" if reason else ""), flush=True)
+    return {"name": spec["name"], "run_id": run_id, "path": reply.data["path"],
+            "status": status, "reason": reason, "steps": steps}
+
+
+def summary(runs: list[dict[str, Any]]) -> str:
+    lines = []
+    for r in runs:
+        conv = sum(1 for s in r["steps"] if s.get("converged"))
+        lines.append(f"\n{r['name']}\n  run {r['run_id']}  {r['status']}  "
+                     f"{conv}/{len(r['steps'])} steps converged  {r['path']}")
+        lines.append(f"  {'f [Hz]':>7} {'target':>10} {'|x| [um]':>9} {'|y| [um]':>9} "
+                     f"{'|Fx| [N]':>9} {'|Fy| [N]':>9} {'updates':>7}  converged")
+        for s in r["steps"]:
+            a = achieved(s)
+            tgt = (f"{s['target_value'] / UM:.1f} um" if s["target_kind"] == "displacement"
+                   else f"{s['target_value']:.1f} N")
+            lines.append(f"  {s['freq_hz']:7.1f} {tgt:>10} {a['x_m'] / UM:9.2f} "
+                         f"{a['y_m'] / UM:9.2f} {a['fx_n']:9.1f} {a['fy_n']:9.1f} "
+                         f"{s['updates']:7d}  {'yes' if s['converged'] else 'no: ' + s['reason']}")
+    return "\n".join(lines)
+
+
+def write_report(run_paths: list[Path], out_dir: Path) -> str:
+    """The identification report when `analysis.report.write_report` exists."""
+    try:
+        report = importlib.import_module("analysis.report")
+    except ModuleNotFoundError:
+        return "identification report: skipped (analysis.report is not available)"
+    if not hasattr(report, "write_report"):
+        return "identification report: skipped (analysis.report has no write_report)"
+    result = report.write_report(run_paths, out_dir)
+    return f"identification report: {result if result is not None else out_dir}"
+
+
+def run(args: argparse.Namespace) -> int:
+    runs_dir = args.out / "runs"
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    proc, command, data = start_daemon(runs_dir, args.seed, fast=not args.paced)
+    print(f"daemon pid {proc.pid}: command={command} data={data}", flush=True)
+    runs: list[dict[str, Any]] = []
+    try:
+        with CommandClient(command, timeout_s=10) as client, \
+                Subscriber(data, topics=["step", "event", "status"]) as sub:
+            sub.wait_connected(timeout_s=30)
+            client.pump(False)
+            runs.append(run_sweep(client, sub, DRY_SWEEP))
+            client.pump(True)
+            print("pump on", flush=True)
+            runs.append(run_sweep(client, sub, LUBRICATED_SWEEP))
+            client.pump(False)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(60)
+    print(summary(runs))
+    if code != 0:
+        print(f"demo: the daemon exited with status {code}")
+    ok = all(r["status"] == "completed" for r in runs)
+    if ok:
+        try:
+            print(write_report([Path(r["path"]) for r in runs], args.out / "report"))
+        except Exception as err:  # the runs are stored; the report is a bonus
+            print(f"identification report failed: {type(err).__name__}: {err}")
+    worst = max((abs(achieved(s)["x_m"] / s["target_value"] - 1) for r in runs
+                 for s in r["steps"] if s["target_kind"] == "displacement"), default=math.nan)
+    if math.isfinite(worst):
+        print(f"\nlargest displacement error against target: {100 * worst:.2f} %")
+    return 0 if ok and code == 0 else 1

@@ -1,0 +1,128 @@
+"""The daemon as a real process: live stream, run file, kill -9 and SIGTERM mid-run.
+
+Synchronisation is on messages (subscriber heartbeats, blocks, step results, run-end events);
+every wait has a poll timeout."""
+
+from __future__ import annotations
+
+import signal
+
+import numpy as np
+import pytest
+
+from control.client import CommandClient, Message, Subscriber
+from storage.reader import open_run
+
+pytestmark = pytest.mark.e2e
+
+DRY_X = {"motion": "x", "load_n": [40.0], "freq_hz": [30.0, 50.0], "settle_cycles": 5,
+         "record_cycles": 10}
+LONG_X = {"motion": "x", "load_n": [40.0], "freq_hz": [30.0, 35.0, 40.0, 45.0, 50.0, 55.0],
+          "settle_cycles": 20, "record_cycles": 100}
+
+
+def collect_run(sub: Subscriber, run_id: str, timeout_s: float = 60.0):
+    """Blocks, steps and the final status of ``run_id``, from the stream."""
+    blocks: list[Message] = []
+    steps: list[dict] = []
+    while True:
+        msg = sub.recv(timeout_s=timeout_s)
+        assert msg is not None, "the stream went silent"
+        h = msg.header
+        if msg.topic == "block" and h["run_id"] == run_id:
+            blocks.append(msg)
+        elif msg.topic == "step" and h["run_id"] == run_id:
+            steps.append(h["step"])
+        elif msg.topic == "event" and h["message"].startswith(f"run {run_id} "):
+            return blocks, steps, h["message"]
+
+
+def stacked(blocks: list[Message]) -> np.ndarray:
+    return np.concatenate([b.array for b in blocks], axis=1)
+
+
+def test_every_block_streamed_in_sequence_and_equal_to_the_run_file(daemon_factory):
+    d = daemon_factory("--sndhwm", "0")
+    with CommandClient(d.command, timeout_s=10) as c, Subscriber(d.data, rcvhwm=0) as sub:
+        sub.wait_connected()
+        reply = c.start_sweep(DRY_X, operator="e2e")
+        blocks, steps, end = collect_run(sub, reply.data["run_id"])
+    assert end == f"run {reply.data['run_id']} completed"
+    assert sub.lost == {}, "sequence gaps"
+    firsts = [b.header["first_sample"] for b in blocks]
+    sizes = [b.header["n_samples"] for b in blocks]
+    assert firsts == list(np.cumsum([0, *sizes[:-1]])), "blocks not contiguous"
+    streamed = stacked(blocks)
+    with open_run(reply.data["path"]) as run:
+        assert run.status == "completed"
+        assert run.n_samples == streamed.shape[1]
+        names = blocks[0].header["channels"]
+        assert names == run.channel_names + run.drive_names
+        for i, name in enumerate(names):
+            np.testing.assert_array_equal(run.channel(name), streamed[i], err_msg=name)
+        assert [s["index"] for s in run.steps] == [s["index"] for s in steps] == [0, 1]
+        for got, sent in zip(run.steps, steps, strict=True):
+            assert (got["first_sample"], got["last_sample"]) == (sent["first_sample"],
+                                                                  sent["last_sample"])
+            np.testing.assert_allclose(got["harmonics"]["fx"], sent["harmonics"]["fx"])
+    assert d.terminate() == 0
+
+
+def test_kill_9_mid_run_leaves_a_file_with_every_flushed_block(daemon_factory):
+    d = daemon_factory(fast=False)  # paced: the run is still going when it is killed
+    with CommandClient(d.command, timeout_s=10) as c, Subscriber(d.data, rcvhwm=0) as sub:
+        sub.wait_connected()
+        reply = c.start_sweep(LONG_X)
+        run_id = reply.data["run_id"]
+        blocks: list[Message] = []
+        step = None
+        while step is None:  # the writer flushes at every step
+            msg = sub.recv(timeout_s=60)
+            assert msg is not None
+            if msg.topic == "block" and msg.header["run_id"] == run_id:
+                blocks.append(msg)
+            elif msg.topic == "step":
+                step = msg.header["step"]
+        d.proc.kill()
+        d.proc.wait(10)
+        while (msg := sub.recv(timeout_s=0.5)) is not None:  # what was in flight
+            if msg.topic == "block" and msg.header["run_id"] == run_id:
+                blocks.append(msg)
+    streamed = stacked(blocks)
+    with open_run(reply.data["path"]) as run:
+        n = run.n_samples
+        assert run.status == "running"  # never closed
+        assert step["last_sample"] <= n <= streamed.shape[1]
+        for i, name in enumerate(run.channel_names + run.drive_names):
+            np.testing.assert_array_equal(run.channel(name), streamed[i, :n], err_msg=name)
+        assert len(run.steps) >= 1
+
+
+def test_sigterm_mid_sweep_zeroes_the_drives_within_100_ms(daemon_factory):
+    d = daemon_factory(fast=False)
+    with CommandClient(d.command, timeout_s=10) as c, \
+            Subscriber(d.data, topics=["block"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        reply = c.start_sweep(LONG_X)
+        n_ai = None
+        while True:  # wait until the shaker is really being driven
+            msg = sub.recv(timeout_s=60)
+            assert msg is not None
+            if msg.topic == "block":
+                n_ai = msg.header["n_ai"]
+                if np.abs(msg.array[n_ai:]).max() > 0.05:
+                    break
+        d.proc.send_signal(signal.SIGTERM)
+        assert d.proc.wait(30) == 0
+    with open_run(reply.data["path"]) as run:
+        assert run.status == "aborted"
+        assert "SIGTERM" in run.attrs["status_reason"]
+        aborts = [e for e in run.events if "SIGTERM" in e["message"]]
+        assert aborts, run.events
+        s0 = aborts[0]["sample"]
+        limit = s0 + int(0.100 * run.sample_rate_hz)
+        assert run.n_samples > limit, "the file must hold the ramp-down"
+        for name in run.drive_names:
+            drive = run.channel(name)
+            assert np.abs(drive[:s0]).max() > 0.05, f"{name} was never driven"
+            np.testing.assert_array_equal(drive[limit:], 0.0, err_msg=name)
