@@ -353,7 +353,7 @@ class SimDevice:
                         f"{other.name!r}",
                     )
             if task.kind == "ai":
-                self._start_ai(task, others)
+                self._start_ai(task)
             elif task.kind == "ao" and task.rate_hz is not None:
                 self._arm_ao(task)
             elif task.kind is None:
@@ -384,7 +384,7 @@ class SimDevice:
         task.ao_generated = 0
         self.ao_tasks.append(task)
 
-    def _start_ai(self, task: SimTask, others: list[SimTask]) -> None:
+    def _start_ai(self, task: SimTask) -> None:
         if task.rate_hz is None:
             raise daq_error(
                 ATTR_NOT_SUPPORTED,
