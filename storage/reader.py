@@ -7,6 +7,7 @@ an sfdrig run, or is broken, raises `RunFileError` naming the file and the fault
 
 from __future__ import annotations
 
+import copy
 import json
 import re
 from collections.abc import Iterator
@@ -74,6 +75,7 @@ class RunData:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        self._steps_cache: list[dict[str, Any]] | None = None
         self._file = _open_h5(self.path)
         try:
             self._load()
@@ -169,14 +171,17 @@ class RunData:
     # --- live reading ------------------------------------------------------------------------
     def refresh(self) -> None:
         """See what a live SWMR writer has flushed since opening (no-op on closed files)."""
+        self._steps_cache = None
         if not self._file.swmr_mode:
             return
-        for name in self.channel_names:
-            self._file[f"channels/{name}"].refresh()
-        for name in self.drive_names:
-            self._file[f"drive/{name}"].refresh()
-        for key in ("steps", "step_harmonics", "step_drive_v", "events"):
-            self._file[key].refresh()
+        keys = [f"channels/{n}" for n in self.channel_names]
+        keys += [f"drive/{n}" for n in self.drive_names]
+        keys += ["steps", "step_harmonics", "step_drive_v", "events"]
+        try:
+            for key in keys:
+                self._file[key].refresh()
+        except _H5_ERRORS as err:
+            raise self._fail(f"cannot refresh /{key} from the writer: {err}") from None
 
     @property
     def n_samples(self) -> int:
@@ -273,14 +278,12 @@ class RunData:
         )
 
     def has_signal(self, name: str) -> bool:
-        try:
-            if name in self.channel_names:
-                return True
-            return name in ("x", "y") and any(
-                re.fullmatch(rf"{name}\d+", c) for c in self.channel_names
-            )
-        except RunFileError:
-            return False
+        """Whether `signal` can return ``name``."""
+        if name in self.channel_names:
+            return True
+        return name in ("x", "y") and any(
+            re.fullmatch(rf"{name}\d+", c) for c in self.channel_names
+        )
 
     def time_s(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Sample times [s] of samples ``[start, stop)``: ``index / sample_rate_hz``."""
@@ -290,7 +293,19 @@ class RunData:
 
     @property
     def steps(self) -> list[dict[str, Any]]:
-        """One dict per dwell, as contract A's step dict (harmonics and drive_v included)."""
+        """One dict per dwell, as contract A's step dict (harmonics and drive_v included).
+
+        Read once and cached (until `refresh`); the list is a fresh copy each time."""
+        if self._steps_cache is None:
+            try:
+                self._steps_cache = self._read_steps()
+            except RunFileError:
+                raise
+            except _H5_ERRORS as err:
+                raise self._fail(f"cannot read /steps: {err}") from None
+        return copy.deepcopy(self._steps_cache)
+
+    def _read_steps(self) -> list[dict[str, Any]]:
         f = self._file
         rows = f["steps"][()]
         harm = f["step_harmonics"][()]
@@ -340,7 +355,10 @@ class RunData:
     @property
     def events(self) -> list[dict[str, Any]]:
         """Event log: dicts with ``time`` (ISO 8601 UTC), ``sample``, ``kind``, ``message``."""
-        rows = self._file["events"][()]
+        try:
+            rows = self._file["events"][()]
+        except _H5_ERRORS as err:
+            raise self._fail(f"cannot read /events: {err}") from None
         return [
             {"time": _text(r["time"]), "sample": int(r["sample"]), "kind": _text(r["kind"]),
              "message": _text(r["message"])}

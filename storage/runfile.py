@@ -500,6 +500,7 @@ class RunWriter:
         row["extra"] = text.encode()
         with self._io_lock:
             self._check_open()
+            self._write_pending()  # the dwell's samples reach the file before its row
             i = self._n_steps
             self._steps.resize((i + 1,))
             self._steps[i] = row
@@ -520,6 +521,7 @@ class RunWriter:
         row["message"] = _fit_utf8(message, _MESSAGE_BYTES)
         with self._io_lock:
             self._check_open()
+            self._write_pending()
             i = self._n_events
             self._events.resize((i + 1,))
             self._events[i] = row

@@ -119,7 +119,7 @@ def test_lzf_option(tmp_path: Path) -> None:
 @given(
     n_ai=st.integers(1, 3),
     n_ao=st.integers(0, 2),
-    chunk=st.integers(1, 300),
+    chunk=st.integers(16, 300),
     ops=st.lists(
         st.one_of(
             st.tuples(st.just("block"), st.integers(0, 700)),
