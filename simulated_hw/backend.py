@@ -22,6 +22,7 @@ from daq.errors import (
     DaqError,
     error_for_code,
 )
+from simulated_hw import physics
 from simulated_hw.params import RigParams
 from simulated_hw.rig import RigModel
 
@@ -68,6 +69,7 @@ class SimulatedBackend:
         if self._running:
             raise DaqError("cannot reconfigure while running; stop first")
         self._map = channel_map
+        physics.warm_up()  # before start: a paced first read must not wait for the compiler
         self.rig = RigModel(self.params, channel_map, self.seed)
         self._ao_chunks, self._ao_queued, self._read = [], 0, 0
 

@@ -219,6 +219,20 @@ def fill_track(pressurised: np.ndarray, k_fill: float, k_drain: float, f0: float
         out[i] = f
 
 
+def warm_up() -> None:
+    """Compile (or load from the on-disk cache) every kernel now, on scratch data, so the first
+    real block of a paced run does not stall for the JIT."""
+    n = 4
+    out = np.empty((N_OUT, n))
+    integrate(np.zeros((2, n)), np.ones(n), np.ones(n), np.full(N_PARAMS, 1.0), np.zeros(N_STATE),
+              out)
+    shaker_force(np.zeros((2, n)), 0.5, 1.0, np.zeros(2), np.empty((2, n)))
+    sensor_volts(np.zeros((1, n)), np.ones(1), np.zeros(1), np.zeros(8, dtype=np.float32),
+                 np.zeros(1, dtype=np.int64), np.ones(1), 1e-3, -np.ones(1), np.ones(1),
+                 np.empty((1, n)))
+    fill_track(np.zeros(n, dtype=np.bool_), 0.1, 0.1, 0.0, np.empty(n))
+
+
 @dataclass
 class Truth:
     """The rig's true state per sample (what the sensors would see without error).
