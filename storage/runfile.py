@@ -42,6 +42,10 @@ import h5py
 import numpy as np
 
 FORMAT = "sfdrig-run"
+#: HDF5 file-format bounds: the 1.10 format is the oldest that supports SWMR, and capping it
+#: there keeps run files readable by HDF5 1.10-1.14 tools (HDFView, MATLAB, h5dump) even when
+#: h5py is built on a newer library.
+LIBVER = ("v110", "v110")
 FORMAT_VERSION = 1
 KINDS = ("sweep", "static", "impact", "probe_calibration", "flow", "imported")
 STATUSES = ("running", "completed", "aborted", "failed")
@@ -302,7 +306,7 @@ class RunWriter:
 
         mode = "w" if overwrite else "w-"
         try:
-            f = h5py.File(path, mode, libver="latest")
+            f = h5py.File(path, mode, libver=LIBVER)
         except FileExistsError:
             raise FileExistsError(
                 f"{path}: run file exists already (pass overwrite=True)"
@@ -689,11 +693,11 @@ class RunWriter:
         final = {"stop_time": utc_now_iso(), "status": status, "status_reason": str(reason)}
         try:
             try:
-                f = h5py.File(self.path, "r+", libver="latest")
+                f = h5py.File(self.path, "r+", libver=LIBVER)
             except BlockingIOError:
                 # A live SWMR reader (another process) holds a shared lock. It reads the root
                 # attributes only when it opens, so rewriting them under it is safe.
-                f = h5py.File(self.path, "r+", libver="latest", locking=False)
+                f = h5py.File(self.path, "r+", libver=LIBVER, locking=False)
             with f:
                 for key, value in final.items():
                     f.attrs[key] = value
