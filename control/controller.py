@@ -337,7 +337,7 @@ class DrivePredictor:
                 slope = (p1.drive - p2.drive) / (p1.freq_hz - p2.freq_hz)
                 drive = p1.drive + slope * (freq_hz - p1.freq_hz)
                 # never extrapolate to less than half or more than twice the nearest drive
-                ratio = np.linalg.norm(drive) / max(np.linalg.norm(p1.drive), 1e-12)
+                ratio = float(np.linalg.norm(drive)) / max(float(np.linalg.norm(p1.drive)), 1e-12)
                 if 0.5 <= ratio <= 2.0:
                     return drive, p1.jacobian.copy()
                 return p1.drive.copy(), p1.jacobian.copy()

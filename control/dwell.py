@@ -203,7 +203,8 @@ class StepRunner:
             return cycles_to_samples(f, self.fs, c)
 
         pred = self.predictor.predict(f, plan.shape) if cfg.predict else None
-        if pred is None and not cfg.predict and self._last_drive is not None:
+        if (pred is None and not cfg.predict and self._last_drive is not None
+                and self._last_jacobian is not None):
             pred = self._last_drive, self._last_jacobian
         if pred is not None:
             guess, jac = pred

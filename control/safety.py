@@ -193,11 +193,12 @@ class SafetyMonitor:
             slew = np.abs(np.diff(ext, axis=1)) * self.fs
             smax = float(slew.max())
             if smax > lim.slew_limit_v_per_s:
-                row, k = np.unravel_index(int(np.argmax(slew)), slew.shape)
+                idx = np.unravel_index(int(np.argmax(slew)), slew.shape)
+                row, k = int(idx[0]), int(idx[1])
                 raise LimitTrip(
                     f"drive {row} would slew at {smax:.4g} V/s, above the "
                     f"{lim.slew_limit_v_per_s:.4g} V/s limit",
-                    first_sample + int(k) - (0 if prev is None else 1), "drive_slew",
+                    first_sample + k - (0 if prev is None else 1), "drive_slew",
                 )
         self._last_ao = block[:, -1:].copy()
 

@@ -337,9 +337,9 @@ class SweepEngine:
                 self._paused(stream)
                 continue  # the interrupted step runs again from its start
             self.results.append(result)
-            self.listener.on_step(result.to_dict())
             self._progress = replace(self._progress, steps_done=len(self.results),
                                      updates=result.updates)
+            self.listener.on_step(result.to_dict())
             if not result.converged:
                 msg = f"{plan.describe()}: {result.reason}"
                 if self.spec.on_not_converged == "abort":

@@ -144,8 +144,8 @@ class SineSynthesizer:
         freq = np.full(n, self._freq)
         if self._freq_left > 0:
             m = min(n, self._freq_left)
-            step = (self._freq_target - self._freq) / self._freq_left
-            freq[:m] = self._freq + step * np.arange(1, m + 1)
+            fstep = (self._freq_target - self._freq) / self._freq_left
+            freq[:m] = self._freq + fstep * np.arange(1, m + 1)
             self._freq_left -= m
             if self._freq_left == 0:
                 freq[m - 1] = self._freq_target
@@ -160,7 +160,7 @@ class SineSynthesizer:
             m = min(n, self._phasor_left)
             step = (self._phasor_target - self._phasor) / self._phasor_left
             ramp = np.arange(1, m + 1)
-            p = np.empty((self.n_channels, n), dtype=np.complex128)
+            p: np.ndarray = np.empty((self.n_channels, n), dtype=np.complex128)
             p[:, :m] = self._phasor[:, None] + step[:, None] * ramp[None, :]
             self._phasor_left -= m
             if self._phasor_left == 0:

@@ -155,3 +155,37 @@ def test_pause_resume_and_abort_from_the_stream():
     assert np.all(ao[:, 12_000 + 1000:] == 0)  # within 100 ms of the abort
     ops = [e[1] for e in rec.events_of("operator")]
     assert ops[0].startswith("paused") and ops[1].startswith("resumed")
+
+
+def test_abort_from_another_thread_while_running():
+    """The daemon's use: run() in one thread, abort() from another, progress readable."""
+    import threading
+
+    be = make_backend(seed=6)
+    running = threading.Event()
+    release = threading.Event()
+
+    class Gate(RecordingListener):
+        def on_step(self, step):
+            super().on_step(step)
+            running.set()
+            release.wait(timeout=30)  # hold the acquisition thread until the abort is sent
+
+    rec = Gate(keep_blocks=False)
+    spec = SweepSpec(motion="x", load_n=[20.0], freq_hz=[60.0, 70.0, 80.0])
+    engine = SweepEngine(be, spec, limits=DRY_LIMITS, listener=rec)
+    result = {}
+    worker = threading.Thread(target=lambda: result.setdefault("out", engine.run()))
+    worker.start()
+    assert running.wait(timeout=60)
+    progress = engine.progress
+    assert progress.state == "running" and progress.steps_total == 3
+    assert progress.steps_done == 1 and progress.freq_hz == 60.0
+    engine.abort("operator abort from the console")
+    release.set()
+    worker.join(timeout=60)
+    out = result["out"]
+    assert out.status == "aborted" and out.reason == "operator abort from the console"
+    assert len(out.steps) == 1
+    assert engine.progress.state == "aborted"
+    assert np.all(be.ao_written()[:, -100:] == 0)
