@@ -12,7 +12,8 @@ Two ways of removing the seal are reported side by side:
   the time on a sinusoidal velocity; it leaves the seal's in-phase force in K - w^2 M_T.
 - ``stick_slip``: rebuild the seal force over one cycle from the measured motion (eq. 8 with
   sticking): F_mu sign(v) while the housing slides, and the force that holds it, F - K z, while it
-  sticks (|v| below ``STICK_FRACTION`` of its peak; inertia and damping vanish there). Its 1X is
+  sticks (|v| below ``STICK_FRACTION`` of its peak and |F - K z| within F_mu, with a margin for
+  the ripple of the rebuilt cycle; inertia and damping vanish there). Its 1X is
   subtracted from F before eq. 14, which then gives C_sfd + C_rv and K - w^2 M_T free of the seal.
   At low frequencies the housing sticks at each reversal (the inertia force w^2 M_T |Z| at the
   turning point is smaller than F_mu below about 30 Hz at 38 um), and eq. 9 then biases both the
@@ -42,7 +43,8 @@ from analysis.uncertainty import (
 
 N_QUAD = 2048  # points over one cycle for the seal force
 SEAL_HARMONICS = 25  # harmonics of force and motion used to rebuild the cycle
-STICK_FRACTION = 0.02  # |v| below this fraction of its peak counts as sticking
+STICK_FRACTION = 0.02  # |v| below this fraction of its peak counts as sticking...
+HOLD_MARGIN = 1.15  # ...if the holding force is within F_mu (margin: the rebuilt cycle's ripple)
 AMPLITUDE_GROUP_M = 0.5e-6  # dwells whose targets agree within this share an amplitude group
 METHODS = ("eq9", "stick_slip")
 
@@ -72,9 +74,11 @@ def seal_force_1x(force_harmonics: np.ndarray, disp_harmonics: np.ndarray, freq_
     f = synthesize(force_harmonics, freq_hz, t)
     z = synthesize(disp_harmonics, freq_hz, t)
     v = synthesize(disp_harmonics, freq_hz, t, derivative=1)
-    stick = np.abs(v) < STICK_FRACTION * np.abs(v).max()
-    seal = np.where(stick, f - k_n_per_m * z, f_mu_n * np.sign(v))
-    np.clip(seal, -f_mu_n, f_mu_n, out=seal)
+    hold = f - k_n_per_m * z  # what the seal must carry to keep the housing still
+    # sticking: nearly at rest, and the seal can carry the holding force
+    stick = (np.abs(v) < STICK_FRACTION * np.abs(v).max()) & (
+        np.abs(hold) <= HOLD_MARGIN * f_mu_n)
+    seal = np.where(stick, np.clip(hold, -f_mu_n, f_mu_n), f_mu_n * np.sign(v))
     w = 2 * np.pi * freq_hz
     return complex(2.0 / N_QUAD * np.sum(seal * np.exp(-1j * w * t))), float(stick.mean())
 

@@ -54,14 +54,14 @@ def energy_equivalent_damping(params: RigParams, amplitude_m: float, motion: str
     float
         ``integral C(eps) v^2 / integral v^2`` [N.s/m].
     """
+    if motion not in ("x", "y", "circular_forward", "circular_backward"):
+        raise ValueError(f"motion {motion!r} not supported (x, y or circular_*)")
     film = params.film
     c0 = film.eq16_damping_centred(film_viscosity_pa_s(params, temperature_c))
     if not film.eccentricity_law:
         return float(c0)
     if motion.startswith("circular"):
         return float(c0 * eccentricity_factor(amplitude_m / film.clearance_m))
-    if motion not in ("x", "y"):
-        raise ValueError(f"motion {motion!r} not supported (x, y or circular_*)")
     theta = np.linspace(0.0, 2 * np.pi, n_points, endpoint=False)
     eps = np.abs(amplitude_m * np.cos(theta)) / film.clearance_m
     v2 = np.sin(theta) ** 2
