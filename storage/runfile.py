@@ -18,9 +18,11 @@ SWMR forbids creating objects or attributes once it is switched on, so everythin
 the final status and stop time are written after the SWMR session is closed (file reopened r+).
 
 `RunWriter` implements the sweep listener (contract A): ``on_block``, ``on_step``, ``on_event``.
-Blocks are buffered and appended in whole chunks; the file is flushed at every step and event, and
-at least every ``flush_interval_s`` seconds (a background thread covers pauses between blocks), so a
-writer killed mid-run leaves a readable file holding everything up to the last flush.
+``on_block`` only copies the block and hands it to a background I/O thread, which appends whole
+chunks (gzip chunks are shuffled and deflated in a small thread pool, then written directly) and
+flushes at least every ``flush_interval_s`` seconds; every step and event also flushes. A writer
+killed mid-run therefore leaves a readable file holding everything up to the last flush (at most
+about one second lost).
 """
 
 from __future__ import annotations
@@ -234,9 +236,15 @@ class RunWriter:
             raise ValueError(f"kind {kind!r} is not one of {KINDS}")
         if not isinstance(run_id, str) or not run_id:
             raise ValueError(f"run_id must be a non-empty string, got {run_id!r}")
-        if not (isinstance(sample_rate_hz, int | float) and math.isfinite(sample_rate_hz)
-                and sample_rate_hz > 0):
+        try:
+            rate_ok = math.isfinite(float(sample_rate_hz)) and float(sample_rate_hz) > 0
+        except (TypeError, ValueError):
+            rate_ok = False
+        if not rate_ok:
             raise ValueError(f"sample_rate_hz must be a positive number, got {sample_rate_hz!r}")
+        if not flush_interval_s >= 0 or not max_backlog_s > 0:
+            raise ValueError(f"flush_interval_s ({flush_interval_s}) must be >= 0 and "
+                             f"max_backlog_s ({max_backlog_s}) > 0")
         if compression not in ("lzf", "gzip"):
             raise ValueError(f"compression {compression!r} is not 'lzf' or 'gzip'")
         chans: list[dict[str, Any]] = []
@@ -498,7 +506,7 @@ class RunWriter:
                     extra.setdefault("drive_v", {})[name] = reim
         except (TypeError, ValueError, IndexError) as err:
             raise ValueError(f"{self.path}: malformed step dict: {err}") from None
-        text = json.dumps(extra, default=str) if extra else ""
+        text = json.dumps(extra, default=_jsonable) if extra else ""
         if len(text.encode()) > _EXTRA_BYTES:
             text = json.dumps({"_dropped": f"extra keys too long ({len(text)} chars)"})
         row["extra"] = text.encode()
@@ -735,6 +743,13 @@ def _shuffle_deflate(x: np.ndarray) -> bytes:
         np.ascontiguousarray(x, dtype="<f8").view(np.uint8).reshape(-1, 8).T
     )
     return zlib.compress(shuffled.data, 1)
+
+
+def _jsonable(value: Any) -> Any:
+    """numpy scalars and arrays as plain JSON values; anything else as its text."""
+    if isinstance(value, np.ndarray | np.generic):
+        return value.tolist()
+    return str(value)
 
 
 def _float(value: Any) -> float:

@@ -182,8 +182,13 @@ def test_extra_step_keys_and_unknown_harmonics_are_kept(tmp_path: Path) -> None:
     with _make(tmp_path / "e.h5") as w:
         w.on_block(0, np.zeros((4, 10)), np.zeros((2, 10)))
         w.on_step(step)
+        w.on_step({"index": np.int64(1), "freq_hz": np.float64(12.5), "rms_n": np.float64(1.5),
+                   "phases_deg": np.array([1.0, 2.0]), "converged": np.bool_(True)})
     with open_run(tmp_path / "e.h5") as run:
-        assert run.steps == [step]
+        steps = run.steps
+        assert steps[0] == step
+        assert (steps[1]["index"], steps[1]["freq_hz"], steps[1]["converged"]) == (1, 12.5, True)
+        assert (steps[1]["rms_n"], steps[1]["phases_deg"]) == (1.5, [1.0, 2.0])
 
 
 def test_long_texts_are_truncated_not_lost_silently(tmp_path: Path) -> None:
