@@ -301,8 +301,9 @@ def read_csv(path: str | Path, mapping: Mapping[str, str] | None = None,
     dup = sorted({h for h in header if header.count(h) > 1})
     if dup:
         raise ImportDataError(f"{path}, line {first + 1}: duplicate column names {dup}")
-    if len(header) == 1 and header[0].replace(".", "").replace("-", "").isdigit():
-        raise ImportDataError(f"{path}, line {first + 1}: no header row (first cell is a number)")
+    if all(_is_number(h) for h in header):
+        raise ImportDataError(f"{path}, line {first + 1}: no header row (the first line holds "
+                              "numbers); add a header line naming the columns")
     chosen = _select(header, mapping or {}, str(path), "columns")
     for canon, col in chosen.items():
         if col not in header:
@@ -341,6 +342,14 @@ def read_csv(path: str | Path, mapping: Mapping[str, str] | None = None,
     fs = _resolve_fs(fs_hz, fs_found, f"the time column {chosen.get('time_s')!r}", where)
     sources = {c: f"column {col!r}" for c, col in chosen.items()}
     return _finish(columns, fs, scale or {}, sources, "csv", where, name_of, offset)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _cell(line: str, delim: str, j: int) -> str:

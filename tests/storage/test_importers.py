@@ -104,6 +104,7 @@ def test_csv_unused_text_column_is_ignored(tmp_path: Path) -> None:
         ("fx_N,,x_m\n1,2,3\n", r"line 1: column 2 has no name"),
         ("fx_N,x_m,fx_N\n1,2,3\n", r"line 1: duplicate column names \['fx_N'\]"),
         ("a,b\n1,2\n", r"need at least one force .* among columns \['a', 'b'\]"),
+        ("0.5,2e-6,\n1,2,\n", r"line 1: no header row \(the first line holds numbers\)"),
     ],
 )
 def test_csv_errors_name_the_line_and_column(tmp_path: Path, text: str, message: str) -> None:
