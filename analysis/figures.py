@@ -131,17 +131,17 @@ def dry_figures(ident: Identification, out_dir: Path) -> list[Figure]:
                  "Work of the input force and energy dissipated by the combined model "
                  "(cf. Figures 16-17)."))
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
-    f = np.array([p.freq_hz for p in pts])
-    w = 2 * np.pi * f
+    fq = np.array([p.freq_hz for p in pts])
+    w = 2 * np.pi * fq
     imx = np.array([p.im_f_over_x()[0] for p in pts])
     imy = np.array([p.im_f_over_x()[1] for p in pts])
-    axes[0].plot(f, imx / 1e3, "o", ms=3, label="Im(Fx/X)")
-    axes[0].plot(f, imy / 1e3, "s", ms=3, label="Im(Fy/Y)")
-    order = np.argsort(f)
-    axes[0].plot(f[order], dry.c_rv_ns_per_m * w[order] / 1e3, "k-", label="C_rv w")
+    axes[0].plot(fq, imx / 1e3, "o", ms=3, label="Im(Fx/X)")
+    axes[0].plot(fq, imy / 1e3, "s", ms=3, label="Im(Fy/Y)")
+    order = np.argsort(fq)
+    axes[0].plot(fq[order], dry.c_rv_ns_per_m * w[order] / 1e3, "k-", label="C_rv w")
     axes[0].set_ylabel("Im(F/X) [kN/m]")
-    axes[1].plot(f, imx / w, "o", ms=3, label="X")
-    axes[1].plot(f, imy / w, "s", ms=3, label="Y")
+    axes[1].plot(fq, imx / w, "o", ms=3, label="X")
+    axes[1].plot(fq, imy / w, "s", ms=3, label="Y")
     axes[1].axhline(dry.c_rv_ns_per_m, color="k", label="C_rv")
     axes[1].set_ylabel("equivalent damping Im(F/X)/w [N.s/m]")
     for ax in axes:
@@ -192,13 +192,13 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for (axis, _), ps in sorted(groups.items()):
         ps = sorted(ps, key=lambda p: p.freq_hz)
-        f = [p.freq_hz for p in ps]
+        freqs = [p.freq_hz for p in ps]
         amp = np.mean([p.amplitude_m for p in ps]) * UM
-        axes[0].errorbar(f, [p.c_t / 1e3 for p in ps], [p.u_c_t / 1e3 for p in ps], fmt="o-",
-                         ms=3, capsize=2, label=f"C_t{axis} {amp:.0f} um")
-        axes[1].errorbar(f, [p.c_sfd / 1e3 for p in ps], [p.u_c_sfd / 1e3 for p in ps],
+        axes[0].errorbar(freqs, [p.c_t / 1e3 for p in ps], [p.u_c_t / 1e3 for p in ps],
+                         fmt="o-", ms=3, capsize=2, label=f"C_t{axis} {amp:.0f} um")
+        axes[1].errorbar(freqs, [p.c_sfd / 1e3 for p in ps], [p.u_c_sfd / 1e3 for p in ps],
                          fmt="o-", ms=3, capsize=2, label=f"C_{axis}{axis} {amp:.0f} um (eq. 9)")
-        axes[1].errorbar(f, [p.c_sfd_ss / 1e3 for p in ps], [p.u_c_sfd_ss / 1e3 for p in ps],
+        axes[1].errorbar(freqs, [p.c_sfd_ss / 1e3 for p in ps], [p.u_c_sfd_ss / 1e3 for p in ps],
                          fmt="x--", ms=4, capsize=2,
                          label=f"C_{axis}{axis} {amp:.0f} um (stick-slip)")
     preds = ident.predictions()
@@ -218,13 +218,13 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
     by_f: dict[tuple[str, float], list] = defaultdict(list)
     for p in lub.points:
         by_f[(p.axis, p.freq_hz)].append(p)
-    for (axis, f), ps in sorted(by_f.items()):
+    for (axis, f_hz), ps in sorted(by_f.items()):
         ps = sorted(ps, key=lambda p: p.amplitude_m)
         a = [p.amplitude_m * UM for p in ps]
         axes[0].errorbar(a, [p.c_t / 1e3 for p in ps], [p.u_c_t / 1e3 for p in ps], fmt="o-",
-                         ms=3, capsize=2, label=f"C_t{axis} {f:g} Hz")
+                         ms=3, capsize=2, label=f"C_t{axis} {f_hz:g} Hz")
         axes[1].errorbar(a, [p.c_sfd / 1e3 for p in ps], [p.u_c_sfd / 1e3 for p in ps],
-                         fmt="o-", ms=3, capsize=2, label=f"C_{axis}{axis} {f:g} Hz")
+                         fmt="o-", ms=3, capsize=2, label=f"C_{axis}{axis} {f_hz:g} Hz")
     rows = preds["by_amplitude"]
     if rows:
         a = [r["amplitude_m"] * UM for r in rows]
@@ -312,14 +312,14 @@ def structure_figures(ident: Identification, out_dir: Path) -> list[Figure]:
                      "Deflection against static load (cf. Figure 6, Table 2)."))
     for imp in ident.impact:
         fig, axes = plt.subplots(2, 1, figsize=(6, 5), sharex=True)
-        f = np.array(imp.freq_hz)
+        fi = np.array(imp.freq_hz)
         h = np.array([complex(a, b) for a, b in imp.frf_m_per_n])
-        hm = imp.model(f)
-        axes[0].semilogy(f, np.abs(h) * UM, ".", ms=3, label="test")
-        axes[0].semilogy(f, np.abs(hm) * UM, "-", label=f"fit, R2 = {imp.r2:.3f}")
+        hm = imp.model(fi)
+        axes[0].semilogy(fi, np.abs(h) * UM, ".", ms=3, label="test")
+        axes[0].semilogy(fi, np.abs(hm) * UM, "-", label=f"fit, R2 = {imp.r2:.3f}")
         axes[0].set_ylabel("|X/F| [um/N]")
-        axes[1].plot(f, np.degrees(np.angle(h)), ".", ms=3)
-        axes[1].plot(f, np.degrees(np.angle(hm)), "-")
+        axes[1].plot(fi, np.degrees(np.angle(h)), ".", ms=3)
+        axes[1].plot(fi, np.degrees(np.angle(hm)), "-")
         axes[1].set_ylabel("phase [deg]")
         axes[1].set_xlabel("frequency [Hz]")
         _legend(axes[0], 7)

@@ -221,7 +221,7 @@ def _waterfall(run: RunData, dwells: list[Dwell]) -> dict[str, Any]:
     for name in ("fx", "fy", "x", "y", "ax", "ay"):
         if not run.has_signal(name):
             continue
-        rows = []
+        rows: list[tuple[np.ndarray, np.ndarray] | None] = []
         for d in dwells:
             if name not in d.harmonics:
                 rows.append(None)
@@ -422,7 +422,7 @@ def write_results(ident: Identification) -> list[Skipped]:
                 dry = share.get("dry")
                 if dry and dry["points"]:
                     cols = ("freq_hz", "work_J", "dissipated_J", "C_eq_x_Ns_per_m",
-                            "C_eq_y_Ns_per_m")
+                            "C_eq_y_Ns_per_m", "Im_Fx_over_X_N_per_m", "Im_Fy_over_Y_N_per_m")
                     arr = np.array([[p[c] if p[c] is not None else np.nan for c in cols]
                                     for p in dry["points"]])
                     ds = g.create_dataset("dry_points", data=arr)

@@ -299,7 +299,7 @@ def sfd_summary(axis: str, pts: list[LubPoint]) -> dict[str, Any]:
         u_prop = float(np.sqrt(np.mean(np.square(us))) / np.sqrt(len(pts)))
         out[method] = {
             "C_sfd_mean_Ns_per_m": float(c.mean()),
-            "U_C_sfd_Ns_per_m": combine(u_prop, scatter_u95(c)),
+            "U_C_sfd_Ns_per_m": combine(u_prop, scatter_u95(c.tolist())),
             "dC_sfd_df_Ns_per_m_per_Hz": float(np.polyfit(f, c, 1)[0]) if np.ptp(f) > 0
             else None,
             "C_sfd_rel_spread": float(np.ptp(c) / abs(c.mean())) if c.mean() else None,

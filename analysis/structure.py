@@ -48,7 +48,8 @@ def _span_mean(run: RunData, name: str, step: dict[str, Any], analysis: str,
             skipped.append(Skipped(run_label(run), analysis, f"channel {name!r} is not in the "
                                    f"run (channels {run.channel_names})", idx, name))
             return None
-        data = run.channel(name, first, last)
+        data: np.ndarray | None = run.channel(name, first, last)
+        assert data is not None
         if not np.all(np.isfinite(data)):
             skipped.append(Skipped(run_label(run), analysis,
                                    f"{int((~np.isfinite(data)).sum())} NaN sample(s)", idx, name))
@@ -192,8 +193,8 @@ def identify_impact(run: RunData, skipped: list[Skipped],
     fits = []
     for axis, strikes in sorted(by_axis.items()):
         n = min(len(f) for f, _ in strikes)
-        sxf = 0.0
-        sff = 0.0
+        sxf: np.ndarray = np.zeros(n // 2 + 1, complex)
+        sff: np.ndarray = np.zeros(n // 2 + 1)
         for f, d in strikes:
             f0 = f[:n] - np.median(f[:n])
             d0 = d[:n] - np.mean(d[: max(n // 50, 2)])  # pre-strike level
@@ -355,7 +356,7 @@ def identify_flow(run: RunData, skipped: list[Skipped], params: RigParams) -> Fl
         muc = film.viscosity_pa_s(t)
         q5_1 = film.eq5_flow_m3_per_s(dp, mu1) if dp > 0 else float("nan")
         q5_c = film.eq5_flow_m3_per_s(dp, muc) if dp > 0 else float("nan")
-        u_q = combine(q * U_FLOWMETER_REL, scatter_u95(arr[:, 2]))
+        u_q = combine(q * U_FLOWMETER_REL, scatter_u95(arr[:, 2].tolist()))
         pts.append({"supply_pressure_pa": key, "p_in_pa": float(arr[:, 0].mean()),
                     "p_rec_pa": float(arr[:, 1].mean()), "dp_pa": dp, "U_dp_pa":
                     math.sqrt(2) * U_PRESSURE_PA, "q_m3_per_s": q, "q_l_per_min": q * 60_000,

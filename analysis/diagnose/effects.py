@@ -222,7 +222,8 @@ def _second_mode(ctx: Context, m: Model) -> list[Variant]:
     f_lo, f_hi = 0.3 * ctx.f_typ_hz, min(3.0 * ctx.f_typ_hz, fs / 4)
     starts = []
     for f in np.geomspace(f_lo, f_hi, 9):
-        starts.append(pm.set(pf.set(m, float(f)), mass0))
+        for mass in (mass0, 4 * mass0):
+            starts.append(pm.set(pf.set(m, float(f)), mass))
     return [Variant({}, [pf, pm], starts)]
 
 
