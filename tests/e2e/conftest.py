@@ -45,8 +45,11 @@ def start_daemon(runs_dir: Path, *extra: str, fast: bool = True,
     cmd = [sys.executable, "-m", "sfdrig", "daemon", "--runs-dir", str(runs_dir), *extra]
     if fast:
         cmd.append("--fast")
-    proc = subprocess.Popen(cmd, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    stderr = open(runs_dir.parent / f"{runs_dir.name}.stderr", "w")  # noqa: SIM115
+    proc = subprocess.Popen(cmd, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=stderr,
                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    stderr.close()  # the child holds its own copy
     sel = selectors.DefaultSelector()
     sel.register(proc.stdout, selectors.EVENT_READ)  # type: ignore[arg-type]
     try:
@@ -59,7 +62,8 @@ def start_daemon(runs_dir: Path, *extra: str, fast: bool = True,
         sel.close()
     if not line.startswith("command="):
         proc.kill()
-        _, err = proc.communicate(timeout=10)
+        proc.communicate(timeout=10)
+        err = (runs_dir.parent / f"{runs_dir.name}.stderr").read_text()
         raise RuntimeError(f"daemon did not start: {line!r}\n{err}")
     fields = dict(part.split("=", 1) for part in line.split())
     return DaemonProcess(proc, fields["command"], fields["data"], runs_dir)
@@ -79,3 +83,6 @@ def daemon_factory(tmp_path: Path) -> Iterator:
         if d.proc.poll() is None:
             d.terminate()
         d.proc.communicate(timeout=10)
+        err = (d.runs_dir.parent / f"{d.runs_dir.name}.stderr").read_text()
+        if err:
+            print(f"--- daemon stderr ({d.runs_dir.name}) ---\n{err}")

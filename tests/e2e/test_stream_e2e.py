@@ -17,8 +17,10 @@ pytestmark = pytest.mark.e2e
 
 DRY_X = {"motion": "x", "load_n": [40.0], "freq_hz": [30.0, 50.0], "settle_cycles": 5,
          "record_cycles": 10}
+# Paced runs on a shared, loaded test machine: the most AO lead the 100 ms budget allows.
 LONG_X = {"motion": "x", "load_n": [40.0], "freq_hz": [30.0, 35.0, 40.0, 45.0, 50.0, 55.0],
-          "settle_cycles": 20, "record_cycles": 100}
+          "settle_cycles": 20, "record_cycles": 100,
+          "control": {"block_s": 0.0125, "ahead_blocks": 3}}
 
 
 def collect_run(sub: Subscriber, run_id: str, timeout_s: float = 60.0):
@@ -83,6 +85,8 @@ def test_kill_9_mid_run_leaves_a_file_with_every_flushed_block(daemon_factory):
                 blocks.append(msg)
             elif msg.topic == "step":
                 step = msg.header["step"]
+            elif msg.topic == "event" and msg.header["message"].startswith(f"run {run_id} "):
+                pytest.fail(f"the run ended before a step: {msg.header['message']}")
         d.proc.kill()
         d.proc.wait(10)
         while (msg := sub.recv(timeout_s=0.5)) is not None:  # what was in flight
@@ -101,13 +105,15 @@ def test_kill_9_mid_run_leaves_a_file_with_every_flushed_block(daemon_factory):
 def test_sigterm_mid_sweep_zeroes_the_drives_within_100_ms(daemon_factory):
     d = daemon_factory(fast=False)
     with CommandClient(d.command, timeout_s=10) as c, \
-            Subscriber(d.data, topics=["block"], rcvhwm=0) as sub:
+            Subscriber(d.data, topics=["block", "event"], rcvhwm=0) as sub:
         sub.wait_connected()
         reply = c.start_sweep(LONG_X)
         n_ai = None
         while True:  # wait until the shaker is really being driven
             msg = sub.recv(timeout_s=60)
             assert msg is not None
+            if msg.topic == "event" and msg.header["message"].startswith("run "):
+                pytest.fail(f"the run ended early: {msg.header['message']}")
             if msg.topic == "block":
                 n_ai = msg.header["n_ai"]
                 if np.abs(msg.array[n_ai:]).max() > 0.05:
@@ -122,7 +128,6 @@ def test_sigterm_mid_sweep_zeroes_the_drives_within_100_ms(daemon_factory):
         s0 = aborts[0]["sample"]
         limit = s0 + int(0.100 * run.sample_rate_hz)
         assert run.n_samples > limit, "the file must hold the ramp-down"
+        assert np.abs(run.channel("shaker_x", 0, s0)).max() > 0.05, "never driven"
         for name in run.drive_names:
-            drive = run.channel(name)
-            assert np.abs(drive[:s0]).max() > 0.05, f"{name} was never driven"
-            np.testing.assert_array_equal(drive[limit:], 0.0, err_msg=name)
+            np.testing.assert_array_equal(run.channel(name, limit), 0.0, err_msg=name)
