@@ -25,7 +25,7 @@ from control.controller import (
     ProportionalController,
 )
 from control.errors import OpenLoopError
-from control.lockin import LockIn, cycles_to_samples
+from control.lockin import LockIn, LockInAccumulator, cycles_to_samples
 from control.plan import StepPlan
 from control.safety import AxisSignals, SafetyLimits
 from control.spec import SweepSpec
@@ -69,6 +69,7 @@ class StepResult:
     ao_names: list[str]
     start_sample: int = 0
     assessment: Assessment | None = field(default=None, repr=False)
+    controlled: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe dict in the layout of contract A."""
@@ -278,11 +279,8 @@ class StepRunner:
                                 self._remember(plan, result, ctl)
                             return result
                         # drifted out during the recording: correct and go round again
-                        rec_ctrl = self.lockin.fundamental(
-                            self.signals.controlled(
-                                self.stream.window(result.first_sample, result.last_sample)[0],
-                                plan.target_kind),
-                            result.first_sample, f)
+                        rec_ctrl = result.controlled
+                        assert rec_ctrl is not None
                         change_end, next_free = self._correct(
                             ctl, self._axis_drive(synth.to_absolute(synth.phasors)), rec_ctrl)
                         updates += 1
@@ -313,28 +311,42 @@ class StepRunner:
 
     def _record(self, plan: StepPlan, ctl: AmplitudeController, first: int, updates: int,
                 start_sample: int) -> StepResult:
-        last = first + cycles_to_samples(plan.freq_hz, self.fs, self.spec.record_cycles)
-        self.stream.advance_to(last)
-        ai, ao = self.stream.window(first, last)
-        harm, _ = self.lockin.demodulate(ai, first, plan.freq_hz)
-        drive_rows = self.lockin.fundamental(ao, first, plan.freq_hz)
-        ctrl = self.lockin.fundamental(
-            self.signals.controlled(ai, plan.target_kind), first, plan.freq_hz)
+        """Record ``record_cycles`` whole cycles from ``first``, demodulated as they arrive."""
+        f = plan.freq_hz
+        last = first + cycles_to_samples(f, self.fs, self.spec.record_cycles)
+        n_ai = len(self.cm.ai)
+        acc = LockInAccumulator(self.fs, f, first, last, n_ai + 4 + len(self.cm.ao))
+        sig = self.signals
+
+        def feed(b0: int, ai: np.ndarray, ao: np.ndarray) -> None:
+            acc.add(b0, np.vstack([ai, sig.displacement(ai), sig.load(ai), ao]))
+
+        if self.stream.sample > first:  # the start of the window is already in
+            ai, ao = self.stream.window(first, min(self.stream.sample, last))
+            feed(first, ai, ao)
+        self.stream.taps.append(feed)
+        try:
+            self.stream.advance_to(last)
+        finally:
+            self.stream.taps.remove(feed)
+        harm, _, sigma = acc.result()
+        disp, load = harm[n_ai:n_ai + 2, 0], harm[n_ai + 2:n_ai + 4, 0]
+        ctrl, other = (disp, load) if plan.target_kind == "displacement" else (load, disp)
+        s_other = (sigma[n_ai:n_ai + 2] if plan.target_kind == "load"
+                   else sigma[n_ai + 2:n_ai + 4])
         assess = ctl.assess(ctrl)
         reason = "" if assess.within else (
             f"recorded response outside the tolerance ({assess.describe()})")
-        other_kind = "load" if plan.target_kind == "displacement" else "displacement"
         act = np.abs(plan.shape) > 0
-        z, sigma = self.lockin.fundamental_with_error(
-            self.signals.controlled(ai, other_kind), first, plan.freq_hz)
-        rel = sigma[act] / np.maximum(np.abs(z[act]), 1e-300)
+        rel = s_other[act] / np.maximum(np.abs(other[act]), 1e-300)
         if np.max(rel) > 0.02:
+            other_kind = "load" if plan.target_kind == "displacement" else "displacement"
             self.emit("warning", f"{plan.describe()}: the {other_kind} is not periodic (its 1X "
                       f"is uncertain by {100 * np.max(rel):.1f} % over the recording: stick-slip "
                       "or a transient)", last)
         return StepResult(
-            plan, first, last, updates, assess.within, reason, harm, drive_rows,
-            self.cm.ai_names, self.cm.ao_names, start_sample, assess,
+            plan, first, last, updates, assess.within, reason, harm[:n_ai], harm[n_ai + 4:, 0],
+            self.cm.ai_names, self.cm.ao_names, start_sample, assess, ctrl,
         )
 
     def _failed(self, plan: StepPlan, first: int, last: int, updates: int, start_sample: int,
@@ -346,10 +358,7 @@ class StepRunner:
                           self.cm.ai_names, self.cm.ao_names, start_sample, assess)
 
     def _remember(self, plan: StepPlan, result: StepResult, ctl: AmplitudeController) -> None:
-        ai, _ = self.stream.window(result.first_sample, result.last_sample)
-        ctrl = self.lockin.fundamental(
-            self.signals.controlled(ai, plan.target_kind), result.first_sample, plan.freq_hz)
+        assert result.controlled is not None
         drive = self._axis_drive(result.drive_v)
-        self.predictor.remember(plan.freq_hz, plan.shape, ctrl, drive, ctl.jacobian)
+        self.predictor.remember(plan.freq_hz, plan.shape, result.controlled, drive, ctl.jacobian)
         self._last_drive, self._last_jacobian = drive, ctl.jacobian.copy()
-

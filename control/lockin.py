@@ -47,37 +47,48 @@ class LockIn:
             raise ValueError(f"n_harmonics must be >= 1, got {n_harmonics}")
         self.fs = float(sample_rate_hz)
         self.n_harmonics = n_harmonics
-        self._cache: OrderedDict[tuple[float, int], tuple[np.ndarray, np.ndarray]] = OrderedDict()
-
-    def _projector(self, freq_hz: float, n: int) -> np.ndarray:
-        """Pseudo-inverse of the local basis [1, cos(h w k), sin(h w k)], shape (1 + 2H, n)."""
-        return self._fit_matrices(freq_hz, n)[0]
+        self._cache: OrderedDict[tuple[float, int], tuple[np.ndarray, np.ndarray]] = (
+            OrderedDict())
 
     def _fit_matrices(self, freq_hz: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """(pseudo-inverse (1 + 2H, n), basis (n, 1 + 2H)) for a window of n samples."""
+        """(basis (n, 1 + 2H), inverse Gram matrix (1 + 2H, 1 + 2H)) for a window of n samples.
+
+        Basis columns: 1, cos(h w k), sin(h w k) for h = 1..H, k = 0..n-1 (local time); a
+        harmonic at or above Nyquist gets zero columns and is not fitted.
+        """
         key = (float(freq_hz), int(n))
         hit = self._cache.get(key)
         if hit is not None:
             self._cache.move_to_end(key)
             return hit
         h_max = self.n_harmonics
-        nyquist_h = self.fs / 2 / freq_hz
         if n < 1 + 2 * h_max:
             raise ValueError(f"window of {n} samples is too short to fit {h_max} harmonics")
-        k = np.arange(n)
-        cols = [np.ones(n)]
+        nyquist_h = self.fs / 2 / freq_hz
+        # powers of one complex exponential: cheaper than 2H trigonometric evaluations
+        e1 = np.exp(2j * np.pi * (freq_hz / self.fs) * np.arange(n))
+        basis = np.zeros((n, 1 + 2 * h_max))
+        basis[:, 0] = 1.0
+        eh = e1.copy()
         for h in range(1, h_max + 1):
-            ph = 2 * np.pi * h * freq_hz * k / self.fs
             if h < nyquist_h:
-                cols += [np.cos(ph), np.sin(ph)]
-            else:  # at or above Nyquist the harmonic cannot be told apart: fit nothing for it
-                cols += [np.zeros(n), np.zeros(n)]
-        basis = np.stack(cols, axis=1)
-        proj = np.linalg.pinv(basis)
-        self._cache[key] = (proj, basis)
-        if len(self._cache) > 64:
+                basis[:, 2 * h - 1] = eh.real
+                basis[:, 2 * h] = eh.imag
+            eh *= e1
+        # normal equations: over whole cycles the columns are nearly orthogonal, so the small
+        # Gram matrix is well conditioned
+        gram = basis.T @ basis
+        active = np.diag(gram) > 0
+        ginv = np.zeros_like(gram)
+        ginv[np.ix_(active, active)] = np.linalg.inv(gram[np.ix_(active, active)])
+        self._cache[key] = (basis, ginv)
+        if len(self._cache) > 32:
             self._cache.popitem(last=False)
-        return proj, basis
+        return basis, ginv
+
+    def _coefficients(self, x2: np.ndarray, freq_hz: float) -> tuple[np.ndarray, np.ndarray]:
+        basis, ginv = self._fit_matrices(freq_hz, x2.shape[1])
+        return (x2 @ basis) @ ginv, basis
 
     def demodulate(
         self, block: np.ndarray, first_sample: int, freq_hz: float
@@ -103,8 +114,7 @@ class LockIn:
         x = np.asarray(block, dtype=np.float64)
         one_d = x.ndim == 1
         x2 = x[None, :] if one_d else x
-        n = x2.shape[1]
-        coef = x2 @ self._projector(freq_hz, n).T  # (n_ch, 1 + 2H)
+        coef, _ = self._coefficients(x2, freq_hz)  # (n_ch, 1 + 2H)
         c = coef[:, 1::2]
         s = coef[:, 2::2]
         local = c - 1j * s
@@ -126,11 +136,13 @@ class LockIn:
         """
         x = np.asarray(block, dtype=np.float64)
         n = x.shape[1]
-        proj, basis = self._fit_matrices(freq_hz, n)
-        coef = x @ proj.T
-        resid = x - coef @ basis.T
+        basis, ginv = self._fit_matrices(freq_hz, n)
+        bx = x @ basis
+        coef = bx @ ginv
+        # |x - B c|^2 = |x|^2 - (B'x)' c for the least-squares c: no residual array needed
+        ss = np.maximum(np.einsum("ij,ij->i", x, x) - np.einsum("ij,ij->i", bx, coef), 0.0)
         dof = max(n - basis.shape[1], 1)
-        sigma = np.sqrt(np.sum(resid * resid, axis=1) / dof) * np.sqrt(2.0 / n)
+        sigma = np.sqrt(ss / dof) * np.sqrt(2.0 / n)
         frac = math.fmod(freq_hz * first_sample / self.fs, 1.0)
         z = (coef[:, 1] - 1j * coef[:, 2]) * np.exp(-2j * np.pi * frac)
         return z, sigma
@@ -151,3 +163,85 @@ def relative_change(previous: np.ndarray, current: np.ndarray, scale: np.ndarray
     cur = np.atleast_1d(np.asarray(current, dtype=np.complex128))
     sc = np.atleast_1d(np.asarray(scale, dtype=np.float64))
     return float(np.max(np.abs(cur - prev) / sc))
+
+
+class LockInAccumulator:
+    """The same least-squares lock-in, accumulated block by block as the samples arrive.
+
+    A tracking filter for long records: each block adds its share of ``B'x``, ``B'B`` and
+    ``x'x`` (B the basis in the run's absolute time), so no work piles up at the end of the
+    window, which matters when the acquisition loop runs against the clock.
+
+    Parameters
+    ----------
+    sample_rate_hz : float
+    freq_hz : float
+        Fundamental [Hz].
+    first, last : int
+        Half-open window of run samples to accumulate.
+    n_rows : int
+        Rows (signals) per block.
+    n_harmonics : int
+    """
+
+    def __init__(self, sample_rate_hz: float, freq_hz: float, first: int, last: int,
+                 n_rows: int, n_harmonics: int = N_HARMONICS) -> None:
+        if last <= first:
+            raise ValueError(f"empty window [{first}, {last})")
+        self.fs = float(sample_rate_hz)
+        self.freq_hz = float(freq_hz)
+        self.first, self.last = int(first), int(last)
+        self.n_harmonics = n_harmonics
+        m = 1 + 2 * n_harmonics
+        self._bx = np.zeros((n_rows, m))
+        self._bb = np.zeros((m, m))
+        self._xx = np.zeros(n_rows)
+        self._next = self.first  # next sample expected
+        self._fitted = np.array(
+            [True] + [h < self.fs / 2 / self.freq_hz
+                      for h in range(1, n_harmonics + 1) for _ in (0, 1)]
+        )
+
+    @property
+    def complete(self) -> bool:
+        return self._next >= self.last
+
+    def add(self, first_sample: int, block: np.ndarray) -> None:
+        """Add the part of ``block`` (n_rows, n) that falls in the window; contiguous order."""
+        n = block.shape[1]
+        lo = max(self._next, first_sample)
+        hi = min(self.last, first_sample + n)
+        if hi <= lo:
+            return
+        if lo != self._next:
+            raise ValueError(f"gap: expected sample {self._next}, got {lo}")
+        x = block[:, lo - first_sample:hi - first_sample]
+        ratio = self.freq_hz / self.fs
+        phase0 = math.fmod(ratio * lo, 1.0)
+        e1 = np.exp(2j * np.pi * (phase0 + ratio * np.arange(hi - lo)))
+        basis = np.zeros((hi - lo, 1 + 2 * self.n_harmonics))
+        basis[:, 0] = 1.0
+        eh = e1.copy()
+        for h in range(1, self.n_harmonics + 1):
+            basis[:, 2 * h - 1] = eh.real
+            basis[:, 2 * h] = eh.imag
+            eh *= e1
+        basis[:, ~self._fitted] = 0.0
+        self._bx += x @ basis
+        self._bb += basis.T @ basis
+        self._xx += np.einsum("ij,ij->i", x, x)
+        self._next = hi
+
+    def result(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(harmonics (n_rows, H) complex, mean (n_rows,), standard error of 1X (n_rows,))."""
+        if not self.complete:
+            raise ValueError(f"window incomplete: have up to {self._next}, need {self.last}")
+        act = self._fitted
+        ginv = np.zeros_like(self._bb)
+        ginv[np.ix_(act, act)] = np.linalg.inv(self._bb[np.ix_(act, act)])
+        coef = self._bx @ ginv
+        harm = coef[:, 1::2] - 1j * coef[:, 2::2]
+        n = self.last - self.first
+        ss = np.maximum(self._xx - np.einsum("ij,ij->i", self._bx, coef), 0.0)
+        sigma = np.sqrt(ss / max(n - int(act.sum()), 1)) * np.sqrt(2.0 / n)
+        return harm, coef[:, 0], sigma

@@ -73,7 +73,9 @@ class ControlSettings(BaseModel):
                           "(else from the previous step's drive)",
     )
     block_s: float = Field(0.01, ge=0.001, le=0.02, description="AO/AI block length [s]")
-    ahead_blocks: int = Field(1, ge=1, le=3, description="AO blocks written ahead")
+    ahead_blocks: int = Field(
+        3, ge=1, le=5, description="AO blocks written ahead of the generation (slack for the "
+                                   "loop; block_s x (1 + ahead_blocks) + fade_s <= 100 ms)")
 
 
 class SweepSpec(BaseModel):

@@ -88,6 +88,8 @@ class DriveStream:
         self.interrupt = interrupt
         self.sample = 0  # next AI sample to be read (= samples read so far)
         self.check_limits = True
+        #: called with (first_sample, ai, ao) for every block read, e.g. lock-in accumulators
+        self.taps: list[Callable[[int, np.ndarray, np.ndarray], None]] = []
         self._fifo: deque[np.ndarray] = deque()
         self._hist: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
         self._hist_len = 0
@@ -137,6 +139,8 @@ class DriveStream:
         while self._hist_len - self._hist[0][1].shape[1] >= self.keep:
             old = self._hist.popleft()
             self._hist_len -= old[1].shape[1]
+        for tap in list(self.taps):
+            tap(first, eng, ao)
         self.listener.on_block(first, eng, ao)
         if check:
             self.monitor.check_ai(eng, first)

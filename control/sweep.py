@@ -277,6 +277,7 @@ class SweepEngine:
         block = max(1, int(round(cfg.block_s * fs)))
         keep = int(fs * (self.spec.record_cycles + cfg.window_cycles + 2) / min(
             p.freq_hz for p in self.plan)) + 4 * block
+        np.linalg.solve(np.eye(2), np.ones(2))  # load LAPACK now, not in the first step
         synth = SineSynthesizer(len(cm.ao), fs)
         stream = DriveStream(
             self.backend, synth, SafetyMonitor(self.limits, cm), self.listener, block,
