@@ -61,6 +61,9 @@ def test_csv_canonical_columns_with_time_and_dwells(tmp_path: Path) -> None:
             (5.0, 0, 20), (7.5, 20, 40)]
         assert steps[0]["target_kind"] == "" and math.isnan(steps[0]["target_value"])
         spec = run.test_spec
+        plain = tmp_path / "plain"
+        plain.write_text("")
+        assert out.stat().st_mode & 0o777 == plain.stat().st_mode & 0o777  # umask, not 0600
         assert spec["source_format"] == "csv"
         assert spec["source_sha256"] == hashlib.sha256(src.read_bytes()).hexdigest()
         assert spec["signals"]["fx_N"] == "column 'fx_N'"
