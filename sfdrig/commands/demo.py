@@ -1,7 +1,8 @@
 """`sfdrig demo`: the whole chain on the simulated rig, as an operator would run it.
 
 Starts a daemon on the simulated rig as a real subprocess (fast mode), runs a dry circular-orbit
-load sweep (40 N, 20-200 Hz), switches the pump on, runs a lubricated unidirectional X sweep
+load sweep (40 N, 20-200 Hz, without the band around the dry resonance where 40 N exceeds the
+displacement limit), switches the pump on, runs a lubricated unidirectional X sweep
 (20-60 Hz in 10 Hz steps at 13 and 38 um), stores both runs, prints a summary table, and, when the
 analysis package provides it, writes the identification report. The daemon is then stopped with
 SIGTERM (the safe shutdown).
@@ -26,10 +27,14 @@ from sfdrig.commands.sweep import UM, achieved, follow
 NAME = "demo"
 HELP = "run a dry and a lubricated sweep on the simulated rig, store them, summarise, report"
 
+# Dry, a 40 N circular orbit drives the simulated rig past the default displacement limit (50 %
+# of the 127 um clearance) from about 25 to 65 Hz: the dry resonance is at 45 Hz and only the
+# seal's 26 N friction and C_rv = 370 N.s/m resist (134 um at resonance by energy balance). Those
+# frequencies are left out rather than tripping the sweep.
 DRY_SWEEP: dict[str, Any] = {
-    "name": "demo: dry circular orbit, 40 N",
+    "name": "demo: dry circular orbit, 40 N (20 Hz and 70-200 Hz)",
     "motion": "circular_forward", "lubricated": False, "load_n": [40.0],
-    "freq_start_hz": 20.0, "freq_stop_hz": 200.0, "freq_step_hz": 20.0,
+    "freq_hz": [20.0, *[float(f) for f in range(70, 201, 10)]],
 }
 LUBRICATED_SWEEP: dict[str, Any] = {
     "name": "demo: lubricated unidirectional X, 13 and 38 um",
