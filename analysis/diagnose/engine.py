@@ -3,15 +3,16 @@
 Procedure
 ---------
 1. Baseline. ``config``: the rig configuration as it stands. ``fitted``: mass, damping and
-   stiffness per axis (and, for imported data, the force offset) fitted to the training data by
-   output error, starting (imported data) from an equation-error ARX estimate.
+   stiffness per axis fitted to the training data by output error (each response channel's
+   offset in closed form), starting (imported data) from an equation-error ARX estimate.
 2. Round after round (at most ``max_effects``): every applicable effect of the library not yet
    found is fitted on the training segments (its own parameters, the rest held), judged on the
    held-out segments by RMS error and by the criterion ``N ln(MSE_held_out) + k ln(N)`` (N
    held-out residual samples, k fitted parameters), lowest first; the two best are refitted
    jointly with the baseline's own parameters (fitted baseline) and the earlier findings, and
-   re-ranked. From the second round on, only effects that reduced the held-out error by at least
-   0.5 % in the previous round are tried again. The best is a finding only if it is significant:
+   re-ranked. (An effect that explains nothing alone may matter next to another: a quadratic
+   spring beside a cubic one, so every round tries every effect.) The best is a finding only if
+   it is significant:
    its criterion beats the current model's, its held-out gain (RMS before / after) is at least
    ``min_gain``, and the lower end of the bootstrap interval of the gain (held-out segments
    resampled with replacement, seeded) exceeds ``min_gain_lo``. Samples of one segment are
@@ -27,7 +28,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -139,11 +140,8 @@ def baseline_params(model: Model, records: list[RunRecord], imported: bool) -> l
     if any(1 in r.axes for r in records):
         ps.append(rig_param("stiffness_y_N_per_m", "structure.stiffness_y_n_per_m",
                             0.02 * st.stiffness_y_n_per_m, 1e-3 * st.stiffness_y_n_per_m))
-    if imported:
-        f_rms = float(np.sqrt(np.mean(np.concatenate([r.force_n[0] for r in records]) ** 2)))
-        ps.append(Param("force_offset_N", lambda m: m.force_offset_n[0],
-                        lambda m, v: replace(m, force_offset_n=(float(v), m.force_offset_n[1])),
-                        0.01 * f_rms))
+    # Offsets: each response channel's offset is fitted in closed form (model.residuals); a
+    # force offset would be redundant with it for a linear structure (and ill-conditioned).
     return ps
 
 
@@ -268,12 +266,11 @@ def diagnose(
     bparams: dict[str, float] = {}
     if kind == "fitted":
         if imported:
-            m_kg, c, k, f_off = arx_linear_guess(records[0], fit_train)
+            m_kg, c, k, _ = arx_linear_guess(records[0], fit_train)
             st = base_rig.structure.model_copy(update={
                 "mass_kg": m_kg, "residual_damping_ns_per_m": c,
                 "stiffness_x_n_per_m": k, "stiffness_y_n_per_m": k})
-            model = Model(rig=base_rig.model_copy(update={"structure": st}),
-                          force_offset_n=(f_off, 0.0))
+            model = Model(rig=base_rig.model_copy(update={"structure": st}))
         free = baseline_params(model, records, imported)
         say(f"fitting the linear baseline ({', '.join(p.name for p in free)})")
         model = fit(ev, [model], free, fit_train, scale_m, max_nfev=60, step=step).model
@@ -298,14 +295,11 @@ def diagnose(
     rounds: list[list[dict[str, Any]]] = []
     current, cur_test = model, base_test
     cur_crit, _ = _criterion(cur_test, test, len(free))
-    prev_gain: dict[str, float] = {}
     for _round in range(max_effects):
         cands: list[Candidate] = []
         for eff in lib:
             if any(f.effect == eff.id for f in findings):
                 continue
-            if rounds and prev_gain.get(eff.id, 0.0) < 1.005:
-                continue  # explained nothing alone in the previous round
             t0 = time.process_time()
             best: tuple[FitResult, Variant] | None = None
             for var in eff.variants(ctx, current):
@@ -327,14 +321,14 @@ def diagnose(
             # parameters, and re-ranked
             for i in range(min(2, len(cands))):
                 c = cands[i]
+                k_joint = len(free) + len(c.variant.params)
                 res = fit(ev, [c.fit.model], free + c.variant.params, fit_train, scale_m,
-                          step=step)
+                          max_nfev=20 * (k_joint + 1), step=step)
                 if res.train_sse <= c.fit.train_sse:
                     cands[i] = _judge(ev, c.effect, c.variant, res, fit_train, test, len(free))
                 say(f"  joint refit {c.effect:16s} held-out {cands[i].test_rms:.4g}")
             cands.sort(key=lambda c: c.criterion)
         before = cur_test.rms()
-        prev_gain = {c.effect: before / c.test_rms for c in cands}
         rounds.append([{
             "effect": c.effect, "parameters": parameters_of(c.variant, c.fit.model),
             "held_out_error": c.test_rms, "gain": before / c.test_rms, "criterion": c.criterion,

@@ -129,11 +129,12 @@ def arx_linear_guess(rec: RunRecord, segs: list[Segment]) -> tuple[float, float,
 
 
 def levenberg_marquardt(fun, u0: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_nfev: int,
-                        h: float = 1e-3) -> tuple[np.ndarray, int]:
+                        h: float = 1e-3, max_step: float = 5.0) -> tuple[np.ndarray, int]:
     """Minimise ``|fun(u)|^2`` over the box ``lo <= u <= hi``; return (u, evaluations).
 
     Forward differences of step ``h`` (backward at an upper bound); damping ``lam`` on the
-    diagonal of J'J, raised on a failed step and lowered on a successful one.
+    diagonal of J'J, raised on a failed step and lowered on a successful one; no step moves a
+    parameter by more than ``max_step`` (units of its scale).
     """
     u = np.clip(np.asarray(u0, dtype=float), lo, hi)
     r = fun(u)
@@ -159,6 +160,9 @@ def levenberg_marquardt(fun, u0: np.ndarray, lo: np.ndarray, hi: np.ndarray, max
             except np.linalg.LinAlgError:
                 lam *= 10
                 continue
+            big = float(np.max(np.abs(delta)))
+            if big > max_step:  # trust region: at most max_step typical scales per step
+                delta *= max_step / big
             u_new = np.clip(u + delta, lo, hi)
             r_new = fun(u_new)
             nfev += 1

@@ -16,7 +16,7 @@ quadratic_stiffness         k2 = r K / 50 um, r in 0.05..0.15 (either sign)
 amplitude_dependent_damping clearance of the eccentricity law 0.70..0.85 of 127 um
 added_mass                  1.0..2.5 kg
 cross_coupling              c_xy 800..1500 N.s/m, c_yx = c_xy x (0.5..1)
-second_mode                 frame mode 30..55 Hz (modal mass 40 kg)
+second_mode                 frame mode 30..55 Hz (modal mass 150 kg)
 viscosity_drift             film damping -12..-25 % from start to end (oil warming)
 sensor_gain                 one probe, recorded/true 1.03..1.08 or 0.92..0.97
 channel_delay               one probe, 0.1..0.5 ms
@@ -106,7 +106,9 @@ def draw_effect(effect: str, rng: np.random.Generator, data: dict[str, Any],
         return {"c_xy_Ns_per_m": cxy, "c_yx_Ns_per_m": cyx}
     if effect == "second_mode":
         f = float(rng.uniform(30, 55))
-        data["effects"]["second_mode"].update(enabled=True, frequency_hz=f)
+        # 150 kg: with the default 40 kg frame and the film full, the simulator's explicit step
+        # diverges on some dwells (reported to the simulator's owner)
+        data["effects"]["second_mode"].update(enabled=True, frequency_hz=f, modal_mass_kg=150.0)
         return {"frequency_hz": f}
     if effect == "viscosity_drift":
         rel = -float(rng.uniform(0.12, 0.25))

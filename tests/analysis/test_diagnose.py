@@ -21,7 +21,7 @@ from tests.analysis.hidden_effects import make_case
 def test_parse_spans():
     assert parse_spans("40650:105712, 1:5") == [(40650, 105712), (1, 5)]
     assert parse_spans(None) is None and parse_spans(" ") is None
-    with pytest.raises(DiagnoseError, match=r"--test: '5:1' is empty"):
+    with pytest.raises(DiagnoseError, match=r"--test: span '5:1' is empty"):
         parse_spans("5:1", "--test")
     with pytest.raises(DiagnoseError, match=r"--train: 'a:b' is not a sample span"):
         parse_spans("a:b")
@@ -67,7 +67,9 @@ def test_replay_of_the_simulator_is_exact_without_noise():
     rig = RigParams()
     t = np.arange(6000) / fs
     force = np.vstack([80 * np.sin(2 * np.pi * 30 * t), 60 * np.cos(2 * np.pi * 30 * t)])
-    truth, _ = simulate_response(force, rig, fs, 1.0)
+    # the film warms as configured (1 degC per hour with the pump on), viscosity by eq. 1
+    visc = np.exp(-0.01665 * rig.oil.warming_c_per_hour / 3600.0 * t)
+    truth, _ = simulate_response(force, rig, fs, 1.0, visc)
     rec = records_from_arrays(force, {"x1": truth.x_m, "y1": truth.y_m}, fs, kind="sweep",
                               rig=rig, lubricated=True)
     seg = Segment(0, 0, 6000, "all", 30.0)
