@@ -79,6 +79,16 @@ def _range_limits(run: RunData, channel: str) -> tuple[float, float] | None:
     return None
 
 
+def read_channel(run: RunData, channel: str, start: int, stop: int) -> np.ndarray:
+    """Samples ``[start, stop)`` of a recorded channel, read straight from its dataset.
+
+    (`RunData.channel` re-measures every dataset's length on each call, which dominates the
+    cost of reading a run dwell by dwell; the caller checks the span against ``n_samples``.)
+    """
+    ds = run.h5[f"channels/{channel}"]
+    return np.asarray(ds[start:min(stop, ds.shape[0])], dtype=np.float64)
+
+
 def check_channel(run: RunData, channel: str, data: np.ndarray) -> str:
     """'' if the samples are usable, else why not (NaN or saturated samples)."""
     bad = ~np.isfinite(data)
@@ -110,7 +120,7 @@ def read_signal(run: RunData, name: str, start: int, stop: int, analysis: str, s
         return None
     good = []
     for ch in chans:
-        data = run.channel(ch, start, stop)
+        data = read_channel(run, ch, start, stop)
         if data.size < stop - start:
             skipped.append(Skipped(label, analysis, f"only {data.size} of {stop - start} samples "
                                    "recorded", step, ch))

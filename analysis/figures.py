@@ -28,8 +28,9 @@ _NAMES = {"fx": "load X [N]", "fy": "load Y [N]", "x": "displacement X [um]",
 _SCALE = {"x": UM, "y": UM}
 
 
-def _save(fig: plt.Figure, out_dir: Path, name: str) -> str:
-    fig.tight_layout()
+def _save(fig: plt.Figure, out_dir: Path, name: str, tight: bool = True) -> str:
+    if tight:  # tight_layout is the slow part of many-panel figures: those space themselves
+        fig.tight_layout()
     fig.savefig(out_dir / name, dpi=90)
     plt.close(fig)
     return name
@@ -46,28 +47,46 @@ def _safe(label: str) -> str:
 
 
 def waterfalls(ident: Identification, out_dir: Path) -> list[Figure]:
-    """Figures 10-12, 26-27: spectra of each dwell stacked along the excitation frequency."""
+    """Figures 10-12, 26-27: spectra of each dwell stacked along the excitation frequency, one
+    figure per run and target (load or amplitude); the driven axis only for x/y motions."""
     figs = []
     for label, wf in ident.waterfalls.items():
         if not wf or not wf.get("spectra"):
             continue
-        names = [n for n in ("fx", "fy", "x", "y", "ax", "ay") if n in wf["spectra"]]
-        fig = plt.figure(figsize=(4.2 * min(len(names), 3), 3.4 * ((len(names) + 2) // 3)))
-        for i, name in enumerate(names):
-            ax = fig.add_subplot((len(names) + 2) // 3, min(len(names), 3), i + 1,
-                                 projection="3d")
-            for f_exc, row in zip(wf["freq_hz"], wf["spectra"][name], strict=True):
-                if row is None:
-                    continue
-                f, a = row
-                ax.plot(f, np.full_like(f, f_exc), a * _SCALE.get(name, 1.0), lw=0.7)
-            ax.set_xlabel("frequency [Hz]", fontsize=7)
-            ax.set_ylabel("excitation [Hz]", fontsize=7)
-            ax.set_title(_NAMES[name], fontsize=8)
-            ax.tick_params(labelsize=6)
-        fname = _save(fig, out_dir, f"waterfall_{_safe(label)}.png")
-        figs.append((fname, f"Waterfalls of load, displacement and acceleration, {label} "
-                            "(cf. Figures 10-12, 26-27)."))
+        dws = ident.dwells.get(label, [])
+        groups: dict[tuple[str, float], list[int]] = defaultdict(list)
+        for i, d in enumerate(dws):
+            groups[(d.motion, round(d.target_value, 9))].append(i)
+        for (motion, target), idx in sorted(groups.items()):
+            axes_ = (motion,) if motion in ("x", "y") else ("x", "y")
+            names = [n for a in axes_ for n in (f"f{a}", a, f"a{a}") if n in wf["spectra"]]
+            if not names:
+                continue
+            ncol = 3
+            nrow = (len(names) + ncol - 1) // ncol
+            fig = plt.figure(figsize=(4.2 * ncol, 3.4 * nrow))
+            for k, name in enumerate(names):
+                ax = fig.add_subplot(nrow, ncol, k + 1, projection="3d")
+                for i in idx:
+                    row = wf["spectra"][name][i]
+                    if row is None:
+                        continue
+                    f, amp = row
+                    ax.plot(f, np.full_like(f, dws[i].freq_hz), amp * _SCALE.get(name, 1.0),
+                            lw=0.7)
+                ax.set_xlabel("frequency [Hz]", fontsize=7)
+                ax.set_ylabel("excitation [Hz]", fontsize=7)
+                ax.set_title(_NAMES[name], fontsize=8)
+                ax.tick_params(labelsize=6)
+            tag = (f"{target * UM:g} um" if dws[idx[0]].target_kind == "displacement"
+                   else f"{target:g} N")
+            fig.suptitle(f"{label}: {motion}, {tag}", fontsize=9)
+            fig.subplots_adjust(left=0.02, right=0.97, bottom=0.05, top=0.85, wspace=0.15,
+                                hspace=0.25)
+            fname = _save(fig, out_dir, f"waterfall_{_safe(label)}_{motion}_{_safe(tag)}.png",
+                          tight=False)
+            figs.append((fname, f"Waterfalls of load, displacement and acceleration, {label}, "
+                                f"{motion} {tag} (cf. Figures 10-12, 26-27)."))
     return figs
 
 
@@ -286,7 +305,9 @@ def orbits(ident: Identification, out_dir: Path, max_plots: int = 4) -> list[Fig
                 ax.set_aspect("equal", adjustable="datalim")
                 ax.set_title(f"{d.freq_hz:g} Hz [{unit}]", fontsize=8)
                 ax.tick_params(labelsize=6)
-        fname = _save(fig, out_dir, f"orbits_{_safe(label)}.png")
+        fig.subplots_adjust(left=0.08, right=0.97, bottom=0.05, top=0.95, wspace=0.35,
+                            hspace=0.45)
+        fname = _save(fig, out_dir, f"orbits_{_safe(label)}.png", tight=False)
         figs.append((fname, f"Load, displacement and 1X velocity orbits, {label} "
                             "(cf. Appendices C and D)."))
     return figs

@@ -19,7 +19,14 @@ import h5py
 import numpy as np
 
 from analysis.dry import DryResult, identify_dry
-from analysis.dwells import DYNAMIC_SIGNALS, Dwell, load_dwells, run_label
+from analysis.dwells import (
+    DYNAMIC_SIGNALS,
+    Dwell,
+    load_dwells,
+    read_channel,
+    run_label,
+    signal_channels,
+)
 from analysis.errors import Skipped
 from analysis.lubricated import SEAL_HARMONICS, LubResult, identify_lubricated
 from analysis.structure import (
@@ -219,14 +226,16 @@ def _waterfall(run: RunData, dwells: list[Dwell]) -> dict[str, Any]:
     fmax = WATERFALL_HARMONICS * max(d.freq_hz for d in dwells)
     out: dict[str, Any] = {"freq_hz": [], "spectra": {}}
     for name in ("fx", "fy", "x", "y", "ax", "ay"):
-        if not run.has_signal(name):
+        if not signal_channels(run, name):
             continue
         rows: list[tuple[np.ndarray, np.ndarray] | None] = []
         for d in dwells:
             if name not in d.harmonics:
                 rows.append(None)
                 continue
-            sig = run.signal(name, d.first_sample, d.last_sample)
+            chans = signal_channels(run, name)
+            sig = np.mean([read_channel(run, c, d.first_sample, d.last_sample) for c in chans],
+                          axis=0)
             f, a = amplitude_spectrum(sig, run.sample_rate_hz, fmax)
             rows.append((f, a))
         out["spectra"][name] = rows

