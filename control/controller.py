@@ -149,6 +149,7 @@ class AmplitudeController:
     updates: int = 0
     saturated: bool = False
     _last: tuple[np.ndarray, np.ndarray] | None = None
+    _stuck: tuple[np.ndarray, np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         self.shape = np.asarray(self.shape, dtype=np.complex128).reshape(2)
@@ -223,10 +224,17 @@ class AmplitudeController:
         if np.all(np.abs(r[a]) < self.stuck_fraction * np.abs(self.shape[a])):
             # nothing moves (e.g. the seal sticks): raise the drive, learn nothing from it
             self._last = None
+            self._stuck = (d.copy(), r.copy())
             return self._bounded(d * (1.0 + self.max_growth))
         if self.prior_only:
-            # J is only a nominal guess: take its diagonal from the measured ratio R / D first
-            self.calibrate_from_ratio(d, r)
+            # J is only a nominal guess: take its diagonal from the measured secant first,
+            # from the last drive that did not move the housing if there is one (a dead zone
+            # makes the secant through the origin too shallow)
+            if self._stuck is not None:
+                d0, r0 = self._stuck
+                self.calibrate_from_ratio(d - d0, r - r0)
+            else:
+                self.calibrate_from_ratio(d, r)
         self.learn(d, r)
         target = self.target_for(r)
         j = self.jacobian[np.ix_(a, a)]
@@ -249,7 +257,8 @@ class AmplitudeController:
         return new
 
     def calibrate_from_ratio(self, drive: np.ndarray, response: np.ndarray) -> None:
-        """Replace J by diag(R_j / D_j) on the driven axes (the secant through the origin)."""
+        """Replace J by diag(R_j / D_j) on the driven axes (a secant: through the origin, or
+        between two measurements when given their differences)."""
         a = self.active
         d = np.asarray(drive, dtype=np.complex128)
         r = np.asarray(response, dtype=np.complex128)
