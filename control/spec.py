@@ -107,7 +107,7 @@ class SweepSpec(BaseModel):
     record_cycles: int = Field(40, ge=1, le=100_000, description="recorded per step [cycles]")
     tolerance_amplitude_pct: float = Field(1.0, gt=0, le=50, description="[%]")
     tolerance_phase_deg: float = Field(1.0, gt=0, le=45, description="[deg]")
-    max_updates: int = Field(8, ge=1, le=1000, description="controller updates per step")
+    max_updates: int = Field(10, ge=1, le=1000, description="controller updates per step")
     on_not_converged: Literal["abort", "continue"] = "abort"
     control: ControlSettings = ControlSettings()
 

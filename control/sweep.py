@@ -290,6 +290,9 @@ class SweepEngine:
         with self._hold_pump():
             try:
                 stream.start()
+                self._emit("info", f"sweep {self.spec.name!r}: {len(self.plan)} steps, "
+                                   f"{self.spec.motion}, {self.spec.target_kind} held; block "
+                                   f"{block} samples, AO {cfg.ahead_blocks} blocks ahead")
                 if self.spec.lubricated:
                     self._machine.to(State.PRIMING)
                     self._prime(stream)

@@ -89,7 +89,7 @@ def test_affine_plant_with_a_dead_zone_converges():
     ctl = AmplitudeController(shape, np.diag([50e-6, 50e-6]).astype(complex),
                               Tolerance(0.01, 1.0), max_drive_v=9.0, prior_only=True)
     iters, drive = _run(ctl, plant, np.array([0.26, 0.0]))
-    assert iters <= 6
+    assert iters <= 4
     assert abs(abs(plant(drive)[0]) / 13e-6 - 1) <= 0.01
 
 
