@@ -274,9 +274,22 @@ def identify_lubricated(dwells: list[Dwell], skipped: list[Skipped], *, f_mu_n: 
                                    f"mass fit for {axis}, {amp * 1e6:.1f} um not made: "
                                    f"{len(freqs)} frequencies, 3 needed"))
             continue
+        runs = sorted({p.run for p in pts})
         for method in METHODS:
-            fits.append(fit_mass(pts, method, k_static[axis], m_housing_kg, m_fluid_kg,
-                                 u_m_housing_kg, u_m_fluid_kg))
+            fit = fit_mass(pts, method, k_static[axis], m_housing_kg, m_fluid_kg,
+                           u_m_housing_kg, u_m_fluid_kg)
+            # repeated tests (several runs at this amplitude): their scatter adds to U_D
+            per_run = []
+            for r in runs:
+                rp = [q for q in pts if q.run == r]
+                if len({q.freq_hz for q in rp}) >= 3:
+                    per_run.append(fit_mass(rp, method, k_static[axis], m_housing_kg,
+                                            m_fluid_kg, u_m_housing_kg, u_m_fluid_kg
+                                            ).added_mass_kg)
+            if len(per_run) > 1:
+                fit.u_added_mass_kg = combine(fit.u_added_mass_kg, scatter_u95(per_run))
+                fit.u_m_t_kg = combine(fit.u_m_t_kg, scatter_u95(per_run))
+            fits.append(fit)
     return LubResult(points, fits, f_mu_n, c_rv, f_mu_source, dict(k_static), by_amp)
 
 
