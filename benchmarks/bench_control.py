@@ -51,6 +51,7 @@ class Row:
     updates_max: int
     rig_s: float
     wall_s: float
+    status: str
 
 
 def run_case(case: str, controller: dict, seed: int, quick: bool) -> Row:
@@ -90,7 +91,7 @@ def run_case(case: str, controller: dict, seed: int, quick: bool) -> Row:
         len(ok), float(rig.sum() / ideal.sum()) if ok else float("nan"),
         float((rig / ideal).max()) if ok else float("nan"),
         float(upd.mean()) if upd.size else float("nan"), int(upd.max()) if upd.size else 0,
-        out.rig_time_s, wall,
+        out.rig_time_s, wall, out.status + (f" ({out.reason})" if out.reason else ""),
     )
 
 
@@ -113,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{r.case:48} {r.controller:29} {r.steps:5d} {r.converged:4d} "
               f"{r.ratio_total:10.3f} {r.ratio_max:6.2f} {r.updates_mean:8.2f} "
               f"{r.updates_max:4d} {r.rig_s:7.1f} {r.wall_s:6.2f}")
+    print("\nhow each run ended:")
+    for r in rows:
+        print(f"  {r.case} / {r.controller}: {r.status}")
     print("\ntime/ideal: sum over converged steps of (ramp start -> end of recording) / sum of "
           "(settle + record); worst: the largest single-step ratio")
     lub = rows[0]

@@ -168,6 +168,66 @@ class FanOut:
             log.exception("live consumer failed")
 
 
+class BackgroundWriter:
+    """Runs a run writer's calls on its own thread, in order, so that disk latency (compression,
+    flushes at steps and events) stays out of the acquisition loop, whose AO lead is only tens of
+    milliseconds.
+
+    A write error, or a backlog beyond ``max_backlog_samples``, makes the next `on_block` raise:
+    the engine then stops the run the safe way and records why.
+    """
+
+    def __init__(self, writer: Any, max_backlog_samples: int) -> None:
+        self.writer = writer
+        self.max_backlog = max_backlog_samples
+        self._queue: queue.Queue[tuple[str, tuple[Any, ...]] | None] = queue.Queue()
+        self._backlog = 0  # samples queued, not yet written
+        self._lock = threading.Lock()
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._loop, name="sfdrig-run-writer",
+                                        daemon=True)
+        self._thread.start()
+
+    def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
+        if self.error is not None:
+            raise RuntimeError(f"run file write failed: {self.error}")
+        with self._lock:
+            if self._backlog > self.max_backlog:
+                raise RuntimeError(f"run file writer is {self._backlog} samples behind: the "
+                                   "disk cannot keep up")
+            self._backlog += ai.shape[1]
+        self._queue.put(("on_block", (first_sample, ai, ao)))
+
+    def on_step(self, step: dict[str, Any]) -> None:
+        self._queue.put(("on_step", (step,)))
+
+    def on_event(self, kind: str, message: str, sample: int) -> None:
+        self._queue.put(("on_event", (kind, message, sample)))
+
+    def drain(self, timeout_s: float = 60.0) -> None:
+        """Write everything queued and stop the thread; raise the first write error."""
+        self._queue.put(None)
+        self._thread.join(timeout_s)
+        if self._thread.is_alive():
+            raise TimeoutError(f"run writer did not finish within {timeout_s:g} s")
+        if self.error is not None:
+            raise RuntimeError(f"run file write failed: {self.error}")
+
+    def _loop(self) -> None:
+        while (item := self._queue.get()) is not None:
+            if self.error is not None:
+                continue  # keep draining so the acquisition side never blocks
+            name, args = item
+            try:
+                getattr(self.writer, name)(*args)
+            except BaseException as err:
+                log.exception("run writer failed")
+                self.error = err
+            if name == "on_block":
+                with self._lock:
+                    self._backlog -= args[1].shape[1]
+
+
 # --- the acquisition loop -----------------------------------------------------------------------
 @dataclasses.dataclass
 class RunJob:
@@ -176,7 +236,7 @@ class RunJob:
     run_id: str
     path: Path
     engine: Any  # control.sweep.SweepEngine
-    writer: Any  # storage.RunWriter
+    writer: BackgroundWriter  # around a storage.RunWriter
     fanout: FanOut
     abort_reason: str = ""
 
@@ -484,14 +544,16 @@ class Daemon:
             test_spec=spec.model_dump(mode="json") if hasattr(spec, "model_dump") else spec,
             lubricated=bool(getattr(spec, "lubricated", False)),
         )
+        background = BackgroundWriter(writer, int(30 * cm.sample_rate_hz))
         try:
-            fanout = FanOut([writer], [self.publisher])
+            fanout = FanOut([background], [self.publisher])
             engine = self._engine_factory(self.backend, spec, limits=self.cfg.limits,
                                           listener=fanout, pump=self.pump)
         except Exception as err:
+            background.drain()
             writer.close("failed", f"{type(err).__name__}: {err}")
             return self._error(ErrorKind.FAILED, f"start: {err}", req.cmd, req.request_id)
-        self._job = RunJob(run_id, path, engine, writer, fanout)
+        self._job = RunJob(run_id, path, engine, background, fanout)
         self.publisher.set_run(run_id)
         self.sm.fire("start")
         self.loop.submit(self._job)
@@ -522,7 +584,10 @@ class Daemon:
         if status == "aborted" and not reason:
             reason = job.abort_reason or self._stop_reason or "aborted"
         try:
-            job.writer.close(status, reason)
+            try:
+                job.writer.drain()
+            finally:
+                job.writer.writer.close(status, reason)
         except Exception as err:
             log.exception("closing %s failed", job.path)
             status, reason = "failed", f"{reason}; run file close failed: {err}".lstrip("; ")

@@ -193,17 +193,11 @@ class StepRunner:
                 )
             self.open_loop_checked[axis] = True
 
-    # --- the dwell --------------------------------------------------------------------------
-    def run(self, plan: StepPlan) -> StepResult:
-        """Run one dwell; returns its result (converged or with the reason it did not)."""
-        spec, cfg, stream, synth = self.spec, self.cfg, self.stream, self.stream.synth
-        f = plan.freq_hz
-        start_sample = stream.sample
-
-        def cyc(c: float) -> int:
-            return cycles_to_samples(f, self.fs, c)
-
-        pred = self.predictor.predict(f, plan.shape) if cfg.predict else None
+    def _start(self, plan: StepPlan) -> tuple[AmplitudeController, int]:
+        """Predict the step's drive and J, make its controller, ramp there; (controller, end of
+        the ramp)."""
+        cfg, synth = self.cfg, self.stream.synth
+        pred = self.predictor.predict(plan.freq_hz, plan.shape) if cfg.predict else None
         if (pred is None and not cfg.predict and self._last_drive is not None
                 and self._last_jacobian is not None):
             pred = self._last_drive, self._last_jacobian
@@ -217,29 +211,56 @@ class StepRunner:
         ctl: AmplitudeController
         if cfg.algorithm == "proportional":
             ctl = ProportionalController(
-                plan.shape, jac, spec.tolerance, max_drive_v=self.limits.max_drive_v,
+                plan.shape, jac, self.spec.tolerance, max_drive_v=self.limits.max_drive_v,
                 max_growth=cfg.max_growth, gain=cfg.proportional_gain,
             )
         else:
             ctl = AmplitudeController(
-                plan.shape, jac, spec.tolerance, max_drive_v=self.limits.max_drive_v,
+                plan.shape, jac, self.spec.tolerance, max_drive_v=self.limits.max_drive_v,
                 max_growth=cfg.max_growth, prior_only=pred is None and plan.target_kind != "load",
             )
         # the common phase is free: turn the guess towards the present drive
         rows_guess = self._rows_drive(guess)
-        now = synth.target_phasors
-        inner = np.vdot(rows_guess, now)
+        inner = np.vdot(rows_guess, synth.target_phasors)
         if abs(inner) > 0:
             rows_guess = rows_guess * (inner / abs(inner))
         peak = float(np.max(np.abs(rows_guess)))
         if peak > self.limits.max_drive_v:
             rows_guess *= self.limits.max_drive_v / peak
-        change_end = self._ramp(rows_guess, f)
+        return ctl, self._ramp(rows_guess, plan.freq_hz)
+
+    @staticmethod
+    def _drift(plan: StepPlan, now: tuple[np.ndarray, ...], before: tuple[np.ndarray, ...]
+               ) -> float:
+        """Change between two windows at the same drive, relative, beyond their noise.
+
+        ``now``/``before``: (controlled, other, s_controlled, s_other). A change within three
+        standard errors of the two estimates is noise, not drift.
+        """
+        ctrl, other, s_ctrl, s_other = now
+        p_ctrl, p_other, ps_ctrl, ps_other = before
+        act = np.abs(plan.shape) > 0
+        scale_c = np.abs(plan.shape)[act]
+        scale_o = np.maximum(np.abs(other), np.abs(p_other))[act] + 1e-12
+        dc = np.maximum(np.abs(ctrl - p_ctrl)[act] - 3 * np.hypot(s_ctrl, ps_ctrl)[act], 0.0)
+        do = np.maximum(np.abs(other - p_other)[act] - 3 * np.hypot(s_other, ps_other)[act], 0.0)
+        return max(float(np.max(dc / scale_c)), float(np.max(do / scale_o)))
+
+    # --- the dwell --------------------------------------------------------------------------
+    def run(self, plan: StepPlan) -> StepResult:
+        """Run one dwell; returns its result (converged or with the reason it did not)."""
+        spec, cfg, stream, synth = self.spec, self.cfg, self.stream, self.stream.synth
+        f = plan.freq_hz
+        start_sample = stream.sample
+
+        def cyc(c: float) -> int:
+            return cycles_to_samples(f, self.fs, c)
+
+        ctl, change_end = self._start(plan)
 
         updates = 0
         w = cyc(cfg.window_cycles)
         settle_tol = cfg.settle_tolerance_pct / 100.0
-        scale_ctrl = np.where(np.abs(plan.shape) > 0, np.abs(plan.shape), np.inf)
         prev_ok: tuple[np.ndarray, ...] | None = None  # the last in-tolerance window
         next_free = change_end + cyc(cfg.wait_cycles)
         while True:
@@ -256,16 +277,7 @@ class StepRunner:
             assess = ctl.assess(ctrl, cfg.aim_fraction if prev_ok is None else 1.0)
             if assess.within:
                 if prev_ok is not None and next_free >= settle_end:
-                    p_ctrl, p_other, ps_ctrl, ps_other = prev_ok
-                    act = np.abs(plan.shape) > 0
-                    # a change within 3 standard errors of the two estimates is noise, not drift
-                    scale_o = np.maximum(np.abs(other), np.abs(p_other))[act] + 1e-12
-                    allow_c = 3 * np.hypot(s_ctrl, ps_ctrl)[act]
-                    allow_o = 3 * np.hypot(s_other, ps_other)[act]
-                    dc = np.maximum(np.abs(ctrl - p_ctrl)[act] - allow_c, 0.0)
-                    do = np.maximum(np.abs(other - p_other)[act] - allow_o, 0.0)
-                    change = max(float(np.max(dc / scale_ctrl[act])),
-                                 float(np.max(do / scale_o)))
+                    change = self._drift(plan, (ctrl, other, s_ctrl, s_other), prev_ok)
                     waited = next_free - change_end
                     if change <= settle_tol or waited >= cyc(cfg.max_settle_cycles):
                         if change > settle_tol:
@@ -290,11 +302,10 @@ class StepRunner:
                 continue
             prev_ok = None
             if updates >= spec.max_updates:
-                return self._failed(
-                    plan, w0, w0 + w, updates, start_sample,
-                    f"did not converge in {spec.max_updates} updates ({assess.describe()})",
-                    assess,
-                )
+                why = f"did not converge in {spec.max_updates} updates ({assess.describe()})"
+                if ctl.saturated:
+                    why += f"; the drive is at its {self.limits.max_drive_v:g} V limit"
+                return self._failed(plan, w0, w0 + w, updates, start_sample, why, assess)
             change_end, next_free = self._correct(ctl, drive, ctrl)
             updates += 1
             if self.on_update is not None:
