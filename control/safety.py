@@ -60,6 +60,10 @@ class SafetyLimits(BaseModel):
     pressure_wait_s: float = Field(
         10.0, gt=0, le=120, description="interlock: longest wait for the pressure to build [s]"
     )
+    min_running_pressure_pa: float = Field(
+        5e3, gt=0, description="interlock: a lubricated sweep trips when the inlet pressure "
+                               "(block mean) falls below this while running [Pa]"
+    )
     film_prime_s: float = Field(
         5.0, ge=0, le=120, description="zero-drive time after the pressure is reached, for the "
                                        "film to fill [s]"
@@ -175,6 +179,8 @@ class SafetyMonitor:
         self.fs = channel_map.sample_rate_hz
         self.signals = AxisSignals.from_channel_map(channel_map)
         self._last_ao: np.ndarray | None = None
+        #: row of p_in, set (by the engine) once a lubricated run is primed: pressure is watched
+        self.pressure_row: int | None = None
 
     def check_ao(self, block: np.ndarray, first_sample: int) -> None:
         """Raise `LimitTrip` if a drive block to be written breaks the volt or slew limit."""
@@ -203,9 +209,18 @@ class SafetyMonitor:
         self._last_ao = block[:, -1:].copy()
 
     def check_ai(self, eng: np.ndarray, first_sample: int) -> None:
-        """Raise `LimitTrip` at the first sample whose load or orbit radius is over its limit."""
+        """Raise `LimitTrip` at the first sample whose load or orbit radius is over its limit,
+        or when the inlet pressure of a lubricated run is lost (`pressure_row` set)."""
         lim = self.limits
         sig = self.signals
+        if self.pressure_row is not None:
+            p = float(np.mean(eng[self.pressure_row]))
+            if p < lim.min_running_pressure_pa:
+                raise LimitTrip(
+                    f"inlet pressure lost: p_in = {p / 1e3:.2f} kPa, below "
+                    f"{lim.min_running_pressure_pa / 1e3:.2f} kPa while running lubricated",
+                    first_sample, "pressure",
+                )
         disp = sig.displacement(eng)
         radius = np.hypot(disp[0], disp[1])
         loads = np.abs(eng[sig.load_rows])

@@ -36,6 +36,7 @@ from control.states import FINAL, State, StateMachine
 from control.stream import DriveStream
 from control.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
+from daq.errors import DaqError
 
 log = logging.getLogger(__name__)
 
@@ -182,7 +183,10 @@ class SweepEngine:
         self._progress = replace(self._progress, sample=self._sample())
 
     def _check_config(self) -> None:
-        cm = self.backend.channel_map
+        try:
+            cm = self.backend.channel_map
+        except DaqError as err:
+            raise TargetError(f"sweep refused: {err}") from None
         lim = self.limits
         for ao in cm.ao:
             lo, hi = ao.range_v
@@ -244,6 +248,7 @@ class SweepEngine:
                     "with the pump on"
                 )
         stream.advance_to(stream.sample + int(lim.film_prime_s * fs))
+        stream.monitor.pressure_row = row  # from now on, losing the pressure trips
 
     def _hold_pump(self) -> Any:
         if self.pump is None:
@@ -264,8 +269,6 @@ class SweepEngine:
         if self._machine.state is not State.IDLE:
             raise RuntimeError("a SweepEngine runs once; make a new one")
         self._machine.to(State.CHECKING)
-        cm = self.backend.channel_map
-        fs = cm.sample_rate_hz
         try:
             self._check_config()
             self._check_interlock_before_start()
@@ -273,6 +276,8 @@ class SweepEngine:
             self._emit("abort", f"refused: {err}", 0)
             self._machine.to(State.REFUSED)
             raise
+        cm = self.backend.channel_map
+        fs = cm.sample_rate_hz
         cfg = self.spec.control
         block = max(1, int(round(cfg.block_s * fs)))
         keep = int(fs * (self.spec.record_cycles + cfg.window_cycles + 2) / min(

@@ -127,3 +127,22 @@ def test_predictor_tangent_is_exact_on_an_affine_plant():
     np.testing.assert_allclose(d, drive_for(s38), rtol=1e-12)
     np.testing.assert_allclose(j, H)
     assert DrivePredictor().predict(40.0, s38) is None
+
+
+def test_predictor_extrapolates_along_frequency_at_the_same_target():
+    pred = DrivePredictor()
+    s = motion_shape("x", 25e-6)
+
+    def drive_at(f: float) -> np.ndarray:  # a drive that grows linearly with frequency
+        return np.array([0.5 + 0.01 * f + 0.002j * f, 0.0])
+
+    for f in (20.0, 30.0):
+        pred.remember(f, s, s, drive_at(f), np.diag([50e-6, 50e-6]).astype(complex))
+    d, _ = pred.predict(40.0, s)
+    np.testing.assert_allclose(d, drive_at(40.0), rtol=1e-12)
+    # an extrapolation that would more than double the drive is not trusted
+    pred2 = DrivePredictor()
+    pred2.remember(20.0, s, s, np.array([0.1, 0]), np.eye(2, dtype=complex))
+    pred2.remember(21.0, s, s, np.array([1.0, 0]), np.eye(2, dtype=complex))
+    d2, _ = pred2.predict(30.0, s)
+    np.testing.assert_allclose(d2, [1.0, 0])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.errors import InterlockError
+from control.errors import InterlockError, TargetError
 from control.listener import RecordingListener
 from control.pump import PumpRelay
 from control.sweep import SweepEngine
@@ -71,3 +71,32 @@ def test_pump_cannot_be_switched_off_while_the_shakers_run():
     assert pump.is_on and be.rig.pump_on
     pump.set(False)  # allowed once the run is over
     assert not pump.is_on
+
+
+def test_pressure_lost_while_running_trips():
+    """A pump failure mid-run (the relay drops out behind the software's back)."""
+    be = make_backend(seed=5)
+    pump = PumpRelay(be)
+    pump.set(True)
+
+    class Failure(RecordingListener):
+        def on_step(self, step):
+            super().on_step(step)
+            be.rig.set_relay("pump", False)  # the hardware, not the interlocked relay object
+
+    rec = Failure(keep_blocks=True)
+    spec = {**LUB, "freq_hz": [30.0, 40.0, 50.0]}
+    out = SweepEngine(be, spec, pump=pump, listener=rec).run()
+    assert out.status == "aborted" and out.reason.startswith("inlet pressure lost")
+    trip = rec.events_of("limit_trip")[0]
+    ao = rec.ao()
+    assert np.all(ao[:, trip[2] + 1000:] == 0)
+    assert len(out.steps) == 1
+
+
+def test_unconfigured_backend_is_refused():
+    from simulated_hw.backend import SimulatedBackend
+
+    with pytest.raises(TargetError, match="not configured"):
+        SweepEngine(SimulatedBackend(), {"motion": "x", "load_n": [5.0],
+                                         "freq_hz": [30.0]}).run()

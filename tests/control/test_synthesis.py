@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from control.lockin import LockIn
 from control.synthesis import SineSynthesizer
@@ -86,3 +88,33 @@ def test_bad_arguments():
         syn.ramp_to(np.array([1.0]), None, 0.0)
     with pytest.raises(ValueError, match="freq_hz"):
         syn.ramp_to(None, -1.0, 0.0)
+
+
+@settings(max_examples=60)
+@given(
+    commands=st.lists(
+        st.tuples(
+            st.floats(0.0, 3.0), st.floats(-np.pi, np.pi),  # channel 0 amplitude, phase
+            st.floats(0.0, 3.0), st.floats(-np.pi, np.pi),  # channel 1
+            st.floats(5.0, 200.0),  # frequency
+            st.floats(0.01, 0.2),  # ramp [s]
+            st.integers(1, 700),  # samples until the next command
+        ),
+        min_size=1, max_size=8,
+    )
+)
+def test_no_command_sequence_makes_a_step(commands):
+    """Whatever arrives, whenever: the output moves at most as fast as the fastest sine plus
+    the fastest envelope change allows."""
+    syn = SineSynthesizer(2, FS)
+    out = [syn.next_block(50)]
+    rate = 0.0
+    for a0, p0, a1, p1, f, ramp, n in commands:
+        before = syn.phasors
+        target = np.array([a0 * np.exp(1j * p0), a1 * np.exp(1j * p1)])
+        syn.ramp_to(target, f, ramp)
+        rate = max(rate, float(np.max(np.abs(target - before))) / ramp)
+        out.append(syn.next_block(n))
+    v = np.concatenate(out, axis=1)
+    bound = 2 * np.pi * 200.0 * 3.0 / FS + rate / FS
+    assert np.abs(np.diff(v, axis=1)).max() <= bound * (1 + 1e-9)
