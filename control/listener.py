@@ -73,7 +73,8 @@ class RecordingListener:
 
     def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
         if first_sample != self.samples:
-            raise AssertionError(f"block at {first_sample}, expected {self.samples}")
+            raise ValueError(f"blocks not contiguous: block at {first_sample}, expected "
+                             f"{self.samples}")
         self.samples += ai.shape[1]
         if self.keep_blocks:
             self.blocks.append((first_sample, ai.copy(), ao.copy()))

@@ -47,7 +47,10 @@ class SafetyLimits(BaseModel):
     )
     min_freq_hz: float = Field(5.0, gt=0, description="lowest permitted excitation [Hz]")
     max_freq_hz: float = Field(500.0, gt=0, description="highest permitted excitation [Hz]")
-    fade_s: float = Field(0.04, gt=0, le=0.08, description="ramp to zero on any trip [s]")
+    fade_s: float = Field(
+        0.04, gt=0, le=0.08,
+        description="ramp to zero on any trip (overrides max_drive_rate_v_per_s) [s]",
+    )
     open_loop_min_ratio: float = Field(
         0.2, gt=0, lt=1, description="open loop when measured load < ratio x nominal load"
     )
