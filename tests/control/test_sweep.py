@@ -208,3 +208,21 @@ def test_paced_backend_keeps_up_with_the_clock():
     out = SweepEngine(be, spec, limits=DRY_LIMITS, listener=rec).run()
     assert out.status == "completed", out.reason
     assert all(s["converged"] for s in rec.steps)
+
+
+def test_lubricated_elliptical_orbit_downwards():
+    """A general ellipse (|Y| = 0.6 |X|, Y leading X by 40 deg), swept downwards."""
+    be = make_backend(seed=7)
+    pump = PumpRelay(be)
+    pump.set(True)
+    rec = RecordingListener(keep_blocks=False)
+    spec = SweepSpec(motion="elliptical", lubricated=True, amplitude_m=[30e-6],
+                     ellipse_ratio=0.6, ellipse_phase_deg=40.0, freq_start_hz=55,
+                     freq_stop_hz=25, freq_step_hz=15)
+    out = SweepEngine(be, spec, listener=rec, pump=pump).run()
+    assert out.status == "completed", out.reason
+    assert [s["freq_hz"] for s in rec.steps] == [55.0, 40.0, 25.0]
+    for step in rec.steps:
+        x, y = _amp(step, ["x1", "x2"]), _amp(step, ["y1", "y2"])
+        assert abs(abs(x) / 30e-6 - 1) <= 0.01 and abs(abs(y) / 18e-6 - 1) <= 0.01
+        assert np.degrees(np.angle(y / x)) == pytest.approx(40.0, abs=1.0)

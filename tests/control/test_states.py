@@ -1,0 +1,30 @@
+"""The engine's state machine: only the transitions of the table."""
+
+from __future__ import annotations
+
+import pytest
+
+from control.states import FINAL, TRANSITIONS, State, StateMachine
+
+
+def test_transitions_follow_the_table_and_report_changes():
+    seen = []
+    sm = StateMachine(lambda old, new: seen.append((old.value, new.value)))
+    for s in (State.CHECKING, State.RUNNING, State.PAUSED, State.RUNNING, State.STOPPING,
+              State.COMPLETED):
+        sm.to(s)
+    assert seen[0] == ("idle", "checking") and seen[-1] == ("stopping", "completed")
+    with pytest.raises(RuntimeError, match="illegal state transition completed -> running"):
+        sm.to(State.RUNNING)
+
+
+def test_every_state_ends_in_a_final_one():
+    for state in State:
+        assert state in TRANSITIONS
+        if state in FINAL:
+            assert not TRANSITIONS[state]
+    # a run can always be stopped once output may have started
+    for state in (State.PRIMING, State.RUNNING, State.PAUSED):
+        assert State.STOPPING in TRANSITIONS[state]
+    with pytest.raises(RuntimeError, match="idle -> running"):
+        StateMachine().to(State.RUNNING)
