@@ -35,6 +35,40 @@ N_STATE = 11
 N_OUT = 11
 
 
+@numba.njit(cache=True, inline="always")
+def _coefficients(x, y, fi, visc_i, vbar, p):  # noqa: ANN001, ANN202
+    """Housing mass matrix and damping matrix at this instant (film fill, eccentricity, air)."""
+    clear = p[P_CLEAR]
+    ecc2 = (x * x + y * y) / (clear * clear)
+    if ecc2 > 0.9025:  # eps capped at 0.95: the formula diverges at contact
+        ecc2 = 0.9025
+    efac = 1.0
+    if p[P_ECC] > 0.5:
+        efac = (1.0 + 2.0 * ecc2) / ((1.0 - ecc2) * (1.0 - ecc2))
+    afac = 1.0
+    if p[P_AIR_K] > 0.0:
+        alpha = p[P_AIR_K] * vbar
+        if alpha > p[P_AIR_MAX]:
+            alpha = p[P_AIR_MAX]
+        afac = (1.0 - alpha) ** 3
+    cfilm = fi * visc_i * p[P_C0] * efac * afac
+    m11 = p[P_M] + fi * p[P_MF] + fi * p[P_D] * afac
+    m12 = fi * p[P_DXY] * afac
+    m21 = fi * p[P_DYX] * afac
+    c11 = p[P_CRV] + cfilm
+    c12 = fi * p[P_CXY]
+    c21 = fi * p[P_CYX]
+    return m11, m12, m21, c11, c12, c21, cfilm
+
+
+@numba.njit(cache=True, inline="always")
+def _elastic(x, y, fx_in, fy_in, p):  # noqa: ANN001, ANN202
+    """External force minus the structure's restoring force (linear and nonlinear)."""
+    fx = fx_in - p[P_KX] * x - p[P_K3] * x * x * x - p[P_K2] * x * x
+    fy = fy_in - p[P_KY] * y - p[P_K3] * y * y * y - p[P_K2] * y * y
+    return fx, fy
+
+
 @numba.njit(cache=True, fastmath=False)
 def integrate(
     force: np.ndarray,  # (2, n) external force on the housing [N]
@@ -44,15 +78,20 @@ def integrate(
     s: np.ndarray,  # (N_STATE,) updated in place
     out: np.ndarray,  # (N_OUT, n)
 ) -> None:
+    """Leapfrog (kick, drift) with the damping implicit (trapezoidal) in the kick and Coulomb
+    friction as an implicit velocity projection.
+
+    Outputs are at the sample instants t_i: positions directly, velocities moved from the
+    half-step, accelerations and film forces evaluated at t_i."""
     n = force.shape[1]
     nsub = int(p[P_NSUB])
     h = p[P_DT] / nsub
+    hh = 0.5 * h
     frame_on = p[P_FRAME_ON] > 0.5
     inv_mf = 1.0 / p[P_FRAME_M] if frame_on else 0.0
     x, y, vx, vy = s[S_X], s[S_Y], s[S_VX], s[S_VY]
     xf, yf, vxf, vyf, vbar = s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR]
     fmu = p[P_FMU]
-    clear = p[P_CLEAR]
     air_alpha_k = h / p[P_AIR_TAU]
     fpx, fpy = s[S_FPX], s[S_FPY]
     for i in range(n):
@@ -60,61 +99,43 @@ def integrate(
         dfx = (force[0, i] - fpx) / nsub
         dfy = (force[1, i] - fpy) / nsub
         fi = fill[i]
-        ax = ay = 0.0
         afx = afy = 0.0
         frx = fry = 0.0
-        flx = fly = 0.0
-        cfilm = 0.0
+        rax = ray = 0.0
         for k in range(nsub):
             # the kick uses the force at the start of the substep, where x is (leapfrog)
-            fx_in = fpx + k * dfx
-            fy_in = fpy + k * dfy
-            # film coefficients at this instant
-            ecc2 = (x * x + y * y) / (clear * clear)
-            if ecc2 > 0.9025:  # eps capped at 0.95: the formula diverges at contact
-                ecc2 = 0.9025
-            efac = 1.0
-            if p[P_ECC] > 0.5:
-                efac = (1.0 + 2.0 * ecc2) / ((1.0 - ecc2) * (1.0 - ecc2))
-            afac = 1.0
-            if p[P_AIR_K] > 0.0:
-                alpha = p[P_AIR_K] * vbar
-                if alpha > p[P_AIR_MAX]:
-                    alpha = p[P_AIR_MAX]
-                afac = (1.0 - alpha) ** 3
-            cfilm = fi * visc[i] * p[P_C0] * efac * afac
-            dfilm = fi * p[P_D] * afac
-            # housing mass matrix and its inverse
-            m11 = p[P_M] + fi * p[P_MF] + dfilm
-            m22 = m11
-            m12 = fi * p[P_DXY] * afac
-            m21 = fi * p[P_DYX] * afac
-            det = m11 * m22 - m12 * m21
-            i11 = m22 / det
-            i12 = -m12 / det
-            i21 = -m21 / det
-            i22 = m11 / det
-            # forces other than friction, on the housing
-            rvx = vx - vxf
-            rvy = vy - vyf
-            flx = -cfilm * rvx - fi * p[P_CXY] * rvy
-            fly = -cfilm * rvy - fi * p[P_CYX] * rvx
-            fx = (fx_in - p[P_KX] * x - p[P_CRV] * rvx + flx
-                  - p[P_K3] * x * x * x - p[P_K2] * x * x)
-            fy = (fy_in - p[P_KY] * y - p[P_CRV] * rvy + fly
-                  - p[P_K3] * y * y * y - p[P_K2] * y * y)
-            # absolute housing acceleration before friction; frame's own
-            ahx = i11 * fx + i12 * fy
-            ahy = i21 * fx + i22 * fy
+            m11, m12, m21, c11, c12, c21, _ = _coefficients(x, y, fi, visc[i], vbar, p)
+            ex, ey = _elastic(x, y, fpx + k * dfx, fpy + k * dfy, p)
+            # the frame (explicit; its reaction uses the damping at the old velocity)
             afx = 0.0
             afy = 0.0
             if frame_on:
-                afx = (-p[P_FRAME_K] * xf - p[P_FRAME_C] * vxf - (fx - fx_in)) * inv_mf
-                afy = (-p[P_FRAME_K] * yf - p[P_FRAME_C] * vyf - (fy - fy_in)) * inv_mf
-            vhx = vx + vxf + h * ahx  # absolute housing velocity (x is relative)
-            vhy = vy + vyf + h * ahy
+                dxo = c11 * vx + c12 * vy
+                dyo = c21 * vx + c11 * vy
+                afx = (-p[P_FRAME_K] * xf - p[P_FRAME_C] * vxf
+                       - (ex - (fpx + k * dfx)) + dxo) * inv_mf
+                afy = (-p[P_FRAME_K] * yf - p[P_FRAME_C] * vyf
+                       - (ey - (fpy + k * dfy)) + dyo) * inv_mf
             nvxf = vxf + h * afx
             nvyf = vyf + h * afy
+            # (M + h/2 C) vh' = M vh + h E - h/2 C (v_rel - vf')   [vh absolute, v_rel = vh - vf]
+            vhx = vx + vxf
+            vhy = vy + vyf
+            a11 = m11 + hh * c11
+            a12 = m12 + hh * c12
+            a21 = m21 + hh * c21
+            a22 = m11 + hh * c11
+            det = a11 * a22 - a12 * a21
+            i11 = a22 / det
+            i12 = -a12 / det
+            i21 = -a21 / det
+            i22 = a11 / det
+            qx = vx - nvxf
+            qy = vy - nvyf
+            rx = m11 * vhx + m12 * vhy + h * ex - hh * (c11 * qx + c12 * qy)
+            ry = m21 * vhx + m11 * vhy + h * ey - hh * (c21 * qx + c11 * qy)
+            vhx = i11 * rx + i12 * ry
+            vhy = i21 * rx + i22 * ry
             # dry friction: implicit, on the relative velocity
             tx = vhx - nvxf
             ty = vhy - nvyf
@@ -141,10 +162,12 @@ def integrate(
             nvyf -= jy * inv_mf
             frx = jx / h
             fry = jy / h
-            ax = ahx + (i11 * jx + i12 * jy) / h
-            ay = ahy + (i21 * jx + i22 * jy) / h
-            vx = vhx - nvxf
-            vy = vhy - nvyf
+            nvx = vhx - nvxf
+            nvy = vhy - nvyf
+            rax = (nvx - vx) / h  # relative acceleration over this substep
+            ray = (nvy - vy) / h
+            vx = nvx
+            vy = nvy
             vxf = nvxf
             vyf = nvyf
             x += h * vx
@@ -154,17 +177,24 @@ def integrate(
             vbar += air_alpha_k * (np.sqrt(vx * vx + vy * vy) - vbar)
         fpx = force[0, i]
         fpy = force[1, i]
+        # the state at t_i: the velocity moved from the half-step, then the forces there
+        vox = vx + 0.5 * h * rax
+        voy = vy + 0.5 * h * ray
+        m11, m12, m21, c11, c12, c21, cfilm = _coefficients(x, y, fi, visc[i], vbar, p)
+        ex, ey = _elastic(x, y, fpx, fpy, p)
+        gx = ex - (c11 * vox + c12 * voy) + frx
+        gy = ey - (c21 * vox + c11 * voy) + fry
+        det = m11 * m11 - m12 * m21
         out[O_X, i] = x
         out[O_Y, i] = y
-        # the symplectic step's velocity is the mean over the last substep: move it to t_i
-        out[O_VX, i] = vx + 0.5 * h * (ax - afx)
-        out[O_VY, i] = vy + 0.5 * h * (ay - afy)
-        out[O_AX, i] = ax
-        out[O_AY, i] = ay
+        out[O_VX, i] = vox
+        out[O_VY, i] = voy
+        out[O_AX, i] = (m11 * gx - m12 * gy) / det
+        out[O_AY, i] = (-m21 * gx + m11 * gy) / det
         out[O_FRICX, i] = frx
         out[O_FRICY, i] = fry
-        out[O_FILMX, i] = flx
-        out[O_FILMY, i] = fly
+        out[O_FILMX, i] = -cfilm * vox - (c12 * voy)
+        out[O_FILMY, i] = -cfilm * voy - (c21 * vox)
         out[O_CFILM, i] = cfilm
     s[S_X], s[S_Y], s[S_VX], s[S_VY] = x, y, vx, vy
     s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR] = xf, yf, vxf, vyf, vbar

@@ -221,3 +221,21 @@ def test_pump_relay_builds_pressure_and_flow_by_eq5():
     q_eq5 = RigParams().film.eq5_flow_m3_per_s(p_in - p_rec, 3.17e-3) * 60_000
     assert q == pytest.approx(q_eq5, rel=0.03)
     assert be.rig is not None and be.rig.film_fill > 0.98
+
+
+@pytest.mark.parametrize("freq_hz", [20.0, 120.0])
+def test_velocity_and_acceleration_are_at_the_sample_instants(freq_hz: float):
+    """Probes, velocity and accelerometer must agree in time: a = -w^2 x and v = i w x, with no
+    half-sample skew between them (a skew would look like a channel delay to the diagnosis)."""
+    params = RigParams(seal=Seal(enabled=False), oil=Oil(initially_filled=True))
+    t = np.arange(int(1.0 * FS)) / FS
+    force = np.vstack([80 * np.cos(2 * np.pi * freq_hz * t), np.zeros(t.size)])
+    tr, _ = simulate_response(force, params, FS, fill=1.0)
+    w = 2 * np.pi * freq_hz
+    X = lockin(tr.x_m, freq_hz)
+    V = lockin(tr.vx_m_per_s, freq_hz)
+    A = lockin(tr.ax_m_per_s2, freq_hz)
+    assert np.angle(V / (1j * w * X)) == pytest.approx(0.0, abs=2e-4)
+    assert abs(V) == pytest.approx(w * abs(X), rel=1e-3)
+    assert np.angle(A / (-(w**2) * X)) == pytest.approx(0.0, abs=2e-4)
+    assert abs(A) == pytest.approx(w**2 * abs(X), rel=2e-3)
