@@ -33,6 +33,10 @@ from control.stream import DriveStream
 
 log = logging.getLogger(__name__)
 
+#: A correction never asks for more than this fraction of the load limit (predicted from the
+#: measured load): the margin covers harmonics, noise and the prediction's error.
+LOAD_MARGIN = 0.9
+
 
 @dataclass
 class StepResult:
@@ -131,6 +135,7 @@ class StepRunner:
             [self.cm.ao[r].nominal_force_n_per_v for r in self.ao_row]
         )
         self.open_loop_checked = np.zeros(2, dtype=bool)
+        self.limited_by = ""  # what held the drive back in the present step
         self.on_update: Callable[[int], None] | None = None
         self._last_drive: np.ndarray | None = None  # (X, Y) drive of the last converged step
         self._last_jacobian: np.ndarray | None = None
@@ -257,6 +262,7 @@ class StepRunner:
             return cycles_to_samples(f, self.fs, c)
 
         ctl, change_end = self._start(plan)
+        self.limited_by = ""
 
         updates = 0
         w = cyc(cfg.window_cycles)
@@ -293,8 +299,11 @@ class StepRunner:
                         # drifted out during the recording: correct and go round again
                         rec_ctrl = result.controlled
                         assert rec_ctrl is not None
+                        rec_load = (rec_ctrl if plan.target_kind == "load"
+                                    else result.harmonics[self.signals.load_rows, 0])
                         change_end, next_free = self._correct(
-                            ctl, self._axis_drive(synth.to_absolute(synth.phasors)), rec_ctrl)
+                            ctl, self._axis_drive(synth.to_absolute(synth.phasors)), rec_ctrl,
+                            rec_load)
                         updates += 1
                         prev_ok = None
                         continue
@@ -304,18 +313,34 @@ class StepRunner:
             if updates >= spec.max_updates:
                 why = f"did not converge in {spec.max_updates} updates ({assess.describe()})"
                 if ctl.saturated:
-                    why += f"; the drive is at its {self.limits.max_drive_v:g} V limit"
+                    why += f"; the drive is held by {self.limited_by}"
                 return self._failed(plan, w0, w0 + w, updates, start_sample, why, assess)
-            change_end, next_free = self._correct(ctl, drive, ctrl)
+            load = ctrl if plan.target_kind == "load" else other
+            change_end, next_free = self._correct(ctl, drive, ctrl, load)
             updates += 1
             if self.on_update is not None:
                 self.on_update(updates)
 
-    def _correct(self, ctl: AmplitudeController, drive: np.ndarray,
-                 response: np.ndarray) -> tuple[int, int]:
-        """One controller update; returns (end of the ramp, first sample worth measuring)."""
+    def _correct(self, ctl: AmplitudeController, drive: np.ndarray, response: np.ndarray,
+                 load: np.ndarray) -> tuple[int, int]:
+        """One controller update; returns (end of the ramp, first sample worth measuring).
+
+        The new drive is held to what keeps the load (scaled from the measured ``load`` (2,))
+        within `LOAD_MARGIN` of the load limit: a target the shaker cannot reach ends as a
+        step that did not converge, not as a trip.
+        """
         synth = self.stream.synth
         new = ctl.update(drive, response)
+        cap = LOAD_MARGIN * self.limits.max_load_n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            predicted = np.abs(load) * np.abs(new) / np.abs(drive)
+        over = np.isfinite(predicted) & (predicted > cap)
+        if over.any():
+            new = new * float(np.min(cap / predicted[over]))
+            ctl.saturated = True
+            self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
+        elif ctl.saturated:
+            self.limited_by = f"the drive limit ({self.limits.max_drive_v:g} V)"
         rows = synth.from_absolute(self._rows_drive(new))
         end = self._ramp(rows, None)
         return end, end + cycles_to_samples(synth.freq_hz, self.fs, self.cfg.wait_cycles)

@@ -159,3 +159,18 @@ def test_monitor_stamps_the_first_offending_sample():
     mon2 = SafetyMonitor(SafetyLimits(), cm)
     with pytest.raises(LimitTrip, match="slew"):
         mon2.check_ao(np.array([[0.0, 8.0], [0.0, 0.0]]), 0)
+
+
+def test_unreachable_target_stops_at_the_load_limit_without_tripping():
+    """The controller will not push the load past 90 % of its limit to chase a target."""
+    be = make_backend(seed=3)
+    rec = RecordingListener()
+    limits = SafetyLimits(max_load_n=60.0)
+    # dry X at 100 Hz, above the 45 Hz resonance: 40 um needs ~120 N, over the 60 N limit
+    spec = SweepSpec(motion="x", amplitude_m=[40e-6], freq_hz=[100.0], max_updates=6)
+    out = SweepEngine(be, spec, limits=limits, listener=rec).run()
+    assert out.status == "aborted"
+    assert "held by the load limit (60 N)" in out.reason
+    assert not rec.events_of("limit_trip")
+    fx = rec.ai()[default_channel_map().ai_index("fx")]
+    assert np.abs(fx).max() < 60.0
