@@ -229,6 +229,12 @@ class StepRunner:
         inner = np.vdot(rows_guess, synth.target_phasors)
         if abs(inner) > 0:
             rows_guess = rows_guess * (inner / abs(inner))
+        # no load measured at this frequency yet: hold the guess to the nominal shaker gain's
+        # share of the load limit, and to the drive limit
+        nominal = np.abs(self._axis_drive(rows_guess)) * self.gain_n_per_v
+        cap = LOAD_MARGIN * self.limits.max_load_n
+        if nominal.max() > cap:
+            rows_guess *= cap / float(nominal.max())
         peak = float(np.max(np.abs(rows_guess)))
         if peak > self.limits.max_drive_v:
             rows_guess *= self.limits.max_drive_v / peak
