@@ -367,13 +367,18 @@ class SweepEngine:
         peak = float(np.max(np.abs(stream.synth.phasors)))
         stream.ramp_down(max(self.spec.control.min_ramp_s,
                              peak / self.limits.max_drive_rate_v_per_s))
-        # keep acquiring with zero drive until resumed or aborted
+        # keep acquiring with zero drive until resumed or aborted; a backend that runs faster
+        # than real time (the fast simulator) is paced to the wall clock while paused, so that
+        # a pause does not fill the run file as fast as the machine can compute
+        fast = getattr(self.backend, "realtime", True) is False
         while True:
             with self._lock:
                 if self._abort_reason is not None:
                     raise _Abort(self._abort_reason)
                 if not self._pause:
                     break
+            if fast:
+                self._resume.wait(stream.block / stream.cm.sample_rate_hz)
             stream.cycle()
         self._machine.to(State.RUNNING)
         self._emit("operator", "resumed: repeating the interrupted step")
