@@ -170,9 +170,16 @@ class SweepEngine:
     def _emit(self, kind: str, message: str, sample: int | None = None) -> None:
         self.listener.on_event(kind, message, self._sample() if sample is None else sample)
 
+    def _emit_safe(self, kind: str, message: str, sample: int | None = None) -> None:
+        """`_emit` on the way out: a failing listener must not stop the safe shutdown."""
+        try:
+            self._emit(kind, message, sample)
+        except Exception:
+            log.exception("listener failed on event %s: %s", kind, message)
+
     def _on_state(self, old: State, new: State) -> None:
         self._progress = replace(self._progress, state=new.value, sample=self._sample())
-        self._emit("state", f"{old.value} -> {new.value}")
+        self._emit_safe("state", f"{old.value} -> {new.value}")
 
     def _interrupt(self) -> None:
         """Called after every block: operator abort or pause."""
@@ -273,7 +280,7 @@ class SweepEngine:
             self._check_config()
             self._check_interlock_before_start()
         except (TargetError, InterlockError) as err:
-            self._emit("abort", f"refused: {err}", 0)
+            self._emit_safe("abort", f"refused: {err}", 0)
             self._machine.to(State.REFUSED)
             raise
         cm = self.backend.channel_map
@@ -308,20 +315,20 @@ class SweepEngine:
                     reason = f"{bad} of {len(self.results)} steps did not converge"
             except _Abort as ab:
                 status, reason = State.ABORTED, ab.reason
-                self._emit("abort", reason)
+                self._emit_safe("abort", reason)
             except LimitTrip as trip:
                 status, reason = State.ABORTED, str(trip)
-                self._emit("limit_trip", reason, trip.sample if trip.sample >= 0 else None)
+                self._emit_safe("limit_trip", reason, trip.sample if trip.sample >= 0 else None)
             except InterlockError as err:
                 status, reason = State.ABORTED, str(err)
-                self._emit("abort", reason)
+                self._emit_safe("abort", reason)
             except _StepFailed as err:
                 status, reason = State.ABORTED, str(err)
-                self._emit("abort", reason)
+                self._emit_safe("abort", reason)
             except Exception as err:  # noqa: BLE001 - any failure must end in a safe stop
                 log.exception("sweep failed")
                 status, reason = State.FAILED, f"{type(err).__name__}: {err}"
-                self._emit("error", reason)
+                self._emit_safe("error", reason)
             finally:
                 if self._machine.state not in FINAL and self._machine.state is not State.STOPPING:
                     self._machine.to(State.STOPPING)
