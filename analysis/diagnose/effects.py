@@ -258,7 +258,7 @@ def _air(ctx: Context, m: Model) -> list[Variant]:
     scale = 0.05 / max(v_mean, 1e-9)
     p = _effect_param("coefficient_s_per_m", "effects.air_entrainment.coefficient_s_per_m",
                       scale, 0.0)
-    return [Variant({}, [p], [p.set(m, 2 * scale)])]
+    return [Variant({}, [p], [p.set(m, 0.5 * scale)])]
 
 
 def _needs_config_mass(ctx: Context) -> str | None:

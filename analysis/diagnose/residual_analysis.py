@@ -37,7 +37,11 @@ def harmonics(sig: np.ndarray, start: int, fs: float, freq_hz: float,
 
 
 def dwell_table(records: list[RunRecord], res: Residuals, segs: list[Segment]) -> list[dict]:
-    """One row per dwell and channel: frequency, amplitude, time, errors, harmonics, noise."""
+    """One row per dwell and moving channel: frequency, amplitude, time, errors, harmonics, noise.
+
+    Channels whose 1X amplitude is below 10 % of the dwell's largest are left out (the axis the
+    dwell does not drive).
+    """
     rows: list[dict[str, Any]] = []
     for seg in segs:
         if seg.freq_hz is None or seg.freq_hz <= 0:
@@ -46,9 +50,13 @@ def dwell_table(records: list[RunRecord], res: Residuals, segs: list[Segment]) -
         fs = rec.sample_rate_hz
         if seg.n < fs / seg.freq_hz:
             continue
+        fits = {ch: harmonics(rec.responses[ch][seg.start:seg.stop], seg.start, fs,
+                              seg.freq_hz) for ch in res.per_segment[seg]}
+        top = max(abs(f[0][0]) for f in fits.values())
         for ch, r in res.per_segment[seg].items():
-            meas = rec.responses[ch][seg.start:seg.stop]
-            zm, _, noise = harmonics(meas, seg.start, fs, seg.freq_hz)
+            zm, _, noise = fits[ch]
+            if abs(zm[0]) < 0.1 * top:
+                continue  # an axis the dwell hardly moves: relative errors would be noise
             zr, mean_r, _ = harmonics(r, seg.start, fs, seg.freq_hz)
             zp = zm - zr  # predicted harmonics (residual = measured - predicted)
             amp_m = abs(zm[0])

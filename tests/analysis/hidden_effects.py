@@ -20,7 +20,7 @@ second_mode                 frame mode 30..55 Hz (modal mass 150 kg)
 viscosity_drift             film damping -12..-25 % from start to end (oil warming)
 sensor_gain                 one probe, recorded/true 1.03..1.08 or 0.92..0.97
 channel_delay               one probe, 0.1..0.5 ms
-air_entrainment             coefficient 20..40 s/m
+air_entrainment             coefficient 6..14 s/m (film damping 15..40 % lower at speed)
 =========================== ================================================================
 """
 
@@ -126,7 +126,7 @@ def draw_effect(effect: str, rng: np.random.Generator, data: dict[str, Any],
         data["effects"]["channel_delay"] = {"enabled": True, "channel": ch, "delay_s": d}
         return {"channel": ch, "delay_s": d}
     if effect == "air_entrainment":
-        c = float(rng.uniform(20, 40))
+        c = float(rng.uniform(6, 14))
         data["effects"]["air_entrainment"].update(enabled=True, coefficient_s_per_m=c)
         return {"coefficient_s_per_m": c}
     raise ValueError(f"no generator for effect {effect!r}")
