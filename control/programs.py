@@ -33,6 +33,9 @@ class Listener(Protocol):
     def on_event(self, kind: str, message: str, sample: int) -> None: ...
 
 
+FAULT_RAMP_S = 0.04  # drive fade on a fault [s]
+
+
 class ProgramError(RuntimeError):
     """A test programme that had to stop: the message says which step and why."""
 
@@ -51,7 +54,11 @@ class ProgramOutcome:
 
 class _Spec(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    block_samples: int = Field(1000, ge=10, le=100_000, description="samples per AI/AO block")
+    block_samples: int = Field(
+        100, ge=10, le=100_000,
+        description="samples per AI/AO block; two blocks are queued ahead, so on a trip the drive "
+        "reaches zero within 2 blocks + the 40 ms fault ramp (60 ms at 10 kS/s)",
+    )
     ramp_s: float = Field(0.1, gt=0, le=5, description="drive ramp between levels [s]")
     max_force_n: float = Field(448.0, gt=0, description="measured force limit (shaker rating)")
 
@@ -105,8 +112,12 @@ class _Stream:
     next written block ends at.
     """
 
-    def __init__(self, backend: DaqBackend, listener: Listener, block: int) -> None:
+    def __init__(self, backend: DaqBackend, listener: Listener, block: int,
+                 max_force_n: float = float("inf")) -> None:
         self.backend = backend
+        self.max_force_n = max_force_n
+        self.where = ""  # what the programme is doing, for the trip message
+        self._fading = False  # set while ramping to zero at the end: no more trips
         self.listener = listener
         self.cm = backend.channel_map
         self.fs = backend.sample_rate_hz
@@ -114,14 +125,23 @@ class _Stream:
         self.n_ao = len(self.cm.ao)
         self.level_v = np.zeros(self.n_ao)
         self._written: deque[np.ndarray] = deque()
+        self._target: np.ndarray | None = None
+        self._rate = np.zeros(self.n_ao)  # ramp rate toward the target [V per sample]
         self.sample = 0  # next AI sample to read
         self._started = False
 
     def _write(self, target_v: np.ndarray, ramp_samples: int) -> None:
+        """Write one block moving linearly toward ``target_v``: a new target sets the rate so
+        that the whole change takes ``ramp_samples``; the level then arrives exactly."""
         n = self.block
-        ramp = max(int(ramp_samples), 1)
-        frac = np.minimum(np.arange(1, n + 1) / ramp, 1.0)
-        blk = self.level_v[:, None] + (target_v - self.level_v)[:, None] * frac[None, :]
+        target_v = np.asarray(target_v, dtype=float)
+        if self._target is None or not np.array_equal(target_v, self._target):
+            self._target = target_v.copy()
+            self._rate = np.abs(target_v - self.level_v) / max(int(ramp_samples), 1)
+        delta = self._target - self.level_v
+        k = np.arange(1, n + 1)[None, :]
+        moved = np.minimum(self._rate[:, None] * k, np.abs(delta)[:, None])
+        blk = self.level_v[:, None] + np.sign(delta)[:, None] * moved
         for row, ch in enumerate(self.cm.ao):
             lo, hi = ch.range_v
             np.clip(blk[row], lo, hi, out=blk[row])
@@ -145,7 +165,17 @@ class _Stream:
         ao = self._written.popleft()
         self.listener.on_block(self.sample, ai, ao)
         self.sample += self.block
+        if not self._fading:
+            self._check_force(ai)  # every block: a trip is seen within one block
         return ai
+
+    def _check_force(self, ai: np.ndarray) -> None:
+        for name in ("fx", "fy"):
+            if name in self.cm.ai_names:
+                peak = float(np.max(np.abs(_ai(self.cm, ai, name))))
+                if peak > self.max_force_n:
+                    raise ProgramError(f"{self.where or 'programme'}: {name} reached "
+                                       f"{peak:.1f} N, over the {self.max_force_n:g} N limit")
 
     def hold(self, target_v: np.ndarray, seconds: float, ramp_s: float) -> tuple[int, np.ndarray]:
         """Hold ``target_v`` for ``seconds``; returns (first sample, AI (n_ai, n)).
@@ -167,6 +197,7 @@ class _Stream:
         if not self._started:
             return
         zero = np.zeros(self.n_ao)
+        self._fading = True
         try:
             n_blocks = int(np.ceil(ramp_s * self.fs / self.block)) + 3
             for _ in range(n_blocks):
@@ -189,15 +220,6 @@ def _signal(cm: Any, ai: np.ndarray, name: str) -> np.ndarray:
     return ai[rows].mean(axis=0)
 
 
-def _check_force(cm: Any, ai: np.ndarray, spec: _Spec, where: str) -> None:
-    for name in ("fx", "fy"):
-        if name in cm.ai_names:
-            peak = float(np.max(np.abs(_ai(cm, ai, name))))
-            if peak > spec.max_force_n:
-                raise ProgramError(f"{where}: {name} reached {peak:.1f} N, over the "
-                                   f"{spec.max_force_n:g} N limit")
-
-
 def _step_dict(index: int, target_kind: str, target_value: float, motion: str, first: int,
                last: int, updates: int = 0, converged: bool = True, reason: str = "",
                **extra: Any) -> dict[str, Any]:
@@ -213,18 +235,21 @@ def _step_dict(index: int, target_kind: str, target_value: float, motion: str, f
 
 def _run(kind: str, backend: DaqBackend, listener: Listener, spec: _Spec,
          body: Callable[[_Stream, list[dict[str, Any]]], None]) -> ProgramOutcome:
-    stream = _Stream(backend, listener, spec.block_samples)
+    stream = _Stream(backend, listener, spec.block_samples, spec.max_force_n)
     steps: list[dict[str, Any]] = []
     listener.on_event("state", f"{kind} programme started: {spec.model_dump_json()}", 0)
     outcome = ProgramOutcome(kind, 0, True)
+    clean = False
     try:
         stream.start()
         body(stream, steps)
+        clean = True
     except ProgramError as err:
         outcome.completed, outcome.reason = False, str(err)
         listener.on_event("abort", str(err), stream.sample)
     finally:
-        stream.finish(spec.ramp_s)
+        # a fault (ProgramError or anything unexpected) fades the drives fast
+        stream.finish(spec.ramp_s if clean else FAULT_RAMP_S)
     state = "completed" if outcome.completed else "aborted"
     listener.on_event("state", f"{kind} programme {state}", stream.sample)
     outcome.steps, outcome.samples, outcome.step_dicts = len(steps), stream.sample, steps
@@ -247,9 +272,9 @@ def _static_levels(stream: _Stream, steps: list[dict[str, Any]], spec: StaticSpe
         for p in range(passes):
             for force in spec.forces_n:
                 where = f"{kind} step {len(steps)} ({axis}, {force:g} N, pass {p + 1})"
+                stream.where = where
                 drive = _drive_for(cm, axis, force, gain)
                 _, ai = stream.hold(drive, spec.settle_s, spec.ramp_s)
-                _check_force(cm, ai, spec, where)
                 updates = 0
                 corrections = getattr(spec, "corrections", 1)
                 for _ in range(corrections):
@@ -258,10 +283,8 @@ def _static_levels(stream: _Stream, steps: list[dict[str, Any]], spec: StaticSpe
                         break
                     drive = drive + _drive_for(cm, axis, force - measured, gain)
                     _, ai = stream.hold(drive, spec.settle_s, spec.ramp_s)
-                    _check_force(cm, ai, spec, where)
                     updates += 1
                 first, ai = stream.hold(drive, spec.record_s, spec.ramp_s)
-                _check_force(cm, ai, spec, where)
                 extra = after_hold(axis, force) if after_hold else {}
                 value = extra.pop("target_value", force)
                 step = _step_dict(len(steps), target_kind, value, axis, first, stream.sample,

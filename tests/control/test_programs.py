@@ -134,6 +134,14 @@ def test_static_programme_stops_at_the_force_limit(tmp_path: Path) -> None:
     assert out.steps == 1
     with open_run(tmp_path / "s.h5") as r:
         assert np.all(r.channel("shaker_x")[-100:] == 0.0)
+        # the trip is found at the end of the block that saw it: drives at zero 100 ms later
+        trip = next(e["sample"] for e in r.events if e["kind"] == "abort")
+        fx = r.channel("fx")
+        first_over = int(np.nonzero(np.abs(fx) > 100.0)[0][0])
+        assert trip - first_over <= 100  # detected within the 10 ms block
+        drive = np.abs(r.channel("shaker_x"))
+        assert drive[first_over] > 1.0
+        assert np.all(drive[first_over + 1000:] == 0.0)
 
 
 def test_probe_calibration_programme(tmp_path: Path) -> None:
