@@ -142,7 +142,8 @@ def load_run(path: str | Path, run_index: int = 0) -> RunRecord:
                 raise DiagnoseError(f"{path}: channel {nm!r} holds NaN or infinite samples")
         if not np.all(np.isfinite(force)):
             raise DiagnoseError(f"{path}: the force channels hold NaN or infinite samples")
-        accel = {nm: run.channel(nm) for nm in ("ax", "ay") if nm in names}
+        accel: dict[str, np.ndarray] = {nm: run.channel(nm) for nm in ("ax", "ay")
+                                        if nm in names}
         t_oil = run.channel("t_oil") if "t_oil" in names else None
         rig = None
         if run.rig_config:

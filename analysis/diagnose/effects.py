@@ -233,11 +233,23 @@ def _visc_drift(ctx: Context, m: Model) -> list[Variant]:
     return [Variant({}, [p], [m])]
 
 
+def _channel_param(name: str, attr: str, ch: str, default: float, scale: float, lo: float,
+                   hi: float) -> Param:
+    """A per-channel measurement term (``Model.gain`` or ``Model.delay_s``) of channel ``ch``."""
+    def get(mm: Model) -> float:
+        return getattr(mm, attr).get(ch, default)
+
+    def put(mm: Model, v: float) -> Model:
+        terms: dict[str, Any] = {attr: {**getattr(mm, attr), ch: float(v)}}
+        return replace(mm, **terms)
+
+    return Param(name, get, put, scale, lo, hi)
+
+
 def _sensor_gain(ctx: Context, m: Model) -> list[Variant]:
     out = []
     for ch in ctx.redundant_channels():
-        p = Param("gain_ratio", lambda mm, c=ch: mm.gain.get(c, 1.0),
-                  lambda mm, v, c=ch: replace(mm, gain={**mm.gain, c: float(v)}), 0.02, 0.2, 5.0)
+        p = _channel_param("gain_ratio", "gain", ch, 1.0, 0.02, 0.2, 5.0)
         out.append(Variant({"channel": ch}, [p], [m]))
     return out
 
@@ -246,9 +258,7 @@ def _delay(ctx: Context, m: Model) -> list[Variant]:
     out = []
     fs = min(r.sample_rate_hz for r in ctx.records)
     for ch in ctx.redundant_channels():
-        p = Param("delay_s", lambda mm, c=ch: mm.delay_s.get(c, 0.0),
-                  lambda mm, v, c=ch: replace(mm, delay_s={**mm.delay_s, c: float(v)}),
-                  0.5 / fs, 0.0, 0.01)
+        p = _channel_param("delay_s", "delay_s", ch, 0.0, 0.5 / fs, 0.0, 0.01)
         out.append(Variant({"channel": ch}, [p], [p.set(m, 0.5 / fs)]))
     return out
 

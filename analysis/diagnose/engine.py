@@ -186,7 +186,7 @@ def bootstrap_gain(before: Residuals, after: Residuals, segs: list[Segment], see
 
 
 def _criterion(res: Residuals, segs: list[Segment], k: int) -> tuple[float, int]:
-    s = n = 0
+    s, n = 0.0, 0
     for seg in segs:
         a, b = res.sse(seg)
         s += a
@@ -333,13 +333,14 @@ def diagnose(
             # the two best are refitted jointly with the baseline's and earlier findings'
             # parameters, and re-ranked
             for i in range(min(2, len(cands))):
-                c = cands[i]
-                k_joint = len(free) + len(c.variant.params)
-                res = fit(ev, [c.fit.model], free + c.variant.params, fit_train, scale_m,
+                cand = cands[i]
+                k_joint = len(free) + len(cand.variant.params)
+                res = fit(ev, [cand.fit.model], free + cand.variant.params, fit_train, scale_m,
                           max_nfev=20 * (k_joint + 1), step=step)
-                if res.train_sse <= c.fit.train_sse:
-                    cands[i] = _judge(ev, c.effect, c.variant, res, fit_train, test, len(free))
-                say(f"  joint refit {c.effect:16s} held-out {cands[i].test_rms:.4g}")
+                if res.train_sse <= cand.fit.train_sse:
+                    cands[i] = _judge(ev, cand.effect, cand.variant, res, fit_train, test,
+                                      len(free))
+                say(f"  joint refit {cand.effect:16s} held-out {cands[i].test_rms:.4g}")
             cands.sort(key=lambda c: c.criterion)
         before = cur_test.rms()
         rounds.append([{
