@@ -156,24 +156,40 @@ def dwell_plan(rng: np.random.Generator, n_dwells: int, config: RigParams
 
 
 def make_case(tmp: Path, effects: list[str], seed: int, n_dwells: int = 15,
-              record_s: float = 0.25, settle_s: float = 0.2) -> Case:
-    """Generate one run with ``effects`` hidden (none: clean data) and write it under ``tmp``."""
+              record_s: float = 0.25, settle_s: float = 0.2, n_runs: int = 1) -> Case:
+    """Generate ``n_runs`` runs with ``effects`` hidden (none: clean data) under ``tmp``.
+
+    The runs share the true rig; each has its own dwell order and noise.
+    """
     rng = np.random.default_rng(seed)
-    cm = default_channel_map()
-    fs = cm.sample_rate_hz
     config = config_rig()
-    plan = dwell_plan(rng, n_dwells, config)
+    plans = [dwell_plan(rng, n_dwells, config) for _ in range(n_runs)]
     ramp_s = 0.05
-    per_dwell = [2 * ramp_s + settle_s + math.ceil(record_s * f) / f for f, _, _ in plan]
-    duration = LEAD_IN_S + sum(per_dwell)
+    per_dwell = [[2 * ramp_s + settle_s + math.ceil(record_s * f) / f for f, _, _ in plan]
+                 for plan in plans]
+    duration = LEAD_IN_S + sum(per_dwell[0])
     data = config.model_dump(mode="python")
     truths = {e: draw_effect(e, rng, data, duration) for e in effects}
     truth = RigParams.model_validate(data)
+    case = Case(truths, config, truth)
+    for k, (plan, spans) in enumerate(zip(plans, per_dwell, strict=True)):
+        name = f"hidden-{'-'.join(effects) or 'clean'}-{seed}" + (f"-run{k}" if n_runs > 1 else "")
+        path, dur = _record(Path(tmp) / f"{name}.h5", config, truth, plan, spans, seed + 1000 * k,
+                            ramp_s, settle_s, record_s)
+        case.paths.append(path)
+        case.duration_s = max(case.duration_s, dur)
+    return case
+
+
+def _record(path: Path, config: RigParams, truth: RigParams, plan: list, per_dwell: list,
+            seed: int, ramp_s: float, settle_s: float, record_s: float) -> tuple[Path, float]:
+    """Drive the true rig through ``plan`` and write the run file; return (path, duration)."""
+    cm = default_channel_map()
+    fs = cm.sample_rate_hz
     backend = SimulatedBackend(truth, seed=seed)
     backend.configure(cm)
     backend.set_do("pump", True)
     backend.start()
-    path = Path(tmp) / f"hidden-{'-'.join(effects) or 'clean'}-{seed}.h5"
     writer = RunWriter.create(
         path, f"hidden-{seed}", "sweep", cm.to_json_dict()["ai"], cm.ao_names, fs,
         channel_map=cm.to_json_dict(), rig_config=config.model_dump(mode="json"),
@@ -223,4 +239,4 @@ def make_case(tmp: Path, effects: list[str], seed: int, n_dwells: int = 15,
             })
     finally:
         writer.close()
-    return Case(truths, config, truth, [path], sample / fs)
+    return path, sample / fs

@@ -95,3 +95,13 @@ def test_effect_outside_the_library_is_not_named_with_confidence(tmp_path):
     diag = diagnose(records, rig=wrong, seed=CI_SEED)
     assert diag.unexplained or not diag.findings
     assert all(f.evidence["confidence"] == "low" for f in diag.findings)
+
+
+def test_several_run_files_are_diagnosed_together(tmp_path):
+    """Two runs of the same rig (own dwell order and noise): dwells of both are held out."""
+    case = make_case(tmp_path, ["added_mass"], CI_SEED, n_dwells=9, n_runs=2)
+    records = [load_run(p, i) for i, p in enumerate(case.paths)]
+    diag = diagnose(records, seed=CI_SEED)
+    assert {s.run for s in diag.test} == {0, 1}
+    assert [f.effect for f in diag.findings] == ["added_mass"]
+    _check_recovered("added_mass", case.effects["added_mass"], diag.findings[0])
