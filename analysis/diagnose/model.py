@@ -110,6 +110,8 @@ class Evaluator:
         self.oversample = oversample or {}
         self.duration_s = max(r.n_samples / r.sample_rate_hz for r in records)
         self._cache: dict[tuple[str, int, int, int], np.ndarray] = {}
+        self._cache_bytes = 0
+        self.cache_limit_bytes = 400 * 2**20  # simulations kept for measurement-only changes
         self._up_cache: dict[tuple[int, int, int], np.ndarray] = {}
         self.simulations = 0
 
@@ -171,9 +173,11 @@ class Evaluator:
             idx = np.arange(b - a) * up + shift
             idx[idx < 0] = 0
             xy = np.vstack([tr.x_m[idx], tr.y_m[idx]])
-        if len(self._cache) > 4096:
-            self._cache.clear()
         self._cache[key] = xy
+        self._cache_bytes += xy.nbytes
+        while self._cache_bytes > self.cache_limit_bytes and len(self._cache) > 1:
+            oldest = next(iter(self._cache))  # first inserted
+            self._cache_bytes -= self._cache.pop(oldest).nbytes
         return xy
 
     def _upsampled(self, run: int, a: int, b: int, up: int) -> np.ndarray:
