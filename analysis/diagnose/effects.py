@@ -218,7 +218,10 @@ def _second_mode(ctx: Context, m: Model) -> list[Variant]:
     pf = _effect_param("frequency_hz", "effects.second_mode.frequency_hz", 3.0, 2.0, fs / 4)
     pm = _effect_param("modal_mass_kg", "effects.second_mode.modal_mass_kg",
                        0.3 * ctx.base.rig.structure.mass_kg, 0.05 * ctx.base.rig.structure.mass_kg)
-    mass0 = ctx.base.rig.effects.second_mode.modal_mass_kg
+    # start from the configured frame; on a fitted (e.g. imported, unknown scale) structure,
+    # from the fitted mass
+    mass0 = (ctx.base.rig.structure.mass_kg if ctx.fitted_baseline
+             else ctx.base.rig.effects.second_mode.modal_mass_kg)
     f_lo, f_hi = 0.3 * ctx.f_typ_hz, min(3.0 * ctx.f_typ_hz, fs / 4)
     starts = []
     for f in np.geomspace(f_lo, f_hi, 9):
