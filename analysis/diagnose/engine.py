@@ -21,7 +21,8 @@ Procedure
    significance check.
 3. Unexplained: when a structured discrepancy remains, i.e. the held-out error after the findings
    still exceeds half the baseline's (in the part above the noise floor, where dwells give one).
-   Findings are then marked low-confidence; so is a finding whose runner-up explains the held-out
+   Findings are then marked low-confidence; so is a finding whose runner-up (not found itself
+   in a later round) explains the held-out
    data nearly as well (held-out MSE within 25 %).
 """
 
@@ -388,6 +389,10 @@ def diagnose(
     discrepancy = struct_before > (0.25 * n2 if noise else 0.0) and struct_before > 0
     unexplained = bool(discrepancy and struct_after > 0.25 * struct_before)
     for f in findings:
+        # a runner-up as good as the finding leaves the cause ambiguous, unless it was found too
+        found = {g.effect for g in findings}
+        if f.evidence.get("ambiguous") and f.evidence["runner_up"]["effect"] in found:
+            f.evidence["ambiguous"] = False
         f.evidence["confidence"] = "low" if (unexplained or f.evidence.get("ambiguous")) \
             else "high"
     if not findings and discrepancy:

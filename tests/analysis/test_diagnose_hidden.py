@@ -77,6 +77,7 @@ def test_two_effects_are_both_found(tmp_path, effects):
     assert sorted(names) == sorted(effects), f"hidden {case.effects}, found {names}"
     for f in diag.findings:
         _check_recovered(f.effect, case.effects[f.effect], f)
+        assert f.evidence["confidence"] == "high"
     assert diag.final_test.rms() < diag.findings[0].error_before
     assert not diag.unexplained
 
