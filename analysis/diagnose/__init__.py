@@ -1,7 +1,23 @@
 """Model discrepancy: replay measured force through the rig model, find and fit what it misses.
 
-Entry points: `load_run` (run file -> `RunRecord`), `diagnose` (-> `Diagnosis`),
-`write_report` (HTML + PNG figures), `diagnosis_json`. The effect library is `LIBRARY`.
+Entry points: `load_run` (run file -> `RunRecord`), `diagnose` (-> `Diagnosis`); the report
+module writes the JSON, the extended rig TOML and the HTML page. The effect library is
+`LIBRARY` (ids, parameter names and the documented recovery tolerances).
+
+Modules: ``data`` (runs, segments, train/held-out split), ``model`` (the replay through
+`simulated_hw.simulate_response`), ``effects`` (the library), ``fitting`` (output-error
+Levenberg-Marquardt), ``engine`` (baseline, rounds, significance, bootstrap), ``residual_analysis``
+(per dwell / harmonic / segment numbers), ``report`` (JSON, TOML, HTML + PNG).
+
+Limits, stated:
+- ``sensor_gain`` and ``channel_delay`` need two displacement channels on the axis (probes x1,
+  x2): the twin probe and the model arbitrate; the accelerometers are compared as corroborating
+  evidence only (they are not in the fitted objective).
+- The fitted baseline fits one mass and one damping for both axes and a stiffness per axis
+  (RigParams has one mass and one residual damping).
+- Lubricated runs are replayed with the film full from sample 0 and the oil temperature of the
+  configuration (initial temperature, configured warming): a drift shows as ``viscosity_drift``,
+  corroborated by the recorded oil temperature when there is one.
 """
 
 from analysis.diagnose.data import DiagnoseError, RunRecord, Segment, load_run, parse_spans
