@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import os
 import queue
 import secrets
@@ -543,6 +544,7 @@ class Daemon:
             channel_map=cm.to_json_dict(), rig_config=self.cfg.rig_config,
             test_spec=spec.model_dump(mode="json") if hasattr(spec, "model_dump") else spec,
             lubricated=bool(getattr(spec, "lubricated", False)),
+            chunk_samples=writer_chunk_samples(cm.sample_rate_hz),
         )
         background = BackgroundWriter(writer, int(30 * cm.sample_rate_hz))
         try:
@@ -702,6 +704,17 @@ def _random_port(endpoint: str) -> str:
     """``tcp://host:0`` -> ``tcp://host:*`` (ZeroMQ's any-free-port)."""
     return endpoint[:-2] + ":*" if endpoint.startswith("tcp://") and endpoint.endswith(":0") \
         else endpoint
+
+
+def writer_chunk_samples(sample_rate_hz: float) -> int:
+    """About 1/8 s per HDF5 chunk (a power of two, >= 1024 samples).
+
+    h5py keeps the GIL while it compresses a chunk; with one-second chunks at 62.5 kS/s x 18
+    channels that is tens of milliseconds at once, which starves the acquisition thread past its
+    AO lead (underflow, seen on a loaded 2-core machine). Eighth-second chunks spread the same
+    work into pieces of a few milliseconds.
+    """
+    return int(max(1024, 2 ** round(math.log2(max(sample_rate_hz, 1.0) / 8))))
 
 
 def new_run_id() -> str:

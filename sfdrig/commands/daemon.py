@@ -95,6 +95,9 @@ def run(args: argparse.Namespace) -> int:
     except PermissionError as err:
         print(f"daemon: {err}", file=sys.stderr)
         return 2
+    # Hand the GIL over every millisecond (default 5 ms): the acquisition thread's AO lead is
+    # tens of milliseconds, and the writer, publisher and command threads must not eat it.
+    sys.setswitchinterval(0.001)
     signal.signal(signal.SIGTERM, lambda s, f: daemon.stop("SIGTERM received"))
     signal.signal(signal.SIGINT, lambda s, f: daemon.stop("SIGINT (Ctrl-C) received"))
     print(f"command={daemon.endpoints['command']} data={daemon.endpoints['data']}", flush=True)
