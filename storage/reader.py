@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import json
 import re
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -36,9 +37,43 @@ def _text(value: Any) -> str:
     return str(value)
 
 
+_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def _superblock_problem(path: Path) -> str:
+    """Why the file cannot hold what its superblock says ("" when it can, or cannot tell).
+
+    HDF5 skips its own truncation check when opening for SWMR reading (a live writer may be
+    extending the file) and then retries unreadable metadata for a very long time, so a truncated
+    file left by a dead writer would hang the reader. The version 2/3 superblock records the end
+    of the file: a shorter file is truncated.
+    """
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        offset = 0
+        while offset + 48 <= size:  # the superblock sits at 0, 512, 1024, 2048... (user block)
+            f.seek(offset)
+            head = f.read(48)
+            if head[:8] == _SIGNATURE:
+                break
+            offset = 512 if offset == 0 else offset * 2
+        else:
+            return ""
+    version, n_off = head[8], head[9]
+    if version < 2 or n_off not in (4, 8):
+        return ""
+    fmt = "<I" if n_off == 4 else "<Q"
+    base = struct.unpack_from(fmt, head, 12)[0]
+    stored_eof = struct.unpack_from(fmt, head, 12 + 2 * n_off)[0]
+    if size < base + stored_eof:
+        return (f"truncated: {size} bytes where the HDF5 superblock records {base + stored_eof} "
+                "(or the file is still being created)")
+    return ""
+
+
 def _open_h5(path: Path) -> h5py.File:
-    """Open read-only: SWMR first (live or killed writers leave the file marked open for
-    writing, which a plain open refuses), then plain (files written without SWMR)."""
+    """Open read-only: plainly when the file was closed properly, else as a SWMR reader (a live
+    writer, or one that died, leaves the file marked open for writing and a plain open refuses)."""
     if not path.exists():
         raise RunFileError(f"{path}: no such file")
     if path.is_dir():
@@ -46,13 +81,20 @@ def _open_h5(path: Path) -> h5py.File:
     if not h5py.is_hdf5(path):
         raise RunFileError(f"{path}: not an HDF5 file (no HDF5 signature; truncated or another "
                            "format)")
-    errors = []
-    for kwargs in ({"swmr": True}, {}):
-        try:
-            return h5py.File(path, "r", **kwargs)
-        except OSError as err:
-            errors.append(str(err))
-    raise RunFileError(f"{path}: cannot open as HDF5 (truncated or damaged?): {errors[-1]}")
+    try:
+        return h5py.File(path, "r")
+    except OSError as err:
+        message = str(err)
+        if "already open for write" not in message:
+            raise RunFileError(f"{path}: cannot open as HDF5 (truncated or damaged?): "
+                               f"{message}") from None
+    problem = _superblock_problem(path)
+    if problem:
+        raise RunFileError(f"{path}: {problem}")
+    try:
+        return h5py.File(path, "r", swmr=True)
+    except OSError as err:
+        raise RunFileError(f"{path}: cannot open as HDF5 (truncated or damaged?): {err}") from None
 
 
 class RunData:

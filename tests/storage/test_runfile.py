@@ -17,6 +17,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from storage import MissingSignalError, RunFileError, RunWriter, open_run
+from storage.reader import _superblock_problem
 from storage.runfile import FORMAT, FORMAT_VERSION
 from tests.storage import _writer_proc as proc
 
@@ -417,6 +418,43 @@ def test_truncated_file(good_run: Path) -> None:
     with (pytest.raises(RunFileError, match=r"good\.h5: .*(truncated|damaged)"),
           open_run(good_run) as run):
         run.channel("fx")
+
+
+@pytest.mark.parametrize("fraction", [0.002, 0.05, 0.3, 0.6, 0.9, 0.99])
+def test_truncated_anywhere_gives_run_file_error_or_data(good_run: Path, fraction: float) -> None:
+    """Whatever part of the file is cut, every accessor returns data or raises RunFileError."""
+    data = good_run.read_bytes()
+    good_run.write_bytes(data[: int(len(data) * fraction)])
+    try:
+        with open_run(good_run) as run:
+            for name in run.channel_names + run.drive_names:
+                run.channel(name)
+            _ = run.steps, run.events
+    except RunFileError as err:
+        assert str(good_run) in str(err)
+
+
+def test_truncated_file_of_a_live_or_dead_writer_fails_fast(tmp_path: Path) -> None:
+    """The copy of a file still marked open for writing, cut short: RunFileError, no hang
+    (HDF5's SWMR reader would retry the missing metadata for hours)."""
+    w = _make(tmp_path / "live.h5")
+    try:
+        w.on_block(0, np.ones((4, 5000)), np.zeros((2, 5000)))
+        w.on_step(_step(0, 0, 5000, ["fx"], []))
+        data = (tmp_path / "live.h5").read_bytes()
+    finally:
+        w.close()
+    cut = tmp_path / "cut.h5"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(RunFileError, match=rf"cut\.h5: .*truncated.*{len(data) // 2}"):
+        open_run(cut)
+    assert _superblock_problem(cut) == (
+        f"truncated: {len(data) // 2} bytes where the HDF5 superblock records {len(data)} "
+        "(or the file is still being created)")
+    whole = tmp_path / "whole.h5"  # the same bytes uncut open as a SWMR file
+    whole.write_bytes(data)
+    with open_run(whole) as run:
+        assert run.h5.swmr_mode and run.n_samples == 5000 and len(run.steps) == 1
 
 
 def test_wrong_format_attr(good_run: Path) -> None:
