@@ -627,6 +627,8 @@ class Daemon:
             "run_path": str(job.path) if job is not None else "",
             "progress": progress,
             "samples": job.fanout.last_sample if job is not None else 0,
+            # durable in the run file (a reader, or a crash, sees at least these)
+            "samples_flushed": job.writer.writer.samples_flushed if job is not None else 0,
             "pump_on": bool(self.pump.is_on),
             "fault_reason": self.fault_reason,
             "last_run": self._last_run,

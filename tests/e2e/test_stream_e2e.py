@@ -78,15 +78,21 @@ def test_kill_9_mid_run_leaves_a_file_with_every_flushed_block(daemon_factory):
         run_id = reply.data["run_id"]
         blocks: list[Message] = []
         step = None
-        while step is None:  # the writer flushes at every step
+        flushed = 0
+        # The writer flushes at every step: wait for a step, then for the heartbeat that
+        # reports it durable.
+        while step is None or flushed < step["last_sample"]:
             msg = sub.recv(timeout_s=60)
             assert msg is not None
-            if msg.topic == "block" and msg.header["run_id"] == run_id:
+            h = msg.header
+            if msg.topic == "block" and h["run_id"] == run_id:
                 blocks.append(msg)
             elif msg.topic == "step":
-                step = msg.header["step"]
-            elif msg.topic == "event" and msg.header["message"].startswith(f"run {run_id} "):
-                pytest.fail(f"the run ended before a step: {msg.header['message']}")
+                step = h["step"]
+            elif msg.topic == "status" and h["status"]["run_id"] == run_id:
+                flushed = h["status"]["samples_flushed"]
+            elif msg.topic == "event" and h["message"].startswith(f"run {run_id} "):
+                pytest.fail(f"the run ended before a step: {h['message']}")
         d.proc.kill()
         d.proc.wait(10)
         while (msg := sub.recv(timeout_s=0.5)) is not None:  # what was in flight
@@ -96,7 +102,7 @@ def test_kill_9_mid_run_leaves_a_file_with_every_flushed_block(daemon_factory):
     with open_run(reply.data["path"]) as run:
         n = run.n_samples
         assert run.status == "running"  # never closed
-        assert step["last_sample"] <= n <= streamed.shape[1]
+        assert step["last_sample"] <= flushed <= n <= streamed.shape[1]
         for i, name in enumerate(run.channel_names + run.drive_names):
             np.testing.assert_array_equal(run.channel(name), streamed[i, :n], err_msg=name)
         assert len(run.steps) >= 1
