@@ -559,7 +559,8 @@ class Daemon:
         self.publisher.set_run(run_id)
         self.sm.fire("start")
         self.loop.submit(self._job)
-        return self._ok(req, run_id=run_id, path=str(path))
+        steps_total = len(spec.steps()) if hasattr(spec, "steps") else None
+        return self._ok(req, run_id=run_id, path=str(path), steps_total=steps_total)
 
     def _refusal(self, spec: Any) -> tuple[ErrorKind, str] | None:
         """Why a valid sweep must not start now (before a run file exists), or None."""

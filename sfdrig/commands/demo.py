@@ -74,7 +74,8 @@ def run_sweep(client: CommandClient, sub: Subscriber, spec: dict[str, Any]) -> d
     print(f"\n== {spec['name']}", flush=True)
     reply = client.start_sweep(spec, operator="sfdrig demo", notes=spec["name"])
     run_id = reply.data["run_id"]
-    status, reason, steps = follow(sub, run_id, idle_timeout_s=120)
+    status, reason, steps = follow(sub, run_id, idle_timeout_s=120,
+                                   total=reply.data.get("steps_total"))
     print(f"run {run_id}: {status}" + (f" ({reason})" if reason else ""), flush=True)
     return {"name": spec["name"], "run_id": run_id, "path": reply.data["path"],
             "status": status, "reason": reason, "steps": steps}

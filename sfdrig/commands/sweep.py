@@ -124,8 +124,8 @@ def _fmt(v: Any) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
-def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: float = 30.0
-           ) -> tuple[str, str, list[dict[str, Any]]]:
+def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: float = 30.0,
+           total: int | None = None) -> tuple[str, str, list[dict[str, Any]]]:
     """Print progress and step results of ``run_id`` until it ends.
 
     Returns
@@ -136,7 +136,6 @@ def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: 
     tty = out.isatty() if hasattr(out, "isatty") else False
     steps: list[dict[str, Any]] = []
     last_progress = ""
-    total = None
     last_msg = time.monotonic()
     while True:
         msg = sub.recv(timeout_s=1.0)
@@ -184,7 +183,8 @@ def run(args: argparse.Namespace) -> int:
                 reply = client.start_sweep(spec, args.operator, args.notes)
                 run_id = reply.data["run_id"]
                 print(f"run {run_id} started: {reply.data['path']}", flush=True)
-                status, reason, steps = follow(sub, run_id)
+                status, reason, steps = follow(sub, run_id,
+                                               total=reply.data.get("steps_total"))
     except CommandRefused as err:
         print(f"sweep: {err}")
         return 1

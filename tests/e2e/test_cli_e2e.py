@@ -1,0 +1,108 @@
+"""The operator's command line against a daemon process: sweep, status, pump, watch, abort, and
+the XSUB/XPUB proxy carrying the live stream to a subscriber."""
+
+from __future__ import annotations
+
+import os
+import selectors
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from control.client import CommandClient, Subscriber
+from storage.reader import open_run
+
+pytestmark = pytest.mark.e2e
+
+SWEEP_TOML = """
+name = "cli e2e"
+motion = "x"
+load_n = [40.0]
+freq_hz = [30.0, 50.0]
+settle_cycles = 5
+record_cycles = 10
+"""
+
+
+def sfdrig(*args: str, timeout_s: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "sfdrig", *args], capture_output=True,
+                          text=True, timeout=timeout_s)
+
+
+def test_sweep_status_pump_watch_from_the_command_line(daemon_factory, tmp_path):
+    d = daemon_factory()
+    conn = ["--runs-dir", str(d.runs_dir)]  # endpoints from the daemon's state file
+    sweep_file = tmp_path / "sweep.toml"
+    sweep_file.write_text(SWEEP_TOML)
+    out = sfdrig("sweep", str(sweep_file), "--set", "record_cycles=12", *conn)
+    assert out.returncode == 0, out.stdout + out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0].startswith("run ") and "started" in lines[0]
+    steps = [ln for ln in lines if ln.startswith("step ") and "achieved" in ln]
+    assert [s.split()[1] for s in steps] == ["1/2", "2/2"]
+    assert "30.0 Hz" in steps[0] and "50.0 Hz" in steps[1]
+    assert lines[-1].endswith("completed (2 steps)")
+    run_id = lines[0].split()[1]
+    with open_run(d.runs_dir / f"{run_id}.h5") as run:
+        assert run.test_spec["record_cycles"] == 12
+        assert [s["freq_hz"] for s in run.steps] == [30.0, 50.0]
+
+    out = sfdrig("pump", "on", *conn)
+    assert (out.returncode, out.stdout.strip()) == (0, "pump on")
+    out = sfdrig("status", *conn)
+    assert out.returncode == 0
+    assert "state      idle" in out.stdout and "pump       on" in out.stdout
+    assert f"last run   {run_id}: completed" in out.stdout
+    out = sfdrig("abort", *conn)
+    assert out.returncode == 1 and "'abort' is not allowed while idle" in out.stdout
+
+    out = sfdrig("watch", "--count", "2", "--interval", "0.3", *conn)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.count("state idle") == 2
+
+    out = sfdrig("watch", "--file", str(d.runs_dir / f"{run_id}.h5"), "--count", "1")
+    assert out.returncode == 0, out.stderr
+    assert "2 steps" in out.stdout and "fx" in out.stdout and "um" in out.stdout
+
+
+def test_proxy_relays_every_block_in_sequence(daemon_factory):
+    d = daemon_factory("--sndhwm", "0")
+    proxy = subprocess.Popen(
+        [sys.executable, "-m", "sfdrig", "proxy", "--upstream", d.data, "--sndhwm", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    try:
+        sel = selectors.DefaultSelector()
+        sel.register(proxy.stdout, selectors.EVENT_READ)  # type: ignore[arg-type]
+        assert sel.select(60), "proxy printed nothing"
+        sel.close()
+        line = proxy.stdout.readline()  # type: ignore[union-attr]
+        assert line.startswith("data=tcp://127.0.0.1:"), line
+        endpoint = line.split()[0].split("=", 1)[1]
+        with Subscriber(endpoint, topics=["block", "event"], rcvhwm=0) as sub, \
+                CommandClient(d.command) as c:
+            sub.wait_connected(timeout_s=30)  # heartbeats come through the proxy
+            reply = c.start_sweep({"motion": "x", "load_n": [40.0], "freq_hz": [40.0],
+                                   "settle_cycles": 5, "record_cycles": 10})
+            run_id = reply.data["run_id"]
+            firsts, sizes = [], []
+            while True:
+                msg = sub.recv(timeout_s=60)
+                assert msg is not None
+                if msg.topic == "block":
+                    firsts.append(msg.header["first_sample"])
+                    sizes.append(msg.header["n_samples"])
+                elif msg.header["message"].startswith(f"run {run_id} "):
+                    break
+        assert sub.lost == {}
+        assert firsts == list(np.cumsum([0, *sizes[:-1]]))
+        with open_run(reply.data["path"]) as run:
+            assert run.n_samples == sum(sizes)
+    finally:
+        proxy.send_signal(signal.SIGTERM)
+        assert proxy.wait(30) == 0
+        proxy.communicate(timeout=10)
