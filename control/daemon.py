@@ -350,7 +350,9 @@ class Daemon:
         self._spec_parser = spec_parser
         self.backend.configure(channel_map)
         if pump_factory is None:
-            from control.pump import PumpRelay as pump_factory
+            from control.pump import PumpRelay
+
+            pump_factory = PumpRelay
         self.pump = pump_factory(backend)
 
         self.sm = StateMachine(self._state_changed)
@@ -361,7 +363,7 @@ class Daemon:
         self._stop = threading.Event()
 
         self._ctx = zmq.Context()
-        self._auth = None
+        self._auth: Any = None
         self._command, self._data, self.endpoints = self._bind()
         channels = channel_map.ai_names + channel_map.ao_names
         self.publisher = Publisher(self._data, channels, len(channel_map.ai),
@@ -393,7 +395,7 @@ class Daemon:
         for name, sock, ep in (("command", command, cfg.command_endpoint),
                                ("data", data, cfg.data_endpoint)):
             sock.bind(_random_port(ep))
-            endpoints[name] = sock.last_endpoint.decode()
+            endpoints[name] = str(sock.getsockopt_string(zmq.LAST_ENDPOINT))
         return command, data, endpoints
 
     # --- the command loop -------------------------------------------------------------------
@@ -637,7 +639,8 @@ class Daemon:
             "dropped_in_daemon": self.publisher.dropped,
             "sample_rate_hz": self.channel_map.sample_rate_hz,
             "channels": self.channel_map.ai_names,
-            "units": {c.name: c.units for c in (*self.channel_map.ai, *self.channel_map.ao)},
+            "units": {**{c.name: c.units for c in self.channel_map.ai},
+                      **{c.name: c.units for c in self.channel_map.ao}},
             "drives": self.channel_map.ao_names,
             "endpoints": self.endpoints,
             "pid": os.getpid(),
@@ -648,7 +651,7 @@ class Daemon:
         from storage.reader import open_run
 
         active = self._job.path if self._job is not None else None
-        out = []
+        out: list[dict[str, Any]] = []
         paths = sorted(self.cfg.runs_dir.glob("*.h5"), key=lambda p: p.stat().st_mtime,
                        reverse=True)
         for p in paths[:limit]:

@@ -82,14 +82,15 @@ def run(args: argparse.Namespace) -> int:
     xsub.connect(args.upstream)
     ctrl_in.bind("inproc://sfdrig-proxy-control")
     ctrl_out.connect("inproc://sfdrig-proxy-control")
-    print(f"data={xpub.last_endpoint.decode()} upstream={args.upstream}", flush=True)
+    print(f"data={xpub.getsockopt_string(zmq.LAST_ENDPOINT)} upstream={args.upstream}",
+          flush=True)
 
     stop = threading.Event()
 
     def terminate(signum: int, frame: object) -> None:
         stop.set()
 
-    old = {s: signal.signal(s, terminate) for s in (signal.SIGTERM, signal.SIGINT)}
+    old = {sig: signal.signal(sig, terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
     # zmq.proxy_steerable blocks in C; a watcher thread turns the signal flag into TERMINATE.
     watcher = threading.Thread(target=lambda: (stop.wait(), ctrl_in.send(b"TERMINATE")),
                                name="sfdrig-proxy-stop", daemon=True)
@@ -101,8 +102,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         stop.set()
         watcher.join(5)
-        for s, h in old.items():
-            signal.signal(s, h)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
         for s in (xsub, xpub, ctrl_in, ctrl_out):
             s.close()
         if auth is not None:
