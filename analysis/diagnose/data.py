@@ -202,8 +202,9 @@ def split_segments(
 
     With spans, they apply to every run (sample indices of each run): each span is cut into
     blocks of about ``block_s`` seconds, so the bootstrap has several held-out segments. Without
-    spans, whole dwells are split: every ``test_every``-th dwell (by index, starting with the
-    second) is held out. Runs without dwells are cut into blocks, alternately assigned.
+    spans, whole dwells are split: of the dwells of each motion (x, y, circular...), in step
+    order, every ``test_every``-th is held out, starting with the second. Runs without dwells
+    are cut into blocks, alternately assigned.
     Raises `DiagnoseError` for spans outside a run or overlapping between the two sets.
     """
     train: list[Segment] = []
@@ -231,7 +232,11 @@ def split_segments(
         return train, test
     for ri, rec in enumerate(records):
         if rec.segments:
-            for j, seg in enumerate(rec.segments):
+            # stratified by motion, so that each motion (x, y, circular) is held out too
+            count: dict[str, int] = {}
+            for seg in rec.segments:
+                j = count.get(seg.motion, 0)
+                count[seg.motion] = j + 1
                 (test if j % test_every == 1 else train).append(seg)
         else:
             block = max(64, int(block_s * rec.sample_rate_hz))

@@ -73,6 +73,7 @@ class Variant:
     labels: dict[str, Any]
     params: list[Param]
     starts: list[Model]
+    keep: int = 1  # starts refined after screening (more where the error surface is rugged)
 
 
 @dataclass
@@ -224,10 +225,10 @@ def _second_mode(ctx: Context, m: Model) -> list[Variant]:
              else ctx.base.rig.effects.second_mode.modal_mass_kg)
     f_lo, f_hi = 0.3 * ctx.f_typ_hz, min(3.0 * ctx.f_typ_hz, fs / 4)
     starts = []
-    for f in np.geomspace(f_lo, f_hi, 9):
+    for f in np.geomspace(f_lo, f_hi, 15):
         for mass in (mass0, 4 * mass0):
             starts.append(pm.set(pf.set(m, float(f)), mass))
-    return [Variant({}, [pf, pm], starts)]
+    return [Variant({}, [pf, pm], starts, keep=3)]
 
 
 def _visc_drift(ctx: Context, m: Model) -> list[Variant]:

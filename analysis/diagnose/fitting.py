@@ -48,19 +48,19 @@ def train_sse(ev: Evaluator, model: Model, train: list[Segment]) -> tuple[float,
 
 def fit(ev: Evaluator, starts: list[Model], params: list[Param], train: list[Segment],
         scale_m: float, max_nfev: int | None = None, screen: bool = True,
-        step: int = 1) -> FitResult:
+        step: int = 1, keep: int = 1) -> FitResult:
     """Fit ``params`` from each start model; return the best on training data.
 
-    With ``screen`` and several starts, the starts are first ranked by their training error and
-    only the best is refined. ``step`` decimates the residual vector (samples) the
-    least-squares problem sees; the reported training error uses every sample.
+    With ``screen`` and more than ``keep`` starts, the starts are first ranked by their training
+    error and only the best ``keep`` are refined. ``step`` decimates the residual vector
+    (samples) the least-squares problem sees; the reported training error uses every sample.
     """
     if not params:
         sse, n = train_sse(ev, starts[0], train)
         return FitResult(starts[0], sse, n, 1)
-    if screen and len(starts) > 1:
+    if screen and len(starts) > keep:
         ranked = sorted(starts, key=lambda m: train_sse(ev, m, train)[0])
-        starts = ranked[:1]
+        starts = ranked[:keep]
     best: FitResult | None = None
     nfev_total = 0
     for start in starts:
