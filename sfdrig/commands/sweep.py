@@ -2,7 +2,8 @@
 
 Plain text that works without a TTY: a line per progress change (step bar and whole-sweep bar,
 frequency, controller updates), and a line per finished step with the achieved amplitudes. On a
-TTY the progress line is redrawn in place.
+TTY the progress line is redrawn in place. Ctrl-C while following aborts the sweep (the daemon
+ramps the drives to zero and closes the run file as aborted); ``--no-follow`` only starts it.
 """
 
 from __future__ import annotations
@@ -183,8 +184,14 @@ def run(args: argparse.Namespace) -> int:
                 reply = client.start_sweep(spec, args.operator, args.notes)
                 run_id = reply.data["run_id"]
                 print(f"run {run_id} started: {reply.data['path']}", flush=True)
-                status, reason, steps = follow(sub, run_id,
-                                               total=reply.data.get("steps_total"))
+                try:
+                    status, reason, steps = follow(sub, run_id,
+                                                   total=reply.data.get("steps_total"))
+                except KeyboardInterrupt:
+                    # The operator stopped watching a sweep they started: stop the sweep too.
+                    client.abort("operator pressed Ctrl-C in `sfdrig sweep`")
+                    print(f"\nrun {run_id}: abort sent (drives ramp to zero)", flush=True)
+                    status, reason, steps = follow(sub, run_id)
     except CommandRefused as err:
         print(f"sweep: {err}")
         return 1

@@ -137,3 +137,46 @@ def test_sigterm_mid_sweep_zeroes_the_drives_within_100_ms(daemon_factory):
         assert np.abs(run.channel("shaker_x", 0, s0)).max() > 0.05, "never driven"
         for name in run.drive_names:
             np.testing.assert_array_equal(run.channel(name, limit), 0.0, err_msg=name)
+
+
+def test_pause_resume_abort_and_the_pump_interlock_on_the_real_engine(daemon_factory):
+    d = daemon_factory(fast=False)
+    with CommandClient(d.command, timeout_s=10) as c, \
+            Subscriber(d.data, topics=["block", "event"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        c.pump(True)
+        reply = c.start_sweep(LONG_X)
+        run_id = reply.data["run_id"]
+
+        def wait_drive(driven: bool) -> None:
+            while True:
+                msg = sub.recv(timeout_s=60)
+                assert msg is not None
+                if msg.topic == "event" and msg.header["message"].startswith(f"run {run_id} "):
+                    pytest.fail(f"the run ended early: {msg.header['message']}")
+                if msg.topic == "block":
+                    peak = np.abs(msg.array[msg.header["n_ai"]:]).max()
+                    if (peak > 0.05) if driven else (peak == 0.0):
+                        return
+
+        wait_drive(True)
+        refused = c.request("pump", check=False, on=False)
+        assert (refused.ok, refused.error_kind) == (False, "forbidden")
+        assert "cannot be switched off while the shakers run" in refused.error
+        assert c.status()["pump_on"] is True
+        assert c.pause().state.value == "paused"
+        wait_drive(False)  # the engine ramps the drives to zero and holds
+        assert c.resume().state.value == "running"
+        wait_drive(True)
+        assert c.abort("test: enough").state.value == "aborting"
+        while True:
+            msg = sub.recv(timeout_s=60)
+            assert msg is not None
+            if msg.topic == "event" and msg.header["message"].startswith(f"run {run_id} "):
+                assert msg.header["message"] == f"run {run_id} aborted: test: enough"
+                break
+        assert c.pump(False).data["pump_on"] is False  # allowed once the shakers stopped
+    with open_run(reply.data["path"]) as run:
+        assert run.status == "aborted" and run.attrs["status_reason"] == "test: enough"
+        ops = [e["message"] for e in run.events if e["kind"] == "operator"]
+        assert "paused by operator" in ops and "resumed by operator" in ops
