@@ -15,11 +15,16 @@ HELP = "show the daemon's state, the current run and its progress"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_connection_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the full status as JSON")
+    parser.add_argument("--reset", action="store_true",
+                        help="acknowledge a fault (fault -> idle) before showing the status")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         with command_client(args) as client:
+            if args.reset:
+                client.reset()
+                print("fault acknowledged")
             st = client.status()
     except (DaemonUnavailable, CommandRefused) as err:
         print(f"status: {err}")
