@@ -74,6 +74,7 @@ class Finding:
     evidence: dict[str, Any]
     model: Model
     variant: Variant
+    runner_up: Candidate | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {"effect": self.effect, "parameters": self.parameters,
@@ -279,6 +280,7 @@ def diagnose(
     step = max(1, int(min(r.sample_rate_hz for r in records) / (50 * f_hi))) if f_hi else 1
     model = Model(rig=base_rig)
     free: list[Param] = []
+    free_base: list[Param] = []
     bparams: dict[str, float] = {}
     if kind == "fitted":
         if imported:
@@ -291,6 +293,7 @@ def diagnose(
         say(f"fitting the linear baseline ({', '.join(p.name for p in free)})")
         model = fit(ev, [model], free, fit_train, scale_m, max_nfev=60, step=step).model
         bparams = {p.name: p.get(model) for p in free}
+    free_base = list(free)
     base_model = model
     base_train = residuals(ev, model, fit_train)
     base_test = residuals(ev, model, fit_train, test, base_train.offsets)
@@ -379,7 +382,7 @@ def diagnose(
                                          top.fit.model, ev.duration_s))
         findings.append(Finding(top.effect, parameters_of(top.variant, top.fit.model), before,
                                 top.test_rms, gain, (lo, hi), evidence, top.fit.model,
-                                top.variant))
+                                top.variant, runner))
         free = free + top.variant.params
         current, cur_test, cur_crit = top.fit.model, top.test, top.criterion
 
@@ -392,10 +395,19 @@ def diagnose(
     discrepancy = struct_before > (0.25 * n2 if noise else 0.0) and struct_before > 0
     unexplained = bool(discrepancy and struct_after > 0.25 * struct_before)
     for f in findings:
-        # a runner-up as good as the finding leaves the cause ambiguous, unless it was found too
+        # a runner-up as good as the finding leaves the cause ambiguous, unless it was found
+        # too, or, swapped in for the finding next to the other findings, it explains the
+        # held-out data clearly worse than the final model
         found = {g.effect for g in findings}
-        if f.evidence.get("ambiguous") and f.evidence["runner_up"]["effect"] in found:
-            f.evidence["ambiguous"] = False
+        if f.evidence.get("ambiguous") and f.runner_up is not None:
+            if f.runner_up.effect in found:
+                f.evidence["ambiguous"] = False
+            else:
+                swap_rms = _swap_check(ev, base_model, kind == "fitted", free_base, findings, f,
+                                       current, fit_train, test, scale_m, step)
+                f.evidence["runner_up"]["held_out_error_swapped"] = swap_rms
+                if swap_rms**2 > 1.25 * cur_test.rms() ** 2:
+                    f.evidence["ambiguous"] = False
         f.evidence["confidence"] = "low" if (unexplained or f.evidence.get("ambiguous")) \
             else "high"
     if not findings and discrepancy:
@@ -410,6 +422,29 @@ def diagnose(
         unexplained=unexplained, rounds=rounds, skipped=skipped, noise_floor=noise,
         extended_rig=ext, elapsed_s=time.perf_counter() - t_start, notes=notes,
     )
+
+
+def _swap_check(ev: Evaluator, base: Model, fitted: bool, free_base: list[Param],
+                findings: list[Finding], f: Finding, final: Model, fit_train: list[Segment],
+                test: list[Segment], scale_m: float, step: int) -> float:
+    """Held-out RMS of the final model with finding ``f`` replaced by its runner-up."""
+    assert f.runner_up is not None
+    m = base
+    params = list(free_base)
+    for p in free_base:
+        m = p.set(m, p.get(final))
+    for g in findings:
+        if g is f:
+            continue
+        for p in g.variant.params:
+            m = p.set(m, p.get(final))
+        params += g.variant.params
+    runner = f.runner_up
+    for p in runner.variant.params:
+        m = p.set(m, p.get(runner.fit.model))
+    params += runner.variant.params
+    res = fit(ev, [m], params, fit_train, scale_m, max_nfev=20 * (len(params) + 1), step=step)
+    return residuals(ev, res.model, fit_train, test).rms()
 
 
 def _judge(ev: Evaluator, effect: str, var: Variant, res: FitResult, fit_train: list[Segment],

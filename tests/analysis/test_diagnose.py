@@ -135,7 +135,7 @@ def test_load_run_errors_name_the_file(tmp_path):
 
 def test_cli_json_report_and_extended_model(tmp_path, capsys):
     """End to end: a hidden cubic spring; the JSON contract; the TOML loads in the simulator."""
-    case = make_case(tmp_path, ["cubic_stiffness"], 5, n_dwells=12)
+    case = make_case(tmp_path, ["cubic_stiffness"], 5)
     out = tmp_path / "out.json"
     rep = tmp_path / "report"
     rc = main(["diagnose", str(case.paths[0]), "--json", str(out), "--report", str(rep),
