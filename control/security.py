@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -84,6 +85,13 @@ def make_keys(directory: str | Path, commanders: list[str], readers: list[str]) 
     overlap = set(commanders) & set(readers)
     if overlap:
         raise KeyFileError(f"names both commander and reader: {sorted(overlap)}")
+    for name in [*commanders, *readers]:
+        if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}", name):
+            raise KeyFileError(f"client name {name!r} must be 1-64 letters, digits, '_', '.' "
+                               "or '-', not starting with '.' or '-'")
+        if (d / "clients" / f"{name}.key_secret").exists():
+            raise KeyFileError(f"{d / 'clients' / (name + '.key_secret')} exists; remove it "
+                               "first to make a new key")
     written: list[Path] = []
 
     def new(path: Path, public_path: Path | None) -> None:

@@ -19,15 +19,20 @@ HELP = "make CURVE keys (server, commanders, read-only viewers) for a daemon off
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("directory", type=Path, help="key directory to create or extend")
     parser.add_argument("--commander", action="append", default=None, metavar="NAME",
-                        help="a client allowed to command (repeatable; default: operator)")
+                        help="a client allowed to command (repeatable; default for a new "
+                             "directory: operator)")
     parser.add_argument("--reader", action="append", default=None, metavar="NAME",
                         help="a client allowed to read live data only (repeatable; "
-                             "default: viewer)")
+                             "default for a new directory: viewer)")
 
 
 def run(args: argparse.Namespace) -> int:
-    commanders = args.commander if args.commander is not None else ["operator"]
-    readers = args.reader if args.reader is not None else ["viewer"]
+    # A new directory gets one commander and one reader by default; an existing one only
+    # the clients asked for.
+    new_dir = not (args.directory / "server.key_secret").exists()
+    commanders = args.commander if args.commander is not None else (
+        ["operator"] if new_dir else [])
+    readers = args.reader if args.reader is not None else (["viewer"] if new_dir else [])
     try:
         written = make_keys(args.directory, commanders, readers)
     except KeyFileError as err:
