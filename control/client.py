@@ -21,7 +21,7 @@ import json
 import time
 import uuid
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 import zmq
@@ -102,10 +102,19 @@ class CommandClient:
         """
         self._sock.send_multipart(frames)
         deadline = time.monotonic() + self.timeout_s
+        poller = zmq.Poller()
+        poller.register(self._sock, zmq.POLLIN)
+        if self._monitor is not None:  # a refused CURVE handshake ends the wait at once
+            poller.register(self._monitor, zmq.POLLIN)
         while True:
             left = deadline - time.monotonic()
-            if left <= 0 or not self._sock.poll(int(left * 1000)):
+            ready = dict(poller.poll(int(left * 1000))) if left > 0 else {}
+            if not ready:
                 self._timed_out()
+            if self._sock not in ready:
+                if self._auth_refused():
+                    self._timed_out(refused=True)
+                continue
             parts = self._sock.recv_multipart()
             body = parts[-1]
             if request_id is None:
@@ -116,12 +125,16 @@ class CommandClient:
             except (ValueError, AttributeError):
                 return body
 
-    def _timed_out(self) -> None:
+    def _auth_refused(self) -> bool:
+        """Drain the monitor; True if the server refused this client's key."""
         refused = False
-        if self._monitor is not None:
-            while self._monitor.poll(0):
-                event = recv_monitor_message(self._monitor)
-                refused |= event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH
+        while self._monitor is not None and self._monitor.poll(0):
+            event = recv_monitor_message(self._monitor)
+            refused |= event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH
+        return refused
+
+    def _timed_out(self, refused: bool = False) -> NoReturn:
+        refused = refused or self._auth_refused()
         # A DEALER would deliver the stale request later: start afresh.
         self._sock.close(0)
         self._sock = self._connect()

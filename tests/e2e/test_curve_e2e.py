@@ -26,13 +26,13 @@ def test_curve_refuses_unknown_keys_and_accepts_known_ones(daemon_factory, tmp_p
 
     d = daemon_factory("--keys", str(keys))
     refused = pytest.raises(DaemonUnavailable, match="refused this client's CURVE key")
-    with CommandClient(d.command, timeout_s=3, keys=stranger) as c, refused:
+    with CommandClient(d.command, timeout_s=20, keys=stranger) as c, refused:
         c.status()
     with CommandClient(d.command, timeout_s=3) as c, pytest.raises(DaemonUnavailable):
         c.status()  # no CURVE at all
     viewer = load_client_keys(keys, "viewer")
     refused = pytest.raises(DaemonUnavailable, match="refused this client's CURVE key")
-    with CommandClient(d.command, timeout_s=3, keys=viewer) as c, refused:
+    with CommandClient(d.command, timeout_s=20, keys=viewer) as c, refused:
         c.pump(True)
     with CommandClient(d.command, timeout_s=10, keys=load_client_keys(keys, "operator")) as c:
         assert c.status()["state"] == "idle"
