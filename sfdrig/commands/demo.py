@@ -2,16 +2,15 @@
 
 Starts a daemon on the simulated rig as a real subprocess (fast mode), runs a dry circular-orbit
 load sweep (40 N, 20-200 Hz, without the band around the dry resonance where 40 N exceeds the
-displacement limit), switches the pump on, runs a lubricated unidirectional X sweep
-(20-60 Hz in 10 Hz steps at 13 and 38 um), stores both runs, prints a summary table, and, when the
-analysis package provides it, writes the identification report. The daemon is then stopped with
-SIGTERM (the safe shutdown).
+displacement limit), switches the pump on, runs a lubricated unidirectional X sweep (20-60 Hz in
+10 Hz steps at 13 and 38 um), stores both runs, prints a summary table and stops the daemon with
+SIGTERM (the safe shutdown). Then it runs the structure and instrument tests (static, impact,
+probe calibration, flow: `sfdrig structure`) and writes the identification report of all runs.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import math
 import os
 import selectors
@@ -21,8 +20,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from analysis.report import write_report
 from control.client import CommandClient, Subscriber
+from sfdrig.commands.structure import run_structure_tests
 from sfdrig.commands.sweep import UM, achieved, follow
+from simulated_hw.params import RigParams
 
 NAME = "demo"
 HELP = "run a dry and a lubricated sweep on the simulated rig, store them, summarise, report"
@@ -99,16 +101,6 @@ def summary(runs: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def write_report(run_paths: list[Path], out_dir: Path) -> str:
-    """The identification report when `analysis.report.write_report` exists."""
-    try:
-        report = importlib.import_module("analysis.report")
-    except ModuleNotFoundError:
-        return "identification report: skipped (analysis.report is not available)"
-    if not hasattr(report, "write_report"):
-        return "identification report: skipped (analysis.report has no write_report)"
-    result = report.write_report(run_paths, out_dir)
-    return f"identification report: {result if result is not None else out_dir}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -135,10 +127,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"demo: the daemon exited with status {code}")
     ok = all(r["status"] == "completed" for r in runs)
     if ok:
-        try:
-            print(write_report([Path(r["path"]) for r in runs], args.out / "report"))
-        except Exception as err:  # the runs are stored; the report is a bonus
-            print(f"identification report failed: {type(err).__name__}: {err}")
+        print("\nstructure and instrument tests (static, impact, probe calibration, flow)")
+        structure_runs = run_structure_tests(runs_dir, RigParams(), seed=args.seed)
+        html = write_report([Path(r["path"]) for r in runs] + structure_runs,
+                            args.out / "report")
+        print(f"identification report: {html}")
     worst = max((abs(achieved(s)["x_m"] / s["target_value"] - 1) for r in runs
                  for s in r["steps"] if s["target_kind"] == "displacement"), default=math.nan)
     if math.isfinite(worst):

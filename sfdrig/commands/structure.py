@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from datetime import UTC, datetime
 from pathlib import Path
 
 from control.programs import (
@@ -46,6 +47,7 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
     out_dir.mkdir(parents=True, exist_ok=True)
     cm = load_channel_map(channels_path) if channels_path else default_channel_map()
     written: list[Path] = []
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
     for i, kind in enumerate(only or TESTS):
         test_params = params.model_copy(deep=True)
         if kind in ("static", "impact", "probe_calibration"):
@@ -54,11 +56,12 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
         backend = SimulatedBackend(test_params, seed=seed + i)
         backend.configure(cm)
         hands = SimulatedOperator(backend)
-        path = out_dir / f"{kind}.h5"
+        run_id = f"{stamp}-{kind}"
+        path = out_dir / f"{run_id}.h5"
         spec: StaticSpec | ImpactSpec | ProbeCalSpec | FlowSpec
         spec = {"static": StaticSpec, "impact": ImpactSpec, "probe_calibration": ProbeCalSpec,
                 "flow": FlowSpec}[kind]()
-        writer = create_run_writer(path, kind, backend, run_id=f"{kind}-{seed}",
+        writer = create_run_writer(path, kind, backend, run_id=run_id,
                                    rig_config=test_params, test_spec=spec, operator=operator,
                                    lubricated=kind == "flow", overwrite=True)
         print(f"{kind}: running ...", flush=True)

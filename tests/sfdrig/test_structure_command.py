@@ -18,7 +18,9 @@ def test_impact_and_probe_calibration_runs_from_the_cli(tmp_path: Path, capsys):
     assert rc == 0
     out = capsys.readouterr().out
     assert "impact: 6 steps, completed" in out
-    with open_run(tmp_path / "impact.h5") as r:
+    (impact,) = tmp_path.glob("*-impact.h5")
+    (calibration,) = tmp_path.glob("*-probe_calibration.h5")
+    with open_run(impact) as r:
         assert r.kind == "impact" and r.attrs["status"] == "completed"
         skipped: list = []
         fits = identify_impact(r, skipped)
@@ -26,7 +28,7 @@ def test_impact_and_probe_calibration_runs_from_the_cli(tmp_path: Path, capsys):
     fit = {f.axis: f for f in fits}
     assert fit["x"].natural_freq_hz == pytest.approx(45.4, abs=0.5)  # Table 3 / Table 2
     assert fit["y"].k_n_per_m == pytest.approx(823e3, rel=0.03)
-    with open_run(tmp_path / "probe_calibration.h5") as r:
+    with open_run(calibration) as r:
         gains = {g.channel: g for g in identify_probe_calibration(r, [])}
     # Table A1: 202 / 195 / 204 mV/mil, read through the simulated dial gauges
     assert gains["x1"].gain_mv_per_mil == pytest.approx(202.0, rel=0.01)
