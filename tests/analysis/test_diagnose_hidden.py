@@ -3,7 +3,8 @@
 The generator (`hidden_effects.py`) hides one effect (or two, or none) in the true rig, records
 sine dwells through the simulator with sensor noise, writes run files, and diagnose gets only the
 files. Each effect's main parameter must come back within the tolerance documented in
-`analysis.diagnose.effects.LIBRARY`. CI runs one seed per effect; more seeds are `slow`.
+`analysis.diagnose.effects.LIBRARY`. CI runs one seed per effect (seeds rotate over the
+effects); the other seeds of each effect are `slow`.
 """
 
 from __future__ import annotations
@@ -15,8 +16,11 @@ import pytest
 from analysis.diagnose import LIBRARY, diagnose, load_run
 from tests.analysis.hidden_effects import make_case
 
-CI_SEED = 11
-SLOW_SEEDS = (21, 32, 43)
+CI_SEED = 11  # clean, pairs, out-of-library, several runs
+SEEDS = (11, 21, 32, 43, 54)
+#: one seed per effect in CI (rotating through SEEDS); the others behind the `slow` marker
+CI_SEEDS = {e: SEEDS[i % 4] for i, e in enumerate(LIBRARY)}
+SLOW_CASES = [(e, s) for e in LIBRARY for s in SEEDS if s != CI_SEEDS[e]]
 
 
 def _run(tmp_path, effects, seed):
@@ -51,12 +55,11 @@ def _check_one(tmp_path, effect, seed):
 
 @pytest.mark.parametrize("effect", list(LIBRARY))
 def test_hidden_effect_is_named_and_recovered(tmp_path, effect):
-    _check_one(tmp_path, effect, CI_SEED)
+    _check_one(tmp_path, effect, CI_SEEDS[effect])
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", SLOW_SEEDS)
-@pytest.mark.parametrize("effect", list(LIBRARY))
+@pytest.mark.parametrize(("effect", "seed"), SLOW_CASES)
 def test_hidden_effect_many_seeds(tmp_path, effect, seed):
     _check_one(tmp_path, effect, seed)
 
