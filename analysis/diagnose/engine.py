@@ -456,8 +456,7 @@ def _judge(ev: Evaluator, effect: str, var: Variant, res: FitResult, fit_train: 
 
 
 def _sse(res: Residuals) -> float:
-    v = res.vector()
-    return float(np.dot(v, v))
+    return sum(res.sse(s)[0] for s in res.per_segment)
 
 
 def _dominant_freq(records: list[RunRecord], segs: list[Segment]) -> float:

@@ -41,9 +41,9 @@ def _finite(r: np.ndarray) -> np.ndarray:
 
 def train_sse(ev: Evaluator, model: Model, train: list[Segment]) -> tuple[float, int]:
     r = residuals(ev, model, train).vector()
-    if not np.all(np.isfinite(r)):
-        return math.inf, int(r.size)
-    return float(np.dot(r, r)), int(r.size)
+    with np.errstate(over="ignore", invalid="ignore"):
+        sse = float(np.dot(r, r))
+    return (sse if math.isfinite(sse) else math.inf), int(r.size)
 
 
 def fit(ev: Evaluator, starts: list[Model], params: list[Param], train: list[Segment],

@@ -228,8 +228,11 @@ class Residuals:
     offsets: dict[tuple[int, str], float]
 
     def sse(self, seg: Segment) -> tuple[float, int]:
+        """Sum of squares [m^2] and sample count; inf where a trial model diverged."""
         chans = self.per_segment[seg]
-        return (float(sum(np.dot(v, v) for v in chans.values())),
+        with np.errstate(over="ignore", invalid="ignore"):
+            total = float(sum(np.dot(v, v) for v in chans.values()))
+        return (total if math.isfinite(total) else math.inf,
                 int(sum(v.size for v in chans.values())))
 
     def rms(self, segs: list[Segment] | None = None) -> float:
