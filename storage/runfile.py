@@ -99,8 +99,11 @@ def installed_software_version() -> str:
 
 
 def _fit_utf8(text: str, n_bytes: int) -> bytes:
-    """UTF-8 bytes of ``text`` cut to at most ``n_bytes`` on a character boundary."""
-    raw = str(text).encode("utf-8")
+    """UTF-8 bytes of ``text`` cut to at most ``n_bytes`` on a character boundary.
+
+    NUL characters are written as the two characters ``\\0``: HDF5 fixed-length strings end at a
+    NUL, so a NUL would silently cut the text."""
+    raw = str(text).replace("\x00", "\\0").encode("utf-8")
     if len(raw) <= n_bytes:
         return raw
     marker = b" [truncated]"
