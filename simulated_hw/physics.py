@@ -88,7 +88,6 @@ def integrate(
     h = p[P_DT] / nsub
     hh = 0.5 * h
     frame_on = p[P_FRAME_ON] > 0.5
-    inv_mf = 1.0 / p[P_FRAME_M] if frame_on else 0.0
     x, y, vx, vy = s[S_X], s[S_Y], s[S_VX], s[S_VY]
     xf, yf, vxf, vyf, vbar = s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR]
     fmu = p[P_FMU]
@@ -99,7 +98,6 @@ def integrate(
         dfx = (force[0, i] - fpx) / nsub
         dfy = (force[1, i] - fpy) / nsub
         fi = fill[i]
-        afx = afy = 0.0
         frx = fry = 0.0
         rax = ray = 0.0
         for k in range(nsub):
@@ -107,44 +105,84 @@ def integrate(
             m11, m12, m21, c11, c12, c21, _ = _coefficients(x, y, fi, visc[i], vbar, p)
             ex, ey = _elastic(x, y, fpx + k * dfx, fpy + k * dfy, p)
             # the frame (explicit; its reaction uses the damping at the old velocity)
-            afx = 0.0
-            afy = 0.0
-            if frame_on:
-                dxo = c11 * vx + c12 * vy
-                dyo = c21 * vx + c11 * vy
-                afx = (-p[P_FRAME_K] * xf - p[P_FRAME_C] * vxf
-                       - (ex - (fpx + k * dfx)) + dxo) * inv_mf
-                afy = (-p[P_FRAME_K] * yf - p[P_FRAME_C] * vyf
-                       - (ey - (fpy + k * dfy)) + dyo) * inv_mf
-            nvxf = vxf + h * afx
-            nvyf = vyf + h * afy
-            # (M + h/2 C) vh' = M vh + h E - h/2 C (v_rel - vf')   [vh absolute, v_rel = vh - vf]
-            vhx = vx + vxf
+            # Kick with the damping implicit (trapezoidal) between housing and frame:
+            #   M (vh' - vh)  = h E  - h/2 C (v_rel + v_rel')          v_rel = vh - vf
+            #   m2 (vf' - vf) = h Ef + h/2 C (v_rel + v_rel') - h/2 cf (vf + vf')
+            # Housing block A = M + h/2 C, coupling B = -h/2 C, frame block D = m2 + h/2 (C + cf).
+            vhx = vx + vxf  # absolute housing velocity (x, vx are relative to the frame)
             vhy = vy + vyf
             a11 = m11 + hh * c11
             a12 = m12 + hh * c12
             a21 = m21 + hh * c21
             a22 = m11 + hh * c11
-            det = a11 * a22 - a12 * a21
-            i11 = a22 / det
-            i12 = -a12 / det
-            i21 = -a21 / det
-            i22 = a11 / det
-            qx = vx - nvxf
-            qy = vy - nvyf
-            rx = m11 * vhx + m12 * vhy + h * ex - hh * (c11 * qx + c12 * qy)
-            ry = m21 * vhx + m11 * vhy + h * ey - hh * (c21 * qx + c11 * qy)
-            vhx = i11 * rx + i12 * ry
-            vhy = i21 * rx + i22 * ry
-            # dry friction: implicit, on the relative velocity
+            r1x = m11 * vhx + m12 * vhy + h * ex - hh * (c11 * vx + c12 * vy)
+            r1y = m21 * vhx + m11 * vhy + h * ey - hh * (c21 * vx + c11 * vy)
+            if frame_on:
+                m2 = p[P_FRAME_M]
+                cf = p[P_FRAME_C]
+                b11, b12, b21, b22 = -hh * c11, -hh * c12, -hh * c21, -hh * c11
+                d11 = m2 + hh * (c11 + cf)
+                d12 = hh * c12
+                d21 = hh * c21
+                d22 = m2 + hh * (c11 + cf)
+                ddet = d11 * d22 - d12 * d21
+                e11, e12, e21, e22 = d22 / ddet, -d12 / ddet, -d21 / ddet, d11 / ddet  # D^-1
+                fx_in = fpx + k * dfx
+                fy_in = fpy + k * dfy
+                r2x = (m2 * vxf + h * (-p[P_FRAME_K] * xf - (ex - fx_in))
+                       + hh * (c11 * vx + c12 * vy) - hh * cf * vxf)
+                r2y = (m2 * vyf + h * (-p[P_FRAME_K] * yf - (ey - fy_in))
+                       + hh * (c21 * vx + c11 * vy) - hh * cf * vyf)
+                # G = B D^-1 (2x2); Schur complement S = A - G B; P = I - G (impulse map)
+                g11 = b11 * e11 + b12 * e21
+                g12 = b11 * e12 + b12 * e22
+                g21 = b21 * e11 + b22 * e21
+                g22 = b21 * e12 + b22 * e22
+                s11 = a11 - (g11 * b11 + g12 * b21)
+                s12 = a12 - (g11 * b12 + g12 * b22)
+                s21 = a21 - (g21 * b11 + g22 * b21)
+                s22 = a22 - (g21 * b12 + g22 * b22)
+                sdet = s11 * s22 - s12 * s21
+                i11, i12, i21, i22 = s22 / sdet, -s12 / sdet, -s21 / sdet, s11 / sdet  # S^-1
+                rx = r1x - (g11 * r2x + g12 * r2y)
+                ry = r1y - (g21 * r2x + g22 * r2y)
+                vhx = i11 * rx + i12 * ry
+                vhy = i21 * rx + i22 * ry
+                tx = r2x - (b11 * vhx + b12 * vhy)
+                ty = r2y - (b21 * vhx + b22 * vhy)
+                nvxf = e11 * tx + e12 * ty
+                nvyf = e21 * tx + e22 * ty
+                # an impulse J on the housing (-J on the frame) moves vh by Q J, vf by R J
+                p11, p12, p21, p22 = 1.0 + g11, g12, g21, 1.0 + g22  # I + B D^-1
+                q11 = i11 * p11 + i12 * p21
+                q12 = i11 * p12 + i12 * p22
+                q21 = i21 * p11 + i22 * p21
+                q22 = i21 * p12 + i22 * p22
+                u11 = 1.0 + (b11 * q11 + b12 * q21)
+                u12 = b11 * q12 + b12 * q22
+                u21 = b21 * q11 + b22 * q21
+                u22 = 1.0 + (b21 * q12 + b22 * q22)
+                rr11 = -(e11 * u11 + e12 * u21)
+                rr12 = -(e11 * u12 + e12 * u22)
+                rr21 = -(e21 * u11 + e22 * u21)
+                rr22 = -(e21 * u12 + e22 * u22)
+            else:
+                det = a11 * a22 - a12 * a21
+                i11, i12, i21, i22 = a22 / det, -a12 / det, -a21 / det, a11 / det
+                vhx = i11 * r1x + i12 * r1y
+                vhy = i21 * r1x + i22 * r1y
+                nvxf = nvyf = 0.0
+                q11, q12, q21, q22 = i11, i12, i21, i22
+                rr11 = rr12 = rr21 = rr22 = 0.0
+            # dry friction: implicit, on the relative velocity (compliance W = Q - R)
             tx = vhx - nvxf
             ty = vhy - nvyf
             jx = jy = 0.0
             if fmu > 0.0:
-                w11 = i11 + inv_mf
-                w12 = i12
-                w21 = i21
-                w22 = i22 + inv_mf
+                w11 = q11 - rr11
+                w12 = q12 - rr12
+                w21 = q21 - rr21
+                w22 = q22 - rr22
                 wdet = w11 * w22 - w12 * w21
                 # impulse that would stop the relative motion
                 sx = -(w22 * tx - w12 * ty) / wdet
@@ -156,10 +194,10 @@ def integrate(
                     tmag = np.sqrt(tx * tx + ty * ty)
                     jx = -fmu * h * tx / tmag
                     jy = -fmu * h * ty / tmag
-            vhx += i11 * jx + i12 * jy
-            vhy += i21 * jx + i22 * jy
-            nvxf -= jx * inv_mf
-            nvyf -= jy * inv_mf
+            vhx += q11 * jx + q12 * jy
+            vhy += q21 * jx + q22 * jy
+            nvxf += rr11 * jx + rr12 * jy
+            nvyf += rr21 * jx + rr22 * jy
             frx = jx / h
             fry = jy / h
             nvx = vhx - nvxf
