@@ -23,16 +23,16 @@ the frequencies (``order = "amplitude_major"``) or each frequency runs every val
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Self
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from control.controller import Tolerance, motion_shape
 from control.errors import SpecError
 from control.plan import StepPlan
+from daq.config_files import read_toml, validate
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
@@ -183,31 +183,11 @@ class SweepSpec(BaseModel):
         return (self.settle_cycles + self.record_cycles) / freq_hz
 
 
-def describe_validation_error(err: ValidationError, source: str) -> str:
-    lines = [f"invalid sweep spec in {source}:"]
-    for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
-        value = e.get("input")
-        shown = repr(value) if not isinstance(value, dict) else "{...}"
-        lines.append(f"  {loc} = {shown}: {e['msg']}")
-    return "\n".join(lines)
-
-
 def sweep_spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> SweepSpec:
     """Validate a sweep description; `SpecError` (a `TargetError`) names each bad field."""
-    try:
-        return SweepSpec.model_validate(data)
-    except ValidationError as err:
-        raise SpecError(describe_validation_error(err, source)) from None
+    return validate(SweepSpec, data, "sweep spec", source, SpecError)
 
 
 def load_sweep_spec(path: str | Path) -> SweepSpec:
     """Load a sweep description from TOML; `SpecError` names the file, field and value."""
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise SpecError(f"{path}: not valid TOML: {err}") from None
-    except OSError as err:
-        raise SpecError(f"{path}: cannot read: {err.strerror}") from None
-    return sweep_spec_from_dict(data, str(path))
+    return sweep_spec_from_dict(read_toml(path, SpecError), str(path))

@@ -7,14 +7,14 @@ flow in L/min and temperature in degC, as the rig's instruments read).
 
 from __future__ import annotations
 
-import tomllib
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from daq.config_files import read_toml, validate
 from daq.errors import ChannelConfigError
 
 
@@ -299,31 +299,10 @@ def default_channel_map() -> ChannelMap:
     )
 
 
-def describe_validation_error(err: ValidationError, source: str) -> str:
-    """One line per problem: where (source and field path), what value, and why."""
-    lines = [f"invalid channel map in {source}:"]
-    for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
-        value = e.get("input")
-        shown = repr(value) if not isinstance(value, dict) else "{...}"
-        lines.append(f"  {loc} = {shown}: {e['msg']}")
-    return "\n".join(lines)
-
-
 def channel_map_from_dict(data: dict[str, Any], source: str = "<dict>") -> ChannelMap:
-    try:
-        return ChannelMap.model_validate(data)
-    except ValidationError as err:
-        raise ChannelConfigError(describe_validation_error(err, source)) from None
+    return validate(ChannelMap, data, "channel map", source, ChannelConfigError)
 
 
 def load_channel_map(path: str | Path) -> ChannelMap:
     """Load a channel map from TOML; raise `ChannelConfigError` naming the field and value."""
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise ChannelConfigError(f"{path}: not valid TOML: {err}") from None
-    except OSError as err:
-        raise ChannelConfigError(f"{path}: cannot read: {err.strerror}") from None
-    return channel_map_from_dict(data, str(path))
+    return channel_map_from_dict(read_toml(path, ChannelConfigError), str(path))

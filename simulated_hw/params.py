@@ -8,11 +8,12 @@ eq. 15; film damping by eq. 16; shaker rating 448 N (section III).
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
+
+from daq.config_files import read_toml, validate
 
 VISCOSITY_SLOPE_PER_C = 0.01665  # eq. 1 exponent [1/degC]
 
@@ -208,25 +209,11 @@ class RigParamsError(ValueError):
 
 
 def rig_params_from_dict(data: dict[str, Any], source: str = "<dict>") -> RigParams:
-    try:
-        return RigParams.model_validate(data)
-    except ValidationError as err:
-        lines = [f"invalid rig parameters in {source}:"]
-        for e in err.errors():
-            loc = ".".join(str(p) for p in e["loc"])
-            lines.append(f"  {loc} = {e.get('input')!r}: {e['msg']}")
-        raise RigParamsError("\n".join(lines)) from None
+    return validate(RigParams, data, "rig parameters", source, RigParamsError)
 
 
 def load_rig_params(path: str | Path) -> RigParams:
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise RigParamsError(f"{path}: not valid TOML: {err}") from None
-    except OSError as err:
-        raise RigParamsError(f"{path}: cannot read: {err.strerror}") from None
-    return rig_params_from_dict(data, str(path))
+    return rig_params_from_dict(read_toml(path, RigParamsError), str(path))
 
 
 def _toml_value(v: Any) -> str:

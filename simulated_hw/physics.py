@@ -326,3 +326,14 @@ class Truth:
     film_y_n: np.ndarray
     film_damping_ns_per_m: np.ndarray
     hammer_n: np.ndarray
+
+    @classmethod
+    def from_kernel(cls, out: np.ndarray, force: np.ndarray, hammer_n: np.ndarray) -> Truth:
+        """The truth of one block from `integrate`'s output rows and its input force."""
+        return cls(
+            x_m=out[O_X], y_m=out[O_Y], vx_m_per_s=out[O_VX], vy_m_per_s=out[O_VY],
+            ax_m_per_s2=out[O_AX], ay_m_per_s2=out[O_AY], fx_n=force[0], fy_n=force[1],
+            friction_x_n=out[O_FRICX], friction_y_n=out[O_FRICY],
+            film_x_n=out[O_FILMX], film_y_n=out[O_FILMY],
+            film_damping_ns_per_m=out[O_CFILM], hammer_n=hammer_n,
+        )

@@ -78,17 +78,7 @@ def simulate_response(
     s = np.zeros(physics.N_STATE) if state is None else state.copy()
     out = np.empty((physics.N_OUT, n))
     physics.integrate(force, fill_arr, visc_arr, kernel_params(params, sample_rate_hz), s, out)
-    zeros = np.zeros(n)
-    truth = physics.Truth(
-        x_m=out[physics.O_X], y_m=out[physics.O_Y],
-        vx_m_per_s=out[physics.O_VX], vy_m_per_s=out[physics.O_VY],
-        ax_m_per_s2=out[physics.O_AX], ay_m_per_s2=out[physics.O_AY],
-        fx_n=force[0], fy_n=force[1],
-        friction_x_n=out[physics.O_FRICX], friction_y_n=out[physics.O_FRICY],
-        film_x_n=out[physics.O_FILMX], film_y_n=out[physics.O_FILMY],
-        film_damping_ns_per_m=out[physics.O_CFILM], hammer_n=zeros,
-    )
-    return truth, s
+    return physics.Truth.from_kernel(out, force, np.zeros(n)), s
 
 
 NOISE_TABLE_SIZE = 1 << 20  # standard normal draws reused with random offsets (4 MiB)
@@ -173,15 +163,7 @@ class RigModel:
         fill, visc, p_in, p_rec, temp = self._oil_block(n)
         out = np.empty((physics.N_OUT, n))
         physics.integrate(external, fill, visc, self._kp, self._state, out)
-        truth = physics.Truth(
-            x_m=out[physics.O_X], y_m=out[physics.O_Y],
-            vx_m_per_s=out[physics.O_VX], vy_m_per_s=out[physics.O_VY],
-            ax_m_per_s2=out[physics.O_AX], ay_m_per_s2=out[physics.O_AY],
-            fx_n=force[0], fy_n=force[1],
-            friction_x_n=out[physics.O_FRICX], friction_y_n=out[physics.O_FRICY],
-            film_x_n=out[physics.O_FILMX], film_y_n=out[physics.O_FILMY],
-            film_damping_ns_per_m=out[physics.O_CFILM], hammer_n=np.abs(hammer).sum(axis=0),
-        )
+        truth = physics.Truth.from_kernel(out, force, np.abs(hammer).sum(axis=0))
         self.last_truth = truth
         flow = self._eq5_flow_l_per_min(p_in - p_rec, visc)
         signals = self._true_signals(truth, p_in, p_rec, flow, temp)
