@@ -54,6 +54,15 @@ U_FLUID_MASS_KG = 0.01  # section VI.2: 0.62 +/- 0.01 kg
 WATERFALL_HARMONICS = 5.5  # spectra shown up to this multiple of the highest dwell frequency
 
 
+
+# Per-dwell tables stored as plain arrays in /results (columns named in an attribute).
+_RESULT_TABLES: dict[str, tuple[str, ...]] = {
+    "lubricated": ("freq_hz", "amplitude_m", "C_t_Ns_per_m", "K_dyn_N_per_m",
+                   "C_seal_Ns_per_m", "C_sfd_Ns_per_m", "U_C_sfd_Ns_per_m"),
+    "dry": ("freq_hz", "work_J", "dissipated_J", "C_eq_x_Ns_per_m", "C_eq_y_Ns_per_m",
+            "Im_Fx_over_X_N_per_m", "Im_Fy_over_Y_N_per_m"),
+}
+
 def wanted_analysis(run: RunData) -> str:
     """The analysis a run calls for, from its kind and whether it ran with oil."""
     kind = run.kind
@@ -420,22 +429,13 @@ def write_results(ident: Identification) -> list[Skipped]:
                 g.attrs["generated"] = share["generated"]
                 g.attrs["software"] = "sfdrig analysis.identify"
                 g.create_dataset("json", data=json.dumps(share))
-                lub = share.get("lubricated")
-                if lub and lub["points"]:
-                    cols = ("freq_hz", "amplitude_m", "C_t_Ns_per_m", "K_dyn_N_per_m",
-                            "C_seal_Ns_per_m", "C_sfd_Ns_per_m", "U_C_sfd_Ns_per_m")
-                    arr = np.array([[p[c] if p[c] is not None else np.nan for c in cols]
-                                    for p in lub["points"]])
-                    ds = g.create_dataset("lubricated_points", data=arr)
-                    ds.attrs["columns"] = json.dumps(cols)
-                dry = share.get("dry")
-                if dry and dry["points"]:
-                    cols = ("freq_hz", "work_J", "dissipated_J", "C_eq_x_Ns_per_m",
-                            "C_eq_y_Ns_per_m", "Im_Fx_over_X_N_per_m", "Im_Fy_over_Y_N_per_m")
-                    arr = np.array([[p[c] if p[c] is not None else np.nan for c in cols]
-                                    for p in dry["points"]])
-                    ds = g.create_dataset("dry_points", data=arr)
-                    ds.attrs["columns"] = json.dumps(cols)
+                for key, cols in _RESULT_TABLES.items():
+                    section = share.get(key)
+                    if section and section["points"]:
+                        arr = np.array([[p[c] if p[c] is not None else np.nan for c in cols]
+                                        for p in section["points"]])
+                        ds = g.create_dataset(f"{key}_points", data=arr)
+                        ds.attrs["columns"] = json.dumps(cols)
         except OSError as err:
             problems.append(Skipped(run.label, "results", f"cannot write /results: {err}"))
     return problems
