@@ -14,7 +14,6 @@ Phase convention: ``z(t) = Re(Z e^{i w (t - t0)})`` with t0 the start of the dwe
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field

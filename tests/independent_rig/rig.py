@@ -3,8 +3,8 @@
 Per axis z in {x, y}, z the housing's displacement relative to the journal, h = z + f its absolute
 displacement and f the frame's (0 unless a frame mode is given)::
 
-    (M + M_f) h'' + D z'' + (C_rv + C_film) z' + K_z z + F_seal + sum(F_extra) = F_z     (housing)
-    m_fr f'' + c_fr f' + k_fr f = (C_rv + C_film) z' + K_z z + D z'' + F_seal + sum(F_extra)  (frame)
+    (M + M_f) h'' + D z'' + (C_rv + C_film) z' + K_z z + F_seal - sum(F_extra) = F_z  (housing)
+    m_fr f'' + c_fr f' + k_fr f = (C_rv + C_film) z' + K_z z + D z'' + F_seal - sum(F_extra)
 
 M_f and D only when lubricated (D: eq. 15, C_film: eq. 16 at the centre or a given constant).
 The seal's dry friction ``F_seal = F_mu v / sqrt(|v|^2 + v_eps^2)`` acts against the 2-D relative
