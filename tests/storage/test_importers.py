@@ -16,8 +16,8 @@ from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
 
 from sfdrig.cli import main
 from storage import ImportDataError, open_run
-from storage import importers as imp
 from storage.importers import dwell_steps, import_file, parse_assignments, parse_scale
+from storage.runfile import RunWriter
 from tests.conftest import REPO_ROOT
 
 
@@ -212,7 +212,7 @@ def test_failure_while_writing_leaves_no_file(tmp_path: Path, monkeypatch) -> No
     def boom(self, *args, **kwargs):
         raise OSError("disk full (simulated)")
 
-    monkeypatch.setattr(imp.RunWriter, "on_step", boom)
+    monkeypatch.setattr(RunWriter, "on_step", boom)
     with pytest.raises(OSError, match="disk full"):
         import_file(src, tmp_path / "m.h5")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.csv"]

@@ -1,0 +1,206 @@
+"""What every importer shares: canonical names, the measured data, options, sample rate."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from storage.errors import ImportDataError
+
+#: canonical name -> (channel name, units, channel kind); None for time and frequency.
+CANONICAL: dict[str, tuple[str, str, str] | None] = {
+    "time_s": None,
+    "freq_hz": None,
+    "fx_N": ("fx", "N", "load_cell"),
+    "fy_N": ("fy", "N", "load_cell"),
+    "x_m": ("x", "m", "eddy_current_probe"),
+    "y_m": ("y", "m", "eddy_current_probe"),
+    "ax_mps2": ("ax", "m/s^2", "accelerometer"),
+    "ay_mps2": ("ay", "m/s^2", "accelerometer"),
+    "oil_temp_C": ("t_oil", "degC", "thermocouple"),
+}
+FORCES = ("fx_N", "fy_N")
+DISPLACEMENTS = ("x_m", "y_m")
+#: Relative disagreement tolerated between --fs and a time column or wf_increment.
+FS_TOLERANCE = 1e-3
+
+
+@dataclass
+class MeasuredData:
+    """Measured signals read from a file, in canonical names, before they become a run.
+
+    Attributes
+    ----------
+    signals : dict of str to ndarray
+        Canonical name (``fx_N``, ``x_m``...) -> float64 samples, scaled, equal lengths.
+    fs_hz : float
+        Sample rate [S/s].
+    freq_hz : ndarray or None
+        Dwell frequency per sample [Hz], when the file has one.
+    time_offset_s : float
+        Time of the first sample in the file's time base [s] (0 without a time column).
+    sources : dict of str to str
+        Canonical name -> where it came from (column, variable or TDMS channel).
+    source_format : str
+        "csv", "mat", "mat-v7.3" or "tdms".
+    start_time : str
+        ISO 8601 UTC of the first sample when the file says so (TDMS), else "".
+    """
+
+    signals: dict[str, np.ndarray]
+    fs_hz: float
+    freq_hz: np.ndarray | None = None
+    time_offset_s: float = 0.0
+    sources: dict[str, str] = field(default_factory=dict)
+    source_format: str = ""
+    start_time: str = ""
+
+    @property
+    def n_samples(self) -> int:
+        return len(next(iter(self.signals.values())))
+
+
+# --- option parsing ----------------------------------------------------------------------------
+def parse_assignments(items: list[str] | None, option: str) -> dict[str, str]:
+    """``["fx_N=V1", ...]`` -> ``{"fx_N": "V1"}``; checks canonical names.
+
+    Raises
+    ------
+    ImportDataError
+        For a malformed item, an unknown canonical name or a name given twice.
+    """
+    out: dict[str, str] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not sep or not key or not value:
+            raise ImportDataError(f"{option} {item!r}: expected CANONICAL=VALUE, e.g. fx_N=V1")
+        if key not in CANONICAL:
+            raise ImportDataError(
+                f"{option} {item!r}: {key!r} is not a canonical name ({', '.join(CANONICAL)})"
+            )
+        if key in out:
+            raise ImportDataError(f"{option}: {key!r} given twice")
+        out[key] = value
+    return out
+
+
+def parse_scale(items: list[str] | None) -> dict[str, float]:
+    """``["x_m=1e-3"]`` -> ``{"x_m": 0.001}``; the factor must be a finite number."""
+    out: dict[str, float] = {}
+    for key, text in parse_assignments(items, "--scale").items():
+        try:
+            factor = float(text)
+        except ValueError:
+            factor = math.nan
+        if not math.isfinite(factor) or factor == 0:
+            raise ImportDataError(f"--scale {key}={text}: factor must be a finite non-zero number")
+        if key in ("time_s", "freq_hz"):
+            raise ImportDataError(f"--scale {key}: only signal columns can be scaled")
+        out[key] = factor
+    return out
+
+
+def _select(available: list[str], mapping: Mapping[str, str], where: str,
+            what: str) -> dict[str, str]:
+    """Canonical -> source name: canonical names present, overridden by the mapping."""
+    chosen = {c: c for c in CANONICAL if c in available}
+    for canon, src in mapping.items():
+        if canon not in CANONICAL:
+            raise ImportDataError(f"{where}: {canon!r} is not a canonical name")
+        chosen[canon] = src
+    # a column mapped to another canonical name is no longer also that name's source
+    for canon in list(chosen):
+        if canon not in mapping and canon in mapping.values():
+            del chosen[canon]
+    if not any(c in chosen for c in FORCES) or not any(c in chosen for c in DISPLACEMENTS):
+        raise ImportDataError(
+            f"{where}: need at least one force (fx_N or fy_N) and one displacement (x_m or y_m); "
+            f"found {sorted(chosen) or 'none'} among {what} {available}; map them with "
+            "--map fx_N=NAME --map x_m=NAME"
+        )
+    return chosen
+
+
+# --- sample rate -------------------------------------------------------------------------------
+def _rate_from_time(t: np.ndarray, quantum_s: float, line_of: Any, where: str) -> float:
+    """Sample rate [S/s] of a time column after checking it is uniformly sampled.
+
+    ``quantum_s`` is the rounding of the printed times; ``line_of(i)`` names row i's place.
+    """
+    n = len(t)
+    if n < 2:
+        raise ImportDataError(f"{where}: {n} sample(s): too few to find a sample rate")
+    dt = np.diff(t)
+    dt_ref = (t[-1] - t[0]) / (n - 1)
+    if not dt_ref > 0:
+        raise ImportDataError(f"{where}: time_s does not increase ({t[0]!r} to {t[-1]!r})")
+    tol = 0.01 * dt_ref + 2 * quantum_s
+    bad = np.flatnonzero(np.abs(dt - dt_ref) > tol)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise ImportDataError(
+            f"{where}, {line_of(i)}: time_s is not uniformly sampled: step {dt[i - 1]:.9g} s "
+            f"from the previous sample, the mean step is {dt_ref:.9g} s"
+        )
+    drift = np.abs(t - (t[0] + dt_ref * np.arange(n)))
+    i = int(np.argmax(drift))
+    if drift[i] > 0.25 * dt_ref + 2 * quantum_s:
+        raise ImportDataError(
+            f"{where}, {line_of(i)}: time_s is not uniformly sampled: {t[i]:.9g} s is "
+            f"{drift[i]:.3g} s off the uniform grid"
+        )
+    return 1.0 / dt_ref
+
+
+def _resolve_fs(fs_hz: float | None, fs_found: float | None, what: str, where: str) -> float:
+    if fs_hz is not None and not (math.isfinite(fs_hz) and fs_hz > 0):
+        raise ImportDataError(f"--fs {fs_hz}: must be a positive sample rate [Hz]")
+    if fs_found is None:
+        if fs_hz is None:
+            raise ImportDataError(
+                f"{where}: no time_s column and no sample rate: give --fs HZ or map time_s"
+            )
+        return float(fs_hz)
+    if fs_hz is not None and abs(fs_hz - fs_found) > FS_TOLERANCE * fs_found:
+        raise ImportDataError(
+            f"{where}: --fs {fs_hz:g} Hz disagrees with {what} ({fs_found:.9g} Hz)"
+        )
+    return float(fs_hz) if fs_hz is not None else float(fs_found)
+
+
+def _check_finite(columns: dict[str, np.ndarray], where: str, name_of: Any,
+                  place_of: Any) -> None:
+    """Measured samples must be finite numbers (NaN would poison every later fit)."""
+    for canon, values in columns.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            i = int(bad[0])
+            raise ImportDataError(
+                f"{where}, {place_of(i)}, {name_of(canon)}: {values[i]} is not a finite number"
+            )
+
+
+def _finish(columns: dict[str, np.ndarray], fs_hz: float, scale: Mapping[str, float],
+            sources: dict[str, str], fmt: str, where: str, name_of: Any,
+            time_offset_s: float = 0.0, start_time: str = "") -> MeasuredData:
+    lengths = {c: len(v) for c, v in columns.items()}
+    if len(set(lengths.values())) > 1:
+        desc = ", ".join(f"{name_of(c)} has {n}" for c, n in lengths.items())
+        raise ImportDataError(f"{where}: signals differ in length: {desc}")
+    if next(iter(lengths.values())) == 0:
+        raise ImportDataError(f"{where}: no samples")
+    for canon in scale:
+        if canon not in columns:
+            raise ImportDataError(f"{where}: --scale {canon}: no such signal is imported")
+    signals = {c: np.asarray(v, dtype=np.float64) * scale.get(c, 1.0)
+               for c, v in columns.items() if c not in ("time_s", "freq_hz")}
+    return MeasuredData(signals=signals, fs_hz=fs_hz, freq_hz=columns.get("freq_hz"),
+                        time_offset_s=time_offset_s, sources=sources, source_format=fmt,
+                        start_time=start_time)
+
+

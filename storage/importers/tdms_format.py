@@ -1,0 +1,115 @@
+"""NI TDMS files, as LabVIEW writes them."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from storage.errors import ImportDataError
+from storage.importers.common import (
+    FS_TOLERANCE,
+    MeasuredData,
+    _check_finite,
+    _finish,
+    _rate_from_time,
+    _resolve_fs,
+    _select,
+)
+
+
+def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
+              fs_hz: float | None = None, scale: Mapping[str, float] | None = None) -> MeasuredData:
+    """Read an NI TDMS file (as LabVIEW writes it: groups of channels, ``wf_increment`` [s]).
+
+    Channels are referenced as ``GROUP/CHANNEL`` or, when unique across groups, ``CHANNEL``.
+    The sample rate is ``1 / wf_increment`` (checked against ``fs_hz`` when both are given).
+    """
+    from nptdms import TdmsFile
+
+    path = Path(path)
+    where = str(path)
+    if not path.is_file():
+        raise ImportDataError(f"{where}: no such file")
+    with open(path, "rb") as fh:
+        if fh.read(4) != b"TDSm":
+            raise ImportDataError(f"{where}: not a TDMS file (no 'TDSm' lead-in)")
+    try:
+        tdms = TdmsFile.read(path)
+    except Exception as err:  # npTDMS raises ValueError, KeyError, struct.error... on bad files
+        raise ImportDataError(f"{where}: not a readable TDMS file: {err}") from None
+    if not any(g.channels() for g in tdms.groups()):
+        raise ImportDataError(f"{where}: no channels (empty or damaged TDMS file)")
+    by_full: dict[str, Any] = {}
+    by_short: dict[str, list[Any]] = {}
+    for group in tdms.groups():
+        for ch in group.channels():
+            by_full[f"{group.name}/{ch.name}"] = ch
+            by_short.setdefault(ch.name, []).append(ch)
+    available = list(by_full)
+    unique_short = [n for n, chs in by_short.items() if len(chs) == 1]
+    chosen = _select(unique_short + available, mapping or {}, where, "channels")
+    columns: dict[str, np.ndarray] = {}
+    sources: dict[str, str] = {}
+    increments: dict[str, float] = {}
+    start_time = ""
+    for canon, ref in chosen.items():
+        if ref in by_full:
+            ch = by_full[ref]
+        elif ref in by_short and len(by_short[ref]) == 1:
+            ch = by_short[ref][0]
+        elif ref in by_short:
+            raise ImportDataError(f"{where}: channel name {ref!r} is in several groups; use "
+                                  f"GROUP/CHANNEL (one of {[c.path for c in by_short[ref]]})")
+        else:
+            raise ImportDataError(f"{where}: no channel {ref!r} (channels: {available})")
+        label = f"channel '{ch.group_name}/{ch.name}'"
+        data = ch[:]
+        if getattr(data, "dtype", np.dtype(object)).kind not in "fiu":
+            raise ImportDataError(f"{where}: {label} is not numeric (type {data.dtype})")
+        columns[canon] = np.asarray(data, dtype=np.float64)
+        sources[canon] = label
+        inc = ch.properties.get("wf_increment")
+        if inc is not None and canon != "time_s":
+            if not float(inc) > 0:
+                raise ImportDataError(f"{where}: {label} has wf_increment {inc}, not positive")
+            increments[label] = float(inc)
+        t0 = ch.properties.get("wf_start_time")
+        if t0 is not None and not start_time:
+            start_time = _tdms_time(t0)
+    _check_finite(columns, where, sources.__getitem__, lambda i: f"sample {i}")
+    fs_found = None
+    what = ""
+    if "time_s" in columns:
+        t = columns["time_s"]
+        fs_found = _rate_from_time(t, 4 * np.finfo(float).eps * float(np.max(np.abs(t))),
+                                   lambda i: f"{sources['time_s']} sample {i}", where)
+        what = f"the time channel {sources['time_s']}"
+    if increments:
+        vals = list(increments.values())
+        if max(vals) - min(vals) > FS_TOLERANCE * min(vals):
+            desc = ", ".join(f"{k}: {v:g} s" for k, v in increments.items())
+            raise ImportDataError(f"{where}: channels have different wf_increment ({desc})")
+        fs_inc = 1.0 / vals[0]
+        if fs_found is not None and abs(fs_found - fs_inc) > FS_TOLERANCE * fs_inc:
+            raise ImportDataError(f"{where}: wf_increment says {fs_inc:.9g} Hz, {what} says "
+                                  f"{fs_found:.9g} Hz")
+        fs_found, what = fs_inc, f"wf_increment of {next(iter(increments))}"
+    fs = _resolve_fs(fs_hz, fs_found, what, where)
+    offset = float(columns["time_s"][0]) if "time_s" in columns else 0.0
+    return _finish(columns, fs, scale or {}, sources, "tdms", where, sources.__getitem__, offset,
+                   start_time)
+
+
+def _tdms_time(value: Any) -> str:
+    try:
+        ts = np.datetime64(value, "us")
+        return datetime.fromisoformat(str(ts)).replace(tzinfo=UTC).isoformat(
+            timespec="milliseconds")
+    except (ValueError, TypeError):
+        return ""
+
+
