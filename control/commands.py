@@ -1,0 +1,186 @@
+"""The daemon's command handling: one request frame in, one reply out, whatever the frame holds.
+
+`CommandHandler` parses a request (`control.wire`), checks it against the daemon's state machine,
+carries it out on the daemon and answers; a request the state does not allow is refused with an
+error reply and changes nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING, Any
+
+from pydantic import ValidationError
+
+from control.acquisition import BackgroundWriter, FanOut, RunJob
+from control.daemon_state import TransitionError
+from control.errors import TargetError
+from control.runs import create_sweep_file, new_run_id
+from control.wire import (
+    AbortRequest,
+    DaemonState,
+    ErrorKind,
+    ListRunsRequest,
+    PauseRequest,
+    PumpRequest,
+    Reply,
+    RequestError,
+    ResetRequest,
+    ResumeRequest,
+    StartRequest,
+    StatusRequest,
+    describe_errors,
+    parse_request,
+)
+
+if TYPE_CHECKING:
+    from control.daemon import Daemon
+
+log = logging.getLogger("sfdrig.daemon")
+S = DaemonState
+
+
+class CommandHandler:
+    """Answers the requests of the command socket by acting on ``daemon``."""
+
+    def __init__(self, daemon: Daemon) -> None:
+        self.d = daemon
+
+    def handle(self, body: list[bytes]) -> Reply:
+        """The reply to the frames after the routing envelope."""
+        try:
+            if len(body) != 1:
+                raise RequestError(ErrorKind.MALFORMED,
+                                   f"expected one JSON request frame, got {len(body)} frames")
+            req = parse_request(body[0])
+            return self.execute(req)
+        except RequestError as err:
+            return self._error(err.kind, str(err), err.cmd, err.request_id)
+        except Exception as err:  # the daemon never dies on a request
+            log.exception("request failed")
+            return self._error(ErrorKind.FAILED, f"{type(err).__name__}: {err}")
+
+    def execute(self, req: Any) -> Reply:
+        """Carry out one validated request; refusals come back as error replies."""
+        try:
+            with self.d.sm.lock:
+                return self._dispatch(req)
+        except TransitionError as err:
+            return self._error(ErrorKind.FORBIDDEN, f"{req.cmd}: {err}", req.cmd, req.request_id)
+
+    def _error(self, kind: ErrorKind, message: str, cmd: str = "", rid: str = "") -> Reply:
+        return Reply(ok=False, cmd=cmd, request_id=rid, state=self.d.sm.state, error_kind=kind,
+                     error=message)
+
+    def _ok(self, req: Any, **data: Any) -> Reply:
+        return Reply(ok=True, cmd=req.cmd, request_id=req.request_id, state=self.d.sm.state,
+                     data=data)
+
+    def _dispatch(self, req: Any) -> Reply:
+        d = self.d
+        match req:
+            case StatusRequest():
+                return self._ok(req, **d.status())
+            case ListRunsRequest():
+                return self._ok(req, runs=d.list_runs())
+            case StartRequest():
+                return self._start(req)
+            case PauseRequest():
+                d.sm.fire("pause")
+                self._engine().pause()
+                self._operator_event("paused by operator")
+                return self._ok(req)
+            case ResumeRequest():
+                d.sm.fire("resume")
+                self._engine().resume()
+                self._operator_event("resumed by operator")
+                return self._ok(req)
+            case AbortRequest():
+                d.sm.fire("abort")
+                assert d.job is not None
+                d.job.abort_reason = req.reason
+                self._engine().abort(req.reason)
+                return self._ok(req)
+            case PumpRequest():
+                return self._pump(req)
+            case ResetRequest():
+                d.sm.fire("reset")
+                d.fault_reason = ""
+                return self._ok(req)
+        raise RequestError(ErrorKind.INVALID, f"unhandled request {req!r}")
+
+    def _engine(self) -> Any:
+        assert self.d.job is not None
+        return self.d.job.engine
+
+    def _operator_event(self, message: str) -> None:
+        job = self.d.job
+        if job is not None:
+            job.fanout.on_event("operator", message, job.fanout.last_sample)
+
+    def _pump(self, req: PumpRequest) -> Reply:
+        d = self.d
+        if d.sm.state in (S.ARMING, S.ABORTING):
+            raise TransitionError(f"'pump' is not allowed while {d.sm.state.value}")
+        try:
+            d.pump.set(req.on)
+        except (RuntimeError, ValueError) as err:  # InterlockError: shakers running
+            return self._error(ErrorKind.FORBIDDEN, f"pump: {err}", req.cmd, req.request_id)
+        message = f"pump switched {'on' if req.on else 'off'} by operator"
+        job = d.job
+        if job is not None:
+            job.fanout.on_event("pump", message, job.fanout.last_sample)
+        else:
+            d.publisher.on_event("pump", message, 0)
+        return self._ok(req, pump_on=bool(d.pump.is_on))
+
+    def _start(self, req: StartRequest) -> Reply:
+        d = self.d
+        if not d.sm.allowed("start"):
+            d.sm.fire("start")  # raises the TransitionError that names the state
+        spec_parser, engine_factory = d.sweep_factories()
+        try:
+            spec = spec_parser(req.spec)
+        except ValidationError as err:
+            return self._error(ErrorKind.INVALID, describe_errors(err, "start.spec"), req.cmd,
+                               req.request_id)
+        except ValueError as err:
+            return self._error(ErrorKind.INVALID, f"start.spec: {err}", req.cmd, req.request_id)
+        refusal = self._refusal(spec)
+        if refusal is not None:
+            return self._error(refusal[0], refusal[1], req.cmd, req.request_id)
+        run_id = new_run_id()
+        path = d.cfg.runs_dir / f"{run_id}.h5"
+        cm = d.channel_map
+        writer = create_sweep_file(path, run_id, cm, spec, req.operator, req.notes,
+                                   d.cfg.rig_config)
+        background = BackgroundWriter(writer, int(30 * cm.sample_rate_hz))
+        try:
+            fanout = FanOut([background], [d.publisher])
+            engine = engine_factory(d.backend, spec, limits=d.cfg.limits, listener=fanout,
+                                    pump=d.pump)
+        except Exception as err:
+            background.drain()
+            writer.close("failed", f"{type(err).__name__}: {err}")
+            return self._error(ErrorKind.FAILED, f"start: {err}", req.cmd, req.request_id)
+        d.job = RunJob(run_id, path, engine, background, fanout)
+        d.publisher.set_run(run_id)
+        d.sm.fire("start")
+        d.loop.submit(d.job)
+        steps_total = len(spec.steps()) if hasattr(spec, "steps") else None
+        return self._ok(req, run_id=run_id, path=str(path), steps_total=steps_total)
+
+    def _refusal(self, spec: Any) -> tuple[ErrorKind, str] | None:
+        """Why a valid sweep must not start now (before a run file exists), or None."""
+        d = self.d
+        if getattr(spec, "lubricated", False) and not d.pump.is_on:
+            return ErrorKind.FORBIDDEN, "start: a lubricated sweep needs the pump on " \
+                "(send pump on first)"
+        if hasattr(spec, "steps"):
+            from control.safety import SafetyLimits, validate_targets
+
+            try:
+                validate_targets(spec.steps(), d.cfg.limits or SafetyLimits(), d.channel_map)
+            except TargetError as err:
+                return ErrorKind.INVALID, f"start.spec: {err}"
+        return None

@@ -1,0 +1,68 @@
+"""The daemon's run files: a new run id, creating the file of a run, listing the runs directory."""
+
+from __future__ import annotations
+
+import math
+import secrets
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from daq.channels import ChannelMap
+
+
+def new_run_id() -> str:
+    """A unique, sortable run id: UTC time plus a random suffix."""
+    return f"{datetime.now(UTC):%Y%m%dT%H%M%SZ}-{secrets.token_hex(3)}"
+
+
+def writer_chunk_samples(sample_rate_hz: float) -> int:
+    """About 1/8 s per HDF5 chunk (a power of two, >= 1024 samples).
+
+    h5py keeps the GIL while it compresses a chunk; with one-second chunks at 62.5 kS/s x 18
+    channels that is tens of milliseconds at once, which starves the acquisition thread past its
+    AO lead (underflow, seen on a loaded 2-core machine). Eighth-second chunks spread the same
+    work into pieces of a few milliseconds.
+    """
+    return int(max(1024, 2 ** round(math.log2(max(sample_rate_hz, 1.0) / 8))))
+
+
+def create_sweep_file(path: Path, run_id: str, channel_map: ChannelMap, spec: Any,
+                      operator: str, notes: str, rig_config: Any) -> Any:
+    """A new `storage.RunWriter` for one sweep, its metadata written."""
+    from storage.runfile import RunWriter
+
+    cm = channel_map
+    return RunWriter.create(
+        path, run_id, "sweep",
+        channels=cm.to_json_dict()["ai"], ao_names=cm.ao_names,
+        sample_rate_hz=cm.sample_rate_hz, operator=operator, notes=notes,
+        channel_map=cm.to_json_dict(), rig_config=rig_config,
+        test_spec=spec.model_dump(mode="json") if hasattr(spec, "model_dump") else spec,
+        lubricated=bool(getattr(spec, "lubricated", False)),
+        chunk_samples=writer_chunk_samples(cm.sample_rate_hz),
+    )
+
+
+def list_runs(runs_dir: Path, active: Path | None, limit: int = 500) -> list[dict[str, Any]]:
+    """The run files in ``runs_dir``, newest first, with their status (``active`` is running)."""
+    from storage.reader import open_run
+
+    out: list[dict[str, Any]] = []
+    paths = sorted(runs_dir.glob("*.h5"), key=lambda p: p.stat().st_mtime, reverse=True)
+    for p in paths[:limit]:
+        if p == active:
+            out.append({"path": str(p), "run_id": p.stem, "status": "running"})
+            continue
+        try:
+            with open_run(p) as run:
+                a = run.attrs
+                out.append({"path": str(p), "run_id": str(a.get("run_id", p.stem)),
+                            "kind": str(a.get("kind", "")), "status": run.status,
+                            "status_reason": str(a.get("status_reason", "")),
+                            "start_time": run.start_time, "stop_time": run.stop_time,
+                            "n_samples": int(run.n_samples), "n_steps": len(run.steps)})
+        except Exception as err:  # a broken file is listed with why it is broken
+            out.append({"path": str(p), "run_id": p.stem, "status": "unreadable",
+                        "status_reason": str(err)})
+    return out
