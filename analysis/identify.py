@@ -29,6 +29,7 @@ from analysis.dwells import (
 )
 from analysis.errors import Skipped
 from analysis.lubricated import SEAL_HARMONICS, LubResult, identify_lubricated
+from analysis.seal_setting import SealSetting, declared_seal, fit_seal_friction
 from analysis.structure import (
     FlowResult,
     ImpactFit,
@@ -105,6 +106,7 @@ class Identification:
     params: RigParams = field(default_factory=RigParams)
     params_source: str = "report defaults"
     simulated: bool = False
+    rig_described: bool = False  # imported runs carrying a rig description
     references: dict[str, Any] = field(default_factory=dict)
 
     # --- tables ---------------------------------------------------------------------------
@@ -222,6 +224,10 @@ def _params_of(runs: list[RunData], ident: Identification) -> None:
         ident.skipped.append(Skipped("-", "setup", f"rig_config unreadable ({err}); report "
                                      "defaults used"))
         return
+    if all(r.kind == "imported" for r in runs if r.rig_config):
+        ident.rig_described = True
+        ident.params_source = "rig_config of the imported runs (their rig description)"
+        return
     ident.simulated = True
     ident.params_source = "rig_config of the runs (simulated rig)"
     if len(configs) > 1:
@@ -329,11 +335,28 @@ def _identify_runs(runs: list[RunData], ident: Identification, asked: set[str],
         dry_dwells.extend(dws)
     if dry_dwells:
         ident.dry = identify_dry(dry_dwells, ident.skipped, velocity_harmonics)
+    lub_runs = by_analysis["lubricated"]
+    try:
+        declared = declared_seal([r.test_spec for r in lub_runs], [run_label(r) for r in lub_runs])
+    except ValueError as err:
+        ident.skipped.append(Skipped("-", "lubricated", str(err)))
+        by_analysis["lubricated"] = []
+        declared = SealSetting("", None, "")
+    c_rv = params.structure.residual_damping_ns_per_m if ident.rig_described \
+        else REPORT_C_RV_NS_PER_M
+    u_c_rv = 0.1 * c_rv
     if ident.dry is not None:
-        f_mu, u_f_mu = ident.dry.f_mu_n, ident.dry.u_f_mu_n
         c_rv, u_c_rv = ident.dry.c_rv_ns_per_m, ident.dry.u_c_rv_ns_per_m
+    if declared.state in ("none", "given"):
+        f_mu = declared.f_mu_n or 0.0
+        u_f_mu = 0.1 * f_mu
+        source = declared.source
+    elif ident.dry is not None:
+        f_mu, u_f_mu = ident.dry.f_mu_n, ident.dry.u_f_mu_n
         source = "identified from the dry runs (energy balance, eq. 2-4)"
-    elif ident.simulated:
+    elif declared.state == "unknown":
+        f_mu, u_f_mu, source = math.nan, 0.0, declared.source  # fitted below, once dwells load
+    elif ident.simulated or ident.rig_described:
         f_mu = params.seal.friction_force_n if params.seal.enabled else 0.0
         c_rv = params.structure.residual_damping_ns_per_m
         u_f_mu, u_c_rv = 0.1 * f_mu, 0.1 * c_rv
@@ -350,6 +373,15 @@ def _identify_runs(runs: list[RunData], ident: Identification, asked: set[str],
         ident.dwells[run_label(r)] = dws
         ident.waterfalls[run_label(r)] = _waterfall(r, dws) if "sync" in asked else {}
         lub_dwells.extend(dws)
+    if lub_dwells and math.isnan(f_mu):
+        try:
+            f_mu, u_f_mu, _, n_pts = fit_seal_friction(lub_dwells)
+            source += (f"; F_mu = {f_mu:.1f} +/- {u_f_mu:.1f} N fitted to {n_pts} lubricated "
+                       "dwells (C_t linear in 1/(w|Z|), eq. 9)")
+        except ValueError as err:
+            ident.skipped.append(Skipped("-", "lubricated", f"seal friction unknown and not "
+                                         f"fitted ({err}); give a dry run"))
+            lub_dwells = []
     if lub_dwells:
         k_static = {"x": params.structure.stiffness_x_n_per_m,
                     "y": params.structure.stiffness_y_n_per_m}

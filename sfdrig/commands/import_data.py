@@ -6,9 +6,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from simulated_hw.params import RigParamsError, load_rig_params
 from storage import open_run
 from storage.errors import ImportDataError
 from storage.importers import CANONICAL, import_file, parse_assignments, parse_scale
+from storage.importers.conditions import MOTIONS, Conditions, resolve_conditions
 from storage.runfile import KINDS
 
 NAME = "import"
@@ -16,17 +18,37 @@ HELP = "import measured data (CSV, MATLAB .mat, NI TDMS) into a run file, all or
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", type=Path, help="measured data: .csv/.txt, .mat or .tdms")
-    parser.add_argument("--out", type=Path, required=True, help="run file to create (.h5)")
+    parser.add_argument("file", type=Path, nargs="+",
+                        help="measured data: .csv/.txt, .mat or .tdms (several: --out is a folder)")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="run file to create (.h5), or a folder for several files")
     parser.add_argument(
         "--map", action="append", default=[], metavar="CANONICAL=COLUMN",
         help="use COLUMN (CSV column, .mat variable or NAME(:,COL), TDMS [GROUP/]CHANNEL) as "
              f"CANONICAL, one of {', '.join(CANONICAL)}; repeatable",
     )
     parser.add_argument("--fs", type=float, default=None, metavar="HZ",
-                        help="sample rate [Hz] when the file has no time_s column")
+                        help="sample rate [Hz] when the file carries none (time column, MAT Fs, "
+                             "TDMS wf_increment)")
     parser.add_argument("--scale", action="append", default=[], metavar="CANONICAL=FACTOR",
                         help="multiply a signal by FACTOR (e.g. x_m=1e-6 for micrometres)")
+    oil = parser.add_mutually_exclusive_group()
+    oil.add_argument("--lubricated", dest="lubricated", action="store_const", const=True,
+                     default=None, help="the film was full of oil (lubricated analysis)")
+    oil.add_argument("--dry", dest="lubricated", action="store_const", const=False,
+                     help="no oil in the film (dry analysis)")
+    parser.add_argument("--motion", choices=MOTIONS, default=None,
+                        help="motion of every dwell (default: inferred per dwell from the x/y "
+                             "phase, printed and stored as inferred)")
+    parser.add_argument("--seal", default=None, metavar="none|unknown|F_MU",
+                        help="the end seal: none, unknown (identify fits F_mu or takes it from a "
+                             "dry run) or its friction force [N]")
+    parser.add_argument("--rig", type=Path, default=None, metavar="FILE",
+                        help="rig description (TOML, as RigParams.to_toml writes), stored as the "
+                             "run's rig_config; its seal is the run's seal unless --seal says")
+    parser.add_argument("--conditions", type=Path, default=None, metavar="FILE",
+                        help="conditions file (TOML: lubricated, motion, seal, rig); default: "
+                             "DATA.conditions.toml or conditions.toml beside the data")
     parser.add_argument("--kind", default="imported", choices=KINDS, help="kind of test")
     parser.add_argument("--notes", default="", help="free-text notes stored in the run")
     parser.add_argument("--operator", default="", help="who measured or imported it")
@@ -34,18 +56,83 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 
 
-def run(args: argparse.Namespace) -> int:
+def _rig_config(cond: Conditions) -> dict[str, object] | None:
+    """The rig file validated by the rig model; its seal fills an unstated seal."""
+    if cond.rig_file is None:
+        return None
     try:
-        out = import_file(
-            args.file, args.out, mapping=parse_assignments(args.map, "--map"), fs_hz=args.fs,
-            scale=parse_scale(args.scale), kind=args.kind, notes=args.notes,
-            operator=args.operator, run_id=args.run_id, overwrite=args.overwrite,
-        )
-    except ImportDataError as err:
-        print(f"error: {err}", file=sys.stderr)
+        params = load_rig_params(cond.rig_file)
+    except (RigParamsError, ValueError, OSError) as err:
+        raise ImportDataError(f"--rig {cond.rig_file}: {err}") from None
+    if not cond.seal:
+        cond.seal = (repr(params.seal.friction_force_n) if params.seal.enabled
+                     and params.seal.friction_force_n > 0 else "none")
+        cond.sources["seal"] = f"rig file {cond.rig_file}"
+    return dict(params.model_dump(mode="json"))
+
+
+def _import_one(args: argparse.Namespace, path: Path, out: Path) -> Path:
+    cond = resolve_conditions(path, lubricated=args.lubricated, motion=args.motion,
+                              seal=args.seal, rig_file=args.rig,
+                              conditions_file=args.conditions)
+    rig = _rig_config(cond)
+    return import_file(
+        path, out, mapping=parse_assignments(args.map, "--map"), fs_hz=args.fs,
+        scale=parse_scale(args.scale), kind=args.kind, notes=args.notes,
+        operator=args.operator, run_id=args.run_id if len(args.file) == 1 else None,
+        overwrite=args.overwrite, conditions=cond, rig_config=rig,
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    files: list[Path] = args.file
+    if len(files) > 1 and not args.out.is_dir():
+        print(f"error: --out {args.out}: several files need an existing folder", file=sys.stderr)
         return 2
+    failed = 0
+    for path in files:
+        out = args.out / (path.stem + ".h5") if args.out.is_dir() else args.out
+        try:
+            out = _import_one(args, path, out)
+        except ImportDataError as err:
+            print(f"error: {err}", file=sys.stderr)
+            failed += 1
+            continue
+        except Exception as err:  # noqa: BLE001 - one line, never a traceback
+            print(f"error: {path}: {type(err).__name__}: {err}", file=sys.stderr)
+            failed += 1
+            continue
+        _print_summary(out)
+    return 2 if failed else 0
+
+
+def _print_summary(out: Path) -> None:
     with open_run(out) as run_data:
         print(f"{out}: run {run_data.run_id!r}, {run_data.n_samples} samples at "
               f"{run_data.sample_rate_hz:g} Hz ({run_data.duration_s:.3f} s), channels "
               f"{', '.join(run_data.channel_names)}, {len(run_data.steps)} steps")
-    return 0
+        spec = run_data.test_spec or {}
+    cond = spec.get("conditions", {})
+    src = cond.get("sources", {})
+    lub = cond.get("lubricated")
+    said = "yes" if lub else "no" if lub is False else "not stated (stored as dry)"
+    print(f"  lubricated: {said} [{src.get('lubricated', 'not stated')}]")
+    seal = cond.get("seal") or "not stated"
+    print(f"  seal: {seal} [{src.get('seal', 'not stated')}]")
+    if cond.get("rig_file"):
+        print(f"  rig_config: {cond['rig_file']} [{src.get('rig')}]")
+    per_step = cond.get("motion_per_step", [])
+    inferred = [m for m in per_step if str(m["source"]).startswith("inferred")]
+    if inferred:
+        counts: dict[str, int] = {}
+        for m in inferred:
+            counts[m["motion"]] = counts.get(m["motion"], 0) + 1
+        desc = ", ".join(f"{k} for {v} dwell(s)" for k, v in counts.items())
+        print(f"  motion inferred from the x/y phase (stored as inferred): {desc}")
+    elif per_step:
+        print(f"  motion: {per_step[0]['motion']} [{src.get('motion')}]")
+    for sw in spec.get("sweeps", []):
+        print(f"  sine sweep {sw['f_start_hz']:g}-{sw['f_stop_hz']:g} Hz (samples "
+              f"{sw['first_sample']}-{sw['last_sample']}), not a dwell")
+    for note in spec.get("derived", []):
+        print(f"  {note}")

@@ -15,16 +15,25 @@ from storage.errors import ImportDataError
 CANONICAL: dict[str, tuple[str, str, str] | None] = {
     "time_s": None,
     "freq_hz": None,
+    "step": None,
     "fx_N": ("fx", "N", "load_cell"),
     "fy_N": ("fy", "N", "load_cell"),
     "x_m": ("x", "m", "eddy_current_probe"),
     "y_m": ("y", "m", "eddy_current_probe"),
+    "vx_mps": ("vx", "m/s", "velocity"),
+    "vy_mps": ("vy", "m/s", "velocity"),
     "ax_mps2": ("ax", "m/s^2", "accelerometer"),
     "ay_mps2": ("ay", "m/s^2", "accelerometer"),
     "oil_temp_C": ("t_oil", "degC", "thermocouple"),
+    "p_in_Pa": ("p_in", "Pa", "pressure"),
+    "p_rec_Pa": ("p_rec", "Pa", "pressure"),
 }
+#: Columns that are not signals (not scaled, not stored as channels).
+NON_SIGNALS = ("time_s", "freq_hz", "step")
 FORCES = ("fx_N", "fy_N")
 DISPLACEMENTS = ("x_m", "y_m")
+#: Any of these is a response (displacement, velocity or acceleration).
+RESPONSES = ("x_m", "y_m", "vx_mps", "vy_mps", "ax_mps2", "ay_mps2")
 #: Relative disagreement tolerated between --fs and a time column or wf_increment.
 FS_TOLERANCE = 1e-3
 
@@ -54,6 +63,7 @@ class MeasuredData:
     signals: dict[str, np.ndarray]
     fs_hz: float
     freq_hz: np.ndarray | None = None
+    step: np.ndarray | None = None
     time_offset_s: float = 0.0
     sources: dict[str, str] = field(default_factory=dict)
     source_format: str = ""
@@ -99,7 +109,7 @@ def parse_scale(items: list[str] | None) -> dict[str, float]:
             factor = math.nan
         if not math.isfinite(factor) or factor == 0:
             raise ImportDataError(f"--scale {key}={text}: factor must be a finite non-zero number")
-        if key in ("time_s", "freq_hz"):
+        if key in NON_SIGNALS:
             raise ImportDataError(f"--scale {key}: only signal columns can be scaled")
         out[key] = factor
     return out
@@ -117,11 +127,11 @@ def _select(available: list[str], mapping: Mapping[str, str], where: str,
     for canon in list(chosen):
         if canon not in mapping and canon in mapping.values():
             del chosen[canon]
-    if not any(c in chosen for c in FORCES) or not any(c in chosen for c in DISPLACEMENTS):
+    if not any(c in chosen for c in FORCES) or not any(c in chosen for c in RESPONSES):
         raise ImportDataError(
-            f"{where}: need at least one force (fx_N or fy_N) and one displacement (x_m or y_m); "
-            f"found {sorted(chosen) or 'none'} among {what} {available}; map them with "
-            "--map fx_N=NAME --map x_m=NAME"
+            f"{where}: need at least one force (fx_N or fy_N) and one response (x_m, y_m, "
+            f"vx_mps, vy_mps, ax_mps2 or ay_mps2); found {sorted(chosen) or 'none'} among "
+            f"{what} {available}; map them with --map fx_N=NAME --map x_m=NAME"
         )
     return chosen
 
@@ -198,8 +208,9 @@ def _finish(columns: dict[str, np.ndarray], fs_hz: float, scale: Mapping[str, fl
         if canon not in columns:
             raise ImportDataError(f"{where}: --scale {canon}: no such signal is imported")
     signals = {c: np.asarray(v, dtype=np.float64) * scale.get(c, 1.0)
-               for c, v in columns.items() if c not in ("time_s", "freq_hz")}
+               for c, v in columns.items() if c not in NON_SIGNALS}
     return MeasuredData(signals=signals, fs_hz=fs_hz, freq_hz=columns.get("freq_hz"),
+                        step=columns.get("step"),
                         time_offset_s=time_offset_s, sources=sources, source_format=fmt,
                         start_time=start_time)
 

@@ -15,8 +15,10 @@ import numpy as np
 
 from storage.errors import ImportDataError
 from storage.importers.common import CANONICAL, MeasuredData
+from storage.importers.conditions import Conditions
 from storage.importers.csv_format import read_csv
 from storage.importers.mat_format import read_mat
+from storage.importers.segments import segment_record
 from storage.importers.tdms_format import read_tdms
 from storage.runfile import KINDS, RunWriter, utc_now_iso
 
@@ -66,23 +68,74 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def derive_displacement(data: MeasuredData, steps: list[dict[str, Any]]) -> list[str]:
+    """Displacement from acceleration or velocity where the file has none, per dwell.
+
+    Within each dwell the first ``N_DERIVED_HARMONICS`` harmonics of the dwell frequency are
+    fitted (least squares) and divided by (i k w)^2 or (i k w); outside dwells the derived signal
+    is 0. What is not periodic at the dwell frequency (noise, drift) is left out: say so.
+    Returns the notes describing what was derived.
+    """
+    notes = []
+    for axis in ("x", "y"):
+        disp = f"{axis}_m"
+        if disp in data.signals:
+            continue
+        found = [(src, n) for src, n in ((f"v{axis}_mps", 1), (f"a{axis}_mps2", 2))
+                 if src in data.signals]
+        if not found:
+            continue
+        src, power = found[0]
+        sig = data.signals[src]
+        out = np.zeros_like(sig)
+        for st in steps:
+            a, b, f = int(st["first_sample"]), int(st["last_sample"]), float(st["freq_hz"])
+            t = np.arange(a, b) / data.fs_hz
+            k = np.arange(1, N_DERIVED_HARMONICS + 1)
+            k = k[k * f < 0.45 * data.fs_hz]
+            basis = np.exp(2j * math.pi * f * np.outer(t, k))
+            design = np.column_stack([np.ones_like(t), basis.real, basis.imag])
+            coef, *_ = np.linalg.lstsq(design, sig[a:b], rcond=None)
+            amp = coef[1:1 + k.size] - 1j * coef[1 + k.size:]
+            amp = amp / (1j * 2 * math.pi * f * k) ** power
+            out[a:b] = np.real(basis @ amp)
+        data.signals[disp] = out
+        data.sources[disp] = (f"derived from {data.sources.get(src, src)} (first "
+                              f"{N_DERIVED_HARMONICS} harmonics per dwell divided by (i k w)^"
+                              f"{power}; 0 outside dwells)")
+        notes.append(f"{disp} {data.sources[disp]}")
+    return notes
+
+
+#: Harmonics kept when displacement is rebuilt from acceleration or velocity.
+N_DERIVED_HARMONICS = 5
+
+
 def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, *,
                        kind: str = "imported", notes: str = "", operator: str = "",
                        run_id: str | None = None, overwrite: bool = False,
-                       extra_spec: Mapping[str, Any] | None = None) -> Path:
+                       extra_spec: Mapping[str, Any] | None = None,
+                       conditions: Conditions | None = None,
+                       rig_config: Mapping[str, Any] | None = None) -> Path:
     """Write measured data as a run file, atomically (temporary file, then rename).
 
-    Channels are fx, fy, x, y, ax, ay, t_oil (those present), in N, m, m/s^2, degC; steps come
-    from runs of constant ``freq_hz``.
+    Channels are those of `CANONICAL` present (SI units); steps come from `segment_record`
+    (frequency, amplitude and motion changes, or the step column); the conditions are stored
+    as the daemon stores them (``lubricated`` attribute, ``motion`` per step, ``rig_config``)
+    and, with their sources and the evidence of what was inferred, in ``test_spec.conditions``.
     """
     out = Path(out)
     source = Path(source)
+    cond = conditions or Conditions(sources={k: "not stated" for k in
+                                             ("lubricated", "motion", "seal", "rig")})
     if kind not in KINDS:
         raise ImportDataError(f"--kind {kind!r} is not one of {KINDS}")
     if out.exists() and not overwrite:
         raise ImportDataError(f"{out}: exists already (choose another --out or overwrite)")
     if not out.parent.is_dir():
         raise ImportDataError(f"{out.parent}: output directory does not exist")
+    seg = segment_record(data.signals, data.fs_hz, data.freq_hz, data.step, cond.motion)
+    derived = derive_displacement(data, seg.steps)
     channels = []
     order = []
     for canon, spec in CANONICAL.items():
@@ -93,11 +146,20 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
                          "sensor": f"imported: {data.sources.get(canon, canon)}",
                          "physical_channel": ""})
         order.append(canon)
+    cond_json = cond.to_json()
+    cond_json["motion_per_step"] = [
+        {"step": st["index"], "motion": st["motion"],
+         "source": ("inferred from the x/y phase: " + why) if why else cond.sources["motion"]}
+        for st, why in zip(seg.steps, seg.motion_evidence, strict=True)]
     spec_json = {
         "source_file": str(source.resolve()), "source_format": data.source_format,
         "source_sha256": _sha256(source), "imported_at": utc_now_iso(),
         "signals": {c: data.sources.get(c, "") for c in order}, "time_offset_s":
-        data.time_offset_s, "n_samples": data.n_samples,
+        data.time_offset_s, "n_samples": data.n_samples, "conditions": cond_json,
+        "sweeps": seg.sweeps, "derived": derived,
+        "segmentation": ("step column " + data.sources.get("step", "") if data.step is not None
+                         else "frequency column, amplitude and motion changes"
+                         if data.freq_hz is not None else "none (no frequency or step column)"),
     }
     if data.freq_hz is not None:
         spec_json["freq_source"] = data.sources.get("freq_hz", "")
@@ -111,16 +173,20 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
             tmp, run_id, kind, channels, [], data.fs_hz, operator=operator, notes=notes,
             test_spec=spec_json, start_time=data.start_time or None, overwrite=False,
             swmr=False, flush_interval_s=0, compression="gzip",
+            rig_config=dict(rig_config) if rig_config else None,
+            lubricated=bool(cond.lubricated),
         ) as w:
             block = 1 << 20
             n = data.n_samples
             for a in range(0, n, block):
                 b = min(a + block, n)
                 w.on_block(a, np.stack([data.signals[c][a:b] for c in order]), None)
-            if data.freq_hz is not None:
-                for step in dwell_steps(data.freq_hz):
-                    w.on_step(step)
+            for step in seg.steps:
+                w.on_step(step)
             w.on_event("info", f"imported from {source} ({data.source_format})", 0)
+            for sw in seg.sweeps:
+                w.on_event("info", f"sine sweep {sw['f_start_hz']:g} to {sw['f_stop_hz']:g} Hz "
+                           "(not a dwell)", sw["first_sample"])
         os.replace(tmp, out)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -131,7 +197,9 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
 def import_file(path: str | Path, out: str | Path, *, mapping: Mapping[str, str] | None = None,
                 fs_hz: float | None = None, scale: Mapping[str, float] | None = None,
                 kind: str = "imported", notes: str = "", operator: str = "",
-                run_id: str | None = None, overwrite: bool = False) -> Path:
+                run_id: str | None = None, overwrite: bool = False,
+                conditions: Conditions | None = None,
+                rig_config: Mapping[str, Any] | None = None) -> Path:
     """Import a measured-data file (CSV, .mat, .tdms) into run file ``out``, all or nothing.
 
     Parameters
@@ -146,6 +214,10 @@ def import_file(path: str | Path, out: str | Path, *, mapping: Mapping[str, str]
         Sample rate [Hz] when the file has no time base.
     scale : dict, optional
         Canonical name -> factor.
+    conditions : Conditions, optional
+        Lubricated or dry, motion, seal (see `storage.importers.conditions`).
+    rig_config : dict, optional
+        The rig description (validated by the caller), stored as the run's rig_config.
 
     Returns
     -------
@@ -161,4 +233,5 @@ def import_file(path: str | Path, out: str | Path, *, mapping: Mapping[str, str]
     return write_imported_run(data, out, path, kind=kind, notes=notes, operator=operator,
                               run_id=run_id, overwrite=overwrite,
                               extra_spec={"mapping": dict(mapping or {}),
-                                          "scale": dict(scale or {})})
+                                          "scale": dict(scale or {})},
+                              conditions=conditions, rig_config=rig_config)
