@@ -152,7 +152,10 @@ class AcquisitionLoop:
 
     def _loop(self) -> None:
         while (job := self._jobs.get()) is not None:
-            self._on_start(job)
+            try:
+                self._on_start(job)
+            except Exception:
+                log.exception("starting %s failed", job.run_id)
             fault = False
             try:
                 outcome = job.engine.run()
@@ -162,8 +165,11 @@ class AcquisitionLoop:
             except Exception as err:  # the engine ramped down already; record why it stopped
                 log.exception("sweep %s failed", job.run_id)
                 status, reason, fault = "failed", f"{type(err).__name__}: {err}", True
-            self._on_done(job, status, reason, fault or status == "failed"
-                          and not reason.startswith("refused"))
+            try:
+                self._on_done(job, status, reason, fault or status == "failed"
+                              and not reason.startswith("refused"))
+            except Exception:  # the thread must live on to run the next sweep
+                log.exception("ending %s failed", job.run_id)
 
 
 def outcome_status(outcome: Any) -> tuple[str, str]:

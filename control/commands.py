@@ -47,7 +47,7 @@ class CommandHandler:
         self.d = daemon
 
     def handle(self, body: list[bytes]) -> Reply:
-        """The reply to the frames after the routing envelope."""
+        """The reply to the frames after the routing envelope; never raises."""
         try:
             if len(body) != 1:
                 raise RequestError(ErrorKind.MALFORMED,
@@ -135,6 +135,8 @@ class CommandHandler:
         return self._ok(req, pump_on=bool(d.pump.is_on))
 
     def _start(self, req: StartRequest) -> Reply:
+        """Validate the whole start (spec, targets, control and stream settings, the shutdown
+        budget, the engine) before the run file exists; only then create it and queue the run."""
         d = self.d
         if not d.sm.allowed("start"):
             d.sm.fire("start")  # raises the TransitionError that names the state
@@ -149,25 +151,34 @@ class CommandHandler:
         refusal = self._refusal(spec)
         if refusal is not None:
             return self._error(refusal[0], refusal[1], req.cmd, req.request_id)
+        fanout = FanOut([], [d.publisher])  # the run file joins once it exists
+        try:
+            engine = engine_factory(d.backend, spec, limits=d.cfg.limits, listener=fanout,
+                                    pump=d.pump)
+        except (TargetError, ValueError) as err:
+            return self._error(ErrorKind.INVALID, f"start.spec: {err}", req.cmd, req.request_id)
+        except Exception as err:
+            log.exception("building the sweep engine failed")
+            return self._error(ErrorKind.FAILED, f"start: {type(err).__name__}: {err}",
+                               req.cmd, req.request_id)
         run_id = new_run_id()
         path = d.cfg.runs_dir / f"{run_id}.h5"
         cm = d.channel_map
-        writer = create_sweep_file(path, run_id, cm, spec, req.operator, req.notes,
-                                   d.cfg.rig_config)
-        background = BackgroundWriter(writer, int(30 * cm.sample_rate_hz))
         try:
-            fanout = FanOut([background], [d.publisher])
-            engine = engine_factory(d.backend, spec, limits=d.cfg.limits, listener=fanout,
-                                    pump=d.pump)
-        except Exception as err:
-            background.drain()
-            writer.close("failed", f"{type(err).__name__}: {err}")
-            return self._error(ErrorKind.FAILED, f"start: {err}", req.cmd, req.request_id)
+            writer = create_sweep_file(path, run_id, cm, spec, req.operator, req.notes,
+                                       d.cfg.rig_config)
+        except Exception as err:  # disk full, permissions: nothing has run
+            log.exception("creating %s failed", path)
+            return self._error(ErrorKind.FAILED, f"start: cannot create the run file: {err}",
+                               req.cmd, req.request_id)
+        background = BackgroundWriter(writer, int(30 * cm.sample_rate_hz))
+        fanout.required.append(background)
         d.job = RunJob(run_id, path, engine, background, fanout)
         d.publisher.set_run(run_id)
         d.sm.fire("start")
         d.loop.submit(d.job)
-        steps_total = len(spec.steps()) if hasattr(spec, "steps") else None
+        plan = getattr(engine, "plan", None)
+        steps_total = len(plan) if isinstance(plan, list) else None
         return self._ok(req, run_id=run_id, path=str(path), steps_total=steps_total)
 
     def _refusal(self, spec: Any) -> tuple[ErrorKind, str] | None:
@@ -176,11 +187,13 @@ class CommandHandler:
         if getattr(spec, "lubricated", False) and not d.pump.is_on:
             return ErrorKind.FORBIDDEN, "start: a lubricated sweep needs the pump on " \
                 "(send pump on first)"
-        if hasattr(spec, "steps"):
-            from control.safety import SafetyLimits, validate_targets
+        from control.sweep import SweepSpec, check_sweep
+
+        if isinstance(spec, SweepSpec):
+            from control.safety import SafetyLimits
 
             try:
-                validate_targets(spec.steps(), d.cfg.limits or SafetyLimits(), d.channel_map)
+                check_sweep(spec, d.cfg.limits or SafetyLimits(), d.channel_map)
             except TargetError as err:
                 return ErrorKind.INVALID, f"start.spec: {err}"
         return None

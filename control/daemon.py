@@ -35,7 +35,7 @@ from control.acquisition import AcquisitionLoop, RunJob, as_dict
 from control.commands import CommandHandler
 from control.daemon_state import TRANSITIONS, StateMachine, TransitionError
 from control.publisher import Publisher
-from control.runs import list_runs
+from control.runs import close_run_file, list_runs
 from control.security import (
     COMMAND_DOMAIN,
     DATA_DOMAIN,
@@ -44,7 +44,7 @@ from control.security import (
     secure_server_socket,
     start_authenticator,
 )
-from control.wire import DaemonState, Reply
+from control.wire import MAX_FRAME_BYTES, DaemonState, ErrorKind, Reply
 from daq.backend import DaqBackend
 from daq.channels import ChannelMap
 
@@ -137,6 +137,7 @@ class Daemon:
         for s in (command, data):
             s.linger = 500
         command.router_mandatory = False
+        command.maxmsgsize = MAX_FRAME_BYTES  # a bigger frame drops its peer, unread
         data.sndhwm = cfg.sndhwm
         if cfg.keys is not None:
             secure_server_socket(command, cfg.keys, COMMAND_DOMAIN)
@@ -179,9 +180,14 @@ class Daemon:
             envelope, body = [identity, b""], frames[2:]
         else:
             envelope, body = [identity], frames[1:]
-        reply = self.commands.handle(body)
         try:
-            self._command.send_multipart([*envelope, reply.to_frame()], flags=zmq.NOBLOCK)
+            frame = self.commands.handle(body).to_frame()
+        except Exception:  # not reachable by construction; the loop must outlive it anyway
+            log.exception("could not build a reply")
+            frame = Reply(ok=False, state=self.sm.state, error_kind=ErrorKind.FAILED,
+                          error="internal error while answering (see the daemon's log)").to_frame()
+        try:
+            self._command.send_multipart([*envelope, frame], flags=zmq.NOBLOCK)
         except zmq.ZMQError:
             log.warning("could not send a reply (client gone)")
 
@@ -204,22 +210,23 @@ class Daemon:
                 self.sm.fire("armed")
 
     def _run_done(self, job: RunJob, status: str, reason: str, fault: bool) -> None:
+        """How a run ended: close its file, record it, leave the state. Never raises: a file that
+        cannot be written or closed is reported (status "failed", an event, the last run's
+        reason), but it does not fault the daemon: the drives are at zero already."""
         if status == "aborted" and not reason:
             reason = job.abort_reason or self._stop_reason or "aborted"
-        try:
-            try:
-                job.writer.drain()
-            finally:
-                job.writer.writer.close(status, reason)
-        except Exception as err:
-            log.exception("closing %s failed", job.path)
-            status, reason = "failed", f"{reason}; run file close failed: {err}".lstrip("; ")
-            fault = True
+        problem = close_run_file(job, status, reason)
+        if problem:
+            status, reason = "failed", f"{reason}; {problem}".lstrip("; ")
         with self.sm.lock:
             self._last_run = {"run_id": job.run_id, "path": str(job.path), "status": status,
                               "reason": reason}
-            self.publisher.on_event("state", f"run {job.run_id} {status}"
-                                    + (f": {reason}" if reason else ""), job.fanout.last_sample)
+            try:
+                self.publisher.on_event("state", f"run {job.run_id} {status}"
+                                        + (f": {reason}" if reason else ""),
+                                        job.fanout.last_sample)
+            except Exception:
+                log.exception("publishing the end of run %s failed", job.run_id)
             self.job = None
             if fault:
                 self.fault_reason = reason

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import secrets
 from datetime import UTC, datetime
@@ -9,6 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from daq.channels import ChannelMap
+
+log = logging.getLogger("sfdrig.daemon")
 
 
 def new_run_id() -> str:
@@ -66,3 +69,20 @@ def list_runs(runs_dir: Path, active: Path | None, limit: int = 500) -> list[dic
             out.append({"path": str(p), "run_id": p.stem, "status": "unreadable",
                         "status_reason": str(err)})
     return out
+
+
+def close_run_file(job: Any, status: str, reason: str) -> str:
+    """Write out what is queued for ``job``'s run file and close it with ``status`` and
+    ``reason``; never raises. Returns "" or what went wrong (the file keeps what was flushed)."""
+    problems = []
+    try:
+        job.writer.drain()
+    except Exception as err:
+        log.exception("writing the end of %s failed", job.path)
+        problems.append(f"run file write failed: {err}")
+    try:
+        job.writer.writer.close(status, reason)
+    except Exception as err:
+        log.exception("closing %s failed", job.path)
+        problems.append(f"run file close failed: {err}")
+    return "; ".join(problems)

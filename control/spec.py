@@ -18,6 +18,10 @@ Frequencies are either a list (``freq_hz``, run in the order given) or a range f
 displacement) or ``load_n`` (hold the load), one or more values; each value is a whole sweep over
 the frequencies (``order = "amplitude_major"``) or each frequency runs every value
 (``"frequency_major"``).
+
+The models are strict (a boolean is JSON true/false, a number is a number, never a string) and
+every number is finite. The work a sweep asks for is bounded before anything is enumerated: at
+most `MAX_STEPS` dwells and `MAX_SWEEP_S` of settling and recording.
 """
 
 from __future__ import annotations
@@ -32,15 +36,21 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from control.controller import Tolerance, motion_shape
 from control.errors import SpecError
 from control.plan import StepPlan
+from control.text import Text
 from daq.config_files import read_toml, validate
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+#: Most dwells one sweep may have (targets x frequencies); the report's plan has 39.
+MAX_STEPS = 10_000
+#: Longest a sweep may settle and record, summed over its dwells [s] (24 h).
+MAX_SWEEP_S = 24 * 3600.0
 
 
 class ControlSettings(BaseModel):
     """How the controller works a step (defaults suit the report's rig)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
     window_cycles: int = Field(2, ge=1, le=100, description="lock-in window per update [cycles]")
     wait_cycles: int = Field(2, ge=0, le=100, description="wait after a drive change [cycles]")
@@ -49,10 +59,11 @@ class ControlSettings(BaseModel):
         0.3, gt=0, le=10, description="settled when successive windows agree within this [%]"
     )
     max_settle_cycles: int = Field(
-        100, ge=1, description="record anyway (with a warning) after this many cycles [cycles]"
+        100, ge=1, le=100_000,
+        description="record anyway (with a warning) after this many cycles [cycles]"
     )
     initial_stiffness_n_per_m: float = Field(
-        1.0e6, gt=0,
+        1.0e6, ge=1.0e3, le=1.0e10,
         description="first guess of |force / displacement|, first displacement step only [N/m]",
     )
     aim_fraction: float = Field(
@@ -81,22 +92,25 @@ class ControlSettings(BaseModel):
 class SweepSpec(BaseModel):
     """A multi-frequency, multi-amplitude sweep (see the module docstring for the TOML form)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
-    name: str = ""
+    name: Text = Field("", max_length=200)
     motion: Literal["x", "y", "circular_forward", "circular_backward", "elliptical"] = "x"
     lubricated: bool = Field(False, description="needs the pump on and inlet pressure")
     amplitude_m: list[PositiveFloat] | None = Field(
-        None, min_length=1, description="displacement amplitudes to hold (of X; Y for 'y') [m]"
+        None, min_length=1, max_length=MAX_STEPS,
+        description="displacement amplitudes to hold (of X; Y for 'y') [m]"
     )
     load_n: list[PositiveFloat] | None = Field(
-        None, min_length=1, description="load amplitudes to hold (of X; Y for 'y') [N]"
+        None, min_length=1, max_length=MAX_STEPS,
+        description="load amplitudes to hold (of X; Y for 'y') [N]"
     )
     ellipse_ratio: PositiveFloat = Field(1.0, description="elliptical: |Y| / |X|")
     ellipse_phase_deg: float = Field(
         -90.0, ge=-180, le=180, description="elliptical: phase of Y relative to X [deg]"
     )
-    freq_hz: list[PositiveFloat] | None = Field(None, min_length=1, description="[Hz]")
+    freq_hz: list[PositiveFloat] | None = Field(None, min_length=1, max_length=MAX_STEPS,
+                                                description="[Hz]")
     freq_start_hz: PositiveFloat | None = None
     freq_stop_hz: PositiveFloat | None = None
     freq_step_hz: PositiveFloat | None = None
@@ -130,6 +144,15 @@ class SweepSpec(BaseModel):
                                  "freq_points")
             if self.spacing == "log" and self.freq_points is None:
                 raise ValueError("log spacing needs freq_points")
+        n_steps = len(self.targets) * self.frequency_count()
+        if n_steps > MAX_STEPS:
+            raise ValueError(f"the sweep has {n_steps:.4g} steps ({len(self.targets)} targets x "
+                             f"{self.frequency_count():.4g} frequencies); at most {MAX_STEPS:,}")
+        duration = len(self.targets) * sum(
+            (self.settle_cycles + self.record_cycles) / f for f in self.frequencies())
+        if duration > MAX_SWEEP_S:
+            raise ValueError(f"the sweep settles and records for {duration / 3600:.4g} h; at most "
+                             f"{MAX_SWEEP_S / 3600:g} h")
         return self
 
     # --- derived ----------------------------------------------------------------------------
@@ -147,8 +170,22 @@ class SweepSpec(BaseModel):
     def tolerance(self) -> Tolerance:
         return Tolerance(self.tolerance_amplitude_pct / 100.0, self.tolerance_phase_deg)
 
+    def frequency_count(self) -> float:
+        """How many frequencies `frequencies` gives, counted without listing them (a float: a
+        range with a tiny step counts past any integer worth building)."""
+        if self.freq_hz is not None:
+            return len(self.freq_hz)
+        f0, f1 = self.freq_start_hz, self.freq_stop_hz
+        assert f0 is not None and f1 is not None
+        if f0 == f1:
+            return 1
+        if self.freq_points is not None:
+            return self.freq_points
+        assert self.freq_step_hz is not None
+        return math.floor(abs(f1 - f0) / self.freq_step_hz + 1e-9) + 1.0
+
     def frequencies(self) -> list[float]:
-        """The excitation frequencies in the order they run [Hz]."""
+        """The excitation frequencies in the order they run [Hz] (at most `MAX_STEPS`)."""
         if self.freq_hz is not None:
             return list(self.freq_hz)
         f0, f1 = self.freq_start_hz, self.freq_stop_hz

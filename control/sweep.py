@@ -36,13 +36,14 @@ from control.states import FINAL, State, StateMachine
 from control.stream import DriveStream
 from control.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
+from daq.channels import ChannelMap
 from daq.errors import DaqError
 
 log = logging.getLogger(__name__)
 
 __all__ = [
     "ControlSettings", "SweepEngine", "SweepOutcome", "SweepProgress", "SweepSpec", "StepResult",
-    "load_sweep_spec", "sweep_spec_from_dict",
+    "load_sweep_spec", "sweep_spec_from_dict", "check_sweep",
 ]
 
 
@@ -194,27 +195,7 @@ class SweepEngine:
             cm = self.backend.channel_map
         except DaqError as err:
             raise TargetError(f"sweep refused: {err}") from None
-        lim = self.limits
-        for ao in cm.ao:
-            lo, hi = ao.range_v
-            if lim.max_drive_v > min(-lo, hi):
-                raise TargetError(
-                    f"max_drive_v = {lim.max_drive_v:g} V exceeds the range {ao.range_v} of "
-                    f"AO channel {ao.name!r}"
-                )
-        for axis in "xy":
-            try:
-                cm.ao_for_axis(axis)
-            except KeyError:
-                raise TargetError(f"channel map has no shaker drive for axis {axis}") from None
-        block_s = self.spec.control.block_s
-        latency = block_s * (1 + self.spec.control.ahead_blocks) + lim.fade_s
-        if latency > 0.1 + 1e-12:
-            raise TargetError(
-                f"block_s x (1 + ahead_blocks) + fade_s = {latency * 1e3:.0f} ms exceeds the "
-                "100 ms shutdown budget"
-            )
-        validate_targets(self.plan, lim, cm)
+        check_sweep(self.spec, self.limits, cm, self.plan)
 
     def _check_interlock_before_start(self) -> None:
         if not self.spec.lubricated:
@@ -389,6 +370,39 @@ class SweepEngine:
             stream.cycle()
         self._machine.to(State.RUNNING)
         self._emit("operator", "resumed: repeating the interrupted step")
+
+
+def check_sweep(spec: SweepSpec, limits: SafetyLimits, cm: ChannelMap,
+                plan: list[StepPlan] | None = None) -> None:
+    """Everything that must hold before a sweep may write anything: the drive limit within the AO
+    ranges, a drive for both axes, the shutdown budget (block_s x (1 + ahead_blocks) + fade_s
+    <= 100 ms) and every target (`validate_targets`).
+
+    Raises
+    ------
+    TargetError
+        Naming what is wrong.
+    """
+    for ao in cm.ao:
+        lo, hi = ao.range_v
+        if limits.max_drive_v > min(-lo, hi):
+            raise TargetError(
+                f"max_drive_v = {limits.max_drive_v:g} V exceeds the range {ao.range_v} of "
+                f"AO channel {ao.name!r}"
+            )
+    for axis in "xy":
+        try:
+            cm.ao_for_axis(axis)
+        except KeyError:
+            raise TargetError(f"channel map has no shaker drive for axis {axis}") from None
+    block_s = spec.control.block_s
+    latency = block_s * (1 + spec.control.ahead_blocks) + limits.fade_s
+    if latency > 0.1 + 1e-12:
+        raise TargetError(
+            f"block_s x (1 + ahead_blocks) + fade_s = {latency * 1e3:.0f} ms exceeds the "
+            "100 ms shutdown budget"
+        )
+    validate_targets(spec.steps() if plan is None else plan, limits, cm)
 
 
 class _StepFailed(RuntimeError):

@@ -29,7 +29,9 @@ from enum import StrEnum
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
+
+from control.text import Text, safe_json, safe_text
 
 #: Live-data topics (the first frame of every PUB message).
 TOPIC_BLOCK = b"block"
@@ -43,6 +45,9 @@ PAYLOAD_DTYPE = np.dtype("<f8")
 
 #: Largest request frame the daemon parses [bytes]; bigger ones are refused unparsed.
 MAX_REQUEST_BYTES = 1_000_000
+#: Largest frame the command socket accepts at all [bytes] (ZMQ_MAXMSGSIZE): a peer that sends a
+#: bigger one is disconnected by ZeroMQ before the frame is held in memory.
+MAX_FRAME_BYTES = 4 * MAX_REQUEST_BYTES
 
 
 class DaemonState(StrEnum):
@@ -69,7 +74,7 @@ class ErrorKind(StrEnum):
 class _Request(BaseModel):
     # strict: "on": "yes" or 1 must not switch a pump; only JSON true/false does.
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
-    request_id: str = Field("", max_length=128, description="echoed in the reply")
+    request_id: Text = Field("", max_length=128, description="echoed in the reply")
 
 
 class StartRequest(_Request):
@@ -78,8 +83,8 @@ class StartRequest(_Request):
 
     cmd: Literal["start"]
     spec: dict[str, Any]
-    operator: str = Field("", max_length=200)
-    notes: str = Field("", max_length=10_000)
+    operator: Text = Field("", max_length=200)
+    notes: Text = Field("", max_length=10_000)
 
 
 class PauseRequest(_Request):
@@ -92,7 +97,7 @@ class ResumeRequest(_Request):
 
 class AbortRequest(_Request):
     cmd: Literal["abort"]
-    reason: str = Field("operator abort", min_length=1, max_length=500)
+    reason: Text = Field("operator abort", min_length=1, max_length=500)
 
 
 class PumpRequest(_Request):
@@ -144,14 +149,16 @@ def parse_request(frame: bytes) -> Any:
                            f"request of {len(frame)} bytes exceeds {MAX_REQUEST_BYTES} bytes")
     try:
         data = json.loads(frame)
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+    except RecursionError:
+        raise RequestError(ErrorKind.MALFORMED, "request is not JSON: nested too deeply") from None
+    except ValueError as err:  # not UTF-8, not JSON, or an integer of more than 4,300 digits
         raise RequestError(ErrorKind.MALFORMED, f"request is not JSON: {err}") from None
     if not isinstance(data, dict):
         raise RequestError(ErrorKind.MALFORMED,
                            f"request must be a JSON object, got {type(data).__name__}")
     cmd = data.get("cmd")
     rid = data.get("request_id")
-    rid = rid if isinstance(rid, str) and len(rid) <= 128 else ""
+    rid = safe_text(rid, 128) if isinstance(rid, str) else ""
     if cmd not in COMMANDS:
         raise RequestError(
             ErrorKind.INVALID,
@@ -174,7 +181,8 @@ def describe_errors(err: ValidationError, where: str) -> str:
     for e in err.errors()[:10]:
         loc = ".".join(str(p) for p in e["loc"] if p not in COMMANDS)
         value = e.get("input")
-        shown = repr(value) if isinstance(value, str | int | float | bool) else type(value).__name__
+        shown = (repr(value) if isinstance(value, str | float | bool)
+                 or isinstance(value, int) and abs(value) < 10**30 else type(value).__name__)
         got = "" if e["type"] == "missing" else f" (got {shown[:80]})"
         parts.append(f"{where}{'.' + loc if loc else ''}: {e['msg']}{got}")
     return "; ".join(parts)
@@ -182,7 +190,8 @@ def describe_errors(err: ValidationError, where: str) -> str:
 
 # --- replies ----------------------------------------------------------------------------------
 class Reply(BaseModel):
-    """The daemon's answer to one request."""
+    """The daemon's answer to one request. Serialisable by construction: every string goes
+    through `safe_text` and ``data`` through `safe_json`, whatever a request echoed into them."""
 
     model_config = ConfigDict(extra="forbid")
     ok: bool
@@ -192,6 +201,21 @@ class Reply(BaseModel):
     error_kind: ErrorKind | None = None
     error: str = ""
     data: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("cmd", "error", mode="before")
+    @classmethod
+    def _safe_str(cls, v: Any) -> str:
+        return safe_text(v, 20_000)
+
+    @field_validator("request_id", mode="before")
+    @classmethod
+    def _safe_request_id(cls, v: Any) -> str:
+        return safe_text(v, 128)
+
+    @field_validator("data", mode="before")
+    @classmethod
+    def _safe_data(cls, v: Any) -> Any:
+        return safe_json(v) if isinstance(v, dict) else v
 
     def to_frame(self) -> bytes:
         return self.model_dump_json().encode()

@@ -98,12 +98,18 @@ def installed_software_version() -> str:
         return "sfdrig (unknown version)"
 
 
-def _fit_utf8(text: str, n_bytes: int) -> bytes:
-    """UTF-8 bytes of ``text`` cut to at most ``n_bytes`` on a character boundary.
+def hdf5_text(text: Any) -> str:
+    """``text`` as a string HDF5 stores whole, whatever it holds: a NUL (which ends an HDF5
+    string, and which h5py refuses in variable-length ones) is written as the two characters
+    ``\\0``; a lone UTF-16 surrogate (not encodable as UTF-8) as its escape, e.g. ``\\ud800``."""
+    return (str(text).replace("\x00", "\\0")
+            .encode("utf-8", errors="backslashreplace").decode("utf-8"))
 
-    NUL characters are written as the two characters ``\\0``: HDF5 fixed-length strings end at a
-    NUL, so a NUL would silently cut the text."""
-    raw = str(text).replace("\x00", "\\0").encode("utf-8")
+
+def _fit_utf8(text: str, n_bytes: int) -> bytes:
+    """UTF-8 bytes of `hdf5_text` (``text``) cut to at most ``n_bytes`` on a character
+    boundary."""
+    raw = hdf5_text(text).encode("utf-8")
     if len(raw) <= n_bytes:
         return raw
     marker = b" [truncated]"
@@ -337,8 +343,8 @@ class RunWriter:
                     "kind": kind,
                     "start_time": start_time or utc_now_iso(),
                     "stop_time": "",
-                    "operator": str(operator),
-                    "notes": str(notes),
+                    "operator": hdf5_text(operator),
+                    "notes": hdf5_text(notes),
                     "software_version": software_version or installed_software_version(),
                     "sample_rate_hz": float(sample_rate_hz),
                     "channel_map": _json_attr(channel_map, "channel_map"),
@@ -701,7 +707,8 @@ class RunWriter:
             status = "failed"
             reason = f"{reason}; {lost}" if reason else lost
         # Attributes cannot change under SWMR: reopen without it for the final word.
-        final = {"stop_time": utc_now_iso(), "status": status, "status_reason": str(reason)}
+        final = {"stop_time": utc_now_iso(), "status": status,
+                 "status_reason": hdf5_text(reason)}
         try:
             try:
                 f = h5py.File(self.path, "r+", libver=LIBVER)

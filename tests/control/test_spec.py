@@ -104,3 +104,47 @@ def test_linear_ranges_stay_inside_and_are_evenly_stepped(f0, f1, step):
     if fr.size > 1:
         np.testing.assert_allclose(np.abs(np.diff(fr)), step, rtol=1e-6, atol=1e-6)
     assert abs(abs(fr[-1] - f0) - abs(f1 - f0)) < step + 1e-6
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        ({"load_n": ["20"]}, "load_n.0 = '20': Input should be a valid number"),
+        ({"load_n": [True]}, "load_n.0 = True: Input should be a valid number"),
+        ({"settle_cycles": True}, "settle_cycles = True: Input should be a valid integer"),
+        ({"lubricated": "no"}, "lubricated = 'no': Input should be a valid boolean"),
+        ({"record_cycles": 40.0}, "record_cycles = 40.0: Input should be a valid integer"),
+        ({"control": {"initial_stiffness_n_per_m": float("inf")}},
+         "control.initial_stiffness_n_per_m = inf: Input should be a finite number"),
+        ({"control": {"predict": 1}}, "control.predict = 1: Input should be a valid boolean"),
+        ({"name": "a\x00b"}, "name"),
+    ],
+)
+def test_strict_types_and_finite_numbers(extra, message):
+    with pytest.raises(SpecError) as info:
+        sweep_spec_from_dict({"motion": "x", "load_n": [20.0], "freq_hz": [30.0], **extra})
+    assert message in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        ({"freq_start_hz": 20, "freq_stop_hz": 1e308, "freq_step_hz": 50},
+         "2e+306 frequencies); at most 10,000"),
+        ({"freq_start_hz": 20, "freq_stop_hz": 200, "freq_step_hz": 1.8e-4},
+         "1e+06 frequencies); at most 10,000"),
+        ({"freq_hz": [5.0] * 3, "settle_cycles": 100_000, "record_cycles": 100_000},
+         "settles and records for 33.33 h; at most 24 h"),
+    ],
+)
+def test_the_work_of_a_sweep_is_bounded_before_it_is_listed(extra, message):
+    with pytest.raises(SpecError) as info:
+        sweep_spec_from_dict({"motion": "x", "load_n": [20.0], **extra})
+    assert message in str(info.value)
+
+
+def test_the_largest_sweep_allowed_lists_quickly():
+    spec = sweep_spec_from_dict({"motion": "x", "load_n": [20.0, 30.0], "freq_start_hz": 20,
+                                 "freq_stop_hz": 500, "freq_points": 5000, "record_cycles": 10,
+                                 "settle_cycles": 2})
+    assert len(spec.steps()) == 10_000 == spec.frequency_count() * 2

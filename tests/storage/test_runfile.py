@@ -280,6 +280,24 @@ def test_aborted_close_keeps_reason(tmp_path: Path) -> None:
         assert (run.status, run.attrs["status_reason"]) == ("aborted", "operator pressed abort")
 
 
+@given(text=st.text(alphabet=st.characters(codec=None, exclude_categories=()), max_size=3000))
+def test_any_text_survives_in_attributes_events_and_the_close_reason(text: str) -> None:
+    """NULs, lone surrogates and long texts: written (NUL as the two characters \\0, a lone
+    surrogate as its escape), never an error, so closing the run cannot fail on its reason."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "s.h5"
+        w = _make(path, operator=text, notes=text)
+        w.on_event("operator", text, 0)
+        w.close("aborted", text)
+        expected = text.replace("\x00", "\\0").encode("utf-8", "backslashreplace").decode()
+        with h5py.File(path, "r") as f:
+            assert f.attrs["status"] == "aborted"
+            assert f.attrs["status_reason"] == expected
+            assert f.attrs["operator"] == f.attrs["notes"] == expected
+            message = f["events"][0]["message"].decode()
+        assert expected.startswith(message.removesuffix(" [truncated]"))
+
+
 def test_background_flush_makes_a_lone_block_visible(tmp_path: Path) -> None:
     """A block that fills no chunk and is followed by nothing is flushed within the interval."""
     path = tmp_path / "bg.h5"
