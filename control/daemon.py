@@ -249,6 +249,10 @@ class Daemon:
             if job is not None else None
         if max_updates is not None:
             progress["max_updates"] = max_updates
+        spec = getattr(job.engine, "spec", None) if job is not None else None
+        from control.safety import SafetyLimits
+
+        limits = self.cfg.limits or SafetyLimits()
         return {
             "state": self.sm.state.value,
             "run_id": job.run_id if job is not None else "",
@@ -258,6 +262,12 @@ class Daemon:
             # durable in the run file (a reader, or a crash, sees at least these)
             "samples_flushed": job.writer.writer.samples_flushed if job is not None else 0,
             "pump_on": bool(self.pump.is_on),
+            # what a display draws the orbit and the step table against
+            "safety": {"radial_clearance_m": limits.radial_clearance_m,
+                       "displacement_limit_m": limits.displacement_limit_m},
+            "tolerance": {"amplitude_pct": getattr(spec, "tolerance_amplitude_pct", None),
+                          "phase_deg": getattr(spec, "tolerance_phase_deg", None)}
+            if hasattr(spec, "tolerance_amplitude_pct") else None,
             "fault_reason": self.fault_reason,
             "last_run": self._last_run,
             "next_seq": self.publisher.sequence_numbers(),

@@ -1,0 +1,253 @@
+"""`sfdrig web` in a real browser (Debian's headless Chromium driven by Playwright) against a real
+daemon process on the simulated rig, on random loopback ports.
+
+Synchronisation: the web process's first stdout line names its URL; the page's own state
+(``window.sfdrig``, the DOM) is waited on with Playwright's polling waits, never sleeps.
+"""
+
+from __future__ import annotations
+
+import os
+import selectors
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from control.security import make_keys
+from storage.reader import open_run
+from tests.e2e.conftest import REPO_ROOT, DaemonProcess
+
+pytestmark = pytest.mark.e2e
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                  "--no-first-run", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync"]
+# Long enough in fast mode to act while it runs: 40 N dry X, clear of the 45 Hz resonance.
+LONG_SWEEP = """
+motion = "x"
+load_n = [40.0]
+freq_hz = [20.0, 25.0, 30.0, 70.0, 80.0, 90.0, 100.0, 110.0, 120.0, 130.0, 140.0, 150.0]
+settle_cycles = 20
+record_cycles = 400
+"""
+
+
+def _chromium() -> str:
+    if not Path(CHROMIUM).exists():
+        if os.environ.get("CI"):
+            pytest.fail(f"{CHROMIUM} missing on CI: ./dev test installs the chromium package")
+        pytest.skip(f"{CHROMIUM} is not installed (./dev test installs it when run as root)")
+    return CHROMIUM
+
+
+@pytest.fixture
+def browser() -> Iterator[Any]:
+    exe = _chromium()
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as p:
+        # Playwright gives every launch a fresh, empty profile directory of its own
+        b = p.chromium.launch(executable_path=exe, args=CHROMIUM_FLAGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture
+def web_factory(tmp_path: Path) -> Iterator[Any]:
+    started: list[subprocess.Popen[str]] = []
+
+    def factory(d: DaemonProcess, *extra: str) -> str:
+        err = open(tmp_path / f"web{len(started)}.stderr", "w")  # noqa: SIM115
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sfdrig", "web", "--port", "0", "--command-endpoint",
+             d.command, "--data-endpoint", d.data, "--examples", str(REPO_ROOT / "examples"),
+             *extra],
+            cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=err, text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        err.close()
+        started.append(proc)
+        sel = selectors.DefaultSelector()
+        sel.register(proc.stdout, selectors.EVENT_READ)  # type: ignore[arg-type]
+        ready = sel.select(60)
+        sel.close()
+        line = proc.stdout.readline() if ready else ""  # type: ignore[union-attr]
+        if not line.startswith("url="):
+            proc.kill()
+            proc.wait(10)
+            raise RuntimeError(f"sfdrig web did not start: {line!r}\n"
+                               f"{(tmp_path / f'web{len(started) - 1}.stderr').read_text()}")
+        return line.strip()[4:]
+
+    yield factory
+    for proc in started:
+        if proc.poll() is None:
+            proc.terminate()
+        assert proc.wait(30) == 0, "sfdrig web did not shut down cleanly on SIGTERM"
+        proc.stdout.close()  # type: ignore[union-attr]
+    for f in sorted(tmp_path.glob("web*.stderr")):
+        if f.read_text():
+            print(f"--- {f.name} ---\n{f.read_text()}")
+
+
+def _open(browser: Any, url: str) -> Any:
+    """A page of ``url`` in ``browser`` (a Browser: its own context; or a BrowserContext)."""
+    page = browser.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    page.errors = errors  # JavaScript errors of the page, checked by the tests
+    return page
+
+
+def _upload(page: Any, tmp_path: Path, name: str, text: str) -> str:
+    f = tmp_path / name
+    f.write_text(text)
+    page.set_input_files("#upload", str(f))
+    page.click("#start-upload")
+    page.wait_for_function("document.getElementById('message').textContent.length > 0")
+    msg = page.inner_text("#message")
+    page.evaluate("document.getElementById('message').textContent = ''")
+    return msg
+
+
+def _cli_sweep(d: DaemonProcess, path: Path) -> str:
+    out = subprocess.run([sys.executable, "-m", "sfdrig", "sweep", str(path), "--no-follow",
+                          "--command-endpoint", d.command, "--data-endpoint", d.data],
+                         cwd=REPO_ROOT, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1
+    return (out.stdout + out.stderr).strip()
+
+
+def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_factory, browser,
+                                                           tmp_path):
+    d = daemon_factory()
+    page = _open(browser, web_factory(d))
+    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
+    assert page.inner_text("#state") == "idle"
+    assert page.is_visible("#abort") and not page.is_visible("#viewer-note")
+
+    # bad files: the page shows the CLI's own messages
+    bad_toml = 'motion = "x"\nload_n = [40.0\n'
+    shown = _upload(page, tmp_path, "bad.toml", bad_toml)
+    cli = _cli_sweep(d, tmp_path / "bad.toml")
+    assert shown.startswith("cannot read bad.toml: ")
+    assert cli.endswith(shown.removeprefix("cannot read bad.toml"))  # same TOML error text
+    shown = _upload(page, tmp_path, "neg.toml", 'motion = "x"\nload_n = [40.0]\nfreq_hz = [-5.0]\n')
+    cli = _cli_sweep(d, tmp_path / "neg.toml")
+    assert "freq_hz" in shown and cli == f"sweep: {shown}"
+    assert page.get_attribute("#message", "class") == "error"
+    assert page.inner_text("#state") == "idle" and not list(d.runs_dir.glob("*.h5"))
+
+    shown = _upload(page, tmp_path, "long.toml", LONG_SWEEP)
+    assert shown.startswith("start: ok (run ")
+    run_id = shown.removeprefix("start: ok (run ").rstrip(")")
+    # the step table and the orbit update while it runs
+    page.wait_for_function("document.querySelectorAll('#steps tbody tr').length >= 2",
+                           timeout=120_000)
+    first = page.evaluate("window.sfdrig.lastFrame.traces.last_sample")
+    page.wait_for_function(f"window.sfdrig.lastFrame.traces.last_sample > {first} + 5000")
+    assert int(page.get_attribute("#orbit", "data-points")) > 100
+    # 40 N at 20-30 Hz on the dry rig: a few um, well inside the 63.5 um limit
+    rmax = float(page.get_attribute("#orbit", "data-rmax-um"))
+    assert 1.0 < rmax < 63.5
+    assert page.inner_text("#state") == "running" and page.inner_text("#run-id") == run_id
+    rows = page.query_selector_all("#steps tbody tr")
+    first_row = [c.inner_text() for c in rows[0].query_selector_all("td")]
+    assert first_row[1] == "20.0" and first_row[3] == "40.00 N"
+    assert abs(float(first_row[4].split()[0]) - 40.0) < 0.4  # within the 1 % band
+    page.wait_for_function("/^\\d+ (s|min)/.test(document.getElementById('time-left').textContent)",
+                           timeout=10_000)
+
+    page.click("#abort")
+    page.wait_for_function(f"document.getElementById('run-id').textContent.includes("
+                           f"'{run_id} aborted')", timeout=60_000)
+    assert page.inner_text("#state") == "idle"
+    assert "operator abort from sfdrig web" in page.inner_text("#events")
+    assert page.errors == []
+
+    with open_run(d.runs_dir / f"{run_id}.h5") as run:
+        assert run.status == "aborted"
+        assert run.attrs["status_reason"] == "operator abort from sfdrig web"
+        assert 2 <= len(run.steps) < 12
+        fs = run.sample_rate_hz
+        abort_at = next(e["sample"] for e in run.events if e["kind"] == "abort")
+        drive = run.channel("shaker_x")
+        before = np.abs(drive[max(0, abort_at - int(0.05 * fs)):abort_at]).max()
+        assert before > 0.1  # it was driving
+        moving = np.flatnonzero(np.abs(drive) > 1e-3 * before)
+        assert moving[-1] < abort_at + int(0.1 * fs)  # down to 0.1 % within 100 ms
+        assert np.abs(drive[-int(0.01 * fs):]).max() < 1e-9  # and the run ends at zero
+
+
+def test_a_viewer_sees_the_page_and_controls_nothing(daemon_factory, web_factory, browser,
+                                                     tmp_path):
+    keys = tmp_path / "keys"
+    make_keys(keys, commanders=["operator", "web"], readers=["viewer"])
+    d = daemon_factory("--keys", str(keys))
+    url = web_factory(d, "--keys", str(keys), "--key-name", "web")
+
+    page = _open(browser, url)
+    assert page.url.endswith("/login")
+    stranger = tmp_path / "stranger"
+    make_keys(stranger, commanders=["mallory"], readers=[])
+    page.set_input_files("#key", str(stranger / "clients" / "mallory.key_secret"))
+    page.click("#login")
+    assert "login refused: this key is not authorised" in page.inner_text("body")
+
+    page.goto(url)
+    page.set_input_files("#key", str(keys / "clients" / "viewer.key_secret"))
+    page.click("#login")
+    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'viewer'")
+    assert page.inner_text("#who") == "viewer (viewer)"
+    assert not page.is_visible("#controls") and page.is_visible("#viewer-note")
+    # the server refuses even a hand-made request from the viewer's session
+    out = page.evaluate("""async () => {
+        const r = await fetch('/api/start', {method: 'POST', body: JSON.stringify(
+            {example: 'dry_circular.toml'}), headers: {'Content-Type': 'application/json'}});
+        return [r.status, await r.text()];
+    }""")
+    assert out[0] == 403 and "viewers control nothing" in out[1]
+    out = page.evaluate("""async () => (await fetch('/api/command', {method: 'POST',
+        body: JSON.stringify({cmd: 'pump', on: true})})).status""")
+    assert out == 403
+    n = page.evaluate("window.sfdrig.frames")
+    page.wait_for_function(f"window.sfdrig.frames >= {n + 2}")
+    frame = page.evaluate("window.sfdrig.lastFrame.status")
+    assert frame["state"] == "idle" and frame["pump_on"] is False
+    assert not list(d.runs_dir.glob("*.h5"))
+
+    op = _open(browser.new_context(), url)  # a second browser session, with its own cookie
+    op.set_input_files("#key", str(keys / "clients" / "operator.key_secret"))
+    op.click("#login")
+    op.wait_for_function("window.sfdrig.role === 'operator'")
+    assert op.is_visible("#abort")
+    op.click("#pump-on")
+    op.wait_for_function("document.getElementById('pump').textContent === 'ON'")
+    page.wait_for_function("document.getElementById('pump').textContent === 'ON'")
+
+
+def test_beyond_loopback_needs_keys_and_tls(tmp_path):
+    base = [sys.executable, "-m", "sfdrig", "web", "--host", "0.0.0.0", "--command-endpoint",
+            "tcp://127.0.0.1:1", "--data-endpoint", "tcp://127.0.0.1:2"]
+    out = subprocess.run(base, cwd=REPO_ROOT, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and "requires --keys DIR" in out.stderr
+    assert "Traceback" not in out.stderr
+    make_keys(tmp_path / "keys", commanders=["web"], readers=[])
+    out = subprocess.run([*base, "--keys", str(tmp_path / "keys"), "--key-name", "web"],
+                         cwd=REPO_ROOT, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and "requires --tls-cert and --tls-key" in out.stderr
+
+
+def test_no_daemon_is_one_line_not_a_traceback(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "sfdrig", "web", "--port", "0",
+                          "--runs-dir", str(tmp_path)],
+                         cwd=REPO_ROOT, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and out.stderr.startswith("web: no daemon state file")
+    assert "Traceback" not in out.stderr and len(out.stderr.strip().splitlines()) == 1

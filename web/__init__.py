@@ -1,0 +1,1 @@
+"""sfdrig web: the operator's live view in a browser (a client of the daemon, like any other)."""

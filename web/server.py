@@ -1,0 +1,260 @@
+"""The web server (aiohttp): one page, its static files, a WebSocket of frames, and commands.
+
+Every ``1 / fps`` seconds the server computes one frame from the `LiveView` (decimated on the
+server), serialises it once and hands it to every connected browser. Each browser has a sender
+task that always sends the newest frame: a slow browser skips frames, it never makes the others
+wait, and it never reaches back to the daemon. Commands are POSTs checked against the browser's
+role (`web.auth`) and sent to the daemon's command socket by the `DaemonLink`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from aiohttp import WSMsgType, web
+from aiohttp.web_request import FileField
+
+from web.auth import COOKIE, OPERATOR, LoginRefused, Session, Sessions, role_of_key_file
+from web.feed import DaemonLink
+from web.view import LiveView
+
+log = logging.getLogger(__name__)
+STATIC = Path(__file__).parent / "static"
+COMMANDS = ("pause", "resume", "abort", "pump", "reset")
+MAX_UPLOAD_BYTES = 256 * 1024
+
+
+@dataclass
+class WebConfig:
+    """How the web server runs.
+
+    Attributes
+    ----------
+    key_dir : Path or None
+        The daemon's key directory: browsers log in with a client key file. None: no login, every
+        browser gets ``anonymous_role`` (loopback only; checked by the command).
+    anonymous_role : "operator" | "viewer"
+    examples_dir : Path or None
+        Sweep TOML files offered on the page.
+    fps : float
+        Frames per second sent to each browser.
+    secure_cookie : bool
+        Mark the session cookie Secure (served over TLS).
+    """
+
+    key_dir: Path | None = None
+    anonymous_role: str = OPERATOR
+    examples_dir: Path | None = None
+    fps: float = 10.0
+    secure_cookie: bool = False
+
+
+@dataclass(eq=False)  # hashed by identity: one per connection
+class _Browser:
+    ws: web.WebSocketResponse
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    frame: str = ""
+    sent: int = 0
+
+
+def parse_sweep_toml(text: str, source: str) -> dict[str, Any]:
+    """A sweep TOML's fields; the error reads like the CLI's (``cannot read SOURCE: ...``)."""
+    try:
+        spec = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ValueError(f"cannot read {source}: {err}") from None
+    if not spec:
+        raise ValueError(f"{source} holds no sweep fields")
+    return spec
+
+
+class WebApp:
+    """The aiohttp application around one `DaemonLink` and its `LiveView`."""
+
+    def __init__(self, link: DaemonLink, config: WebConfig) -> None:
+        self.link = link
+        self.view: LiveView = link.view
+        self.cfg = config
+        self.sessions = Sessions()
+        self.browsers: set[_Browser] = set()
+        self.frames_made = 0
+        self.app = web.Application(client_max_size=MAX_UPLOAD_BYTES)
+        self.app.add_routes([
+            web.get("/", self.index),
+            web.get("/login", self.login_page),
+            web.post("/login", self.login),
+            web.post("/logout", self.logout),
+            web.get("/ws", self.websocket),
+            web.get("/api/examples", self.examples),
+            web.post("/api/start", self.start),
+            web.post("/api/command", self.command),
+            web.static("/static", STATIC),
+        ])
+        self.app.on_startup.append(self._start_ticker)
+        self.app.on_shutdown.append(self._close_browsers)
+        self._ticker: asyncio.Task[None] | None = None
+
+    # --- who is asking --------------------------------------------------------------------
+    def session(self, request: web.Request) -> Session | None:
+        if self.cfg.key_dir is None:
+            return Session("local", self.cfg.anonymous_role, float("inf"))
+        return self.sessions.get(request.cookies.get(COOKIE))
+
+    @staticmethod
+    def _same_origin(request: web.Request) -> bool:
+        """A browser's POST or WebSocket must come from this page (no cross-site requests)."""
+        origin = request.headers.get("Origin")
+        return origin is None or origin == f"{request.scheme}://{request.host}"
+
+    def _guard(self, request: web.Request, need_operator: bool) -> Session:
+        if not self._same_origin(request):
+            raise web.HTTPForbidden(text="cross-origin request refused")
+        s = self.session(request)
+        if s is None:
+            raise web.HTTPUnauthorized(text="log in first (/login)")
+        if need_operator and s.role != OPERATOR:
+            raise web.HTTPForbidden(
+                content_type="application/json",
+                text=json.dumps({"ok": False, "error": f"refused: {s.name} is a viewer; "
+                                                       "viewers control nothing"}))
+        return s
+
+    # --- pages ----------------------------------------------------------------------------
+    async def index(self, request: web.Request) -> web.StreamResponse:
+        if self.session(request) is None:
+            raise web.HTTPFound("/login")
+        return web.FileResponse(STATIC / "index.html")
+
+    async def login_page(self, request: web.Request) -> web.StreamResponse:
+        return web.FileResponse(STATIC / "login.html")
+
+    async def login(self, request: web.Request) -> web.Response:
+        if self.cfg.key_dir is None:
+            raise web.HTTPFound("/")
+        if not self._same_origin(request):
+            raise web.HTTPForbidden(text="cross-origin request refused")
+        form = await request.post()
+        key = form.get("key")
+        raw = key.file.read() if isinstance(key, FileField) else str(key or "").encode()
+        text = raw[:MAX_UPLOAD_BYTES].decode("utf-8", "replace")
+        try:
+            name, role = role_of_key_file(text, self.cfg.key_dir)
+        except LoginRefused as err:
+            return web.Response(status=403, text=f"login refused: {err}")
+        log.info("login: %s as %s from %s", name, role, request.remote)
+        resp = web.HTTPFound("/")
+        resp.set_cookie(COOKIE, self.sessions.new(name, role), httponly=True, samesite="Strict",
+                        secure=self.cfg.secure_cookie)
+        raise resp
+
+    async def logout(self, request: web.Request) -> web.Response:
+        self.sessions.end(request.cookies.get(COOKIE))
+        resp = web.HTTPFound("/login")
+        resp.del_cookie(COOKIE)
+        raise resp
+
+    # --- commands -------------------------------------------------------------------------
+    def _example_files(self) -> dict[str, Path]:
+        d = self.cfg.examples_dir
+        return {p.name: p for p in sorted(d.glob("*.toml"))} if d and d.is_dir() else {}
+
+    async def examples(self, request: web.Request) -> web.Response:
+        self._guard(request, need_operator=False)
+        return web.json_response({"examples": list(self._example_files())})
+
+    async def _daemon(self, call: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+        return await asyncio.get_running_loop().run_in_executor(None, call)
+
+    async def start(self, request: web.Request) -> web.Response:
+        s = self._guard(request, need_operator=True)
+        body = await request.json()
+        try:
+            if body.get("example"):
+                path = self._example_files().get(str(body["example"]))
+                if path is None:
+                    raise ValueError(f"no example sweep {body['example']!r}")
+                spec = parse_sweep_toml(path.read_text(), path.name)
+            else:
+                spec = parse_sweep_toml(str(body.get("toml", "")),
+                                        str(body.get("filename") or "the uploaded file"))
+        except ValueError as err:
+            return web.json_response({"ok": False, "error": str(err), "data": {}})
+        out = await self._daemon(lambda: self.link.try_command(
+            "start", spec=spec, operator=s.name, notes="started from sfdrig web"))
+        return web.json_response(out)
+
+    async def command(self, request: web.Request) -> web.Response:
+        self._guard(request, need_operator=True)
+        body = await request.json()
+        cmd = body.get("cmd")
+        if cmd not in COMMANDS:
+            return web.json_response({"ok": False, "error": f"unknown command {cmd!r}; "
+                                      f"commands are {', '.join(COMMANDS)}", "data": {}})
+        fields: dict[str, Any] = {}
+        if cmd == "pump":
+            fields["on"] = body.get("on")
+        if cmd == "abort":
+            fields["reason"] = "operator abort from sfdrig web"
+        out = await self._daemon(lambda: self.link.try_command(cmd, **fields))
+        return web.json_response(out)
+
+    # --- live frames ----------------------------------------------------------------------
+    async def websocket(self, request: web.Request) -> web.WebSocketResponse:
+        s = self._guard(request, need_operator=False)
+        ws = web.WebSocketResponse(heartbeat=20.0, compress=False)  # CPU over bytes
+        await ws.prepare(request)
+        b = _Browser(ws)
+        await ws.send_str(json.dumps({"type": "hello", "name": s.name, "role": s.role,
+                                      "examples": list(self._example_files()),
+                                      "login": self.cfg.key_dir is not None}))
+        self.browsers.add(b)
+        sender = asyncio.create_task(self._send_frames(b))
+        try:
+            async for msg in ws:  # the page sends nothing we act on; this waits for the close
+                if msg.type == WSMsgType.ERROR:
+                    break
+        finally:
+            self.browsers.discard(b)
+            sender.cancel()
+        return ws
+
+    async def _send_frames(self, b: _Browser) -> None:
+        while not b.ws.closed:
+            await b.wake.wait()
+            b.wake.clear()
+            try:
+                await b.ws.send_str(b.frame)  # the newest frame; older ones were skipped
+            except (ConnectionError, RuntimeError):  # the browser went away
+                return
+            b.sent += 1
+
+    async def _tick(self) -> None:
+        period = 1.0 / self.cfg.fps
+        loop = asyncio.get_running_loop()
+        while True:
+            t0 = loop.time()
+            if self.browsers:
+                frame = await loop.run_in_executor(None, self.view.frame)
+                text = json.dumps(frame)
+                self.frames_made += 1
+                for b in list(self.browsers):
+                    b.frame = text
+                    b.wake.set()
+            await asyncio.sleep(max(0.0, period - (loop.time() - t0)))  # frame pacing
+
+    async def _start_ticker(self, app: web.Application) -> None:
+        self._ticker = asyncio.create_task(self._tick())
+
+    async def _close_browsers(self, app: web.Application) -> None:
+        if self._ticker is not None:
+            self._ticker.cancel()
+        for b in list(self.browsers):
+            await b.ws.close()
+

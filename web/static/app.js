@@ -1,0 +1,267 @@
+// sfdrig live view: draws the frames the server sends (already decimated) and posts commands.
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+const COLORS = ["#2b6cb0", "#c05621", "#2f855a", "#805ad5", "#b83280", "#718096"];
+// What the page has done, for tests and the benchmark (sample-to-screen latency).
+window.sfdrig = { frames: 0, latencies: [], role: null, lastFrame: null, orbitPoints: 0 };
+
+let role = null;
+const plots = {};
+
+function lineOpts(title, names, width, height, extra) {
+  return Object.assign({
+    width, height, legend: { live: false }, cursor: { show: false },
+    scales: { x: { time: false } },
+    series: [{ label: title }].concat(names.map((n, i) => ({ label: n, stroke: COLORS[i % COLORS.length], width: 1.2 }))),
+    axes: [{}, { size: 55 }],
+  }, extra || {});
+}
+
+function ensurePlot(key, el, names, opts) {
+  const p = plots[key];
+  const sig = names.join(",");
+  if (p && p.sig === sig) return p.u;
+  if (p) p.u.destroy();
+  const u = new uPlot(opts, [[]].concat(names.map(() => [])), $(el));
+  plots[key] = { u, sig };
+  return u;
+}
+
+function fmt(v, d) { return v === null || v === undefined || Number.isNaN(v) ? "-" : Number(v).toFixed(d); }
+
+function showMessage(text, error) {
+  const m = $("message");
+  m.textContent = text;
+  m.className = error ? "error" : "";
+}
+
+// --- traces --------------------------------------------------------------------------------
+const GROUPS = [
+  ["force", "plot-force", (n, u) => u === "N" && n !== "hammer", 1],
+  ["disp", "plot-disp", (n, u) => u === "m", 1e6],
+  ["acc", "plot-acc", (n, u) => u === "m/s^2", 1],
+];
+
+function drawTraces(tr, status) {
+  const units = status.units || {};
+  const w = Math.max(380, $("plot-force").parentElement.clientWidth - 14);
+  for (const [key, el, pick, scale] of GROUPS) {
+    const names = Object.keys(tr.channels).filter((n) => pick(n, units[n]));
+    const u = ensurePlot(key, el, names, lineOpts("t [ms]", names, w, 190));
+    u.setData([tr.t_ms].concat(names.map((n) => tr.channels[n].map((v) => v * scale))));
+  }
+  const drives = tr.drives || [];
+  const ud = ensurePlot("drive", "plot-drive", drives, lineOpts("t [ms]", drives, w, 190));
+  ud.setData([tr.t_ms].concat(drives.map((n) => tr.channels[n])));
+}
+
+// --- orbit (canvas: an x-y path with two circles) ------------------------------------------
+function drawOrbit(tr, status) {
+  const c = $("orbit");
+  const g = c.getContext("2d");
+  const safety = status.safety || {};
+  const clearance = (safety.radial_clearance_m || 127e-6) * 1e6;
+  const limit = (safety.displacement_limit_m || clearance * 0.5e-6) * 1e6;
+  const r = clearance * 1.1;
+  const s = c.width / (2 * r);
+  const X = (x) => c.width / 2 + x * s;
+  const Y = (y) => c.height / 2 - y * s;
+  g.clearRect(0, 0, c.width, c.height);
+  g.strokeStyle = "#e2e8f0"; g.lineWidth = 1;
+  g.beginPath(); g.moveTo(0, c.height / 2); g.lineTo(c.width, c.height / 2);
+  g.moveTo(c.width / 2, 0); g.lineTo(c.width / 2, c.height); g.stroke();
+  g.strokeStyle = "#718096"; g.lineWidth = 1.5;
+  g.beginPath(); g.arc(X(0), Y(0), clearance * s, 0, 2 * Math.PI); g.stroke();
+  g.strokeStyle = "#c53030"; g.setLineDash([6, 4]);
+  g.beginPath(); g.arc(X(0), Y(0), limit * s, 0, 2 * Math.PI); g.stroke();
+  g.setLineDash([]);
+  const xs = tr ? tr.orbit_x_um : [];
+  const ys = tr ? tr.orbit_y_um : [];
+  // centre the orbit on its mean: the probes' static offset is not motion
+  const mx = xs.length ? xs.reduce((a, b) => a + b, 0) / xs.length : 0;
+  const my = ys.length ? ys.reduce((a, b) => a + b, 0) / ys.length : 0;
+  g.strokeStyle = "#2b6cb0"; g.lineWidth = 1.5;
+  g.beginPath();
+  for (let i = 0; i < xs.length; i++) {
+    const px = X(xs[i] - mx), py = Y(ys[i] - my);
+    if (i === 0) g.moveTo(px, py); else g.lineTo(px, py);
+  }
+  g.stroke();
+  let rmax = 0;
+  for (let i = 0; i < xs.length; i++) rmax = Math.max(rmax, Math.hypot(xs[i] - mx, ys[i] - my));
+  window.sfdrig.orbitPoints = xs.length;
+  c.dataset.points = String(xs.length);
+  c.dataset.rmaxUm = rmax.toFixed(3);
+  $("orbit-info").textContent = `clearance ${fmt(clearance, 1)} um, limit ${fmt(limit, 1)} um, orbit max radius ${fmt(rmax, 2)} um`;
+}
+
+// --- harmonics -----------------------------------------------------------------------------
+function drawHarmonics(tr) {
+  const h = (tr && tr.harmonics) || {};
+  const names = ["x1", "y1", "fx", "fy"].filter((n) => h[n] && h[n][0] > 0);
+  const w = Math.max(380, $("plot-harm").parentElement.clientWidth - 14);
+  const u = ensurePlot("harm", "plot-harm", names, {
+    width: w, height: 190, legend: { live: false }, cursor: { show: false },
+    scales: { x: { time: false, range: [0.5, 5.5] }, y: { distr: 3, range: [1e-3, 200] } },
+    axes: [{ values: (u, t) => t.map((v) => Number.isInteger(v) ? v + "X" : "") }, { size: 55 }],
+    series: [{ label: "harmonic" }].concat(names.map((n, i) => ({
+      label: n, stroke: COLORS[i], width: 1.2,
+      points: { show: true, size: 6, fill: COLORS[i] },
+    }))),
+  });
+  u.setData([[1, 2, 3, 4, 5]].concat(names.map((n) => h[n].map((v) => Math.max(1e-3, 100 * v / h[n][0])))));
+  $("harm-info").textContent = tr && tr.triggered
+    ? `live, over the cycles shown at ${fmt(tr.freq_hz, 2)} Hz`
+    : "no drive: nothing to analyse";
+}
+
+// --- steps ---------------------------------------------------------------------------------
+function drawSteps(steps) {
+  const sorted = steps.slice().sort((a, b) => a.freq_hz - b.freq_hz);
+  const f = sorted.map((s) => s.freq_hz);
+  const w = Math.max(380, $("plot-amp").parentElement.clientWidth - 14);
+  const pts = (label, color) => ({ label, stroke: color, paths: () => null, points: { show: true, size: 7, fill: color } });
+  const unit = steps.length ? steps[0].unit : "";
+  const ua = ensurePlot("amp", "plot-amp", ["achieved", "target"], {
+    width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
+    series: [{ label: "f [Hz]" }, pts("achieved", COLORS[0]), pts("target", "#999")], axes: [{}, { size: 55 }],
+  });
+  ua.setData([f, sorted.map((s) => s.achieved), sorted.map((s) => s.target)]);
+  plots.amp.u.series[1].label = `achieved [${unit}]`;
+  const band = steps.length ? steps[steps.length - 1].band_pct : 1;
+  const ue = ensurePlot("err", "plot-err", ["error", "+band", "-band"], {
+    width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
+    series: [{ label: "f [Hz]" }, pts("error [%]", COLORS[0]),
+      { label: "+tol", stroke: "#c53030", dash: [5, 4] }, { label: "-tol", stroke: "#c53030", dash: [5, 4] }],
+    bands: [{ series: [2, 3], fill: "rgba(72,187,120,0.15)" }],
+    axes: [{}, { size: 55 }],
+  });
+  ue.setData([f, sorted.map((s) => s.error_pct), f.map(() => band), f.map(() => -band)]);
+  const withTarget = sorted.filter((s) => s.phase_target_deg !== null);
+  const up = ensurePlot("phase", "plot-phase", ["phase", "target", "+band", "-band"], {
+    width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
+    series: [{ label: "f [Hz]" }, pts("phase [deg]", COLORS[1]), { label: "target", stroke: "#999" },
+      { label: "+tol", stroke: "#c53030", dash: [5, 4] }, { label: "-tol", stroke: "#c53030", dash: [5, 4] }],
+    bands: [{ series: [3, 4], fill: "rgba(72,187,120,0.15)" }],
+    axes: [{}, { size: 55 }],
+  });
+  const tgt = sorted.map((s) => s.phase_target_deg);
+  up.setData([f, sorted.map((s) => s.phase_deg), tgt,
+    sorted.map((s) => s.phase_target_deg === null ? null : s.phase_target_deg + s.phase_band_deg),
+    sorted.map((s) => s.phase_target_deg === null ? null : s.phase_target_deg - s.phase_band_deg)]);
+  $("phase-info").textContent = steps.length
+    ? `${steps[steps.length - 1].phase_label}` + (withTarget.length ? "" : " (not controlled: no target)")
+    : "";
+  const body = $("steps").tBodies[0];
+  if (body.rows.length !== steps.length) {
+    body.innerHTML = "";
+    for (const s of steps) {
+      const tr = body.insertRow();
+      const bad = !s.converged || (s.error_pct !== null && Math.abs(s.error_pct) > s.band_pct);
+      const cells = [s.index + 1, fmt(s.freq_hz, 1), s.motion, `${fmt(s.target, 2)} ${s.unit}`,
+        `${fmt(s.achieved, 2)} ${s.unit}`, fmt(s.error_pct, 2), fmt(s.phase_deg, 1), s.updates,
+        s.converged ? "yes" : `no: ${s.reason}`];
+      for (const c of cells) tr.insertCell().textContent = String(c);
+      if (bad) tr.cells[5].className = "bad";
+    }
+  }
+}
+
+// --- header, events ------------------------------------------------------------------------
+function drawStatus(fr) {
+  const st = fr.status || {};
+  const p = st.progress || {};
+  $("state").textContent = st.state || "?";
+  $("state").className = "state " + (st.state || "");
+  $("run-id").textContent = st.run_id || (st.last_run && st.last_run.run_id ? `(last: ${st.last_run.run_id} ${st.last_run.status})` : "-");
+  const total = p.steps_total || 0;
+  const done = Math.max(p.steps_done || 0, st.run_id ? fr.steps.length : 0);
+  $("step").textContent = st.run_id && p.step_index >= 0
+    ? `${p.step_index + 1}/${total} at ${fmt(p.freq_hz, 1)} Hz, ${p.updates || 0} updates` : "-";
+  $("progress").textContent = st.run_id ? `${done}/${total} steps` : "-";
+  $("progress-fill").style.width = total && st.run_id ? `${100 * done / total}%` : "0";
+  const left = fr.time_left_s;
+  $("time-left").textContent = left === null ? "-" : left >= 60 ? `${Math.floor(left / 60)} min ${Math.round(left % 60)} s` : `${Math.round(left)} s`;
+  $("pump").textContent = st.pump_on ? "ON" : "off";
+  const means = (fr.traces && fr.traces.means) || {};
+  $("p-in").textContent = means.p_in === undefined || means.p_in === null ? "" : `inlet ${fmt(means.p_in / 1e3, 1)} kPa`;
+  const lost = Object.values(fr.lost || {}).reduce((a, b) => a + b, 0);
+  $("lost").textContent = String(lost);
+  const ev = $("events");
+  ev.innerHTML = "";
+  for (const e of fr.events.slice().reverse()) {
+    const li = document.createElement("li");
+    li.className = "ev-" + e.kind;
+    li.textContent = `${new Date(e.time * 1000).toLocaleTimeString()} ${e.kind}: ${e.message}`;
+    ev.appendChild(li);
+  }
+}
+
+function onFrame(fr) {
+  window.sfdrig.lastFrame = fr;
+  drawStatus(fr);
+  if (fr.traces) drawTraces(fr.traces, fr.status);
+  drawOrbit(fr.traces, fr.status);
+  drawHarmonics(fr.traces);
+  drawSteps(fr.steps);
+  window.sfdrig.frames += 1;
+  // sample-to-screen latency: from the daemon's acquisition of the newest block to this paint
+  if (fr.t_acquired > 0) {
+    requestAnimationFrame(() => {
+      const l = window.sfdrig.latencies;
+      l.push(Date.now() / 1000 - fr.t_acquired);
+      if (l.length > 100000) l.shift();
+    });
+  }
+}
+
+// --- controls ------------------------------------------------------------------------------
+async function post(url, body) {
+  let out;
+  try {
+    const r = await fetch(url, { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
+    const text = await r.text();
+    try { out = JSON.parse(text); } catch (e) { out = { ok: false, error: text || r.statusText }; }
+  } catch (e) {
+    out = { ok: false, error: String(e) };
+  }
+  showMessage(out.ok ? `${body.cmd || "start"}: ok` + (out.data && out.data.run_id ? ` (run ${out.data.run_id})` : "") : out.error, !out.ok);
+  return out;
+}
+
+function setupControls(hello) {
+  role = hello.role;
+  window.sfdrig.role = role;
+  $("who").textContent = `${hello.name} (${role})`;
+  $("logout").hidden = !hello.login;
+  $("controls").hidden = role !== "operator";
+  $("viewer-note").hidden = role === "operator";
+  const sel = $("example");
+  sel.innerHTML = "";
+  for (const n of hello.examples) { const o = document.createElement("option"); o.value = o.textContent = n; sel.appendChild(o); }
+}
+
+$("start-example").onclick = () => post("/api/start", { example: $("example").value });
+$("start-upload").onclick = async () => {
+  const f = $("upload").files[0];
+  if (!f) { showMessage("choose a sweep TOML file first", true); return; }
+  post("/api/start", { toml: await f.text(), filename: f.name });
+};
+$("pause").onclick = () => post("/api/command", { cmd: "pause" });
+$("resume").onclick = () => post("/api/command", { cmd: "resume" });
+$("abort").onclick = () => post("/api/command", { cmd: "abort" });
+$("pump-on").onclick = () => post("/api/command", { cmd: "pump", on: true });
+$("pump-off").onclick = () => post("/api/command", { cmd: "pump", on: false });
+$("reset").onclick = () => post("/api/command", { cmd: "reset" });
+
+function connect() {
+  const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws");
+  ws.onmessage = (ev) => {
+    const m = JSON.parse(ev.data);
+    if (m.type === "hello") setupControls(m);
+    else if (m.type === "frame") onFrame(m);
+  };
+  ws.onclose = () => { showMessage("connection to sfdrig web lost; reconnecting", true); setTimeout(connect, 1000); };
+}
+connect();

@@ -1,0 +1,309 @@
+"""What the browser draws, computed from the daemon's live stream (no I/O here).
+
+`LiveView` is fed every message of a `control.client.Subscriber` (blocks, steps, events, status
+heartbeats) and keeps only what the page shows: the last second of samples in a ring buffer, the
+step points of the run, the recent events and the latest status. `LiveView.frame` turns that into
+one small JSON-safe dict, decimated on the server: a few triggered cycles of each trace and of the
+orbit (at most ``points`` samples each), the 1X-5X harmonics of the current step, and the step
+table. The browser gets what it draws, never the 1 MS/s stream.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from control.client import Message
+from control.lockin import LockIn
+
+UM = 1e-6
+TWO_AXIS = ("circular_forward", "circular_backward", "elliptical")
+TRACE_UNITS = ("N", "m", "m/s^2")  # drawn as traces; the rest (pressure, flow, oil) as means
+
+
+def _mean_z(harmonics: dict[str, list[list[float]]], names: tuple[str, ...]) -> complex | None:
+    zs = [complex(*harmonics[n][0]) for n in names if n in harmonics]
+    return sum(zs) / len(zs) if zs else None
+
+
+def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
+               tolerance_phase_deg: float) -> dict[str, Any]:
+    """One row of the step table and one point of the amplitude/phase-vs-frequency plots.
+
+    The amplitude is the 1X of the reference axis (Y for motion "y", else X): the mean of the two
+    probes [um] for a displacement target, the load cell [N] for a load target. The phase is Y
+    relative to X [deg] for two-axis motions (the controlled quantity, with its target), else the
+    reference displacement relative to its load (not controlled: no target).
+    """
+    h = step.get("harmonics", {})
+    axis = "y" if step.get("motion") == "y" else "x"
+    other = "x" if axis == "y" else "y"
+    disp = {a: _mean_z(h, (f"{a}1", f"{a}2")) or _mean_z(h, (a,)) for a in ("x", "y")}
+    force = {a: _mean_z(h, (f"f{a}",)) for a in ("x", "y")}
+    load = step.get("target_kind") == "load"
+    ref = force[axis] if load else disp[axis]
+    scale = 1.0 if load else 1 / UM
+    target = float(step.get("target_value", math.nan)) * scale
+    motion = step.get("motion", "")
+    phase_target: float | None = None
+    if motion in TWO_AXIS:
+        zx, zy = (force["x"], force["y"]) if load else (disp["x"], disp["y"])
+        phase = math.degrees(np.angle(zy / zx)) if zx and zy else math.nan
+        # the elliptical target's phase is in the spec, not the step: shown without a band
+        phase_target = {"circular_forward": -90.0, "circular_backward": 90.0}.get(motion)
+    else:
+        z, f = disp[axis], force[axis]
+        phase = math.degrees(np.angle(z / f)) if z and f else math.nan
+    achieved = abs(ref) * scale if ref is not None else math.nan
+    return {
+        "index": int(step.get("index", 0)),
+        "freq_hz": float(step.get("freq_hz", math.nan)),
+        "motion": motion,
+        "unit": "N" if load else "um",
+        "target": target,
+        "achieved": achieved,
+        "error_pct": 100.0 * (achieved - target) / target if target else math.nan,
+        "band_pct": tolerance_amplitude_pct,
+        "phase_deg": phase,
+        "phase_label": f"{other.upper()} rel. {axis.upper()}" if motion in TWO_AXIS
+        else f"{axis} rel. f{axis}",
+        "phase_target_deg": phase_target,
+        "phase_band_deg": tolerance_phase_deg if phase_target is not None else None,
+        "x_um": abs(disp["x"]) / UM if disp["x"] is not None else math.nan,
+        "y_um": abs(disp["y"]) / UM if disp["y"] is not None else math.nan,
+        "fx_n": abs(force["x"]) if force["x"] is not None else math.nan,
+        "fy_n": abs(force["y"]) if force["y"] is not None else math.nan,
+        "updates": int(step.get("updates", 0)),
+        "converged": bool(step.get("converged", False)),
+        "reason": str(step.get("reason", "")),
+    }
+
+
+def upward_crossings(v: np.ndarray) -> np.ndarray:
+    """Indices i where ``v`` goes from < 0 at i - 1 to >= 0 at i."""
+    return np.flatnonzero((v[:-1] < 0) & (v[1:] >= 0)) + 1
+
+
+def rounded(row: np.ndarray, digits: int = 5) -> list[float]:
+    """``row`` to ``digits`` significant digits of its largest value (a short JSON text);
+    non-finite samples become 0 (JSON has no NaN)."""
+    row = np.nan_to_num(row, nan=0.0, posinf=0.0, neginf=0.0)
+    peak = float(np.abs(row).max()) if row.size else 0.0
+    decimals = digits - 1 - math.floor(math.log10(peak)) if peak > 0 else 0
+    return np.round(row, decimals).tolist()
+
+
+def finite(x: float) -> float | None:
+    """JSON has no NaN: None instead."""
+    return float(x) if math.isfinite(x) else None
+
+
+class LiveView:
+    """The page's state, fed from a subscriber thread and read from the web server's loop.
+
+    Parameters
+    ----------
+    buffer_s : float
+        Seconds of samples kept for the traces (enough for ``cycles`` at the lowest frequency).
+    cycles : int
+        Drive cycles shown in traces and orbit.
+    points : int
+        Most points per trace sent to the browser (the server decimates to this).
+    max_events : int
+        Events kept for the page.
+    """
+
+    def __init__(self, buffer_s: float = 1.0, cycles: int = 3, points: int = 600,
+                 max_events: int = 200) -> None:
+        self.buffer_s = buffer_s
+        self.cycles = cycles
+        self.points = points
+        self._lock = threading.Lock()
+        self._buf: np.ndarray | None = None
+        self._write = 0  # samples written into the ring (total)
+        self._channels: list[str] = []
+        self._n_ai = 0
+        self._fs = 0.0
+        self._last_sample = -1  # run sample index of the newest sample
+        self._t_acquired = 0.0  # daemon's time.time() of the newest block
+        self._block_seq = -1
+        self.status: dict[str, Any] = {}
+        self.steps: list[dict[str, Any]] = []
+        self._step_times: list[float] = []
+        self._run_started: float | None = None
+        self.events: deque[dict[str, Any]] = deque(maxlen=max_events)
+        self.run_id = ""
+        self.tolerance = (1.0, 1.0)
+        self.lost: dict[str, int] = {}
+        self._lockin: LockIn | None = None
+
+    # --- fed from the subscriber thread ----------------------------------------------------
+    def on_message(self, msg: Message) -> None:
+        with self._lock:
+            h = msg.header
+            if h.get("run_id") and h["run_id"] != self.run_id:
+                self._new_run(h["run_id"])
+            if msg.topic == "block" and msg.array is not None:
+                self._on_block(h, msg.array)
+            elif msg.topic == "step":
+                self.steps.append(step_point(h["step"], *self.tolerance))
+                self._step_times.append(msg.received_at)
+            elif msg.topic == "event":
+                self.events.append({"time": h.get("time", msg.received_at), "kind": h["kind"],
+                                    "message": h["message"], "run_id": h.get("run_id", "")})
+            elif msg.topic == "status":
+                self._on_status(h["status"], msg.received_at)
+
+    def set_status(self, status: dict[str, Any], now: float | None = None) -> None:
+        """A status reply (late join) or heartbeat."""
+        with self._lock:
+            if status.get("run_id") and status["run_id"] != self.run_id:
+                self._new_run(status["run_id"])
+            self._on_status(status, time.time() if now is None else now)
+
+    def set_lost(self, lost: dict[str, int]) -> None:
+        with self._lock:
+            self.lost = dict(lost)
+
+    def _new_run(self, run_id: str) -> None:
+        self.run_id = run_id
+        self.steps = []
+        self._step_times = []
+        self._run_started = None
+        self._write = 0
+        self._last_sample = -1
+
+    def _on_status(self, status: dict[str, Any], now: float) -> None:
+        self.status = status
+        tol = status.get("tolerance")
+        if tol:
+            self.tolerance = (float(tol["amplitude_pct"]), float(tol["phase_deg"]))
+        if status.get("run_id") and self._run_started is None:
+            self._run_started = now
+
+    def _on_block(self, h: dict[str, Any], block: np.ndarray) -> None:
+        rows, n = block.shape
+        fs = float(h["sample_rate_hz"])
+        if self._buf is None or self._buf.shape[0] != rows or fs != self._fs:
+            size = max(int(self.buffer_s * fs), n)
+            self._buf = np.zeros((rows, size))
+            self._channels = list(h["channels"])
+            self._n_ai = int(h["n_ai"])
+            self._fs = fs
+            self._write = 0
+            self._lockin = LockIn(fs)
+        first = int(h["first_sample"])
+        if first != self._last_sample + 1:
+            self._write = 0  # a lost block or a new run: traces start afresh
+        size = self._buf.shape[1]
+        if n >= size:
+            self._buf[:] = block[:, n - size:]
+            self._write = size
+        else:
+            i = self._write % size
+            k = min(n, size - i)
+            self._buf[:, i:i + k] = block[:, :k]
+            self._buf[:, :n - k] = block[:, k:]
+            self._write += n
+        self._last_sample = first + n - 1
+        self._t_acquired = float(h.get("t_acquired", 0.0))
+        self._block_seq = int(h["seq"])
+
+    def _recent(self) -> np.ndarray:
+        """The buffered samples in time order, (rows, m)."""
+        assert self._buf is not None
+        size = self._buf.shape[1]
+        m = min(self._write, size)
+        i = self._write % size
+        if self._write <= size:
+            return self._buf[:, :m].copy()
+        return np.concatenate([self._buf[:, i:], self._buf[:, :i]], axis=1)
+
+    # --- read from the web server's loop ---------------------------------------------------
+    def frame(self, now: float | None = None) -> dict[str, Any]:
+        """Everything the page draws, JSON-safe, decimated."""
+        now = time.time() if now is None else now
+        with self._lock:
+            traces = self._traces() if self._buf is not None and self._write else None
+            status = dict(self.status)
+            return {
+                "type": "frame",
+                "server_time": now,
+                "t_acquired": self._t_acquired,
+                "block_seq": self._block_seq,
+                "status": status,
+                "time_left_s": self._time_left(status, now),
+                "traces": traces,
+                "steps": [{k: (finite(v) if isinstance(v, float) else v) for k, v in s.items()}
+                          for s in self.steps],
+                "events": list(self.events)[-50:],
+                "lost": dict(self.lost),
+            }
+
+    def _time_left(self, status: dict[str, Any], now: float) -> float | None:
+        """Remaining steps times the mean duration of the finished ones (None before the first)."""
+        p = status.get("progress") or {}
+        total, done = int(p.get("steps_total") or 0), len(self.steps)
+        if not status.get("run_id") or not total or not done or self._run_started is None:
+            return None
+        per_step = (self._step_times[-1] - self._run_started) / done
+        return max(0.0, per_step * (total - done) - (now - self._step_times[-1]))
+
+    def _traces(self) -> dict[str, Any]:
+        data = self._recent()
+        fs = self._fs
+        names = self._channels
+        drives = names[self._n_ai:]
+        freq = float((self.status.get("progress") or {}).get("freq_hz") or 0.0)
+        # trigger on the first drive that moves: `cycles` drive periods starting at an upward
+        # crossing, so the picture stands still
+        start, stop, triggered = max(0, data.shape[1] - int(0.1 * fs)), data.shape[1], False
+        for d in range(self._n_ai, len(names)):
+            v = data[d]
+            if np.ptp(v) <= 1e-6:
+                continue
+            up = upward_crossings(v)
+            if len(up) > self.cycles:
+                start, stop, triggered = int(up[-1 - self.cycles]), int(up[-1]), True
+                freq = self.cycles * fs / (stop - start)
+            break
+        window = data[:, start:stop]
+        n = window.shape[1]
+        step = max(1, math.ceil(n / self.points))
+        dec = window[:, ::step]
+        t_ms = (np.arange(dec.shape[1]) * step / fs * 1e3).round(3)
+        rows = {name: dec[i] for i, name in enumerate(names)}
+        units = self.status.get("units") or {}
+        drawn = [n for n in names if n in drives or units.get(n, "N") in TRACE_UNITS]
+        means = {n: finite(float(window[i].mean())) for i, n in enumerate(names[: self._n_ai])}
+        x = self._mean_rows(rows, ("x1", "x2"), "x")
+        y = self._mean_rows(rows, ("y1", "y2"), "y")
+        harmonics: dict[str, list[float]] = {}
+        if triggered and self._lockin is not None and n > 11:
+            harm, _ = self._lockin.demodulate(window[: self._n_ai], 0, freq)
+            harmonics = {names[i]: np.abs(harm[i]).tolist() for i in range(self._n_ai)}
+        return {
+            "t_ms": t_ms.tolist(),
+            "channels": {name: rounded(rows[name]) for name in drawn},
+            "means": means,
+            "drives": drives,
+            "orbit_x_um": rounded(x / UM) if x is not None else [],
+            "orbit_y_um": rounded(y / UM) if y is not None else [],
+            "triggered": triggered,
+            "freq_hz": finite(freq),
+            "decimation": step,
+            "harmonics": harmonics,
+            "last_sample": self._last_sample,
+        }
+
+    @staticmethod
+    def _mean_rows(rows: dict[str, np.ndarray], pair: tuple[str, str],
+                   single: str) -> np.ndarray | None:
+        if all(p in rows for p in pair):
+            return 0.5 * (rows[pair[0]] + rows[pair[1]])
+        return rows.get(single)
