@@ -213,7 +213,11 @@ def _json_safe(obj: Any) -> Any:
 
 
 def _params_of(runs: list[RunData], ident: Identification) -> None:
-    configs = {json.dumps(r.rig_config, sort_keys=True) for r in runs if r.rig_config}
+    # The sweeps' configuration is the reference of the dynamic coefficients; the structure
+    # runs (static, impact) are made with the seal off and must not stand in for it.
+    sweeps = [r for r in runs if r.rig_config and r.kind in ("sweep", "imported")]
+    configs = {json.dumps(r.rig_config, sort_keys=True) for r in (sweeps or runs)
+               if r.rig_config}
     if not configs:
         ident.params, ident.params_source, ident.simulated = RigParams(), (
             "report defaults (no run carries a rig configuration)"), False
@@ -224,7 +228,7 @@ def _params_of(runs: list[RunData], ident: Identification) -> None:
         ident.skipped.append(Skipped("-", "setup", f"rig_config unreadable ({err}); report "
                                      "defaults used"))
         return
-    if all(r.kind == "imported" for r in runs if r.rig_config):
+    if all(r.kind == "imported" for r in (sweeps or runs) if r.rig_config):
         ident.rig_described = True
         ident.params_source = "rig_config of the imported runs (their rig description)"
         return

@@ -35,6 +35,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """The command; anything unforeseen ends in one line naming the run files, never a
+    traceback (the internals raise their own errors where they know the column or step)."""
+    try:
+        return _run(args)
+    except Exception as err:  # noqa: BLE001 - the CLI's last line of defence
+        where = ", ".join(str(p) for p in args.runs)
+        print(f"error: {where}: {type(err).__name__}: {err}", file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace) -> int:
     from analysis.diagnose import DiagnoseError, diagnose, load_run, parse_spans
     from analysis.diagnose.report import write_extended_model, write_json, write_report
     from simulated_hw.params import RigParamsError, load_rig_params
@@ -51,7 +62,10 @@ def run(args: argparse.Namespace) -> int:
                         parse_spans(args.test, "--test"), rig=rig, seed=args.seed,
                         max_effects=args.max_effects, effects=effects, log=log)
     except (DiagnoseError, RigParamsError) as err:
-        print(f"sfdrig diagnose: {err}", file=sys.stderr)
+        msg = str(err)
+        if not any(Path(p).name in msg for p in args.runs):  # name the files the reason is about
+            msg = f"{', '.join(str(p) for p in args.runs)}: {msg}"
+        print(f"sfdrig diagnose: {msg}", file=sys.stderr)
         return 2
     if args.model_out:
         model_path = args.model_out

@@ -29,6 +29,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """The command; anything unforeseen ends in one line naming the run files, never a
+    traceback (the internals raise their own errors where they know the column or step)."""
+    try:
+        return _run(args)
+    except Exception as err:  # noqa: BLE001 - the CLI's last line of defence
+        where = ", ".join(str(p) for p in args.runs)
+        print(f"error: {where}: {type(err).__name__}: {err}", file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace) -> int:
     ident = identify(args.runs, args.only, velocity_harmonics=args.velocity_harmonics)
     if not args.no_store:
         ident.skipped.extend(write_results(ident))
@@ -48,4 +59,8 @@ def run(args: argparse.Namespace) -> int:
     if not ident.runs:
         print("error: no run file could be opened", file=sys.stderr)
         return 2
-    return 0 if identified else 1
+    if not identified:
+        print(f"error: {', '.join(str(p) for p in args.runs)}: nothing identified "
+              f"({len(ident.skipped)} item(s) skipped, reasons above)", file=sys.stderr)
+        return 1
+    return 0

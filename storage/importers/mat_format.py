@@ -12,6 +12,7 @@ import numpy as np
 
 from storage.errors import ImportDataError
 from storage.importers.common import (
+    FS_TOLERANCE,
     MeasuredData,
     _check_finite,
     _finish,
@@ -102,6 +103,7 @@ def read_mat(path: str | Path, mapping: Mapping[str, str] | None = None,
                 return np.asarray(obj[()]).T
 
             columns, sources = _read_mat_vars(fetch, available, mapping, where)
+            stored_rate = _stored_rate(fetch, available, where)
     else:
         fmt = "mat"
         import scipy.io
@@ -136,6 +138,7 @@ def read_mat(path: str | Path, mapping: Mapping[str, str] | None = None,
             return np.asarray(obj)
 
         columns, sources = _read_mat_vars(fetch, available, mapping, where)
+        stored_rate = _stored_rate(fetch, available, where)
 
     def name_of(canon: str) -> str:
         return sources[canon]
@@ -147,7 +150,14 @@ def read_mat(path: str | Path, mapping: Mapping[str, str] | None = None,
         fs_found = _rate_from_time(t, 4 * np.finfo(float).eps * float(np.max(np.abs(t))),
                                    lambda i: f"{sources['time_s']} sample {i}", where)
         offset = float(t[0])
-    fs = _resolve_fs(fs_hz, fs_found, f"the time vector {sources.get('time_s')}", where)
+    what = f"the time vector {sources.get('time_s')}"
+    if stored_rate is not None:
+        rate_name, rate = stored_rate
+        if fs_found is not None and abs(rate - fs_found) > FS_TOLERANCE * fs_found:
+            raise ImportDataError(f"{where}: variable {rate_name!r} says {rate:.9g} Hz, {what} "
+                                  f"says {fs_found:.9g} Hz")
+        fs_found, what = rate, f"variable {rate_name!r}"
+    fs = _resolve_fs(fs_hz, fs_found, what, where)
     return _finish(columns, fs, scale or {}, sources, fmt, where, name_of, offset)
 
 
@@ -164,3 +174,24 @@ def _read_mat_vars(fetch: Any, available: list[str], mapping: dict[str, str],
     return columns, sources
 
 
+
+
+#: Variables that hold a sample rate [Hz] in files from the lab's tools.
+RATE_NAMES = ("Fs", "fs", "FS", "SampleRate", "sample_rate", "sampling_rate_hz")
+
+
+def _stored_rate(fetch: Any, available: list[str], where: str) -> tuple[str, float] | None:
+    """(name, rate [Hz]) of a scalar sample-rate variable, if the file has one."""
+    for name in RATE_NAMES:
+        if name not in available:
+            continue
+        try:
+            value = np.asarray(fetch([name], name), dtype=np.float64)
+        except (ImportDataError, TypeError, ValueError):
+            raise ImportDataError(f"{where}: variable {name!r} is not a numeric sample rate"
+                                  ) from None
+        if value.size != 1 or not (np.isfinite(value.flat[0]) and value.flat[0] > 0):
+            raise ImportDataError(f"{where}: variable {name!r} = {value.ravel()[:3]} is not a "
+                                  "positive scalar sample rate [Hz]")
+        return name, float(value.flat[0])
+    return None

@@ -22,6 +22,8 @@ import numpy as np
 AMPLITUDE_STEP = 0.08
 #: Fewest cycles a piece must hold to be a dwell.
 MIN_CYCLES = 3
+#: Cycles at the start of a dwell that its later cycles are compared with.
+REFERENCE_CYCLES = 5
 #: A run of constant frequency shorter than this many periods is a piece of a sweep.
 SWEEP_PIECE_PERIODS = 2.0
 #: Fewest consecutive such runs that make a sweep.
@@ -99,19 +101,28 @@ def _split_by_cycles(resp: tuple[np.ndarray | None, np.ndarray | None],
     n_cyc = int((b - a) // period)
     if n_cyc < 2 * MIN_CYCLES:
         return [(a, b)]
-    edges = [a + int(round(k * period)) for k in range(n_cyc + 1)]
-    feats = []
-    for k in range(n_cyc):
-        c0, c1 = edges[k], edges[k + 1]
-        z = [(_fundamental(s, fs, f, c0, c1) if s is not None else 0j) for s in resp]
-        fo = [(_fundamental(s, fs, f, c0, c1) if s is not None else 0j) for s in force]
-        feats.append((math.hypot(abs(z[0]), abs(z[1])), math.hypot(abs(fo[0]), abs(fo[1])),
-                      classify_motion(z[0], z[1])[0] if resp[1] is not None else "x"))
+    edges = np.array([a + int(round(k * period)) for k in range(n_cyc + 1)])
+    # per-cycle fundamentals from cumulative sums: O(n) for any number of cycles
+    t = np.arange(a, b) / fs
+    phasor = np.exp(-2j * math.pi * f * t)
+
+    def per_cycle(sig: np.ndarray | None) -> np.ndarray:
+        if sig is None:
+            return np.zeros(n_cyc, dtype=complex)
+        cs = np.concatenate(([0j], np.cumsum(sig[a:b] * phasor)))
+        lo, hi = edges[:-1] - a, edges[1:] - a
+        return 2 * (cs[hi] - cs[lo]) / (hi - lo)
+
+    zx, zy, fx, fy = (per_cycle(s) for s in (*resp, *force))
+    z_mag, f_mag = np.hypot(np.abs(zx), np.abs(zy)), np.hypot(np.abs(fx), np.abs(fy))
+    feats = [(float(z_mag[k]), float(f_mag[k]),
+              classify_motion(complex(zx[k]), complex(zy[k]))[0] if resp[1] is not None
+              else "x") for k in range(n_cyc)]
     pieces: list[tuple[int, int]] = []
     start = 0
     for k in range(1, n_cyc + 1):
         if k < n_cyc:
-            ref = feats[start:k]
+            ref = feats[start:min(k, start + REFERENCE_CYCLES)]
             z_ref = float(np.median([r[0] for r in ref]))
             f_ref = float(np.median([r[1] for r in ref]))
             zk, fk, mk = feats[k]
@@ -121,7 +132,7 @@ def _split_by_cycles(resp: tuple[np.ndarray | None, np.ndarray | None],
             if not changed:
                 continue
         if k - start >= MIN_CYCLES:
-            pieces.append((edges[start], edges[k] if k < n_cyc else b))
+            pieces.append((int(edges[start]), int(edges[k]) if k < n_cyc else b))
         start = k
     return pieces
 

@@ -133,3 +133,16 @@ def test_sine_sweep_is_a_sweep_not_dwells(tmp_path: Path) -> None:
         assert len(sweeps) == 1
         assert sweeps[0]["f_start_hz"] == pytest.approx(20.0, abs=0.1)
         assert sweeps[0]["f_stop_hz"] == pytest.approx(60.0, abs=0.1)
+
+
+def test_mat_sample_rate_variable_is_used(tmp_path: Path) -> None:
+    import scipy.io
+    rec = Generator(RigSpec(), Sensors(seed=6)).run([Dwell(25.0, 20e-6, "x", 0.4)])
+    path = tmp_path / "m.mat"
+    scipy.io.savemat(path, {"fx_N": rec.columns["fx_N"], "x_m": rec.columns["x_m"],
+                            "freq_hz": rec.columns["freq_hz"], "Fs": 5000.0})
+    out = tmp_path / "m.h5"
+    assert main(["import", str(path), "--out", str(out), "--lubricated"]) == 0
+    with open_run(out) as run:
+        assert run.sample_rate_hz == 5000.0
+    assert main(["import", str(path), "--out", str(tmp_path / "n.h5"), "--fs", "4000"]) == 2
