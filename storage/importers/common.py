@@ -209,9 +209,38 @@ def _finish(columns: dict[str, np.ndarray], fs_hz: float, scale: Mapping[str, fl
             raise ImportDataError(f"{where}: --scale {canon}: no such signal is imported")
     signals = {c: np.asarray(v, dtype=np.float64) * scale.get(c, 1.0)
                for c, v in columns.items() if c not in NON_SIGNALS}
+    for canon, values in signals.items():
+        _check_plausible(canon, values, where, name_of(canon))
     return MeasuredData(signals=signals, fs_hz=fs_hz, freq_hz=columns.get("freq_hz"),
                         step=columns.get("step"),
                         time_offset_s=time_offset_s, sources=sources, source_format=fmt,
                         start_time=start_time)
 
 
+
+
+#: Ranges no signal of a test rig reaches in SI units: beyond them the column is in other units
+#: or is another quantity (an accelerometer mapped as a displacement). Wide on purpose: a
+#: positioning stage moves 0.25 m (EMPS), a probe sees less than the 127 um clearance.
+PLAUSIBLE_SPAN = {"x_m": 1.0, "y_m": 1.0, "vx_mps": 100.0, "vy_mps": 100.0, "fx_N": 1e5,
+                  "fy_N": 1e5, "ax_mps2": 1e5, "ay_mps2": 1e5, "p_in_Pa": 1e8, "p_rec_Pa": 1e8}
+PLAUSIBLE_TEMPERATURE_C = (-60.0, 300.0)
+
+
+def _check_plausible(canon: str, values: np.ndarray, where: str, name: str) -> None:
+    if canon == "oil_temp_C":
+        lo, hi = float(np.min(values)), float(np.max(values))
+        if lo < PLAUSIBLE_TEMPERATURE_C[0] or hi > PLAUSIBLE_TEMPERATURE_C[1]:
+            raise ImportDataError(f"{where}, {name}: oil temperature from {lo:g} to {hi:g} degC "
+                                  "is not in degC (check the column or --scale)")
+        return
+    limit = PLAUSIBLE_SPAN.get(canon)
+    if limit is None:
+        return
+    span = float(np.max(values) - np.min(values))
+    if span > limit:
+        unit = CANONICAL[canon][1] if CANONICAL.get(canon) else ""  # type: ignore[index]
+        raise ImportDataError(
+            f"{where}, {name}: {canon} spans {span:.4g} {unit}, more than any test rig's "
+            f"{limit:g} {unit}: another quantity or other units (check --map, or --scale "
+            f"{canon}=FACTOR, e.g. 1e-6 for micrometres)")

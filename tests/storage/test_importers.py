@@ -81,15 +81,15 @@ def test_csv_quirks_bom_quotes_trailing_commas_crlf_blank_tail(tmp_path: Path) -
 
 
 def test_csv_quoted_cells_and_semicolons(tmp_path: Path) -> None:
-    src = _write(tmp_path / "s.csv", 'when;fx_N;x_m\n"a;b";"1.0";2\n"c";3;4\n')
+    src = _write(tmp_path / "s.csv", 'when;fx_N;x_m\n"a;b";"1.0";2e-6\n"c";3;4e-6\n')
     out = import_file(src, tmp_path / "s.h5", fs_hz=10.0)
     with open_run(out) as run:
         np.testing.assert_array_equal(run.signal("fx"), [1.0, 3.0])
-        np.testing.assert_array_equal(run.signal("x"), [2.0, 4.0])
+        np.testing.assert_array_equal(run.signal("x"), [2e-6, 4e-6])
 
 
 def test_csv_unused_text_column_is_ignored(tmp_path: Path) -> None:
-    src = _write(tmp_path / "u.csv", "label,fx_N,x_m\nstart,1,2\nend,3,4\n")
+    src = _write(tmp_path / "u.csv", "label,fx_N,x_m\nstart,1,2e-6\nend,3,4e-6\n")
     with open_run(import_file(src, tmp_path / "u.h5", fs_hz=1.0)) as run:
         assert run.n_samples == 2
 
