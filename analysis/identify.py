@@ -381,7 +381,8 @@ def _identify_runs(runs: list[RunData], ident: Identification, asked: set[str],
         try:
             f_mu, u_f_mu, _, n_pts = fit_seal_friction(lub_dwells)
             source += (f"; F_mu = {f_mu:.1f} +/- {u_f_mu:.1f} N fitted to {n_pts} lubricated "
-                       "dwells (C_t linear in 1/(w|Z|), eq. 9)")
+                       "dwells (C_t linear in 1/(w|Z|), eq. 9; the uncertainty is the "
+                       "regression's only: eq. 9 assumes the seal never sticks)")
         except ValueError as err:
             ident.skipped.append(Skipped("-", "lubricated", f"seal friction unknown and not "
                                          f"fitted ({err}); give a dry run"))

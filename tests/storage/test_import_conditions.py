@@ -146,3 +146,50 @@ def test_mat_sample_rate_variable_is_used(tmp_path: Path) -> None:
     with open_run(out) as run:
         assert run.sample_rate_hz == 5000.0
     assert main(["import", str(path), "--out", str(tmp_path / "n.h5"), "--fs", "4000"]) == 2
+
+
+@pytest.fixture(scope="module")
+def sealed_csv(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Lubricated X dwells with the report's 26 N seal (solve_ivp path, about 90 s)."""
+    rec = Generator(RigSpec(seal_friction_n=26.0), Sensors(seed=31)).run(
+        grid(FREQS, [25e-6, 38e-6], "x", record_s=0.3))
+    return rec.to_csv(tmp_path_factory.mktemp("seal") / "seal.csv")
+
+
+def _identify(csv: Path, tmp_path: Path, seal: str) -> dict:
+    out = tmp_path / f"seal-{seal}.h5"
+    assert main(["import", str(csv), "--out", str(out), "--lubricated", "--seal", seal]) == 0
+    report = tmp_path / f"seal-{seal}.json"
+    assert main(["identify", str(out), "--json", str(report)]) == 0
+    return json.loads(report.read_text())["lubricated"]
+
+
+@pytest.mark.slow
+def test_unknown_seal_friction_is_fitted_and_said(sealed_csv: Path, tmp_path: Path) -> None:
+    lub = _identify(sealed_csv, tmp_path, "unknown")
+    assert lub["seal_friction_N"] == pytest.approx(26.0, rel=0.10)
+    assert "fitted to 10 lubricated dwells" in lub["seal_friction_source"]
+    truth_c = RigSpec().film_damping_ns_per_m
+    for g in lub["sfd_damping_by_amplitude"]:
+        assert g["eq9"]["C_sfd_mean_Ns_per_m"] == pytest.approx(truth_c, rel=0.05)
+
+
+@pytest.mark.slow
+def test_stated_seal_friction_is_used(sealed_csv: Path, tmp_path: Path) -> None:
+    lub = _identify(sealed_csv, tmp_path, "26")
+    assert lub["seal_friction_N"] == 26.0
+    truth_c = RigSpec().film_damping_ns_per_m
+    for g in lub["sfd_damping_by_amplitude"]:  # the stick-slip removal of the seal
+        assert g["stick_slip"]["C_sfd_mean_Ns_per_m"] == pytest.approx(truth_c, rel=0.02)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="finding: with the 26 N seal sticking part of each cycle, "
+                   "the stick-slip K at 25 um is 844 +/- 39 kN/m (truth 788): 7 % high, outside "
+                   "its stated uncertainty (38 um: 811 +/- 45)")
+def test_sealed_stiffness_within_its_uncertainty(sealed_csv: Path, tmp_path: Path) -> None:
+    lub = _identify(sealed_csv, tmp_path, "26")
+    fits = [f for f in lub["table6_and_appendix_E"] if f["method"] == "stick_slip"]
+    assert len(fits) == 2
+    for f in fits:
+        assert abs(f["k_n_per_m"] - 788e3) <= f["u_k_n_per_m"]
