@@ -18,7 +18,10 @@ Extension points (add hidden effects without editing this package):
   ``delay``, ``offset`` or your own), noise per column in ``Sensors.noise``;
 - ``Generator.oil_temp_c``: the recorded oil temperature, constant or a function of time.
 
-Anything nonlinear or time-varying takes the ``solve_ivp`` path (about 0.5-2 s per dwell).
+Anything nonlinear or time-varying takes the ``solve_ivp`` path (0.5-15 s per dwell; a seal at
+small amplitude needs several force corrections). ``Generator.run(program, continuous=True)``
+integrates the whole programme in one go, so the transients after each change of dwell stay in
+the record (the default puts separate steady-state dwells end to end).
 """
 
 from tests.independent_rig.generate import (

@@ -135,8 +135,15 @@ class Generator:
     amplitude_tolerance: float = 1e-3
     max_iterations: int = 12
 
-    def run(self, program: Sequence[Dwell | Sweep]) -> Record:
-        """Record every dwell and sweep of ``program`` back to back (one time base)."""
+    def run(self, program: Sequence[Dwell | Sweep], continuous: bool = False) -> Record:
+        """Record every dwell and sweep of ``program`` back to back (one time base).
+
+        ``continuous=False``: each dwell is its own steady state (records of separate dwells
+        put end to end, as the old VI stored them). ``continuous=True``: the forces found for
+        the dwells drive one ``solve_ivp`` integration of the whole programme, so every change
+        of dwell leaves its transient in the record (as on the rig; the dry rig without the
+        seal rings for about 0.5 s). ``Record.segments`` then describe that integration.
+        """
         rng = np.random.default_rng(self.sensors.seed)
         segments: list[Segment] = []
         n0 = 0
@@ -150,6 +157,8 @@ class Generator:
                 seg = self._dwell(item, t0, n0, n)
             segments.append(seg)
             n0 += n
+        if continuous and segments:
+            self._integrate_through(segments, n0)
         t = np.arange(n0) / self.fs_hz
         columns: dict[str, np.ndarray] = {"time_s": t, "freq_hz": np.empty(n0)}
         for name in SIGNALS:
@@ -165,6 +174,38 @@ class Generator:
             for name in SIGNALS:
                 columns[name][sl] = self.sensors.record(name, ts, clean[name], rng)
         return Record(columns=columns, segments=segments, fs_hz=self.fs_hz, rig=self.rig)
+
+    def _integrate_through(self, segments: list[Segment], n_total: int) -> None:
+        """Replace the segments' motion by one integration driven by their forces in turn."""
+        starts = np.array([seg.t0_s for seg in segments])
+        forces = [seg.force for seg in segments]
+
+        def shaker(t: float) -> np.ndarray:
+            k = max(int(np.searchsorted(starts, t, side="right")) - 1, 0)
+            return np.asarray(forces[k](np.array([t])))[:, 0]
+
+        first = segments[0]
+        # start on the first dwell's steady state (its own record, sampled just before t0)
+        y0 = np.zeros(8)
+        t0 = first.t0_s
+        y0[0:2] = np.asarray(first.z(np.array([t0])))[:, 0]
+        y0[2:4] = np.asarray(first.v(np.array([t0])))[:, 0]
+        t_end = n_total / self.fs_hz + 2.0 / max(seg.freq_hz for seg in segments)
+        f_min = min(seg.freq_hz for seg in segments)
+        atol = np.array([1e-13, 1e-13, 1e-10, 1e-10, 1e-13, 1e-13, 1e-10, 1e-10])
+        sol = solve_ivp(lambda t, y: self.rig.derivative(t, y, shaker(t)), (t0, t_end), y0,
+                        method="DOP853", rtol=1e-8, atol=atol, dense_output=True,
+                        max_step=0.05 / max(f_min, 1.0))
+        if not sol.success:
+            raise RuntimeError(f"solve_ivp failed: {sol.message}")
+        for k, seg in enumerate(segments):
+            n = seg.last_sample - seg.first_sample
+            new = self._segment_from(sol, seg.freq_hz, seg.motion, seg.target_m, seg.force_n,
+                                     seg.first_sample, n, seg.t0_s, shaker, seg.iterations,
+                                     seg.kind)
+            if seg.kind == "sweep":
+                new.sweep_rate_hz_per_s = seg.sweep_rate_hz_per_s  # type: ignore[attr-defined]
+            segments[k] = new
 
     # --- dwells -------------------------------------------------------------------------------
     def _dwell(self, dwell: Dwell, t0: float, first: int, n: int) -> Segment:

@@ -193,3 +193,19 @@ def test_sealed_stiffness_within_its_uncertainty(sealed_csv: Path, tmp_path: Pat
     assert len(fits) == 2
     for f in fits:
         assert abs(f["k_n_per_m"] - 788e3) <= f["u_k_n_per_m"]
+
+
+def test_velocity_only_response_is_accepted(tmp_path: Path) -> None:
+    rec = Generator(RigSpec(), Sensors(noise={})).run(grid([30.0, 50.0], [20e-6], "y", 0.3))
+    t = rec.columns["time_s"]
+    vy = np.concatenate([seg.v(t[seg.first_sample:seg.last_sample])[1] for seg in rec.segments])
+    data = rec.to_csv(tmp_path / "vel.csv", columns=("time_s", "freq_hz", "fy_N"),
+                      extra={"vy_mps": vy})
+    out = tmp_path / "vel.h5"
+    assert main(["import", str(data), "--out", str(out), "--dry", "--motion", "y"]) == 0
+    with open_run(out) as run:
+        assert "vy" in run.channel_names and "y" in run.channel_names
+        for st, seg in zip(run.steps, rec.segments, strict=True):
+            y = run.signal("y", st["first_sample"], st["last_sample"])
+            truth = seg.z(run.time_s(st["first_sample"], st["last_sample"]))[1]
+            assert np.max(np.abs(y - truth)) < 1e-3 * 20e-6  # noise-free: printing precision
