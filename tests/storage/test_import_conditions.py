@@ -209,3 +209,23 @@ def test_velocity_only_response_is_accepted(tmp_path: Path) -> None:
             y = run.signal("y", st["first_sample"], st["last_sample"])
             truth = seg.z(run.time_s(st["first_sample"], st["last_sample"]))[1]
             assert np.max(np.abs(y - truth)) < 1e-3 * 20e-6  # noise-free: printing precision
+
+
+def test_batch_import_into_a_folder_with_one_conditions_file(tmp_path: Path, capsys) -> None:
+    data = tmp_path / "old"
+    data.mkdir()
+    for k, f in enumerate((20.0, 40.0)):
+        Generator(RigSpec(), Sensors(seed=k)).run([Dwell(f, 25e-6, "y", 0.3)]).to_csv(
+            data / f"run{k}.csv")
+    (data / "conditions.toml").write_text('lubricated = true\nseal = "none"\n')
+    (data / "bad.csv").write_text("fx_N,x_m\n1,2e-6\n")  # no time base: refused, others kept
+    out = tmp_path / "runs"
+    out.mkdir()
+    rc = main(["import", *(str(p) for p in sorted(data.glob("*.csv"))), "--out", str(out)])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.csv" in err[0]
+    assert sorted(p.name for p in out.iterdir()) == ["run0.h5", "run1.h5"]
+    for name in ("run0.h5", "run1.h5"):
+        with open_run(out / name) as run:
+            assert bool(run.attrs["lubricated"]) and run.steps[0]["motion"] == "y"
