@@ -59,6 +59,13 @@ def motion_shape(
     raise ValueError(f"unknown motion {motion!r} (use one of {MOTIONS})")
 
 
+def orbit_peak_radius(z: np.ndarray) -> float:
+    """Largest |(x, y)| over a cycle of the orbit ``x = Re(X e^{iwt}), y = Re(Y e^{iwt})``: the
+    semi-major axis, sqrt((|X|^2 + |Y|^2 + |X^2 + Y^2|) / 2) [unit of z]."""
+    x, y = complex(z[0]), complex(z[1])
+    return math.sqrt(0.5 * (abs(x) ** 2 + abs(y) ** 2 + abs(x * x + y * y)))
+
+
 def active_axes(shape: np.ndarray) -> np.ndarray:
     """Boolean mask of the axes a motion drives (non-zero target)."""
     return np.abs(np.asarray(shape)) > 0
@@ -136,6 +143,22 @@ class AmplitudeController:
         ``min_step_v``), so one bad estimate cannot throw the drive far.
     min_step_v : float
         Allowed change of a drive that is still near zero [V].
+    response_limit : float, optional
+        Largest response a correction may aim at, predicted from the present estimate [response
+        unit]; None: no bound. The caller sets it to a margin under the trip level, so the
+        controller never learns the plant by tripping.
+    limit_on_orbit : bool
+        ``response_limit`` bounds the orbit radius (displacement); else each axis (load).
+    rescale_first : bool
+        J comes from another frequency: the first update scales it by the complex factor that
+        fits the measured response (magnitude and phase may have moved through a resonance).
+    stuck_fraction : float
+        Below this fraction of the target on every driven axis the housing counts as stuck:
+        a response that small (a housing held by its seal, or just breaking away) says nothing
+        about the slope beyond the dead zone.
+    breakaway_growth : float
+        While nothing moves (a housing stuck on its seal), each update raises the drive by at
+        most this fraction (see `breakaway_drive`).
     """
 
     shape: np.ndarray
@@ -144,10 +167,16 @@ class AmplitudeController:
     max_drive_v: float = 9.0
     max_growth: float = 2.0
     min_step_v: float = 0.2
-    stuck_fraction: float = 0.05
+    stuck_fraction: float = 1.0 / 3.0
     prior_only: bool = False
+    rescale_first: bool = False
+    response_limit: float | None = None
+    limit_on_orbit: bool = True
+    breakaway_growth: float = 0.25
     updates: int = 0
     saturated: bool = False
+    #: what held the last update back ("" when nothing did): "drive", "response", "breakaway"
+    limited_by: str = ""
     _last: tuple[np.ndarray, np.ndarray] | None = None
     _stuck: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -157,6 +186,20 @@ class AmplitudeController:
         self.active = active_axes(self.shape)
         if not self.active.any():
             raise ValueError("the target shape has no driven axis")
+
+    def is_stuck(self, response: np.ndarray) -> bool:
+        """Nothing moves: every driven axis under ``stuck_fraction`` of its target."""
+        a = self.active
+        r = np.asarray(response, dtype=np.complex128)
+        return bool(np.all(np.abs(r[a]) < self.stuck_fraction * np.abs(self.shape[a])))
+
+    def note_stuck(self, drive: np.ndarray, response: np.ndarray) -> None:
+        """Remember the last drive at which nothing moved: the next update measures J as the
+        secant from there (J from before says nothing about the plant beyond a dead zone)."""
+        self._last = None
+        self.prior_only = True
+        self._stuck = (np.array(drive, dtype=np.complex128),
+                       np.array(response, dtype=np.complex128))
 
     # --- assessment -------------------------------------------------------------------------
     def assess(self, response: np.ndarray, band: float = 1.0) -> Assessment:
@@ -215,17 +258,24 @@ class AmplitudeController:
         """The next drive (2,) [V] from the present drive and its measured response.
 
         The step first refines J (Broyden) from the previous call's pair, then takes the Newton
-        step towards the target, bounded by ``max_growth`` and ``max_drive_v``. Undriven axes
-        stay at zero.
+        step towards the target, bounded by ``max_growth``, by ``response_limit`` (the response
+        predicted from J and from the measured secant must stay under it) and by
+        ``max_drive_v``. While nothing moves, the drive grows by `breakaway_drive` instead.
+        Undriven axes stay at zero.
         """
         d = np.asarray(drive, dtype=np.complex128).copy()
         r = np.asarray(response, dtype=np.complex128)
         a = self.active
-        if np.all(np.abs(r[a]) < self.stuck_fraction * np.abs(self.shape[a])):
-            # nothing moves (e.g. the seal sticks): raise the drive, learn nothing from it
-            self._last = None
-            self._stuck = (d.copy(), r.copy())
-            return self._bounded(d * (1.0 + self.max_growth))
+        self.limited_by = ""
+        if self.is_stuck(r):
+            # nothing moves (e.g. the seal sticks): raise the drive gently, learn nothing
+            self.note_stuck(d, r)
+            return self._bounded(self.breakaway_drive(d, r))
+        # the first correction after the housing starts moving probes the slope: near
+        # break-away a dry housing's response grows much faster than any secant (the Den
+        # Hartog law), so that step is small (``breakaway_growth``) until two moving points
+        # have measured the slope
+        probing = (self.prior_only or self._stuck is not None) and self._last is None
         if self.prior_only:
             # J is only a nominal guess: take its diagonal from the measured secant first,
             # from the last drive that did not move the housing if there is one (a dead zone
@@ -235,24 +285,115 @@ class AmplitudeController:
                 self.calibrate_from_ratio(d - d0, r - r0)
             else:
                 self.calibrate_from_ratio(d, r)
+        if self.rescale_first:
+            self.rescale_first = False
+            jd = self.jacobian[np.ix_(a, a)] @ d[a]
+            den = complex(np.vdot(jd, jd))
+            if abs(den) > 0:
+                c = complex(np.vdot(jd, r[a])) / den
+                if c != 0 and math.isfinite(abs(c)):
+                    self.jacobian = self.jacobian * c
+                    self._last = None
         self.learn(d, r)
         target = self.target_for(r)
         j = self.jacobian[np.ix_(a, a)]
         step = np.linalg.solve(j, (target - r)[a])
-        bound = self.max_growth * np.abs(d[a]) + self.min_step_v
+        raising = float(np.linalg.norm(d[a] + step)) > float(np.linalg.norm(d[a]))
+        probing = probing and raising
+        growth = self.breakaway_growth if probing else self.max_growth
+        bound = growth * np.abs(d[a]) + (0.0 if probing else self.min_step_v)
         big = np.abs(step) > bound
         if big.any():  # shrink the whole step (keeps its direction) to respect the bound
             step *= float(np.min(bound[big] / np.abs(step[big])))
+            self.limited_by = "growth"
+        step *= self._response_bounded_fraction(d, r, step)
         new = np.zeros(2, dtype=np.complex128)
         new[a] = d[a] + step
         return self._bounded(new)
 
+    def predicted_peak(self, drive: np.ndarray, response: np.ndarray,
+                       new: np.ndarray) -> float:
+        """Largest response predicted at drive ``new`` from the pair (``drive``, ``response``).
+
+        The larger of the linear prediction ``R + J (new - drive)`` and the proportional one
+        ``|R| |new| / |drive|`` (the secant through the origin); the orbit radius, or the
+        largest axis with ``limit_on_orbit`` False [response unit].
+        """
+        a = self.active
+        d = np.asarray(drive, dtype=np.complex128)
+        r = np.asarray(response, dtype=np.complex128)
+        n = np.asarray(new, dtype=np.complex128)
+        linear = r.copy()
+        linear[a] = r[a] + self.jacobian[np.ix_(a, a)] @ (n - d)[a]
+        peak = self._peak(linear)
+        dn = float(np.linalg.norm(d[a]))
+        if dn > 0:
+            peak = max(peak, self._peak(r) * float(np.linalg.norm(n[a])) / dn)
+        return peak
+
+    def _peak(self, z: np.ndarray) -> float:
+        return orbit_peak_radius(z) if self.limit_on_orbit else float(np.max(np.abs(z)))
+
+    def _response_bounded_fraction(self, d: np.ndarray, r: np.ndarray, step: np.ndarray) -> float:
+        """Largest fraction s in [0, 1] of ``step`` whose predicted response stays within
+        ``response_limit`` (bisection: the prediction grows monotonically along the step)."""
+        if self.response_limit is None:
+            return 1.0
+        a = self.active
+
+        def peak(s: float) -> float:
+            n = d.copy()
+            n[a] = d[a] + s * step
+            return self.predicted_peak(d, r, n)
+
+        lim = self.response_limit
+        full, now = peak(1.0), peak(0.0)
+        if full <= lim or full <= now:
+            return 1.0  # within the bound, or a step that does not raise the response
+        self.limited_by = "response"
+        if now >= lim:
+            return 0.0  # already at the bound: hold, never push further
+        lo, hi = 0.0, 1.0
+        for _ in range(30):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if peak(mid) <= lim else (lo, mid)
+        return lo
+
+    def breakaway_drive(self, drive: np.ndarray, response: np.ndarray) -> np.ndarray:
+        """The next drive while the housing does not move: a gentle raise sized for the jump
+        from stick to slip.
+
+        Held by dry friction at drive D_s, the housing breaks away somewhere above D_s, and
+        what it does then is bounded by ``|R| <= g sqrt(|D|^2 - |D_s|^2)`` with g the largest
+        gain of J (exact for a dead zone, R = g (|D| - D_0) with D_0 >= D_s, and for the
+        Den Hartog law of a spring-held housing with Coulomb friction, g sqrt(D^2 - D_0^2)).
+        The new drive keeps that bound within the target (and within ``response_limit``), and
+        grows by at most ``breakaway_growth`` per update.
+        """
+        d = np.asarray(drive, dtype=np.complex128)
+        a = self.active
+        allowed = float(np.min(np.abs(self.shape[a])))
+        if self.response_limit is not None:
+            allowed = min(allowed, self.response_limit)
+        gain = float(np.linalg.svd(self.jacobian[np.ix_(a, a)], compute_uv=False)[0])
+        ds = float(np.linalg.norm(d[a]))
+        dn = math.sqrt(ds**2 + (allowed / gain) ** 2) if gain > 0 else ds
+        self.limited_by = "breakaway"
+        if ds == 0.0:
+            # nothing driven yet: along the Newton direction of the target
+            new = np.zeros(2, dtype=np.complex128)
+            new[a] = np.linalg.solve(self.jacobian[np.ix_(a, a)], self.shape[a])
+            nn = float(np.linalg.norm(new[a]))
+            return new * (dn / nn) if nn > 0 else new
+        return d * min(dn / ds, 1.0 + self.breakaway_growth)
+
     def _bounded(self, new: np.ndarray) -> np.ndarray:
         new = np.where(self.active, new, 0.0).astype(np.complex128)
         peak = float(np.max(np.abs(new)))
-        self.saturated = peak > self.max_drive_v
-        if self.saturated:
+        self.saturated = peak > self.max_drive_v or self.limited_by == "response"
+        if peak > self.max_drive_v:
             new *= self.max_drive_v / peak
+            self.limited_by = "drive"
         self.updates += 1
         return new
 
@@ -317,6 +458,10 @@ class DrivePredictor:
             float(freq_hz), s.copy(), np.asarray(drive, dtype=np.complex128) / rot,
             np.array(jacobian, dtype=np.complex128),
         ))
+
+    def knows(self, freq_hz: float) -> bool:
+        """A converged step at this frequency is remembered."""
+        return any(abs(p.freq_hz - freq_hz) <= 1e-9 * max(1.0, freq_hz) for p in self._points)
 
     def predict(self, freq_hz: float, shape: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(drive (2,), J (2, 2)) for target ``shape`` at ``freq_hz`` with zero common phase."""

@@ -23,6 +23,7 @@ from control.controller import (
     Assessment,
     DrivePredictor,
     ProportionalController,
+    orbit_peak_radius,
 )
 from control.errors import OpenLoopError
 from control.lockin import LockIn, LockInAccumulator, cycles_to_samples
@@ -36,6 +37,19 @@ log = logging.getLogger(__name__)
 #: A correction never asks for more than this fraction of the load limit (predicted from the
 #: measured load): the margin covers harmonics, noise and the prediction's error.
 LOAD_MARGIN = 0.9
+#: ... nor for an orbit radius above this fraction of the displacement limit (predicted from the
+#: plant estimate J and from the measured secant): the margin covers the higher harmonics of a
+#: stick-slip orbit, noise and the prediction's error.
+DISPLACEMENT_MARGIN = 0.8
+#: At a new frequency the drive starts from this fraction of the predicted one (`_start`).
+START_FRACTION = 0.8
+#: The soft limit: an orbit radius or a load over this fraction of its trip level halves the
+#: drive at once (`DriveStream.guard`); the step then goes on below it, or fails after twice.
+#: Between the correction margins above and the trip.
+GUARD_FRACTION = 0.9
+LOAD_GUARD_FRACTION = 0.95
+#: A correction that raises the drive stops where the orbit passes this fraction of the target.
+RAISE_STOP = 1.2
 
 
 @dataclass
@@ -136,9 +150,25 @@ class StepRunner:
         )
         self.open_loop_checked = np.zeros(2, dtype=bool)
         self.limited_by = ""  # what held the drive back in the present step
+        self._guard_reason = ""  # the soft limit's event in the present step, if any
         self.on_update: Callable[[int], None] | None = None
         self._last_drive: np.ndarray | None = None  # (X, Y) drive of the last converged step
         self._last_jacobian: np.ndarray | None = None
+        stream.guard = self._guard
+
+    def _guard(self, eng: np.ndarray) -> str:
+        """The soft limit on one block: why it is over `GUARD_FRACTION` of a trip level, or ""."""
+        lim = self.limits
+        disp = self.signals.displacement(eng)
+        radius = float(np.max(np.hypot(disp[0], disp[1])))
+        if radius > GUARD_FRACTION * lim.displacement_limit_m:
+            return (f"the orbit reached {radius * 1e6:.1f} um, over {100 * GUARD_FRACTION:.0f} % "
+                    f"of the {lim.displacement_limit_m * 1e6:.4g} um limit")
+        load = float(np.max(np.abs(self.signals.load(eng))))
+        if load > LOAD_GUARD_FRACTION * lim.max_load_n:
+            return (f"the load reached {load:.1f} N, over {100 * LOAD_GUARD_FRACTION:.0f} % of "
+                    f"the {lim.max_load_n:g} N limit")
+        return ""
 
     # --- helpers ----------------------------------------------------------------------------
     def _prior_jacobian(self, plan: StepPlan) -> np.ndarray:
@@ -220,9 +250,13 @@ class StepRunner:
                 max_growth=cfg.max_growth, gain=cfg.proportional_gain,
             )
         else:
+            displacement = plan.target_kind == "displacement"
             ctl = AmplitudeController(
                 plan.shape, jac, self.spec.tolerance, max_drive_v=self.limits.max_drive_v,
-                max_growth=cfg.max_growth, prior_only=pred is None and plan.target_kind != "load",
+                max_growth=cfg.max_growth, prior_only=pred is None and displacement,
+                rescale_first=pred is not None and not self.predictor.knows(plan.freq_hz),
+                response_limit=self._response_cap(plan.target_kind),
+                limit_on_orbit=displacement, breakaway_growth=cfg.breakaway_growth,
             )
         # the common phase is free: turn the guess towards the present drive
         rows_guess = self._rows_drive(guess)
@@ -235,10 +269,50 @@ class StepRunner:
         cap = LOAD_MARGIN * self.limits.max_load_n
         if nominal.max() > cap:
             rows_guess *= cap / float(nominal.max())
+        # nor above what J predicts (the plant without friction, from zero drive) for the
+        # displacement: a housing that slips more freely than at the last step stays in bounds
+        if plan.target_kind == "displacement" and cfg.algorithm != "proportional":
+            a = np.abs(plan.shape) > 0
+            lin = np.zeros(2, dtype=np.complex128)
+            lin[a] = jac[np.ix_(a, a)] @ self._axis_drive(rows_guess)[a]
+            cap_d = self._response_cap("displacement")
+            if orbit_peak_radius(lin) > cap_d:
+                rows_guess *= cap_d / orbit_peak_radius(lin)
         peak = float(np.max(np.abs(rows_guess)))
         if peak > self.limits.max_drive_v:
             rows_guess *= self.limits.max_drive_v / peak
-        return ctl, self._ramp(rows_guess, plan.freq_hz)
+        if (plan.target_kind != "displacement" or cfg.algorithm == "proportional"
+                or abs(plan.freq_hz - synth.freq_hz) <= 1e-9 * plan.freq_hz):
+            return ctl, self._ramp(rows_guess, plan.freq_hz)
+        # a new frequency: the drive predicted from other frequencies is a guess, and the path
+        # there may cross a resonance. Move the frequency at no more than `START_FRACTION` of
+        # the guess, then raise the drive watching every block; stop near the target.
+        low = START_FRACTION * float(np.max(np.abs(rows_guess)))
+        if plan.freq_hz < synth.freq_hz:
+            # downwards, towards the stiffness line: a drive predicted from above (where mass
+            # dominates) can be many times too much; start from the nominal stiffness instead
+            a = np.abs(plan.shape) > 0
+            prior = np.zeros(2, dtype=np.complex128)
+            prior[a] = np.linalg.solve(self._prior_jacobian(plan)[np.ix_(a, a)], plan.shape[a])
+            low = min(low, START_FRACTION * float(np.max(np.abs(prior))))
+        now = float(np.max(np.abs(synth.phasors)))
+        if now > low:
+            self.stream.advance_to(self._ramp(synth.phasors * (low / now), None))
+        # the frequency moves at the lower of the present and the start drive (upwards from a
+        # low frequency the path may pass the resonance), along the guess's direction
+        level = min(now, low) if now > 0 else low
+        start = rows_guess * (level / max(float(np.max(np.abs(rows_guess))), 1e-12))
+        self.stream.advance_to(self._ramp(start, plan.freq_hz))
+        self._watched_raise(plan, rows_guess, 0.9, cfg.start_growth)
+        if self.limited_by:
+            ctl.saturated = True
+        return ctl, synth.sample
+
+    def _response_cap(self, kind: str) -> float:
+        """The largest response a correction may aim at: a margin under the trip level."""
+        if kind == "displacement":
+            return DISPLACEMENT_MARGIN * self.limits.displacement_limit_m
+        return LOAD_MARGIN * self.limits.max_load_n
 
     @staticmethod
     def _drift(plan: StepPlan, now: tuple[np.ndarray, ...], before: tuple[np.ndarray, ...]
@@ -267,13 +341,18 @@ class StepRunner:
         def cyc(c: float) -> int:
             return cycles_to_samples(f, self.fs, c)
 
+        stream.guard_event = None
+        self._guard_reason = ""
         ctl, change_end = self._start(plan)
         self.limited_by = ""
 
         updates = 0
+        guarded = 0  # soft-limit events in this step
+        breakaways = 0  # raises of a housing that did not move
         w = cyc(cfg.window_cycles)
         settle_tol = cfg.settle_tolerance_pct / 100.0
         prev_ok: tuple[np.ndarray, ...] | None = None  # the last in-tolerance window
+        prev_win: tuple[int, np.ndarray] | None = None  # (change_end, response) of the last
         next_free = change_end + cyc(cfg.wait_cycles)
         while True:
             settle_end = change_end + cyc(spec.settle_cycles)
@@ -284,6 +363,25 @@ class StepRunner:
                 log.debug("%s window %d-%d drive %s response %s", plan.describe(), w0, w0 + w,
                           np.round(drive, 4), np.round(ctrl, 9))
             next_free = w0 + w
+            if stream.guard_event is not None:
+                # the soft limit halved the drive: never again this close in this step
+                _, why = stream.guard_event
+                stream.guard_event = None
+                guarded += 1
+                self.emit("warning", f"{plan.describe()}: drive halved, {why}", next_free)
+                ctl.max_drive_v = min(ctl.max_drive_v, float(np.max(np.abs(drive))))
+                self._guard_reason = f"the soft limit ({why})"
+                ctl.forget()
+                if guarded >= 2 or updates >= spec.max_updates:
+                    ctl.saturated = True
+                    self.limited_by = f"the soft limit ({why})"
+                    return self._failed(plan, w0, w0 + w, updates, start_sample,
+                                        f"stopped below the limits: {why}",
+                                        ctl.assess(ctrl))
+                change_end, next_free = synth.sample, synth.sample + cyc(cfg.wait_cycles)
+                updates += 1
+                prev_ok = prev_win = None
+                continue
             if not self.open_loop_checked[np.abs(plan.shape) > 0].all():
                 self._check_open_loop(plan, drive, w0 + w, w0, w0 + w)
             assess = ctl.assess(ctrl, cfg.aim_fraction if prev_ok is None else 1.0)
@@ -308,7 +406,7 @@ class StepRunner:
                         rec_load = (rec_ctrl if plan.target_kind == "load"
                                     else result.harmonics[self.signals.load_rows, 0])
                         change_end, next_free = self._correct(
-                            ctl, self._axis_drive(synth.to_absolute(synth.phasors)), rec_ctrl,
+                            plan, ctl, self._axis_drive(synth.to_absolute(synth.phasors)), rec_ctrl,
                             rec_load)
                         updates += 1
                         prev_ok = None
@@ -316,39 +414,164 @@ class StepRunner:
                 prev_ok = (ctrl, other, s_ctrl, s_other)
                 continue
             prev_ok = None
+            # a lightly damped housing is still ringing after a change: correct only once two
+            # successive windows agree to within a quarter of the remaining error (Newton on
+            # a transient misleads J), or once the settling time has passed
+            last_win, prev_win = prev_win, (change_end, ctrl)
+            if cfg.algorithm != "proportional" and next_free < settle_end:
+                err = float(np.linalg.norm((ctl.target_for(ctrl) - ctrl)[np.abs(plan.shape) > 0]))
+                if last_win is None or last_win[0] != change_end:
+                    if err < 0.2 * float(np.linalg.norm(plan.shape)):
+                        continue
+                elif float(np.linalg.norm(ctrl - last_win[1])) > 0.25 * err:
+                    continue
+            if (plan.target_kind == "displacement" and cfg.algorithm != "proportional"
+                    and ctl.is_stuck(ctrl) and breakaways < spec.max_updates):
+                # the search for break-away is not a correction: it has its own budget
+                change_end, next_free = self._break_away(plan, ctl, drive, ctrl)
+                breakaways += 1
+                continue
             if updates >= spec.max_updates:
                 why = f"did not converge in {spec.max_updates} updates ({assess.describe()})"
-                if ctl.saturated:
-                    why += f"; the drive is held by {self.limited_by}"
+                if ctl.saturated or self.limited_by:
+                    why += f"; the drive is held by {self.limited_by or 'the drive limit'}"
                 return self._failed(plan, w0, w0 + w, updates, start_sample, why, assess)
-            load = ctrl if plan.target_kind == "load" else other
-            change_end, next_free = self._correct(ctl, drive, ctrl, load)
+            if plan.target_kind == "load":
+                change_end, next_free = self._correct(plan, ctl, drive, ctrl, ctrl, other)
+            else:
+                change_end, next_free = self._correct(plan, ctl, drive, ctrl, other)
             updates += 1
             if self.on_update is not None:
                 self.on_update(updates)
 
-    def _correct(self, ctl: AmplitudeController, drive: np.ndarray, response: np.ndarray,
-                 load: np.ndarray) -> tuple[int, int]:
+    def _break_away(self, plan: StepPlan, ctl: AmplitudeController, drive: np.ndarray,
+                    response: np.ndarray) -> tuple[int, int]:
+        """Raise the drive of a housing that does not move until it moves (`_watched_raise`
+        towards the drive limit, stopping at ``stuck_fraction`` of the target); returns (end of
+        the raise, first sample worth measuring).
+
+        Near break-away a friction-held housing answers a small raise with a large jump (the
+        Den Hartog law, ``X ~ sqrt(F^2 - F_0^2) / k``; at resonance ``(F - F_0) / (c w)``), and
+        a raise is only seen a latency later. Raising by at most ``breakaway_growth`` (10 %) per
+        latency, the jump is what one latency's raise can cause: within ~0.46 F_0 / k
+        quasi-statically, 0.1 F_0 / (c w) at resonance.
+        """
+        ctl.note_stuck(drive, response)
+        top = self.stream.synth.phasors * (self.limits.max_drive_v
+                                           / float(np.max(np.abs(self.stream.synth.phasors))))
+        self._watched_raise(plan, top, ctl.stuck_fraction, self.cfg.breakaway_growth)
+        if self.limited_by:
+            ctl.saturated = True
+        end = self.stream.synth.sample
+        return end, end + cycles_to_samples(self.stream.synth.freq_hz, self.fs,
+                                            self.cfg.wait_cycles)
+
+    def _watched_raise(self, plan: StepPlan, top_rows: np.ndarray, stop_fraction: float,
+                       growth: float) -> None:
+        """Move the drive block by block towards ``top_rows`` (synthesiser frame), the drive
+        vector growing by at most ``growth`` (relative) per latency, watching every block read;
+        stop once the orbit (peak radius over the last cycle, about its mean) reaches
+        ``stop_fraction`` of the target's, or when the drive limit, the load margin, the
+        displacement margin or the soft limit is reached (then `limited_by` says which).
+
+        The latency is the AO written ahead plus one block and one cycle: a raise is seen that
+        much later, so what happens in one latency bounds the overshoot.
+        """
+        stream, synth, fs = self.stream, self.stream.synth, self.fs
+        cyc = cycles_to_samples(synth.freq_hz, fs, 1.0)
+        latency = (stream.ahead_blocks + 1) * stream.block + cyc
+        per_block = (1.0 + growth) ** (stream.block / latency)
+        stop_at = stop_fraction * orbit_peak_radius(plan.shape)
+        cap_d = self._response_cap("displacement")
+        cap_f = LOAD_MARGIN * self.limits.max_load_n
+        top = np.asarray(top_rows, dtype=np.complex128)
+        self.limited_by = ""
+        while True:
+            # towards top (magnitude and phase), the drive vector growing by per_block at most
+            now = synth.phasors
+            room = (per_block - 1.0) * float(np.linalg.norm(now))
+            dist = float(np.linalg.norm(top - now))
+            final = (dist <= room or room == 0.0
+                     or float(np.linalg.norm(top)) <= float(np.linalg.norm(now)))
+            rows = top if final else now + (top - now) * (room / dist)
+            nominal = float(np.max(np.abs(self._axis_drive(rows)) * self.gain_n_per_v))
+            if float(np.max(np.abs(rows))) > self.limits.max_drive_v + 1e-12:
+                self.limited_by = f"the drive limit ({self.limits.max_drive_v:g} V)"
+            elif nominal > cap_f:
+                self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
+            else:
+                synth.ramp_to(rows, None, stream.block / fs)
+            stream.cycle()
+            if stream.guard_event is not None:
+                self.limited_by = f"the soft limit ({stream.guard_event[1]})"
+                return
+            ai, _ = stream.window(stream.sample - cyc, stream.sample)
+            disp = self.signals.displacement(ai)
+            disp = disp - disp.mean(axis=1, keepdims=True)
+            radius = float(np.max(np.hypot(disp[0], disp[1])))
+            if radius > cap_d:
+                self.limited_by = (f"the displacement limit "
+                                   f"({self.limits.displacement_limit_m * 1e6:.4g} um)")
+            elif float(np.max(np.abs(self.signals.load(ai)))) > cap_f:
+                self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
+            if radius >= stop_at or self.limited_by or final:
+                return
+
+    def _correct(self, plan: StepPlan, ctl: AmplitudeController, drive: np.ndarray,
+                 response: np.ndarray,
+                 load: np.ndarray, displacement: np.ndarray | None = None) -> tuple[int, int]:
         """One controller update; returns (end of the ramp, first sample worth measuring).
 
-        The new drive is held to what keeps the load (scaled from the measured ``load`` (2,))
-        within `LOAD_MARGIN` of the load limit: a target the shaker cannot reach ends as a
-        step that did not converge, not as a trip.
+        The controller bounds its own response (`AmplitudeController.response_limit`); the
+        quantity it does not control is bounded here, scaled from its measured value at
+        ``drive``: the load (2,) within `LOAD_MARGIN` of the load limit and, for a load target,
+        the ``displacement`` (2,) within `DISPLACEMENT_MARGIN` of the displacement limit. A
+        target the rig cannot reach safely ends as a step that did not converge, not as a trip.
         """
         synth = self.stream.synth
         new = ctl.update(drive, response)
+        ratio = float(np.linalg.norm(new)) / max(float(np.linalg.norm(drive)), 1e-12)
         cap = LOAD_MARGIN * self.limits.max_load_n
         with np.errstate(divide="ignore", invalid="ignore"):
             predicted = np.abs(load) * np.abs(new) / np.abs(drive)
         over = np.isfinite(predicted) & (predicted > cap)
+        held = ""
         if over.any():
             new = new * float(np.min(cap / predicted[over]))
+            held = f"the load limit ({self.limits.max_load_n:g} N)"
+        if displacement is not None and float(np.linalg.norm(drive)) > 0:
+            cap_d = self._response_cap("displacement")
+            pred_d = orbit_peak_radius(displacement) * ratio
+            if pred_d > cap_d:
+                new = new * (cap_d / pred_d)
+                held = (f"the displacement limit ({self.limits.displacement_limit_m * 1e6:.4g} "
+                        "um)")
+        if held:
             ctl.saturated = True
-            self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
+            self.limited_by = held
+        elif ctl.limited_by == "response":
+            self.limited_by = (
+                f"the displacement limit ({self.limits.displacement_limit_m * 1e6:.4g} um)"
+                if ctl.limit_on_orbit else f"the load limit ({self.limits.max_load_n:g} N)")
         elif ctl.saturated:
-            self.limited_by = f"the drive limit ({self.limits.max_drive_v:g} V)"
+            self.limited_by = (self._guard_reason
+                               or f"the drive limit ({self.limits.max_drive_v:g} V)")
         rows = synth.from_absolute(self._rows_drive(new))
-        end = self._ramp(rows, None)
+        if (displacement is None and self.cfg.algorithm != "proportional"
+                and float(np.linalg.norm(rows))
+                > (1.0 + self.cfg.start_growth) * float(np.linalg.norm(synth.phasors))):
+            # a raise larger than one latency's worth is watched block by block: where the
+            # plant is steeper than its estimate (near break-away, near a resonance) it stops
+            # before the orbit runs away
+            held_before = self.limited_by
+            self._watched_raise(plan, rows, RAISE_STOP, self.cfg.start_growth)
+            if self.limited_by:
+                ctl.saturated = True
+            else:
+                self.limited_by = held_before
+            end = synth.sample
+        else:
+            end = self._ramp(rows, None)
         return end, end + cycles_to_samples(synth.freq_hz, self.fs, self.cfg.wait_cycles)
 
     def _record(self, plan: StepPlan, ctl: AmplitudeController, first: int, updates: int,

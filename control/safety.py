@@ -17,6 +17,7 @@ from typing import Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from control.controller import orbit_peak_radius
 from control.errors import LimitTrip, TargetError
 from control.plan import StepPlan
 from daq.channels import ChannelKind, ChannelMap
@@ -138,7 +139,7 @@ def validate_targets(
             )
         if st.target_kind == "displacement":
             lim = limits.displacement_limit_m
-            peak = _orbit_peak_radius(st.shape)
+            peak = orbit_peak_radius(st.shape)
             if peak > lim:
                 problems.append(
                     f"{where}: displacement {peak * 1e6:.4g} um exceeds the limit "
@@ -158,13 +159,6 @@ def validate_targets(
                 )
     if problems:
         raise TargetError("sweep refused:\n  " + "\n  ".join(problems))
-
-
-def _orbit_peak_radius(shape: np.ndarray) -> float:
-    """Largest |(x, y)| over a cycle of the orbit Re(shape e^{iwt}) [same unit]."""
-    wt = np.linspace(0, 2 * np.pi, 721)
-    e = np.exp(1j * wt)
-    return float(np.max(np.hypot((shape[0] * e).real, (shape[1] * e).real)))
 
 
 class SafetyMonitor:

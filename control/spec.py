@@ -72,6 +72,17 @@ class ControlSettings(BaseModel):
                     "recording must be inside the whole band)",
     )
     max_growth: float = Field(2.0, gt=0, le=10, description="largest relative drive change")
+    breakaway_growth: float = Field(
+        0.1, gt=0, le=1,
+        description="while the housing does not move, largest relative drive raise per "
+                    "latency (AO lead plus one cycle): bounds the jump from stick to slip",
+    )
+    start_growth: float = Field(
+        0.2, gt=0, le=1,
+        description="largest relative drive raise per latency when a displacement step starts "
+                    "at a new frequency (from 80 % of the predicted drive) or a correction "
+                    "raises the drive, watching the response block by block",
+    )
     algorithm: Literal["newton_broyden", "proportional"] = Field(
         "newton_broyden",
         description="2x2 Newton-Broyden (default) or a plain per-axis proportional level loop",

@@ -23,6 +23,9 @@ from daq.backend import DaqBackend
 
 log = logging.getLogger(__name__)
 
+#: What the soft limit (`DriveStream.guard`) leaves of the drive.
+GUARD_CUT = 0.5
+
 
 @dataclass
 class _SynthState:
@@ -95,6 +98,11 @@ class DriveStream:
         self._hist_len = 0
         self._started = False
         self.zero_sample: int | None = None  # first sample of the final all-zero output
+        #: the soft limit: called with every engineering block read while limits are checked;
+        #: a non-empty answer (why) halves the drive at once and is kept in `guard_event`
+        #: (first sample of the block, why) until the caller clears it
+        self.guard: Callable[[np.ndarray], str] | None = None
+        self.guard_event: tuple[int, str] | None = None
 
     # --- running ----------------------------------------------------------------------------
     def start(self) -> None:
@@ -144,6 +152,14 @@ class DriveStream:
         self.listener.on_block(first, eng, ao)
         if check:
             self.monitor.check_ai(eng, first)
+            if self.guard is not None:
+                why = self.guard(eng) if self.guard_event is None else ""
+                if why:
+                    # halve both drives within a block, from what is generated next (the AO
+                    # already written still plays): the trip level is not reached
+                    self.synth.ramp_to(self.synth.phasors * GUARD_CUT, None,
+                                       self.block / self.cm.sample_rate_hz)
+                    self.guard_event = (first, why)
 
     def window(self, first: int, last: int) -> tuple[np.ndarray, np.ndarray]:
         """AI (engineering units) and AO samples ``first <= k < last``, already read."""

@@ -12,7 +12,7 @@ from control.sweep import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
 from daq.errors import DaqTimeoutError
 from simulated_hw.params import RigParams
-from tests.control.conftest import WriteLog, make_backend
+from tests.control.conftest import GainJump, WriteLog, make_backend
 
 FS = 10_000
 
@@ -27,16 +27,18 @@ def _assert_safe_ramp(ao: np.ndarray, trip_sample: int) -> None:
 
 
 def test_displacement_trip_ramps_both_drives_to_zero_within_100_ms():
-    be = make_backend(seed=8)
+    # the controller keeps its own drive inside the limits; a trip needs a cause it cannot
+    # foresee: the amplifier's gain doubles at 1.5 s of a dry 30 N X step at 30 Hz
+    be = GainJump(RigParams(), seed=8, factor=2.0, at_sample=15_000)
+    be.configure(default_channel_map())
     rec = RecordingListener()
-    # dry, 40 N circular: the simulated housing passes 63.5 um (the default limit) near 30 Hz
-    spec = SweepSpec(motion="circular_forward", load_n=[40.0], freq_start_hz=20,
-                     freq_stop_hz=60, freq_step_hz=5)
+    spec = SweepSpec(motion="x", load_n=[30.0], freq_hz=[30.0], record_cycles=200)
     out = SweepEngine(be, spec, listener=rec).run()
     assert out.status == "aborted"
     trips = rec.events_of("limit_trip")
     assert len(trips) == 1 and "exceeds the 63.5 um limit" in trips[0][1]
     k = trips[0][2]
+    assert k > 15_000
     # the trip is stamped at the first sample over the limit
     ai = rec.ai()
     cm = default_channel_map()

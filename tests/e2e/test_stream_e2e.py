@@ -15,7 +15,7 @@ from storage.reader import open_run
 
 pytestmark = pytest.mark.e2e
 
-DRY_X = {"motion": "x", "load_n": [40.0], "freq_hz": [30.0, 50.0], "settle_cycles": 5,
+DRY_X = {"motion": "x", "load_n": [30.0], "freq_hz": [30.0, 50.0], "settle_cycles": 5,
          "record_cycles": 10}
 # Paced runs on a shared, loaded test machine: the most AO lead the 100 ms budget allows.
 # 40 N dry stays inside the displacement limit away from the 45 Hz dry resonance.

@@ -1,0 +1,122 @@
+"""Anticipating control on the simulated rig: limits are kept by the controller, not by trips.
+
+The dry rig (seal friction 26 N, C_rv = 370 N.s/m, resonance near 45 Hz) answers a small drive
+raise near break-away with a large jump; the lubricated rig is well damped. Every sweep here must
+end without a limit trip and with its orbit inside the displacement limit; a step either
+converges or says why not (a target the shakers cannot reach, the soft limit).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from control.listener import RecordingListener
+from control.pump import PumpRelay
+from control.safety import AxisSignals, SafetyLimits
+from control.sweep import SweepEngine, SweepSpec
+from daq.channels import default_channel_map
+from simulated_hw.params import RigParams
+from tests.control.conftest import make_backend
+
+LIMIT_M = SafetyLimits().displacement_limit_m  # 63.5 um
+FRAME = {"effects": {"second_mode": {"enabled": True, "frequency_hz": 39.0}}}
+
+
+class PeakOrbit(RecordingListener):
+    """Keeps the largest measured orbit radius of the run (mean of the probes per axis)."""
+
+    def __init__(self) -> None:
+        super().__init__(keep_blocks=False)
+        self.signals = AxisSignals.from_channel_map(default_channel_map())
+        self.peak_m = 0.0
+
+    def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
+        super().on_block(first_sample, ai, ao)
+        d = self.signals.displacement(ai)
+        self.peak_m = max(self.peak_m, float(np.max(np.hypot(d[0], d[1]))))
+
+
+def _sweep(spec: SweepSpec, frame: bool = False, seed: int = 0) -> tuple:
+    be = make_backend(RigParams.model_validate(FRAME) if frame else RigParams(), seed=seed)
+    pump = None
+    if spec.lubricated:
+        pump = PumpRelay(be)
+        pump.set(True)
+    rec = PeakOrbit()
+    out = SweepEngine(be, spec, listener=rec, pump=pump).run()
+    return out, rec
+
+
+@pytest.mark.parametrize(("motion", "amps", "freqs"), [
+    ("x", [20e-6], [20.0]),  # tripped at step 1: the stuck branch tripled the drive
+    ("circular_forward", [10e-6, 20e-6], [20.0]),
+    ("circular_forward", [30e-6], [70.0]),
+    ("y", [10e-6], [20.0]),
+    ("x", [30e-6], [20.0, 70.0]),  # tripped on the way from 20 to 70 Hz
+])
+def test_the_issues_dry_cases_converge_without_a_trip(motion, amps, freqs):
+    spec = SweepSpec(motion=motion, amplitude_m=amps, freq_hz=freqs)
+    out, rec = _sweep(spec)
+    assert not rec.events_of("limit_trip"), rec.events_of("limit_trip")
+    assert out.status == "completed", out.reason
+    assert all(s.converged for s in out.steps)
+    assert rec.peak_m < LIMIT_M
+
+
+def _matrix_case(spec: SweepSpec, frame: bool) -> tuple[int, int, list[str]]:
+    out, rec = _sweep(spec, frame)
+    where = f"{spec.motion}, frame mode {frame}"
+    assert not rec.events_of("limit_trip"), (where, rec.events_of("limit_trip"))
+    assert out.status == "completed", (where, out.reason)
+    assert rec.peak_m < LIMIT_M, (where, rec.peak_m)
+    for s in out.steps:
+        # not converged: the reason is given, and it is a reason, not a trip
+        assert s.converged or s.reason.startswith(("did not converge", "stopped below")), s.reason
+    reasons = [s.reason for s in out.steps if not s.converged]
+    return sum(s.converged for s in out.steps), len(out.steps), reasons
+
+
+MOTIONS = ["x", "y", "circular_forward", "circular_backward", "elliptical"]
+
+
+def test_dry_displacement_through_the_resonance_subset():
+    """CI's share of the matrix below: X and a backward orbit, up and down through 45 Hz."""
+    spec = SweepSpec(motion="circular_backward", amplitude_m=[25e-6], freq_hz=[30.0, 45.0, 60.0],
+                     on_not_converged="continue")
+    ok, n, _ = _matrix_case(spec, frame=False)
+    assert ok == n
+    spec = SweepSpec(motion="x", amplitude_m=[40e-6, 10e-6], freq_hz=[60.0, 35.0, 20.0],
+                     on_not_converged="continue")
+    ok, n, _ = _matrix_case(spec, frame=True)
+    assert ok >= n - 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("frame", [False, True])
+@pytest.mark.parametrize("motion", MOTIONS)
+def test_dry_displacement_matrix(motion: str, frame: bool):
+    """10-40 um, 20-200 Hz through the resonance (45 Hz; with the frame mode near 39 Hz).
+
+    Measured on this rig model: 18 steps per sweep, 15-17 converge; the rest are 40 um at
+    200 Hz (needs ~580 N, held by the load limit) and a few 10-25 um steps near the dry
+    resonance, where 1 % of 10 um is 0.01 N of drive on a friction-held housing."""
+    spec = SweepSpec(motion=motion, amplitude_m=[10e-6, 25e-6, 40e-6],
+                     freq_hz=[20.0, 35.0, 45.0, 60.0, 100.0, 200.0], ellipse_ratio=0.6,
+                     ellipse_phase_deg=-60.0, on_not_converged="continue")
+    ok, n, _ = _matrix_case(spec, frame)
+    assert n == 18 and ok >= 14
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("motion", MOTIONS)
+def test_lubricated_displacement_matrix(motion: str):
+    """13-38 um, 20-200 Hz: all converge but 25 and 38 um at 200 Hz, which need more than the
+    load limit (M + D ~ 18 kg: 25 um at 200 Hz is ~700 N) and stop with that reason (measured:
+    16 of 18 for X and Y, 15-16 for the orbits)."""
+    spec = SweepSpec(motion=motion, lubricated=True, amplitude_m=[13e-6, 25e-6, 38e-6],
+                     freq_hz=[20.0, 30.0, 45.0, 60.0, 100.0, 200.0], ellipse_ratio=0.6,
+                     ellipse_phase_deg=-60.0, on_not_converged="continue")
+    ok, n, reasons = _matrix_case(spec, frame=False)
+    assert n == 18 and ok >= 15
+    assert all("load limit" in r for r in reasons), reasons
