@@ -200,7 +200,9 @@ def test_a_viewer_sees_the_page_and_controls_nothing(daemon_factory, web_factory
     make_keys(stranger, commanders=["mallory"], readers=[])
     page.set_input_files("#key", str(stranger / "clients" / "mallory.key_secret"))
     page.click("#login")
-    assert "login refused: this key is not authorised" in page.inner_text("body")
+    # the form's POST navigates: wait for its answer, not for the click
+    page.wait_for_function(
+        "document.body.innerText.includes('login refused: this key is not authorised')")
 
     page.goto(url)
     page.set_input_files("#key", str(keys / "clients" / "viewer.key_secret"))

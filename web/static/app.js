@@ -198,16 +198,23 @@ function drawStatus(fr) {
   }
 }
 
+let drawnSteps = -1;
 function onFrame(fr) {
   window.sfdrig.lastFrame = fr;
+  // redraw the plots only when something new came (no new block between runs: the page idles)
+  const fresh = fr.block_seq !== window.sfdrig.lastBlockSeq || window.sfdrig.frames === 0;
+  window.sfdrig.lastBlockSeq = fr.block_seq;
   drawStatus(fr);
-  if (fr.traces) drawTraces(fr.traces, fr.status);
-  drawOrbit(fr.traces, fr.status);
-  drawHarmonics(fr.traces);
-  drawSteps(fr.steps);
+  if (fresh) {
+    if (fr.traces) drawTraces(fr.traces, fr.status);
+    drawOrbit(fr.traces, fr.status);
+    drawHarmonics(fr.traces);
+  }
+  if (fresh || fr.steps.length !== drawnSteps) { drawSteps(fr.steps); drawnSteps = fr.steps.length; }
   window.sfdrig.frames += 1;
   // sample-to-screen latency: from the daemon's acquisition of the newest block to this paint
-  if (fr.t_acquired > 0) {
+  // (frames that bring no new block, e.g. between runs, are not counted)
+  if (fr.t_acquired > 0 && fresh) {
     requestAnimationFrame(() => {
       const l = window.sfdrig.latencies;
       l.push(Date.now() / 1000 - fr.t_acquired);

@@ -1,0 +1,232 @@
+"""sfdrig web under load: 16 AI at 62.5 kS/s, N browsers at once, sample-to-screen latency, memory.
+
+A real daemon process paced to the wall clock (the 16-channel map of bench_e2e: 1 MS/s of AI), a
+real `sfdrig web` process subscribed to it, and N pages in Debian's headless Chromium (one
+browser, a separate context and renderer per page) driven by Playwright. A lubricated sweep runs
+for ``--seconds``. Reported:
+
+- sample-to-screen latency per painted frame: the page's clock when the frame is painted
+  (``requestAnimationFrame`` after drawing) minus the daemon's ``t_acquired`` of the newest block
+  in that frame. It includes the wait for the next frame tick (10 frames/s: 0-100 ms);
+- blocks lost: by the daemon's publisher queue (``dropped_in_daemon``), by the web process's
+  subscription (sequence gaps), and in the run file (samples written against samples acquired);
+- the web process's resident memory, sampled every 5 s, and its CPU.
+
+The browsers run at niceness 10 (``--browser-nice``): on the rig the browsers sit on other
+machines, here they share 2 cores with the paced daemon.
+
+Usage: .venv/bin/python benchmarks/bench_web.py [--seconds 300] [--browsers 8]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_e2e import channel_map_toml, cpu_s, pct  # noqa: E402  (same directory)
+
+REPO = Path(__file__).resolve().parents[1]
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                  "--no-first-run", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync"]
+
+
+def first_line(proc: subprocess.Popen[str], what: str, timeout_s: float = 120.0) -> str:
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)  # type: ignore[arg-type]
+    ready = sel.select(timeout_s)
+    sel.close()
+    if not ready:
+        proc.kill()
+        raise SystemExit(f"{what} did not start within {timeout_s:g} s")
+    return proc.stdout.readline().strip()  # type: ignore[union-attr]
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+class SocketClients:
+    """N WebSocket clients of the page's /ws in a thread: frames received and the latency from
+    the daemon's ``t_acquired`` to receipt (what a browser gets before it draws)."""
+
+    def __init__(self, url: str, n: int) -> None:
+        self.ws_url = url.replace("http://", "ws://") + "ws"
+        self.n = n
+        self.latencies: list[float] = []
+        self.frames = [0] * n
+        self.last: dict[str, Any] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=lambda: asyncio.run(self._main()), daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def reset(self) -> None:
+        self.latencies = []
+
+    async def _client(self, session: Any, i: int) -> None:
+        last_seq = None
+        async with session.ws_connect(self.ws_url, max_msg_size=0) as ws:
+            while not self._stop.is_set():
+                try:
+                    msg = await asyncio.wait_for(ws.receive(), 0.5)
+                except TimeoutError:
+                    continue
+                fr = json.loads(msg.data)
+                if fr.get("type") != "frame":
+                    continue
+                self.frames[i] += 1
+                self.last = fr
+                if fr["t_acquired"] > 0 and fr["block_seq"] != last_seq:
+                    self.latencies.append(time.time() - fr["t_acquired"])
+                last_seq = fr["block_seq"]
+
+    async def _main(self) -> None:
+        import aiohttp
+
+        async with aiohttp.ClientSession() as session:
+            await asyncio.gather(*(self._client(session, i) for i in range(self.n)))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(10)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=300.0, help="sweep time measured [s]")
+    ap.add_argument("--browsers", type=int, default=8, help="Chromium pages")
+    ap.add_argument("--ws-clients", type=int, default=0,
+                    help="plain WebSocket clients of the page's frame stream (no drawing)")
+    ap.add_argument("--browser-nice", type=int, default=10,
+                    help="niceness of the browsers (and of this script) [0-19]")
+    ap.add_argument("--fast", action="store_true",
+                    help="daemon in --fast mode (not paced: more data than real time, no AO "
+                         "underflow; latencies then mean nothing): for memory and lost blocks")
+    ap.add_argument("--dir", type=Path, default=None, help="where the run file goes")
+    args = ap.parse_args()
+    from playwright.sync_api import sync_playwright
+
+    from control.client import CommandClient
+    from storage.reader import open_run
+
+    work = Path(tempfile.mkdtemp(prefix="bench_web_", dir=args.dir))
+    channels = work / "channels16.toml"
+    channels.write_text(channel_map_toml())
+    runs = work / "runs"
+    daemon = subprocess.Popen([sys.executable, "-m", "sfdrig", "daemon", "--runs-dir", str(runs),
+                               "--channels", str(channels), *(["--fast"] if args.fast else [])],
+                              cwd=REPO, stdout=subprocess.PIPE,
+                              text=True)
+    eps = dict(p.split("=", 1) for p in first_line(daemon, "daemon").split())
+    web = subprocess.Popen([sys.executable, "-m", "sfdrig", "web", "--port", "0",
+                            "--command-endpoint", eps["command"], "--data-endpoint", eps["data"]],
+                           cwd=REPO, stdout=subprocess.PIPE, text=True)
+    url = first_line(web, "sfdrig web").removeprefix("url=")
+    print(f"daemon {eps}; web {url}; {args.browsers} browsers, {args.ws_clients} WebSocket "
+          f"clients; {args.seconds:g} s")
+    sockets = SocketClients(url, args.ws_clients)
+    if args.ws_clients:
+        sockets.start()
+    spec = {"name": "bench_web", "motion": "x", "lubricated": True,
+            "amplitude_m": [13e-6, 25e-6, 38e-6], "freq_hz": [20.0, 30.0, 40.0, 50.0, 60.0],
+            "settle_cycles": 10, "record_cycles": 1500,
+            "control": {"block_s": 0.0125, "ahead_blocks": 3}}
+    rss: list[tuple[float, float]] = []
+    # The browsers (children of this process from here on) run at lower priority than the daemon:
+    # at full priority, 1-8 software-rendered pages on this 2-core machine starve the paced
+    # daemon past its 37.5 ms of AO lead and it faults (DAQmx -200290) within 0.2 s of the start.
+    os.nice(args.browser_nice)
+    with sync_playwright() as p, CommandClient(eps["command"], timeout_s=20) as c:
+        browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_FLAGS)
+        pages = []
+        for _ in range(args.browsers):
+            page = browser.new_context().new_page()
+            page.goto(url)
+            page.wait_for_function("window.sfdrig.frames >= 1", timeout=60_000)
+            pages.append(page)
+        c.pump(True)
+        seq0 = c.status()["next_seq"]["block"]
+        reply = c.start_sweep(spec, operator="bench_web")
+        while (st := c.status())["samples"] == 0 and st["state"] in ("arming", "running"):
+            time.sleep(0.05)  # polling the daemon's status, not synchronisation
+        for page in pages:
+            page.evaluate("window.sfdrig.latencies = []")
+        sockets.reset()
+        t0, cpu0, s0 = time.monotonic(), cpu_s(web.pid), st["samples"]
+        while (t := time.monotonic() - t0) < args.seconds:
+            rss.append((t, rss_mb(web.pid)))
+            for page in pages:  # lets Playwright service the pages while we wait
+                page.wait_for_timeout(5000 / len(pages))
+            if not pages:
+                time.sleep(5.0)  # the sampling period of the memory figure
+            st = c.status()
+            if st["state"] not in ("arming", "running", "paused"):
+                break
+        elapsed, cpu = time.monotonic() - t0, cpu_s(web.pid) - cpu0
+        samples = st["samples"] - s0
+        lat = [v for page in pages for v in page.evaluate("window.sfdrig.latencies")]
+        frames = [page.evaluate("window.sfdrig.frames") for page in pages]
+        web_lost = pages[0].evaluate("window.sfdrig.lastFrame.lost") if pages else \
+            sockets.last.get("lost")
+        socket_lat, socket_frames = list(sockets.latencies), list(sockets.frames)
+        if st["state"] in ("running", "paused"):
+            c.abort("bench_web: measurement over")
+        while (st := c.status())["state"] not in ("idle", "fault"):
+            time.sleep(0.2)
+        n_blocks = st["next_seq"]["block"] - seq0
+        browser.close()
+    if args.ws_clients:
+        sockets.close()
+    web.send_signal(signal.SIGTERM)
+    web.wait(30)
+    daemon.send_signal(signal.SIGTERM)
+    daemon.wait(60)
+    with open_run(reply.data["path"]) as run:
+        n_file = run.n_samples
+    last = st["last_run"]
+    mem = np.asarray(rss)
+    warm = mem[mem[:, 0] >= 30.0] if (mem[:, 0] >= 30.0).sum() >= 2 else mem
+    slope = np.polyfit(warm[:, 0] / 60, warm[:, 1], 1)[0] if len(warm) >= 2 else float("nan")
+    print(f"run {reply.data['run_id']}: {last['status']} ({last['reason']}); "
+          f"{samples} samples x 16 AI in {elapsed:.1f} s = {samples * 16 / elapsed / 1e6:.3f} MS/s")
+    block_n = int(round(spec["control"]["block_s"] * 62_500))  # type: ignore[index]
+    print(f"daemon: dropped_in_daemon {st['dropped_in_daemon']}; {n_blocks} blocks published; "
+          f"run file {n_file} samples = {n_file / block_n:.2f} blocks of {block_n}")
+    print(f"web subscription lost (seq gaps): {web_lost}; web CPU "
+          f"{100 * cpu / elapsed:.0f} % of one core")
+    for what, fr, lt in (("browser (painted)", frames, lat),
+                         ("WebSocket client (received)", socket_frames, socket_lat)):
+        if not fr:
+            continue
+        ms = np.asarray(lt) * 1e3
+        print(f"frames per {what}: min {min(fr)} max {max(fr)} ({min(fr) / elapsed:.1f}-"
+              f"{max(fr) / elapsed:.1f} /s); sample-to-{what.split()[0]} latency over {len(ms)} "
+              f"frames: p50 {pct(list(ms), 50):.0f} ms, p99 {pct(list(ms), 99):.0f} ms, "
+              f"max {ms.max() if ms.size else float('nan'):.0f} ms")
+    print(f"web RSS: start {mem[0, 1]:.0f} MB, after 30 s {warm[0, 1]:.0f} MB, end "
+          f"{mem[-1, 1]:.0f} MB, max {mem[:, 1].max():.0f} MB; slope after 30 s "
+          f"{slope:+.2f} MB/min over {mem[-1, 0] / 60:.1f} min")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
