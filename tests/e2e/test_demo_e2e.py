@@ -33,6 +33,9 @@ def test_demo_stores_runs_and_writes_the_report(tmp_path: Path):
     figures = list((out / "report" / "figures").glob("*.png"))
     assert len(figures) >= 10
     # the numbers the report is about (Table 4, Table 2): the simulated rig has the report's
+    # the simulated reference is what the sweeps ran with (26 N seal), not the seal-off
+    # structure runs' configuration
+    assert report["simulated_reference"]["F_mu_N"] == 26.0
     dry = report["dry"]["table4"]["identified"]
     assert dry["F_mu_N"] == pytest.approx(26.0, rel=0.05)
     assert dry["C_rv_Ns_per_m"] == pytest.approx(370.0, rel=0.15)
