@@ -6,8 +6,10 @@ module writes the JSON, the extended rig TOML and the HTML page. The effect libr
 
 Modules: ``data`` (runs, segments, train/held-out split), ``model`` (the replay through
 `simulated_hw.simulate_response`), ``effects`` (the library), ``fitting`` (output-error
-Levenberg-Marquardt), ``engine`` (baseline, rounds, significance, bootstrap), ``residual_analysis``
-(per dwell / harmonic / segment numbers), ``report`` (JSON, TOML, HTML + PNG).
+Levenberg-Marquardt), ``start`` (the fitted baseline's start from the data: dynamic stiffness
+per dwell or H1 FRF), ``engine`` (baseline, rounds, significance, bootstrap), ``verdict`` (the
+baseline and the final model against the held-out signal), ``residual_analysis`` (per dwell /
+harmonic / segment numbers), ``report`` (JSON, TOML, HTML + PNG).
 
 Limits, stated:
 - ``sensor_gain`` and ``channel_delay`` need two displacement channels on the axis (probes x1,
@@ -15,6 +17,8 @@ Limits, stated:
   evidence only (they are not in the fitted objective).
 - The fitted baseline fits one mass and one damping for both axes and a stiffness per axis
   (RigParams has one mass and one residual damping).
+- Imported runs without a rig description are replayed with the seal off and the film as the
+  run file's lubricated flag says.
 - Lubricated runs are replayed with the film full from sample 0 and the oil temperature of the
   configuration (initial temperature, configured warming): a drift shows as ``viscosity_drift``,
   corroborated by the recorded oil temperature when there is one.

@@ -21,11 +21,15 @@ Procedure
    overfitted effect makes some held-out segments worse).
    Samples of one segment are correlated, so the criterion alone would be lax: the bootstrap
    over whole segments is the significance check.
-3. Unexplained: when a structured discrepancy remains, i.e. the held-out error after the findings
-   still exceeds half the baseline's (in the part above the noise floor, where dwells give one).
-   Findings are then marked low-confidence; so is a finding whose runner-up (not found itself
-   in a later round) explains the held-out
-   data nearly as well (held-out MSE within 25 %).
+   Not a finding, whatever its held-out gain: a term that raises the training error, one
+   whose fitted parameter sits on a bound of its fit, a mode outside the excited band.
+3. Verdict against the signal (``verdict.py``): the held-out fraction of the signal above the
+   noise floor that the baseline and the final model explain. Below 90 % the verdict is
+   "baseline inadequate" (with the residual's spectral peaks and the channels explained
+   worst); above it, a share of more than 2 % left is "unexplained". Under either, and when a
+   baseline parameter sits on a bound, every finding is low-confidence; so is a finding whose
+   runner-up (not found itself in a later round) explains the held-out data nearly as well
+   (held-out MSE within 25 %).
 """
 
 from __future__ import annotations
@@ -47,8 +51,10 @@ from analysis.diagnose.effects import (
     extended_rig,
     parameters_of,
 )
-from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit
+from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit, train_sse
 from analysis.diagnose.model import Evaluator, Model, Param, Residuals, residuals, rig_param
+from analysis.diagnose.start import OneMode, one_mode_estimate
+from analysis.diagnose.verdict import Verdict, excited_band, judge, noise_by_channel
 from simulated_hw.params import RigParams
 
 
@@ -104,6 +110,7 @@ class Diagnosis:
     extended_rig: RigParams
     elapsed_s: float
     notes: list[str] = field(default_factory=list)
+    verdict: Verdict | None = None
 
     @property
     def baseline_rms(self) -> float:
@@ -136,6 +143,7 @@ class Diagnosis:
             "not_applicable": self.skipped,
             "elapsed_s": self.elapsed_s,
             "notes": self.notes,
+            "verdict": self.verdict.to_dict() if self.verdict else None,
         }
 
 
@@ -174,6 +182,50 @@ def _fit_subset(ev: Evaluator, train: list[Segment], budget: float) -> list[Segm
     k = max(2, int(len(train) * budget / total))
     idx = np.unique(np.linspace(0, len(train) - 1, k).round().astype(int))
     return [train[i] for i in idx]
+
+
+def _data_start(records: list[RunRecord], train: list[Segment], base_rig: RigParams,
+                notes: list[str], say: Any) -> tuple[Model, float]:
+    """Start of the fitted baseline from the data alone, and the replay's warm-up [s].
+
+    A frequency-domain fit of the dynamic stiffness per axis (``start.py``), the film's known
+    added mass and centred damping taken off when the runs are lubricated; the equation-error
+    ARX estimate where that has too few points. The warm-up before each replayed segment covers
+    four decay times of the estimated mode (at least 0.5 s, at most 30 s), so a lightly damped
+    structure has forgotten its start from rest before it is scored.
+    """
+    film = base_rig.film
+    lub = any(r.lubricated for r in records)
+    d_mass = film.fluid_mass_kg + film.added_mass() if lub else 0.0
+    d_damp = (film.eq16_damping_centred(film.viscosity_pa_s(base_rig.oil.initial_temperature_c))
+              if lub else 0.0)
+    est = {ax: one_mode_estimate(records, train, ax, d_mass, d_damp) for ax in (0, 1)}
+    st = base_rig.structure
+    x, y = est[0], est[1]
+    if x is None and y is None:
+        try:
+            m_kg, c, k, _ = arx_linear_guess(records[0], train)
+        except ValueError as err:
+            raise DiagnoseError(f"cannot start the fitted baseline: {err}") from None
+        x = OneMode(m_kg, c, k, 0)
+        notes.append("fitted baseline started from an equation-error (ARX) estimate")
+    first = x if x is not None else y
+    assert first is not None
+    update = {"mass_kg": first.mass_kg, "residual_damping_ns_per_m": first.damping_ns_per_m,
+              "stiffness_x_n_per_m": (x or first).stiffness_n_per_m,
+              "stiffness_y_n_per_m": (y or first).stiffness_n_per_m}
+    if first.damping_ns_per_m <= 0.0:
+        update["residual_damping_ns_per_m"] = 0.02 * 2 * math.sqrt(
+            first.stiffness_n_per_m * first.mass_kg)
+    model = Model(rig=base_rig.model_copy(update={"structure": st.model_copy(update=update)}))
+    tau = first.decay_time_s()
+    warmup = float(min(30.0, max(0.5, 4 * tau)))
+    say(f"start from the data: {first.natural_hz:.4g} Hz, damping ratio "
+        f"{first.damping_ratio:.3g}, warm-up {warmup:.3g} s")
+    notes.append(f"fitted baseline started from the data ({first.points} frequency points): "
+                 f"{first.natural_hz:.4g} Hz, damping ratio {first.damping_ratio:.3g}; each "
+                 f"replayed window starts {warmup:.3g} s early (four decay times) from rest")
+    return model, warmup
 
 
 # --- significance ------------------------------------------------------------------------
@@ -256,18 +308,24 @@ def diagnose(
     base_rig = rig or records[0].rig or RigParams()
     oversample: dict[int, int] = {}
     if imported:
-        # imported data: no seal, no film, force interpolated between samples (see model.py)
+        # imported data without a rig description: no seal; the film as the run file says
+        # (its lubricated flag); force interpolated between samples (see model.py)
         base_rig = base_rig.model_copy(update={"seal": base_rig.seal.model_copy(
             update={"enabled": False})})
         for i, r in enumerate(records):
             oversample[i] = int(min(32, max(1, math.ceil(4000.0 / r.sample_rate_hz))))
-            r.lubricated = False
-        notes.append("imported data: seal and film off; force oversampled "
-                     f"x{oversample[0]} for the replay")
+        films = sorted({"film on (lubricated)" if r.lubricated else "film off (dry)"
+                        for r in records})
+        notes.append(f"imported data without a rig description: seal off, {', '.join(films)}; "
+                     f"force oversampled x{oversample[0]} for the replay")
     if len(rates) > 1:
         notes.append(f"runs at different sample rates {sorted(rates)}")
     train, test = split_segments(records, train_spans, test_spans)
-    ev = Evaluator(records, warmup_s=0.5, oversample=oversample)
+    start_model = Model(rig=base_rig)
+    warmup_s = 0.5
+    if kind == "fitted":
+        start_model, warmup_s = _data_start(records, train, base_rig, notes, say)
+    ev = Evaluator(records, warmup_s=warmup_s, oversample=oversample)
     fit_train = _fit_subset(ev, train, fit_budget_steps)
     if len(fit_train) < len(train):
         notes.append(f"fitted on {len(fit_train)} of {len(train)} training segments "
@@ -278,17 +336,11 @@ def diagnose(
     # residual samples used by the fit: about 10 per period of the 5th harmonic
     f_hi = max([s.freq_hz for s in train if s.freq_hz] or [0.0])
     step = max(1, int(min(r.sample_rate_hz for r in records) / (50 * f_hi))) if f_hi else 1
-    model = Model(rig=base_rig)
+    model = start_model
     free: list[Param] = []
     free_base: list[Param] = []
     bparams: dict[str, float] = {}
     if kind == "fitted":
-        if imported:
-            m_kg, c, k, _ = arx_linear_guess(records[0], fit_train)
-            st = base_rig.structure.model_copy(update={
-                "mass_kg": m_kg, "residual_damping_ns_per_m": c,
-                "stiffness_x_n_per_m": k, "stiffness_y_n_per_m": k})
-            model = Model(rig=base_rig.model_copy(update={"structure": st}))
         free = baseline_params(model, records, imported)
         say(f"fitting the linear baseline ({', '.join(p.name for p in free)})")
         model = fit(ev, [model], free, fit_train, scale_m, max_nfev=60, step=step).model
@@ -310,6 +362,8 @@ def diagnose(
     skipped = {e.id: why for e in lib if (why := e.applicable(ctx)) is not None}
     lib = [e for e in lib if e.id not in skipped]
 
+    lo_hz, hi_hz = excited_band(records, train)
+    band = (lo_hz / 1.25, hi_hz * 1.25)
     findings: list[Finding] = []
     rounds: list[list[dict[str, Any]]] = []
     current, cur_test = model, base_test
@@ -333,7 +387,21 @@ def diagnose(
             cands.append(_judge(ev, eff.id, var, res, fit_train, test, len(free)))
             say(f"  {eff.id:28s} held-out {cands[-1].test_rms:.4g}  "
                 f"({time.process_time() - t0:.1f} s CPU, {res.nfev} evaluations)")
+        cur_train = train_sse(ev, current, fit_train)[0]
+        rejected: list[dict[str, Any]] = []
+        kept: list[Candidate] = []
+        for cand in cands:
+            why = _not_a_finding(cand, cur_train, band)
+            if why is None:
+                kept.append(cand)
+            else:
+                rejected.append({"effect": cand.effect, "not_a_finding": why,
+                                 "parameters": parameters_of(cand.variant, cand.fit.model),
+                                 "held_out_error": cand.test_rms})
+                say(f"  {cand.effect:28s} not a finding: {why}")
+        cands = kept
         if not cands:
+            rounds.append(rejected)
             break
         cands.sort(key=lambda c: c.criterion)
         if free:
@@ -348,13 +416,24 @@ def diagnose(
                     cands[i] = _judge(ev, cand.effect, cand.variant, res, fit_train, test,
                                       len(free))
                 say(f"  joint refit {cand.effect:16s} held-out {cands[i].test_rms:.4g}")
+            # a joint refit may move a parameter onto its bound or raise the training error
+            for cj in list(cands):
+                why = _not_a_finding(cj, cur_train, band)
+                if why is not None:
+                    cands.remove(cj)
+                    rejected.append({"effect": cj.effect, "not_a_finding": f"joint refit: {why}",
+                                     "parameters": parameters_of(cj.variant, cj.fit.model),
+                                     "held_out_error": cj.test_rms})
+            if not cands:
+                rounds.append(rejected)
+                break
             cands.sort(key=lambda c: c.criterion)
         before = cur_test.rms()
         rounds.append([{
             "effect": c.effect, "parameters": parameters_of(c.variant, c.fit.model),
             "held_out_error": c.test_rms, "gain": before / c.test_rms, "criterion": c.criterion,
             "train_error": math.sqrt(c.fit.train_sse / c.fit.train_n), "n_params": c.k,
-        } for c in cands])
+        } for c in cands] + rejected)
         top = cands[0]
         gain = before / top.test_rms
         lo, hi = bootstrap_gain(cur_test, top.test, test, seed + len(findings))
@@ -386,14 +465,21 @@ def diagnose(
         free = free + top.variant.params
         current, cur_test, cur_crit = top.fit.model, top.test, top.criterion
 
-    # unexplained: a structured discrepancy left
+    # verdict against the signal: what the baseline and the final model explain of it
     rows_base = ra.dwell_table(records, base_test, test)
     noise = ra.noise_floor(rows_base)
-    n2 = (noise or 0.0) ** 2
-    struct_before = max(base_test.rms() ** 2 - n2, 0.0)
-    struct_after = max(cur_test.rms() ** 2 - n2, 0.0)
-    discrepancy = struct_before > (0.25 * n2 if noise else 0.0) and struct_before > 0
-    unexplained = bool(discrepancy and struct_after > 0.25 * struct_before)
+    verdict = judge(records, base_test, cur_test, test, noise_by_channel(rows_base))
+    unexplained = verdict.unexplained
+    for f in findings:
+        if f.effect == "second_mode" and not verdict.adequate:
+            # a second mass-spring term helps: the baseline lacks a degree of freedom
+            verdict.missing.setdefault("modes", []).append(
+                {"term": "second_mode", **f.parameters})
+    on_bound = [p.name for p in free_base if _on_bound(p, base_model)]
+    if on_bound:
+        verdict.missing["baseline_parameters_on_bound"] = on_bound
+        notes.append(f"baseline parameter(s) {on_bound} on a bound of the fit: the baseline "
+                     "does not describe the data")
     for f in findings:
         # a runner-up as good as the finding leaves the cause ambiguous, unless it was found
         # too, or, swapped in for the finding next to the other findings, it explains the
@@ -408,9 +494,9 @@ def diagnose(
                 f.evidence["runner_up"]["held_out_error_swapped"] = swap_rms
                 if swap_rms**2 > 1.25 * cur_test.rms() ** 2:
                     f.evidence["ambiguous"] = False
-        f.evidence["confidence"] = "low" if (unexplained or f.evidence.get("ambiguous")) \
-            else "high"
-    if not findings and discrepancy:
+        weak = unexplained or not verdict.adequate or bool(on_bound)
+        f.evidence["confidence"] = "low" if (weak or f.evidence.get("ambiguous")) else "high"
+    if not findings and unexplained:
         notes.append("the baseline misses something that no effect of the library explains")
     ext = extended_rig(current, ev.duration_s)
     if imported:
@@ -421,6 +507,7 @@ def diagnose(
         baseline_test=base_test, findings=findings, final_model=current, final_test=cur_test,
         unexplained=unexplained, rounds=rounds, skipped=skipped, noise_floor=noise,
         extended_rig=ext, elapsed_s=time.perf_counter() - t_start, notes=notes,
+        verdict=verdict,
     )
 
 
@@ -453,6 +540,33 @@ def _judge(ev: Evaluator, effect: str, var: Variant, res: FitResult, fit_train: 
     k = n_free + len(var.params)
     crit, _ = _criterion(test_res, test, k)
     return Candidate(effect, var, res, test_res, test_res.rms(), crit, k)
+
+
+def _on_bound(p: Param, model: Model) -> bool:
+    v = p.get(model)
+    tol = 1e-3 * p.scale
+    return bool((math.isfinite(p.lo) and v - p.lo <= tol)
+                or (math.isfinite(p.hi) and p.hi - v <= tol))
+
+
+def _not_a_finding(c: Candidate, cur_train_sse: float,
+                   band: tuple[float, float]) -> str | None:
+    """Why candidate ``c`` cannot be a finding (None: it can).
+
+    A term that raises the training error, a parameter held on a bound of its fit, or a mode
+    outside the excited band (the data say nothing about it) explains nothing.
+    """
+    if c.fit.train_sse > cur_train_sse * (1 + 1e-9):
+        return "raises the training error"
+    bound = [p.name for p in c.variant.params if _on_bound(p, c.fit.model)]
+    if bound:
+        return f"parameter(s) {bound} on a bound of the fit"
+    if c.effect == "second_mode":
+        f = c.fit.model.rig.effects.second_mode.frequency_hz
+        if not band[0] <= f <= band[1]:
+            return (f"mode at {f:.4g} Hz outside the excited band "
+                    f"{band[0]:.4g}..{band[1]:.4g} Hz")
+    return None
 
 
 def _sse(res: Residuals) -> float:

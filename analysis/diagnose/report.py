@@ -16,11 +16,12 @@ from analysis.diagnose.engine import Diagnosis
 from analysis.diagnose.model import Residuals
 
 
-def _jsonable(v: Any) -> Any:
+def jsonable(v: Any) -> Any:
+    """``v`` with numpy scalars as Python numbers and NaN/inf as None (JSON-safe)."""
     if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
+        return {str(k): jsonable(x) for k, x in v.items()}
     if isinstance(v, list | tuple):
-        return [_jsonable(x) for x in v]
+        return [jsonable(x) for x in v]
     if isinstance(v, np.generic):
         v = v.item()
     if isinstance(v, float) and not math.isfinite(v):
@@ -30,7 +31,7 @@ def _jsonable(v: Any) -> Any:
 
 def diagnosis_json(diag: Diagnosis, extended_model_path: str | None) -> dict[str, Any]:
     """The JSON document of ``sfdrig diagnose --json`` (NaN/inf written as null)."""
-    return _jsonable(diag.to_dict(extended_model_path))
+    return jsonable(diag.to_dict(extended_model_path))
 
 
 def write_json(diag: Diagnosis, path: Path, extended_model_path: str | None) -> None:
@@ -176,6 +177,41 @@ def _table(rows: list[dict], keys: list[str]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+def _verdict_html(diag: Diagnosis) -> list[str]:
+    """The verdict against the signal: explained fractions and what is missing."""
+    v = diag.verdict
+    if v is None:
+        return []
+    out = [f"<h2>Verdict: {html.escape(v.text)}</h2>",
+           f"<p>Held-out fraction of the signal above the noise floor explained (threshold "
+           f"{v.threshold:.0%} for an adequate model; more than "
+           f"{1 - v.to_dict()['unexplained_share']:.0%} for nothing unexplained):</p>"]
+    rows = [{"model": "baseline", **v.baseline.to_dict()}, {"model": "final", **v.final.to_dict()}]
+    for r in rows:
+        r["per channel"] = ", ".join(f"{k}: {x:.3f}" for k, x in
+                                     r.pop("explained_fraction_per_channel").items())
+    out.append(_table(rows, ["model", "explained_fraction", "signal_rms", "residual_rms",
+                             "noise_rms", "per channel"]))
+    for model in ("baseline", "final"):
+        peaks = v.missing.get(model, {}).get("residual_peaks", [])
+        if peaks:
+            out.append(f"<p>Peaks of the {model} model's residual spectrum (what it misses): "
+                       + ", ".join(f"{p['freq_hz']:.4g} Hz ({p['share_of_residual_power']:.0%} "
+                                   "of the residual power)" for p in peaks) + ".</p>")
+    if "modes" in v.missing:
+        out.append("<p>The baseline lacks a degree of freedom: a second mass-spring term "
+                   "(frame tuned to " + ", ".join(f"{m['frequency_hz']:.4g} Hz"
+                                                  for m in v.missing["modes"])
+                   + ") explains part of what it misses.</p>")
+        if "baseline_parameters_on_bound" in v.missing:
+            out.append("<p>Baseline parameters on a bound of the fit: "
+                       f"{html.escape(str(v.missing['baseline_parameters_on_bound']))}.</p>")
+    if not v.adequate:
+        out.append("<p><b>The baseline does not describe the data; no cause is named with "
+                   "confidence on top of it.</b></p>")
+    return out
+
+
 def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None) -> Path:
     """Write ``index.html`` and its PNG figures into ``out_dir``; return the page's path."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -227,16 +263,15 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
     else:
         parts.append("<p>No effect of the library improves the held-out error significantly."
                      "</p>")
-    verdict = ("Unexplained discrepancy remains." if diag.unexplained
-               else "No significant unexplained discrepancy.")
-    parts.append(f"<p><b>{verdict}</b></p>")
+    parts.extend(_verdict_html(diag))
     if extended_model_path:
         parts.append(f"<p>Extended model: <code>{html.escape(extended_model_path)}</code></p>")
     for i, rnd in enumerate(diag.rounds, 1):
         parts.append(f"<h3>Round {i}: candidates (best first)</h3>")
-        parts.append(_table([{**c, "parameters": json.dumps(_jsonable(c["parameters"]))}
+        parts.append(_table([{**c, "parameters": json.dumps(jsonable(c["parameters"]))}
                              for c in rnd], ["effect", "parameters", "held_out_error", "gain",
-                                             "criterion", "train_error", "n_params"]))
+                                             "criterion", "train_error", "n_params",
+                                             "not_a_finding"]))
     if diag.skipped:
         parts.append("<h3>Not applicable</h3>" + _table(
             [{"effect": k, "reason": v} for k, v in diag.skipped.items()], ["effect", "reason"]))
@@ -248,7 +283,8 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
                                      "amplitude_error", "phase_error_deg", "residual_rms_m",
                                      "noise_rms_m"]))
     parts.append("<h2>JSON</h2><pre>" + html.escape(json.dumps(
-        {k: doc[k] for k in ("baseline", "findings", "unexplained", "extended_model")},
+        {k: doc[k] for k in ("verdict", "baseline", "findings", "unexplained",
+                             "extended_model")},
         indent=1)) + "</pre>")
     if diag.notes:
         parts.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>"

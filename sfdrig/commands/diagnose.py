@@ -31,6 +31,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--effects", metavar="IDS", help="comma-separated effect ids to consider")
     parser.add_argument("--max-effects", type=int, default=3, help="effects to look for (3)")
     parser.add_argument("--seed", type=int, default=0, help="bootstrap seed (0)")
+    parser.add_argument("--judge", choices=("response", "force"), default="response",
+                        help="response: replay the force through the model and judge the "
+                             "response (default); force: predict the force from the measured "
+                             "motion (inverse model) and judge the force, for a body without "
+                             "a spring or closed-loop data a replay cannot follow")
+    parser.add_argument("--cutoff-hz", type=float,
+                        help="--judge force: low-pass before differentiating (default: "
+                             "100 Hz or a tenth of the sample rate, whichever is lower)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -54,6 +62,8 @@ def _run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(msg, file=sys.stderr)
 
+    if args.judge == "force":
+        return _run_inverse(args)
     try:
         rig = load_rig_params(args.rig) if args.rig else None
         records = [load_run(p, i) for i, p in enumerate(args.runs)]
@@ -96,4 +106,40 @@ def _run(args: argparse.Namespace) -> int:
     if diag.unexplained:
         print("unexplained: a structured discrepancy remains that the library does not explain")
     print(f"extended model: {model_path}")
+    return 0
+
+
+def _run_inverse(args: argparse.Namespace) -> int:
+    import json
+
+    from analysis.diagnose import DiagnoseError, load_run, parse_spans
+    from analysis.diagnose.inverse import diagnose_inverse
+    from analysis.diagnose.report import jsonable
+
+    try:
+        records = [load_run(p, i) for i, p in enumerate(args.runs)]
+        diag = diagnose_inverse(records, parse_spans(args.train, "--train"),
+                                parse_spans(args.test, "--test"), cutoff_hz=args.cutoff_hz,
+                                seed=args.seed, max_effects=args.max_effects)
+    except DiagnoseError as err:
+        print(f"sfdrig diagnose: {err}", file=sys.stderr)
+        return 2
+    doc = jsonable(diag.to_dict())
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(doc, indent=2) + "\n")
+    print(f"judged: the force from the measured motion (low-pass {diag.cutoff_hz:.4g} Hz)")
+    print("baseline (fitted): " + ", ".join(f"{k}={v:.4g}"
+                                            for k, v in diag.baseline_params.items())
+          + f"; held-out RMS error {diag.baseline_rms:.4g} N")
+    for f in diag.findings:
+        params = ", ".join(f"{k}={v:.4g}" for k, v in f.parameters.items())
+        print(f"found {f.effect} ({params}): held-out {f.error_before:.4g} -> "
+              f"{f.error_after:.4g} N, gain {f.gain:.3g} "
+              f"[{f.gain_interval[0]:.3g}, {f.gain_interval[1]:.3g}] "
+              f"({f.evidence['confidence']} confidence)")
+    v = diag.verdict
+    print(f"verdict: {v.text} (held-out signal explained: baseline "
+          f"{v.baseline.explained:.3f}, final {v.final.explained:.3f})")
+    print("final model: " + ", ".join(f"{k}={x:.4g}" for k, x in diag.final_params.items()))
     return 0

@@ -1,0 +1,218 @@
+"""Verdicts against the signal: how much of the measured response a model explains.
+
+A model is judged on held-out segments against the signal itself, not against another model:
+
+- signal: the measured response of each channel with the channel's offset removed;
+- noise floor: what no model of the excitation can predict (per dwell, what the harmonics
+  1X..5X leave; for other data the spectrum outside the excited band, when there is one);
+- explained fraction: ``1 - max(residual_ms - noise_ms, 0) / (signal_ms - noise_ms)`` (mean
+  squares over the held-out samples; 1: everything above the noise floor is explained, 0: no
+  better than predicting nothing; negative: worse than nothing).
+
+When the baseline explains less than ``ADEQUATE`` (0.90), the verdict is "baseline
+inadequate": the baseline does not describe the data, so no term added on top of it can be
+named with confidence; the verdict says what is missing: the residual's spectral peaks, the
+channels explained worst (and, from the engine, a mode that a second-mode term found).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.signal import find_peaks, welch
+
+from analysis.diagnose.data import RunRecord, Segment
+from analysis.diagnose.model import Residuals
+
+#: explained fraction below which the model family is inadequate
+ADEQUATE = 0.90
+#: share of the above-noise signal a model may leave before the rest counts as unexplained
+UNEXPLAINED_SHARE = 0.02
+
+
+@dataclass
+class SignalFit:
+    """Held-out explained fraction of one model, overall and per channel."""
+
+    explained: float
+    signal_rms: float
+    residual_rms: float
+    noise_rms: float
+    per_channel: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"explained_fraction": self.explained, "signal_rms": self.signal_rms,
+                "residual_rms": self.residual_rms, "noise_rms": self.noise_rms,
+                "explained_fraction_per_channel": self.per_channel}
+
+
+def _fraction(sig_ms: float, res_ms: float, noise_ms: float) -> float:
+    above = sig_ms - noise_ms
+    if above <= 0.0:
+        return math.nan  # nothing above the noise floor to explain
+    return 1.0 - max(res_ms - noise_ms, 0.0) / above
+
+
+def signal_fit(records: list[RunRecord], res: Residuals, segs: list[Segment],
+               noise_ms_of: dict[str, float] | None = None) -> SignalFit:
+    """Explained fraction of ``res`` on ``segs``; ``noise_ms_of``: noise mean square per channel.
+
+    The channel's offset (``res.offsets``, fitted on training data) is taken off the signal, so
+    a probe's gap is not counted as signal.
+    """
+    noise_ms_of = noise_ms_of or {}
+    sig: dict[str, list[float]] = {}
+    resid: dict[str, list[float]] = {}
+    count: dict[str, int] = {}
+    for seg in segs:
+        rec = records[seg.run]
+        for ch, r in res.per_segment[seg].items():
+            m = rec.responses[ch][seg.start:seg.stop] - res.offsets.get((seg.run, ch), 0.0)
+            with np.errstate(over="ignore", invalid="ignore"):
+                rr = float(np.dot(r, r))
+            sig.setdefault(ch, []).append(float(np.dot(m, m)))
+            resid.setdefault(ch, []).append(rr if math.isfinite(rr) else math.inf)
+            count[ch] = count.get(ch, 0) + r.size
+    per: dict[str, float] = {}
+    tot_s = tot_r = tot_n = 0.0
+    n_all = 0
+    for ch in sig:
+        n = count[ch]
+        s_ms, r_ms = sum(sig[ch]) / n, sum(resid[ch]) / n
+        n_ms = noise_ms_of.get(ch, 0.0)
+        per[ch] = _fraction(s_ms, r_ms, n_ms)
+        tot_s += s_ms * n
+        tot_r += r_ms * n
+        tot_n += n_ms * n
+        n_all += n
+    if n_all == 0:
+        return SignalFit(math.nan, math.nan, math.nan, math.nan)
+    return SignalFit(_fraction(tot_s / n_all, tot_r / n_all, tot_n / n_all),
+                     math.sqrt(tot_s / n_all), math.sqrt(tot_r / n_all),
+                     math.sqrt(tot_n / n_all), per)
+
+
+def noise_by_channel(dwell_rows: list[dict]) -> dict[str, float]:
+    """Noise mean square per channel from the dwell table (what harmonics 1X..5X leave)."""
+    acc: dict[str, list[float]] = {}
+    for r in dwell_rows:
+        acc.setdefault(r["channel"], []).append(r["noise_rms_m"] ** 2)
+    return {ch: float(np.mean(v)) for ch, v in acc.items()}
+
+
+def excited_band(records: list[RunRecord], segs: list[Segment],
+                 share: float = 0.999) -> tuple[float, float]:
+    """Frequency band [Hz] holding ``share`` of the force's power on ``segs`` (dwells: their
+    frequencies)."""
+    freqs = [s.freq_hz for s in segs if s.freq_hz]
+    if freqs:
+        return float(min(freqs)), float(max(freqs))
+    psd_sum: np.ndarray | None = None
+    f_axis = None
+    for seg in segs:
+        rec = records[seg.run]
+        n = min(seg.n, 1024)
+        if n < 16:
+            continue
+        for axis in (0, 1):
+            f_seg = rec.force_n[axis, seg.start:seg.stop]
+            if not np.any(f_seg):
+                continue
+            fa, p = welch(f_seg - f_seg.mean(), rec.sample_rate_hz, nperseg=n, nfft=1024)
+            if psd_sum is None:
+                psd_sum, f_axis = p, fa
+            else:
+                psd_sum = psd_sum + p
+    if psd_sum is None or f_axis is None:
+        return 0.0, math.inf
+    c = np.cumsum(psd_sum) / np.sum(psd_sum)
+    lo = float(f_axis[int(np.searchsorted(c, (1 - share) / 2))])
+    hi = float(f_axis[min(int(np.searchsorted(c, 1 - (1 - share) / 2)), f_axis.size - 1)])
+    return lo, hi
+
+
+def residual_peaks(records: list[RunRecord], res: Residuals, segs: list[Segment],
+                   n_peaks: int = 3) -> list[dict[str, float]]:
+    """The largest peaks of the residual's spectrum (Welch, averaged over segments and
+    channels): frequency [Hz] and share of the residual power within +/-2 bins."""
+    acc: np.ndarray | None = None
+    f_axis = None
+    fs0 = records[segs[0].run].sample_rate_hz if segs else 0.0
+    nper = min([s.n for s in segs] + [4096])
+    if nper < 32:
+        return []
+    for seg in segs:
+        if records[seg.run].sample_rate_hz != fs0:
+            continue
+        for r in res.per_segment[seg].values():
+            if not np.all(np.isfinite(r)):
+                continue
+            fa, p = welch(r - r.mean(), fs0, nperseg=nper)
+            acc = p if acc is None else acc + p
+            f_axis = fa
+    if acc is None or f_axis is None or not np.any(acc > 0):
+        return []
+    total = float(np.sum(acc))
+    idx, _ = find_peaks(acc, prominence=0.02 * float(np.max(acc)))
+    if idx.size == 0:
+        idx = np.array([int(np.argmax(acc))])
+    top = idx[np.argsort(acc[idx])[::-1][:n_peaks]]
+    return [{"freq_hz": float(f_axis[i]),
+             "share_of_residual_power": float(np.sum(acc[max(0, i - 2):i + 3]) / total)}
+            for i in top]
+
+
+@dataclass
+class Verdict:
+    """The verdict on the held-out data: baseline and final model against the signal."""
+
+    baseline: SignalFit
+    final: SignalFit
+    adequate: bool
+    unexplained: bool
+    missing: dict[str, Any]
+    threshold: float = ADEQUATE
+
+    @property
+    def text(self) -> str:
+        if not self.adequate:
+            return "baseline inadequate"  # whatever the extended model reaches
+        return "unexplained discrepancy" if self.unexplained else "explained"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"verdict": self.text, "threshold": self.threshold,
+                "baseline": self.baseline.to_dict(), "final": self.final.to_dict(),
+                "unexplained_share": UNEXPLAINED_SHARE, "missing": self.missing}
+
+
+def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: list[Segment],
+          noise_ms_of: dict[str, float]) -> Verdict:
+    """Judge the baseline and the final model against the held-out signal.
+
+    The baseline is adequate when it explains at least ``ADEQUATE`` of the signal above the
+    noise floor: a term added to a baseline that does not describe the data is no cause, however
+    much it helps (a broken baseline makes any extra term look like an explanation). What the
+    final model leaves above ``UNEXPLAINED_SHARE`` of that signal is unexplained.
+    """
+    fb = signal_fit(records, base, segs, noise_ms_of)
+    ff = signal_fit(records, final, segs, noise_ms_of)
+    base_x = fb.explained if math.isfinite(fb.explained) else 1.0
+    final_x = ff.explained if math.isfinite(ff.explained) else 1.0
+    adequate = base_x >= ADEQUATE
+    unexplained = final_x < 1.0 - UNEXPLAINED_SHARE
+    missing: dict[str, Any] = {}
+    for name, fit_, res, show in (("baseline", fb, base, not adequate),
+                                  ("final", ff, final, unexplained)):
+        if show:
+            missing[name] = {
+                "residual_peaks": residual_peaks(records, res, segs),
+                "channels_worst_first": sorted(
+                    ({"channel": ch, "explained_fraction": v}
+                     for ch, v in fit_.per_channel.items()),
+                    key=lambda d: d["explained_fraction"]
+                    if math.isfinite(d["explained_fraction"]) else 2.0),
+            }
+    return Verdict(fb, ff, adequate, unexplained, missing)

@@ -1,0 +1,90 @@
+"""Verdicts against the signal, on data diagnose did not generate (scipy's lsim of modal sums).
+
+A structure with two modes in the excited band, given to the one-mode fitted baseline, must end
+"baseline inadequate" with the missing mode among the residual's peaks, and nothing named with
+confidence; the same data's explained fractions are checked against their definition.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.signal import butter, lsim, sosfiltfilt
+
+from analysis.diagnose import diagnose
+from analysis.diagnose.data import Segment, records_from_arrays
+from analysis.diagnose.model import Residuals
+from analysis.diagnose.verdict import ADEQUATE, excited_band, judge, signal_fit
+
+
+def _modal_response(force: np.ndarray, fs: float,
+                    modes: list[tuple[float, float, float]]) -> np.ndarray:
+    """Displacement [m] of a sum of modes (modal mass kg, frequency Hz, damping ratio)."""
+    t = np.arange(force.size) / fs
+    x = np.zeros_like(force)
+    for m, f_hz, zeta in modes:
+        w = 2 * math.pi * f_hz
+        _, y, _ = lsim(([1.0 / m], [1.0, 2 * zeta * w, w * w]), force, t)
+        x += y
+    return x
+
+
+def _broadband(n: int, fs: float, band: tuple[float, float], seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    sos = butter(4, band, btype="bandpass", fs=fs, output="sos")
+    f = sosfiltfilt(sos, rng.normal(0.0, 1.0, n))
+    return 50.0 * f / np.std(f)
+
+
+def test_explained_fraction_follows_its_definition():
+    rng = np.random.default_rng(1)
+    fs, n = 1000.0, 4000
+    sig = np.sin(2 * np.pi * 30 * np.arange(n) / fs)  # mean square 0.5
+    rec = records_from_arrays(np.zeros(n), {"x": sig}, fs)
+    seg = Segment(0, 0, n, "all")
+    half = Residuals({seg: {"x": 0.5 * sig}}, {}, {})  # leaves a quarter of the power
+    fit = signal_fit([rec], half, [seg])
+    assert fit.explained == pytest.approx(0.75, abs=1e-9)
+    noise = rng.normal(0.0, 0.1, n)
+    at_floor = Residuals({seg: {"x": noise}}, {}, {})
+    # a residual at the noise floor explains everything above it
+    fit = signal_fit([rec], at_floor, [seg], {"x": float(np.mean(noise**2))})
+    assert fit.explained == pytest.approx(1.0, abs=1e-12)
+    nothing = Residuals({seg: {"x": sig}}, {}, {})
+    v = judge([rec], nothing, nothing, [seg], {})
+    assert v.final.explained == pytest.approx(0.0, abs=1e-12)
+    assert not v.adequate and v.unexplained and v.text == "baseline inadequate"
+    assert v.missing["baseline"]["residual_peaks"][0]["freq_hz"] == pytest.approx(30.0, abs=1.0)
+
+
+def test_excited_band_of_broadband_force():
+    fs = 500.0
+    f = _broadband(40000, fs, (10.0, 40.0), seed=2)
+    rec = records_from_arrays(f, {"x": 0 * f}, fs)
+    lo, hi = excited_band([rec], [Segment(0, 0, 40000, "all")])
+    assert 3.0 < lo < 10.0 and 40.0 < hi < 60.0
+
+
+def test_two_modes_given_one_are_judged_baseline_inadequate():
+    """Two well-separated modes (12 and 31 Hz, 2 % damping), broadband force 5-45 Hz: the
+    one-mode baseline cannot explain the signal; the verdict says so and names no cause with
+    confidence, and the residual peaks at the mode it misses."""
+    fs, n = 500.0, 30000
+    force = _broadband(n, fs, (5.0, 45.0), seed=7)
+    x = _modal_response(force, fs, [(10.0, 12.0, 0.02), (4.0, 31.0, 0.02)])
+    x += np.random.default_rng(8).normal(0.0, 0.01 * np.std(x), n)
+    rec = records_from_arrays(force, {"x": x}, fs)
+    diag = diagnose([rec], "fitted", [(0, 15000)], [(15000, 30000)], seed=0, max_effects=2,
+                    effects=["cubic_stiffness", "coulomb_friction", "second_mode"])
+    v = diag.verdict
+    assert v is not None
+    assert v.baseline.explained < 0.5
+    assert not v.adequate and v.text == "baseline inadequate"
+    assert all(f.evidence["confidence"] == "low" for f in diag.findings)
+    # what is missing: the baseline's residual peaks at a mode of the structure
+    peaks = [p["freq_hz"] for p in v.missing["baseline"]["residual_peaks"]]
+    assert any(abs(p - 31.0) < 2 or abs(p - 12.0) < 1 for p in peaks), peaks
+    assert [m["term"] for m in v.missing.get("modes", [])] == \
+        [f.effect for f in diag.findings if f.effect == "second_mode"]
