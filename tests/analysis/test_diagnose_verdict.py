@@ -16,7 +16,7 @@ from scipy.signal import butter, lsim, sosfiltfilt
 from analysis.diagnose import diagnose
 from analysis.diagnose.data import Segment, records_from_arrays
 from analysis.diagnose.model import Residuals
-from analysis.diagnose.verdict import ADEQUATE, excited_band, judge, signal_fit
+from analysis.diagnose.verdict import excited_band, judge, signal_fit
 
 
 def _modal_response(force: np.ndarray, fs: float,
