@@ -325,7 +325,11 @@ def diagnose(
     warmup_s = 0.5
     if kind == "fitted":
         start_model, warmup_s = _data_start(records, train, base_rig, notes, say)
-    ev = Evaluator(records, warmup_s=warmup_s, oversample=oversample)
+    # dwells of files from elsewhere sit back to back (what precedes a dwell is not its
+    # settling): each is replayed in steady state, after whole periods of its own force
+    steady = any(r.kind != "sweep" for r in records)
+    ev = Evaluator(records, warmup_s=warmup_s, oversample=oversample,
+                   steady_state_dwells=steady)
     fit_train = _fit_subset(ev, train, fit_budget_steps)
     if len(fit_train) < len(train):
         notes.append(f"fitted on {len(fit_train)} of {len(train)} training segments "

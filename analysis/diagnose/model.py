@@ -13,7 +13,9 @@ Replay details, stated:
   factor with a band-limited polyphase interpolator, one integration step per oversampled sample:
   a linear or held force between samples 1.6 ms apart would distort a 60 Hz response by percent.
 - Each window starts ``warmup_s`` before its first segment from rest; the transient of starting
-  from rest is not scored (segments start after the warm-up).
+  from rest is not scored (segments start after the warm-up). With ``steady_state_dwells``,
+  a dwell is replayed after whole periods of its own force instead (its initial state is then
+  the steady state the dwell was recorded in, whatever came before it in the file).
 - Each response channel's mean offset (probe gap, amplifier offset) is fitted in closed form on
   the training segments and applied unchanged to held-out segments.
 """
@@ -99,14 +101,23 @@ class Evaluator:
     records : list of RunRecord
     warmup_s : float
         Simulated time before each window's first segment [s].
+    steady_state_dwells : bool
+        Replay each dwell in steady state: whole periods of its own force repeated for at
+        least ``warmup_s`` before it (the data before a dwell need not be its settling: imported
+        files hold dwells back to back).
     oversample : dict of int -> int
         Per run index: the force oversampling factor (1: replay at the run's rate).
     """
 
     def __init__(self, records: list[RunRecord], warmup_s: float = 0.5,
-                 oversample: dict[int, int] | None = None) -> None:
+                 oversample: dict[int, int] | None = None,
+                 steady_state_dwells: bool = False) -> None:
         self.records = records
         self.warmup_s = warmup_s
+        self.steady_state_dwells = steady_state_dwells
+        # dwell frequency of each steady-state window, so truth(run, a, b) can find its periods
+        self._freq: dict[tuple[int, int, int], float | None] = {
+            (s.run, s.start, s.stop): s.freq_hz for r in records for s in r.segments}
         self.oversample = oversample or {}
         self.duration_s = max(r.n_samples / r.sample_rate_hz for r in records)
         self._cache: dict[tuple[str, int, int, int], np.ndarray] = {}
@@ -116,18 +127,45 @@ class Evaluator:
         self.simulations = 0
 
     # --- windows --------------------------------------------------------------------------
+    def periodic_chunk(self, seg: Segment) -> int:
+        """Samples of the longest whole number of periods of dwell ``seg`` that fits in it and
+        spans a whole number of samples (0: not a dwell, or no such span)."""
+        if not seg.freq_hz or not self.steady_state_dwells:
+            return 0
+        per = self.records[seg.run].sample_rate_hz / seg.freq_hz
+        for k in range(int(seg.n / per), 0, -1):
+            if abs(k * per - round(k * per)) < 1e-6 * per:
+                return int(round(k * per))
+        return 0
+
     def windows(self, segs: list[Segment]) -> list[tuple[int, int, int, list[Segment]]]:
-        """Merge segments into simulation windows (run, start, stop, segments)."""
+        """Merge segments into simulation windows (run, start, stop, segments).
+
+        A dwell replayed in steady state (``periodic_chunk`` > 0) is a window of its own."""
         out: list[tuple[int, int, int, list[Segment]]] = []
         for seg in sorted(segs, key=lambda s: (s.run, s.start)):
+            self._freq.setdefault((seg.run, seg.start, seg.stop), seg.freq_hz)
+            if self.periodic_chunk(seg):
+                out.append((seg.run, seg.start, seg.stop, [seg]))
+                continue
             warm = int(self.warmup_s * self.records[seg.run].sample_rate_hz)
             a = max(0, seg.start - warm)
-            if out and out[-1][0] == seg.run and a <= out[-1][2]:
+            if (out and out[-1][0] == seg.run and a <= out[-1][2]
+                    and not self.periodic_chunk(out[-1][3][-1])):
                 run, wa, wb, lst = out[-1]
                 out[-1] = (run, wa, max(wb, seg.stop), [*lst, seg])
             else:
                 out.append((seg.run, a, seg.stop, [seg]))
         return out
+
+    def _lead(self, run: int, a: int, b: int) -> int:
+        """Samples of periodic lead-in before window [a, b) (0: replay from rest at a)."""
+        seg = Segment(run, a, b, "", self._freq.get((run, a, b)))
+        chunk = self.periodic_chunk(seg)
+        if not chunk:
+            return 0
+        fs = self.records[run].sample_rate_hz
+        return chunk * max(1, math.ceil(self.warmup_s * fs / chunk))
 
     # --- simulation -----------------------------------------------------------------------
     def _fill(self, rec: RunRecord) -> float:
@@ -147,22 +185,36 @@ class Evaluator:
             scale = scale * (1.0 + model.visc_relative_change) ** (t / self.duration_s)
         return scale
 
+    def _window_force(self, run: int, a: int, b: int, lead: int) -> np.ndarray:
+        """The measured force of [a, b) with ``lead`` samples of its first whole periods
+        repeated before it (steady state), shape (2, lead + b - a)."""
+        f = self.records[run].force_n[:, a:b]
+        if not lead:
+            return f
+        chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
+        return np.hstack([np.tile(f[:, :chunk], (1, lead // chunk)), f])
+
     def truth(self, model: Model, run: int, a: int, b: int) -> np.ndarray:
-        """Simulated relative displacement (2, b - a) [m] of run ``run`` from rest at ``a``."""
+        """Simulated relative displacement (2, b - a) [m] of run ``run`` over [a, b): from rest
+        at ``a``, or, for a dwell replayed in steady state, after whole periods of its own
+        force (the viscosity of its first sample)."""
         key = (model.sim_key(), run, a, b)
         hit = self._cache.get(key)
         if hit is not None:
             return hit
         rec = self.records[run]
-        force = rec.force_n[:, a:b] + np.asarray(model.force_offset_n)[:, None]
+        lead = self._lead(run, a, b)
+        force = self._window_force(run, a, b, lead) + np.asarray(model.force_offset_n)[:, None]
         visc = self._viscosity_scale(model, rec, a, b)
+        if lead:
+            visc = np.concatenate([np.full(lead, visc[0]), visc])
         up = self.oversample.get(run, 1)
         self.simulations += 1
         if up <= 1:
             tr, _ = simulate_response(force, model.rig, rec.sample_rate_hz, self._fill(rec), visc)
-            xy = np.vstack([tr.x_m, tr.y_m])
+            xy = np.vstack([tr.x_m, tr.y_m])[:, lead:]
         else:
-            fup = self._upsampled(run, a, b, up)
+            fup = self._upsampled(run, a, b, up, lead)
             fup = fup + np.asarray(model.force_offset_n)[:, None]
             rig1 = model.rig.model_copy(update={"substeps": 1})
             vup = np.repeat(visc, up)
@@ -170,7 +222,7 @@ class Evaluator:
             # Sample i of the run is oversampled index i*up; the kernel reports the state at
             # the end of each step (linear-force kernel) or after it (held-force kernel).
             shift = 0 if hasattr(physics, "S_FPX") else -1
-            idx = np.arange(b - a) * up + shift
+            idx = (lead + np.arange(b - a)) * up + shift
             idx[idx < 0] = 0
             xy = np.vstack([tr.x_m[idx], tr.y_m[idx]])
         self._cache[key] = xy
@@ -180,12 +232,11 @@ class Evaluator:
             self._cache_bytes -= self._cache.pop(oldest).nbytes
         return xy
 
-    def _upsampled(self, run: int, a: int, b: int, up: int) -> np.ndarray:
+    def _upsampled(self, run: int, a: int, b: int, up: int, lead: int = 0) -> np.ndarray:
         key = (run, a, b)
         hit = self._up_cache.get(key)
         if hit is None:
-            f = self.records[run].force_n[:, a:b]
-            hit = resample_poly(f, up, 1, axis=1)
+            hit = resample_poly(self._window_force(run, a, b, lead), up, 1, axis=1)
             self._up_cache[key] = hit
         return hit
 
