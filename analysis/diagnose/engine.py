@@ -24,12 +24,12 @@ Procedure
    Not a finding, whatever its held-out gain: a term that raises the training error, one
    whose fitted parameter sits on a bound of its fit, a mode outside the excited band.
 3. Verdict against the signal (``verdict.py``): the held-out fraction of the signal above the
-   noise floor that the baseline and the final model explain. Below 90 % the verdict is
-   "baseline inadequate" (with the residual's spectral peaks and the channels explained
-   worst); above it, a share of more than 2 % left is "unexplained". Under either, and when a
-   baseline parameter sits on a bound, every finding is low-confidence; so is a finding whose
-   runner-up (not found itself in a later round) explains the held-out data nearly as well
-   (held-out MSE within 25 %).
+   noise floor that the baseline and the final model explain. Below 90 % (and not brought there
+   by the first finding alone) the verdict is "baseline inadequate" (with the residual's
+   spectral peaks and the channels explained worst); above it, a share of more than 2 % left is
+   "unexplained". Under either, and when a baseline parameter sits on a bound, every finding is
+   low-confidence; so is a finding whose runner-up (not found itself in a later round) explains
+   the held-out data nearly as well (held-out MSE within 25 %).
 """
 
 from __future__ import annotations
@@ -81,6 +81,7 @@ class Finding:
     model: Model
     variant: Variant
     runner_up: Candidate | None = None
+    test_residuals: Residuals | None = None  # held-out residuals of the model with it
 
     def to_dict(self) -> dict[str, Any]:
         return {"effect": self.effect, "parameters": self.parameters,
@@ -465,14 +466,15 @@ def diagnose(
                                          top.fit.model, ev.duration_s))
         findings.append(Finding(top.effect, parameters_of(top.variant, top.fit.model), before,
                                 top.test_rms, gain, (lo, hi), evidence, top.fit.model,
-                                top.variant, runner))
+                                top.variant, runner, top.test))
         free = free + top.variant.params
         current, cur_test, cur_crit = top.fit.model, top.test, top.criterion
 
     # verdict against the signal: what the baseline and the final model explain of it
     rows_base = ra.dwell_table(records, base_test, test)
     noise = ra.noise_floor(rows_base)
-    verdict = judge(records, base_test, cur_test, test, noise_by_channel(rows_base))
+    verdict = judge(records, base_test, cur_test, test, noise_by_channel(rows_base),
+                    findings[0].test_residuals if findings else None)
     unexplained = verdict.unexplained
     for f in findings:
         if f.effect == "second_mode" and not verdict.adequate:

@@ -9,10 +9,11 @@ A model is judged on held-out segments against the signal itself, not against an
   squares over the held-out samples; 1: everything above the noise floor is explained, 0: no
   better than predicting nothing; negative: worse than nothing).
 
-When the baseline explains less than ``ADEQUATE`` (0.90), the verdict is "baseline
-inadequate": the baseline does not describe the data, so no term added on top of it can be
-named with confidence; the verdict says what is missing: the residual's spectral peaks, the
-channels explained worst (and, from the engine, a mode that a second-mode term found).
+When the baseline explains less than ``ADEQUATE`` (0.90), and no single term of the library
+brings it there, the verdict is "baseline inadequate": the baseline does not describe the data,
+so no term added on top of it can be named with confidence; the verdict says what is missing:
+the residual's spectral peaks, the channels explained worst (and, from the engine, a mode that
+a second-mode term found).
 """
 
 from __future__ import annotations
@@ -189,19 +190,25 @@ class Verdict:
 
 
 def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: list[Segment],
-          noise_ms_of: dict[str, float]) -> Verdict:
+          noise_ms_of: dict[str, float], first: Residuals | None = None) -> Verdict:
     """Judge the baseline and the final model against the held-out signal.
 
     The baseline is adequate when it explains at least ``ADEQUATE`` of the signal above the
-    noise floor: a term added to a baseline that does not describe the data is no cause, however
-    much it helps (a broken baseline makes any extra term look like an explanation). What the
-    final model leaves above ``UNEXPLAINED_SHARE`` of that signal is unexplained.
+    noise floor, or when one term of the library (the first finding, ``first``: the model's
+    held-out residuals with it) brings it there: a large effect may hide a sound baseline, but a
+    baseline that needs several terms to look adequate does not describe the data, and a term
+    added to it is no cause, however much it helps (a broken baseline makes any extra term look
+    like an explanation). What the final model leaves above ``UNEXPLAINED_SHARE`` of that signal
+    is unexplained.
     """
     fb = signal_fit(records, base, segs, noise_ms_of)
     ff = signal_fit(records, final, segs, noise_ms_of)
     base_x = fb.explained if math.isfinite(fb.explained) else 1.0
     final_x = ff.explained if math.isfinite(ff.explained) else 1.0
     adequate = base_x >= ADEQUATE
+    if not adequate and first is not None:
+        one = signal_fit(records, first, segs, noise_ms_of).explained
+        adequate = math.isfinite(one) and one >= ADEQUATE
     unexplained = final_x < 1.0 - UNEXPLAINED_SHARE
     missing: dict[str, Any] = {}
     for name, fit_, res, show in (("baseline", fb, base, not adequate),
