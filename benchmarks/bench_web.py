@@ -174,6 +174,8 @@ def main() -> int:
         t0, cpu0, s0 = time.monotonic(), cpu_s(web.pid), st["samples"]
         while (t := time.monotonic() - t0) < args.seconds:
             rss.append((t, rss_mb(web.pid)))
+            print(f"  t {t:6.1f} s: web RSS {rss[-1][1]:.1f} MB, daemon {st['state']}, "
+                  f"{st['samples']} samples", flush=True)  # progress survives an interruption
             for page in pages:  # lets Playwright service the pages while we wait
                 page.wait_for_timeout(5000 / len(pages))
             if not pages:
