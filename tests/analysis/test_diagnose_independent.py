@@ -25,7 +25,8 @@ KNOWN_WRONG: dict[str, str] = {
                    "objective (not built yet); seed 3: a 7 % probe gain error is named "
                    "air_entrainment with high confidence",
     "channel_delay": "one probe per axis: the sensor effects need the accelerometer in the "
-                     "objective (not built yet); they are not applicable",
+                     "objective (not built yet); seed 3: a 139 us probe delay is named "
+                     "added_mass (0.75 kg) with high confidence",
     "stiffness_drift": "seed 3: a 9 % drift of K_x leaves 0.13 % of the signal, under the 2 % "
                        "unexplained share, though about 10x the noise floor: judged explained",
 }
