@@ -35,7 +35,7 @@ from control.acquisition import AcquisitionLoop, RunJob, as_dict
 from control.commands import CommandHandler
 from control.daemon_state import TRANSITIONS, StateMachine, TransitionError
 from control.publisher import Publisher
-from control.runs import close_run_file, list_runs
+from control.runs import close_run_file, list_runs, recover_interrupted
 from control.security import (
     COMMAND_DOMAIN,
     DATA_DOMAIN,
@@ -95,6 +95,7 @@ class Daemon:
         self.channel_map = channel_map
         self.cfg = config
         self.cfg.runs_dir.mkdir(parents=True, exist_ok=True)
+        self.recovered = recover_interrupted(self.cfg.runs_dir)  # before any run of ours
         self._engine_factory = engine_factory
         self._spec_parser = spec_parser
         self.backend.configure(channel_map)
@@ -270,6 +271,7 @@ class Daemon:
             if hasattr(spec, "tolerance_amplitude_pct") else None,
             "fault_reason": self.fault_reason,
             "last_run": self._last_run,
+            "recovered_at_start": self.recovered,
             "next_seq": self.publisher.sequence_numbers(),
             "dropped_in_daemon": self.publisher.dropped,
             "sample_rate_hz": self.channel_map.sample_rate_hz,

@@ -86,3 +86,29 @@ def close_run_file(job: Any, status: str, reason: str) -> str:
         log.exception("closing %s failed", job.path)
         problems.append(f"run file close failed: {err}")
     return "; ".join(problems)
+
+
+def recover_interrupted(runs_dir: Path) -> list[dict[str, Any]]:
+    """Close the runs a dead writer left "running" in ``runs_dir`` as "interrupted", with the
+    last sample on disk, so that every reader opens them. A file whose writer may still be alive
+    (`storage.recovery.writer_gone`) is left alone. Never raises: a file that cannot be
+    recovered is listed with why."""
+    from storage.reader import open_run
+    from storage.recovery import close_interrupted, writer_gone
+
+    out: list[dict[str, Any]] = []
+    for path in sorted(runs_dir.glob("*.h5")):
+        try:
+            with open_run(path) as run:
+                running, attrs = run.status == "running", dict(run.attrs)
+            if not running or not writer_gone(attrs, path):
+                continue
+            last = close_interrupted(path, "the writer stopped without closing the run (killed "
+                                           "or crashed); recovered at the next daemon start")
+            log.warning("run %s was left running by a dead writer: closed as interrupted at "
+                        "sample %d", path.name, last)
+            out.append({"path": str(path), "status": "interrupted", "last_sample": last})
+        except Exception as err:  # a damaged file stays as it is, listed as such
+            log.warning("could not recover %s: %s", path, err)
+            out.append({"path": str(path), "status": "unrecovered", "error": str(err)})
+    return out

@@ -10,12 +10,13 @@ from typing import Any
 
 from storage.errors import RunFileError
 from storage.reader import open_run
+from storage.recovery import STALE_AFTER_S, writer_gone
+
+__all__ = ["STALE_AFTER_S", "RunRow", "default_runs_dir", "format_table", "read_row",
+           "scan_runs"]
 
 #: Environment variable naming the default runs directory (else ./runs).
 RUNS_DIR_ENV = "SFDRIG_RUNS_DIR"
-#: A "running" file not modified for this long has lost its writer [s] (live writers touch the
-#: file at every flush interval, even when no samples arrive).
-STALE_AFTER_S = 30.0
 SUFFIXES = (".h5", ".hdf5")
 
 
@@ -35,7 +36,8 @@ class RunRow:
         Dwells recorded.
     status : str
         running, completed, aborted, failed; "interrupted" for a run left "running" by a writer
-        that is gone; "unreadable" for a broken file (see ``error``).
+        that is gone (`storage.recovery.writer_gone`), or closed so by a restarted daemon;
+        "unreadable" for a broken file (see ``error``).
     duration_s : float
         Recorded span [s] (samples / sample rate).
     file : str
@@ -67,10 +69,8 @@ def read_row(path: Path, now: float | None = None) -> RunRow:
     try:
         with open_run(path) as run:
             status = run.status
-            if status == "running":
-                age_s = (time.time() if now is None else now) - path.stat().st_mtime
-                if age_s > STALE_AFTER_S:
-                    status = "interrupted"
+            if status == "running" and writer_gone(run.attrs, path, now):
+                status = "interrupted"
             return RunRow(id=run.run_id, date=run.start_time, kind=run.kind,
                           steps=len(run.steps), status=status,
                           duration_s=round(run.duration_s, 6), file=str(path))

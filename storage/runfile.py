@@ -43,6 +43,8 @@ from typing import Any
 import h5py
 import numpy as np
 
+from storage.recovery import writer_identity
+
 FORMAT = "sfdrig-run"
 #: HDF5 file-format bounds: the 1.10 format is the oldest that supports SWMR, and capping it
 #: there keeps run files readable by HDF5 1.10-1.14 tools (HDFView, MATLAB, h5dump) even when
@@ -353,6 +355,7 @@ class RunWriter:
                     "lubricated": bool(lubricated),
                     "status": "running",
                     "status_reason": "",
+                    **writer_identity(),
                 },
             )
             f.flush()

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 
@@ -37,6 +40,10 @@ def runs_dir(tmp_path: Path) -> Path:
     killed = _run(d / "c.h5", "sweep-c", "sweep", "2026-01-03T08:00:00.000+00:00", 100, 1, None)
     killed._file.close()  # the writer vanished without closing the run (as after kill -9)
     killed._closed = True
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    with h5py.File(d / "c.h5", "r+") as f:  # the writer's process is gone
+        f.attrs["writer_pid"] = int(dead.stdout)
     old = time.time() - 2 * STALE_AFTER_S
     os.utime(d / "c.h5", (old, old))
     (d / "junk.h5").write_text("not hdf5")

@@ -1,0 +1,73 @@
+"""Issue 12, items 6 and 9: a daemon killed with SIGKILL mid-run; the next daemon on the same
+runs directory closes the run as "interrupted" with its last flushed sample, and plain
+``h5py.File(path, "r")`` (no SWMR) opens it with every flushed block intact."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from control.client import CommandClient, Message, Subscriber
+from tests.e2e.conftest import start_daemon
+from tests.e2e.test_stream_e2e import LONG_X, stacked
+
+pytestmark = pytest.mark.e2e
+
+
+def test_a_killed_run_is_closed_interrupted_and_opens_in_plain_h5py(tmp_path):
+    runs = tmp_path / "runs"
+    d = start_daemon(runs, fast=False)  # paced: the run is still going when it is killed
+    try:
+        with CommandClient(d.command, timeout_s=10) as c, Subscriber(d.data, rcvhwm=0) as sub:
+            sub.wait_connected()
+            run_id = c.start_sweep(LONG_X).data["run_id"]
+            blocks: list[Message] = []
+            step, flushed = None, 0
+            while step is None or flushed < step["last_sample"]:  # a step made durable
+                msg = sub.recv(timeout_s=60)
+                assert msg is not None
+                h = msg.header
+                if msg.topic == "block" and h["run_id"] == run_id:
+                    blocks.append(msg)
+                elif msg.topic == "step":
+                    step = h["step"]
+                elif msg.topic == "status" and h["status"]["run_id"] == run_id:
+                    flushed = h["status"]["samples_flushed"]
+            d.proc.kill()
+            d.proc.wait(10)
+            while (msg := sub.recv(timeout_s=0.5)) is not None:
+                if msg.topic == "block" and msg.header["run_id"] == run_id:
+                    blocks.append(msg)
+    finally:
+        d.terminate()
+        d.proc.communicate(timeout=10)
+    path = runs / f"{run_id}.h5"
+    with pytest.raises(OSError, match="already open for write"):
+        h5py.File(path, "r")  # what the killed writer left
+
+    d2 = start_daemon(runs, fast=True)
+    try:
+        with CommandClient(d2.command, timeout_s=10) as c:
+            status = c.status()
+            listed = {r["run_id"]: r for r in c.list_runs()}
+    finally:
+        assert d2.terminate() == 0
+        d2.proc.communicate(timeout=10)
+    [recovered] = status["recovered_at_start"]
+    assert recovered["path"] == str(path) and recovered["status"] == "interrupted"
+    assert listed[run_id]["status"] == "interrupted"
+    streamed = stacked(blocks)
+    with h5py.File(path, "r") as f:  # plain: no SWMR, no h5clear
+        assert f.attrs["status"] == "interrupted"
+        assert "killed or crashed" in f.attrs["status_reason"]
+        n = int(f.attrs["last_sample"])
+        assert n == recovered["last_sample"]
+        assert step["last_sample"] <= flushed <= n <= streamed.shape[1]
+        names = list(f["channels"]) + list(f["drive"])
+        order = blocks[0].header["channels"]
+        for name in names:
+            data = f["channels"][name] if name in f["channels"] else f["drive"][name]
+            np.testing.assert_array_equal(data[:], streamed[order.index(name), :n],
+                                          err_msg=name)
+        assert len(f["steps"]) >= 1
