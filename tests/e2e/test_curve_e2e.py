@@ -37,9 +37,13 @@ def test_curve_refuses_unknown_keys_and_accepts_known_ones(daemon_factory, tmp_p
     with CommandClient(d.command, timeout_s=10, keys=load_client_keys(keys, "operator")) as c:
         assert c.status()["state"] == "idle"
         assert c.pump(True).data["pump_on"] is True
-        assert c.status()["pump_on"] is True
+        replied = c.status()
+        assert replied["pump_on"] is True
+    # read-only status for viewers: the heartbeat carries what the status reply does
     with Subscriber(d.data, keys=load_client_keys(keys, "viewer")) as sub:
-        assert sub.wait_connected(timeout_s=10)["status"]["pump_on"] is True
+        beat = sub.wait_connected(timeout_s=10)["status"]
+        assert beat["pump_on"] is True and beat["state"] == "idle"
+        assert set(beat) == set(replied)
     assert d.terminate() == 0
 
 
