@@ -8,9 +8,9 @@ import h5py
 import numpy as np
 import pytest
 
-from control.client import CommandClient, Message, Subscriber
+from control.client import CommandClient, Subscriber
 from tests.e2e.conftest import start_daemon
-from tests.e2e.test_stream_e2e import LONG_X, stacked
+from tests.e2e.test_stream_e2e import LONG_X, stacked, until_a_step_is_durable
 
 pytestmark = pytest.mark.e2e
 
@@ -22,18 +22,7 @@ def test_a_killed_run_is_closed_interrupted_and_opens_in_plain_h5py(tmp_path):
         with CommandClient(d.command, timeout_s=10) as c, Subscriber(d.data, rcvhwm=0) as sub:
             sub.wait_connected()
             run_id = c.start_sweep(LONG_X).data["run_id"]
-            blocks: list[Message] = []
-            step, flushed = None, 0
-            while step is None or flushed < step["last_sample"]:  # a step made durable
-                msg = sub.recv(timeout_s=60)
-                assert msg is not None
-                h = msg.header
-                if msg.topic == "block" and h["run_id"] == run_id:
-                    blocks.append(msg)
-                elif msg.topic == "step":
-                    step = h["step"]
-                elif msg.topic == "status" and h["status"]["run_id"] == run_id:
-                    flushed = h["status"]["samples_flushed"]
+            blocks, step, flushed = until_a_step_is_durable(sub, run_id)
             d.proc.kill()
             d.proc.wait(10)
             while (msg := sub.recv(timeout_s=0.5)) is not None:

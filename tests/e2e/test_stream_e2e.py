@@ -40,6 +40,27 @@ def collect_run(sub: Subscriber, run_id: str, timeout_s: float = 60.0):
             return blocks, steps, h["message"]
 
 
+def until_a_step_is_durable(sub: Subscriber, run_id: str) -> tuple[list[Message], dict, int]:
+    """Blocks of ``run_id`` until a step has ended and a heartbeat reports it flushed (the writer
+    flushes at every step); (blocks, that step, samples flushed)."""
+    blocks: list[Message] = []
+    step: dict | None = None
+    flushed = 0
+    while step is None or flushed < step["last_sample"]:
+        msg = sub.recv(timeout_s=60)
+        assert msg is not None
+        h = msg.header
+        if msg.topic == "block" and h["run_id"] == run_id:
+            blocks.append(msg)
+        elif msg.topic == "step":
+            step = h["step"]
+        elif msg.topic == "status" and h["status"]["run_id"] == run_id:
+            flushed = h["status"]["samples_flushed"]
+        elif msg.topic == "event" and h["message"].startswith(f"run {run_id} "):
+            pytest.fail(f"the run ended before a step: {h['message']}")
+    return blocks, step, flushed
+
+
 def stacked(blocks: list[Message]) -> np.ndarray:
     return np.concatenate([b.array for b in blocks], axis=1)
 
@@ -77,23 +98,7 @@ def test_kill_9_mid_run_leaves_a_file_with_every_flushed_block(daemon_factory):
         sub.wait_connected()
         reply = c.start_sweep(LONG_X)
         run_id = reply.data["run_id"]
-        blocks: list[Message] = []
-        step = None
-        flushed = 0
-        # The writer flushes at every step: wait for a step, then for the heartbeat that
-        # reports it durable.
-        while step is None or flushed < step["last_sample"]:
-            msg = sub.recv(timeout_s=60)
-            assert msg is not None
-            h = msg.header
-            if msg.topic == "block" and h["run_id"] == run_id:
-                blocks.append(msg)
-            elif msg.topic == "step":
-                step = h["step"]
-            elif msg.topic == "status" and h["status"]["run_id"] == run_id:
-                flushed = h["status"]["samples_flushed"]
-            elif msg.topic == "event" and h["message"].startswith(f"run {run_id} "):
-                pytest.fail(f"the run ended before a step: {h['message']}")
+        blocks, step, flushed = until_a_step_is_durable(sub, run_id)
         d.proc.kill()
         d.proc.wait(10)
         while (msg := sub.recv(timeout_s=0.5)) is not None:  # what was in flight
