@@ -24,6 +24,8 @@ from daq.channels import ChannelKind, ChannelMap
 
 #: Time from a trip to zero drive that the engine guarantees [s].
 SHUTDOWN_BUDGET_S = 0.1
+#: An orbit radius at this fraction of the radial clearance is journal-housing contact: a fault.
+CONTACT_FRACTION = 0.97
 
 
 class SafetyLimits(BaseModel):
@@ -79,6 +81,12 @@ class SafetyLimits(BaseModel):
             raise ValueError(
                 f"max_load_n = {self.max_load_n:g} N exceeds the shaker rating "
                 f"{self.shaker_rating_n:g} N"
+            )
+        if self.displacement_limit_m >= CONTACT_FRACTION * self.radial_clearance_m:
+            raise ValueError(
+                f"max_displacement_m = {self.displacement_limit_m * 1e6:.4g} um reaches the "
+                f"journal (contact at {CONTACT_FRACTION * self.radial_clearance_m * 1e6:.4g} um "
+                f"of the {self.radial_clearance_m * 1e6:.4g} um clearance)"
             )
         if self.min_freq_hz >= self.max_freq_hz:
             raise ValueError(
@@ -205,6 +213,22 @@ class SafetyMonitor:
                 )
         self._last_ao = block[:, -1:].copy()
 
+    def contact(self, eng: np.ndarray, first_sample: int) -> tuple[int, str] | None:
+        """(sample, message) of the first journal-housing contact in the block, or None.
+
+        Contact: the measured orbit radius reaches `CONTACT_FRACTION` of the radial clearance
+        (the probes' gain and the journal's runout leave a few percent of doubt)."""
+        disp = self.signals.displacement(eng)
+        radius = np.hypot(disp[0], disp[1])
+        level = CONTACT_FRACTION * self.limits.radial_clearance_m
+        hit = np.flatnonzero(radius >= level)
+        if hit.size == 0:
+            return None
+        k = int(hit[0])
+        return first_sample + k, (
+            f"journal-housing contact: orbit radius {radius[k] * 1e6:.1f} um at the "
+            f"{self.limits.radial_clearance_m * 1e6:.4g} um clearance")
+
     def check_ai(self, eng: np.ndarray, first_sample: int) -> None:
         """Raise `LimitTrip` at the first sample whose load or orbit radius is over its limit,
         or when the inlet pressure of a lubricated run is lost (`pressure_row` set)."""
@@ -218,6 +242,9 @@ class SafetyMonitor:
                     f"{lim.min_running_pressure_pa / 1e3:.2f} kPa while running lubricated",
                     first_sample, "pressure",
                 )
+        touched = self.contact(eng, first_sample)
+        if touched is not None:
+            raise LimitTrip(touched[1], touched[0], "contact")
         disp = sig.displacement(eng)
         radius = np.hypot(disp[0], disp[1])
         loads = np.abs(eng[sig.load_rows])

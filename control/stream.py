@@ -103,6 +103,8 @@ class DriveStream:
         #: (first sample of the block, why) until the caller clears it
         self.guard: Callable[[np.ndarray], str] | None = None
         self.guard_event: tuple[int, str] | None = None
+        #: the first journal-housing contact seen (sample, message), checked on every block
+        self.contact_event: tuple[int, str] | None = None
 
     # --- running ----------------------------------------------------------------------------
     def start(self) -> None:
@@ -150,6 +152,9 @@ class DriveStream:
         for tap in list(self.taps):
             tap(first, eng, ao)
         self.listener.on_block(first, eng, ao)
+        if self.contact_event is None:
+            # contact is a fault whenever it happens, also while the drives fade
+            self.contact_event = self.monitor.contact(eng, first)
         if check:
             self.monitor.check_ai(eng, first)
             if self.guard is not None:

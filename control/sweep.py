@@ -314,6 +314,13 @@ class SweepEngine:
                 if self._machine.state not in FINAL and self._machine.state is not State.STOPPING:
                     self._machine.to(State.STOPPING)
                 stream.shutdown(self.limits.fade_s)
+                if stream.contact_event is not None:
+                    # the housing touched the journal (maybe after a trip, while fading)
+                    k, msg = stream.contact_event
+                    if not reason.startswith("journal-housing contact"):
+                        self._emit_safe("fault", msg, k)
+                    if status is State.COMPLETED:
+                        status, reason = State.FAILED, msg
                 self._machine.to(status)
         return SweepOutcome(status.value, reason, list(self.results), stream.sample, fs)
 

@@ -176,3 +176,30 @@ def test_unreachable_target_stops_at_the_load_limit_without_tripping():
     assert not rec.events_of("limit_trip")
     fx = rec.ai()[default_channel_map().ai_index("fx")]
     assert np.abs(fx).max() < 60.0
+
+
+def test_contact_after_a_trip_is_recorded_as_a_fault():
+    """A sudden doubling of the amplifier's gain at 60 Hz: the trip comes at 63.5 um, but the AO
+    already written still plays and the housing reaches the journal while the drives fade.
+    The contact is a fault event of the run, with its sample."""
+    be = GainJump(RigParams(), seed=8, factor=2.0, at_sample=15_000)
+    be.configure(default_channel_map())
+    rec = RecordingListener()
+    spec = SweepSpec(motion="x", load_n=[40.0], freq_hz=[60.0], record_cycles=200)
+    out = SweepEngine(be, spec, listener=rec).run()
+    assert out.status == "aborted" and "exceeds the 63.5 um limit" in out.reason
+    faults = rec.events_of("fault")
+    assert len(faults) == 1 and faults[0][1].startswith("journal-housing contact")
+    trip_k, contact_k = rec.events_of("limit_trip")[0][2], faults[0][2]
+    assert trip_k < contact_k < trip_k + FS // 10
+    cm = default_channel_map()
+    ai = rec.ai()
+    x = ai[[cm.ai_index("x1"), cm.ai_index("x2")]].mean(axis=0)
+    y = ai[[cm.ai_index("y1"), cm.ai_index("y2")]].mean(axis=0)
+    r = np.hypot(x, y)
+    assert r[contact_k] >= 0.97 * 127e-6 > r[contact_k - 1]
+
+
+def test_a_displacement_limit_at_the_journal_is_refused():
+    with pytest.raises(ValueError, match="reaches the journal"):
+        SafetyLimits(max_displacement_m=125e-6)
