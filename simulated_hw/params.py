@@ -32,6 +32,10 @@ class Structure(_Model):
 class Seal(_Model):
     enabled: bool = True
     friction_force_n: float = Field(26.0, ge=0, description="F_mu, dry friction (Table 4) [N]")
+    contact_stiffness_n_per_m: float | None = Field(
+        None, gt=0, le=1e10,
+        description="tangential stiffness of the seal contact, in series with the slider (an "
+        "Iwan element: below F_mu the housing moves on it); None: rigid sticking [N/m]")
 
 
 class Film(_Model):

@@ -22,13 +22,14 @@ import numpy as np
 # Indices into the parameter vector handed to the kernel.
 (P_M, P_MF, P_D, P_DXY, P_DYX, P_KX, P_KY, P_CRV, P_C0, P_CXY, P_CYX, P_FMU, P_CLEAR, P_ECC,
  P_K3, P_K2, P_AIR_K, P_AIR_MAX, P_AIR_TAU, P_FRAME_ON, P_FRAME_M, P_FRAME_K, P_FRAME_C,
- P_DT, P_NSUB) = range(25)
-N_PARAMS = 25
+ P_DT, P_NSUB, P_SEAL_KT) = range(26)
+N_PARAMS = 26
 
 # Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|;
-# the previous sample's force (the force is interpolated linearly between samples).
-S_X, S_Y, S_VX, S_VY, S_XF, S_YF, S_VXF, S_VYF, S_VBAR, S_FPX, S_FPY = range(11)
-N_STATE = 11
+# the previous sample's force (the force is interpolated linearly between samples); the compliant
+# seal's slider position.
+S_X, S_Y, S_VX, S_VY, S_XF, S_YF, S_VXF, S_VYF, S_VBAR, S_FPX, S_FPY, S_WX, S_WY = range(13)
+N_STATE = 13
 
 # Rows of the output array.
 (O_X, O_Y, O_VX, O_VY, O_AX, O_AY, O_FRICX, O_FRICY, O_FILMX, O_FILMY, O_CFILM) = range(11)
@@ -69,6 +70,23 @@ def _elastic(x, y, fx_in, fy_in, p):  # noqa: ANN001, ANN202
     return fx, fy
 
 
+@numba.njit(cache=True, inline="always")
+def _compliant_seal(x, y, wx, wy, kt, fmu):  # noqa: ANN001, ANN202
+    """Seal force on the housing from a contact of tangential stiffness kt in series with a
+    Coulomb slider at (wx, wy): -kt (r - w), the slider moving (plastic slip) so that the force
+    never exceeds F_mu. Returns (fx, fy, wx, wy)."""
+    fx = kt * (x - wx)
+    fy = kt * (y - wy)
+    mag = np.sqrt(fx * fx + fy * fy)
+    if mag > fmu:
+        scale = fmu / mag
+        fx *= scale
+        fy *= scale
+        wx = x - fx / kt
+        wy = y - fy / kt
+    return -fx, -fy, wx, wy
+
+
 @numba.njit(cache=True, fastmath=False)
 def integrate(
     force: np.ndarray,  # (2, n) external force on the housing [N]
@@ -91,6 +109,9 @@ def integrate(
     x, y, vx, vy = s[S_X], s[S_Y], s[S_VX], s[S_VY]
     xf, yf, vxf, vyf, vbar = s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR]
     fmu = p[P_FMU]
+    kt = p[P_SEAL_KT]
+    compliant = kt > 0.0 and fmu > 0.0
+    wx, wy = s[S_WX], s[S_WY]
     air_alpha_k = h / p[P_AIR_TAU]
     fpx, fpy = s[S_FPX], s[S_FPY]
     for i in range(n):
@@ -104,6 +125,10 @@ def integrate(
             # the kick uses the force at the start of the substep, where x is (leapfrog)
             m11, m12, m21, c11, c12, c21, _ = _coefficients(x, y, fi, visc[i], vbar, p)
             ex, ey = _elastic(x, y, fpx + k * dfx, fpy + k * dfy, p)
+            if compliant:
+                frx, fry, wx, wy = _compliant_seal(x, y, wx, wy, kt, fmu)
+                ex += frx
+                ey += fry
             # the frame (explicit; its reaction uses the damping at the old velocity)
             # Kick with the damping implicit (trapezoidal) between housing and frame:
             #   M (vh' - vh)  = h E  - h/2 C (v_rel + v_rel')          v_rel = vh - vf
@@ -178,7 +203,7 @@ def integrate(
             tx = vhx - nvxf
             ty = vhy - nvyf
             jx = jy = 0.0
-            if fmu > 0.0:
+            if fmu > 0.0 and not compliant:
                 w11 = q11 - rr11
                 w12 = q12 - rr12
                 w21 = q21 - rr21
@@ -198,8 +223,9 @@ def integrate(
             vhy += q21 * jx + q22 * jy
             nvxf += rr11 * jx + rr12 * jy
             nvyf += rr21 * jx + rr22 * jy
-            frx = jx / h
-            fry = jy / h
+            if not compliant:
+                frx = jx / h
+                fry = jy / h
             nvx = vhx - nvxf
             nvy = vhy - nvyf
             rax = (nvx - vx) / h  # relative acceleration over this substep
@@ -220,6 +246,8 @@ def integrate(
         voy = vy + 0.5 * h * ray
         m11, m12, m21, c11, c12, c21, cfilm = _coefficients(x, y, fi, visc[i], vbar, p)
         ex, ey = _elastic(x, y, fpx, fpy, p)
+        if compliant:
+            frx, fry, _, _ = _compliant_seal(x, y, wx, wy, kt, fmu)
         gx = ex - (c11 * vox + c12 * voy) + frx
         gy = ey - (c21 * vox + c11 * voy) + fry
         det = m11 * m11 - m12 * m21
@@ -237,6 +265,7 @@ def integrate(
     s[S_X], s[S_Y], s[S_VX], s[S_VY] = x, y, vx, vy
     s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR] = xf, yf, vxf, vyf, vbar
     s[S_FPX], s[S_FPY] = fpx, fpy
+    s[S_WX], s[S_WY] = wx, wy
 
 
 @numba.njit(cache=True)

@@ -28,6 +28,7 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
     mu0, _ = film.reference_viscosity()
     p[physics.P_C0] = film.eq16_damping_centred(mu0)
     p[physics.P_FMU] = params.seal.friction_force_n if params.seal.enabled else 0.0
+    p[physics.P_SEAL_KT] = params.seal.contact_stiffness_n_per_m or 0.0
     p[physics.P_CLEAR] = film.clearance_m
     p[physics.P_ECC] = 1.0 if film.eccentricity_law else 0.0
     if eff.cross_coupling.enabled:
