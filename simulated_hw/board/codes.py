@@ -1,0 +1,85 @@
+"""NI-DAQmx status codes, enum values and attribute ids the simulated board speaks (the same
+numbers as ``nidaqmx.error_codes`` and ``nidaqmx.constants``), and its error builder."""
+
+from __future__ import annotations
+
+from daq.errors import (
+    DEVICE_NOT_FOUND,
+    INPUT_BUFFER_OVERWRITTEN,
+    OUTPUT_UNDERFLOW,
+    READ_TIMEOUT,
+    RESOURCE_RESERVED,
+    SAMPLE_RATE_TOO_HIGH,
+    DaqError,
+    error_for_code,
+)
+
+# --- NI-DAQmx codes and constants the server uses (values as in nidaqmx.error_codes/constants) --
+UNKNOWN_ERROR = -200000  # no better code; the message says what happened
+SAMPLE_RATE_TOO_LOW = -200331
+INVALID_TASK = -200088
+DUPLICATE_TASK = -200089
+PHYSICAL_CHAN_DOES_NOT_EXIST = -200170
+REPEATED_PHYSICAL_CHAN = -200371
+ATTR_NOT_SUPPORTED = -200197
+READ_BUFFER_TOO_SMALL = -200229
+SAMPLES_CAN_NOT_YET_BE_WRITTEN = -200292
+INVALID_AO_DATA_WRITE = -200561
+TASK_NOT_RUNNING = -200475  # CANNOT_PERFORM_OP_WHEN_TASK_NOT_RUNNING
+NO_CHANS_IN_TASK = -200478
+NO_CHANS_OF_GIVEN_TYPE = -200611
+INVALID_ROUTING_SOURCE = -200040
+WRITE_NUM_CHANS_MISMATCH = -200524
+ATTR_INCONSISTENT = -200128  # ATTRIBUTE_INCONSISTENT_ACROSS_REPEATED_PHYSICAL_CHANNELS
+
+_ERROR_TEXT = {
+    READ_TIMEOUT: "Wait Until Done did not indicate all samples were acquired/generated in the "
+    "specified timeout: samples not yet available",
+    INPUT_BUFFER_OVERWRITTEN: "The application is not able to keep up with the hardware "
+    "acquisition: attempted to read samples that are no longer available",
+    OUTPUT_UNDERFLOW: "Generation stopped to prevent the regeneration of old samples: the "
+    "application is not able to write samples to the buffer fast enough",
+    SAMPLE_RATE_TOO_HIGH: "Sample clock rate is higher than the maximum the device supports",
+    SAMPLE_RATE_TOO_LOW: "Sample clock rate is lower than the minimum the device supports",
+    DEVICE_NOT_FOUND: "Device identifier is invalid",
+    PHYSICAL_CHAN_DOES_NOT_EXIST: "Physical channel specified does not exist on this device",
+    RESOURCE_RESERVED: "The specified resource is reserved",
+    INVALID_TASK: "Task specified is invalid or does not exist",
+    DUPLICATE_TASK: "Task cannot be created because a task with this name already exists",
+    INVALID_AO_DATA_WRITE: "Data written is outside the range of the output channel",
+}
+
+# channel types, measurement/output types, enums
+CHAN_AI, CHAN_AO, CHAN_DO = 10100, 10102, 10153
+MEAS_VOLTAGE = 10322
+REGEN_ALLOW, REGEN_DONT_ALLOW = 10097, 10158
+MODE_FINITE, MODE_CONTINUOUS = 10178, 10123
+FILL_GROUP_BY_CHANNEL = 0
+LINES_PER_CHAN_ALL = 1  # LineGrouping.CHAN_FOR_ALL_LINES
+INIT_AUTO, INIT_NEW, INIT_ATTACH = 0, 1, 2
+
+# attribute ids (nidaqmx task/_in_stream.py, _out_stream.py, _timing.py, system/_system.py)
+ATTR_DRIVER_MAJOR, ATTR_DRIVER_MINOR, ATTR_DRIVER_UPDATE = 0x1272, 0x1923, 0x2F22
+ATTR_SYS_DEVICES = 0x193B
+ATTR_TASK_NAME, ATTR_TASK_CHANNELS, ATTR_TASK_NUM_CHANS = 0x1276, 0x1273, 0x2181
+ATTR_CHAN_TYPE, ATTR_AI_MEAS_TYPE, ATTR_AO_OUTPUT_TYPE = 0x187F, 0x0695, 0x1108
+ATTR_READ_CHANNELS, ATTR_READ_NUM_CHANS, ATTR_READ_AVAIL = 0x1823, 0x217B, 0x1223
+ATTR_READ_POS = 0x1221
+ATTR_WRITE_NUM_CHANS, ATTR_DO_BOOLS_PER_CHAN = 0x217E, 0x217F
+ATTR_WRITE_REGEN, ATTR_WRITE_GENERATED, ATTR_WRITE_SPACE = 0x1453, 0x192B, 0x1460
+ATTR_SAMP_CLK_RATE = 0x1344
+ATTR_INPUT_BUF_SIZE, ATTR_OUTPUT_BUF_SIZE = 0x186C, 0x186D
+
+DRIVER_VERSION = (24, 8, 0)
+SERVICE_NAME = "nidaqmx_grpc.NiDAQmx"
+
+
+MAX_CHUNK = 100_000  # samples the rig runs in one go (bounds memory when a reader lags)
+
+
+def daq_error(code: int, message: str, samps_per_chan_read: int | None = None) -> DaqError:
+    """Our typed error, with the sample count NI reports alongside a failed read."""
+    err = error_for_code(message, code)
+    err.samps_per_chan_read = samps_per_chan_read  # type: ignore[attr-defined]
+    err.bare_message = message  # type: ignore[attr-defined]
+    return err

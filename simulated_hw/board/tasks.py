@@ -1,0 +1,122 @@
+"""The simulated board's tasks and channels, and its AI input buffer."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from daq.errors import (
+    DaqError,
+)
+from simulated_hw.board.codes import (
+    MODE_CONTINUOUS,
+    MODE_FINITE,
+    NO_CHANS_IN_TASK,
+    NO_CHANS_OF_GIVEN_TYPE,
+    REGEN_ALLOW,
+    daq_error,
+)
+
+
+def default_input_buffer(rate_hz: float) -> int:
+    """NI's default continuous input buffer for a sample rate [samples per channel]."""
+    if rate_hz <= 100:
+        return 1_000
+    if rate_hz <= 10_000:
+        return 10_000
+    if rate_hz <= 1_000_000:
+        return 100_000
+    return 1_000_000
+
+
+# --- tasks and channels ---------------------------------------------------------------------
+@dataclass
+class SimChannel:
+    name: str  # virtual channel name, as the client derives it
+    kind: str  # "ai" | "ao" | "do"
+    physical: list[str]  # canonical physical names (one, or several lines for a DO channel)
+    min_v: float = -10.0
+    max_v: float = 10.0
+
+
+@dataclass
+class SimTask:
+    """One DAQmx task on the server, found by its session (task) name."""
+
+    name: str
+    channels: list[SimChannel] = field(default_factory=list)
+    rate_hz: float | None = None  # None: on-demand (software-timed)
+    clock_source: str = ""
+    sample_mode: int = MODE_CONTINUOUS
+    samps_per_chan: int = 0
+    buffer_samples: int | None = None
+    trigger_source: str = ""
+    regen_mode: int = REGEN_ALLOW
+    running: bool = False
+    error: DaqError | None = None  # sticky asynchronous error (overflow, underflow)
+    # AO: samples written and not yet generated, as (n_ch, k) chunks
+    ao_chunks: list[np.ndarray] = field(default_factory=list)
+    ao_queued: int = 0
+    ao_written: int = 0
+    ao_generated: int = 0
+    ao_hold: np.ndarray | None = None  # last value generated, per channel (volts)
+
+    @property
+    def kind(self) -> str | None:
+        return self.channels[0].kind if self.channels else None
+
+    def kind_or_raise(self, wanted: str) -> None:
+        if self.kind != wanted:
+            have = self.kind or "no channels"
+            raise daq_error(
+                NO_CHANS_OF_GIVEN_TYPE if self.channels else NO_CHANS_IN_TASK,
+                f"task {self.name!r} has {have}; this operation needs {wanted.upper()} channels",
+            )
+
+    def input_buffer(self) -> int:
+        if self.buffer_samples is not None:
+            return self.buffer_samples
+        assert self.rate_hz is not None
+        if self.sample_mode == MODE_FINITE:
+            return max(self.samps_per_chan, 1)
+        return max(self.samps_per_chan, default_input_buffer(self.rate_hz))
+
+    def output_buffer(self) -> int:
+        if self.buffer_samples is not None:
+            return self.buffer_samples
+        return max(self.samps_per_chan, 1)
+
+
+class AiRing:
+    """The AI input buffer: the newest ``capacity`` samples per channel."""
+
+    def __init__(self, n_ch: int, capacity: int) -> None:
+        self.data = np.zeros((n_ch, capacity))
+        self.capacity = capacity
+        self.written = 0  # samples ever put in
+
+    def put(self, block: np.ndarray) -> None:
+        n = block.shape[1]
+        keep = min(n, self.capacity)
+        start = (self.written + n - keep) % self.capacity
+        first = min(keep, self.capacity - start)
+        self.data[:, start:start + first] = block[:, n - keep:n - keep + first]
+        self.data[:, : keep - first] = block[:, n - keep + first:]
+        self.written += n
+
+    def grow(self, capacity: int) -> None:
+        """Enlarge the buffer, keeping what it holds."""
+        if capacity <= self.capacity:
+            return
+        held = min(self.written, self.capacity)
+        old = self.get(self.written - held, held)
+        self.data = np.zeros((self.data.shape[0], capacity))
+        self.capacity, self.written = capacity, self.written - held
+        self.put(old)
+
+    def get(self, first: int, n: int) -> np.ndarray:
+        start = first % self.capacity
+        if start + n <= self.capacity:
+            return self.data[:, start:start + n].copy()
+        return self.data[:, np.arange(start, start + n) % self.capacity]
