@@ -149,6 +149,7 @@ class ImpactFit:
     band_hz: tuple[float, float]
     freq_hz: list[float] = field(default_factory=list)
     frf_m_per_n: list[list[float]] = field(default_factory=list)  # [re, im]
+    coherence: list[float] = field(default_factory=list)  # of H1 over the accepted strikes
 
     def model(self, f_hz: np.ndarray) -> np.ndarray:
         w = 2 * np.pi * np.asarray(f_hz)
@@ -172,6 +173,8 @@ def identify_impact(run: RunData, skipped: list[Skipped],
     for st in run.steps:
         idx = int(st["index"])
         axis = str(st.get("motion", ""))
+        if not st.get("accepted", True):  # a hit rejected at the rig (kept in the run)
+            continue
         if axis not in ("x", "y"):
             skipped.append(Skipped(label, "impact", f"motion {axis!r} is not x or y", idx))
             continue
@@ -195,6 +198,7 @@ def identify_impact(run: RunData, skipped: list[Skipped],
         n = min(len(f) for f, _ in strikes)
         sxf: np.ndarray = np.zeros(n // 2 + 1, complex)
         sff: np.ndarray = np.zeros(n // 2 + 1)
+        sxx: np.ndarray = np.zeros(n // 2 + 1)
         for f, d in strikes:
             f0 = f[:n] - np.median(f[:n])
             d0 = d[:n] - np.mean(d[: max(n // 50, 2)])  # pre-strike level
@@ -202,8 +206,10 @@ def identify_impact(run: RunData, skipped: list[Skipped],
             dd = np.fft.rfft(d0)
             sxf = sxf + dd * np.conj(ff)
             sff = sff + np.abs(ff) ** 2
+            sxx = sxx + np.abs(dd) ** 2
         freq = np.fft.rfftfreq(n, 1.0 / fs)
         h = sxf / sff
+        coherence = np.abs(sxf) ** 2 / (sff * sxx)  # 1 for a single strike: says nothing
         band = (freq >= band_hz[0]) & (freq <= band_hz[1])
         if band.sum() < 5:
             skipped.append(Skipped(label, "impact", f"{axis}: window too short for the band "
@@ -231,7 +237,8 @@ def identify_impact(run: RunData, skipped: list[Skipped],
                               float(wn / (2 * np.pi)), float(r2), abs(k) * u_k_rel,
                               abs(m) * u_m_rel, d_f, len(strikes), band_hz,
                               [float(v) for v in fb],
-                              [[float(v.real), float(v.imag)] for v in hb]))
+                              [[float(v.real), float(v.imag)] for v in hb],
+                              [float(v) for v in coherence[band]]))
     if not fits:
         skipped.append(Skipped(label, "impact", "no usable strike"))
     return fits

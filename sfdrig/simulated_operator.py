@@ -1,8 +1,11 @@
-"""The operator's hands on the simulated rig: what the test programmes cannot do through the DAQ.
+"""The operator's hands on the simulated rig, and a stand-in operator for unattended runs.
 
-On the real rig a person strikes the housing with the impact hammer, reads the dial gauges and
-turns the pump's pressure regulator. On the simulated rig these act on the rig model directly.
-This wiring lives in the composition root, so `control` never imports `simulated_hw`.
+On the real rig a person strikes the housing with the impact hammer, reads the dial gauges, turns
+the pump's pressure regulator and takes the journal out. On the simulated rig `SimulatedHands`
+does these to the rig model when the operator's answer asks for them (`control.program_stream.
+RigHands`). `StandInOperator` answers every question at once the way a careful technician would
+(the demo, `sfdrig structure --unattended`). This wiring lives in the composition root, so
+`control` never imports `simulated_hw`.
 """
 
 from __future__ import annotations
@@ -10,21 +13,36 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from control.operator import OperatorDesk, Question
 from simulated_hw.backend import SimulatedBackend
 
 DIAL_GAUGE_RESOLUTION_M = 0.0001 * 0.0254  # +/- 0.0001 in dial gauges (Appendix A)
+DOUBLE_HIT_DELAY_S = 0.03  # the hammer bounces back onto the housing
+OVERLOAD_FACTOR = 1.25  # an overload hit: this much beyond the hammer channel's range
 
 
 @dataclass
-class SimulatedOperator:
+class SimulatedHands:
     backend: SimulatedBackend
     gauge_resolution_m: float = DIAL_GAUGE_RESOLUTION_M
+    hammer_channel: str = "hammer"
 
-    def strike(self, axis: str, peak_force_n: float) -> None:
-        """Hit the housing along ``axis`` with a 2 ms half-sine hammer pulse."""
-        self._rig().schedule_impact(axis, peak_force_n, duration_s=0.002)
+    def __post_init__(self) -> None:
+        self._seal_configured = self._rig().params.seal.enabled
 
-    def read_gauge(self, axis: str) -> float:
+    def strike(self, axis: str, peak_force_n: float, kind: str = "ok") -> None:
+        """Hit the housing along ``axis`` with a 2 ms half-sine pulse; ``kind`` "double" adds a
+        bounce 30 ms later at half the peak, "overload" hits beyond the hammer's input range."""
+        rig = self._rig()
+        if kind == "overload":
+            ch = next(c for c in self.backend.channel_map.ai if c.name == self.hammer_channel)
+            peak_force_n = OVERLOAD_FACTOR * (ch.range_v[1] - ch.offset_v) / ch.gain_v_per_unit
+        rig.schedule_impact(axis, peak_force_n, duration_s=0.002)
+        if kind == "double":
+            rig.schedule_impact(axis, 0.5 * peak_force_n, duration_s=0.002,
+                                delay_s=DOUBLE_HIT_DELAY_S)
+
+    def gauge_reading_m(self, axis: str) -> float:
         """The dial gauge on ``axis``: the true displacement to the gauge's resolution [m]."""
         truth = self._rig().last_truth
         if truth is None:
@@ -36,7 +54,26 @@ class SimulatedOperator:
         """Turn the regulator: the pump's supply pressure when it runs [Pa]."""
         self._rig().params.oil.supply_pressure_pa = float(pressure_pa)
 
+    def set_journal(self, installed: bool) -> None:
+        """Journal out: no seal contact; back in: the seal as configured."""
+        self._rig().set_seal(installed and self._seal_configured)
+
     def _rig(self):  # noqa: ANN202
         if self.backend.rig is None:
             raise RuntimeError("the simulated backend is not configured")
         return self.backend.rig
+
+
+class StandInOperator(OperatorDesk):
+    """Answers each question as it is asked: accepts steady points and clean hits, types what
+    the simulated instrument shows, repeats an unsteady point, strikes cleanly."""
+
+    def post(self, question: Question) -> Question:
+        q = super().post(question)
+        if q.entry is not None:
+            self.submit(q.id, "ok", q.shows)
+        elif "ok" in q.choices:
+            self.submit(q.id, "ok")
+        else:
+            self.submit(q.id, "repeat" if "repeat" in q.choices else q.choices[0])
+        return q

@@ -123,6 +123,12 @@ class RigModel:
             raise KeyError(f"no relay named {name!r}")
         self.pump_on = bool(value)
 
+    def set_seal(self, enabled: bool) -> None:
+        """Journal in (the seal rubs, ``params.seal``) or out (no seal contact), from the next
+        block on."""
+        self.params.seal.enabled = bool(enabled)
+        self._kp = kernel_params(self.params, self.fs)
+
     def schedule_impact(self, axis: str, peak_force_n: float, duration_s: float = 0.002,
                         delay_s: float = 0.0) -> None:
         """Strike the housing with the hammer: a half-sine pulse, read on the hammer channel."""

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 from control.programs import (
     FlowSpec,
@@ -21,7 +23,7 @@ from control.programs import (
     run_static_test,
 )
 from daq.channels import default_channel_map, load_channel_map
-from sfdrig.simulated_operator import SimulatedOperator
+from sfdrig.simulated_operator import SimulatedHands, StandInOperator
 from simulated_hw.backend import SimulatedBackend
 from simulated_hw.params import RigParams, load_rig_params
 
@@ -55,7 +57,7 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
             test_params.seal.enabled = False
         backend = SimulatedBackend(test_params, seed=seed + i)
         backend.configure(cm)
-        hands = SimulatedOperator(backend)
+        hands = SimulatedHands(backend)
         run_id = f"{stamp}-{kind}"
         path = out_dir / f"{run_id}.h5"
         spec: StaticSpec | ImpactSpec | ProbeCalSpec | FlowSpec
@@ -64,15 +66,16 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
         writer = create_run_writer(path, kind, backend, run_id=run_id,
                                    rig_config=test_params, test_spec=spec, operator=operator,
                                    lubricated=kind == "flow", overwrite=True)
+        desk = StandInOperator(_logged_to(writer))
         print(f"{kind}: running ...", flush=True)
         if isinstance(spec, StaticSpec):
-            outcome = run_static_test(backend, writer, spec)
+            outcome = run_static_test(backend, writer, spec, operator=desk, hands=hands)
         elif isinstance(spec, ImpactSpec):
-            outcome = run_impact_test(backend, writer, hands.strike, spec)
+            outcome = run_impact_test(backend, writer, desk, spec, hands=hands)
         elif isinstance(spec, ProbeCalSpec):
-            outcome = run_probe_calibration(backend, writer, hands.read_gauge, spec)
+            outcome = run_probe_calibration(backend, writer, desk, spec, hands=hands)
         else:
-            outcome = run_flow_test(backend, writer, hands.set_supply_pressure, spec)
+            outcome = run_flow_test(backend, writer, desk, spec, hands=hands)
         status = "completed" if outcome.completed else "aborted"
         writer.close(status, outcome.reason)
         backend.close()
@@ -80,6 +83,10 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
         print(f"{kind}: {outcome.steps} steps, {status}{why} -> {path}", flush=True)
         written.append(path)
     return written
+
+
+def _logged_to(writer: Any) -> Callable[[str, str], None]:
+    return lambda kind, message: writer.on_event(kind, message, writer.samples_received)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -11,6 +11,7 @@ import pytest
 from control.programs import FlowSpec, StaticSpec, create_run_writer, run_flow_test, run_static_test
 from daq.channels import default_channel_map
 from sfdrig.cli import main
+from sfdrig.simulated_operator import SimulatedHands, StandInOperator
 from simulated_hw.backend import SimulatedBackend
 from simulated_hw.params import RigParams
 
@@ -29,12 +30,10 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     params = RigParams()
     b = SimulatedBackend(params, seed=6)
     b.configure(default_channel_map())
-    rig = b.rig
     w = create_run_writer(d / "flow.h5", "flow", b, run_id="fl1", rig_config=params,
                           lubricated=True)
     fspec = FlowSpec(supply_pressures_pa=(10e3, 15e3, 20e3), repeats=1, settle_s=2.5)
-    assert run_flow_test(b, w, lambda pa: setattr(rig.params.oil, "supply_pressure_pa", pa),
-                         fspec).completed
+    assert run_flow_test(b, w, StandInOperator(), fspec, hands=SimulatedHands(b)).completed
     w.close()
     return {"static": d / "static.h5", "flow": d / "flow.h5"}
 

@@ -15,6 +15,7 @@ from analysis.structure import (
     identify_probe_calibration,
     identify_static,
 )
+from control.operator import OperatorDesk, Question
 from control.programs import (
     FlowSpec,
     ImpactSpec,
@@ -46,6 +47,58 @@ def backend(params: RigParams, seed: int = 3) -> SimulatedBackend:
     b = SimulatedBackend(params, seed=seed)
     b.configure(default_channel_map())
     return b
+
+
+class ScriptedDesk(OperatorDesk):
+    """Answers each question as it is asked, from ``answer(question) -> (choice, text)``; keeps
+    every question and answer."""
+
+    def __init__(self, answer) -> None:  # noqa: ANN001
+        super().__init__(lambda kind, message: self.log.append(message))
+        self.log: list[str] = []
+        self.asked: list[Question] = []
+        self._script = answer
+
+    def post(self, question: Question) -> Question:
+        q = super().post(question)
+        self.asked.append(q)
+        choice, text = self._script(q)
+        self.submit(q.id, choice, text)
+        return q
+
+
+class Hands:
+    """A test's own hands on the simulated rig (no code shared with the composition root's)."""
+
+    def __init__(self, rig) -> None:  # noqa: ANN001
+        self.rig = rig
+        self.strikes: list[tuple[str, float, str]] = []
+        self.pressures: list[float] = []
+
+    def strike(self, axis: str, peak_force_n: float, kind: str) -> None:
+        self.strikes.append((axis, peak_force_n, kind))
+        if kind == "overload":  # the hammer's range: 10 V at 2.3 mV/N is 4,348 N
+            self.rig.schedule_impact(axis, 5000.0, 0.002)
+            return
+        self.rig.schedule_impact(axis, peak_force_n, 0.002)
+        if kind == "double":  # the hammer bounces: 100 N 25 ms later
+            self.rig.schedule_impact(axis, 100.0, 0.002, delay_s=0.025)
+
+    def gauge_reading_m(self, axis: str) -> float:
+        truth = self.rig.last_truth
+        z = float(np.mean(truth.x_m if axis == "x" else truth.y_m))
+        return round(z / GAUGE_RESOLUTION_M) * GAUGE_RESOLUTION_M
+
+    def set_supply_pressure(self, pressure_pa: float) -> None:
+        self.pressures.append(pressure_pa)
+        self.rig.params.oil.supply_pressure_pa = pressure_pa
+
+    def set_journal(self, installed: bool) -> None:
+        self.rig.set_seal(installed)
+
+
+def accept_all(q: Question) -> tuple[str, str]:
+    return "ok", q.shows
 
 
 def test_static_programme(tmp_path: Path) -> None:
@@ -80,18 +133,13 @@ def test_impact_programme(tmp_path: Path) -> None:
     params = no_seal()
     b = backend(params)
     rig = b.rig
-    strikes: list[tuple[str, float]] = []
-
-    def strike(axis: str, peak_n: float) -> None:
-        strikes.append((axis, peak_n))
-        rig.schedule_impact(axis, peak_n, 0.002)
-
+    hands = Hands(rig)
     spec = ImpactSpec(strikes=2, window_s=1.0)
     w = create_run_writer(tmp_path / "i.h5", "impact", b, run_id="i", rig_config=params)
-    out = run_impact_test(b, w, strike, spec)
+    out = run_impact_test(b, w, ScriptedDesk(accept_all), spec, hands=hands)
     w.close()
     assert out.completed, out.reason
-    assert strikes == [("x", 300.0)] * 2 + [("y", 300.0)] * 2
+    assert hands.strikes == [("x", 300.0, "ok")] * 2 + [("y", 300.0, "ok")] * 2
     with open_run(tmp_path / "i.h5") as r:
         for st in r.steps:
             assert st["trigger_sample"] - st["first_sample"] == int(0.02 * 10_000)
@@ -115,10 +163,12 @@ def test_impact_programme(tmp_path: Path) -> None:
 def test_impact_without_strike_stops_safely(tmp_path: Path) -> None:
     b = backend(no_seal())
     w = create_run_writer(tmp_path / "i.h5", "impact", b, run_id="i")
-    out = run_impact_test(b, w, lambda axis, peak: None, ImpactSpec(wait_s=0.5))
+    no_hit = Hands(b.rig)
+    no_hit.strike = lambda axis, peak, kind: None  # type: ignore[method-assign]
+    out = run_impact_test(b, w, ScriptedDesk(accept_all), ImpactSpec(wait_s=0.5), hands=no_hit)
     w.close()
     assert not out.completed
-    assert "impact step 0 (x, strike 1)" in out.reason and "no strike" in out.reason
+    assert "impact step 0 (x, hit 1)" in out.reason and "no strike" in out.reason
     with open_run(tmp_path / "i.h5") as r:
         assert any(e["kind"] == "abort" and "no strike" in e["message"] for e in r.events)
         assert r.channel("shaker_x")[-1] == 0.0
@@ -150,16 +200,10 @@ def test_probe_calibration_programme(tmp_path: Path) -> None:
     params.effects.probe_gain_error.channel = "x1"
     params.effects.probe_gain_error.gain_ratio = 1.03
     b = backend(params)
-    rig = b.rig
-
-    def gauge(axis: str) -> float:
-        truth = rig.last_truth
-        z = float(np.mean(truth.x_m if axis == "x" else truth.y_m))
-        return round(z / GAUGE_RESOLUTION_M) * GAUGE_RESOLUTION_M
-
     w = create_run_writer(tmp_path / "c.h5", "probe_calibration", b, run_id="c",
                           rig_config=params)
-    out = run_probe_calibration(b, w, gauge, ProbeCalSpec())
+    out = run_probe_calibration(b, w, ScriptedDesk(accept_all), ProbeCalSpec(),
+                                hands=Hands(b.rig))
     w.close()
     assert out.completed and out.steps == 14
     with open_run(tmp_path / "c.h5") as r:
@@ -178,19 +222,14 @@ def test_flow_programme(tmp_path: Path) -> None:
     params = RigParams()
     b = backend(params)
     rig = b.rig
-    set_to: list[float] = []
-
-    def set_supply(pa: float) -> None:
-        set_to.append(pa)
-        rig.params.oil.supply_pressure_pa = pa
-
+    hands = Hands(rig)
     spec = FlowSpec(supply_pressures_pa=(10e3, 15.5e3, 20e3, 25e3), repeats=2, settle_s=2.5)
     w = create_run_writer(tmp_path / "f.h5", "flow", b, run_id="f", rig_config=params,
                           lubricated=True)
-    out = run_flow_test(b, w, set_supply, spec)
+    out = run_flow_test(b, w, ScriptedDesk(accept_all), spec, hands=hands)
     w.close()
     assert out.completed and out.steps == 8
-    assert set_to == [10e3, 15.5e3, 20e3, 25e3] * 2
+    assert hands.pressures == [10e3, 15.5e3, 20e3, 25e3] * 2
     assert not rig.pump_on  # switched off at the end
     with open_run(tmp_path / "f.h5") as r:
         assert [e["message"] for e in r.events if e["kind"] == "pump"] == ["pump on", "pump off"]
@@ -204,3 +243,80 @@ def test_flow_programme(tmp_path: Path) -> None:
     # eq. 1 gives 2.78 cP at 24 degC: the flow ratio against it shows the 12 % disagreement
     assert fr.mean_flow_ratio_eq1 == pytest.approx(2.78 / 3.17, rel=0.02)
     assert fr.r2 > 0.999
+
+
+def test_impact_rejects_double_hits_and_overloads_and_the_operators_reject(tmp_path: Path,
+                                                                         ) -> None:
+    b = backend(no_seal())
+    hands = Hands(b.rig)
+    strikes = iter(["double", "overload", "ok", "ok", "ok"])
+    reviews = iter(["reject", "ok", "ok"])
+
+    def script(q: Question) -> tuple[str, str]:
+        if q.trigger:
+            return next(strikes), ""
+        if q.prompt.startswith("Hit"):
+            return next(reviews), ""
+        return "ok", ""
+
+    desk = ScriptedDesk(script)
+    w = create_run_writer(tmp_path / "i.h5", "impact", b, run_id="i")
+    out = run_impact_test(b, w, desk, ImpactSpec(axes=("x",), strikes=2), hands=hands)
+    w.close()
+    assert out.completed, out.reason
+    with open_run(tmp_path / "i.h5") as r:
+        steps = r.steps
+        fits = identify_impact(r, [])
+    assert [st["accepted"] for st in steps] == [False, False, False, True, True]
+    assert steps[0]["rejection"].startswith("double hit: a second pulse of 100 N 25 ms after")
+    assert steps[1]["rejection"].startswith("overload: hammer reached 43")  # clipped at 10 V
+    assert "% of its input range" in steps[1]["rejection"]
+    assert steps[2]["rejection"] == "rejected by the operator"
+    for st in steps:  # a fixed record per hit: 20 ms before the trigger, 1 s after
+        assert st["trigger_sample"] - st["first_sample"] == 200
+        assert st["last_sample"] - st["trigger_sample"] == 10_000
+    # the operator saw why: the next strike question says so
+    rejected_news = [q.info[-1] for q in desk.asked if q.trigger][1:3]
+    assert rejected_news[0].startswith("hit 1 rejected: double hit")
+    assert rejected_news[1].startswith("hit 2 rejected: overload")
+    review = [q for q in desk.asked if q.prompt.startswith("Hit 5")][0]
+    assert "H1 of 2 hit(s): peak at 45." in review.info[1] and "coherence" in review.info[1]
+    (fit,) = fits
+    assert fit.n_impacts == 2  # only the accepted hits are averaged
+    assert fit.k_n_per_m == pytest.approx(788e3, rel=0.03)
+    band = [c for f, c in zip(fit.freq_hz, fit.coherence, strict=True) if 20 <= f <= 100]
+    assert min(band) > 0.95
+
+
+def test_abort_half_way_keeps_the_points_and_fades_the_drives(tmp_path: Path) -> None:
+    b = backend(no_seal())
+    answers = iter(["ok"] * 4 + ["abort"])
+    desk = ScriptedDesk(lambda q: (next(answers), ""))
+    w = create_run_writer(tmp_path / "s.h5", "static", b, run_id="s")
+    out = run_static_test(b, w, StaticSpec(axes=("x",), repeats=1), operator=desk,
+                          hands=Hands(b.rig))
+    w.close("aborted", out.reason)
+    assert not out.completed and out.steps == 3  # setup + 3 points accepted, then abort
+    assert "aborted by the operator" in out.reason and "static x +40 N" in out.reason
+    with open_run(tmp_path / "s.h5") as r:
+        assert len(r.steps) == 3
+        assert np.all(r.channel("shaker_x")[-100:] == 0.0)
+        assert any(e["kind"] == "abort" and "aborted by the operator" in e["message"]
+                   for e in r.events)
+    assert desk.log[-1].endswith("point 4/5): abort")
+
+
+def test_an_unsteady_point_is_not_recorded(tmp_path: Path) -> None:
+    """With a steadiness limit no signal can meet, the operator is asked to repeat or skip, and
+    no point is recorded."""
+    b = backend(no_seal())
+    desk = ScriptedDesk(lambda q: ("skip", "") if "Not steady" in q.prompt else ("ok", ""))
+    w = create_run_writer(tmp_path / "s.h5", "static", b, run_id="s")
+    spec = StaticSpec(axes=("x",), forces_n=(0.0,), repeats=1, steady_displacement_m=1e-12,
+                      steady_timeout_s=0.5)
+    out = run_static_test(b, w, spec, operator=desk)
+    w.close()
+    assert out.completed and out.steps == 0
+    not_steady = [q for q in desk.asked if "Not steady" in q.prompt]
+    assert len(not_steady) == 1 and "x moved" in not_steady[0].prompt
+    assert not_steady[0].choices == ["repeat", "skip", "abort"]  # no way to accept it

@@ -1,0 +1,335 @@
+"""What every non-sweep test programme shares: the DC-level stream (AO written two blocks ahead,
+every block to the listener), the harness that always ends with the drives ramped to zero, the
+wait for a person's answer while the DAQ keeps streaming, and the check that signals are steady.
+
+The operator is an `control.operator.OperatorDesk`; what a person's hands do that the software must
+do on the simulated rig (strike, show a dial gauge, turn the regulator, take the journal out) is an
+optional `RigHands`, given only for the simulated rig by the composition root.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from control.operator import Answer, OperatorDesk, Question
+from daq.backend import DaqBackend
+
+
+class Listener(Protocol):
+    def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None: ...
+    def on_step(self, step: dict) -> None: ...
+    def on_event(self, kind: str, message: str, sample: int) -> None: ...
+
+
+FAULT_RAMP_S = 0.04  # drive fade on a fault [s]
+
+
+class ProgramError(RuntimeError):
+    """A test programme that had to stop: the message says which step and why."""
+
+
+class ProgramAborted(ProgramError):
+    """The operator (or the daemon) asked the programme to stop."""
+
+
+class RigHands(Protocol):
+    """What a person does at the rig that, on the simulated rig, the software must do."""
+
+    def strike(self, axis: str, peak_force_n: float, kind: str) -> None:
+        """Hit the housing: ``kind`` "ok" (one clean hit), "double" or "overload"."""
+
+    def gauge_reading_m(self, axis: str) -> float:
+        """What the dial gauge on ``axis`` shows now [m], to its resolution."""
+
+    def set_supply_pressure(self, pressure_pa: float) -> None:
+        """Turn the regulator to ``pressure_pa``."""
+
+    def set_journal(self, installed: bool) -> None:
+        """Take the journal out (no seal contact) or put it back."""
+
+
+@dataclass
+class ProgramOutcome:
+    """What a programme did: steps recorded, and why it stopped if it did not complete."""
+
+    kind: str
+    steps: int
+    completed: bool
+    reason: str = ""
+    samples: int = 0
+    step_dicts: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def status(self) -> str:
+        """"completed" or "aborted" (read by the daemon's acquisition loop)."""
+        return "completed" if self.completed else "aborted"
+
+
+class Stream:
+    """AO written two blocks ahead, AI read block by block, every block passed to the listener.
+
+    The drive is a DC level per shaker that moves by linear ramps; ``level_v`` is the level the
+    next written block ends at.
+    """
+
+    def __init__(self, backend: DaqBackend, listener: Listener, block: int,
+                 max_force_n: float = float("inf"), operator: OperatorDesk | None = None) -> None:
+        self.backend = backend
+        self.operator = operator
+        # a simulated rig running faster than real time is paced while a person is asked, so a
+        # minute at the prompt is a minute of record, not an hour
+        self.pace_waits = getattr(backend, "realtime", True) is False
+        self.max_force_n = max_force_n
+        self.where = ""  # what the programme is doing, for the trip message
+        self._fading = False  # set while ramping to zero at the end: no more trips
+        self.listener = listener
+        self.cm = backend.channel_map
+        self.fs = backend.sample_rate_hz
+        self.block = block
+        self.n_ao = len(self.cm.ao)
+        self.level_v = np.zeros(self.n_ao)
+        self._written: deque[np.ndarray] = deque()
+        self._target: np.ndarray | None = None
+        self._rate = np.zeros(self.n_ao)  # ramp rate toward the target [V per sample]
+        self.sample = 0  # next AI sample to read
+        self.last_ai = np.zeros((len(self.cm.ai), 0))
+        self._started = False
+
+    def _write(self, target_v: np.ndarray, ramp_samples: int) -> None:
+        """Write one block moving linearly toward ``target_v``: a new target sets the rate so
+        that the whole change takes ``ramp_samples``; the level then arrives exactly."""
+        n = self.block
+        target_v = np.asarray(target_v, dtype=float)
+        if self._target is None or not np.array_equal(target_v, self._target):
+            self._target = target_v.copy()
+            self._rate = np.abs(target_v - self.level_v) / max(int(ramp_samples), 1)
+        delta = self._target - self.level_v
+        k = np.arange(1, n + 1)[None, :]
+        moved = np.minimum(self._rate[:, None] * k, np.abs(delta)[:, None])
+        blk = self.level_v[:, None] + np.sign(delta)[:, None] * moved
+        for row, ch in enumerate(self.cm.ao):
+            lo, hi = ch.range_v
+            np.clip(blk[row], lo, hi, out=blk[row])
+        self.backend.write_ao(blk)
+        self._written.append(blk)
+        self.level_v = blk[:, -1].copy()
+
+    def start(self) -> None:
+        for _ in range(2):
+            self._write(self.level_v, 1)
+        self.backend.start()
+        self._started = True
+
+    def step(self, target_v: np.ndarray, ramp_s: float) -> np.ndarray:
+        """Write one block moving toward ``target_v``, read one block; AI in engineering units."""
+        remaining = np.max(np.abs(target_v - self.level_v)) if self.n_ao else 0.0
+        ramp = int(ramp_s * self.fs) if remaining > 0 else 1
+        self._write(target_v, ramp)
+        volts = self.backend.read_ai(self.block)
+        ai = self.cm.to_engineering(volts)
+        self.last_ai = ai
+        ao = self._written.popleft()
+        self.listener.on_block(self.sample, ai, ao)
+        self.sample += self.block
+        if not self._fading:
+            if self.operator is not None and self.operator.abort_reason:
+                raise ProgramAborted(f"{self.where or 'programme'}: "
+                                     f"{self.operator.abort_reason}")
+            self._check_force(ai)  # every block: a trip is seen within one block
+        return ai
+
+    def _check_force(self, ai: np.ndarray) -> None:
+        for name in ("fx", "fy"):
+            if name in self.cm.ai_names:
+                peak = float(np.max(np.abs(ai_row(self.cm, ai, name))))
+                if peak > self.max_force_n:
+                    raise ProgramError(f"{self.where or 'programme'}: {name} reached "
+                                       f"{peak:.1f} N, over the {self.max_force_n:g} N limit")
+
+    def hold(self, target_v: np.ndarray, seconds: float, ramp_s: float) -> tuple[int, np.ndarray]:
+        """Hold ``target_v`` for ``seconds``; returns (first sample, AI (n_ai, n)).
+
+        The blocks already queued (written before this call) and the ramp are let out first, so
+        every returned sample was generated at the target level.
+        """
+        lead = len(self._written) + int(np.ceil(ramp_s * self.fs / self.block))
+        if np.max(np.abs(target_v - self.level_v), initial=0.0) > 0 or lead:
+            for _ in range(lead):
+                self.step(target_v, ramp_s)
+        first = self.sample
+        n_blocks = max(int(np.ceil(seconds * self.fs / self.block)), 1)
+        blocks = [self.step(target_v, ramp_s) for _ in range(n_blocks)]
+        return first, np.concatenate(blocks, axis=1)
+
+    def finish(self, ramp_s: float) -> None:
+        """Ramp to zero, let the queued blocks out, stop (always called)."""
+        if not self._started:
+            return
+        zero = np.zeros(self.n_ao)
+        self._fading = True
+        try:
+            n_blocks = int(np.ceil(ramp_s * self.fs / self.block)) + 3
+            for _ in range(n_blocks):
+                self.step(zero, ramp_s)
+        finally:
+            self.backend.stop()
+
+
+def ai_row(cm: Any, ai: np.ndarray, name: str) -> np.ndarray:
+    return ai[cm.ai_index(name)]
+
+
+def signal(cm: Any, ai: np.ndarray, name: str) -> np.ndarray:
+    """Canonical signal from a block: the channel, or the mean of probes x1, x2..."""
+    if name in cm.ai_names:
+        return ai_row(cm, ai, name)
+    rows = [i for i, n in enumerate(cm.ai_names) if n.startswith(name) and n[len(name):].isdigit()]
+    if not rows:
+        raise ProgramError(f"no channel or probes for signal {name!r} (have {cm.ai_names})")
+    return ai[rows].mean(axis=0)
+
+
+def step_dict(index: int, target_kind: str, target_value: float, motion: str, first: int,
+               last: int, updates: int = 0, converged: bool = True, reason: str = "",
+               **extra: Any) -> dict[str, Any]:
+    d: dict[str, Any] = {
+        "index": index, "freq_hz": 0.0, "target_kind": target_kind,
+        "target_value": float(target_value), "motion": motion, "first_sample": int(first),
+        "last_sample": int(last), "updates": int(updates), "converged": bool(converged),
+        "reason": reason, "harmonics": {}, "drive_v": {},
+    }
+    d.update(extra)
+    return d
+
+
+def run_program(kind: str, backend: DaqBackend, listener: Listener, spec: Any,
+                body: Callable[[Stream, list[dict[str, Any]]], None],
+                operator: OperatorDesk | None = None) -> ProgramOutcome:
+    """Run ``body`` on a started stream; whatever happens, the drives end ramped to zero (fast
+    on a fault or an abort) and the outcome says how many steps were recorded and why it stopped.
+    """
+    stream = Stream(backend, listener, spec.block_samples, spec.max_force_n, operator)
+    steps: list[dict[str, Any]] = []
+    listener.on_event("state", f"{kind} programme started: {spec.model_dump_json()}", 0)
+    outcome = ProgramOutcome(kind, 0, True)
+    clean = False
+    try:
+        stream.start()
+        body(stream, steps)
+        clean = True
+    except ProgramError as err:
+        outcome.completed, outcome.reason = False, str(err)
+        listener.on_event("abort", str(err), stream.sample)
+    finally:
+        if operator is not None:
+            operator.withdraw()
+        # a fault (ProgramError or anything unexpected) fades the drives fast
+        stream.finish(spec.ramp_s if clean else FAULT_RAMP_S)
+    state = "completed" if outcome.completed else "aborted"
+    listener.on_event("state", f"{kind} programme {state}", stream.sample)
+    outcome.steps, outcome.samples, outcome.step_dicts = len(steps), stream.sample, steps
+    return outcome
+
+
+def ask(stream: Stream, question: Question, hold_v: np.ndarray, ramp_s: float,
+        watch: Callable[[int, np.ndarray], bool] | None = None) -> Answer | None:
+    """Post ``question`` and stream at ``hold_v`` until it is answered.
+
+    ``watch(first_sample, ai)`` sees every block while waiting; when it returns True (a hammer
+    strike on the armed channel) the question is withdrawn and None is returned. The choice
+    "abort" raises `ProgramAborted`, so the programme ends the safe way with its points so far.
+    """
+    desk = stream.operator
+    if desk is None:
+        raise ProgramError(f"{stream.where}: this programme needs an operator")
+    q = desk.post(question)
+    while True:
+        answer = desk.poll()
+        if answer is not None:
+            if answer.choice == "abort":
+                raise ProgramAborted(f"{q.where}: aborted by the operator")
+            return answer
+        first = stream.sample
+        ai = stream.step(hold_v, ramp_s)
+        if watch is not None and watch(first, ai):
+            desk.withdraw("answered by a strike on the armed channel")
+            return None
+        if stream.pace_waits:
+            time.sleep(stream.block / stream.fs)
+
+
+def journal_out(stream: Stream, hands: RigHands | None, kind: str) -> None:
+    """Ask for the journal to be taken out: the report's structure tests had no seal contact."""
+    if stream.operator is None:
+        return
+    stream.where = f"{kind} setup"
+    ask(stream, Question(
+        id=0, where=f"{kind} setup", choices=["ok", "abort"],
+        prompt="Take the journal out (no seal contact, as in the report's structure tests), "
+               "leave the shakers attached through the load cells, stand clear of the housing; "
+               "accept when ready"), np.zeros(stream.n_ao), 0.1)
+    if hands is not None:
+        hands.set_journal(False)
+        stream.listener.on_event("operator", "journal out (simulated rig)", stream.sample)
+
+
+def ask_unsteady(stream: Stream, label: str, moving: str, timeout_s: float,
+                 hold_v: np.ndarray, ramp_s: float, info: Sequence[str] = ()) -> str:
+    """A point that did not settle is never recorded: the operator repeats or skips it."""
+    answer = ask(stream, Question(
+        id=0, where=label, choices=["repeat", "skip", "abort"], info=list(info),
+        prompt=f"Not steady within {timeout_s:g} s ({moving}): repeat or skip this point"),
+        hold_v, ramp_s)
+    assert answer is not None
+    stream.listener.on_event("operator", f"{stream.where}: not steady ({moving}); "
+                             f"{answer.choice}", stream.sample)
+    return answer.choice
+
+
+@dataclass
+class Steadiness:
+    """How steady a signal must be to record it: over the window, the means of its quarters
+    may spread by at most ``abs_tol + rel_tol * |mean|`` (in the signal's SI unit)."""
+
+    signal: str
+    abs_tol: float
+    rel_tol: float = 0.005
+
+
+def unsteady(cm: Any, ai: np.ndarray, checks: Sequence[Steadiness]) -> list[str]:
+    """What is not steady in ``ai`` (one clause per signal), empty if all are."""
+    out = []
+    for c in checks:
+        x = signal(cm, ai, c.signal)
+        quarters = [float(q.mean()) for q in np.array_split(x, 4)]
+        spread = max(quarters) - min(quarters)
+        limit = c.abs_tol + c.rel_tol * abs(float(x.mean()))
+        if not spread <= limit:
+            out.append(f"{c.signal} moved {spread:.3g} (limit {limit:.3g})")
+    return out
+
+
+def hold_steady(stream: Stream, target_v: np.ndarray, record_s: float, ramp_s: float,
+                checks: Sequence[Steadiness], timeout_s: float) -> tuple[int, np.ndarray, str]:
+    """Hold and record ``record_s`` until the signals are steady over the whole record, at most
+    ``timeout_s``; (first sample, AI, "" or what stayed unsteady)."""
+    waited = 0.0
+    while True:
+        first, ai = stream.hold(target_v, record_s, ramp_s)
+        moving = unsteady(stream.cm, ai, checks)
+        waited += record_s
+        if not moving or waited >= timeout_s:
+            return first, ai, "; ".join(moving)
+
+
+__all__: Sequence[str] = [
+    "FAULT_RAMP_S", "Listener", "ProgramAborted", "ProgramError", "ProgramOutcome", "RigHands",
+    "Steadiness", "Stream", "ai_row", "ask", "ask_unsteady", "hold_steady", "journal_out",
+    "run_program", "signal", "step_dict", "unsteady",
+]
