@@ -14,7 +14,7 @@ from types import ModuleType
 # Order is the order shown in --help.
 COMMAND_MODULES = (
     "demo", "daemon", "sweep", "watch", "pump", "status", "runs", "abort", "keys", "proxy",
-    "sim_server", "structure", "identify", "import_data", "diagnose", "web",
+    "sim_server", "structure", "identify", "import_data", "diagnose", "calibrate", "web",
 )
 
 

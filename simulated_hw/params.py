@@ -8,6 +8,7 @@ eq. 15; film damping by eq. 16; shaker rating 448 N (section III).
 from __future__ import annotations
 
 import math
+from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
@@ -218,6 +219,22 @@ def rig_params_from_dict(data: dict[str, Any], source: str = "<dict>") -> RigPar
 
 def load_rig_params(path: str | Path) -> RigParams:
     return rig_params_from_dict(read_toml(path, RigParamsError), str(path))
+
+
+# Rigs shipped with the package: "nominal" is RigParams() (the report's stated values); "report"
+# is calibrated against the report's measured tables (`sfdrig calibrate`, simulated_hw/rigs/).
+NAMED_RIGS = ("nominal", "report")
+
+
+def rig_params_named_or_file(name_or_path: str | Path) -> RigParams:
+    """A named rig (`NAMED_RIGS`) or a rig TOML file."""
+    if str(name_or_path) == "nominal":
+        return RigParams()
+    if str(name_or_path) in NAMED_RIGS:
+        with resources.as_file(resources.files("simulated_hw") / "rigs" / f"{name_or_path}.toml"
+                               ) as path:
+            return load_rig_params(path)
+    return load_rig_params(name_or_path)
 
 
 def _toml_value(v: Any) -> str:

@@ -44,8 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="PUB bind address; port 0 picks a free port (default: %(default)s)")
     parser.add_argument("--runs-dir", type=Path, default=DEFAULT_RUNS_DIR,
                         help="where run files go (default: %(default)s)")
-    parser.add_argument("--rig", type=Path, metavar="RIG.toml",
-                        help="simulated rig parameters (default: the report's rig)")
+    parser.add_argument("--rig", metavar="NAME|RIG.toml",
+                        help="simulated rig: 'nominal' (the report's stated values, the "
+                             "default), 'report' (calibrated to its measured tables) or a TOML")
     parser.add_argument("--channels", type=Path, metavar="CHANNELS.toml",
                         help="channel map (default: the report's 14 AI channels)")
     parser.add_argument("--seed", type=int, default=0, help="simulated rig noise seed")
@@ -65,9 +66,9 @@ def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[An
 
         return NidaqmxBackend(grpc_target=args.grpc_target), channel_map, None
     from simulated_hw.backend import SimulatedBackend
-    from simulated_hw.params import RigParams, load_rig_params
+    from simulated_hw.params import RigParams, rig_params_named_or_file
 
-    params = load_rig_params(args.rig) if args.rig else RigParams()
+    params = rig_params_named_or_file(args.rig) if args.rig else RigParams()
     backend = SimulatedBackend(params, seed=args.seed, realtime=not args.fast)
     return backend, channel_map, params
 

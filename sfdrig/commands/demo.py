@@ -24,7 +24,7 @@ from analysis.report import write_report
 from control.client import CommandClient, Subscriber
 from sfdrig.commands.structure import run_structure_tests
 from sfdrig.commands.sweep import UM, achieved, follow
-from simulated_hw.params import RigParams
+from simulated_hw.params import rig_params_named_or_file
 
 NAME = "demo"
 HELP = "run a dry and a lubricated sweep on the simulated rig, store them, summarise, report"
@@ -49,14 +49,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("demo-out"),
                         help="output directory: runs/ and report/ (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="simulated rig seed")
+    parser.add_argument("--rig", default="nominal", metavar="NAME|RIG.toml",
+                        help="the simulated rig: 'nominal' (the report's stated values), "
+                             "'report' (calibrated to its measured tables by `sfdrig calibrate`)"
+                             " or a rig TOML (default: %(default)s)")
     parser.add_argument("--paced", action="store_true",
                         help="pace the simulated rig to the wall clock (slow: minutes)")
 
 
-def start_daemon(runs_dir: Path, seed: int, fast: bool) -> tuple[subprocess.Popen[str], str, str]:
+def start_daemon(runs_dir: Path, seed: int, fast: bool, rig: str = "nominal"
+                 ) -> tuple[subprocess.Popen[str], str, str]:
     """Start ``python -m sfdrig daemon`` and read its endpoint line (poll with a timeout)."""
     cmd = [sys.executable, "-m", "sfdrig", "daemon", "--runs-dir", str(runs_dir),
-           "--seed", str(seed)] + (["--fast"] if fast else [])
+           "--seed", str(seed), "--rig", rig] + (["--fast"] if fast else [])
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
     sel = selectors.DefaultSelector()
@@ -104,9 +109,17 @@ def summary(runs: list[dict[str, Any]]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    try:
+        rig = rig_params_named_or_file(args.rig)
+    except (ValueError, OSError) as err:
+        print("sfdrig demo: " + " ".join(str(err).split()), file=sys.stderr)
+        return 2
+    if args.rig != "nominal":
+        args.rig = str(Path(args.rig).resolve()) if Path(args.rig).is_file() else args.rig
+    print(f"simulated rig: {args.rig}", flush=True)
     runs_dir = args.out / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
-    proc, command, data = start_daemon(runs_dir, args.seed, fast=not args.paced)
+    proc, command, data = start_daemon(runs_dir, args.seed, fast=not args.paced, rig=args.rig)
     print(f"daemon pid {proc.pid}: command={command} data={data}", flush=True)
     runs: list[dict[str, Any]] = []
     try:
@@ -128,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     ok = all(r["status"] == "completed" for r in runs)
     if ok:
         print("\nstructure and instrument tests (static, impact, probe calibration, flow)")
-        structure_runs = run_structure_tests(runs_dir, RigParams(), seed=args.seed)
+        structure_runs = run_structure_tests(runs_dir, rig, seed=args.seed)
         html = write_report([Path(r["path"]) for r in runs] + structure_runs,
                             args.out / "report")
         print(f"identification report: {html}")

@@ -25,7 +25,7 @@ from control.programs import (
 from daq.channels import default_channel_map, load_channel_map
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams, load_rig_params
+from simulated_hw.params import RigParams, rig_params_named_or_file
 
 NAME = "structure"
 HELP = ("run the static, impact, probe-calibration and flow tests on the simulated rig and "
@@ -35,7 +35,8 @@ TESTS = ("static", "impact", "probe_calibration", "flow")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("runs"), help="directory for the run files")
-    p.add_argument("--rig", type=Path, help="rig TOML (default: the report's rig)")
+    p.add_argument("--rig", metavar="NAME|RIG.toml",
+                   help="'nominal' (default), 'report' (calibrated) or a rig TOML")
     p.add_argument("--channels", type=Path, help="channel map TOML (default: the report's rig)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--only", choices=TESTS, action="append", help="run only these tests")
@@ -44,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | None = None,
                         seed: int = 0, only: list[str] | None = None,
-                        operator: str = "") -> list[Path]:
+                        operator: str = "", quiet: bool = False) -> list[Path]:
     """Run the tests and return the run files written, in order."""
     out_dir.mkdir(parents=True, exist_ok=True)
     cm = load_channel_map(channels_path) if channels_path else default_channel_map()
@@ -67,7 +68,8 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
                                    rig_config=test_params, test_spec=spec, operator=operator,
                                    lubricated=kind == "flow", overwrite=True)
         desk = StandInOperator(_logged_to(writer))
-        print(f"{kind}: running ...", flush=True)
+        if not quiet:
+            print(f"{kind}: running ...", flush=True)
         if isinstance(spec, StaticSpec):
             outcome = run_static_test(backend, writer, spec, operator=desk, hands=hands)
         elif isinstance(spec, ImpactSpec):
@@ -80,7 +82,8 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
         writer.close(status, outcome.reason)
         backend.close()
         why = f": {outcome.reason}" if outcome.reason else ""
-        print(f"{kind}: {outcome.steps} steps, {status}{why} -> {path}", flush=True)
+        if not quiet:
+            print(f"{kind}: {outcome.steps} steps, {status}{why} -> {path}", flush=True)
         written.append(path)
     return written
 
@@ -91,7 +94,7 @@ def _logged_to(writer: Any) -> Callable[[str, str], None]:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        params = load_rig_params(args.rig) if args.rig else RigParams()
+        params = rig_params_named_or_file(args.rig) if args.rig else RigParams()
         run_structure_tests(args.out, params, args.channels, args.seed, args.only, args.operator)
     except (ValueError, OSError) as err:
         print(f"sfdrig structure: {err}", file=sys.stderr)

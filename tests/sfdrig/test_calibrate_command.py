@@ -1,0 +1,55 @@
+"""`sfdrig calibrate` and `--rig NAME` refuse bad inputs in one line; the named rigs load."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from sfdrig.cli import main
+from simulated_hw.params import RigParams, rig_params_named_or_file
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    return err
+
+
+@pytest.mark.parametrize("command", ["calibrate", "demo"])
+def test_missing_rig_file_is_one_line(command: str, tmp_path: Path, capsys):
+    missing = tmp_path / "nope.toml"
+    assert main([command, "--rig", str(missing), "--out", str(tmp_path / "o")]) == 2
+    err = _one_line_error(capsys)
+    assert str(missing) in err and "cannot read" in err
+
+
+def test_invalid_rig_field_is_one_line_naming_it(tmp_path: Path, capsys):
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[seal]\ncontact_stiffness_n_per_m = -5.0\n")
+    assert main(["calibrate", "--rig", str(rig), "--out", str(tmp_path / "o")]) == 2
+    err = _one_line_error(capsys)
+    assert "contact_stiffness_n_per_m" in err and str(rig) in err
+
+
+def test_out_that_is_a_file_is_one_line(tmp_path: Path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert main(["calibrate", "--out", str(blocker / "sub"), "--compare-only"]) == 2
+    assert str(blocker / "sub") in _one_line_error(capsys)
+
+
+def test_unknown_plan_is_refused(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["calibrate", "--plan", "huge"])
+    assert exc.value.code == 2
+    assert "invalid choice: 'huge'" in capsys.readouterr().err
+
+
+def test_named_rigs():
+    assert rig_params_named_or_file("nominal") == RigParams()
+    report = rig_params_named_or_file("report")
+    assert report != RigParams()
+    # the calibrated rig keeps the report's film geometry and oil; it changes fitted terms only
+    assert report.film.clearance_m == RigParams().film.clearance_m
+    assert report.seal.contact_stiffness_n_per_m is not None
