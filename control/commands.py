@@ -18,6 +18,7 @@ from control.errors import TargetError
 from control.runs import create_sweep_file, new_run_id
 from control.wire import (
     AbortRequest,
+    AnswerRequest,
     DaemonState,
     ErrorKind,
     ListRunsRequest,
@@ -28,6 +29,7 @@ from control.wire import (
     ResetRequest,
     ResumeRequest,
     StartRequest,
+    StartTestRequest,
     StatusRequest,
     describe_errors,
     parse_request,
@@ -85,7 +87,15 @@ class CommandHandler:
                 return self._ok(req, runs=d.list_runs())
             case StartRequest():
                 return self._start(req)
+            case StartTestRequest():
+                return self._start_test(req)
+            case AnswerRequest():
+                return self._answer(req)
             case PauseRequest():
+                if d.job is not None and not getattr(d.job.engine, "can_pause", True):
+                    return self._error(ErrorKind.FORBIDDEN, "pause: a structure test does not "
+                                       "pause (answer its question, or abort)", req.cmd,
+                                       req.request_id)
                 d.sm.fire("pause")
                 self._engine().pause()
                 self._operator_event("paused by operator")
@@ -180,6 +190,58 @@ class CommandHandler:
         plan = getattr(engine, "plan", None)
         steps_total = len(plan) if isinstance(plan, list) else None
         return self._ok(req, run_id=run_id, path=str(path), steps_total=steps_total)
+
+    def _start_test(self, req: StartTestRequest) -> Reply:
+        """Start a structure or instrument test with the operator in the loop."""
+        from control.operator import OperatorDesk
+        from control.program_engine import DRY_TESTS, SPECS, ProgramEngine
+
+        d = self.d
+        if not d.sm.allowed("start"):
+            d.sm.fire("start")  # raises the TransitionError that names the state
+        try:
+            spec = SPECS[req.test].model_validate(req.spec)
+        except ValidationError as err:
+            return self._error(ErrorKind.INVALID, describe_errors(err, "start_test.spec"),
+                               req.cmd, req.request_id)
+        if req.test in DRY_TESTS and d.pump.is_on:
+            return self._error(ErrorKind.FORBIDDEN, f"start_test: the {req.test} test is dry "
+                               "(no journal, no oil): switch the pump off first", req.cmd,
+                               req.request_id)
+        fanout = FanOut([], [d.publisher])
+        desk = OperatorDesk(lambda kind, message: fanout.on_event(kind, message,
+                                                                  fanout.last_sample))
+        engine = ProgramEngine(req.test, d.backend, spec, fanout, desk, d.hands, d.pump.set)
+        run_id = f"{new_run_id()}-{req.test}"
+        path = d.cfg.runs_dir / f"{run_id}.h5"
+        try:
+            writer = create_sweep_file(path, run_id, d.channel_map, spec, req.operator,
+                                       req.notes, d.cfg.rig_config, kind=req.test,
+                                       lubricated=req.test == "flow")
+        except Exception as err:  # disk full, permissions: nothing has run
+            log.exception("creating %s failed", path)
+            return self._error(ErrorKind.FAILED, f"start_test: cannot create the run file: "
+                               f"{err}", req.cmd, req.request_id)
+        background = BackgroundWriter(writer, int(30 * d.channel_map.sample_rate_hz))
+        fanout.required.append(background)
+        d.job = RunJob(run_id, path, engine, background, fanout)
+        d.publisher.set_run(run_id)
+        d.sm.fire("start")
+        d.loop.submit(d.job)
+        return self._ok(req, run_id=run_id, path=str(path))
+
+    def _answer(self, req: AnswerRequest) -> Reply:
+        from control.operator import EntryError
+
+        desk = getattr(self.d.job.engine, "desk", None) if self.d.job is not None else None
+        if desk is None:
+            return self._error(ErrorKind.FORBIDDEN, "answer: no test is asking anything",
+                               req.cmd, req.request_id)
+        try:
+            answer = desk.submit(req.question_id, req.choice, req.text)
+        except EntryError as err:
+            return self._error(ErrorKind.INVALID, f"answer: {err}", req.cmd, req.request_id)
+        return self._ok(req, answer=answer.model_dump(mode="json"))
 
     def _refusal(self, spec: Any) -> tuple[ErrorKind, str] | None:
         """Why a valid sweep must not start now (before a run file exists), or None."""

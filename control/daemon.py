@@ -85,13 +85,17 @@ class Daemon:
     engine_factory, pump_factory : callable, optional
         Build the sweep engine and the pump relay (defaults: `control.sweep.SweepEngine`,
         `control.pump.PumpRelay`).
+    hands : RigHands, optional
+        What a person's hands do in the structure tests, done in software (simulated rig only).
     """
 
     def __init__(self, backend: DaqBackend, channel_map: ChannelMap, config: DaemonConfig,
                  engine_factory: Callable[..., Any] | None = None,
                  pump_factory: Callable[..., Any] | None = None,
-                 spec_parser: Callable[[dict[str, Any]], Any] | None = None) -> None:
+                 spec_parser: Callable[[dict[str, Any]], Any] | None = None,
+                 hands: Any = None) -> None:
         self.backend = backend
+        self.hands = hands  # control.program_stream.RigHands on the simulated rig, else None
         self.channel_map = channel_map
         self.cfg = config
         self.cfg.runs_dir.mkdir(parents=True, exist_ok=True)
@@ -270,6 +274,8 @@ class Daemon:
                           "phase_deg": getattr(spec, "tolerance_phase_deg", None)}
             if hasattr(spec, "tolerance_amplitude_pct") else None,
             "fault_reason": self.fault_reason,
+            # what a structure test asks the operator now (control.operator.Question), or None
+            "question": _question(job),
             "last_run": self._last_run,
             "recovered_at_start": self.recovered,
             "next_seq": self.publisher.sequence_numbers(),
@@ -321,6 +327,12 @@ class Daemon:
         tmp.write_text(json.dumps({**self.endpoints, "pid": os.getpid(),
                                    "curve": self.cfg.keys is not None}))
         tmp.replace(self.cfg.state_file)
+
+
+def _question(job: RunJob | None) -> dict[str, Any] | None:
+    desk = getattr(job.engine, "desk", None) if job is not None else None
+    q = desk.pending() if desk is not None else None
+    return q.model_dump(mode="json") if q is not None else None
 
 
 def _random_port(endpoint: str) -> str:

@@ -173,7 +173,8 @@ class OperatorDesk:
                 ans = Answer(question_id=q.id, choice=choice, text=text, value_si=value)
                 self._answer = ans
         if refused:
-            self.on_event("operator", f"refused entry {text!r} ({choice}): {refused}")
+            typed = f"entry {text!r}" if text else f"choice {choice!r}"
+            self.on_event("operator", f"refused {typed}: {refused}")
             raise EntryError(refused)
         assert q is not None
         typed = f" {text.strip()!r}" if text.strip() else ""

@@ -31,18 +31,20 @@ def writer_chunk_samples(sample_rate_hz: float) -> int:
 
 
 def create_sweep_file(path: Path, run_id: str, channel_map: ChannelMap, spec: Any,
-                      operator: str, notes: str, rig_config: Any) -> Any:
-    """A new `storage.RunWriter` for one sweep, its metadata written."""
+                      operator: str, notes: str, rig_config: Any, kind: str = "sweep",
+                      lubricated: bool | None = None) -> Any:
+    """A new `storage.RunWriter` for one sweep (or test of ``kind``), its metadata written."""
     from storage.runfile import RunWriter
 
     cm = channel_map
     return RunWriter.create(
-        path, run_id, "sweep",
+        path, run_id, kind,
         channels=cm.to_json_dict()["ai"], ao_names=cm.ao_names,
         sample_rate_hz=cm.sample_rate_hz, operator=operator, notes=notes,
         channel_map=cm.to_json_dict(), rig_config=rig_config,
         test_spec=spec.model_dump(mode="json") if hasattr(spec, "model_dump") else spec,
-        lubricated=bool(getattr(spec, "lubricated", False)),
+        lubricated=bool(getattr(spec, "lubricated", False)) if lubricated is None
+        else lubricated,
         chunk_samples=writer_chunk_samples(cm.sample_rate_hz),
     )
 

@@ -87,6 +87,27 @@ class StartRequest(_Request):
     notes: Text = Field("", max_length=10_000)
 
 
+class StartTestRequest(_Request):
+    """Start a structure or instrument test (the report's sections IV-V, Appendix A) with the
+    operator in the loop; ``spec`` holds fields of its spec (`control.program_specs`)."""
+
+    cmd: Literal["start_test"]
+    test: Literal["static", "impact", "probe_calibration", "flow"]
+    spec: dict[str, Any] = Field(default_factory=dict)
+    operator: Text = Field("", max_length=200)
+    notes: Text = Field("", max_length=10_000)
+
+
+class AnswerRequest(_Request):
+    """Answer the question a running test asks (the daemon's status has it): a choice and, for
+    an entry, the text typed ("0.0021 in"); the daemon checks the unit and the range."""
+
+    cmd: Literal["answer"]
+    question_id: int = Field(ge=1)
+    choice: Text = Field(min_length=1, max_length=32)
+    text: Text = Field("", max_length=200)
+
+
 class PauseRequest(_Request):
     cmd: Literal["pause"]
 
@@ -121,10 +142,11 @@ class ResetRequest(_Request):
 
 Request = Annotated[
     StartRequest | PauseRequest | ResumeRequest | AbortRequest | PumpRequest | StatusRequest
-    | ListRunsRequest | ResetRequest,
+    | ListRunsRequest | ResetRequest | StartTestRequest | AnswerRequest,
     Field(discriminator="cmd"),
 ]
-COMMANDS = ("start", "pause", "resume", "abort", "pump", "status", "list_runs", "reset")
+COMMANDS = ("start", "pause", "resume", "abort", "pump", "status", "list_runs", "reset",
+            "start_test", "answer")
 _REQUEST_ADAPTER: TypeAdapter[Any] = TypeAdapter(Request)
 
 

@@ -27,8 +27,7 @@ class SimulatedHands:
     gauge_resolution_m: float = DIAL_GAUGE_RESOLUTION_M
     hammer_channel: str = "hammer"
 
-    def __post_init__(self) -> None:
-        self._seal_configured = self._rig().params.seal.enabled
+    _seal_configured: bool | None = None  # the seal as configured, before the journal came out
 
     def strike(self, axis: str, peak_force_n: float, kind: str = "ok") -> None:
         """Hit the housing along ``axis`` with a 2 ms half-sine pulse; ``kind`` "double" adds a
@@ -56,7 +55,10 @@ class SimulatedHands:
 
     def set_journal(self, installed: bool) -> None:
         """Journal out: no seal contact; back in: the seal as configured."""
-        self._rig().set_seal(installed and self._seal_configured)
+        rig = self._rig()
+        if self._seal_configured is None:
+            self._seal_configured = bool(rig.params.seal.enabled)
+        rig.set_seal(installed and self._seal_configured)
 
     def _rig(self):  # noqa: ANN202
         if self.backend.rig is None:

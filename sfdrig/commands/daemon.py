@@ -92,7 +92,12 @@ def run(args: argparse.Namespace) -> int:
         lossless_publish=args.fast, state_file=args.runs_dir / STATE_FILE_NAME,
     )
     try:
-        daemon = Daemon(backend, channel_map, config)
+        hands = None
+        if args.backend == "sim":  # on the real rig a person's hands do these
+            from sfdrig.simulated_operator import SimulatedHands
+
+            hands = SimulatedHands(backend)
+        daemon = Daemon(backend, channel_map, config, hands=hands)
     except PermissionError as err:
         print(f"daemon: {err}", file=sys.stderr)
         return 2

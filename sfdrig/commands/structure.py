@@ -1,6 +1,11 @@
 """`sfdrig structure`: the structure and instrument tests of the report's sections IV-V and
 Appendix A (static load steps, impact tests, eddy-current probe calibration, flow against
-pressure) on the simulated rig, each stored as a run file that `sfdrig identify` reads."""
+pressure), each stored as a run file that `sfdrig identify` reads.
+
+By default the tests run on the daemon (`sfdrig daemon`, the simulated rig or `--backend nidaqmx`)
+and this terminal is the operator: it shows each question the test asks and sends what is typed
+(`sfdrig.terminal_operator`). ``--unattended`` runs them in this process on the simulated rig with
+a stand-in operator (the demo)."""
 
 from __future__ import annotations
 
@@ -11,6 +16,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from control.client import CommandRefused, DaemonUnavailable
 from control.programs import (
     FlowSpec,
     ImpactSpec,
@@ -23,24 +29,36 @@ from control.programs import (
     run_static_test,
 )
 from daq.channels import default_channel_map, load_channel_map
+from sfdrig.commands._client_args import add_connection_arguments, command_client
+from sfdrig.commands.sweep import sweep_fields
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
+from sfdrig.terminal_operator import run_test
 from simulated_hw.backend import SimulatedBackend
 from simulated_hw.params import RigParams, rig_params_named_or_file
 
 NAME = "structure"
-HELP = ("run the static, impact, probe-calibration and flow tests on the simulated rig and "
-        "store one run file each")
+HELP = ("run the static, impact, probe-calibration and flow tests on the daemon's rig with this "
+        "terminal as the operator, one run file each")
 TESTS = ("static", "impact", "probe_calibration", "flow")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, default=Path("runs"), help="directory for the run files")
-    p.add_argument("--rig", metavar="NAME|RIG.toml",
-                   help="'nominal' (default), 'report' (calibrated) or a rig TOML")
-    p.add_argument("--channels", type=Path, help="channel map TOML (default: the report's rig)")
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--only", choices=TESTS, action="append", help="run only these tests")
     p.add_argument("--operator", default="", help="name stored in the run files")
+    p.add_argument("--notes", default="", help="notes stored in the run files")
+    p.add_argument("--spec", type=Path, metavar="FILE.toml",
+                   help="test settings: one table per test ([static], [impact], ...)")
+    p.add_argument("--set", dest="fields", action="append", default=[], metavar="TEST.KEY=VALUE",
+                   help="one setting, e.g. --set static.repeats=2 --set impact.strikes=5")
+    add_connection_arguments(p)
+    u = p.add_argument_group("unattended (simulated rig in this process, stand-in operator)")
+    u.add_argument("--unattended", action="store_true",
+                   help="no daemon, no person: the simulated rig and a stand-in operator")
+    u.add_argument("--out", type=Path, default=Path("runs"), help="directory for the run files")
+    u.add_argument("--rig", metavar="NAME|RIG.toml",
+                   help="'nominal' (default), 'report' (calibrated) or a rig TOML")
+    u.add_argument("--channels", type=Path, help="channel map TOML (default: the report's rig)")
+    u.add_argument("--seed", type=int, default=0)
 
 
 def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | None = None,
@@ -93,10 +111,39 @@ def _logged_to(writer: Any) -> Callable[[str, str], None]:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        params = rig_params_named_or_file(args.rig) if args.rig else RigParams()
-        run_structure_tests(args.out, params, args.channels, args.seed, args.only, args.operator)
-    except (ValueError, OSError) as err:
-        print(f"sfdrig structure: {err}", file=sys.stderr)
+    if args.unattended:
+        try:
+            params = rig_params_named_or_file(args.rig) if args.rig else RigParams()
+            run_structure_tests(args.out, params, args.channels, args.seed, args.only,
+                                args.operator)
+        except (ValueError, OSError) as err:
+            print(f"sfdrig structure: {err}", file=sys.stderr)
+            return 2
+        return 0
+    specs = sweep_fields(args.spec, args.fields, who="structure", required=False)
+    unknown = sorted(set(specs) - set(TESTS))
+    if unknown:
+        print(f"sfdrig structure: settings for unknown test(s) {', '.join(unknown)} (tests: "
+              f"{', '.join(TESTS)})", file=sys.stderr)
         return 2
-    return 0
+    failed = False
+    try:
+        with command_client(args) as client:
+            for test in args.only or TESTS:
+                try:
+                    end = run_test(client, test, dict(specs.get(test, {})), args.operator,
+                                   args.notes, sys.stdin, sys.stdout)
+                except KeyboardInterrupt:
+                    client.abort(f"operator pressed Ctrl-C in `sfdrig structure` ({test})")
+                    print(f"\n{test}: abort sent (drives ramp to zero)", flush=True)
+                    return 130
+                why = f": {end['reason']}" if end.get("reason") else ""
+                print(f"{test}: {end['steps']} steps, {end['status']}{why} -> {end['path']}",
+                      flush=True)
+                if end["status"] != "completed":
+                    failed = True
+                    break
+    except (CommandRefused, DaemonUnavailable) as err:
+        print(f"sfdrig structure: {err}", file=sys.stderr)
+        return 1
+    return 1 if failed else 0

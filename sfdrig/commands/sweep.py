@@ -39,18 +39,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_connection_arguments(parser, data=True)
 
 
-def sweep_fields(path: Path | None, assignments: list[str]) -> dict[str, Any]:
+def sweep_fields(path: Path | None, assignments: list[str], who: str = "sweep",
+                 required: bool = True) -> dict[str, Any]:
     """The sweep spec dict from a TOML file plus ``KEY=VALUE`` overrides (dotted keys nest)."""
     spec: dict[str, Any] = {}
     if path is not None:
         try:
             spec = tomllib.loads(path.read_text())
         except (OSError, tomllib.TOMLDecodeError) as err:
-            raise SystemExit(f"sweep: cannot read {path}: {err}") from None
+            raise SystemExit(f"{who}: cannot read {path}: {err}") from None
     for a in assignments:
         key, sep, value = a.partition("=")
         if not sep or not key.strip():
-            raise SystemExit(f"sweep: --set {a!r} is not KEY=VALUE")
+            raise SystemExit(f"{who}: --set {a!r} is not KEY=VALUE")
         try:
             parsed = tomllib.loads(f"v = {value}")["v"]
         except tomllib.TOMLDecodeError:
@@ -59,8 +60,10 @@ def sweep_fields(path: Path | None, assignments: list[str]) -> dict[str, Any]:
         *parents, leaf = key.strip().split(".")
         for p in parents:
             node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise SystemExit(f"{who}: --set {a!r}: {p!r} is not a table")
         node[leaf] = parsed
-    if not spec:
+    if required and not spec:
         raise SystemExit("sweep: give a sweep file or --set fields")
     return spec
 

@@ -13,7 +13,7 @@ from storage import open_run
 
 
 def test_impact_and_probe_calibration_runs_from_the_cli(tmp_path: Path, capsys):
-    rc = main(["structure", "--out", str(tmp_path), "--only", "impact",
+    rc = main(["structure", "--unattended", "--out", str(tmp_path), "--only", "impact",
                "--only", "probe_calibration", "--seed", "4"])
     assert rc == 0
     out = capsys.readouterr().out
@@ -39,5 +39,5 @@ def test_impact_and_probe_calibration_runs_from_the_cli(tmp_path: Path, capsys):
 def test_bad_rig_file_is_refused(tmp_path: Path, capsys):
     rig = tmp_path / "rig.toml"
     rig.write_text("[structure]\nmass_kg = -3\n")
-    assert main(["structure", "--out", str(tmp_path), "--rig", str(rig)]) == 2
+    assert main(["structure", "--unattended", "--out", str(tmp_path), "--rig", str(rig)]) == 2
     assert "structure.mass_kg = -3" in capsys.readouterr().err
