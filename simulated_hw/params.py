@@ -24,10 +24,24 @@ class _Model(BaseModel):
 
 
 class Structure(_Model):
-    mass_kg: float = Field(9.7, gt=0, description="housing effective mass M (Table 1) [kg]")
+    mass_kg: float = Field(9.7, gt=0, description="housing effective mass M (Table 1; X only "
+                           "where mass_y_kg is set) [kg]")
     stiffness_x_n_per_m: float = Field(788e3, gt=0, description="K_sx (static tests) [N/m]")
     stiffness_y_n_per_m: float = Field(823e3, gt=0, description="K_sy (static tests) [N/m]")
     residual_damping_ns_per_m: float = Field(370.0, ge=0, description="C_rv (Table 4) [N.s/m]")
+    mass_y_kg: float | None = Field(
+        None, gt=0, description="M along Y where it differs (Table 3: 8.8 kg X, 9.7 kg Y); None: "
+        "mass_kg for both axes [kg]")
+    residual_damping_y_ns_per_m: float | None = Field(
+        None, ge=0, description="C_rv along Y where it differs (Table 3: 367 X, 315 Y); None: "
+        "residual_damping_ns_per_m for both axes [N.s/m]")
+
+    def mass_y(self) -> float:
+        return self.mass_kg if self.mass_y_kg is None else self.mass_y_kg
+
+    def residual_damping_y(self) -> float:
+        return (self.residual_damping_ns_per_m if self.residual_damping_y_ns_per_m is None
+                else self.residual_damping_y_ns_per_m)
 
 
 class Seal(_Model):

@@ -22,8 +22,8 @@ import numpy as np
 # Indices into the parameter vector handed to the kernel.
 (P_M, P_MF, P_D, P_DXY, P_DYX, P_KX, P_KY, P_CRV, P_C0, P_CXY, P_CYX, P_FMU, P_CLEAR, P_ECC,
  P_K3, P_K2, P_AIR_K, P_AIR_MAX, P_AIR_TAU, P_FRAME_ON, P_FRAME_M, P_FRAME_K, P_FRAME_C,
- P_DT, P_NSUB, P_SEAL_KT) = range(26)
-N_PARAMS = 26
+ P_DT, P_NSUB, P_SEAL_KT, P_DM_Y, P_DC_Y) = range(28)
+N_PARAMS = 28
 
 # Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|;
 # the previous sample's force (the force is interpolated linearly between samples); the compliant
@@ -38,7 +38,8 @@ N_OUT = 11
 
 @numba.njit(cache=True, inline="always")
 def _coefficients(x, y, fi, visc_i, vbar, p):  # noqa: ANN001, ANN202
-    """Housing mass matrix and damping matrix at this instant (film fill, eccentricity, air)."""
+    """Housing mass matrix and damping matrix at this instant (film fill, eccentricity, air);
+    the Y diagonal differs from X by the structure's own per-axis mass and damping."""
     clear = p[P_CLEAR]
     ecc2 = (x * x + y * y) / (clear * clear)
     if ecc2 > 0.9025:  # eps capped at 0.95: the formula diverges at contact
@@ -59,7 +60,9 @@ def _coefficients(x, y, fi, visc_i, vbar, p):  # noqa: ANN001, ANN202
     c11 = p[P_CRV] + cfilm
     c12 = fi * p[P_CXY]
     c21 = fi * p[P_CYX]
-    return m11, m12, m21, c11, c12, c21, cfilm
+    m22 = m11 + p[P_DM_Y]
+    c22 = c11 + p[P_DC_Y]
+    return m11, m12, m21, m22, c11, c12, c21, c22, cfilm
 
 
 @numba.njit(cache=True, inline="always")
@@ -123,7 +126,8 @@ def integrate(
         rax = ray = 0.0
         for k in range(nsub):
             # the kick uses the force at the start of the substep, where x is (leapfrog)
-            m11, m12, m21, c11, c12, c21, _ = _coefficients(x, y, fi, visc[i], vbar, p)
+            m11, m12, m21, m22, c11, c12, c21, c22, _ = _coefficients(x, y, fi, visc[i], vbar,
+                                                                       p)
             ex, ey = _elastic(x, y, fpx + k * dfx, fpy + k * dfy, p)
             if compliant:
                 frx, fry, wx, wy = _compliant_seal(x, y, wx, wy, kt, fmu)
@@ -139,17 +143,17 @@ def integrate(
             a11 = m11 + hh * c11
             a12 = m12 + hh * c12
             a21 = m21 + hh * c21
-            a22 = m11 + hh * c11
+            a22 = m22 + hh * c22
             r1x = m11 * vhx + m12 * vhy + h * ex - hh * (c11 * vx + c12 * vy)
-            r1y = m21 * vhx + m11 * vhy + h * ey - hh * (c21 * vx + c11 * vy)
+            r1y = m21 * vhx + m22 * vhy + h * ey - hh * (c21 * vx + c22 * vy)
             if frame_on:
                 m2 = p[P_FRAME_M]
                 cf = p[P_FRAME_C]
-                b11, b12, b21, b22 = -hh * c11, -hh * c12, -hh * c21, -hh * c11
+                b11, b12, b21, b22 = -hh * c11, -hh * c12, -hh * c21, -hh * c22
                 d11 = m2 + hh * (c11 + cf)
                 d12 = hh * c12
                 d21 = hh * c21
-                d22 = m2 + hh * (c11 + cf)
+                d22 = m2 + hh * (c22 + cf)
                 ddet = d11 * d22 - d12 * d21
                 e11, e12, e21, e22 = d22 / ddet, -d12 / ddet, -d21 / ddet, d11 / ddet  # D^-1
                 fx_in = fpx + k * dfx
@@ -157,7 +161,7 @@ def integrate(
                 r2x = (m2 * vxf + h * (-p[P_FRAME_K] * xf - (ex - fx_in))
                        + hh * (c11 * vx + c12 * vy) - hh * cf * vxf)
                 r2y = (m2 * vyf + h * (-p[P_FRAME_K] * yf - (ey - fy_in))
-                       + hh * (c21 * vx + c11 * vy) - hh * cf * vyf)
+                       + hh * (c21 * vx + c22 * vy) - hh * cf * vyf)
                 # G = B D^-1 (2x2); Schur complement S = A - G B; P = I - G (impulse map)
                 g11 = b11 * e11 + b12 * e21
                 g12 = b11 * e12 + b12 * e22
@@ -244,18 +248,19 @@ def integrate(
         # the state at t_i: the velocity moved from the half-step, then the forces there
         vox = vx + 0.5 * h * rax
         voy = vy + 0.5 * h * ray
-        m11, m12, m21, c11, c12, c21, cfilm = _coefficients(x, y, fi, visc[i], vbar, p)
+        m11, m12, m21, m22, c11, c12, c21, c22, cfilm = _coefficients(x, y, fi, visc[i], vbar,
+                                                                      p)
         ex, ey = _elastic(x, y, fpx, fpy, p)
         if compliant:
             frx, fry, _, _ = _compliant_seal(x, y, wx, wy, kt, fmu)
         gx = ex - (c11 * vox + c12 * voy) + frx
-        gy = ey - (c21 * vox + c11 * voy) + fry
-        det = m11 * m11 - m12 * m21
+        gy = ey - (c21 * vox + c22 * voy) + fry
+        det = m11 * m22 - m12 * m21
         out[O_X, i] = x
         out[O_Y, i] = y
         out[O_VX, i] = vox
         out[O_VY, i] = voy
-        out[O_AX, i] = (m11 * gx - m12 * gy) / det
+        out[O_AX, i] = (m22 * gx - m12 * gy) / det
         out[O_AY, i] = (-m21 * gx + m11 * gy) / det
         out[O_FRICX, i] = frx
         out[O_FRICY, i] = fry

@@ -25,6 +25,8 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
     p[physics.P_KX] = st.stiffness_x_n_per_m
     p[physics.P_KY] = st.stiffness_y_n_per_m
     p[physics.P_CRV] = st.residual_damping_ns_per_m
+    p[physics.P_DM_Y] = st.mass_y() - st.mass_kg
+    p[physics.P_DC_Y] = st.residual_damping_y() - st.residual_damping_ns_per_m
     mu0, _ = film.reference_viscosity()
     p[physics.P_C0] = film.eq16_damping_centred(mu0)
     p[physics.P_FMU] = params.seal.friction_force_n if params.seal.enabled else 0.0
