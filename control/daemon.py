@@ -115,6 +115,7 @@ class Daemon:
         self.fault_reason = ""
         self._stop_reason = ""
         self._stop = threading.Event()
+        self._watchdog_error = ""
 
         self._ctx = zmq.Context()
         self._auth: Any = None
@@ -165,10 +166,26 @@ class Daemon:
                 if now >= next_beat:
                     self.publisher.publish_status(self.status())
                     next_beat = now + self.cfg.heartbeat_s
+                    self._feed_watchdog_while_idle()
                 if self._command.poll(int(max(0.0, next_beat - now) * 1000) + 1):
                     self._handle(self._command.recv_multipart())
         finally:
             self._shutdown()
+
+    def _feed_watchdog_while_idle(self) -> None:
+        """Between runs the command loop feeds the board's watchdog (during a run the
+        acquisition loop does): if this process hangs or dies, the board turns the pump relay
+        off and the drives to 0 V by itself."""
+        if self.job is not None:
+            return
+        try:
+            self.backend.feed_watchdog()
+        except Exception as err:  # expired or board gone: say so once, keep serving
+            if str(err) != self._watchdog_error:
+                log.error("board watchdog: %s", err)
+            self._watchdog_error = str(err)
+        else:
+            self._watchdog_error = ""
 
     def stop(self, reason: str = "shutdown requested") -> None:
         """Ask for a safe shutdown (thread- and signal-safe): abort any run, then exit `serve`."""

@@ -10,6 +10,8 @@ Life cycle: ``configure(channel_map)`` -> ``write_ao(prefill)`` -> ``start()`` -
   the AO stream is generated at the instant AI sample ``k`` is taken. The caller keeps the AO
   buffer ahead of the generation; running dry raises `daq.errors.DaqUnderflowError`.
 - ``set_do`` switches a relay line at once (software-timed).
+- ``feed_watchdog`` resets the board's watchdog timer, where the backend has one (`read_ai` feeds
+  it too); if nobody feeds it, the board turns the relays off and the drives to 0 V by itself.
 """
 
 from __future__ import annotations
@@ -45,6 +47,10 @@ class DaqBackend(Protocol):
 
     def set_do(self, name: str, value: bool) -> None:
         """Set the relay line called ``name`` in the channel map."""
+
+    def feed_watchdog(self) -> None:
+        """Reset the board's watchdog timer (no-op without one); the daemon calls it while
+        idle, `read_ai` during a run."""
 
     def ao_backlog(self) -> int:
         """Samples written to AO but not yet generated."""

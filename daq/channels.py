@@ -71,6 +71,11 @@ class DeviceSpec(_Strict):
     ai_range_v: float = Field(10.0, gt=0, le=10.0, description="largest AI input range [V]")
     ao_range_v: float = Field(10.0, gt=0, le=10.0, description="largest AO output range [V]")
     ai_bits: int = Field(16, ge=8, le=24)
+    ao_idle_output_zero: bool = Field(
+        True, description="AO channels can be set to generate 0 V when no generation runs "
+                          "(DAQmx ao_idle_output_behavior = ZERO_VOLTS)")
+    ao_watchdog: bool = Field(
+        True, description="the watchdog timer can set AO channels (AO expiration states)")
 
     def ai_channels(self) -> list[str]:
         return [f"{self.name}/ai{i}" for i in range(self.ai_count)]

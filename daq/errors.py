@@ -11,6 +11,11 @@ INVALID_ATTRIBUTE_VALUE = -200077
 SAMPLE_RATE_TOO_HIGH = -200332
 RESOURCE_RESERVED = -50103
 DEVICE_NOT_FOUND = -200220
+ATTR_NOT_SUPPORTED = -200197
+ATTR_NOT_SUPPORTED_IN_TASK = -200452  # the device lacks the property
+WATCHDOG_TIMER_NOT_SUPPORTED = -200662
+CANT_RESET_EXPIRED_WATCHDOG = -200644
+WRITE_FAILED_WATCHDOG_EXPIRED = -200678
 
 
 class DaqError(RuntimeError):
@@ -39,6 +44,11 @@ class DaqUnderflowError(DaqError):
     """The output buffer ran dry: the writer fell behind the generation (DAQmx -200290)."""
 
 
+class DaqWatchdogExpiredError(DaqError):
+    """The board's watchdog timer expired: relays off, drives at their expiration states, writes
+    refused (DAQmx -200678, or -200644 on a reset) until the expiration is cleared."""
+
+
 class DaqConnectionError(DaqError, ConnectionError):
     """The driver or the gRPC device server could not be reached, or it lacks a needed call."""
 
@@ -53,5 +63,7 @@ def error_for_code(message: str, code: int) -> DaqError:
         READ_TIMEOUT: DaqTimeoutError,
         INPUT_BUFFER_OVERWRITTEN: DaqBufferOverflowError,
         OUTPUT_UNDERFLOW: DaqUnderflowError,
+        CANT_RESET_EXPIRED_WATCHDOG: DaqWatchdogExpiredError,
+        WRITE_FAILED_WATCHDOG_EXPIRED: DaqWatchdogExpiredError,
     }.get(code, DaqError)
     return cls(message, code)

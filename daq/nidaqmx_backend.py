@@ -10,6 +10,17 @@ map names one (``ChannelMap.grpc_target = "host:port"``). Three tasks:
   written with `AnalogMultiChannelWriter`.
 - DO: one line per relay, software-timed.
 
+Safe states the board keeps on its own when this program stops looking after it:
+
+- AO idle output behaviour 0 V (where the device supports it; `ao_idle_zero` says whether it
+  does): when the generation stops for any reason (underflow, stop, a crashed client whose tasks
+  are cleared) the shaker drives go to 0 V instead of holding the last sample.
+- A DAQmx watchdog timer task (``watchdog_timeout_s``): unless `feed_watchdog` (called by
+  `read_ai`, and by the daemon while idle) resets it in time, the board turns every relay line
+  off and, where the device has AO expiration states, sets the drives to 0 V, and holds them
+  there (writes fail with -200678) until a new run's first write or a relay switched on (both
+  the operator's decisions) clears the expiration.
+
 Task names carry a uuid, and gRPC sessions are created with ``INITIALIZE_SERVER_SESSION``, so
 a stale task left on a server by a crashed client is never re-attached. Every nidaqmx
 ``DaqError`` reaches the caller as `daq.errors.DaqError` (the subclass for its code, via
@@ -20,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import time
 import uuid
 from collections.abc import Iterator
 from typing import Any
@@ -27,7 +39,15 @@ from typing import Any
 import numpy as np
 
 from daq.channels import ChannelMap
-from daq.errors import ChannelConfigError, DaqConnectionError, DaqError, error_for_code
+from daq.errors import (
+    ATTR_NOT_SUPPORTED,
+    ATTR_NOT_SUPPORTED_IN_TASK,
+    WATCHDOG_TIMER_NOT_SUPPORTED,
+    ChannelConfigError,
+    DaqConnectionError,
+    DaqError,
+    error_for_code,
+)
 
 _log = logging.getLogger(__name__)
 
@@ -84,12 +104,26 @@ class NidaqmxBackend:
         How long ``configure`` waits for a gRPC server to answer [s].
     grpc_target : str, optional
         ``"host:port"`` of an NI gRPC Device Server; overrides ``ChannelMap.grpc_target``.
+    watchdog_timeout_s : float or None
+        The board's watchdog timer [s]: relays off and drives to 0 V if it is not fed for
+        this long. None: no watchdog.
     """
 
     def __init__(self, buffer_s: float = 10.0, connect_timeout_s: float = 5.0,
-                 grpc_target: str | None = None) -> None:
+                 grpc_target: str | None = None,
+                 watchdog_timeout_s: float | None = 1.0) -> None:
         if buffer_s <= 0:
             raise ValueError(f"buffer_s must be positive, got {buffer_s}")
+        if watchdog_timeout_s is not None and not 0 < watchdog_timeout_s <= 60:
+            raise ValueError(f"watchdog_timeout_s must be in (0, 60] s or None, got "
+                             f"{watchdog_timeout_s}")
+        self.watchdog_timeout_s = watchdog_timeout_s
+        self._watchdog: Any = None
+        self._fed_at = 0.0
+        #: whether the device took AO idle output 0 V (None: not configured yet)
+        self.ao_idle_zero: bool | None = None
+        #: whether the watchdog sets the drives to 0 V on expiry (not only the relays)
+        self.watchdog_sets_ao: bool | None = None
         self.buffer_s = buffer_s
         self.connect_timeout_s = connect_timeout_s
         self._grpc_override = grpc_target
@@ -159,6 +193,8 @@ class NidaqmxBackend:
             raise ValueError(f"AO block must have shape ({len(cm.ao)}, n>0), got {arr.shape}")
         if self._writer is None:
             raise DaqError("write_ao: no AO task (configure a channel map with AO channels)")
+        if not self._running and self._ao_written == 0:
+            self._clear_expired_watchdog()  # a new run's prefill: the operator's decision
         with translate_errors(f"writing {arr.shape[1]} AO samples"):
             written = self._writer.write_many_sample(arr, timeout=self.buffer_s)
         self._ao_written += int(written)
@@ -178,7 +214,31 @@ class NidaqmxBackend:
                                                 timeout=timeout_s)
         if got != n:  # never hand back a short block silently
             raise error_for_code(f"reading AI: got {got} of {n} samples", -200284)
+        if self._watchdog is not None and self.watchdog_timeout_s is not None and \
+                time.monotonic() - self._fed_at > self.watchdog_timeout_s / 4:
+            self.feed_watchdog()
         return out
+
+    def feed_watchdog(self) -> None:
+        """Reset the board's watchdog timer (no-op without one). Raises
+        `DaqWatchdogExpiredError` once it has expired."""
+        if self._watchdog is None:
+            return
+        with translate_errors("resetting the watchdog timer"):
+            self._watchdog.reset_timer()
+        self._fed_at = time.monotonic()
+
+    def _clear_expired_watchdog(self) -> None:
+        if self._watchdog is None:
+            return
+        with translate_errors("reading the watchdog state"):
+            expired = bool(self._watchdog.expired)
+        if expired:
+            _log.warning("the board's watchdog timer had expired (relays off, drives 0 V); "
+                         "clearing it to start")
+            with translate_errors("clearing the watchdog expiration"):
+                self._watchdog.clear_expiration()
+        self.feed_watchdog()
 
     def set_do(self, name: str, value: bool) -> None:
         """Set the relay line called ``name`` in the channel map (software-timed, at once)."""
@@ -186,6 +246,8 @@ class NidaqmxBackend:
         cm.relay(name)  # KeyError names the missing relay
         index = [d.name for d in cm.do].index(name)
         self._require_tasks()
+        if value:
+            self._clear_expired_watchdog()  # switching a relay on: the operator's decision
         state = self._do_state.copy()
         state[index] = bool(value)
         with translate_errors(f"setting relay {name} ({cm.do[index].physical_channel})"):
@@ -214,13 +276,14 @@ class NidaqmxBackend:
             except DaqError as err:
                 first = first or err
         self._running = False
+        self._ao_written = 0  # a restart counts its generation from zero again
         if first is not None:
             raise first
 
     def close(self) -> None:
         """Clear every task and close the gRPC channel; safe to call twice. Failures (e.g.
         the server is gone) are logged, not raised: there is nothing left to release."""
-        for attr in ("_ai", "_ao", "_do"):
+        for attr in ("_ai", "_ao", "_do", "_watchdog"):
             task = getattr(self, attr)
             setattr(self, attr, None)
             if task is None:
@@ -230,6 +293,9 @@ class NidaqmxBackend:
                     task.close()
             except DaqError as err:
                 _log.warning("close: %s", err)
+                # the task is gone from the driver/server: nothing left to release, so spare
+                # nidaqmx's "not explicitly closed" destructor warning (WatchdogTask has one)
+                task._handle = None
         self._reader = self._writer = self._do_writer = None
         self._running = False
         if self._channel is not None:
@@ -319,6 +385,7 @@ class NidaqmxBackend:
                     sample_mode=AcquisitionType.CONTINUOUS, samps_per_chan=buffer)
                 self._ao.triggers.start_trigger.cfg_dig_edge_start_trig(f"/{dev}/ai/StartTrigger")
                 self._ao.out_stream.regen_mode = RegenerationMode.DONT_ALLOW_REGENERATION
+            self._set_ao_idle_zero()
             self._writer = nidaqmx.stream_writers.AnalogMultiChannelWriter(
                 self._ao.out_stream, auto_start=False)
             self._writer.verify_array_shape = False
@@ -334,3 +401,51 @@ class NidaqmxBackend:
                 self._do.out_stream, auto_start=True)
             self._do_writer.verify_array_shape = False
             self._do_state = np.zeros(len(cm.do), dtype=bool)
+        if self.watchdog_timeout_s is not None:
+            self._create_watchdog(nidaqmx, cm)
+
+    def _set_ao_idle_zero(self) -> None:
+        """AO idle output 0 V, where the device has the property (-200452 where not)."""
+        from nidaqmx.constants import AOIdleOutputBehavior
+
+        try:
+            with translate_errors("setting the AO idle output behaviour to 0 V"):
+                self._ao.ao_channels.all.ao_idle_output_behavior = AOIdleOutputBehavior.ZERO_VOLTS
+            self.ao_idle_zero = True
+        except DaqError as err:
+            if err.code not in (ATTR_NOT_SUPPORTED_IN_TASK, ATTR_NOT_SUPPORTED):
+                raise
+            self.ao_idle_zero = False
+            _log.warning("%s: the drives hold their last sample when a generation stops; "
+                         "the stop path writes zeros first", err)
+
+    def _create_watchdog(self, nidaqmx: Any, cm: ChannelMap) -> None:
+        """The board's watchdog timer task: relays off and drives 0 V on expiry."""
+        from nidaqmx.constants import Level, WatchdogAOExpirState
+        from nidaqmx.system.watchdog import WatchdogTask
+        from nidaqmx.types import AOExpirationState, DOExpirationState
+
+        name = f"sfdrig-watchdog-{uuid.uuid4().hex[:12]}"
+        options = self._grpc_options(nidaqmx)
+        with translate_errors(f"creating the watchdog task {name} on {cm.device.name}"):
+            self._watchdog = WatchdogTask(cm.device.name, name, self.watchdog_timeout_s,
+                                          grpc_options=options)
+            if cm.do:
+                self._watchdog.cfg_watchdog_do_expir_states(
+                    [DOExpirationState(d.physical_channel, Level.LOW) for d in cm.do])
+        self.watchdog_sets_ao = False
+        if cm.ao:
+            try:
+                with translate_errors("setting the watchdog's AO expiration states (0 V)"):
+                    self._watchdog.cfg_watchdog_ao_expir_states(
+                        [AOExpirationState(a.physical_channel, 0.0,
+                                           WatchdogAOExpirState.VOLTAGE) for a in cm.ao])
+                self.watchdog_sets_ao = True
+            except DaqError as err:
+                if err.code != WATCHDOG_TIMER_NOT_SUPPORTED:
+                    raise
+                _log.warning("%s: on expiry the watchdog turns the relays off; the drives "
+                             "rely on their idle output and the AO underflow", err)
+        with translate_errors("starting the watchdog timer"):
+            self._watchdog.start()
+        self._fed_at = time.monotonic()

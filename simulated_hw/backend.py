@@ -120,6 +120,9 @@ class SimulatedBackend:
     def ao_backlog(self) -> int:
         return self._ao_queued
 
+    def feed_watchdog(self) -> None:
+        """No watchdog: the in-process rig stops with the process that runs it."""
+
     def stop(self) -> None:
         self._running = False
 

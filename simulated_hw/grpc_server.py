@@ -18,8 +18,9 @@ a read needs samples that were never written).
 
 Errors go back as NI's server sends them: gRPC status UNKNOWN with trailing metadata
 ``ni-error: <code>`` (plus ``ni-samps-per-chan-read`` on reads), so the client raises
-``nidaqmx.errors.DaqError`` with the real DAQmx code. One decorator, `_reports_daq_errors`, does
-that for every RPC; handlers just raise `daq.errors.DaqError`.
+``nidaqmx.errors.DaqError`` with the real DAQmx code. One decorator,
+`simulated_hw.board.wire.reports_daq_errors`, does that for every RPC; handlers just raise
+`daq.errors.DaqError`.
 """
 
 from __future__ import annotations
@@ -36,7 +37,8 @@ from nidaqmx._stubs import nidaqmx_pb2_grpc as pb_grpc
 from daq.channels import ChannelMap, default_channel_map
 from simulated_hw.board.codes import SERVICE_NAME
 from simulated_hw.board.device import SimDevice
-from simulated_hw.board.servicer import SimulatedDaqmxServicer, serialize_reply
+from simulated_hw.board.servicer import SimulatedDaqmxServicer
+from simulated_hw.board.wire import serialize_reply
 from simulated_hw.params import RigParams
 
 _log = logging.getLogger(__name__)

@@ -23,6 +23,7 @@ from control.security import KeyFileError, load_server_keys
 from daq.channels import ChannelMap, default_channel_map, load_channel_map
 from daq.errors import ChannelConfigError
 from sfdrig.commands._client_args import DEFAULT_RUNS_DIR, STATE_FILE_NAME
+from sfdrig.commands._priority import LEVELS, PriorityError, apply_priority
 
 NAME = "daemon"
 HELP = "run the acquisition daemon (state machine, sweeps, live data, run files)"
@@ -55,6 +56,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sndhwm", type=int, default=1000,
                         help="PUB high-water mark per subscriber [messages]; 0 = unlimited "
                              "(default: %(default)s)")
+    parser.add_argument("--watchdog-s", type=float, default=1.0, metavar="S",
+                        help="with --backend nidaqmx: the board's watchdog timer [s]; if the "
+                             "daemon stops feeding it this long (hung, killed, PC down) the "
+                             "board turns the pump relay off and the drives to 0 V by itself; "
+                             "0 = none (default: %(default)s)")
+    parser.add_argument("--priority", choices=LEVELS, default="normal",
+                        help="scheduling: high = nice -10, realtime = SCHED_FIFO; refused "
+                             "with a reason where the OS does not allow it (default: "
+                             "%(default)s)")
     parser.add_argument("--log-level", default="WARNING", help="(default: %(default)s)")
 
 
@@ -64,7 +74,9 @@ def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[An
     if args.backend == "nidaqmx":
         from daq.nidaqmx_backend import NidaqmxBackend
 
-        return NidaqmxBackend(grpc_target=args.grpc_target), channel_map, None
+        watchdog = args.watchdog_s if args.watchdog_s > 0 else None
+        return (NidaqmxBackend(grpc_target=args.grpc_target, watchdog_timeout_s=watchdog),
+                channel_map, None)
     from simulated_hw.backend import SimulatedBackend
     from simulated_hw.params import RigParams, rig_params_named_or_file
 
@@ -79,6 +91,16 @@ def run(args: argparse.Namespace) -> int:
     if args.grpc_target and args.backend != "nidaqmx":
         print("daemon: --grpc-target needs --backend nidaqmx", file=sys.stderr)
         return 2
+    if not (args.watchdog_s == 0 or 0.05 <= args.watchdog_s <= 60):
+        print(f"daemon: --watchdog-s {args.watchdog_s:g} must be 0 (none) or 0.05..60 s",
+              file=sys.stderr)
+        return 2
+    try:
+        scheduling = apply_priority(args.priority)
+    except PriorityError as err:
+        print(f"daemon: {err}", file=sys.stderr)
+        return 2
+    logging.getLogger("sfdrig.daemon").info("scheduling: %s", scheduling)
     try:
         channel_map = load_channel_map(args.channels) if args.channels else default_channel_map()
         keys = load_server_keys(args.keys) if args.keys else None

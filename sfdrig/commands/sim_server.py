@@ -27,6 +27,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import logging
+
+    # the board's own events (a watchdog expiring) go to stderr, as a device's log would
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
     from daq.channels import default_channel_map, load_channel_map
     from daq.errors import ChannelConfigError
     from simulated_hw.grpc_server import SimulatedDeviceServer

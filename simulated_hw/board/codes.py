@@ -4,12 +4,14 @@ numbers as ``nidaqmx.error_codes`` and ``nidaqmx.constants``), and its error bui
 from __future__ import annotations
 
 from daq.errors import (
+    CANT_RESET_EXPIRED_WATCHDOG,
     DEVICE_NOT_FOUND,
     INPUT_BUFFER_OVERWRITTEN,
     OUTPUT_UNDERFLOW,
     READ_TIMEOUT,
     RESOURCE_RESERVED,
     SAMPLE_RATE_TOO_HIGH,
+    WRITE_FAILED_WATCHDOG_EXPIRED,
     DaqError,
     error_for_code,
 )
@@ -21,7 +23,6 @@ INVALID_TASK = -200088
 DUPLICATE_TASK = -200089
 PHYSICAL_CHAN_DOES_NOT_EXIST = -200170
 REPEATED_PHYSICAL_CHAN = -200371
-ATTR_NOT_SUPPORTED = -200197
 READ_BUFFER_TOO_SMALL = -200229
 SAMPLES_CAN_NOT_YET_BE_WRITTEN = -200292
 INVALID_AO_DATA_WRITE = -200561
@@ -31,6 +32,11 @@ NO_CHANS_OF_GIVEN_TYPE = -200611
 INVALID_ROUTING_SOURCE = -200040
 WRITE_NUM_CHANS_MISMATCH = -200524
 ATTR_INCONSISTENT = -200128  # ATTRIBUTE_INCONSISTENT_ACROSS_REPEATED_PHYSICAL_CHANNELS
+OUTPUT_BUFFER_EMPTY = -200462
+SAMPLES_WILL_NEVER_BE_AVAILABLE = -200278
+WAIT_UNTIL_DONE_NOT_DONE = -200560  # WAIT_UNTIL_DONE_DOES_NOT_INDICATE_DONE
+WATCHDOG_TIMEOUT_OUT_OF_RANGE = -200668  # WATCHDOG_TIMEOUT_OUT_OF_RANGE_AND_NOT_SPECIAL_VAL
+ACTION_NOT_SUPPORTED_TASK_NOT_WATCHDOG = -200635
 
 _ERROR_TEXT = {
     READ_TIMEOUT: "Wait Until Done did not indicate all samples were acquired/generated in the "
@@ -47,16 +53,27 @@ _ERROR_TEXT = {
     INVALID_TASK: "Task specified is invalid or does not exist",
     DUPLICATE_TASK: "Task cannot be created because a task with this name already exists",
     INVALID_AO_DATA_WRITE: "Data written is outside the range of the output channel",
+    OUTPUT_BUFFER_EMPTY: "Generation cannot be started because the output buffer is empty",
+    SAMPLES_WILL_NEVER_BE_AVAILABLE: "Attempted to read samples that will never be available",
+    WAIT_UNTIL_DONE_NOT_DONE: "Wait Until Done did not indicate all samples were acquired or "
+    "generated in the specified timeout",
+    CANT_RESET_EXPIRED_WATCHDOG: "Watchdog timer cannot be reset because it has expired; "
+    "clear the expiration first",
+    WRITE_FAILED_WATCHDOG_EXPIRED: "Write failed because the watchdog timer expired",
 }
 
 # channel types, measurement/output types, enums
-CHAN_AI, CHAN_AO, CHAN_DO = 10100, 10102, 10153
+CHAN_AI, CHAN_AO, CHAN_DI, CHAN_DO = 10100, 10102, 10151, 10153
 MEAS_VOLTAGE = 10322
 REGEN_ALLOW, REGEN_DONT_ALLOW = 10097, 10158
 MODE_FINITE, MODE_CONTINUOUS = 10178, 10123
 FILL_GROUP_BY_CHANNEL = 0
 LINES_PER_CHAN_ALL = 1  # LineGrouping.CHAN_FOR_ALL_LINES
 INIT_AUTO, INIT_NEW, INIT_ATTACH = 0, 1, 2
+IDLE_ZERO_VOLTS, IDLE_HIGH_IMPEDANCE, IDLE_MAINTAIN = 12526, 12527, 12528  # AOIdleOutputBehavior
+WDT_RESET_TIMER, WDT_CLEAR_EXPIRATION = 0, 1  # WDTTaskAction
+LEVEL_HIGH, LEVEL_LOW, LEVEL_TRISTATE, NO_CHANGE = 10192, 10214, 10310, 10160  # Level
+WDT_AO_VOLTAGE = 10322  # WatchdogAOExpirState.VOLTAGE
 
 # attribute ids (nidaqmx task/_in_stream.py, _out_stream.py, _timing.py, system/_system.py)
 ATTR_DRIVER_MAJOR, ATTR_DRIVER_MINOR, ATTR_DRIVER_UPDATE = 0x1272, 0x1923, 0x2F22
@@ -65,10 +82,15 @@ ATTR_TASK_NAME, ATTR_TASK_CHANNELS, ATTR_TASK_NUM_CHANS = 0x1276, 0x1273, 0x2181
 ATTR_CHAN_TYPE, ATTR_AI_MEAS_TYPE, ATTR_AO_OUTPUT_TYPE = 0x187F, 0x0695, 0x1108
 ATTR_READ_CHANNELS, ATTR_READ_NUM_CHANS, ATTR_READ_AVAIL = 0x1823, 0x217B, 0x1223
 ATTR_READ_POS = 0x1221
+ATTR_DI_BOOLS_PER_CHAN = 0x217C
 ATTR_WRITE_NUM_CHANS, ATTR_DO_BOOLS_PER_CHAN = 0x217E, 0x217F
 ATTR_WRITE_REGEN, ATTR_WRITE_GENERATED, ATTR_WRITE_SPACE = 0x1453, 0x192B, 0x1460
 ATTR_SAMP_CLK_RATE = 0x1344
 ATTR_INPUT_BUF_SIZE, ATTR_OUTPUT_BUF_SIZE = 0x186C, 0x186D
+ATTR_READ_DEFAULT_N = 0x31E8  # DAQmx_DefaultNumberOfSamplesToRead (READ_ALL_AVAILABLE)
+ATTR_AO_IDLE_OUTPUT = 0x2240  # ao_idle_output_behavior (task/channels/_ao_channel.py)
+ATTR_WDT_EXPIRED, ATTR_WDT_TIMEOUT = 0x21A8, 0x21A9  # system/watchdog.py
+ATTR_SAMP_QUANT_MODE, ATTR_SAMP_QUANT_N = 0x1300, 0x1310  # timing: sample mode, samples/chan
 
 DRIVER_VERSION = (24, 8, 0)
 SERVICE_NAME = "nidaqmx_grpc.NiDAQmx"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -13,38 +14,48 @@ from nidaqmx.utils import unflatten_channel_string
 
 from daq.channels import AnalogInput, ChannelMap, DeviceSpec
 from daq.errors import (
+    CANT_RESET_EXPIRED_WATCHDOG,
     DEVICE_NOT_FOUND,
     INPUT_BUFFER_OVERWRITTEN,
     INVALID_ATTRIBUTE_VALUE,
-    OUTPUT_UNDERFLOW,
     READ_TIMEOUT,
     RESOURCE_RESERVED,
     SAMPLE_RATE_TOO_HIGH,
+    WRITE_FAILED_WATCHDOG_EXPIRED,
 )
+from simulated_hw.board import ao_stream
 from simulated_hw.board.codes import (
-    ATTR_NOT_SUPPORTED,
     INVALID_AO_DATA_WRITE,
     MAX_CHUNK,
-    MODE_FINITE,
     NO_CHANS_IN_TASK,
+    OUTPUT_BUFFER_EMPTY,
     PHYSICAL_CHAN_DOES_NOT_EXIST,
-    REGEN_DONT_ALLOW,
     SAMPLE_RATE_TOO_LOW,
     SAMPLES_CAN_NOT_YET_BE_WRITTEN,
+    SAMPLES_WILL_NEVER_BE_AVAILABLE,
     TASK_NOT_RUNNING,
+    WAIT_UNTIL_DONE_NOT_DONE,
     daq_error,
 )
 from simulated_hw.board.tasks import AiRing, SimTask
+from simulated_hw.board.watchdog import Watchdog, WatchdogTimer
 from simulated_hw.params import RigParams
 from simulated_hw.rig import RigModel
 
 _log = logging.getLogger(__name__)
 
+#: the internal channel through which AI reads AO terminal N back (X-series ``_aoN_vs_aognd``)
+INTERNAL_AO = re.compile(r"_ao(\d+)_vs_aognd", re.IGNORECASE)
+
 
 # --- the device -----------------------------------------------------------------------------
 class SimDevice:
     """One simulated board and the rig wired to it. All methods hold the device lock briefly;
-    waits for the clock happen outside it, so a relay can switch during a blocking read."""
+    waits for the clock happen outside it, so a relay can switch during a blocking read.
+
+    Hardware-timed AI runs the rig; AO generates on the AI sample clock (sample-aligned with
+    AI) or on its own clock (sampled at the AI sample instants while AI runs, advanced with
+    the device clock otherwise); on-demand AI runs a rig of its own (`_read_on_demand`)."""
 
     def __init__(
         self,
@@ -65,7 +76,16 @@ class SimDevice:
         self._sleep = sleep if sleep is not None else self._stopping.wait
         self.lock = threading.RLock()
         self.lines: dict[str, bool] = {}  # DO line states, by canonical physical name
-        self.ao_hold: dict[str, float] = {}  # on-demand AO output values
+        self.inputs: dict[str, bool] = {}  # levels applied to input lines from outside
+        self.ao_hold: dict[str, float] = {}  # AO terminal values when no generation drives them
+        self.locked_ao: dict[str, float] = {}  # AO terminals an expired watchdog holds [V]
+        self.locked_do: set[str] = set()  # lines an expired watchdog holds
+        self.ao_tasks: list[SimTask] = []  # running hardware-timed AO tasks
+        self._vtime = 0.0  # fast mode: the device clock while no AI runs [s]
+        self._idle: tuple[SimTask, RigModel | None, list[tuple[str, int] | None], float] | None \
+            = None  # the rig behind on-demand AI reads: (task, rig, rows, last read time)
+        self._watchdogs: list[Watchdog] = []
+        self.watchdog_timer = WatchdogTimer(clock, self.lock, self.watchdogs, self._expire)
         self._physical = self._physical_names()
         self._reset_acquisition()
         # load the compiled physics now, not during the first paced read (it takes ~0.5 s)
@@ -78,22 +98,36 @@ class SimDevice:
                             ("do", self.spec.do_lines())):
             for c in chans:
                 names[c.lower()] = (c, kind)
+        for i in range(self.spec.ao_count):  # internal channels: AI reads an AO terminal back
+            c = f"{self.spec.name}/_ao{i}_vs_aognd"
+            names[c.lower()] = (c, "ai")
         return names
 
     def _reset_acquisition(self) -> None:
+        if self.fast and getattr(self, "ai_task", None) is not None:
+            self._vtime = self.now()  # fast mode: the clock stays where the AI left it
         self.rig: RigModel | None = None
         self.ai_task: SimTask | None = None
-        self.ao_tasks: list[SimTask] = []
         self.t0 = 0.0
         self.generated = 0  # samples taken since the AI start trigger
         self.read_pos = 0
         self.ring: AiRing | None = None
-        self._rows: list[int | None] = []  # per AI task channel: row in rig output or None
-        self._ao_rows: list[list[tuple[int, int]]] = []  # per linked AO task: (task row, rig row)
+        self._rows: list[tuple[str, int] | None] = []  # per AI channel: ("rig"|"ao", row)
         self._floating_rng = np.random.default_rng(self.seed + 1)
 
     def shutdown(self) -> None:
         self._stopping.set()
+        self.watchdog_timer.close()
+
+    # --- the device clock -----------------------------------------------------------------
+    def now(self) -> float:
+        """Device time [s]: the wall clock when paced; in fast mode the time of the last AI
+        sample taken (it moves only when someone reads, waits or reads on demand)."""
+        if not self.fast:
+            return self._clock()
+        if self.ai_task is not None:
+            return self.t0 + self.generated / self.ai_rate
+        return self._vtime
 
     # --- lookups --------------------------------------------------------------------------
     def physical(self, name: str, kind: str, where: str) -> list[str]:
@@ -114,10 +148,11 @@ class SimDevice:
                     f"(this server has {self.spec.name})",
                 )
             found = self._physical.get(part.lower())
-            if found is None or found[1] != kind:
-                have = {"ai": "ai0..ai", "ao": "ao0..ao", "do": "port0/line0.."}[kind]
+            if found is None or found[1] != kind.replace("di", "do"):  # port lines are both
+                have = {"ai": "ai0..ai", "ao": "ao0..ao", "do": "port0/line0..",
+                        "di": "port0/line0.."}[kind]
                 count = {"ai": self.spec.ai_count, "ao": self.spec.ao_count,
-                         "do": self.spec.do_lines_per_port}[kind]
+                         "do": self.spec.do_lines_per_port, "di": self.spec.do_lines_per_port}[kind]
                 raise daq_error(
                     PHYSICAL_CHAN_DOES_NOT_EXIST,
                     f"{where}: physical channel {part!r} does not exist on {self.spec.name} "
@@ -149,6 +184,7 @@ class SimDevice:
         with self.lock:
             if task.running:
                 return
+            self.catch_up()
             for other in others:
                 if other is task or not other.running:
                     continue
@@ -160,102 +196,145 @@ class SimDevice:
                         f"start {task.name!r}: {sorted(clash)} in use by running task "
                         f"{other.name!r}",
                     )
-            if task.kind == "ai":
+            if task.kind == "watchdog":
+                self._start_watchdog(task)
+                task.running = True
+                return
+            if task.kind == "ai" and task.rate_hz is not None:
                 self._start_ai(task)
+            elif task.kind == "ai" and self.ai_task is not None:
+                raise daq_error(
+                    RESOURCE_RESERVED,
+                    f"start {task.name!r}: the AI converter is in use by task "
+                    f"{self.ai_task.name!r}",
+                )
             elif task.kind == "ao" and task.rate_hz is not None:
                 self._arm_ao(task)
             elif task.kind is None:
                 raise daq_error(NO_CHANS_IN_TASK, f"start {task.name!r}: the task has no channels")
             task.error = None
+            task.done = False
             task.running = True
 
     def _arm_ao(self, task: SimTask) -> None:
-        if task.clock_source.lower() != self.terminal("SampleClock").lower():
+        if task.ao_written == 0 and (task.regenerating or task.finite):
             raise daq_error(
-                ATTR_NOT_SUPPORTED,
-                f"start {task.name!r}: the simulated {self.spec.name} generates hardware-timed "
-                f"AO only on {self.terminal('SampleClock')} (got source "
-                f"{task.clock_source or 'OnboardClock'!r})",
+                OUTPUT_BUFFER_EMPTY,
+                f"start {task.name!r}: nothing was written to the output buffer (write the "
+                "samples to generate before starting a regenerating or finite AO task)",
             )
-        if task.regen_mode != REGEN_DONT_ALLOW:
-            raise daq_error(
-                ATTR_NOT_SUPPORTED,
-                f"start {task.name!r}: the simulated {self.spec.name} supports only "
-                "non-regenerating AO (set out_stream.regen_mode = DONT_ALLOW_REGENERATION)",
-            )
-        if self.ai_task is not None:
+        linked = task.clock_source.lower() == self.terminal("SampleClock").lower()
+        triggered = bool(task.trigger_source)
+        if triggered and self.ai_task is not None:
             raise daq_error(
                 RESOURCE_RESERVED,
                 f"start {task.name!r}: AI task {self.ai_task.name!r} is already running, so "
                 "its start trigger has passed; start AO first",
             )
+        for ch in task.channels:
+            if ch.physical[0] in self.locked_ao:
+                raise daq_error(
+                    WRITE_FAILED_WATCHDOG_EXPIRED,
+                    f"start {task.name!r}: {ch.physical[0]} is held in its watchdog expiration "
+                    "state; clear the expiration first",
+                )
+        ao_all = self.spec.ao_channels()
+        task.wired_rows = [(row, ao_all.index(ch.physical[0]))
+                           for row, ch in enumerate(task.channels)]
         task.ao_generated = 0
+        task.ao_hold = np.array([self.terminal_value(ch.physical[0]) for ch in task.channels])
+        ao_stream.freeze_regeneration(task)
+        task.first_sample = self.generated if (linked and self.ai_task is not None) else 0
+        task.t_start = None if (linked or (triggered and self.ai_task is None)) else self.now()
         self.ao_tasks.append(task)
 
     def _start_ai(self, task: SimTask) -> None:
-        if task.rate_hz is None:
-            raise daq_error(
-                ATTR_NOT_SUPPORTED,
-                f"start {task.name!r}: the simulated {self.spec.name} supports only "
-                "hardware-timed AI; call cfg_samp_clk_timing first",
-            )
+        assert task.rate_hz is not None
         if self.ai_task is not None:
             raise daq_error(
                 RESOURCE_RESERVED,
                 f"start {task.name!r}: the AI timing engine is in use by task "
                 f"{self.ai_task.name!r}",
             )
-        wired_ai = {c.physical_channel: c for c in self.wiring.ai}
-        ai: list[AnalogInput] = []
-        self._rows = []
-        for ch in task.channels:
-            w = wired_ai.get(ch.physical[0])
-            if w is None:
-                self._rows.append(None)  # an unwired terminal: floating input
-                continue
-            self._rows.append(len(ai))
-            ai.append(w.model_copy(update={"range_v": (ch.min_v, ch.max_v)}))
-        # the rig sees every wired shaker; a linked AO task drives the ones on its channels
-        wired_ao = [c.physical_channel for c in self.wiring.ao]
-        self._ao_rows = [
-            [(row, wired_ao.index(ch.physical[0])) for row, ch in enumerate(t.channels)
-             if ch.physical[0] in wired_ao]
-            for t in self.ao_tasks
-        ]
+        self._idle = None  # the on-demand rig gives way to the hardware-timed one
+        ai, self._rows = self._ai_rows(task)
         try:
             rig_map = ChannelMap(device=self.spec, sample_rate_hz=task.rate_hz, ai=tuple(ai),
                                  ao=self.wiring.ao, do=self.wiring.do)
         except ValueError as err:
             raise daq_error(INVALID_ATTRIBUTE_VALUE, f"start {task.name!r}: {err}") from None
-        self.rig = RigModel(self.params, rig_map, self.seed)
-        for d in self.wiring.do:
-            if self.lines.get(d.physical_channel):
-                self.rig.set_relay(d.name, True)
+        self.rig = self._new_rig(rig_map)  # before the clock starts: building it takes time
+        t0 = self.now()
         self.ai_task = task
         self.ring = AiRing(len(task.channels), task.input_buffer())
         self.generated = self.read_pos = 0
-        self.t0 = self._clock()
+        self.t0 = t0
+        for ao_task in self.ao_tasks:  # AO armed on the AI start trigger starts now
+            if ao_task.t_start is None and ao_task.clock_source.lower() != \
+                    self.terminal("SampleClock").lower():
+                ao_task.t_start = t0
+
+    def _ai_rows(self, task: SimTask) -> tuple[list[AnalogInput], list[tuple[str, int] | None]]:
+        """The wired inputs a rig must produce for ``task``, and where each task channel reads
+        from: ("rig", row), ("ao", terminal index) for an internal AO channel, None: floating."""
+        wired_ai = {c.physical_channel: c for c in self.wiring.ai}
+        ao_all = [c.lower() for c in self.spec.ao_channels()]
+        ai: list[AnalogInput] = []
+        rows: list[tuple[str, int] | None] = []
+        for ch in task.channels:
+            internal = INTERNAL_AO.fullmatch(ch.physical[0].split("/", 1)[1])
+            w = wired_ai.get(ch.physical[0])
+            if internal is not None:
+                rows.append(("ao", ao_all.index(f"{self.spec.name}/ao{internal[1]}".lower())))
+            elif w is None:
+                rows.append(None)
+            else:
+                rows.append(("rig", len(ai)))
+                ai.append(w.model_copy(update={"range_v": (ch.min_v, ch.max_v)}))
+        return ai, rows
+
+    def _new_rig(self, rig_map: ChannelMap) -> RigModel:
+        rig = RigModel(self.params, rig_map, self.seed)
+        for d in self.wiring.do:
+            if self.lines.get(d.physical_channel):
+                rig.set_relay(d.name, True)
+        return rig
 
     def stop(self, task: SimTask) -> None:
-        """Stop ``task``; its pending samples and its error go (it can be restarted)."""
+        """Stop ``task``; its pending samples and its error go (it can be restarted). The AO
+        terminals of a stopped generation go to their idle output behaviour."""
         with self.lock:
+            self.catch_up()
+            if task.watchdog is not None:
+                task.watchdog.running = False
+                self.watchdog_timer.changed()
             task.running = False
             task.error = None
+            task.auto_started = False
             if task is self.ai_task:
-                for ao_task in self.ao_tasks:
-                    ao_task.running = False
+                linked = [t for t in self.ao_tasks if t.t_start is None or
+                          t.clock_source.lower() == self.terminal("SampleClock").lower()]
+                for ao_task in linked:  # their clock stopped with the AI task
+                    self._end_generation(ao_task)
                 self._reset_acquisition()
             elif task in self.ao_tasks:
-                idx = self.ao_tasks.index(task)
-                self.ao_tasks.pop(idx)
-                if self._ao_rows:
-                    self._ao_rows.pop(idx)
+                self._end_generation(task)
             task.ao_chunks, task.ao_queued = [], 0
+            task.regen_data = None
+
+    def _end_generation(self, task: SimTask) -> None:
+        idle = ao_stream.idle_values(task)
+        for (row, term) in task.wired_rows:
+            self.ao_hold[self.spec.ao_channels()[term]] = float(idle[row])
+        task.running = False
+        self.ao_tasks.remove(task)
 
     # --- the clock ------------------------------------------------------------------------
     def _due(self) -> int:
         """Samples the AI clock has produced by now (paced mode)."""
-        return int((self._clock() - self.t0) * self.ai_rate)
+        due = int((self._clock() - self.t0) * self.ai_rate)
+        assert self.ai_task is not None
+        return min(due, self.ai_task.samps_per_chan) if self.ai_task.finite else due
 
     @property
     def ai_rate(self) -> float:
@@ -263,34 +342,42 @@ class SimDevice:
         return self.ai_task.rate_hz
 
     def catch_up(self) -> None:
-        """Run the rig up to the present (paced mode); no-op in fast mode or when idle."""
+        """Run the board up to the present: the rig while AI runs (paced mode), the AO
+        generations on their own clocks otherwise, and the watchdog timers."""
         with self.lock:
             if self.ai_task is not None and not self.fast:
                 self._advance(self._due())
+            ai_clock_done = self.ai_task is None or (
+                self.ai_task.finite and self.generated >= self.ai_task.samps_per_chan)
+            if ai_clock_done:
+                now = self.now()
+                for task in self.ao_tasks:
+                    if task.t_start is not None and task.rate_hz is not None:
+                        count = math.floor((now - task.t_start) * task.rate_hz + 1e-9) + 1
+                        ao_stream.skip(task, count - task.ao_generated)
+            self.watchdog_timer.check()
 
     def _advance(self, target: int) -> None:
-        """Take samples ``generated..target``: consume AO, run the rig, fill the AI buffer."""
+        """Take samples ``generated..target``: run the AO, the rig, fill the AI buffer."""
         task, ring, rig = self.ai_task, self.ring, self.rig
         assert task is not None and ring is not None and rig is not None
+        if task.finite:
+            target = min(target, task.samps_per_chan)
         if task.error is not None:  # overwritten: the acquisition is dead until restarted
             self.generated = max(self.generated, target)
             return
+        wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
         while self.generated < target:
             n = min(target - self.generated, MAX_CHUNK)
-            hold = [self.ao_hold.get(c.physical_channel, 0.0) for c in self.wiring.ao]
-            drive = np.repeat(np.array(hold)[:, None], n, axis=1)
-            for ao_task, pairs in zip(self.ao_tasks, self._ao_rows, strict=True):
-                block = self._take_ao(ao_task, n)
-                for row, rig_row in pairs:
-                    drive[rig_row] = block[row]
-            wired = rig.process(drive)
+            terminals = self._terminals(self.generated, n)
+            rig_out = rig.process(terminals[wired])
             out = np.empty((len(self._rows), n))
             lsb = 2 * self.spec.ai_range_v / 2**self.spec.ai_bits
-            for i, wired_row in enumerate(self._rows):
-                if wired_row is None:
+            for i, source in enumerate(self._rows):
+                if source is None:  # an unwired terminal: floating input
                     out[i] = np.round(self._floating_rng.normal(0.0, lsb, n) / lsb) * lsb
                 else:
-                    out[i] = wired[wired_row]
+                    out[i] = (rig_out if source[0] == "rig" else terminals)[source[1]]
             self.generated += n
             ring.put(out)
             behind = self.generated - self.read_pos
@@ -303,59 +390,80 @@ class SimDevice:
                     samps_per_chan_read=0,
                 )
 
-    def _take_ao(self, task: SimTask, n: int) -> np.ndarray:
-        """The next ``n`` AO samples; past the end of the data, hold the last value and flag
-        the underflow on the task (NI stops the generation at this point)."""
-        n_ch = len(task.channels)
-        if task.ao_hold is None:
-            task.ao_hold = np.zeros(n_ch)
-        out = np.empty((n_ch, n))
-        got = 0
-        while got < n and task.ao_chunks:
-            chunk = task.ao_chunks[0]
-            take = min(n - got, chunk.shape[1])
-            out[:, got:got + take] = chunk[:, :take]
-            if take == chunk.shape[1]:
-                task.ao_chunks.pop(0)
-            else:
-                task.ao_chunks[0] = chunk[:, take:]
-            got += take
-        task.ao_queued -= got
-        task.ao_generated += got
-        if got:
-            task.ao_hold = out[:, got - 1].copy()
-        if got < n:
-            out[:, got:] = task.ao_hold[:, None]
-            if task.error is None:
-                task.error = daq_error(
-                    OUTPUT_UNDERFLOW,
-                    f"task {task.name!r}: the AO generation reached sample "
-                    f"{task.ao_generated} but only {task.ao_written} samples were written; "
-                    "the outputs hold their last value",
-                )
+    def terminal_value(self, physical: str) -> float:
+        """What an AO terminal shows when no generation drives it [V]."""
+        return self.locked_ao.get(physical, self.ao_hold.get(physical, 0.0))
+
+    def _present_terminals(self) -> np.ndarray:
+        """Every AO terminal's voltage now (after `catch_up`), shape (ao_count,)."""
+        ao_all = self.spec.ao_channels()
+        out = np.array([self.terminal_value(p) for p in ao_all])
+        for task in self.ao_tasks:
+            now = (task.ao_hold if ao_stream.generating(task) and task.ao_hold is not None
+                   else ao_stream.idle_values(task))
+            for row, term in task.wired_rows:
+                if ao_all[term] not in self.locked_ao and task.ao_generated > 0:
+                    out[term] = now[row]
+        return out
+
+    def _terminals(self, first: int, n: int) -> np.ndarray:
+        """Every AO terminal's voltage at AI samples ``first..first+n``, shape (ao_count, n)."""
+        ao_all = self.spec.ao_channels()
+        out = np.repeat(np.array([self.terminal_value(p) for p in ao_all])[:, None], n, axis=1)
+        for task in self.ao_tasks:
+            if task.t_start is None:  # on the AI sample clock
+                k0 = max(first, task.first_sample)
+                if k0 >= first + n:
+                    continue
+                block = ao_stream.take(task, first + n - k0)
+                for row, term in task.wired_rows:
+                    out[term, k0 - first:] = block[row]
+                continue
+            assert task.rate_hz is not None  # on its own clock: sample the AO at AI times
+            t = self.t0 + (first + np.arange(n)) / self.ai_rate
+            index = np.floor((t - task.t_start) * task.rate_hz + 1e-9).astype(np.int64)
+            before = task.ao_generated
+            prev = task.ao_hold.copy() if task.ao_hold is not None else None
+            block = ao_stream.take(task, max(int(index[-1]) + 1 - before, 0))
+            for row, term in task.wired_rows:
+                value = np.full(n, out[term, 0] if prev is None else prev[row])
+                fresh = index >= before
+                value[fresh] = block[row, index[fresh] - before]
+                value[index < 0] = out[term, 0]
+                out[term] = value
+        for term, p in enumerate(ao_all):
+            if p in self.locked_ao:
+                out[term] = self.locked_ao[p]
         return out
 
     # --- reading --------------------------------------------------------------------------
-    def read(self, task: SimTask, n: int, timeout_s: float) -> np.ndarray:
-        """The next ``n`` samples of the running AI task, shape (n_ch, n)."""
+    def read(self, task: SimTask, n: int, timeout_s: float, others: list[SimTask]) -> np.ndarray:
+        """The next ``n`` samples of an AI task, shape (n_ch, n); ``n < 0``: all available (a
+        finite task: the rest of it). A read starts a task that is not running, as DAQmx
+        does; a finite task started that way stops when its last sample is read."""
         with self.lock:
-            if task is not self.ai_task or not task.running:
-                raise daq_error(
-                    TASK_NOT_RUNNING,
-                    f"read from {task.name!r}: the task is not running; start it first",
-                    samps_per_chan_read=0,
-                )
-            if task.error is not None:
+            if task.error is not None and task.running:
                 raise task.error
-            if n < 0:  # DAQmx_Val_Auto / read all available
+            if not task.running:
+                self.start(task, others)
+                task.auto_started = True
+            if task.rate_hz is None:
+                return self._read_on_demand(task, 1 if n < 0 else n)
+            if task is not self.ai_task:
+                raise daq_error(TASK_NOT_RUNNING, f"read from {task.name!r}: the task is not "
+                                "running; start it first", samps_per_chan_read=0)
+            if n < 0 and task.finite:
+                n = task.samps_per_chan - self.read_pos
+            elif n < 0:  # DAQmx_Val_Auto / read all available
                 self.catch_up()
                 n = self.generated - self.read_pos
             need = self.read_pos + n
-            if task.sample_mode == MODE_FINITE and need > task.samps_per_chan:
+            if task.finite and need > task.samps_per_chan:
                 raise daq_error(
-                    READ_TIMEOUT,
-                    f"read from {task.name!r}: asked for samples past the end of the finite "
-                    f"acquisition ({task.samps_per_chan} samples)",
+                    SAMPLES_WILL_NEVER_BE_AVAILABLE,
+                    f"read of {n} samples from {task.name!r}: only "
+                    f"{task.samps_per_chan - self.read_pos} of the finite acquisition's "
+                    f"{task.samps_per_chan} samples are left to read",
                     samps_per_chan_read=0,
                 )
             assert self.ring is not None
@@ -374,7 +482,50 @@ class SimDevice:
             assert self.ring is not None
             data = self.ring.get(self.read_pos, n)
             self.read_pos = need
+            if task.finite and need >= task.samps_per_chan:
+                task.done = True
+                if task.auto_started:
+                    self.stop(task)
             return data
+
+    def _read_on_demand(self, task: SimTask, n: int) -> np.ndarray:
+        """A software-timed read: ``n`` samples taken now, one sample period apart.
+
+        The rig behind on-demand reads runs at the wiring's sample rate from the previous
+        on-demand read to now (at most the last second of it: an approximation, like holding
+        the AO terminals at their present values over that stretch). In fast mode each
+        on-demand sample moves the device clock by 1 ms."""
+        fs = self.wiring.sample_rate_hz
+        if self.fast:
+            self._vtime += n * 1e-3
+        self.catch_up()
+        now = self.now()
+        if self._idle is None or self._idle[0] is not task:
+            ai, rows = self._ai_rows(task)
+            rig = None
+            if ai:
+                rig = self._new_rig(ChannelMap(device=self.spec, sample_rate_hz=fs,
+                                               ai=tuple(ai), ao=self.wiring.ao,
+                                               do=self.wiring.do))
+            self._idle = (task, rig, rows, now - n / fs)
+        _, rig, rows, last = self._idle
+        steps = int(min(max(round((now - last) * fs), n), fs))
+        terminals = self._present_terminals()
+        drive = np.repeat(terminals[:, None], steps, axis=1)
+        wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
+        rig_out = rig.process(drive[wired])[:, -n:] if rig is not None else None
+        self._idle = (task, rig, rows, now)
+        out = np.empty((len(rows), n))
+        lsb = 2 * self.spec.ai_range_v / 2**self.spec.ai_bits
+        for i, source in enumerate(rows):
+            if source is None:
+                out[i] = np.round(self._floating_rng.normal(0.0, lsb, n) / lsb) * lsb
+            elif source[0] == "ao":
+                out[i] = terminals[source[1]]
+            else:
+                assert rig_out is not None
+                out[i] = rig_out[source[1]]
+        return out
 
     def _wait_until(self, ready_at: float, timeout_s: float, task: SimTask, n: int) -> None:
         now = self._clock()
@@ -399,6 +550,7 @@ class SimDevice:
             self.catch_up()
             return self.generated - self.read_pos
 
+
     # --- writing --------------------------------------------------------------------------
     def write_ao(self, task: SimTask, block: np.ndarray, auto_start: bool, timeout_s: float,
                  others: list[SimTask]) -> int:
@@ -410,11 +562,13 @@ class SimDevice:
                     f"range [{block[row].min():g}, {block[row].max():g}] V is outside its range "
                     f"[{ch.min_v:g}, {ch.max_v:g}] V",
                 )
+        with self.lock:
+            self.catch_up()
+            self._refuse_locked(task, [ch.physical[0] for ch in task.channels])
         if task.rate_hz is None:  # on-demand: the outputs take the last value at once
             if not task.running and not auto_start:
                 raise daq_error(TASK_NOT_RUNNING, f"write to {task.name!r}: task not running")
             with self.lock:
-                self.catch_up()
                 for row, ch in enumerate(task.channels):
                     self.ao_hold[ch.physical[0]] = float(block[row, -1])
             return block.shape[1]
@@ -425,25 +579,28 @@ class SimDevice:
                 self.catch_up()
                 if task.error is not None:
                     raise task.error
+                if task.running and task.regen_data is not None:
+                    ao_stream.queue(task, block)  # overwrites the loop being played
+                    break
                 space = task.output_buffer() - task.ao_queued
                 if not task.running and task.ao_written == 0:
                     space = max(space, n)  # the first write sizes the buffer (NI behaviour)
                 if n <= space:
-                    task.ao_chunks.append(block.copy())
-                    task.ao_queued += n
-                    task.ao_written += n
+                    ao_stream.queue(task, block)
                     if task.buffer_samples is None and not task.running:
                         task.buffer_samples = max(task.output_buffer(), task.ao_queued)
                     break
-                linked = task in self.ao_tasks and self.ai_task is not None
+                moving = task in self.ao_tasks and not self.fast and (
+                    task.t_start is not None or self.ai_task is not None)
+                rate = task.rate_hz or 1.0
             now = self._clock()
-            if self.fast or not linked or now >= deadline:
+            if not moving or now >= deadline:
                 raise daq_error(
                     SAMPLES_CAN_NOT_YET_BE_WRITTEN,
                     f"write of {n} samples to {task.name!r}: only {max(space, 0)} of "
                     f"{task.output_buffer()} buffer samples free after {timeout_s:g} s",
                 )
-            self._sleep(min(deadline - now, (n - space) / self.ai_rate))
+            self._sleep(min(deadline - now, (n - space) / rate))
         if auto_start and not task.running:
             self.start(task, others)
         return n
@@ -451,13 +608,151 @@ class SimDevice:
     def write_lines(self, lines: list[str], values: list[bool]) -> None:
         with self.lock:
             self.catch_up()  # the relay switches at this instant of the acquisition
-            for line, value in zip(lines, values, strict=True):
-                self.lines[line] = value
-                for d in self.wiring.do:
-                    if d.physical_channel == line and self.rig is not None:
-                        self.rig.set_relay(d.name, value)
+            self._refuse_locked(None, lines)
+            self._set_lines(dict(zip(lines, values, strict=True)))
+
+    def _set_lines(self, values: dict[str, bool]) -> None:
+        for line, value in values.items():
+            self.lines[line] = value
+            for d in self.wiring.do:
+                if d.physical_channel != line:
+                    continue
+                for rig in (self.rig, self._idle[1] if self._idle else None):
+                    if rig is not None:
+                        rig.set_relay(d.name, value)
 
     def generated_by(self, task: SimTask) -> int:
         with self.lock:
             self.catch_up()
             return task.ao_generated
+
+    def is_done(self, task: SimTask) -> bool:
+        """DAQmx IsTaskDone: a finite task that has ended, or any task not running; a task
+        stopped by an error reports that error."""
+        with self.lock:
+            self.catch_up()
+            if task.running and task.error is not None:
+                raise task.error
+            if task is self.ai_task and task.finite:
+                return self.generated >= task.samps_per_chan
+            return task.done or not task.running
+
+    def wait_until_done(self, task: SimTask, timeout_s: float) -> None:
+        """DAQmx WaitUntilTaskDone; -200560 when the task is not done in time."""
+        with self.lock:
+            end = self._end_time(task)
+            if end is not None and self.fast:  # nothing paces the clock: move it to the end
+                if self.ai_task is task:
+                    self._advance(task.samps_per_chan)
+                else:
+                    self._vtime = max(self._vtime, end)
+                end = self.now()
+        if end is not None and not self.fast:
+            now = self._clock()
+            if timeout_s < 0 or end <= now + timeout_s:
+                while now < end and not self._stopping.is_set():
+                    self._sleep(end - now)
+                    now = self._clock()
+            else:
+                self._sleep(timeout_s)
+        if not self.is_done(task):
+            raise daq_error(
+                WAIT_UNTIL_DONE_NOT_DONE,
+                f"task {task.name!r} was not done after {timeout_s:g} s"
+                + ("" if task.finite else " (a continuous task is never done until stopped)"),
+            )
+
+    def _end_time(self, task: SimTask) -> float | None:
+        """Device time at which a running finite task ends; None if it never ends by itself."""
+        if not task.running or not task.finite or task.rate_hz is None:
+            return None
+        if task is self.ai_task:
+            return self.t0 + task.samps_per_chan / task.rate_hz
+        if task.t_start is not None:
+            return task.t_start + task.samps_per_chan / task.rate_hz
+        if self.ai_task is not None:  # on the AI clock
+            return self.t0 + (task.first_sample + task.samps_per_chan) / self.ai_rate
+        return None
+
+    # --- the watchdog timer ---------------------------------------------------------------
+    def _start_watchdog(self, task: SimTask) -> None:
+        w = task.watchdog
+        w.running, w.fed_at = True, self._clock()
+        self.watchdog_timer.changed()
+
+    def feed_watchdog(self, task: SimTask) -> None:
+        """Reset the timer (DAQmx ControlWatchdogTask RESET_TIMER); -200644 once expired."""
+        with self.lock:
+            self.watchdog_timer.check()
+            w = task.watchdog
+            if w.expired:
+                raise daq_error(
+                    CANT_RESET_EXPIRED_WATCHDOG,
+                    f"watchdog task {task.name!r} expired "
+                    f"{self._clock() - (w.expired_at or 0.0):.3f} s ago (timeout "
+                    f"{w.timeout_s:g} s); clear the expiration first",
+                )
+            w.fed_at = self._clock()
+        self.watchdog_timer.changed()
+
+    def clear_expiration(self, task: SimTask) -> None:
+        """Unlock the lines and outputs an expired watchdog holds (they keep their values)."""
+        with self.lock:
+            w = task.watchdog
+            if w.expired:
+                for p, v in w.ao_states.items():
+                    self.ao_hold[p] = self.locked_ao.pop(p, v)
+                for line in w.do_states:
+                    self.locked_do.discard(line)
+            w.expired, w.expired_at, w.fed_at = False, None, self._clock()
+            w.expired_event.clear()
+        self.watchdog_timer.changed()
+
+    def _expire(self, w: Watchdog) -> None:
+        """The board's own action on expiry: outputs and lines to their expiration states,
+        the generations on them stopped, both held there until the expiration is cleared."""
+        if self.ai_task is not None and not self.fast:
+            self._advance(self._due())  # everything before the expiry happened first
+        w.expired, w.expired_at = True, self._clock()
+        _log.warning("watchdog on %s expired: AO %s, lines %s", w.device_name, w.ao_states,
+                     w.do_states)
+        for task in list(self.ao_tasks):
+            if any(ch.physical[0] in w.ao_states for ch in task.channels):
+                task.error = task.error or daq_error(
+                    WRITE_FAILED_WATCHDOG_EXPIRED,
+                    f"task {task.name!r}: the watchdog timer expired (not reset for "
+                    f"{w.timeout_s:g} s); its outputs are held in the expiration states",
+                )
+        self.locked_ao.update(w.ao_states)
+        self.locked_do.update(w.do_states)
+        self._set_lines(w.do_states)
+        w.expired_event.set()
+
+    def _refuse_locked(self, task: SimTask | None, physical: list[str]) -> None:
+        held = sorted(p for p in physical if p in self.locked_ao or p in self.locked_do)
+        if held:
+            where = f"write to {task.name!r}" if task is not None else "write"
+            raise daq_error(
+                WRITE_FAILED_WATCHDOG_EXPIRED,
+                f"{where}: {held} held in the watchdog expiration state; clear the expiration",
+            )
+
+    def watchdogs(self) -> list[Watchdog]:
+        return list(self._watchdogs)
+
+    def add_watchdog(self, w: Watchdog) -> None:
+        with self.lock:
+            self._watchdogs.append(w)
+
+    def remove_watchdog(self, w: Watchdog) -> None:
+        """Clearing the task (an expired watchdog's locks stay until ResetDevice)."""
+        with self.lock:
+            w.running = False
+            if w in self._watchdogs:
+                self._watchdogs.remove(w)
+        self.watchdog_timer.changed()
+
+    def line_level(self, line: str) -> bool:
+        """What a digital line reads: an input's external level, else what the port drives."""
+        with self.lock:
+            return self.inputs.get(line, self.lines.get(line, False))

@@ -3,7 +3,6 @@ for errors and fast reads."""
 
 from __future__ import annotations
 
-import functools
 import itertools
 import threading
 from collections.abc import Callable
@@ -17,6 +16,8 @@ from nidaqmx.utils import unflatten_channel_string
 from session_pb2 import Session
 
 from daq.errors import (
+    ATTR_NOT_SUPPORTED,
+    ATTR_NOT_SUPPORTED_IN_TASK,
     DEVICE_NOT_FOUND,
     INVALID_ATTRIBUTE_VALUE,
     DaqError,
@@ -24,21 +25,25 @@ from daq.errors import (
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
     ATTR_AI_MEAS_TYPE,
+    ATTR_AO_IDLE_OUTPUT,
     ATTR_AO_OUTPUT_TYPE,
     ATTR_CHAN_TYPE,
+    ATTR_DI_BOOLS_PER_CHAN,
     ATTR_DO_BOOLS_PER_CHAN,
     ATTR_DRIVER_MAJOR,
     ATTR_DRIVER_MINOR,
     ATTR_DRIVER_UPDATE,
     ATTR_INCONSISTENT,
     ATTR_INPUT_BUF_SIZE,
-    ATTR_NOT_SUPPORTED,
     ATTR_OUTPUT_BUF_SIZE,
     ATTR_READ_AVAIL,
     ATTR_READ_CHANNELS,
+    ATTR_READ_DEFAULT_N,
     ATTR_READ_NUM_CHANS,
     ATTR_READ_POS,
     ATTR_SAMP_CLK_RATE,
+    ATTR_SAMP_QUANT_MODE,
+    ATTR_SAMP_QUANT_N,
     ATTR_SYS_DEVICES,
     ATTR_TASK_CHANNELS,
     ATTR_TASK_NAME,
@@ -49,10 +54,13 @@ from simulated_hw.board.codes import (
     ATTR_WRITE_SPACE,
     CHAN_AI,
     CHAN_AO,
+    CHAN_DI,
     CHAN_DO,
     DRIVER_VERSION,
     DUPLICATE_TASK,
     FILL_GROUP_BY_CHANNEL,
+    IDLE_MAINTAIN,
+    IDLE_ZERO_VOLTS,
     INIT_ATTACH,
     INIT_NEW,
     INVALID_ROUTING_SOURCE,
@@ -67,43 +75,22 @@ from simulated_hw.board.codes import (
     REGEN_DONT_ALLOW,
     REPEATED_PHYSICAL_CHAN,
     TASK_NOT_RUNNING,
-    UNKNOWN_ERROR,
     WRITE_NUM_CHANS_MISMATCH,
     daq_error,
 )
 from simulated_hw.board.device import SimDevice
 from simulated_hw.board.tasks import SimChannel, SimTask
+from simulated_hw.board.watchdog import Watchdog
+from simulated_hw.board.watchdog_rpcs import WatchdogRpcs
+from simulated_hw.board.wire import read_reply, reports_daq_errors
 
 
 # --- the servicer ---------------------------------------------------------------------------
-def _bare_message(err: DaqError) -> str:
-    return getattr(err, "bare_message", None) or str(err)
-
-
-def _reports_daq_errors(method: Callable[..., Any]) -> Callable[..., Any]:
-    """The one place where our `DaqError` becomes NI's wire format: status UNKNOWN, trailing
-    metadata ``ni-error`` (and ``ni-samps-per-chan-read`` for reads)."""
-
-    @functools.wraps(method)
-    def wrapper(self: SimulatedDaqmxServicer, request: Any, context: grpc.ServicerContext) -> Any:
-        try:
-            return method(self, request, context)
-        except DaqError as err:
-            metadata = [("ni-error", str(err.code or UNKNOWN_ERROR))]
-            samps = getattr(err, "samps_per_chan_read", None)
-            if samps is not None:
-                metadata.append(("ni-samps-per-chan-read", str(samps)))
-            context.set_trailing_metadata(metadata)
-            context.abort(grpc.StatusCode.UNKNOWN, _bare_message(err))
-
-    return wrapper
-
-
 def _chan_handler(kind: str, channel_field: str, name_field: str) -> Callable[..., Any]:
     """One handler for the whole Create*Chan family: the request names the physical channel(s),
     the virtual name and (for analog channels) the range in volts."""
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def handler(self: SimulatedDaqmxServicer, request: Any, context: grpc.ServicerContext) -> Any:
         task = self._task(request.task)
         rpc = type(request).__name__.removesuffix("Request")
@@ -121,7 +108,7 @@ def _chan_handler(kind: str, channel_field: str, name_field: str) -> Callable[..
         if repeated:
             raise daq_error(REPEATED_PHYSICAL_CHAN, f"{where}: {repeated} already in this task")
         name = getattr(request, name_field)
-        if kind == "do" and request.line_grouping_raw == LINES_PER_CHAN_ALL:
+        if kind in ("do", "di") and request.line_grouping_raw == LINES_PER_CHAN_ALL:
             groups = [physical]
         else:
             groups = [[p] for p in physical]
@@ -131,8 +118,9 @@ def _chan_handler(kind: str, channel_field: str, name_field: str) -> Callable[..
             names = [name]
         else:
             names = [g[0] if len(g) == 1 else ",".join(g) for g in groups]
-        lo, hi = (request.min_val, request.max_val) if kind != "do" else (0.0, 1.0)
-        if kind != "do":
+        digital = kind in ("do", "di")
+        lo, hi = (request.min_val, request.max_val) if not digital else (0.0, 1.0)
+        if not digital:
             limit = self.device.spec.ai_range_v if kind == "ai" else self.device.spec.ao_range_v
             if not (-limit <= lo < hi <= limit):
                 raise daq_error(
@@ -152,10 +140,11 @@ CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
     "CreateAIVoltageChan": ("ai", "physical_channel", "name_to_assign_to_channel"),
     "CreateAOVoltageChan": ("ao", "physical_channel", "name_to_assign_to_channel"),
     "CreateDOChan": ("do", "lines", "name_to_assign_to_lines"),
+    "CreateDIChan": ("di", "lines", "name_to_assign_to_lines"),
 }
 
 
-class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
+class SimulatedDaqmxServicer(WatchdogRpcs, pb_grpc.NiDAQmxServicer):
     """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer UNIMPLEMENTED
     (the base class), which the client reports as ``nidaqmx.errors.RpcError``."""
 
@@ -182,13 +171,17 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
         with self._tasks_lock:
             for task in list(self.tasks.values()):
                 self.device.stop(task)
+                if task.watchdog is not None:
+                    self.device.remove_watchdog(task.watchdog)
             self.tasks.clear()
         with self.device.lock:
             self.device.lines.clear()
             self.device.ao_hold.clear()
+            self.device.locked_ao.clear()
+            self.device.locked_do.clear()
 
     # --- session and version --------------------------------------------------------------
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetSystemInfoAttributeUInt32(self, request, context):  # noqa: N802
         versions = dict(zip((ATTR_DRIVER_MAJOR, ATTR_DRIVER_MINOR, ATTR_DRIVER_UPDATE),
                             DRIVER_VERSION, strict=True))
@@ -196,61 +189,69 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
             raise _unsupported("system", request.attribute_raw)
         return pb.GetSystemInfoAttributeUInt32Response(value=versions[request.attribute_raw])
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetSystemInfoAttributeString(self, request, context):  # noqa: N802
         if request.attribute_raw != ATTR_SYS_DEVICES:
             raise _unsupported("system", request.attribute_raw)
         return pb.GetSystemInfoAttributeStringResponse(value=self.device.spec.name)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def CreateTask(self, request, context):  # noqa: N802
+        task, new = self._create(request.session_name, request.initialization_behavior)
+        return pb.CreateTaskResponse(task=Session(name=task.name), new_session_initialized=new)
+
+    def _create(self, name: str, behaviour: int, watchdog: Watchdog | None = None
+                ) -> tuple[SimTask, bool]:
+        """(the task, whether it is new) for a Create* RPC's name and initialisation."""
         with self._tasks_lock:
-            name = request.session_name or f"_unnamedTask<{next(self._unnamed)}>"
-            behaviour = request.initialization_behavior
+            name = name or f"_unnamedTask<{next(self._unnamed)}>"
             existing = self.tasks.get(name)
             if existing is not None:
                 if behaviour == INIT_NEW:
                     raise daq_error(DUPLICATE_TASK, f"task {name!r} already exists")
-                return pb.CreateTaskResponse(task=Session(name=name),
-                                             new_session_initialized=False)
+                return existing, False
             if behaviour == INIT_ATTACH:
                 raise daq_error(INVALID_TASK, f"no task {name!r} to attach to")
-            self.tasks[name] = SimTask(name)
-            return pb.CreateTaskResponse(task=Session(name=name), new_session_initialized=True)
+            task = self.tasks[name] = SimTask(name, watchdog=watchdog)
+        if watchdog is not None:
+            self.device.add_watchdog(watchdog)
+        return task, True
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def ClearTask(self, request, context):  # noqa: N802
         with self._tasks_lock:
             task = self.tasks.pop(request.task.name, None)
         if task is None:
             raise daq_error(INVALID_TASK, f"task {request.task.name!r} does not exist")
         self.device.stop(task)
+        if task.watchdog is not None:
+            self.device.remove_watchdog(task.watchdog)
         return pb.ClearTaskResponse(status=0)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def StartTask(self, request, context):  # noqa: N802
         self.device.start(self._task(request.task), self._others())
         return pb.StartTaskResponse(status=0)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def StopTask(self, request, context):  # noqa: N802
         self.device.stop(self._task(request.task))
         return pb.StopTaskResponse(status=0)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def ResetDevice(self, request, context):  # noqa: N802
         if request.device_name.lower() != self.device.spec.name.lower():
             raise daq_error(DEVICE_NOT_FOUND, f"reset: no device {request.device_name!r}")
         self.reset()
         return pb.ResetDeviceResponse(status=0)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetErrorString(self, request, context):  # noqa: N802
         text = _ERROR_TEXT.get(request.error_code, f"NI-DAQmx status {request.error_code}")
         return pb.GetErrorStringResponse(error_string=text)
 
     # --- timing and triggers --------------------------------------------------------------
-    @_reports_daq_errors
+    @reports_daq_errors
     def CfgSampClkTiming(self, request, context):  # noqa: N802
         task = self._task(request.task)
         where = f"CfgSampClkTiming on task {task.name!r}"
@@ -273,7 +274,7 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
         task.samps_per_chan = int(request.samps_per_chan)
         return pb.CfgSampClkTimingResponse(status=0)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def CfgDigEdgeStartTrig(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.trigger_source.lower() != self.device.terminal("StartTrigger").lower():
@@ -286,18 +287,18 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
         task.trigger_source = request.trigger_source
         return pb.CfgDigEdgeStartTrigResponse(status=0)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def CfgInputBuffer(self, request, context):  # noqa: N802
         self._task(request.task).buffer_samples = int(request.num_samps_per_chan)
         return pb.CfgInputBufferResponse(status=0)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def CfgOutputBuffer(self, request, context):  # noqa: N802
         self._task(request.task).buffer_samples = int(request.num_samps_per_chan)
         return pb.CfgOutputBufferResponse(status=0)
 
     # --- attributes -----------------------------------------------------------------------
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetTaskAttributeString(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw == ATTR_TASK_NAME:
@@ -306,22 +307,25 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
             return pb.GetTaskAttributeStringResponse(value=_channel_list(task))
         raise _unsupported("task", request.attribute_raw)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetTaskAttributeUInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw != ATTR_TASK_NUM_CHANS:
             raise _unsupported("task", request.attribute_raw)
         return pb.GetTaskAttributeUInt32Response(value=len(task.channels))
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetChanAttributeInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
-        types = {"ai": CHAN_AI, "ao": CHAN_AO, "do": CHAN_DO}
+        types = {"ai": CHAN_AI, "ao": CHAN_AO, "do": CHAN_DO, "di": CHAN_DI}
         attr = request.attribute_raw
         values = set()
         for ch in _find_channels(task, request.channel):
             if attr == ATTR_CHAN_TYPE:
                 values.add(types[ch.kind])
+            elif attr == ATTR_AO_IDLE_OUTPUT and ch.kind == "ao":
+                self._idle_output_supported(task)
+                values.add(ch.idle_behavior)
             elif (attr == ATTR_AI_MEAS_TYPE and ch.kind == "ai") or (
                     attr == ATTR_AO_OUTPUT_TYPE and ch.kind == "ao"):
                 values.add(MEAS_VOLTAGE)
@@ -332,25 +336,56 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
                             f"channel attribute 0x{attr:04X} differs across {request.channel!r}")
         return pb.GetChanAttributeInt32Response(value_raw=values.pop())
 
-    @_reports_daq_errors
+    @reports_daq_errors
+    def SetChanAttributeInt32(self, request, context):  # noqa: N802
+        task = self._task(request.task)
+        if request.attribute_raw != ATTR_AO_IDLE_OUTPUT:
+            raise _unsupported("channel", request.attribute_raw)
+        self._idle_output_supported(task)
+        if request.value_raw not in (IDLE_ZERO_VOLTS, IDLE_MAINTAIN):
+            raise daq_error(INVALID_ATTRIBUTE_VALUE,
+                            f"ao_idle_output_behavior {request.value_raw} is not supported by "
+                            f"{self.device.spec.product} (0 V or maintain existing value)")
+        for ch in _find_channels(task, request.channel):
+            if ch.kind != "ao":
+                raise _unsupported("channel", request.attribute_raw)
+            ch.idle_behavior = request.value_raw
+        return pb.SetChanAttributeInt32Response(status=0)
+
+    def _idle_output_supported(self, task: SimTask) -> None:
+        if not self.device.spec.ao_idle_output_zero:
+            raise daq_error(
+                ATTR_NOT_SUPPORTED_IN_TASK,
+                f"task {task.name!r}: ao_idle_output_behavior is not supported by the "
+                f"{self.device.spec.product}",
+            )
+
+    @reports_daq_errors
     def GetReadAttributeString(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw != ATTR_READ_CHANNELS:
             raise _unsupported("read", request.attribute_raw)
         return pb.GetReadAttributeStringResponse(value=_channel_list(task))
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetReadAttributeUInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw == ATTR_READ_NUM_CHANS:
             value = len(task.channels)
         elif request.attribute_raw == ATTR_READ_AVAIL:
             value = self.device.available(task)
+        elif request.attribute_raw == ATTR_DI_BOOLS_PER_CHAN:
+            value = max((len(c.physical) for c in task.channels), default=0)
+        elif request.attribute_raw == ATTR_READ_DEFAULT_N:  # what READ_ALL_AVAILABLE reads
+            value = (task.samps_per_chan - self.device.read_pos
+                     if task.finite and task is self.device.ai_task
+                     else task.samps_per_chan if task.finite
+                     else self.device.available(task) if task.rate_hz is not None else 1)
         else:
             raise _unsupported("read", request.attribute_raw)
         return pb.GetReadAttributeUInt32Response(value=value)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetReadAttributeUInt64(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw != ATTR_READ_POS:
@@ -359,7 +394,7 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
             value = self.device.read_pos if task is self.device.ai_task else 0
         return pb.GetReadAttributeUInt64Response(value=value)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetWriteAttributeUInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
         attr = request.attribute_raw
@@ -374,21 +409,21 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
             raise _unsupported("write", attr)
         return pb.GetWriteAttributeUInt32Response(value=value)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetWriteAttributeUInt64(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw != ATTR_WRITE_GENERATED:
             raise _unsupported("write", request.attribute_raw)
         return pb.GetWriteAttributeUInt64Response(value=self.device.generated_by(task))
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetWriteAttributeInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw != ATTR_WRITE_REGEN:
             raise _unsupported("write", request.attribute_raw)
         return pb.GetWriteAttributeInt32Response(value_raw=task.regen_mode)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def SetWriteAttributeInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw != ATTR_WRITE_REGEN:
@@ -399,14 +434,37 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
         task.regen_mode = request.value_raw
         return pb.SetWriteAttributeInt32Response(status=0)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def GetTimingAttributeDouble(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw != ATTR_SAMP_CLK_RATE or task.rate_hz is None:
             raise _unsupported("timing", request.attribute_raw)
         return pb.GetTimingAttributeDoubleResponse(value=task.rate_hz)
 
-    @_reports_daq_errors
+    @reports_daq_errors
+    def GetTimingAttributeInt32(self, request, context):  # noqa: N802
+        task = self._task(request.task)
+        if request.attribute_raw != ATTR_SAMP_QUANT_MODE or task.rate_hz is None:
+            raise _unsupported("timing", request.attribute_raw)
+        return pb.GetTimingAttributeInt32Response(value_raw=task.sample_mode)
+
+    @reports_daq_errors
+    def GetTimingAttributeUInt64(self, request, context):  # noqa: N802
+        task = self._task(request.task)
+        if request.attribute_raw != ATTR_SAMP_QUANT_N or task.rate_hz is None:
+            raise _unsupported("timing", request.attribute_raw)
+        return pb.GetTimingAttributeUInt64Response(value=task.samps_per_chan)
+
+    @reports_daq_errors
+    def IsTaskDone(self, request, context):  # noqa: N802
+        return pb.IsTaskDoneResponse(is_task_done=self.device.is_done(self._task(request.task)))
+
+    @reports_daq_errors
+    def WaitUntilTaskDone(self, request, context):  # noqa: N802
+        self.device.wait_until_done(self._task(request.task), request.time_to_wait)
+        return pb.WaitUntilTaskDoneResponse(status=0)
+
+    @reports_daq_errors
     def GetBufferAttributeUInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw == ATTR_INPUT_BUF_SIZE and task.rate_hz is not None:
@@ -417,7 +475,7 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
             raise _unsupported("buffer", request.attribute_raw)
         return pb.GetBufferAttributeUInt32Response(value=value)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def SetBufferAttributeUInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
         if request.attribute_raw not in (ATTR_INPUT_BUF_SIZE, ATTR_OUTPUT_BUF_SIZE):
@@ -426,7 +484,7 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
         return pb.SetBufferAttributeUInt32Response(status=0)
 
     # --- data -----------------------------------------------------------------------------
-    @_reports_daq_errors
+    @reports_daq_errors
     def ReadAnalogF64(self, request, context):  # noqa: N802
         task = self._task(request.task)
         task.kind_or_raise("ai")
@@ -439,13 +497,13 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
                 f"holds only {request.array_size_in_samps} samples",
                 samps_per_chan_read=0,
             )
-        data = self.device.read(task, n, request.timeout)
+        data = self.device.read(task, n, request.timeout, self._others())
         samps = data.shape[1]
         if request.fill_mode_raw != FILL_GROUP_BY_CHANNEL:
             data = data.T
-        return _read_reply(data, samps)  # bytes: see SimulatedDeviceServer
+        return read_reply(data, samps)  # bytes: see SimulatedDeviceServer
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def WriteAnalogF64(self, request, context):  # noqa: N802
         task = self._task(request.task)
         task.kind_or_raise("ao")
@@ -462,7 +520,7 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
                                        self._others())
         return pb.WriteAnalogF64Response(samps_per_chan_written=written)
 
-    @_reports_daq_errors
+    @reports_daq_errors
     def WriteDigitalLines(self, request, context):  # noqa: N802
         task = self._task(request.task)
         task.kind_or_raise("do")
@@ -491,6 +549,29 @@ class SimulatedDaqmxServicer(pb_grpc.NiDAQmxServicer):
             last = list(raw[(n - 1) * len(lines):])
         self.device.write_lines(lines, [bool(v) for v in last])
         return pb.WriteDigitalLinesResponse(samps_per_chan_written=n)
+
+    @reports_daq_errors
+    def ReadDigitalLines(self, request, context):  # noqa: N802
+        """Software-timed: every sample is the lines' present level (a DO task reads back what
+        it drives; a DI line reads what drives it, see `SimDevice.line_level`)."""
+        task = self._task(request.task)
+        if task.kind not in ("di", "do"):
+            task.kind_or_raise("di")
+        if not task.running:
+            self.device.start(task, self._others())
+        n = 1 if request.num_samps_per_chan < 0 else request.num_samps_per_chan
+        per_sample = max(len(c.physical) for c in task.channels)
+        if request.array_size_in_bytes < n * per_sample * len(task.channels):
+            raise daq_error(READ_BUFFER_TOO_SMALL,
+                            f"read of {n} samples from {task.name!r}: the client buffer holds "
+                            f"only {request.array_size_in_bytes} bytes", samps_per_chan_read=0)
+        out = bytearray()
+        for ch in task.channels:
+            levels = [int(self.device.line_level(p)) for p in ch.physical]
+            levels += [0] * (per_sample - len(levels))
+            out += bytes(levels) * n
+        return pb.ReadDigitalLinesResponse(read_array=bytes(out), samps_per_chan_read=n,
+                                           num_bytes_per_samp=per_sample)
 
 
 for _rpc, (_kind, _chan_field, _name_field) in CREATE_CHAN_RPCS.items():
@@ -525,32 +606,3 @@ def _find_channels(task: SimTask, names: str) -> list[SimChannel]:
                 f"task {task.name!r} has no channel {name!r} (has {_channel_list(task)})",
             )
     return found
-
-
-_READ_ARRAY_TAG = b"\x12"  # field 2 (read_array), wire type 2 (packed)
-_SAMPS_READ_TAG = b"\x18"  # field 3 (samps_per_chan_read), varint
-
-
-def _varint(value: int) -> bytes:
-    out = bytearray()
-    while True:
-        byte = value & 0x7F
-        value >>= 7
-        if value:
-            out.append(byte | 0x80)
-        else:
-            out.append(byte)
-            return bytes(out)
-
-
-def _read_reply(data: np.ndarray, samps_per_chan: int) -> bytes:
-    """The serialized ``ReadAnalogF64Response``, encoded straight from numpy: status 0 (the
-    default, omitted), packed ``read_array``, ``samps_per_chan_read``. Building the message
-    field by field costs ~40-100 ns per sample, more than the rest of the read."""
-    payload = np.ascontiguousarray(data, dtype="<f8").tobytes()
-    return (_READ_ARRAY_TAG + _varint(len(payload)) + payload
-            + _SAMPS_READ_TAG + _varint(samps_per_chan))
-
-
-def serialize_reply(reply: bytes | Any) -> bytes:
-    return reply if isinstance(reply, bytes) else reply.SerializeToString()

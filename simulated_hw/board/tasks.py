@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from daq.errors import (
-    DaqError,
-)
+from daq.errors import DaqError
 from simulated_hw.board.codes import (
+    IDLE_MAINTAIN,
     MODE_CONTINUOUS,
     MODE_FINITE,
     NO_CHANS_IN_TASK,
@@ -38,6 +38,7 @@ class SimChannel:
     physical: list[str]  # canonical physical names (one, or several lines for a DO channel)
     min_v: float = -10.0
     max_v: float = 10.0
+    idle_behavior: int = IDLE_MAINTAIN  # AO: what the terminal does when no generation runs
 
 
 @dataclass
@@ -61,10 +62,27 @@ class SimTask:
     ao_written: int = 0
     ao_generated: int = 0
     ao_hold: np.ndarray | None = None  # last value generated, per channel (volts)
+    regen_data: np.ndarray | None = None  # regenerating AO: the buffer played in a loop
+    done: bool = False  # a finite generation/acquisition has ended
+    t_start: float | None = None  # AO on its own clock: device time of sample 0
+    first_sample: int = 0  # AO on the AI clock: the AI sample its sample 0 is generated at
+    wired_rows: list[tuple[int, int]] = field(default_factory=list)  # (task row, rig drive row)
+    auto_started: bool = False  # started implicitly by a read (stops at the end of a finite one)
+    watchdog: Any = None  # a `simulated_hw.board.watchdog.Watchdog` for a watchdog task
 
     @property
     def kind(self) -> str | None:
+        if self.watchdog is not None:
+            return "watchdog"
         return self.channels[0].kind if self.channels else None
+
+    @property
+    def finite(self) -> bool:
+        return self.rate_hz is not None and self.sample_mode == MODE_FINITE
+
+    @property
+    def regenerating(self) -> bool:
+        return self.regen_mode == REGEN_ALLOW
 
     def kind_or_raise(self, wanted: str) -> None:
         if self.kind != wanted:

@@ -208,7 +208,7 @@ def test_close_is_idempotent_and_clears_every_task(fast_server: SimulatedDeviceS
     backend = NidaqmxBackend()
     backend.configure(on_server(fast_server))
     names = sorted(fast_server.servicer.tasks)
-    assert [n.split("-")[1] for n in names] == ["ai", "ao", "do"]
+    assert [n.split("-")[1] for n in names] == ["ai", "ao", "do", "watchdog"]
     _prefill_and_start(backend)
     backend.read_ai(500)
     backend.close()
@@ -224,7 +224,7 @@ def test_stale_server_task_is_never_reattached(fast_server: SimulatedDeviceServe
         crashed.configure(on_server(fast_server))
         _prefill_and_start(crashed)  # ... and its process dies: tasks stay on the server
         fresh.configure(on_server(fast_server))
-        assert len(fast_server.servicer.tasks) == 6  # unique names: no task shared
+        assert len(fast_server.servicer.tasks) == 8  # unique names: no task shared
         fresh.write_ao(np.zeros((N_AO, 1_000)))
         with pytest.raises(DaqError) as info:
             fresh.start()

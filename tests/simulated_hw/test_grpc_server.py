@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 from nidaqmx._stubs import nidaqmx_pb2 as pb
 from nidaqmx._stubs import nidaqmx_pb2_grpc as pb_grpc
-from nidaqmx.constants import AcquisitionType
+from nidaqmx.constants import AcquisitionType, AOIdleOutputBehavior, Level, RegenerationMode
 from nidaqmx.grpc_session_options import SessionInitializationBehavior
+from nidaqmx.system.watchdog import WatchdogTask
+from nidaqmx.types import DOExpirationState
 from session_pb2 import Session
 
 from daq.channels import default_channel_map
@@ -54,16 +56,18 @@ def test_error_wire_format_is_nis(server: SimulatedDeviceServer, channel: grpc.C
     """status UNKNOWN, trailing metadata ni-error and ni-samps-per-chan-read."""
     task = _task(channel, "wire")
     task.ai_channels.add_ai_voltage_chan("Dev1/ai0")
+    task.timing.cfg_samp_clk_timing(1_000.0, sample_mode=AcquisitionType.FINITE,
+                                    samps_per_chan=100)
     stub = pb_grpc.NiDAQmxStub(channel)
-    with pytest.raises(grpc.RpcError) as info:
+    with pytest.raises(grpc.RpcError) as info:  # more than the finite acquisition holds
         stub.ReadAnalogF64(pb.ReadAnalogF64Request(
-            task=Session(name="wire"), num_samps_per_chan=10, timeout=1.0,
-            array_size_in_samps=10))
+            task=Session(name="wire"), num_samps_per_chan=101, timeout=1.0,
+            array_size_in_samps=101))
     err = info.value
     assert err.code() == grpc.StatusCode.UNKNOWN
     metadata = dict(err.trailing_metadata())
-    assert metadata == {"ni-error": "-200475", "ni-samps-per-chan-read": "0"}
-    assert "not running" in err.details()
+    assert metadata == {"ni-error": "-200278", "ni-samps-per-chan-read": "0"}
+    assert "only 100 of the finite acquisition's 100 samples are left" in err.details()
     task.close()
 
 
@@ -146,14 +150,126 @@ def test_paced_data_arrives_with_the_clock() -> None:
             ch.close()
 
 
-def test_ao_needs_the_ai_clock_and_no_regeneration(channel: grpc.Channel) -> None:
-    task = _task(channel, "ao-own-clock")
-    task.ao_channels.add_ao_voltage_chan("Dev1/ao0")
-    task.timing.cfg_samp_clk_timing(10_000.0, sample_mode=AcquisitionType.CONTINUOUS)
-    task.write(np.zeros(100))
-    with pytest.raises(nidaqmx.errors.DaqError, match="only on /Dev1/ai/SampleClock"):
-        task.start()
-    task.close()
+def _options(channel: grpc.Channel) -> nidaqmx.GrpcSessionOptions:
+    return nidaqmx.GrpcSessionOptions(channel, "")
+
+
+def test_regenerating_ao_on_its_own_clock_is_sampled_by_ai(channel: grpc.Channel) -> None:
+    """nidaqmx's defaults: regeneration allowed, AO on its own (onboard) clock. The AI reads
+    the terminal back through the internal channel: the buffer plays in a loop; a 1 kS/s AO
+    holds each sample for 10 AI samples at 10 kS/s."""
+    opts = _options(channel)
+    ramp = np.arange(7) / 10.0  # 7 samples: the loop is not a divisor of the read
+    with nidaqmx.Task(grpc_options=opts) as ao, nidaqmx.Task(grpc_options=opts) as ai:
+        ao.ao_channels.add_ao_voltage_chan("Dev1/ao0:1")
+        ao.timing.cfg_samp_clk_timing(1_000.0, sample_mode=AcquisitionType.CONTINUOUS)
+        ao.write(np.vstack([ramp, -ramp]))
+        ao.start()
+        ai.ai_channels.add_ai_voltage_chan("Dev1/_ao0_vs_aognd")
+        ai.ai_channels.add_ai_voltage_chan("Dev1/_ao1_vs_aognd")
+        ai.timing.cfg_samp_clk_timing(10_000.0, sample_mode=AcquisitionType.FINITE,
+                                      samps_per_chan=1_400)
+        x, y = np.array(ai.read(nidaqmx.constants.READ_ALL_AVAILABLE))
+        assert ai.is_task_done()
+        held = x.reshape(140, 10)  # AI sample k sees AO sample floor(k / 10)
+        assert np.all(held == held[:, :1])
+        np.testing.assert_array_equal(held[:, 0], np.tile(ramp, 20))
+        np.testing.assert_array_equal(y, -x)
+        assert ao.out_stream.total_samp_per_chan_generated == 141  # the AI end is sample 140
+        assert not ao.is_task_done()  # continuous: runs until stopped
+
+
+def test_finite_ao_ends_in_its_idle_state(channel: grpc.Channel) -> None:
+    opts = _options(channel)
+    for idle, expect in ((AOIdleOutputBehavior.MAINTAIN_EXISTING_VALUE, 2.0),
+                         (AOIdleOutputBehavior.ZERO_VOLTS, 0.0)):
+        with nidaqmx.Task(grpc_options=opts) as ao:
+            ao.ao_channels.add_ao_voltage_chan("Dev1/ao1")
+            ao.ao_channels.all.ao_idle_output_behavior = idle
+            assert ao.ao_channels.all.ao_idle_output_behavior == idle  # remembered
+            ao.timing.cfg_samp_clk_timing(1_000.0, sample_mode=AcquisitionType.FINITE,
+                                          samps_per_chan=300)
+            ao.write(np.linspace(0.0, 2.0, 100), auto_start=False)  # looped 3 times
+            ao.start()
+            ao.wait_until_done(timeout=1.0)
+            assert ao.is_task_done()
+            assert ao.out_stream.total_samp_per_chan_generated == 300
+            with nidaqmx.Task(grpc_options=opts) as ai:  # software-timed read
+                ai.ai_channels.add_ai_voltage_chan("Dev1/_ao1_vs_aognd")
+                assert ai.read() == expect
+
+
+def test_non_regenerating_ao_on_its_own_clock_underflows_to_its_idle_state(
+        channel: grpc.Channel) -> None:
+    opts = _options(channel)
+    with nidaqmx.Task(grpc_options=opts) as ao, nidaqmx.Task(grpc_options=opts) as ai:
+        ao.ao_channels.add_ao_voltage_chan("Dev1/ao0")
+        ao.ao_channels.all.ao_idle_output_behavior = AOIdleOutputBehavior.ZERO_VOLTS
+        ao.timing.cfg_samp_clk_timing(10_000.0, sample_mode=AcquisitionType.CONTINUOUS)
+        ao.out_stream.regen_mode = RegenerationMode.DONT_ALLOW_REGENERATION
+        ao.write(np.full(500, 3.0))
+        ao.start()
+        ai.ai_channels.add_ai_voltage_chan("Dev1/_ao0_vs_aognd")
+        ai.timing.cfg_samp_clk_timing(10_000.0, sample_mode=AcquisitionType.CONTINUOUS)
+        ai.start()
+        x = np.array(ai.read(1_000))
+        np.testing.assert_array_equal(x[:500], 3.0)
+        np.testing.assert_array_equal(x[500:], 0.0)  # ran dry at sample 500: 0 V
+        with pytest.raises(nidaqmx.errors.DaqError) as info:
+            ao.write(np.zeros(100))
+        assert info.value.error_code == -200290
+
+
+def test_what_the_board_refuses(channel: grpc.Channel) -> None:
+    opts = _options(channel)
+    with nidaqmx.Task(grpc_options=opts) as ao:
+        ao.ao_channels.add_ao_voltage_chan("Dev1/ao0")
+        ao.timing.cfg_samp_clk_timing(1_000.0, sample_mode=AcquisitionType.FINITE,
+                                      samps_per_chan=10)
+        with pytest.raises(nidaqmx.errors.DaqError) as info:
+            ao.start()
+        assert info.value.error_code == -200462  # nothing written
+    with nidaqmx.Task(grpc_options=opts) as ai:
+        ai.ai_channels.add_ai_voltage_chan("Dev1/ai0")
+        ai.timing.cfg_samp_clk_timing(1_000.0, sample_mode=AcquisitionType.CONTINUOUS)
+        ai.start()
+        with nidaqmx.Task(grpc_options=opts) as other:  # one AI converter
+            other.ai_channels.add_ai_voltage_chan("Dev1/ai1")
+            with pytest.raises(nidaqmx.errors.DaqError) as info:
+                other.read()
+            assert info.value.error_code == -50103
+        with pytest.raises(nidaqmx.errors.DaqError) as info:
+            ai.wait_until_done(timeout=0.01)
+        assert info.value.error_code == -200560  # continuous: never done
+
+
+def test_a_plain_watchdog_task(server: SimulatedDeviceServer, channel: grpc.Channel) -> None:
+    """nidaqmx.system.WatchdogTask as a user writes it; the server expires it on its own."""
+    opts = _options(channel)
+    with nidaqmx.Task(grpc_options=opts) as do:
+        do.do_channels.add_do_chan("Dev1/port0/line0")
+        do.write(True)
+        with WatchdogTask("Dev1", "wdt", timeout=0.05, grpc_options=opts) as wdt:
+            wdt.cfg_watchdog_do_expir_states([DOExpirationState("Dev1/port0/line0",
+                                                                Level.LOW)])
+            assert wdt.timeout == 0.05
+            wdt.start()
+            (watchdog,) = server.device.watchdogs()
+            assert watchdog.expired_event.wait(timeout=5.0)
+            assert wdt.expired
+            assert do.read() is False  # the line was pulled low
+            with pytest.raises(nidaqmx.errors.DaqError) as info:
+                wdt.reset_timer()
+            assert info.value.error_code == -200644
+            with pytest.raises(nidaqmx.errors.DaqError) as info:
+                do.write(True)
+            assert info.value.error_code == -200678
+            wdt.clear_expiration()
+            do.write(True)
+            assert do.read() is True
+        with pytest.raises(nidaqmx.errors.DaqError) as info:
+            WatchdogTask("Dev1", "bad", timeout=0.0, grpc_options=opts)
+        assert info.value.error_code == -200668
 
 
 def test_do_write_through_task_write(server: SimulatedDeviceServer,

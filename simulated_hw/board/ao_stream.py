@@ -1,0 +1,112 @@
+"""A hardware-timed AO task's sample stream: what it generates next, and what its terminals do
+once the generation stops.
+
+Three ways a DAQmx AO buffer plays (the same rules as NI-DAQmx):
+
+- non-regenerating: every sample written is generated once, in order; running out of samples
+  stops the generation with -200290 (underflow);
+- regenerating (nidaqmx's default): the buffer written before the start plays in a loop; writes
+  while running overwrite it from the write position onwards;
+- finite: ``samps_per_chan`` samples are generated (looping a shorter regenerating buffer), then
+  the task is done.
+
+When the generation stops (underflow, the end of a finite task, stop, a watchdog expiry) each
+terminal goes to its channel's idle output behaviour: 0 V when ``ao_idle_output_behavior`` is
+``ZERO_VOLTS``, otherwise it keeps the last sample generated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daq.errors import OUTPUT_UNDERFLOW
+from simulated_hw.board.codes import IDLE_ZERO_VOLTS, daq_error
+from simulated_hw.board.tasks import SimTask
+
+
+def idle_values(task: SimTask) -> np.ndarray:
+    """What each channel's terminal shows when the task generates nothing [V]."""
+    last = task.ao_hold if task.ao_hold is not None else np.zeros(len(task.channels))
+    zero = np.array([c.idle_behavior == IDLE_ZERO_VOLTS for c in task.channels])
+    return np.where(zero, 0.0, last)
+
+
+def generating(task: SimTask) -> bool:
+    return task.running and task.error is None and not task.done
+
+
+def queue(task: SimTask, block: np.ndarray) -> None:
+    """Put ``block`` (n_ch, n) in the task's buffer (see the module doc for the modes)."""
+    n = block.shape[1]
+    if task.regenerating and task.running and task.regen_data is not None:
+        data = task.regen_data
+        pos = task.ao_written % data.shape[1]
+        idx = (pos + np.arange(n)) % data.shape[1]
+        data[:, idx[-data.shape[1]:]] = block[:, -data.shape[1]:]
+    else:
+        task.ao_chunks.append(block.copy())
+        task.ao_queued += n
+    task.ao_written += n
+
+
+def freeze_regeneration(task: SimTask) -> None:
+    """At the start of a regenerating task: the buffer written so far becomes the loop."""
+    if task.regenerating and task.ao_chunks:
+        task.regen_data = np.concatenate(task.ao_chunks, axis=1)
+        task.ao_chunks, task.ao_queued = [], 0
+
+
+def take(task: SimTask, n: int) -> np.ndarray:
+    """The next ``n`` samples the task's terminals show, shape (n_ch, n). Past the end of the
+    generation (underflow: the error is set on the task; end of a finite task: ``done``) the
+    terminals show their idle values."""
+    n_ch = len(task.channels)
+    out = np.empty((n_ch, n))
+    limit = n if generating(task) else 0
+    if task.finite:
+        limit = min(limit, max(task.samps_per_chan - task.ao_generated, 0))
+    got = 0
+    if task.regen_data is not None:
+        data = task.regen_data
+        out[:, :limit] = data[:, (task.ao_generated + np.arange(limit)) % data.shape[1]]
+        got = limit
+    else:
+        while got < limit and task.ao_chunks:
+            chunk = task.ao_chunks[0]
+            k = min(limit - got, chunk.shape[1])
+            out[:, got:got + k] = chunk[:, :k]
+            if k == chunk.shape[1]:
+                task.ao_chunks.pop(0)
+            else:
+                task.ao_chunks[0] = chunk[:, k:]
+            got += k
+        task.ao_queued -= got
+    task.ao_generated += got
+    if got:
+        task.ao_hold = out[:, got - 1].copy()
+    if task.finite and task.ao_generated >= task.samps_per_chan:
+        task.done = True  # its last sample is out
+    if got < n:
+        if generating(task):
+            task.error = daq_error(
+                OUTPUT_UNDERFLOW,
+                f"task {task.name!r}: the AO generation reached sample {task.ao_generated} "
+                f"but only {task.ao_written} samples were written; the outputs went to their "
+                "idle state",
+            )
+        out[:, got:] = idle_values(task)[:, None]
+    return out
+
+
+def skip(task: SimTask, n: int) -> None:
+    """Generate ``n`` samples nobody samples (no AI runs): only the counts, the end of the
+    generation and the last value matter, so a long regenerating stretch costs nothing."""
+    if n <= 0:
+        return
+    if task.regen_data is not None:
+        room = n if not task.finite else min(n, max(task.samps_per_chan - task.ao_generated, 0))
+        jump = max(room - 1, 0)
+        task.ao_generated += jump
+        take(task, min(n - jump, room - jump + 1))
+    else:
+        take(task, min(n, task.ao_queued + 1))

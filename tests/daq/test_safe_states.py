@@ -1,0 +1,137 @@
+"""Safe states the board keeps by itself, through the real nidaqmx client and `NidaqmxBackend`
+against the simulated device server: AO idle output 0 V (so an underflow ends with the drives
+at 0 V) and the DAQmx watchdog timer (relay off, drives 0 V when the program stops feeding it)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from daq.errors import WRITE_FAILED_WATCHDOG_EXPIRED, DaqUnderflowError, DaqWatchdogExpiredError
+from daq.nidaqmx_backend import NidaqmxBackend
+from simulated_hw.grpc_server import SimulatedDeviceServer
+from tests.daq.conftest import on_server, with_device
+
+FS = 10_000.0
+N_AO = 2
+
+
+def _drive(volts: float, n: int) -> np.ndarray:
+    """``volts`` on shaker x (ao0), 0 V on shaker y."""
+    return np.vstack([np.full(n, volts), np.zeros(n)])
+
+
+def _fx_volts(backend: NidaqmxBackend, n: int) -> np.ndarray:
+    return backend.read_ai(n)[backend.channel_map.ai_index("fx")]
+
+
+@pytest.fixture
+def no_idle_zero_server() -> Iterator[SimulatedDeviceServer]:
+    """A board without the AO idle output property (it holds the last sample)."""
+    from daq.channels import default_channel_map
+
+    wiring = with_device(default_channel_map(), ao_idle_output_zero=False)
+    with SimulatedDeviceServer(seed=7, fast=True, wiring=wiring) as server:
+        yield server
+
+
+@pytest.mark.parametrize("idle_zero", [True, False])
+def test_an_underflow_ends_with_the_drives_at_zero_where_the_board_can(
+        idle_zero: bool, fast_server: SimulatedDeviceServer,
+        no_idle_zero_server: SimulatedDeviceServer) -> None:
+    server = fast_server if idle_zero else no_idle_zero_server
+    backend = NidaqmxBackend(watchdog_timeout_s=None)
+    try:
+        backend.configure(on_server(server, with_device(
+            on_server(server), ao_idle_output_zero=idle_zero)))
+        assert backend.ao_idle_zero is idle_zero
+        channel = server.servicer.tasks[next(n for n in server.servicer.tasks if "-ao-" in n)]
+        assert [c.idle_behavior for c in channel.channels] == ([12526, 12526] if idle_zero
+                                                                else [12528, 12528])
+        backend.write_ao(_drive(1.0, 2_000))  # 1 V = 50 N on the x load cell (0.02 V/N)
+        backend.start()
+        fx = _fx_volts(backend, 2_000)
+        assert np.median(fx[1_000:]) == pytest.approx(1.0, abs=0.02)
+        after = _fx_volts(backend, 2_000)  # the generation ran dry at sample 2,000
+        with pytest.raises(DaqUnderflowError):
+            backend.write_ao(_drive(1.0, 100))
+        settled = np.median(after[200:])  # 20 ms: the 1 kHz shaker has settled
+        if idle_zero:
+            assert abs(settled) < 0.01  # below 0.5 N: the drive went to 0 V
+        else:
+            assert settled == pytest.approx(1.0, abs=0.02)  # the last sample stays on
+    finally:
+        backend.close()
+
+
+def test_the_watchdog_is_fed_by_the_acquisition_and_trips_when_it_stops() -> None:
+    with SimulatedDeviceServer(seed=7) as server:  # paced: the watchdog runs in real time
+        backend = NidaqmxBackend(watchdog_timeout_s=0.2)
+        try:
+            backend.configure(on_server(server))
+            assert backend.watchdog_sets_ao is True
+            (watchdog,) = server.device.watchdogs()
+            assert watchdog.timeout_s == 0.2 and watchdog.do_states == {
+                "Dev1/port0/line0": False}
+            assert watchdog.ao_states == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
+            backend.set_do("pump", True)
+            backend.write_ao(_drive(1.0, 5_000))
+            backend.start()
+            for _ in range(8):  # 0.4 s of reading, twice the timeout: fed all along
+                fx = _fx_volts(backend, 500)
+                backend.write_ao(_drive(1.0, 500))
+            assert not watchdog.expired and server.device.lines["Dev1/port0/line0"] is True
+            assert np.median(fx) == pytest.approx(1.0, abs=0.02)
+            # the program hangs: nobody reads, so nobody feeds the watchdog
+            assert watchdog.expired_event.wait(timeout=5.0)
+            assert server.device.lines["Dev1/port0/line0"] is False  # pump relay off
+            assert server.device.locked_ao == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
+            with pytest.raises(DaqWatchdogExpiredError) as info:  # the loop learns of it
+                backend.read_ai(5_000)
+            assert info.value.code == -200644  # the read's feed: "cannot reset, expired"
+            device = server.device  # what the load cell saw over the last 0.1 s of that read
+            late = device.ring.get(device.read_pos - 1_000, 1_000)
+            assert abs(np.median(late[backend.channel_map.ai_index("fx")])) < 0.01  # 0 V
+            with pytest.raises(DaqWatchdogExpiredError) as info:
+                backend.write_ao(_drive(1.0, 500))
+            assert info.value.code == WRITE_FAILED_WATCHDOG_EXPIRED == -200678
+            with pytest.raises(DaqWatchdogExpiredError):
+                backend.set_do("pump", False)  # the line is held; only switching on clears
+            # a new run's prefill (the operator's decision) clears the expiration
+            backend.stop()
+            backend.write_ao(_drive(0.5, 2_000))
+            backend.start()
+            assert not watchdog.expired and server.device.locked_ao == {}
+            fx = np.hstack([_fx_volts(backend, 500) for _ in range(4)])  # fed every 50 ms
+            assert np.median(fx[1_000:]) == pytest.approx(0.5, abs=0.02)
+            backend.set_do("pump", True)
+            assert server.device.lines["Dev1/port0/line0"] is True
+            backend.stop()
+        finally:
+            backend.close()
+        assert server.device.watchdogs() == []  # close clears the watchdog task too
+
+
+def test_a_board_without_ao_expiration_states_still_gets_the_relay_watchdog() -> None:
+    from daq.channels import default_channel_map
+
+    wiring = with_device(default_channel_map(), ao_watchdog=False)
+    with SimulatedDeviceServer(seed=7, fast=True, wiring=wiring) as server:
+        backend = NidaqmxBackend(watchdog_timeout_s=0.5)
+        try:
+            backend.configure(on_server(server, wiring))
+            assert backend.watchdog_sets_ao is False
+            (watchdog,) = server.device.watchdogs()
+            assert watchdog.ao_states == {} and watchdog.do_states == {
+                "Dev1/port0/line0": False}
+        finally:
+            backend.close()
+
+
+def test_watchdog_timeout_is_checked() -> None:
+    for bad in (0.0, -1.0, 61.0, math.nan):
+        with pytest.raises(ValueError, match="watchdog_timeout_s"):
+            NidaqmxBackend(watchdog_timeout_s=bad)
