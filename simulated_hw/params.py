@@ -53,6 +53,17 @@ class Seal(_Model):
         "Iwan element: below F_mu the housing moves on it); None: rigid sticking [N/m]")
 
 
+class Contact(_Model):
+    """The journal as a wall at the radial clearance (steel on steel, oiled).
+
+    The report gives no contact values: restitution 0.3 and mu 0.15 are assumed, typical of
+    oiled steel on steel; what matters for the tests is that nothing passes the wall."""
+
+    enabled: bool = True
+    restitution: float = Field(0.3, ge=0, le=1, description="coefficient of restitution")
+    friction_coefficient: float = Field(0.15, ge=0, le=1, description="mu at the contact")
+
+
 class Film(_Model):
     diameter_m: float = Field(0.127, gt=0)
     length_m: float = Field(0.0254, gt=0)
@@ -200,6 +211,7 @@ class RigParams(_Model):
 
     structure: Structure = Structure()
     seal: Seal = Seal()
+    contact: Contact = Contact()
     film: Film = Film()
     oil: Oil = Oil()
     shaker: Shaker = Shaker()

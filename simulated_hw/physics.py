@@ -7,6 +7,13 @@ relative velocity vector: it sticks while the force it must hold stays below F_m
 otherwise. Coulomb friction is integrated implicitly (a velocity-level projection, as in
 Moreau's time stepping), so sticking is exact rather than smoothed.
 
+The journal is a wall at the radial clearance c: where the housing would pass it within a step,
+a normal impulse lands it on the wall and reflects the excess approach velocity with the
+coefficient of restitution, and a tangential impulse (Coulomb, coefficient mu) acts on the
+sliding; the relative position never passes c. The film law (eq. 16) is only used inside the
+clearance, its eccentricity held below 0.95. Approximation: the normal and tangential impulses are
+solved one after the other (exact when the mass matrix has no cross terms).
+
 Approximations, stated: the film's added mass acts on the housing's absolute acceleration (the
 frame's motion is small and only present with the second-mode effect); with cross-coupled mass the
 slip direction of the friction step is taken from the trial velocity (exact without cross mass).
@@ -22,8 +29,9 @@ import numpy as np
 # Indices into the parameter vector handed to the kernel.
 (P_M, P_MF, P_D, P_DXY, P_DYX, P_KX, P_KY, P_CRV, P_C0, P_CXY, P_CYX, P_FMU, P_CLEAR, P_ECC,
  P_K3, P_K2, P_AIR_K, P_AIR_MAX, P_AIR_TAU, P_FRAME_ON, P_FRAME_M, P_FRAME_K, P_FRAME_C,
- P_DT, P_NSUB, P_SEAL_KT, P_DM_Y, P_DC_Y) = range(28)
-N_PARAMS = 28
+ P_DT, P_NSUB, P_SEAL_KT, P_DM_Y, P_DC_Y, P_CONTACT_ON, P_RESTITUTION,
+ P_CONTACT_MU) = range(31)
+N_PARAMS = 31
 
 # Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|;
 # the previous sample's force (the force is interpolated linearly between samples); the compliant
@@ -32,8 +40,9 @@ S_X, S_Y, S_VX, S_VY, S_XF, S_YF, S_VXF, S_VYF, S_VBAR, S_FPX, S_FPY, S_WX, S_WY
 N_STATE = 13
 
 # Rows of the output array.
-(O_X, O_Y, O_VX, O_VY, O_AX, O_AY, O_FRICX, O_FRICY, O_FILMX, O_FILMY, O_CFILM) = range(11)
-N_OUT = 11
+(O_X, O_Y, O_VX, O_VY, O_AX, O_AY, O_FRICX, O_FRICY, O_FILMX, O_FILMY, O_CFILM,
+ O_CONTACT) = range(12)
+N_OUT = 12
 
 
 @numba.njit(cache=True, inline="always")
@@ -115,6 +124,10 @@ def integrate(
     kt = p[P_SEAL_KT]
     compliant = kt > 0.0 and fmu > 0.0
     wx, wy = s[S_WX], s[S_WY]
+    contact_on = p[P_CONTACT_ON] > 0.5
+    clear = p[P_CLEAR]
+    rest = p[P_RESTITUTION]
+    cmu = p[P_CONTACT_MU]
     air_alpha_k = h / p[P_AIR_TAU]
     fpx, fpy = s[S_FPX], s[S_FPY]
     for i in range(n):
@@ -124,6 +137,9 @@ def integrate(
         fi = fill[i]
         frx = fry = 0.0
         rax = ray = 0.0
+        contact_n = 0.0
+        bounced = False
+        bounce_r = bounce_nx = bounce_ny = 0.0
         for k in range(nsub):
             # the kick uses the force at the start of the substep, where x is (leapfrog)
             m11, m12, m21, m22, c11, c12, c21, c22, _ = _coefficients(x, y, fi, visc[i], vbar,
@@ -230,6 +246,44 @@ def integrate(
             if not compliant:
                 frx = jx / h
                 fry = jy / h
+            if contact_on:
+                # the journal: land on the wall at r = c, reflect the excess approach speed
+                ux = vhx - nvxf
+                uy = vhy - nvyf
+                r = np.sqrt(x * x + y * y)
+                if r > 0.0:
+                    nx = x / r
+                    ny = y / r
+                    un = ux * nx + uy * ny
+                    gap = clear - r
+                    if un * h > gap:
+                        w11 = q11 - rr11
+                        w12 = q12 - rr12
+                        w21 = q21 - rr21
+                        w22 = q22 - rr22
+                        un_new = -rest * un if un > 0.0 else 0.0
+                        # where the wall is met within the step: the drift below is corrected
+                        # to that bounce (event-exact in the normal direction)
+                        tau = gap / un if un > 0.0 and gap > 0.0 else 0.0
+                        bounce_r = clear + un_new * (h - tau)
+                        bounce_nx = nx
+                        bounce_ny = ny
+                        bounced = True
+                        wnn = nx * (w11 * nx + w12 * ny) + ny * (w21 * nx + w22 * ny)
+                        jn = (un_new - un) / wnn  # < 0: towards the centre
+                        ut = -ux * ny + uy * nx
+                        wtt = ny * (w11 * ny - w12 * nx) - nx * (w21 * ny - w22 * nx)
+                        jt = -ut / wtt
+                        if abs(jt) > -cmu * jn:
+                            jt = -cmu * jn * (1.0 if jt > 0 else -1.0)
+                        cjx = jn * nx - jt * ny
+                        cjy = jn * ny + jt * nx
+                        vhx += q11 * cjx + q12 * cjy
+                        vhy += q21 * cjx + q22 * cjy
+                        nvxf += rr11 * cjx + rr12 * cjy
+                        nvyf += rr21 * cjx + rr22 * cjy
+                        if -jn / h > contact_n:
+                            contact_n = -jn / h
             nvx = vhx - nvxf
             nvy = vhy - nvyf
             rax = (nvx - vx) / h  # relative acceleration over this substep
@@ -240,6 +294,19 @@ def integrate(
             vyf = nvyf
             x += h * vx
             y += h * vy
+            if bounced:
+                bounced = False
+                shift = bounce_r - (x * bounce_nx + y * bounce_ny)
+                if shift < 0.0:
+                    x += shift * bounce_nx
+                    y += shift * bounce_ny
+            if contact_on:
+                # sliding along the wall, the straight drift ends slightly outside the circle
+                r2 = x * x + y * y
+                if r2 > clear * clear:
+                    scale = clear / np.sqrt(r2)
+                    x *= scale
+                    y *= scale
             xf += h * vxf
             yf += h * vyf
             vbar += air_alpha_k * (np.sqrt(vx * vx + vy * vy) - vbar)
@@ -267,6 +334,7 @@ def integrate(
         out[O_FILMX, i] = -cfilm * vox - (c12 * voy)
         out[O_FILMY, i] = -cfilm * voy - (c21 * vox)
         out[O_CFILM, i] = cfilm
+        out[O_CONTACT, i] = contact_n
     s[S_X], s[S_Y], s[S_VX], s[S_VY] = x, y, vx, vy
     s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR] = xf, yf, vxf, vyf, vbar
     s[S_FPX], s[S_FPY] = fpx, fpy
@@ -360,6 +428,7 @@ class Truth:
     film_y_n: np.ndarray
     film_damping_ns_per_m: np.ndarray
     hammer_n: np.ndarray
+    contact_n: np.ndarray
 
     @classmethod
     def from_kernel(cls, out: np.ndarray, force: np.ndarray, hammer_n: np.ndarray) -> Truth:
@@ -369,5 +438,5 @@ class Truth:
             ax_m_per_s2=out[O_AX], ay_m_per_s2=out[O_AY], fx_n=force[0], fy_n=force[1],
             friction_x_n=out[O_FRICX], friction_y_n=out[O_FRICY],
             film_x_n=out[O_FILMX], film_y_n=out[O_FILMY],
-            film_damping_ns_per_m=out[O_CFILM], hammer_n=hammer_n,
+            film_damping_ns_per_m=out[O_CFILM], hammer_n=hammer_n, contact_n=out[O_CONTACT],
         )

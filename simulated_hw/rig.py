@@ -53,6 +53,9 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
         p[physics.P_FRAME_ON] = 1.0
         p[physics.P_FRAME_K] = sm.modal_mass_kg * wn**2
         p[physics.P_FRAME_C] = 2 * sm.damping_ratio * sm.modal_mass_kg * wn
+    p[physics.P_CONTACT_ON] = 1.0 if params.contact.enabled else 0.0
+    p[physics.P_RESTITUTION] = params.contact.restitution
+    p[physics.P_CONTACT_MU] = params.contact.friction_coefficient
     p[physics.P_DT] = 1.0 / sample_rate_hz
     p[physics.P_NSUB] = params.steps_per_sample(sample_rate_hz)
     return p

@@ -307,6 +307,10 @@ def diagnose(
     notes: list[str] = []
 
     base_rig = rig or records[0].rig or RigParams()
+    # replays leave the journal contact out: a run that touched it ended in a fault, imported
+    # data has no journal, and the eccentricity law's fitted clearance may sit inside the orbit
+    base_rig = base_rig.model_copy(update={"contact": base_rig.contact.model_copy(
+        update={"enabled": False})})
     oversample: dict[int, int] = {}
     if imported:
         # imported data without a rig description: no seal; the film as the run file says
