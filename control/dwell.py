@@ -43,6 +43,8 @@ LOAD_MARGIN = 0.9
 DISPLACEMENT_MARGIN = 0.8
 #: At a new frequency the drive starts from this fraction of the predicted one (`_start`).
 START_FRACTION = 0.8
+#: ... or of the drive predicted from a converged step at this very frequency (its tangent).
+START_FRACTION_KNOWN = 0.9
 #: The soft limit: an orbit radius or a load over this fraction of its trip level halves the
 #: drive at once (`DriveStream.guard`); the step then goes on below it, or fails after twice.
 #: Between the correction margins above and the trip.
@@ -270,8 +272,13 @@ class StepRunner:
         if nominal.max() > cap:
             rows_guess *= cap / float(nominal.max())
         # nor above what J predicts (the plant without friction, from zero drive) for the
-        # displacement: a housing that slips more freely than at the last step stays in bounds
-        if plan.target_kind == "displacement" and cfg.algorithm != "proportional":
+        # displacement: a housing that slips more freely than at the last step stays in bounds.
+        # Where a step at this frequency converged, the guess is its tangent, which predicts
+        # the target itself (J from zero would overstate a friction-held orbit by the offset)
+        known = pred is not None and self.predictor.knows(plan.freq_hz)
+        if (plan.target_kind == "displacement" and cfg.algorithm != "proportional"
+                and not (known and orbit_peak_radius(plan.shape)
+                         <= self._response_cap("displacement"))):
             a = np.abs(plan.shape) > 0
             lin = np.zeros(2, dtype=np.complex128)
             lin[a] = jac[np.ix_(a, a)] @ self._axis_drive(rows_guess)[a]
@@ -281,16 +288,22 @@ class StepRunner:
         peak = float(np.max(np.abs(rows_guess)))
         if peak > self.limits.max_drive_v:
             rows_guess *= self.limits.max_drive_v / peak
-        if (plan.target_kind != "displacement" or cfg.algorithm == "proportional"
-                or abs(plan.freq_hz - synth.freq_hz) <= 1e-9 * plan.freq_hz):
+        same_freq = abs(plan.freq_hz - synth.freq_hz) <= 1e-9 * plan.freq_hz
+        lowering = float(np.linalg.norm(rows_guess)) <= float(np.linalg.norm(synth.phasors))
+        if (cfg.algorithm == "proportional" or (same_freq and plan.target_kind == "displacement")
+                or (same_freq and lowering)):
             return ctl, self._ramp(rows_guess, plan.freq_hz)
         # a new frequency: the drive predicted from other frequencies is a guess, and the path
         # there may cross a resonance. Move the frequency at no more than `START_FRACTION` of
-        # the guess, then raise the drive watching every block; stop near the target.
-        low = START_FRACTION * float(np.max(np.abs(rows_guess)))
-        if plan.freq_hz < synth.freq_hz:
+        # the guess, then raise the drive watching every block; stop near the target. A load
+        # target is raised the same way: nothing predicts its orbit before it is measured, and
+        # the raise stops at the displacement margin (the step then fails with that reason).
+        low = ((START_FRACTION_KNOWN if known else START_FRACTION)
+               * float(np.max(np.abs(rows_guess))))
+        if plan.freq_hz < synth.freq_hz and not known:
             # downwards, towards the stiffness line: a drive predicted from above (where mass
             # dominates) can be many times too much; start from the nominal stiffness instead
+            # (not needed where a step at this very frequency converged: it predicts from here)
             a = np.abs(plan.shape) > 0
             prior = np.zeros(2, dtype=np.complex128)
             prior[a] = np.linalg.solve(self._prior_jacobian(plan)[np.ix_(a, a)], plan.shape[a])
@@ -385,7 +398,11 @@ class StepRunner:
             if not self.open_loop_checked[np.abs(plan.shape) > 0].all():
                 self._check_open_loop(plan, drive, w0 + w, w0, w0 + w)
             assess = ctl.assess(ctrl, cfg.aim_fraction if prev_ok is None else 1.0)
-            if assess.within:
+            # a load reached with the orbit past the displacement margin is not a result: the
+            # correction below brings the orbit back to the margin and the step fails with it
+            orbit_over = (plan.target_kind == "load" and cfg.algorithm != "proportional"
+                          and orbit_peak_radius(other) > self._response_cap("displacement"))
+            if assess.within and not orbit_over:
                 if prev_ok is not None and next_free >= settle_end:
                     change = self._drift(plan, (ctrl, other, s_ctrl, s_other), prev_ok)
                     waited = next_free - change_end
@@ -418,7 +435,7 @@ class StepRunner:
             # successive windows agree to within a quarter of the remaining error (Newton on
             # a transient misleads J), or once the settling time has passed
             last_win, prev_win = prev_win, (change_end, ctrl)
-            if cfg.algorithm != "proportional" and next_free < settle_end:
+            if cfg.algorithm != "proportional" and next_free < settle_end and not orbit_over:
                 err = float(np.linalg.norm((ctl.target_for(ctrl) - ctrl)[np.abs(plan.shape) > 0]))
                 if last_win is None or last_win[0] != change_end:
                     if err < 0.2 * float(np.linalg.norm(plan.shape)):
@@ -438,6 +455,15 @@ class StepRunner:
                 return self._failed(plan, w0, w0 + w, updates, start_sample, why, assess)
             if plan.target_kind == "load":
                 change_end, next_free = self._correct(plan, ctl, drive, ctrl, ctrl, other)
+                if orbit_over:
+                    # friction makes the orbit grow faster than the load (stick, then slip):
+                    # the drive that passed the margin is never approached again in this step
+                    ctl.max_drive_v = min(ctl.max_drive_v,
+                                          float(np.max(np.abs(synth.target_phasors))))
+                    self._guard_reason = self._guard_reason or (
+                        f"the displacement limit ({self.limits.displacement_limit_m * 1e6:.4g} "
+                        f"um; the orbit reached {orbit_peak_radius(other) * 1e6:.1f} um at "
+                        f"{abs(ctrl).max():.1f} N)")
             else:
                 change_end, next_free = self._correct(plan, ctl, drive, ctrl, other)
             updates += 1
@@ -481,15 +507,21 @@ class StepRunner:
         cyc = cycles_to_samples(synth.freq_hz, fs, 1.0)
         latency = (stream.ahead_blocks + 1) * stream.block + cyc
         per_block = (1.0 + growth) ** (stream.block / latency)
-        stop_at = stop_fraction * orbit_peak_radius(plan.shape)
+        stop_at = (stop_fraction * orbit_peak_radius(plan.shape)
+                   if plan.target_kind == "displacement" else np.inf)
         cap_d = self._response_cap("displacement")
         cap_f = LOAD_MARGIN * self.limits.max_load_n
         top = np.asarray(top_rows, dtype=np.complex128)
         self.limited_by = ""
+        radius = 0.0
+        watch_end = -1  # a load target's final raise is watched for one latency
         while True:
-            # towards top (magnitude and phase), the drive vector growing by per_block at most
+            # towards top (magnitude and phase), the drive vector growing by per_block at most;
+            # for a load target (no orbit to stop at) slower as the orbit nears the displacement
+            # margin: near break-away a small raise makes a large jump, seen a latency later
             now = synth.phasors
-            room = (per_block - 1.0) * float(np.linalg.norm(now))
+            slow = max(0.1, 1.0 - radius / cap_d) if plan.target_kind == "load" else 1.0
+            room = (per_block ** slow - 1.0) * float(np.linalg.norm(now))
             dist = float(np.linalg.norm(top - now))
             final = (dist <= room or room == 0.0
                      or float(np.linalg.norm(top)) <= float(np.linalg.norm(now)))
@@ -505,7 +537,7 @@ class StepRunner:
             if stream.guard_event is not None:
                 self.limited_by = f"the soft limit ({stream.guard_event[1]})"
                 return
-            ai, _ = stream.window(stream.sample - cyc, stream.sample)
+            ai, _ = stream.window(max(stream.sample - cyc, 0), stream.sample)
             disp = self.signals.displacement(ai)
             disp = disp - disp.mean(axis=1, keepdims=True)
             radius = float(np.max(np.hypot(disp[0], disp[1])))
@@ -514,8 +546,15 @@ class StepRunner:
                                    f"({self.limits.displacement_limit_m * 1e6:.4g} um)")
             elif float(np.max(np.abs(self.signals.load(ai)))) > cap_f:
                 self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
-            if radius >= stop_at or self.limited_by or final:
+            if radius >= stop_at or self.limited_by:
                 return
+            if final:
+                if plan.target_kind != "load":
+                    return
+                if watch_end < 0:
+                    watch_end = stream.sample + latency
+                elif stream.sample >= watch_end:
+                    return
 
     def _correct(self, plan: StepPlan, ctl: AmplitudeController, drive: np.ndarray,
                  response: np.ndarray,
