@@ -69,8 +69,9 @@ def run_case(case: str, controller: dict, seed: int, quick: bool) -> Row:
         spec = SweepSpec(motion="circular_forward", load_n=[40.0], freq_start_hz=20,
                          freq_stop_hz=200, freq_step_hz=10, control=controller,
                          on_not_converged="continue")
-        # the simulated dry rig exceeds the clearance near its resonances (see the report)
-        limits = SafetyLimits(max_displacement_m=300e-6)
+        # 40 N moves the dry rig past the displacement margin near its resonances: those steps
+        # stop with that reason and are left out of time/ideal (a limit at the journal is refused)
+        limits = SafetyLimits()
     be = SimulatedBackend(params, seed=seed)
     be.configure(default_channel_map())
     pump = None

@@ -506,6 +506,9 @@ class StepRunner:
         stream, synth, fs = self.stream, self.stream.synth, self.fs
         cyc = cycles_to_samples(synth.freq_hz, fs, 1.0)
         latency = (stream.ahead_blocks + 1) * stream.block + cyc
+        if plan.target_kind == "load":
+            # a load target may start from a stuck housing: raise it as a break-away is raised
+            growth = min(growth, self.cfg.breakaway_growth)
         per_block = (1.0 + growth) ** (stream.block / latency)
         stop_at = (stop_fraction * orbit_peak_radius(plan.shape)
                    if plan.target_kind == "displacement" else np.inf)
