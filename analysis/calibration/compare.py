@@ -136,11 +136,17 @@ def _lubricated(ident: Identification) -> list[Comparison]:
     out: list[Comparison] = []
     t6 = load_table("table6_inertia")
     f1 = load_table("tableF1_added_mass")
+    # D = M_t - M - M_f with the report's M (Table 1, 9.7 kg) and M_f, whatever the rig's own
+    m_and_mf = find(t6, "M", "xy").value + find(t6, "M_f", "xy").value
+
+    def added_mass(fit: Any) -> float:
+        return float(fit.m_t_fixed_k_kg - m_and_mf)
+
     for axis in ("x", "y"):
         fit = _mass_fit(ident, axis, 38)
         if fit is not None:
             for q, sim, u in (("M_t", fit.m_t_fixed_k_kg, fit.u_m_t_kg),
-                              ("D", fit.added_mass_fixed_k_kg, fit.u_added_mass_kg)):
+                              ("D", added_mass(fit), fit.u_added_mass_kg)):
                 row = find(t6, q, axis)
                 band, basis = _band(row, u)
                 out.append(Comparison("Table 6", q, axis, "kg", row.value, sim, band, basis,
@@ -152,7 +158,7 @@ def _lubricated(ident: Identification) -> list[Comparison]:
                 continue
             band, basis = _band(rows[0], fit.u_added_mass_kg)
             out.append(Comparison("Table F1", f"D at {amp} um", axis, "kg", rows[0].value,
-                                  fit.added_mass_fixed_k_kg, band, basis, rows[0].note))
+                                  added_mass(fit), band, basis, rows[0].note))
     out.extend(_film(ident))
     return out
 

@@ -8,9 +8,9 @@ tables are used for the fit; the others are kept to test it (the held-out gain).
 
 Terms and the tables that fit them:
 
-- housing mass M and the stiffnesses K_sx, K_sy: Table 3 (K, M, f_n per axis); Table 2 is held
-  out (a single spring cannot give both the static 765-823 kN/m and the impact's 49 Hz in Y);
-- residual damping C_rv (one value for both axes): Table 4's C_rv and Table 3's C_s;
+- housing mass and stiffness per axis: Table 3 (K, M, f_n per axis); Table 2 is held out (one
+  spring cannot give both the static 786-823 kN/m and the impact's 923 kN/m in Y);
+- residual damping per axis: Table 3's C_s and Table 4's C_rv (the mean of the two);
 - seal friction F_mu: Table 4;
 - seal contact stiffness (a compliant seal instead of rigid sticking): Table F1's trend in X,
   D(13 um) - D(38 um); kept only if the held-out film trend against frequency does not worsen;
@@ -92,6 +92,7 @@ class Calibration:
                             if k not in ("simulated", "error", "rel_error", "within")},
                          "default": d.simulated, "default_within": d.within,
                          "calibrated": c.simulated if c else None,
+                         "calibrated_band": c.band if c else None,
                          "calibrated_within": c.within if c else None,
                          "used_for_fit": d.key in self.fit_keys})
         return {"terms": [t.to_dict() for t in self.terms], "rejected": self.rejected,
@@ -110,36 +111,38 @@ def _keys(rows: list[Comparison], table: str, quantities: tuple[str, ...]) -> se
     return {r.key for r in rows if r.table == table and r.quantity in quantities}
 
 
-def fit_structure(rows: list[Comparison], params: RigParams) -> tuple[float, float, float]:
-    """(M, K_sx, K_sy) whose identified Table 3 values are nearest the report's (least squares,
-    each error over its band), the identification's offsets taken from ``rows``."""
+def fit_structure(rows: list[Comparison], params: RigParams, axis: str) -> tuple[float, float]:
+    """(M, K_s) of one axis whose identified Table 3 K, M and f_n are nearest the report's
+    (least squares, each error over its band), the identification's offsets taken from
+    ``rows``."""
     st = params.structure
-    off = {(q, a): _row(rows, "Table 3", q, a).simulated - nominal
-           for q, a, nominal in (("K_s", "x", st.stiffness_x_n_per_m),
-                                 ("K_s", "y", st.stiffness_y_n_per_m),
-                                 ("M", "x", st.mass_kg), ("M", "y", st.mass_kg))}
-    targets = [_row(rows, "Table 3", q, a) for q in ("K_s", "M", "f_n") for a in ("x", "y")]
+    m0 = st.mass_kg if axis == "x" else st.mass_y()
+    k0 = st.stiffness_x_n_per_m if axis == "x" else st.stiffness_y_n_per_m
+    off_k = _row(rows, "Table 3", "K_s", axis).simulated - k0
+    off_m = _row(rows, "Table 3", "M", axis).simulated - m0
+    targets = [_row(rows, "Table 3", q, axis) for q in ("K_s", "M", "f_n")]
 
     def residuals(v: np.ndarray) -> np.ndarray:
-        m, kx, ky = v[0], v[1] * 1e3, v[2] * 1e3
-        ident = {("K_s", "x"): kx + off["K_s", "x"], ("K_s", "y"): ky + off["K_s", "y"],
-                 ("M", "x"): m + off["M", "x"], ("M", "y"): m + off["M", "y"]}
-        for a in ("x", "y"):
-            ident["f_n", a] = math.sqrt(ident["K_s", a] / ident["M", a]) / (2 * math.pi)
-        return np.array([(ident[t.quantity, t.axis] - t.report) / t.band for t in targets])
+        k_id, m_id = v[1] * 1e3 + off_k, v[0] + off_m
+        ident = {"K_s": k_id, "M": m_id, "f_n": math.sqrt(k_id / m_id) / (2 * math.pi)}
+        return np.array([(ident[t.quantity] - t.report) / t.band for t in targets])
 
-    sol = least_squares(residuals, [st.mass_kg, st.stiffness_x_n_per_m / 1e3,
-                                    st.stiffness_y_n_per_m / 1e3])
-    return float(sol.x[0]), float(sol.x[1] * 1e3), float(sol.x[2] * 1e3)
+    sol = least_squares(residuals, [m0, k0 / 1e3])
+    return float(sol.x[0]), float(sol.x[1] * 1e3)
 
 
-def fit_residual_damping(rows: list[Comparison], c_rv: float) -> float:
-    """C_rv nearest Table 4's C_rv and Table 3's C_s (weights 1/band^2)."""
-    sel = [_row(rows, "Table 4", "C_rv", "xy"), _row(rows, "Table 3", "C_s", "x"),
-           _row(rows, "Table 3", "C_s", "y")]
-    w = np.array([1 / r.band**2 for r in sel])
-    target = np.array([r.report - (r.simulated - c_rv) for r in sel])
-    return float(np.sum(w * target) / np.sum(w))
+def fit_residual_damping(rows: list[Comparison], params: RigParams) -> tuple[float, float]:
+    """(C_x, C_y) nearest Table 3's C_s per axis and Table 4's C_rv, which the circular orbits'
+    energy balance identifies as the mean of the two (linear least squares, weights 1/band^2)."""
+    st = params.structure
+    c0 = np.array([st.residual_damping_ns_per_m, st.residual_damping_y()])
+    sel = [(_row(rows, "Table 3", "C_s", "x"), np.array([1.0, 0.0])),
+           (_row(rows, "Table 3", "C_s", "y"), np.array([0.0, 1.0])),
+           (_row(rows, "Table 4", "C_rv", "xy"), np.array([0.5, 0.5]))]
+    a = np.array([coef / r.band for r, coef in sel])
+    b = np.array([(r.report - (r.simulated - coef @ c0)) / r.band for r, coef in sel])
+    c, *_ = np.linalg.lstsq(a, b, rcond=None)
+    return float(c[0]), float(c[1])
 
 
 def _d_trend(ident: Identification) -> float:
@@ -203,21 +206,25 @@ def calibrate(simulate: Simulate, plan: ReportPlan | None = None, start: RigPara
                 | _keys(default, "Table 6", ("M_t", "D"))
                 | {r.key for r in default if r.quantity == "C_sfd average"})
 
-    m, kx, ky = fit_structure(default, p)
     st = p.structure
-    for name, unit, old, new in (("structure.mass_kg", "kg", st.mass_kg, m),
-                                 ("structure.stiffness_x_n_per_m", "N/m",
-                                  st.stiffness_x_n_per_m, kx),
-                                 ("structure.stiffness_y_n_per_m", "N/m",
-                                  st.stiffness_y_n_per_m, ky)):
-        terms.append(FittedTerm(name, unit, old, new, "Table 3 (K, M, f_n per axis)",
-                                "impact natural frequencies 47/49 Hz and Table 3's K, M"))
-    st.mass_kg, st.stiffness_x_n_per_m, st.stiffness_y_n_per_m = m, kx, ky
-    c_rv = fit_residual_damping(default, st.residual_damping_ns_per_m)
-    terms.append(FittedTerm("structure.residual_damping_ns_per_m", "N.s/m",
-                            st.residual_damping_ns_per_m, c_rv, "Table 4 C_rv, Table 3 C_s",
-                            "one value for both axes: Table 3's C_s in Y (315) stays apart"))
-    st.residual_damping_ns_per_m = c_rv
+    mx, kx = fit_structure(default, p, "x")
+    my, ky = fit_structure(default, p, "y")
+    cx, cy = fit_residual_damping(default, p)
+    why_mk = "impact natural frequencies 47/49 Hz and Table 3's K, M per axis"
+    why_c = "Table 3's C_s per axis (367/315) with Table 4's C_rv (370) as their mean"
+    for name, unit, old, new, why in (
+            ("structure.mass_kg", "kg", st.mass_kg, mx, why_mk),
+            ("structure.mass_y_kg", "kg", st.mass_y(), my, why_mk),
+            ("structure.stiffness_x_n_per_m", "N/m", st.stiffness_x_n_per_m, kx, why_mk),
+            ("structure.stiffness_y_n_per_m", "N/m", st.stiffness_y_n_per_m, ky, why_mk),
+            ("structure.residual_damping_ns_per_m", "N.s/m", st.residual_damping_ns_per_m, cx,
+             why_c),
+            ("structure.residual_damping_y_ns_per_m", "N.s/m", st.residual_damping_y(), cy,
+             why_c)):
+        src = "Table 3 (K, M, f_n per axis)" if unit != "N.s/m" else "Table 3 C_s, Table 4 C_rv"
+        terms.append(FittedTerm(name, unit, old, new, src, why))
+    st.mass_kg, st.mass_y_kg, st.stiffness_x_n_per_m, st.stiffness_y_n_per_m = mx, my, kx, ky
+    st.residual_damping_ns_per_m, st.residual_damping_y_ns_per_m = cx, cy
     f_row = _row(default, "Table 4", "F_mu", "xy")
     f_mu = p.seal.friction_force_n + f_row.report - f_row.simulated
     terms.append(FittedTerm("seal.friction_force_n", "N", p.seal.friction_force_n, f_mu,

@@ -55,13 +55,13 @@ def table_lines(cal: Calibration | None, rows: list[Comparison]) -> list[str]:
     """The side-by-side table: report, band, default rig, calibrated rig (ok = within)."""
     cal_rows = {r.key: r for r in cal.calibrated} if cal else {}
     head = f"{'table':<20} {'quantity':<36} {'axis':<4} {'report':>10} {'band':>9} {'default':>10}"
-    lines = [head + (f" {'calibrated':>13}  use" if cal else "")]
+    lines = [head + (f" {'calibrated':>13} {'band':>9}  use" if cal else "")]
     for r in rows:
         line = (f"{r.table:<20} {r.quantity:<36} {r.axis:<4} {r.report:>10.4g} {r.band:>9.3g} "
                 f"{r.simulated:>10.4g} {'ok' if r.within else '--'}")
         c = cal_rows.get(r.key)
         if cal and c is not None:
-            line += f" {c.simulated:>10.4g} {'ok' if c.within else '--'}  "
+            line += f" {c.simulated:>10.4g} {'ok' if c.within else '--'} {c.band:>9.3g}  "
             line += "fit" if r.key in cal.fit_keys else "held out"
         lines.append(line)
     return lines

@@ -10,6 +10,7 @@ import math
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from analysis.calibration.compare import Comparison, compare, table_errors
@@ -22,14 +23,14 @@ from simulated_hw.params import RigParams, rig_params_named_or_file
 
 
 def _table3_rows(params: RigParams, offset_k: float = 0.0) -> list[Comparison]:
-    """Table 3 as `compare` makes it, for an identification that returns ``params`` (K shifted
-    by ``offset_k``)."""
+    """Table 3 and Table 4's C_rv as `compare` makes them, for an identification that returns
+    ``params`` (K shifted by ``offset_k``)."""
     t3 = load_table("table3_impact")
     st = params.structure
     sim = {("K_s", "x"): st.stiffness_x_n_per_m + offset_k,
            ("K_s", "y"): st.stiffness_y_n_per_m + offset_k,
-           ("M", "x"): st.mass_kg, ("M", "y"): st.mass_kg,
-           ("C_s", "x"): st.residual_damping_ns_per_m, ("C_s", "y"): st.residual_damping_ns_per_m}
+           ("M", "x"): st.mass_kg, ("M", "y"): st.mass_y(),
+           ("C_s", "x"): st.residual_damping_ns_per_m, ("C_s", "y"): st.residual_damping_y()}
     rows = []
     for (q, a), v in sim.items():
         unit = {"K_s": "N/m", "M": "kg", "C_s": "N.s/m"}[q]
@@ -39,39 +40,45 @@ def _table3_rows(params: RigParams, offset_k: float = 0.0) -> list[Comparison]:
         r = find(t3, "f_n", a, "Hz")
         fn = math.sqrt(sim["K_s", a] / sim["M", a]) / (2 * math.pi)
         rows.append(Comparison("Table 3", "f_n", a, "Hz", r.value, fn, 1.0, ""))
-    rows.append(Comparison("Table 4", "C_rv", "xy", "N.s/m", 370.0, st.residual_damping_ns_per_m,
-                           12.0, ""))
+    c_mean = 0.5 * (st.residual_damping_ns_per_m + st.residual_damping_y())
+    rows.append(Comparison("Table 4", "C_rv", "xy", "N.s/m", 370.0, c_mean, 12.0, ""))
     return rows
 
 
-def test_structure_fit_reaches_table3_where_one_spring_per_axis_can():
-    m, kx, ky = fit_structure(_table3_rows(RigParams()), RigParams())
-    fx = math.sqrt(kx / m) / (2 * math.pi)
-    fy = math.sqrt(ky / m) / (2 * math.pi)
-    # one mass for both axes: between Table 3's 8.8 (X) and 9.7 kg (Y), within 0.55 kg of both
-    assert 9.15 < m < 9.35
-    assert abs(fx - 47.0) <= 1.0 and abs(fy - 49.0) <= 1.0
-    assert abs(kx - 800e3) <= 40e3 and abs(ky - 923e3) <= 46e3
-    # ... and so the Y spring leaves Table 2 (786 +/- 31.5 kN/m) and the text's 823 kN/m
-    assert ky > 823e3 * 1.04
+def test_structure_fit_reaches_table3_per_axis():
+    p = RigParams()
+    for axis, k_rep, u_k, m_rep, fn_rep in (("x", 800e3, 40e3, 8.8, 47.0),
+                                            ("y", 923e3, 46e3, 9.7, 49.0)):
+        m, k = fit_structure(_table3_rows(p), p, axis)
+        assert abs(k - k_rep) <= u_k and abs(m - m_rep) <= 0.5
+        assert abs(math.sqrt(k / m) / (2 * math.pi) - fn_rep) <= 1.0
+        if axis == "x":  # X also agrees with Table 2 (765 +/- 31 kN/m) ...
+            assert abs(k - 765e3) <= 31e3
+        else:  # ... Y cannot: the impact needs a spring far above Table 2 and the text
+            assert k > 823e3 + 33e3
 
 
 def test_structure_fit_removes_the_identification_offset():
     # an identification that reads every K 10 kN/m high: the fitted springs are 10 kN/m softer
     p = RigParams()
-    _, kx0, ky0 = fit_structure(_table3_rows(p), p)
-    _, kx1, ky1 = fit_structure(_table3_rows(p, offset_k=10e3), p)
-    assert kx1 == pytest.approx(kx0 - 10e3, abs=300)
-    assert ky1 == pytest.approx(ky0 - 10e3, abs=300)
+    for axis in ("x", "y"):
+        _, k0 = fit_structure(_table3_rows(p), p, axis)
+        _, k1 = fit_structure(_table3_rows(p, offset_k=10e3), p, axis)
+        assert k1 == pytest.approx(k0 - 10e3, abs=300)
 
 
-def test_residual_damping_is_the_band_weighted_mean():
-    rows = _table3_rows(RigParams())
-    c = fit_residual_damping(rows, 370.0)
-    w = [1 / 12.0**2, 1 / 36.7**2, 1 / 31.5**2]
-    expected = (370 * w[0] + 367 * w[1] + 315 * w[2]) / sum(w)
-    assert c == pytest.approx(expected, rel=1e-9)
-    assert 360 < c < 370
+def test_residual_damping_per_axis_by_weighted_least_squares():
+    cx, cy = fit_residual_damping(_table3_rows(RigParams()), RigParams())
+    # the normal equations of the three rows (C_x = 367, C_y = 315, (C_x + C_y)/2 = 370),
+    # each over its band (36.7, 31.5, 12), solved here by hand
+    a = np.array([[1 / 36.7, 0.0], [0.0, 1 / 31.5], [0.5 / 12, 0.5 / 12]])
+    b = np.array([367 / 36.7, 315 / 31.5, 370 / 12])
+    ata, atb = a.T @ a, a.T @ b
+    det = ata[0, 0] * ata[1, 1] - ata[0, 1] * ata[1, 0]
+    ex = (atb[0] * ata[1, 1] - ata[0, 1] * atb[1]) / det
+    ey = (ata[0, 0] * atb[1] - ata[1, 0] * atb[0]) / det
+    assert (cx, cy) == (pytest.approx(ex, rel=1e-9), pytest.approx(ey, rel=1e-9))
+    assert cy < cx and 360 < 0.5 * (cx + cy) < 372
 
 
 def test_comparison_band_and_normalised_error():
@@ -99,28 +106,25 @@ def _get(rows: dict[str, Comparison], table: str, quantity: str, axis: str) -> C
     return rows[f"{table}|{quantity}|{axis}"]
 
 
-def test_calibrated_rig_reproduces_table3_natural_frequencies_and_y_stiffness(side_by_side):
+def test_calibrated_rig_reproduces_table3_per_axis(side_by_side):
     nominal, report = side_by_side["nominal"], side_by_side["report"]
-    for axis, reported in (("x", 47.0), ("y", 49.0)):
-        assert not _get(nominal, "Table 3", "f_n", axis).within  # 45.4 / 46.4 Hz
-        fn = _get(report, "Table 3", "f_n", axis)
-        assert fn.within and abs(fn.simulated - reported) <= 1.0
-    assert not _get(nominal, "Table 3", "K_s", "y").within  # 823 against 923 +/- 46 kN/m
-    assert _get(report, "Table 3", "K_s", "y").within
-    assert _get(report, "Table 3", "K_s", "x").within
-    assert _get(report, "Table 3", "M", "y").within
+    for q in ("K_s", "M", "C_s", "f_n"):
+        for axis in ("x", "y"):
+            row = _get(report, "Table 3", q, axis)
+            assert row.within, (q, axis, row.simulated, row.report, row.band)
+    # the nominal rig misses the natural frequencies (45.4 / 46.4 Hz against 47 / 49), K in Y
+    # (823 against 923 +/- 46 kN/m), M in X (9.7 against 8.8 +/- 0.5 kg) and C_s in Y
+    for q, axis in (("f_n", "x"), ("f_n", "y"), ("K_s", "y"), ("M", "x"), ("C_s", "y")):
+        assert not _get(nominal, "Table 3", q, axis).within, (q, axis)
 
 
-def test_what_one_mass_and_one_damping_per_rig_cannot_reach(side_by_side):
-    # measured, not hidden: one housing mass for both axes sits between Table 3's 8.8 kg (X) and
-    # 9.7 kg (Y); one C_rv cannot give Table 3's 315 N.s/m in Y beside Table 4's 370 N.s/m;
-    # the Y spring the impact test needs is above the static Table 2 value
+def test_table2_in_y_is_out_of_reach_beside_table3(side_by_side):
+    # measured, not hidden: the impact test's Y spring (923 kN/m) is far above the static one
+    # (Table 2: 786 +/- 31.5 kN/m; the text: 823 kN/m); one spring per axis cannot give both
     report = side_by_side["report"]
-    m_x = _get(report, "Table 3", "M", "x")
-    assert 0.4 < m_x.error < 0.7
-    assert not _get(report, "Table 3", "C_s", "y").within
-    assert _get(report, "Table 4", "C_rv", "xy").within
-    assert not _get(report, "Table 2", "K_s", "y").within
+    k2y = _get(report, "Table 2", "K_s", "y")
+    assert k2y.error > 3 * k2y.band
+    assert _get(report, "Table 2", "K_s", "x").within
 
 
 def test_both_rigs_identify_table4_friction_and_residual_damping(side_by_side):
@@ -136,23 +140,26 @@ def test_calibrated_film_damping_average_and_trends(side_by_side):
     assert avg_n.error < -800  # eq. 16 with 3.17 cP, identified with eq. 9: ~4,900 N.s/m
     assert abs(avg_r.error) < 400 and avg_r.within
     for axis in ("x", "y"):
-        f_n = _get(nominal, "Film (Fig. 33)", "C_sfd change 20-60 Hz / mean, 13 um", axis)
-        f_r = _get(report, "Film (Fig. 33)", "C_sfd change 20-60 Hz / mean, 13 um", axis)
-        assert f_n.simulated > 0.25  # rigid sticking: C_sfd rises with frequency at 13 um
-        assert f_r.within and abs(f_r.simulated) < 0.6 * f_n.simulated
-        a_r = _get(report, "Film (Figs. 33-34)", "C_sfd (38 um - 13 um) / mean", axis)
-        assert a_r.within
+        q = "C_sfd change 20-60 Hz / mean, 13 um"
+        f_n = _get(nominal, "Film (Fig. 33)", q, axis).simulated
+        f_r = _get(report, "Film (Fig. 33)", q, axis).simulated
+        assert f_n > 0.25  # rigid sticking: C_sfd rises with frequency at 13 um
+        assert abs(f_r) < 0.6 * f_n  # flatter; still not flat (see the README)
+        q = "C_sfd (38 um - 13 um) / mean"
+        a_n = _get(nominal, "Film (Figs. 33-34)", q, axis).simulated
+        a_r = _get(report, "Film (Figs. 33-34)", q, axis).simulated
+        assert 0 < a_r < a_n  # "rising slightly with amplitude"
 
 
 def test_calibrated_added_mass_rises_with_amplitude_as_table_f1(side_by_side):
     nominal, report = side_by_side["nominal"], side_by_side["report"]
     d13_n = _get(nominal, "Table F1", "D at 13 um", "x").simulated
     d38_n = _get(nominal, "Table F1", "D at 38 um", "x").simulated
-    d13_r = _get(report, "Table F1", "D at 13 um", "x").simulated
-    d38_r = _get(report, "Table F1", "D at 38 um", "x").simulated
+    d13_r = _get(report, "Table F1", "D at 13 um", "x")
+    d38_r = _get(report, "Table F1", "D at 38 um", "x")
     assert d13_n > d38_n + 2.0  # rigid sticking: the opposite of the report's trend
-    assert d13_r < d38_r  # the report: 6.8 kg at 13 um rising to 9.4 kg at 38 um
-    assert abs(d13_r - 6.8) < 1.5
+    assert d13_r.simulated < d38_r.simulated  # the report: 6.8 kg at 13 um rising to 9.4 kg
+    assert d13_r.within and d38_r.within
     for axis in ("x", "y"):
         assert _get(report, "Table 6", "D", axis).within
         assert _get(report, "Table 6", "M_t", axis).within

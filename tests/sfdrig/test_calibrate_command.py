@@ -53,3 +53,16 @@ def test_named_rigs():
     # the calibrated rig keeps the report's film geometry and oil; it changes fitted terms only
     assert report.film.clearance_m == RigParams().film.clearance_m
     assert report.seal.contact_stiffness_n_per_m is not None
+
+
+def test_structure_on_the_named_report_rig_identifies_its_springs(tmp_path: Path, capsys):
+    from analysis.identify import identify
+
+    assert main(["structure", "--unattended", "--rig", "report", "--only", "static",
+                 "--out", str(tmp_path)]) == 0
+    report = rig_params_named_or_file("report").structure
+    ident = identify(sorted(tmp_path.glob("*-static.h5")))
+    k = {f.axis: f.k_n_per_m for f in ident.static}
+    assert k["x"] == pytest.approx(report.stiffness_x_n_per_m, rel=0.01)
+    assert k["y"] == pytest.approx(report.stiffness_y_n_per_m, rel=0.01)
+    assert k["y"] > 1.05 * RigParams().structure.stiffness_y_n_per_m  # not the nominal rig
