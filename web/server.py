@@ -27,7 +27,7 @@ from web.view import LiveView
 
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
-COMMANDS = ("pause", "resume", "abort", "pump", "reset")
+COMMANDS = ("pause", "resume", "abort", "pump", "reset", "answer")
 MAX_UPLOAD_BYTES = 256 * 1024
 
 
@@ -202,6 +202,8 @@ class WebApp:
             fields["on"] = body.get("on")
         if cmd == "abort":
             fields["reason"] = "operator abort from sfdrig web"
+        if cmd == "answer":  # the operator protocol's answer; the daemon checks it
+            fields.update({k: body.get(k) for k in ("question_id", "choice", "text")})
         out = await self._daemon(lambda: self.link.try_command(cmd, **fields))
         return web.json_response(out)
 

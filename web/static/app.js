@@ -198,6 +198,47 @@ function drawStatus(fr) {
   }
 }
 
+// --- the operator's question (the operator protocol; the terminal is the other front end) ----
+const CHOICE_LABELS = { ok: "Accept", repeat: "Repeat point", skip: "Skip point", abort: "Abort test",
+  reject: "Reject hit", double: "Simulated double hit", overload: "Simulated overload" };
+let drawnQuestion = 0;
+function drawQuestion(q) {
+  $("question").hidden = !q;
+  if (!q) { drawnQuestion = 0; return; }
+  if (q.id === drawnQuestion) return;  // keep what is being typed
+  drawnQuestion = q.id;
+  $("q-where").textContent = q.where;
+  $("q-id").textContent = `#${q.id}`;
+  $("q-prompt").textContent = q.prompt;
+  const info = $("q-info");
+  info.innerHTML = "";
+  for (const line of q.info || []) { const li = document.createElement("li"); li.textContent = line; info.appendChild(li); }
+  $("q-shows").hidden = !q.shows;
+  $("q-shows").textContent = q.shows ? `the simulated instrument shows: ${q.shows}` : "";
+  const entry = q.entry;
+  $("q-entry-label").hidden = !entry;
+  $("q-entry").value = "";
+  if (entry) { $("q-entry-name").textContent = entry.label; $("q-unit").textContent = `[${entry.unit}]`; }
+  $("q-trigger").hidden = !q.trigger;
+  const buttons = $("q-buttons");
+  buttons.innerHTML = "";
+  for (const c of q.choices) {
+    const b = document.createElement("button");
+    b.id = `q-${c}`;
+    b.textContent = c === "ok" && entry ? "Enter" : c === "ok" && q.trigger ? "Strike (simulated)" : (CHOICE_LABELS[c] || c);
+    if (c === "abort") b.className = "danger";
+    b.hidden = role !== "operator";
+    b.onclick = () => answer(q, c);
+    buttons.appendChild(b);
+  }
+  $("q-entry").onkeydown = (ev) => { if (ev.key === "Enter") answer(q, "ok"); };
+}
+async function answer(q, choice) {
+  const text = choice === "ok" && q.entry ? $("q-entry").value : "";
+  const out = await post("/api/command", { cmd: "answer", question_id: q.id, choice, text });
+  if (!out.ok) $("q-entry").select();
+}
+
 let drawnSteps = -1;
 function onFrame(fr) {
   window.sfdrig.lastFrame = fr;
@@ -205,6 +246,7 @@ function onFrame(fr) {
   const fresh = fr.block_seq !== window.sfdrig.lastBlockSeq || window.sfdrig.frames === 0;
   window.sfdrig.lastBlockSeq = fr.block_seq;
   drawStatus(fr);
+  drawQuestion((fr.status || {}).question);
   if (fresh) {
     if (fr.traces) drawTraces(fr.traces, fr.status);
     drawOrbit(fr.traces, fr.status);
