@@ -27,7 +27,6 @@ class SimulatedHands:
     gauge_resolution_m: float = DIAL_GAUGE_RESOLUTION_M
     hammer_channel: str = "hammer"
 
-    _seal_configured: bool | None = None  # the seal as configured, before the journal came out
 
     def strike(self, axis: str, peak_force_n: float, kind: str = "ok") -> None:
         """Hit the housing along ``axis`` with a 2 ms half-sine pulse; ``kind`` "double" adds a
@@ -54,11 +53,8 @@ class SimulatedHands:
         self._rig().params.oil.supply_pressure_pa = float(pressure_pa)
 
     def set_journal(self, installed: bool) -> None:
-        """Journal out: no seal contact; back in: the seal as configured."""
-        rig = self._rig()
-        if self._seal_configured is None:
-            self._seal_configured = bool(rig.params.seal.enabled)
-        rig.set_seal(installed and self._seal_configured)
+        """Journal out: no seal, no wall at the clearance; back in: as configured."""
+        self._rig().set_journal(installed)
 
     def _rig(self):  # noqa: ANN202
         if self.backend.rig is None:

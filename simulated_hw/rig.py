@@ -128,10 +128,15 @@ class RigModel:
             raise KeyError(f"no relay named {name!r}")
         self.pump_on = bool(value)
 
-    def set_seal(self, enabled: bool) -> None:
-        """Journal in (the seal rubs, ``params.seal``) or out (no seal contact), from the next
+    def set_journal(self, installed: bool) -> None:
+        """Journal in (the seal rubs and the housing meets the journal at the clearance, as
+        configured) or out (the report's structure tests: no seal, no wall), from the next
         block on."""
-        self.params.seal.enabled = bool(enabled)
+        if not hasattr(self, "_journal_config"):
+            self._journal_config = (self.params.seal.enabled, self.params.contact.enabled)
+        seal, contact = self._journal_config
+        self.params.seal.enabled = bool(installed) and seal
+        self.params.contact.enabled = bool(installed) and contact
         self._kp = kernel_params(self.params, self.fs)
 
     def schedule_impact(self, axis: str, peak_force_n: float, duration_s: float = 0.002,

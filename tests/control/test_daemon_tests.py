@@ -72,7 +72,8 @@ def test_a_test_asks_through_the_status_and_stops_safely_on_abort(daemon: Daemon
         c.request("answer", question_id=q["id"], choice="ok")
         st = until(c, lambda s: s["question"] is not None and s["question"]["id"] > q["id"])
         assert "accept this point?" in st["question"]["prompt"]
-        assert daemon.backend.rig.params.seal.enabled is False  # the journal is out
+        params = daemon.backend.rig.params
+        assert not params.seal.enabled and not params.contact.enabled  # the journal is out
         c.request("answer", question_id=st["question"]["id"], choice="ok")
         st = until(c, lambda s: s["question"] is not None
                    and s["question"]["where"].startswith("static x -40 N"))
@@ -80,7 +81,8 @@ def test_a_test_asks_through_the_status_and_stops_safely_on_abort(daemon: Daemon
         st = until(c, lambda s: s["state"] == "idle")
     last = st["last_run"]
     assert last["run_id"] == run_id and last["status"] == "aborted"
-    assert daemon.backend.rig.params.seal.enabled is True  # the journal is back
+    params = daemon.backend.rig.params
+    assert params.seal.enabled and params.contact.enabled  # the journal is back
     with open_run(Path(last["path"])) as run:
         assert run.kind == "static" and run.attrs["operator"] == "tester"
         assert len(run.steps) == 1

@@ -94,7 +94,7 @@ class Hands:
         self.rig.params.oil.supply_pressure_pa = pressure_pa
 
     def set_journal(self, installed: bool) -> None:
-        self.rig.set_seal(installed)
+        self.rig.set_journal(installed)
 
 
 def accept_all(q: Question) -> tuple[str, str]:

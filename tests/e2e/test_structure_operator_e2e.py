@@ -190,3 +190,51 @@ def test_abort_half_way_through_the_flow_test(daemon_factory) -> None:
         assert np.all(r.channel("shaker_x")[-100:] == 0.0)
         assert [e["message"] for e in r.events if e["kind"] == "pump"] == ["pump on",
                                                                           "pump off"]
+
+
+def test_on_the_nidaqmx_backend_the_person_reads_the_instruments(tmp_path: Path) -> None:
+    """The daemon on `--backend nidaqmx` (the real nidaqmx client against `sfdrig sim-server`,
+    whose rig has the journal out): no simulated hands, so no prompt shows an instrument's
+    reading and the person's typed dial-gauge reading is what the run keeps."""
+    import subprocess
+
+    from simulated_hw.params import RigParams
+    from tests.e2e.conftest import start_daemon
+
+    rig = RigParams()
+    rig.seal.enabled = False  # the technician took the journal out
+    (tmp_path / "rig.toml").write_text(rig.to_toml())
+    server = subprocess.Popen(
+        [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--fast", "--seed", "5",
+         "--rig", str(tmp_path / "rig.toml")],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO_ROOT)
+    d = None
+    try:
+        first = server.stdout.readline().strip()  # type: ignore[union-attr]
+        assert first.startswith("listening on "), first
+        d = start_daemon(tmp_path / "runs", "--backend", "nidaqmx", "--grpc-target",
+                         first.removeprefix("listening on "), fast=False)
+        t = Terminal(d.command, "--only", "probe_calibration", "--runs-dir", str(d.runs_dir),
+                     "--set", 'probe_calibration.axes=["x"]',
+                     "--set", "probe_calibration.forces_n=[-40.0, 0.0, 40.0]")
+        where, text = t.next()
+        assert where == "probe_calibration setup"
+        t.type("")
+        typed = iter(["-0.0020 in", "0 in", "51 um"])
+        while (q := t.next()) is not None:
+            assert "simulated instrument" not in q[1] and "read the dial gauge on x" in q[1]
+            t.type(next(typed))
+        status, _, path, code, rest = t.finish()
+        assert status == "completed" and code == 0 and "Traceback" not in rest
+        with open_run(d.runs_dir / path.name) as r:
+            refs = [st["reference_m"] for st in r.steps]
+            texts = [st["gauge_text"] for st in r.steps]
+        assert refs == pytest.approx([-50.8e-6, 0.0, 51e-6], abs=1e-12)
+        assert texts == ["-0.0020 in", "0 in", "51 um"]
+    finally:
+        if d is not None:
+            d.terminate()
+            d.proc.communicate(timeout=10)
+        server.terminate()
+        server.wait(10)
+        server.stdout.close()  # type: ignore[union-attr]
