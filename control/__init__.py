@@ -9,7 +9,8 @@ Modules (each small, one responsibility):
 - `control.safety`: `SafetyLimits`, the per-block `SafetyMonitor`, `validate_targets`.
 - `control.pump`: `PumpRelay` and its interlock with the shakers.
 - `control.stream`: block-wise AO/AI streaming with the safe shutdown (`DriveStream`).
-- `control.dwell`: one step (ramp, converge, settle, record) and `StepResult`.
+- `control.dwell`: one step (ramp, converge, settle, record); `control.approach`: the margins
+  and the anticipating moves (start, watched raise, break-away); `control.step_result`.
 - `control.spec`, `control.sweep`: `SweepSpec` (TOML) and the `SweepEngine` (contract C).
 - `control.listener`: the `SweepListener` protocol (contract A) and helpers.
 - `control.errors`: `TargetError`, `InterlockError`, `LimitTrip`, ...
