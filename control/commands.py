@@ -114,6 +114,10 @@ class CommandHandler:
             case PumpRequest():
                 return self._pump(req)
             case ResetRequest():
+                if d.sm.state is S.FAULT and d.backend.estop_pressed():
+                    return self._error(ErrorKind.FORBIDDEN, "reset: the emergency stop is "
+                                       "still pressed; release it first", req.cmd,
+                                       req.request_id)
                 d.sm.fire("reset")
                 d.fault_reason = ""
                 return self._ok(req)

@@ -167,10 +167,33 @@ class Daemon:
                     self.publisher.publish_status(self.status())
                     next_beat = now + self.cfg.heartbeat_s
                     self._feed_watchdog_while_idle()
+                    self._check_estop_while_idle()
                 if self._command.poll(int(max(0.0, next_beat - now) * 1000) + 1):
                     self._handle(self._command.recv_multipart())
         finally:
             self._shutdown()
+
+    def _check_estop_while_idle(self) -> None:
+        """The emergency stop pressed between runs latches a fault and switches the pump off
+        (during a run the engine's reads see it and ramp the drives down)."""
+        if self.job is not None or self.sm.state is not DaemonState.IDLE:
+            return
+        try:
+            pressed = self.backend.estop_pressed()
+        except Exception as err:
+            log.error("emergency stop input: %s", err)
+            return
+        if not pressed:
+            return
+        with self.sm.lock:
+            if self.job is not None or self.sm.state is not DaemonState.IDLE:
+                return
+            self.fault_reason = "emergency stop pressed"
+            self.sm.fire("fault")
+        try:
+            self.pump.set(False)
+        except Exception:
+            log.exception("could not switch the pump off after the emergency stop")
 
     def _feed_watchdog_while_idle(self) -> None:
         """Between runs the command loop feeds the board's watchdog (during a run the

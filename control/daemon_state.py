@@ -22,6 +22,7 @@ TRANSITIONS: dict[tuple[DaemonState, str], DaemonState] = {
     (S.RUNNING, "finished"): S.IDLE,
     (S.PAUSED, "finished"): S.IDLE,
     (S.ABORTING, "finished"): S.IDLE,
+    (S.IDLE, "fault"): S.FAULT,  # the emergency stop pressed between runs
     (S.ARMING, "fault"): S.FAULT,
     (S.RUNNING, "fault"): S.FAULT,
     (S.PAUSED, "fault"): S.FAULT,

@@ -105,6 +105,10 @@ class DriveStream:
         self.guard_event: tuple[int, str] | None = None
         #: the first journal-housing contact seen (sample, message), checked on every block
         self.contact_event: tuple[int, str] | None = None
+        #: the underflow margin measured: the fewest AO samples still queued ahead of the
+        #: generation when a block was written, and the AI sample at which that was
+        self.min_ao_backlog: int | None = None
+        self.min_ao_backlog_sample = 0
 
     # --- running ----------------------------------------------------------------------------
     def start(self) -> None:
@@ -124,6 +128,7 @@ class DriveStream:
         """Write the next drive block, read the next AI block, publish and check it."""
         state = _snapshot(self.synth)
         ao = self.synth.next_block(self.block)
+        self._measure_margin()
         try:
             self._write(ao, check=True)
         except BaseException:
@@ -132,6 +137,22 @@ class DriveStream:
         self._read_one(check=self.check_limits)
         if self.interrupt is not None:
             self.interrupt()
+
+    def _measure_margin(self) -> None:
+        """How far ahead of the generation the AO still is, just before a write: at 0 the
+        board underflows (-200290); the minimum over the run is the margin the lead left."""
+        backlog = self.backend.ao_backlog()
+        if self.min_ao_backlog is None or backlog < self.min_ao_backlog:
+            self.min_ao_backlog, self.min_ao_backlog_sample = backlog, self.sample
+
+    def margin_report(self) -> str:
+        """The AO lead and the underflow margin measured, in words."""
+        fs = self.cm.sample_rate_hz
+        lead_ms = 1e3 * self.ahead_blocks * self.block / fs
+        if self.min_ao_backlog is None:
+            return f"AO lead {lead_ms:.0f} ms; no block written after the start"
+        return (f"AO lead {lead_ms:.0f} ms; underflow margin {1e3 * self.min_ao_backlog / fs:.1f}"
+                f" ms at the tightest (AI sample {self.min_ao_backlog_sample})")
 
     def advance_to(self, sample: int) -> None:
         """Cycle until every sample before ``sample`` has been read."""

@@ -314,6 +314,7 @@ class SweepEngine:
                 if self._machine.state not in FINAL and self._machine.state is not State.STOPPING:
                     self._machine.to(State.STOPPING)
                 stream.shutdown(self.limits.fade_s)
+                self._emit_safe("info", stream.margin_report())
                 if stream.contact_event is not None:
                     # the housing touched the journal (maybe after a trip, while fading)
                     k, msg = stream.contact_event

@@ -8,6 +8,7 @@ from daq.channels import (
     ChannelMap,
     DeviceSpec,
     DigitalOutput,
+    EmergencyStopInput,
     default_channel_map,
     load_channel_map,
 )
@@ -18,10 +19,12 @@ from daq.errors import (
     DaqError,
     DaqTimeoutError,
     DaqUnderflowError,
+    EmergencyStopError,
 )
 
 __all__ = [
     "AnalogInput", "AnalogOutput", "ChannelConfigError", "ChannelKind", "ChannelMap",
     "DaqBackend", "DaqBufferOverflowError", "DaqConnectionError", "DaqError", "DaqTimeoutError",
-    "DaqUnderflowError", "DeviceSpec", "DigitalOutput", "default_channel_map", "load_channel_map",
+    "DaqUnderflowError", "DeviceSpec", "DigitalOutput", "EmergencyStopError",
+    "EmergencyStopInput", "default_channel_map", "load_channel_map",
 ]

@@ -10,6 +10,9 @@ Life cycle: ``configure(channel_map)`` -> ``write_ao(prefill)`` -> ``start()`` -
   the AO stream is generated at the instant AI sample ``k`` is taken. The caller keeps the AO
   buffer ahead of the generation; running dry raises `daq.errors.DaqUnderflowError`.
 - ``set_do`` switches a relay line at once (software-timed).
+- ``estop_pressed`` reads the optional emergency-stop input (False without one). ``read_ai``
+  raises `daq.errors.EmergencyStopError` once when it finds it pressed (later reads deliver the
+  ramp-down); the first ``write_ao`` of a run refuses while it is pressed.
 - ``feed_watchdog`` resets the board's watchdog timer, where the backend has one (`read_ai` feeds
   it too); if nobody feeds it, the board turns the relays off and the drives to 0 V by itself.
 """
@@ -47,6 +50,9 @@ class DaqBackend(Protocol):
 
     def set_do(self, name: str, value: bool) -> None:
         """Set the relay line called ``name`` in the channel map."""
+
+    def estop_pressed(self) -> bool:
+        """Whether the emergency-stop input reads pressed (False when there is none)."""
 
     def feed_watchdog(self) -> None:
         """Reset the board's watchdog timer (no-op without one); the daemon calls it while

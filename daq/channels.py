@@ -167,6 +167,16 @@ class DigitalOutput(_Strict):
         return self
 
 
+class EmergencyStopInput(_Strict):
+    """The emergency-stop input: a digital line read once per block (software-timed)."""
+
+    name: Name = "estop"
+    physical_channel: str = Field(description="e.g. Dev1/port0/line1")
+    pressed_level: bool = Field(
+        False, description="the level that means pressed; False (default) suits a normally "
+                           "closed loop, so a broken wire reads as pressed")
+
+
 class ChannelMap(_Strict):
     """The whole acquisition configuration: board, sample clock and every channel."""
 
@@ -178,6 +188,9 @@ class ChannelMap(_Strict):
     ai: tuple[AnalogInput, ...]
     ao: tuple[AnalogOutput, ...]
     do: tuple[DigitalOutput, ...] = ()
+    estop: EmergencyStopInput | None = Field(
+        None, description="optional emergency-stop input: pressed ramps the drives down and "
+                          "latches a fault until reset")
 
     @model_validator(mode="after")
     def _consistent(self) -> ChannelMap:
@@ -194,7 +207,9 @@ class ChannelMap(_Strict):
             "ao": set(dev.ao_channels()),
             "do": set(dev.do_lines()),
         }
-        groups: dict[str, tuple[Any, ...]] = {"ai": self.ai, "ao": self.ao, "do": self.do}
+        groups: dict[str, tuple[Any, ...]] = {"ai": self.ai, "ao": self.ao, "do": self.do,
+                                              "estop": (self.estop,) if self.estop else ()}
+        valid["estop"] = valid["do"]  # port lines are inputs or outputs
         for group, chans in groups.items():
             for i, ch in enumerate(chans):
                 where = f"{group}[{i}] ({ch.name})"
@@ -209,10 +224,11 @@ class ChannelMap(_Strict):
                 if ch.physical_channel not in valid[group]:
                     raise ValueError(
                         f"{where}: physical_channel {ch.physical_channel!r} is not a "
-                        f"{group.upper()} channel of device {dev.name} ({dev.product})"
+                        f"{'digital line' if group == 'estop' else group.upper() + ' channel'} "
+                        f"of device {dev.name} ({dev.product})"
                     )
                 rng = dev.ai_range_v if group == "ai" else dev.ao_range_v
-                if group != "do" and (ch.range_v[0] < -rng or ch.range_v[1] > rng):
+                if group not in ("do", "estop") and (ch.range_v[0] < -rng or ch.range_v[1] > rng):
                     raise ValueError(
                         f"{where}: range_v {ch.range_v} exceeds the board's +/-{rng:g} V"
                     )

@@ -49,6 +49,11 @@ class DaqWatchdogExpiredError(DaqError):
     refused (DAQmx -200678, or -200644 on a reset) until the expiration is cleared."""
 
 
+class EmergencyStopError(DaqError):
+    """The emergency-stop input reads pressed: the drives must ramp to zero and the daemon
+    latches a fault until it is released and reset."""
+
+
 class DaqConnectionError(DaqError, ConnectionError):
     """The driver or the gRPC device server could not be reached, or it lacks a needed call."""
 

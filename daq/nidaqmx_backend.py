@@ -9,6 +9,7 @@ map names one (``ChannelMap.grpc_target = "host:port"``). Three tasks:
   armed on ``/<dev>/ai/StartTrigger``, so AO sample ``k`` is generated as AI sample ``k`` is taken;
   written with `AnalogMultiChannelWriter`.
 - DO: one line per relay, software-timed.
+- DI: the optional emergency-stop line, read once per `read_ai` (software-timed).
 
 Safe states the board keeps on its own when this program stops looking after it:
 
@@ -46,6 +47,7 @@ from daq.errors import (
     ChannelConfigError,
     DaqConnectionError,
     DaqError,
+    EmergencyStopError,
     error_for_code,
 )
 
@@ -132,6 +134,9 @@ class NidaqmxBackend:
         self._ai: Any = None
         self._ao: Any = None
         self._do: Any = None
+        self._estop_task: Any = None
+        self._estop_reader: Any = None
+        self._estop_latched = False  # read_ai has raised for this press already
         self._reader: Any = None
         self._writer: Any = None
         self._do_writer: Any = None
@@ -193,8 +198,12 @@ class NidaqmxBackend:
             raise ValueError(f"AO block must have shape ({len(cm.ao)}, n>0), got {arr.shape}")
         if self._writer is None:
             raise DaqError("write_ao: no AO task (configure a channel map with AO channels)")
-        if not self._running and self._ao_written == 0:
-            self._clear_expired_watchdog()  # a new run's prefill: the operator's decision
+        if not self._running and self._ao_written == 0:  # a new run's prefill
+            if self.estop_pressed():
+                raise EmergencyStopError(f"the emergency stop ({self._estop_where()}) is "
+                                         "pressed: release it before starting")
+            self._estop_latched = False
+            self._clear_expired_watchdog()  # the operator's decision
         with translate_errors(f"writing {arr.shape[1]} AO samples"):
             written = self._writer.write_many_sample(arr, timeout=self.buffer_s)
         self._ao_written += int(written)
@@ -208,6 +217,9 @@ class NidaqmxBackend:
         if n <= 0:
             raise ValueError(f"read_ai: n must be positive, got {n}")
         self._require_tasks()
+        if self._estop_task is not None and not self._estop_latched and self.estop_pressed():
+            self._estop_latched = True  # once: the reads of the ramp-down go on
+            raise EmergencyStopError(f"emergency stop pressed ({self._estop_where()})")
         out = np.empty((len(self.channel_map.ai), n))
         with translate_errors(f"reading {n} AI samples"):
             got = self._reader.read_many_sample(out, number_of_samples_per_channel=n,
@@ -218,6 +230,19 @@ class NidaqmxBackend:
                 time.monotonic() - self._fed_at > self.watchdog_timeout_s / 4:
             self.feed_watchdog()
         return out
+
+    def estop_pressed(self) -> bool:
+        """Whether the emergency-stop input reads pressed (False when there is none)."""
+        if self._estop_task is None or self._map is None or self._map.estop is None:
+            return False
+        with translate_errors(f"reading the emergency stop ({self._estop_where()})"):
+            level = bool(self._estop_reader.read_one_sample_one_line(
+                timeout=self.connect_timeout_s))
+        return level == self._map.estop.pressed_level
+
+    def _estop_where(self) -> str:
+        estop = self.channel_map.estop
+        return f"input {estop.name} on {estop.physical_channel}" if estop else "none"
 
     def feed_watchdog(self) -> None:
         """Reset the board's watchdog timer (no-op without one). Raises
@@ -283,7 +308,7 @@ class NidaqmxBackend:
     def close(self) -> None:
         """Clear every task and close the gRPC channel; safe to call twice. Failures (e.g.
         the server is gone) are logged, not raised: there is nothing left to release."""
-        for attr in ("_ai", "_ao", "_do", "_watchdog"):
+        for attr in ("_ai", "_ao", "_do", "_estop_task", "_watchdog"):
             task = getattr(self, attr)
             setattr(self, attr, None)
             if task is None:
@@ -296,7 +321,7 @@ class NidaqmxBackend:
                 # the task is gone from the driver/server: nothing left to release, so spare
                 # nidaqmx's "not explicitly closed" destructor warning (WatchdogTask has one)
                 task._handle = None
-        self._reader = self._writer = self._do_writer = None
+        self._reader = self._writer = self._do_writer = self._estop_reader = None
         self._running = False
         if self._channel is not None:
             self._channel.close()
@@ -401,6 +426,15 @@ class NidaqmxBackend:
                 self._do.out_stream, auto_start=True)
             self._do_writer.verify_array_shape = False
             self._do_state = np.zeros(len(cm.do), dtype=bool)
+        if cm.estop is not None:
+            self._estop_task = self._new_task(nidaqmx, "estop")
+            with translate_errors(f"emergency stop {cm.estop.name} on "
+                                  f"{cm.estop.physical_channel}"):
+                self._estop_task.di_channels.add_di_chan(
+                    cm.estop.physical_channel, name_to_assign_to_lines=cm.estop.name,
+                    line_grouping=LineGrouping.CHAN_PER_LINE)
+            self._estop_reader = nidaqmx.stream_readers.DigitalSingleChannelReader(
+                self._estop_task.in_stream)
         if self.watchdog_timeout_s is not None:
             self._create_watchdog(nidaqmx, cm)
 

@@ -123,6 +123,10 @@ class SimulatedBackend:
     def feed_watchdog(self) -> None:
         """No watchdog: the in-process rig stops with the process that runs it."""
 
+    def estop_pressed(self) -> bool:
+        """No emergency-stop input on the in-process rig (the sim-server has one)."""
+        return False
+
     def stop(self) -> None:
         self._running = False
 

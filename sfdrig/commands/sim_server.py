@@ -59,11 +59,18 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, _on_signal)
     signal.signal(signal.SIGINT, _on_signal)
+    # the emergency-stop button of the wiring map (if it has one): SIGUSR1 presses, SIGUSR2
+    # releases it, as a hand on the rig would
+    signal.signal(signal.SIGUSR1, lambda s, f: server.device.press_estop(True))
+    signal.signal(signal.SIGUSR2, lambda s, f: server.device.press_estop(False))
     server.start()
     mode = "fast" if args.fast else "real time"
     print(f"listening on {server.address}", flush=True)
     print(f"device {wiring.device.name} ({wiring.device.product}), seed {args.seed}, {mode}; "
           "stop with Ctrl-C or SIGTERM", flush=True)
+    if wiring.estop is not None:
+        print(f"emergency stop on {wiring.estop.physical_channel}: SIGUSR1 presses it, SIGUSR2 "
+              "releases it", flush=True)
     while not done.wait(0.5):
         pass
     server.stop(grace_s=1.0)

@@ -88,6 +88,7 @@ class SimDevice:
         self.watchdog_timer = WatchdogTimer(clock, self.lock, self.watchdogs, self._expire)
         self._physical = self._physical_names()
         self._reset_acquisition()
+        self.press_estop(False)  # the emergency-stop loop is closed: released
         # load the compiled physics now, not during the first paced read (it takes ~0.5 s)
         RigModel(params, wiring, seed).process(np.zeros((len(wiring.ao), 16)))
 
@@ -751,6 +752,17 @@ class SimDevice:
             if w in self._watchdogs:
                 self._watchdogs.remove(w)
         self.watchdog_timer.changed()
+
+    def press_estop(self, pressed: bool) -> None:
+        """Press or release the emergency-stop button the wiring map puts on an input line
+        (no-op without one): the line then reads its ``pressed_level``."""
+        estop = self.wiring.estop
+        if estop is not None:
+            with self.lock:
+                level = estop.pressed_level if pressed else not estop.pressed_level
+                self.inputs[estop.physical_channel] = level
+                _log.warning("emergency stop %s (%s reads %s)", "pressed" if pressed else
+                             "released", estop.physical_channel, "high" if level else "low")
 
     def line_level(self, line: str) -> bool:
         """What a digital line reads: an input's external level, else what the port drives."""

@@ -135,3 +135,60 @@ def test_watchdog_timeout_is_checked() -> None:
     for bad in (0.0, -1.0, 61.0, math.nan):
         with pytest.raises(ValueError, match="watchdog_timeout_s"):
             NidaqmxBackend(watchdog_timeout_s=bad)
+
+
+def _with_estop(cm):
+    from daq.channels import ChannelMap
+
+    data = cm.model_dump(mode="json")
+    data["estop"] = {"physical_channel": "Dev1/port0/line1"}
+    return ChannelMap.model_validate(data)
+
+
+def test_the_emergency_stop_interrupts_the_reads_once_and_refuses_a_new_run() -> None:
+    from daq.channels import default_channel_map
+    from daq.errors import EmergencyStopError
+
+    wiring = _with_estop(default_channel_map())
+    with SimulatedDeviceServer(seed=7, fast=True, wiring=wiring) as server:
+        backend = NidaqmxBackend(watchdog_timeout_s=None)
+        try:
+            backend.configure(on_server(server, wiring))
+            assert backend.estop_pressed() is False  # the normally closed loop reads high
+            backend.write_ao(_drive(1.0, 300))
+            backend.start()
+            backend.read_ai(100)
+            server.device.press_estop(True)  # the line now reads low
+            assert backend.estop_pressed() is True
+            backend.write_ao(_drive(1.0, 100))
+            with pytest.raises(EmergencyStopError, match="Dev1/port0/line1"):
+                backend.read_ai(100)
+            for _ in range(3):  # the ramp-down's reads go on, nothing is lost
+                backend.write_ao(_drive(0.0, 100))
+                assert backend.read_ai(100).shape == (14, 100)
+            assert backend.channel_map.ai_index("fx") == 0
+            backend.stop()
+            with pytest.raises(EmergencyStopError, match="release it before starting"):
+                backend.write_ao(_drive(0.0, 300))
+            server.device.press_estop(False)
+            backend.write_ao(_drive(0.0, 300))  # released: a new run may start
+            backend.start()
+            backend.read_ai(100)
+            backend.stop()
+        finally:
+            backend.close()
+
+
+def test_a_broken_estop_wire_reads_as_pressed() -> None:
+    """Normally closed: with nothing driving the line (the loop cut) it reads low = pressed."""
+    from daq.channels import default_channel_map
+
+    wiring = _with_estop(default_channel_map())
+    with SimulatedDeviceServer(seed=7, fast=True, wiring=wiring) as server:
+        server.device.inputs.clear()  # the wire is cut: the line floats low
+        backend = NidaqmxBackend(watchdog_timeout_s=None)
+        try:
+            backend.configure(on_server(server, wiring))
+            assert backend.estop_pressed() is True
+        finally:
+            backend.close()

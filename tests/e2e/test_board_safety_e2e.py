@@ -5,6 +5,7 @@ itself turns the pump relay off and holds the drives at 0 V, and says so in its 
 
 from __future__ import annotations
 
+import json
 import queue
 import signal
 import subprocess
@@ -12,9 +13,14 @@ import sys
 import threading
 from collections.abc import Iterator
 
+import numpy as np
 import pytest
 
+from control.client import CommandClient, CommandRefused, Subscriber
+from daq.channels import default_channel_map, load_channel_map
+from storage.reader import open_run
 from tests.e2e.conftest import start_daemon
+from tests.e2e.test_stream_e2e import LONG_X
 
 pytestmark = pytest.mark.e2e
 
@@ -30,9 +36,9 @@ def sfdrig(*args: str) -> subprocess.CompletedProcess[str]:
 class SimServer:
     """`sfdrig sim-server` (paced) with its log lines collected as they come."""
 
-    def __init__(self) -> None:
+    def __init__(self, *extra: str) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "2"],
+            [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "2", *extra],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         first = self.proc.stdout.readline().strip()  # type: ignore[union-attr]
         assert first.startswith("listening on "), first
@@ -91,3 +97,78 @@ def test_the_board_stops_what_a_hung_or_dead_daemon_left_running(sim_server, tmp
         if d.proc.poll() is None:
             d.terminate()
         d.proc.communicate(timeout=10)
+
+
+def _toml(value: object, key: str = "") -> str:
+    """A channel map's JSON dump as TOML (scalars, lists, tables, arrays of tables)."""
+    def scalar(v: object) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, list | tuple):
+            return "[" + ", ".join(scalar(x) for x in v) + "]"
+        return json.dumps(v)
+
+    assert isinstance(value, dict)
+    lines = [f"{k} = {scalar(v)}" for k, v in value.items()
+             if v is not None and not isinstance(v, dict)
+             and not (isinstance(v, list) and v and isinstance(v[0], dict))]
+    for k, v in value.items():
+        name = f"{key}.{k}" if key else k
+        if isinstance(v, dict):
+            lines += [f"[{name}]", _toml(v, name)]
+        elif isinstance(v, list) and v and isinstance(v[0], dict):
+            for item in v:
+                lines += [f"[[{name}]]", _toml(item, name)]
+    return "\n".join(lines)
+
+
+def _wait_for_event(sub: Subscriber, containing: str, timeout_s: float = 30.0) -> str:
+    while True:
+        msg = sub.recv(timeout_s=timeout_s)
+        assert msg is not None, f"no event containing {containing!r}"
+        if msg.topic == "event" and containing in msg.header["message"]:
+            return msg.header["message"]
+
+
+def test_the_emergency_stop_ramps_down_and_latches_a_fault_until_released_and_reset(tmp_path):
+    data = default_channel_map().model_dump(mode="json")
+    data["estop"] = {"physical_channel": "Dev1/port0/line1"}
+    channels = tmp_path / "channels.toml"
+    channels.write_text(_toml(data))
+    assert load_channel_map(channels).estop is not None
+    server = SimServer("--fast", "--channels", str(channels))
+    d = start_daemon(tmp_path / "runs", "--backend", "nidaqmx", "--grpc-target",
+                     server.address, "--channels", str(channels), fast=False)
+    try:
+        with CommandClient(d.command, timeout_s=10) as c, Subscriber(d.data, rcvhwm=0) as sub:
+            sub.wait_connected()
+            # pressed while idle: a fault, latched while it stays pressed
+            server.proc.send_signal(signal.SIGUSR1)
+            _wait_for_event(sub, "idle -> fault")
+            assert c.status()["fault_reason"] == "emergency stop pressed"
+            with pytest.raises(CommandRefused, match="emergency stop is still pressed"):
+                c.reset()
+            server.proc.send_signal(signal.SIGUSR2)
+            server.next_line("emergency stop released", timeout_s=10)
+            assert c.reset().ok
+            assert c.status()["state"] == "idle"
+            # pressed during a run: the drives ramp down, the run fails, the fault latches
+            run_id = c.start_sweep(LONG_X).data["run_id"]
+            while (msg := sub.recv(timeout_s=30)) is not None:
+                if msg.topic == "step" and msg.header["run_id"] == run_id:
+                    break  # a whole step recorded: the drives are well up
+            server.proc.send_signal(signal.SIGUSR1)
+            ended = _wait_for_event(sub, f"run {run_id} failed")
+            assert "emergency stop pressed (input estop on Dev1/port0/line1)" in ended
+            status = c.status()
+            assert status["state"] == "fault" and "emergency stop" in status["fault_reason"]
+            with pytest.raises(CommandRefused, match="fault"):
+                c.start_sweep(LONG_X)  # latched until released and reset
+    finally:
+        d.terminate()
+        d.proc.communicate(timeout=10)
+        server.stop()
+    with open_run(d.runs_dir / f"{run_id}.h5") as run:
+        drive = np.vstack([run.channel("shaker_x"), run.channel("shaker_y")])  # [V]
+        assert np.abs(drive[:, -100:]).max() == 0.0  # ended at 0 V
+        assert np.abs(drive[:, :drive.shape[1] // 2]).max() > 0.2  # it was driving
