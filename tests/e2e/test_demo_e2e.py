@@ -42,3 +42,22 @@ def test_demo_stores_runs_and_writes_the_report(tmp_path: Path):
     k = {row["axis"]: row["k_n_per_m"] for row in report["static_table2"]}
     assert k["x"] == pytest.approx(788e3, rel=0.03)
     assert k["y"] == pytest.approx(823e3, rel=0.03)
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_demo_on_the_calibrated_report_rig(tmp_path: Path):
+    from simulated_hw.params import rig_params_named_or_file
+
+    out = tmp_path / "demo"
+    proc = subprocess.run([sys.executable, "-m", "sfdrig", "demo", "--rig", "report", "--out",
+                           str(out)], capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "simulated rig: report" in proc.stdout
+    assert "15/15 steps converged" in proc.stdout and "10/10 steps converged" in proc.stdout
+    report = json.loads((out / "report" / "report.json").read_text())
+    rig = rig_params_named_or_file("report").structure
+    k = {row["axis"]: row["k_n_per_m"] for row in report["static_table2"]}
+    assert k["y"] == pytest.approx(rig.stiffness_y_n_per_m, rel=0.03)  # 922 kN/m, not 823
+    assert report["dry"]["table4"]["identified"]["F_mu_N"] == pytest.approx(26.0, rel=0.05)
