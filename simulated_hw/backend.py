@@ -118,6 +118,9 @@ class SimulatedBackend:
         self._require_rig().set_relay(name, value)
 
     def ao_backlog(self) -> int:
+        """Samples written and not yet generated: paced, the wall clock generates them."""
+        if self.realtime and self._running:
+            return self._read + self._ao_queued - self._generated()
         return self._ao_queued
 
     def feed_watchdog(self) -> None:

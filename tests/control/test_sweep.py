@@ -109,6 +109,10 @@ def test_step_dict_follows_contract_a_and_blocks_are_contiguous(backend):
     assert rec.samples == out.samples
     kinds = [e[1] for e in rec.events_of("state")]
     assert kinds[0] == "idle -> checking" and kinds[-1] == "stopping -> completed"
+    # the AO lead and the margin it left: in fast mode nothing is generated between the read
+    # and the next write, so 3 blocks of 100 samples are always queued: exactly the lead
+    margin = [e[1] for e in rec.events_of("info") if e[1].startswith("AO lead")]
+    assert margin == ["AO lead 30 ms; underflow margin 30.0 ms at the tightest (AI sample 0)"]
 
 
 def test_not_converging_aborts_with_the_reason(backend):
@@ -208,6 +212,10 @@ def test_paced_backend_keeps_up_with_the_clock():
     out = SweepEngine(be, spec, limits=DRY_LIMITS, listener=rec).run()
     assert out.status == "completed", out.reason
     assert all(s["converged"] for s in rec.steps)
+    # against the clock the AO is generated while the loop works: the margin is below the lead
+    (margin,) = [e[1] for e in rec.events_of("info") if e[1].startswith("AO lead")]
+    left_ms = float(margin.split("underflow margin ")[1].split(" ms")[0])
+    assert 0.0 < left_ms < 30.0, margin
 
 
 def test_lubricated_elliptical_orbit_downwards():
