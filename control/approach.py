@@ -185,7 +185,8 @@ class Approach:
         level = min(now, low) if now > 0 else low
         start = rows_guess * (level / max(float(np.max(np.abs(rows_guess))), 1e-12))
         self.stream.advance_to(self._ramp(start, plan.freq_hz))
-        self._watched_raise(plan, rows_guess, 0.9, cfg.start_growth)
+        # stop near the target; where this frequency's tangent predicts it, at the target itself
+        self._watched_raise(plan, rows_guess, 1.0 if known else 0.9, cfg.start_growth)
         if self.limited_by:
             ctl.saturated = True
         return ctl, synth.sample
