@@ -12,7 +12,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from daq.config_files import read_toml, validate
 
@@ -167,6 +167,21 @@ class SecondMode(_Model):
     damping_ratio: float = Field(0.03, ge=0, lt=1)
 
 
+class JointMicroslip(_Model):
+    """A joint that micro-slips (friction at a bolted or clamped interface): a Dahl element,
+    dF/dz = k_j (1 - sgn(z') F / F_s), per axis, beside the spring of ``mode`` ("housing": the
+    rods, between housing and frame; "frame": the frame's own spring, needs ``second_mode``).
+
+    Stuck (small motion) it adds its stiffness k_j; as the motion grows it slips more and
+    more (stiffness falls towards 0, dissipation rises), its force never above F_s: the mode
+    softens and damps more with the level."""
+
+    enabled: bool = False
+    mode: Literal["housing", "frame"] = "housing"
+    stiffness_n_per_m: float = Field(0.0, ge=0, description="k_j, the joint stuck [N/m]")
+    slip_force_n: float = Field(1.0, gt=0, description="F_s, the force of full slip [N]")
+
+
 class AirEntrainment(_Model):
     """Effective film length L_eff = L (1 - alpha), alpha = min(max, k * mean |v|)."""
 
@@ -200,6 +215,7 @@ class Effects(_Model):
     quadratic_stiffness: QuadraticStiffness = QuadraticStiffness()
     cross_coupling: CrossCoupling = CrossCoupling()
     second_mode: SecondMode = SecondMode()
+    joint_microslip: JointMicroslip = JointMicroslip()
     air_entrainment: AirEntrainment = AirEntrainment()
     viscosity_drift: ViscosityDrift = ViscosityDrift()
     probe_gain_error: ProbeGainError = ProbeGainError()
@@ -225,6 +241,14 @@ class RigParams(_Model):
     substeps: int | None = Field(
         None, ge=1, le=4096, description="integration steps per sample; None: from max_step_s"
     )
+
+    @model_validator(mode="after")
+    def _joint_on_a_mode(self) -> RigParams:
+        j = self.effects.joint_microslip
+        if j.enabled and j.mode == "frame" and not self.effects.second_mode.enabled:
+            raise ValueError("effects.joint_microslip.mode = 'frame' needs "
+                             "effects.second_mode.enabled (the frame mode it sits on)")
+        return self
 
     def steps_per_sample(self, sample_rate_hz: float) -> int:
         if self.substeps is not None:

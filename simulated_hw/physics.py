@@ -30,14 +30,15 @@ import numpy as np
 (P_M, P_MF, P_D, P_DXY, P_DYX, P_KX, P_KY, P_CRV, P_C0, P_CXY, P_CYX, P_FMU, P_CLEAR, P_ECC,
  P_K3, P_K2, P_AIR_K, P_AIR_MAX, P_AIR_TAU, P_FRAME_ON, P_FRAME_M, P_FRAME_K, P_FRAME_C,
  P_DT, P_NSUB, P_SEAL_KT, P_DM_Y, P_DC_Y, P_CONTACT_ON, P_RESTITUTION,
- P_CONTACT_MU) = range(31)
-N_PARAMS = 31
+ P_CONTACT_MU, P_JOINT_ON, P_JOINT_K, P_JOINT_FS) = range(34)
+N_PARAMS = 34
 
 # Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|;
 # the previous sample's force (the force is interpolated linearly between samples); the compliant
-# seal's slider position.
-S_X, S_Y, S_VX, S_VY, S_XF, S_YF, S_VXF, S_VYF, S_VBAR, S_FPX, S_FPY, S_WX, S_WY = range(13)
-N_STATE = 13
+# seal's slider position; the micro-slipping joint's force x, y.
+(S_X, S_Y, S_VX, S_VY, S_XF, S_YF, S_VXF, S_VYF, S_VBAR, S_FPX, S_FPY, S_WX, S_WY, S_JX,
+ S_JY) = range(15)
+N_STATE = 15
 
 # Rows of the output array.
 (O_X, O_Y, O_VX, O_VY, O_AX, O_AY, O_FRICX, O_FRICY, O_FILMX, O_FILMY, O_CFILM,
@@ -99,6 +100,15 @@ def _compliant_seal(x, y, wx, wy, kt, fmu):  # noqa: ANN001, ANN202
     return -fx, -fy, wx, wy
 
 
+@numba.njit(cache=True, inline="always")
+def _dahl(f, dz, k, fs):  # noqa: ANN001, ANN202
+    """The joint's force after a displacement step dz: dF/dz = k (1 - sgn(dz) F / F_s),
+    integrated exactly over the step (so it never exceeds F_s, whatever the step)."""
+    if dz >= 0.0:
+        return fs - (fs - f) * np.exp(-k * dz / fs)
+    return -fs + (f + fs) * np.exp(k * dz / fs)
+
+
 @numba.njit(cache=True, fastmath=False)
 def integrate(
     force: np.ndarray,  # (2, n) external force on the housing [N]
@@ -130,6 +140,9 @@ def integrate(
     cmu = p[P_CONTACT_MU]
     air_alpha_k = h / p[P_AIR_TAU]
     fpx, fpy = s[S_FPX], s[S_FPY]
+    joint = int(p[P_JOINT_ON])  # 0: none, 1: on the housing's spring, 2: on the frame's
+    kj, fsj = p[P_JOINT_K], p[P_JOINT_FS]
+    gjx, gjy = s[S_JX], s[S_JY]  # the joint's force (it resists the motion of its mode)
     for i in range(n):
         # sample i is taken at the end of the interval; the force ramps from the previous sample
         dfx = (force[0, i] - fpx) / nsub
@@ -149,6 +162,9 @@ def integrate(
                 frx, fry, wx, wy = _compliant_seal(x, y, wx, wy, kt, fmu)
                 ex += frx
                 ey += fry
+            if joint == 1:
+                ex -= gjx
+                ey -= gjy
             # the frame (explicit; its reaction uses the damping at the old velocity)
             # Kick with the damping implicit (trapezoidal) between housing and frame:
             #   M (vh' - vh)  = h E  - h/2 C (v_rel + v_rel')          v_rel = vh - vf
@@ -178,6 +194,9 @@ def integrate(
                        + hh * (c11 * vx + c12 * vy) - hh * cf * vxf)
                 r2y = (m2 * vyf + h * (-p[P_FRAME_K] * yf - (ey - fy_in))
                        + hh * (c21 * vx + c22 * vy) - hh * cf * vyf)
+                if joint == 2:
+                    r2x -= h * gjx
+                    r2y -= h * gjy
                 # G = B D^-1 (2x2); Schur complement S = A - G B; P = I - G (impulse map)
                 g11 = b11 * e11 + b12 * e21
                 g12 = b11 * e12 + b12 * e22
@@ -309,6 +328,12 @@ def integrate(
                     y *= scale
             xf += h * vxf
             yf += h * vyf
+            if joint == 1:
+                gjx = _dahl(gjx, h * vx, kj, fsj)
+                gjy = _dahl(gjy, h * vy, kj, fsj)
+            elif joint == 2:
+                gjx = _dahl(gjx, h * vxf, kj, fsj)
+                gjy = _dahl(gjy, h * vyf, kj, fsj)
             vbar += air_alpha_k * (np.sqrt(vx * vx + vy * vy) - vbar)
         fpx = force[0, i]
         fpy = force[1, i]
@@ -320,6 +345,9 @@ def integrate(
         ex, ey = _elastic(x, y, fpx, fpy, p)
         if compliant:
             frx, fry, _, _ = _compliant_seal(x, y, wx, wy, kt, fmu)
+        if joint == 1:
+            ex -= gjx
+            ey -= gjy
         gx = ex - (c11 * vox + c12 * voy) + frx
         gy = ey - (c21 * vox + c22 * voy) + fry
         det = m11 * m22 - m12 * m21
@@ -339,6 +367,7 @@ def integrate(
     s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR] = xf, yf, vxf, vyf, vbar
     s[S_FPX], s[S_FPY] = fpx, fpy
     s[S_WX], s[S_WY] = wx, wy
+    s[S_JX], s[S_JY] = gjx, gjy
 
 
 @numba.njit(cache=True)

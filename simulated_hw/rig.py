@@ -56,6 +56,11 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
     p[physics.P_CONTACT_ON] = 1.0 if params.contact.enabled else 0.0
     p[physics.P_RESTITUTION] = params.contact.restitution
     p[physics.P_CONTACT_MU] = params.contact.friction_coefficient
+    jm = eff.joint_microslip
+    if jm.enabled and jm.stiffness_n_per_m > 0:
+        p[physics.P_JOINT_ON] = 1.0 if jm.mode == "housing" else 2.0
+        p[physics.P_JOINT_K] = jm.stiffness_n_per_m
+    p[physics.P_JOINT_FS] = jm.slip_force_n
     p[physics.P_DT] = 1.0 / sample_rate_hz
     p[physics.P_NSUB] = params.steps_per_sample(sample_rate_hz)
     return p

@@ -269,3 +269,44 @@ def records_from_arrays(
                      responses={k: np.asarray(v, dtype=np.float64) for k, v in responses.items()},
                      response_axis=axis, kind=kind, rig=rig, lubricated=lubricated,
                      **(extra or {}))
+
+
+def split_by_runs(records: list[RunRecord], train_runs: list[int],
+                  block_s: float = 2.0) -> tuple[list[Segment], list[Segment]]:
+    """Train on whole runs, judge on the others (``--train-runs`` / ``--test-runs``).
+
+    Every dwell (or, for runs without dwells, every block of about ``block_s`` seconds) of a
+    run in ``train_runs`` trains; every one of the other runs is held out. Raises
+    `DiagnoseError` when one side is empty or a held-out run moves an axis (force and response
+    on it) that no training run does: nothing fitted would describe that axis.
+    """
+    train: list[Segment] = []
+    test: list[Segment] = []
+    for ri, rec in enumerate(records):
+        block = max(64, int(block_s * rec.sample_rate_hz))
+        segs = rec.segments or blocks(ri, 0, rec.n_samples, block, rec.name)
+        (train if ri in train_runs else test).extend(segs)
+    if not train or not test:
+        raise DiagnoseError("--train-runs and --test-runs must each name at least one run "
+                            f"({len(train)} training, {len(test)} held-out segments)")
+
+    trained = set().union(*(driven_axes(records[i]) for i in train_runs))
+    for ri, rec in enumerate(records):
+        if ri in train_runs:
+            continue
+        missing = driven_axes(rec) - trained
+        if missing:
+            names = ", ".join("xy"[a] for a in sorted(missing))
+            raise DiagnoseError(
+                f"--test-runs {rec.name} drives the {names} axis, which no training run "
+                "drives: add a training run that moves it")
+    return train, test
+
+
+def driven_axes(rec: RunRecord, start: int = 0, stop: int | None = None) -> set[int]:
+    """Axes with a response channel whose force over ``[start, stop)`` is at least 10 % (RMS)
+    of the larger axis's: a load cell's noise on an axis nobody drives does not count."""
+    f = rec.force_n[:, start:stop]
+    rms = np.sqrt(np.mean((f - f.mean(axis=1, keepdims=True)) ** 2, axis=1))
+    top = float(rms.max()) if rms.size else 0.0
+    return {ax for ax in rec.axes if top > 0 and rms[ax] >= 0.1 * top}

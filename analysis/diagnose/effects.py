@@ -16,6 +16,10 @@ amplitude_dependent_damping clearance_m: the c in the film's eccentricity law
 added_mass                  added_mass_kg (mass added to the configured structure mass)
 cross_coupling              c_xy_Ns_per_m, c_yx_Ns_per_m, d_xy_kg, d_yx_kg (film cross terms)
 second_mode                 frequency_hz, modal_mass_kg (the frame as a second mass-spring)
+joint_microslip             mode, slip_force_N, stiffness_N_per_m (a Dahl micro-slip element
+                            beside the spring of a mode: the housing's, or the frame's once a
+                            second mode is in the model; the stuck stiffness is taken from
+                            that spring, so at small motion the model is unchanged)
 viscosity_drift             relative_change (film damping, end of data / start - 1)
 sensor_gain                 channel, gain_ratio (recorded / true)
 channel_delay               channel, delay_s
@@ -231,6 +235,56 @@ def _second_mode(ctx: Context, m: Model) -> list[Variant]:
     return [Variant({}, [pf, pm], starts, keep=3)]
 
 
+def _joint(ctx: Context, m: Model) -> list[Variant]:
+    """A micro-slipping joint beside the spring of each mode the model has.
+
+    Setting its stiffness k_j moves that much from the mode's spring into the joint (the
+    structure's stiffness per axis, or the frame's through its frequency), so the stuck joint
+    leaves the model as it was and only the slip (softening, dissipation) is new."""
+    k_struct = _stiffness(ctx)
+    out = []
+    modes = ["housing"] + (["frame"] if m.rig.effects.second_mode.enabled else [])
+    for mode in modes:
+        def get_k(mm: Model) -> float:
+            j = mm.rig.effects.joint_microslip
+            return j.stiffness_n_per_m if j.enabled else 0.0
+
+        def put_k(mm: Model, v: float, _mode: str = mode) -> Model:
+            data = mm.rig.model_dump(mode="python")
+            j = data["effects"]["joint_microslip"]
+            old = j["stiffness_n_per_m"] if j["enabled"] else 0.0
+            j.update(enabled=True, mode=_mode, stiffness_n_per_m=float(v))
+            if _mode == "housing":
+                data["structure"]["stiffness_x_n_per_m"] += old - float(v)
+                data["structure"]["stiffness_y_n_per_m"] += old - float(v)
+            else:
+                sm = data["effects"]["second_mode"]
+                k_fr = sm["modal_mass_kg"] * (2 * math.pi * sm["frequency_hz"]) ** 2
+                k_fr += old - float(v)
+                sm["frequency_hz"] = math.sqrt(max(k_fr, 1e-9) / sm["modal_mass_kg"]) / (
+                    2 * math.pi)
+            return replace(mm, rig=RigParams.model_validate(data))
+
+        def get_f(mm: Model) -> float:
+            return mm.rig.effects.joint_microslip.slip_force_n
+
+        def put_f(mm: Model, v: float) -> Model:
+            return set_path(mm, "effects.joint_microslip.slip_force_n", float(v))
+
+        if mode == "housing":
+            k_mode = min(m.rig.structure.stiffness_x_n_per_m, m.rig.structure.stiffness_y_n_per_m)
+        else:
+            sm = m.rig.effects.second_mode
+            k_mode = sm.modal_mass_kg * (2 * math.pi * sm.frequency_hz) ** 2
+        k0 = 0.3 * k_mode
+        f0 = k0 * ctx.x_rms_m
+        pk = Param("stiffness_N_per_m", get_k, put_k, 0.1 * k_struct, 0.0, 0.9 * k_mode)
+        pf = Param("slip_force_N", get_f, put_f, 0.3 * f0, 1e-3 * f0)
+        starts = [put_f(put_k(m, k0), f0 * r) for r in (0.5, 1.0, 2.0)]
+        out.append(Variant({"mode": mode}, [pf, pk], starts))
+    return out
+
+
 def _visc_drift(ctx: Context, m: Model) -> list[Variant]:
     p = Param("relative_change", lambda mm: mm.visc_relative_change,
               lambda mm, v: replace(mm, visc_relative_change=float(v)), 0.05, -0.9, 10.0)
@@ -301,6 +355,7 @@ _APPLICABLE = {
     "added_mass": _needs_config_mass,
     "cross_coupling": _needs_two_axes_film,
     "second_mode": _always,
+    "joint_microslip": _always,
     "viscosity_drift": _needs_film,
     "sensor_gain": _needs_redundant,
     "channel_delay": _needs_redundant,
@@ -314,6 +369,7 @@ _VARIANTS = {
     "added_mass": _added_mass,
     "cross_coupling": _cross,
     "second_mode": _second_mode,
+    "joint_microslip": _joint,
     "viscosity_drift": _visc_drift,
     "sensor_gain": _sensor_gain,
     "channel_delay": _delay,
@@ -333,6 +389,9 @@ LIBRARY: dict[str, Effect] = {e.id: e for e in [
     Effect("cross_coupling", "cross-coupled film damping and mass between x and y",
            "c_xy_Ns_per_m", 0.15),
     Effect("second_mode", "a second structural mode (the frame)", "frequency_hz", 0.10),
+    Effect("joint_microslip",
+           "a joint micro-slipping beside a mode's spring (Dahl): the mode softens and damps "
+           "more with the level", "slip_force_N", 0.20),
     Effect("viscosity_drift", "film damping drifting over the data (oil warming)",
            "relative_change", 0.15),
     Effect("sensor_gain", "a response sensor whose gain is off (recorded / true)", "gain_ratio",

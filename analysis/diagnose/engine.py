@@ -42,7 +42,14 @@ from typing import Any
 import numpy as np
 
 from analysis.diagnose import residual_analysis as ra
-from analysis.diagnose.data import DiagnoseError, RunRecord, Segment, split_segments
+from analysis.diagnose.amplitude import AmplitudeDependence, check_levels
+from analysis.diagnose.data import (
+    DiagnoseError,
+    RunRecord,
+    Segment,
+    split_by_runs,
+    split_segments,
+)
 from analysis.diagnose.effects import (
     LIBRARY,
     Context,
@@ -112,6 +119,7 @@ class Diagnosis:
     elapsed_s: float
     notes: list[str] = field(default_factory=list)
     verdict: Verdict | None = None
+    amplitude: AmplitudeDependence | None = None
 
     @property
     def baseline_rms(self) -> float:
@@ -145,6 +153,9 @@ class Diagnosis:
             "elapsed_s": self.elapsed_s,
             "notes": self.notes,
             "verdict": self.verdict.to_dict() if self.verdict else None,
+            "amplitude_dependence": self.amplitude.to_dict() if self.amplitude else None,
+            "train_runs": sorted({self.records[s.run].name for s in self.train}),
+            "test_runs": sorted({self.records[s.run].name for s in self.test}),
         }
 
 
@@ -265,6 +276,7 @@ def diagnose(
     min_gain_lo: float = 0.999,
     fit_budget_steps: float = 4e5,
     log: Any = None,
+    train_runs: list[int] | None = None,
 ) -> Diagnosis:
     """Diagnose the discrepancy between the rig model and measured runs.
 
@@ -283,6 +295,8 @@ def diagnose(
         Seed of the bootstrap.
     effects : list of str or None
         Restrict the library to these effect ids.
+    train_runs : list of int or None
+        Indices of the runs to train on; the others are held out (no spans then).
 
     Returns
     -------
@@ -325,7 +339,13 @@ def diagnose(
                      f"force oversampled x{oversample[0]} for the replay")
     if len(rates) > 1:
         notes.append(f"runs at different sample rates {sorted(rates)}")
-    train, test = split_segments(records, train_spans, test_spans)
+    if train_runs is not None:
+        if train_spans is not None or test_spans is not None:
+            raise DiagnoseError("give either --train/--test sample spans or --train-runs/"
+                                "--test-runs, not both")
+        train, test = split_by_runs(records, train_runs)
+    else:
+        train, test = split_segments(records, train_spans, test_spans)
     start_model = Model(rig=base_rig)
     warmup_s = 0.5
     if kind == "fitted":
@@ -508,6 +528,11 @@ def diagnose(
         f.evidence["confidence"] = "low" if (weak or f.evidence.get("ambiguous")) else "high"
     if not findings and unexplained:
         notes.append("the baseline misses something that no effect of the library explains")
+    # amplitude dependence over the levels (runs or amplitude groups), of the data and of the
+    # baseline's prediction; a finding the trend beyond the baseline argues against is low
+    amplitude = check_levels(ev, base_model, fit_train, train + test, base_train.offsets,
+                             findings)
+    say(f"amplitude dependence: {amplitude.text}")
     ext = extended_rig(current, ev.duration_s)
     if imported:
         ext = ext.model_copy(update={"substeps": int(min(32, max(oversample.values())))})
@@ -517,7 +542,7 @@ def diagnose(
         baseline_test=base_test, findings=findings, final_model=current, final_test=cur_test,
         unexplained=unexplained, rounds=rounds, skipped=skipped, noise_floor=noise,
         extended_rig=ext, elapsed_s=time.perf_counter() - t_start, notes=notes,
-        verdict=verdict,
+        verdict=verdict, amplitude=amplitude,
     )
 
 

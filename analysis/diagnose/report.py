@@ -166,6 +166,59 @@ def _fig_gains(diag: Diagnosis, path: Path) -> None:
     plt.close(fig)
 
 
+def _fig_amplitude(diag: Diagnosis, path: Path) -> None:
+    """Natural frequency and damping ratio of the main mode against level (+/- 1 sd)."""
+    plt = _plt()
+    dep = diag.amplitude
+    assert dep is not None
+    fig, axs = plt.subplots(1, 2, figsize=(10, 4))
+    for levels, style, lab in ((dep.levels, "o-", "measured"),
+                               (dep.baseline_levels, "s--", "baseline model")):
+        for ax in sorted({lv.axis for lv in levels}):
+            lvs = sorted((lv for lv in levels if lv.axis == ax), key=lambda lv: lv.level)
+            x = [lv.level * (1e6 if lv.level_by == "response" else 1.0) for lv in lvs]
+            axs[0].errorbar(x, [lv.natural_hz for lv in lvs],
+                            [lv.natural_hz_sd for lv in lvs], fmt=style, label=f"{lab} {ax}")
+            axs[1].errorbar(x, [lv.damping_ratio for lv in lvs],
+                            [lv.damping_ratio_sd for lv in lvs], fmt=style, label=f"{lab} {ax}")
+    by = dep.levels[0].level_by
+    for a, ylab in zip(axs, ("natural frequency [Hz]", "damping ratio [-]"), strict=True):
+        a.set_xscale("log")
+        a.set_xlabel("force amplitude [N]" if by == "force" else "response amplitude [um]")
+        a.set_ylabel(ylab)
+        a.legend(fontsize=8)
+    axs[0].set_title(dep.text[:90], fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _amplitude_html(diag: Diagnosis) -> list[str]:
+    dep = diag.amplitude
+    if dep is None:
+        return []
+    out = ["<h2>Amplitude dependence (the linear model per level)</h2>",
+           f"<p><b>{html.escape(dep.text)}</b></p>"]
+    if not dep.levels:
+        return out
+    out.append(_table([lv.to_dict() for lv in dep.levels],
+                      ["level", "axis", "force_amplitude_N", "response_amplitude_m", "segments",
+                       "natural_frequency_hz", "natural_frequency_sd_hz", "damping_ratio",
+                       "damping_ratio_sd"]))
+    if dep.baseline_levels:
+        out.append("<p>The same levels fitted on the baseline model's prediction:</p>")
+        out.append(_table([lv.to_dict() for lv in dep.baseline_levels],
+                          ["level", "axis", "natural_frequency_hz", "damping_ratio"]))
+    for ax, eff in dep.effects.items():
+        out.append(f"<p>{ax}: effects of the library with this pattern: "
+                   f"{html.escape(', '.join(eff) or 'none (linear over the levels)')}.</p>")
+    for found, why in dep.contradicted.items():
+        out.append(f"<p>Finding <b>{html.escape(found)}</b> contradicted by the levels: "
+                   f"{html.escape(why)} (its confidence is low).</p>")
+    out.append("<img src='amplitude.png' alt='natural frequency and damping against level'>")
+    return out
+
+
 def _table(rows: list[dict], keys: list[str]) -> str:
     def fmt(v: Any) -> str:
         if isinstance(v, float):
@@ -231,6 +284,8 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
                   lambda p: _fig_harmonics(rows_b, rows_a, p))]
     for name, _, fn in figs:
         fn(out_dir / name)
+    if diag.amplitude is not None and diag.amplitude.levels:
+        _fig_amplitude(diag, out_dir / "amplitude.png")
     doc = diagnosis_json(diag, extended_model_path)
     u = diag.units
     noise = f"{diag.noise_floor:.3g} {u}" if diag.noise_floor else "n/a (no dwells)"
@@ -240,7 +295,9 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
         "table{border-collapse:collapse;font-size:90%}td,th{border:1px solid #bbb;"
         "padding:2px 6px}</style></head><body>",
         "<h1>Model discrepancy</h1>",
-        f"<p>Runs: {html.escape(', '.join(r.name for r in diag.records))}. "
+        f"<p>Runs: {html.escape(', '.join(r.name for r in diag.records))} (trained on "
+        f"{html.escape(', '.join(doc['train_runs']))}; judged on "
+        f"{html.escape(', '.join(doc['test_runs']))}). "
         f"{len(diag.train)} training and {len(diag.test)} held-out segments.</p>",
         f"<h2>Baseline ({diag.baseline_kind})</h2><p>Held-out RMS error "
         f"<b>{diag.baseline_rms:.4g} {u}</b>; noise floor "
@@ -264,6 +321,7 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
         parts.append("<p>No effect of the library improves the held-out error significantly."
                      "</p>")
     parts.extend(_verdict_html(diag))
+    parts.extend(_amplitude_html(diag))
     if extended_model_path:
         parts.append(f"<p>Extended model: <code>{html.escape(extended_model_path)}</code></p>")
     for i, rnd in enumerate(diag.rounds, 1):
@@ -284,7 +342,7 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
                                      "noise_rms_m"]))
     parts.append("<h2>JSON</h2><pre>" + html.escape(json.dumps(
         {k: doc[k] for k in ("verdict", "baseline", "findings", "unexplained",
-                             "extended_model")},
+                             "extended_model", "train_runs", "test_runs")},
         indent=1)) + "</pre>")
     if diag.notes:
         parts.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>"

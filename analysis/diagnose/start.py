@@ -104,6 +104,27 @@ def _points(records: list[RunRecord], segs: list[Segment],
     return np.array(w_all), np.array(d_all), np.array(wt_all)
 
 
+def fit_one_mode(w: np.ndarray, d: np.ndarray,
+                 wt: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """(K, M, C) of ``D(w) = K - w^2 M + i w C`` by weighted least squares, and their
+    covariance from the fit's residual (None where it is singular)."""
+    # real part: K - w^2 M; imaginary part: w C (weighted least squares, stacked)
+    a = np.zeros((2 * w.size, 3))
+    a[: w.size, 0] = 1.0
+    a[: w.size, 1] = -(w**2)
+    a[w.size:, 2] = w
+    b = np.concatenate([d.real, d.imag])
+    ww = np.concatenate([wt, wt])
+    aw, bw = a * ww[:, None], b * ww
+    sol, *_ = np.linalg.lstsq(aw, bw, rcond=None)
+    s2 = float(np.sum((aw @ sol - bw) ** 2)) / max(1, bw.size - 3)
+    try:
+        cov = s2 * np.linalg.inv(aw.T @ aw)
+    except np.linalg.LinAlgError:
+        cov = None
+    return sol, cov
+
+
 def one_mode_estimate(records: list[RunRecord], segs: list[Segment], axis: int = 0,
                       added_mass_kg: float = 0.0,
                       added_damping_ns_per_m: float = 0.0) -> OneMode | None:
@@ -116,17 +137,17 @@ def one_mode_estimate(records: list[RunRecord], segs: list[Segment], axis: int =
     w, d, wt = _points(records, segs, axis)
     if w.size < 3:
         return None
-    # real part: K - w^2 M; imaginary part: w C (weighted least squares, stacked)
-    a = np.zeros((2 * w.size, 3))
-    a[: w.size, 0] = 1.0
-    a[: w.size, 1] = -(w**2)
-    a[w.size:, 2] = w
-    b = np.concatenate([d.real, d.imag])
-    ww = np.concatenate([wt, wt])
-    sol, *_ = np.linalg.lstsq(a * ww[:, None], b * ww, rcond=None)
+    sol, _ = fit_one_mode(w, d, wt)
     k, m, c = (float(v) for v in sol)
     m -= added_mass_kg
     c -= added_damping_ns_per_m
     if not (k > 0 and m > 0):
         return None
     return OneMode(m, max(c, 0.0), k, int(w.size))
+
+
+def dynamic_stiffness_points(records: list[RunRecord], segs: list[Segment],
+                             axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fit's points of ``axis`` on ``segs``: angular frequencies [rad/s], dynamic
+    stiffness F/Z [N/m] (complex) and the weights |Z/F| (per dwell, or H1 where coherent)."""
+    return _points(records, segs, axis)

@@ -15,7 +15,13 @@ HELP = ("replay measured force through the rig model, find which effect explains
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("runs", nargs="+", type=Path, metavar="RUN.h5", help="run files")
+    parser.add_argument("runs", nargs="*", type=Path, metavar="RUN.h5",
+                        help="run files (split into training and held-out dwells or blocks); "
+                             "or give --train-runs and --test-runs instead")
+    parser.add_argument("--train-runs", nargs="+", type=Path, metavar="RUN.h5",
+                        help="run files to fit on (whole runs; with --test-runs)")
+    parser.add_argument("--test-runs", nargs="+", type=Path, metavar="RUN.h5",
+                        help="run files to judge on, never fitted (with --train-runs)")
     parser.add_argument("--rig", type=Path, help="rig TOML overriding the runs' rig_config")
     parser.add_argument("--baseline", choices=("config", "fitted"),
                         help="config: the rig configuration as it stands (default for runs "
@@ -46,11 +52,56 @@ def run(args: argparse.Namespace) -> int:
     """The command; anything unforeseen ends in one line naming the run files, never a
     traceback (the internals raise their own errors where they know the column or step)."""
     try:
+        _select_runs(args)
         return _run(args)
+    except _BadArguments as err:
+        print(f"sfdrig diagnose: {err}", file=sys.stderr)
+        return 2
     except Exception as err:  # noqa: BLE001 - the CLI's last line of defence
         where = ", ".join(str(p) for p in args.runs)
         print(f"error: {where}: {type(err).__name__}: {err}", file=sys.stderr)
         return 2
+
+
+class _BadArguments(ValueError):
+    pass
+
+
+def _select_runs(args: argparse.Namespace) -> None:
+    """Check the run arguments; with --train-runs/--test-runs, ``args.runs`` becomes the
+    training runs then the held-out runs and ``args.train_index`` the training indices."""
+    args.train_index = None
+    across = args.train_runs is not None or args.test_runs is not None
+    if not across:
+        if not args.runs:
+            raise _BadArguments("no run files: give RUN.h5 ... or --train-runs A.h5 ... "
+                                "--test-runs B.h5 ...")
+        return
+    if args.runs:
+        raise _BadArguments(
+            f"run files given both as arguments ({', '.join(map(str, args.runs))}) and with "
+            "--train-runs/--test-runs: give them one way")
+    if args.train_runs is None or args.test_runs is None:
+        given, other = (("--train-runs", "--test-runs") if args.test_runs is None
+                        else ("--test-runs", "--train-runs"))
+        raise _BadArguments(f"{given} needs {other}: name the runs to judge on as well")
+    if args.train or args.test:
+        raise _BadArguments("--train/--test sample spans cannot be combined with --train-runs/"
+                            "--test-runs (whole runs are the split)")
+    if args.judge == "force":
+        raise _BadArguments("--train-runs/--test-runs work with --judge response only")
+    seen: dict[Path, str] = {}
+    for opt, paths in (("--train-runs", args.train_runs), ("--test-runs", args.test_runs)):
+        for p in paths:
+            key = p.resolve()
+            if key in seen:
+                if seen[key] == opt:
+                    raise _BadArguments(f"{p} is given twice in {opt}")
+                raise _BadArguments(f"{p} is given in both --train-runs and --test-runs: "
+                                    "held-out runs must never be used for fitting")
+            seen[key] = opt
+    args.runs = list(args.train_runs) + list(args.test_runs)
+    args.train_index = list(range(len(args.train_runs)))
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -70,7 +121,8 @@ def _run(args: argparse.Namespace) -> int:
         effects = [e.strip() for e in args.effects.split(",")] if args.effects else None
         diag = diagnose(records, args.baseline, parse_spans(args.train, "--train"),
                         parse_spans(args.test, "--test"), rig=rig, seed=args.seed,
-                        max_effects=args.max_effects, effects=effects, log=log)
+                        max_effects=args.max_effects, effects=effects, log=log,
+                        train_runs=args.train_index)
     except (DiagnoseError, RigParamsError) as err:
         msg = str(err)
         if not any(Path(p).name in msg for p in args.runs):  # name the files the reason is about
@@ -105,6 +157,15 @@ def _run(args: argparse.Namespace) -> int:
         print("no effect of the library explains the residual significantly")
     if diag.unexplained:
         print("unexplained: a structured discrepancy remains that the library does not explain")
+    if diag.verdict is not None:
+        print(f"verdict: {diag.verdict.text}")
+    if diag.amplitude is not None:
+        print(f"amplitude dependence: {diag.amplitude.text}")
+        for lv in diag.amplitude.levels:
+            print(f"  {lv.axis} {lv.label:>14s}: {lv.natural_hz:.4g} +/- {lv.natural_hz_sd:.2g} "
+                  f"Hz, damping ratio {lv.damping_ratio:.3g} +/- {lv.damping_ratio_sd:.2g}")
+        for eff, why in diag.amplitude.contradicted.items():
+            print(f"  {eff}: contradicted by the levels: {why}")
     print(f"extended model: {model_path}")
     return 0
 

@@ -17,6 +17,8 @@ amplitude_dependent_damping clearance of the eccentricity law 0.70..0.85 of 127 
 added_mass                  1.0..2.5 kg
 cross_coupling              c_xy 800..1500 N.s/m, c_yx = c_xy x (0.5..1)
 second_mode                 frame mode 30..55 Hz (modal mass 150 kg)
+joint_microslip             on the rods' spring: k_j 0.25..0.4 of K (taken from it), slip
+                            force k_j x (20..40 um)
 viscosity_drift             film damping -12..-25 % from start to end (oil warming)
 sensor_gain                 one probe, recorded/true 1.03..1.08 or 0.92..0.97
 channel_delay               one probe, 0.1..0.5 ms
@@ -110,6 +112,15 @@ def draw_effect(effect: str, rng: np.random.Generator, data: dict[str, Any],
         # diverges on some dwells (reported to the simulator's owner)
         data["effects"]["second_mode"].update(enabled=True, frequency_hz=f, modal_mass_kg=150.0)
         return {"frequency_hz": f}
+    if effect == "joint_microslip":
+        # a joint that was part of the rods' stiffness: stuck, the rig is as configured
+        kj = float(rng.uniform(0.25, 0.4)) * k
+        fs = kj * float(rng.uniform(20e-6, 40e-6))
+        data["structure"]["stiffness_x_n_per_m"] -= kj
+        data["structure"]["stiffness_y_n_per_m"] -= kj
+        data["effects"]["joint_microslip"] = {"enabled": True, "mode": "housing",
+                                              "stiffness_n_per_m": kj, "slip_force_n": fs}
+        return {"slip_force_N": fs, "stiffness_N_per_m": kj}
     if effect == "viscosity_drift":
         rel = -float(rng.uniform(0.12, 0.25))
         rate = -math.log1p(rel) / (VISCOSITY_SLOPE_PER_C * duration_s)

@@ -334,3 +334,71 @@ def test_contact_restitution_reflects_the_approach_speed():
     assert v_in > 0.008 and hit > 50
     assert v_out == pytest.approx(-0.5 * v_in, rel=0.02)
     assert np.hypot(truth.x_m, truth.y_m).max() <= 127e-6 * (1 + 1e-9)
+
+
+def _joint_rig(mode: str = "housing", k_j: float = 300e3, f_s: float = 6.0) -> RigParams:
+    data = RigParams().model_dump(mode="python")
+    data["seal"]["enabled"] = False
+    data["effects"]["joint_microslip"] = {"enabled": True, "mode": mode,
+                                          "stiffness_n_per_m": k_j, "slip_force_n": f_s}
+    if mode == "frame":
+        data["effects"]["second_mode"] = {"enabled": True, "frequency_hz": 39.0,
+                                          "modal_mass_kg": 40.0, "damping_ratio": 0.03}
+    return RigParams.model_validate(data)
+
+
+@pytest.mark.parametrize("force_n", [2.0, 20.0])
+def test_joint_microslip_follows_the_dahl_loop(force_n: float):
+    """Quasi-static (1 Hz, dry): the joint's force, from the equation of motion, traces the
+    Dahl loop dF/dz = k_j (1 - sgn(z') F / F_s): peak F_s (1 - e) / (1 + e), e = exp(-2 k_j X
+    / F_s), and the loop's energy 2 int_{-X}^{X} (F_s - (F_s + F_peak) exp(-k_j (z + X) / F_s))
+    dz."""
+    rig = _joint_rig()
+    fs_hz, f_hz = 2000.0, 1.0
+    t = np.arange(int(4 * fs_hz)) / fs_hz
+    force = np.vstack([force_n * np.sin(2 * math.pi * f_hz * t), np.zeros_like(t)])
+    tr, _ = simulate_response(force, rig, fs_hz, fill=0.0)
+    st = rig.structure
+    joint = (force[0] - st.stiffness_x_n_per_m * tr.x_m
+             - st.residual_damping_ns_per_m * tr.vx_m_per_s - st.mass_kg * tr.ax_m_per_s2)
+    last = slice(int(3 * fs_hz), None)  # the last cycle (steady loop)
+    z, fj = tr.x_m[last], joint[last]
+    amp = 0.5 * (z.max() - z.min())
+    e = math.exp(-2 * 300e3 * amp / 6.0)
+    peak = 6.0 * (1 - e) / (1 + e)
+    assert 0.5 * (fj.max() - fj.min()) == pytest.approx(peak, rel=0.01)
+    assert np.all(np.abs(fj) <= 6.0 * 1.001)
+    work = float(np.sum(0.5 * (fj[1:] + fj[:-1]) * np.diff(z)))
+    ascending = 2 * amp * 6.0 - (6.0 + peak) * (6.0 / 300e3) * (1 - e)
+    assert abs(work) == pytest.approx(2 * ascending, rel=0.03)
+    # the secant stiffness K + F_peak / X: small motion, the joint stuck adds its stiffness;
+    # larger, it slips and the spring softens
+    assert force_n / amp == pytest.approx(788e3 + peak / amp, rel=0.01)
+    if force_n == 2.0:
+        assert peak / amp == pytest.approx(300e3, rel=0.05)
+    else:
+        assert peak / amp < 0.8 * 300e3
+
+
+def test_joint_microslip_on_the_frame_mode_softens_it():
+    """On the frame's spring: the frame resonance (near 39 Hz) falls with the force level."""
+    fs_hz = 5000.0
+    t = np.arange(int(2.0 * fs_hz)) / fs_hz
+    peaks = []
+    for level in (5.0, 200.0):
+        freqs = np.linspace(25.0, 60.0, 36)
+        amp = []
+        for f in freqs:
+            force = np.vstack([level * np.sin(2 * math.pi * f * t), np.zeros_like(t)])
+            tr, _ = simulate_response(force, _joint_rig("frame", 3e6, 20.0), fs_hz, fill=0.0)
+            amp.append(np.ptp(tr.ax_m_per_s2[len(t) // 2:]) / level)
+        peaks.append(freqs[int(np.argmax(amp))])
+    assert peaks[1] < peaks[0] - 2.0
+
+
+def test_joint_on_the_frame_needs_the_frame_mode():
+    data = RigParams().model_dump(mode="python")
+    data["effects"]["joint_microslip"] = {"enabled": True, "mode": "frame",
+                                          "stiffness_n_per_m": 1e5}
+    with pytest.raises(ValueError, match="needs effects.second_mode.enabled"):
+        RigParams.model_validate(data)
