@@ -22,6 +22,9 @@ Anything nonlinear or time-varying takes the ``solve_ivp`` path (0.5-15 s per dw
 small amplitude needs several force corrections). ``Generator.run(program, continuous=True)``
 integrates the whole programme in one go, so the transients after each change of dwell stay in
 the record (the default puts separate steady-state dwells end to end).
+
+``tests.independent_rig.structure`` is a second structure, not the rig: a multi-mode chain
+driven at one point with a softening (Iwan) joint, for runs at several force levels.
 """
 
 from tests.independent_rig.generate import (
