@@ -14,7 +14,6 @@ from nidaqmx.utils import unflatten_channel_string
 
 from daq.channels import AnalogInput, ChannelMap, DeviceSpec
 from daq.errors import (
-    CANT_RESET_EXPIRED_WATCHDOG,
     DEVICE_NOT_FOUND,
     INPUT_BUFFER_OVERWRITTEN,
     INVALID_ATTRIBUTE_VALUE,
@@ -37,6 +36,8 @@ from simulated_hw.board.codes import (
     WAIT_UNTIL_DONE_NOT_DONE,
     daq_error,
 )
+from simulated_hw.board.on_demand import OnDemandAi
+from simulated_hw.board.safe_states import SafeStates
 from simulated_hw.board.tasks import AiRing, SimTask
 from simulated_hw.board.watchdog import Watchdog, WatchdogTimer
 from simulated_hw.params import RigParams
@@ -49,7 +50,7 @@ INTERNAL_AO = re.compile(r"_ao(\d+)_vs_aognd", re.IGNORECASE)
 
 
 # --- the device -----------------------------------------------------------------------------
-class SimDevice:
+class SimDevice(SafeStates, OnDemandAi):
     """One simulated board and the rig wired to it. All methods hold the device lock briefly;
     waits for the clock happen outside it, so a relay can switch during a blocking read.
 
@@ -489,45 +490,6 @@ class SimDevice:
                     self.stop(task)
             return data
 
-    def _read_on_demand(self, task: SimTask, n: int) -> np.ndarray:
-        """A software-timed read: ``n`` samples taken now, one sample period apart.
-
-        The rig behind on-demand reads runs at the wiring's sample rate from the previous
-        on-demand read to now (at most the last second of it: an approximation, like holding
-        the AO terminals at their present values over that stretch). In fast mode each
-        on-demand sample moves the device clock by 1 ms."""
-        fs = self.wiring.sample_rate_hz
-        if self.fast:
-            self._vtime += n * 1e-3
-        self.catch_up()
-        now = self.now()
-        if self._idle is None or self._idle[0] is not task:
-            ai, rows = self._ai_rows(task)
-            rig = None
-            if ai:
-                rig = self._new_rig(ChannelMap(device=self.spec, sample_rate_hz=fs,
-                                               ai=tuple(ai), ao=self.wiring.ao,
-                                               do=self.wiring.do))
-            self._idle = (task, rig, rows, now - n / fs)
-        _, rig, rows, last = self._idle
-        steps = int(min(max(round((now - last) * fs), n), fs))
-        terminals = self._present_terminals()
-        drive = np.repeat(terminals[:, None], steps, axis=1)
-        wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
-        rig_out = rig.process(drive[wired])[:, -n:] if rig is not None else None
-        self._idle = (task, rig, rows, now)
-        out = np.empty((len(rows), n))
-        lsb = 2 * self.spec.ai_range_v / 2**self.spec.ai_bits
-        for i, source in enumerate(rows):
-            if source is None:
-                out[i] = np.round(self._floating_rng.normal(0.0, lsb, n) / lsb) * lsb
-            elif source[0] == "ao":
-                out[i] = terminals[source[1]]
-            else:
-                assert rig_out is not None
-                out[i] = rig_out[source[1]]
-        return out
-
     def _wait_until(self, ready_at: float, timeout_s: float, task: SimTask, n: int) -> None:
         now = self._clock()
         deadline = math.inf if timeout_s < 0 else now + timeout_s
@@ -674,97 +636,3 @@ class SimDevice:
         if self.ai_task is not None:  # on the AI clock
             return self.t0 + (task.first_sample + task.samps_per_chan) / self.ai_rate
         return None
-
-    # --- the watchdog timer ---------------------------------------------------------------
-    def _start_watchdog(self, task: SimTask) -> None:
-        w = task.watchdog
-        w.running, w.fed_at = True, self._clock()
-        self.watchdog_timer.changed()
-
-    def feed_watchdog(self, task: SimTask) -> None:
-        """Reset the timer (DAQmx ControlWatchdogTask RESET_TIMER); -200644 once expired."""
-        with self.lock:
-            self.watchdog_timer.check()
-            w = task.watchdog
-            if w.expired:
-                raise daq_error(
-                    CANT_RESET_EXPIRED_WATCHDOG,
-                    f"watchdog task {task.name!r} expired "
-                    f"{self._clock() - (w.expired_at or 0.0):.3f} s ago (timeout "
-                    f"{w.timeout_s:g} s); clear the expiration first",
-                )
-            w.fed_at = self._clock()
-        self.watchdog_timer.changed()
-
-    def clear_expiration(self, task: SimTask) -> None:
-        """Unlock the lines and outputs an expired watchdog holds (they keep their values)."""
-        with self.lock:
-            w = task.watchdog
-            if w.expired:
-                for p, v in w.ao_states.items():
-                    self.ao_hold[p] = self.locked_ao.pop(p, v)
-                for line in w.do_states:
-                    self.locked_do.discard(line)
-            w.expired, w.expired_at, w.fed_at = False, None, self._clock()
-            w.expired_event.clear()
-        self.watchdog_timer.changed()
-
-    def _expire(self, w: Watchdog) -> None:
-        """The board's own action on expiry: outputs and lines to their expiration states,
-        the generations on them stopped, both held there until the expiration is cleared."""
-        if self.ai_task is not None and not self.fast:
-            self._advance(self._due())  # everything before the expiry happened first
-        w.expired, w.expired_at = True, self._clock()
-        _log.warning("watchdog on %s expired: AO %s, lines %s", w.device_name, w.ao_states,
-                     w.do_states)
-        for task in list(self.ao_tasks):
-            if any(ch.physical[0] in w.ao_states for ch in task.channels):
-                task.error = task.error or daq_error(
-                    WRITE_FAILED_WATCHDOG_EXPIRED,
-                    f"task {task.name!r}: the watchdog timer expired (not reset for "
-                    f"{w.timeout_s:g} s); its outputs are held in the expiration states",
-                )
-        self.locked_ao.update(w.ao_states)
-        self.locked_do.update(w.do_states)
-        self._set_lines(w.do_states)
-        w.expired_event.set()
-
-    def _refuse_locked(self, task: SimTask | None, physical: list[str]) -> None:
-        held = sorted(p for p in physical if p in self.locked_ao or p in self.locked_do)
-        if held:
-            where = f"write to {task.name!r}" if task is not None else "write"
-            raise daq_error(
-                WRITE_FAILED_WATCHDOG_EXPIRED,
-                f"{where}: {held} held in the watchdog expiration state; clear the expiration",
-            )
-
-    def watchdogs(self) -> list[Watchdog]:
-        return list(self._watchdogs)
-
-    def add_watchdog(self, w: Watchdog) -> None:
-        with self.lock:
-            self._watchdogs.append(w)
-
-    def remove_watchdog(self, w: Watchdog) -> None:
-        """Clearing the task (an expired watchdog's locks stay until ResetDevice)."""
-        with self.lock:
-            w.running = False
-            if w in self._watchdogs:
-                self._watchdogs.remove(w)
-        self.watchdog_timer.changed()
-
-    def press_estop(self, pressed: bool) -> None:
-        """Press or release the emergency-stop button the wiring map puts on an input line
-        (no-op without one): the line then reads its ``pressed_level``."""
-        estop = self.wiring.estop
-        if estop is not None:
-            with self.lock:
-                level = estop.pressed_level if pressed else not estop.pressed_level
-                self.inputs[estop.physical_channel] = level
-                _log.warning("emergency stop %s (%s reads %s)", "pressed" if pressed else
-                             "released", estop.physical_channel, "high" if level else "low")
-
-    def line_level(self, line: str) -> bool:
-        """What a digital line reads: an input's external level, else what the port drives."""
-        with self.lock:
-            return self.inputs.get(line, self.lines.get(line, False))
