@@ -192,3 +192,31 @@ def test_a_broken_estop_wire_reads_as_pressed() -> None:
             assert backend.estop_pressed() is True
         finally:
             backend.close()
+
+
+def test_a_sweep_that_underflows_ends_with_the_drives_at_zero(
+        clocked_server: SimulatedDeviceServer, fake_clock) -> None:
+    """The whole engine through nidaqmx: the loop stalls for 0.2 s mid-step (the fake clock
+    jumps), the board underflows, the fade cannot be written any more, and still both drive
+    terminals end at 0 V: the AO idle output behaviour does it, not the program."""
+    from control.listener import RecordingListener
+    from control.sweep import SweepEngine, SweepSpec
+
+    class Stall(RecordingListener):
+        def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
+            super().on_block(first_sample, ai, ao)
+            if first_sample == 5_000:  # 0.5 s in: the drives are up
+                fake_clock.advance(0.2)
+
+    backend = NidaqmxBackend(watchdog_timeout_s=None)
+    try:
+        backend.configure(on_server(clocked_server))
+        listener = Stall(keep_blocks=True)
+        spec = SweepSpec(motion="x", load_n=[30.0], freq_hz=[40.0], record_cycles=40)
+        out = SweepEngine(backend, spec, listener=listener).run()
+    finally:
+        backend.close()
+    assert out.status == "failed" and "-200290" in out.reason
+    assert np.abs(listener.ao()[0, 4_000:5_000]).max() > 0.3  # it was driving
+    device = clocked_server.device
+    assert device.ao_hold == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}  # both terminals at 0 V
