@@ -6,15 +6,24 @@ It serves one device (``Dev1`` by default: ai0..ai15, ao0..ao1, port0/line0..7) 
 `simulated_hw.rig.RigModel`: each AI terminal carries the sensor the wiring map puts there, each
 AO terminal drives the shaker of its axis, and the relay line switches the oil pump.
 
-Supported: hardware-timed continuous (or finite) AI on the onboard clock; buffered,
-non-regenerating AO on ``/Dev1/ai/SampleClock`` armed on ``/Dev1/ai/StartTrigger`` (AI sample
-``k`` is taken while AO sample ``k`` is generated); software-timed DO lines and on-demand AO.
+Supported, as a multifunction board accepts them: AI hardware-timed (continuous or finite, on
+the onboard clock; a read starts a task not started, and stops a finite one at its end) or on
+demand; AO on ``/Dev1/ai/SampleClock`` armed on ``/Dev1/ai/StartTrigger`` (AI sample ``k`` is
+taken while AO sample ``k`` is generated, as sfdrig uses it) or on its own clock, regenerating
+(nidaqmx's default) or not, continuous or finite, or on demand; the AO idle output behaviour
+(0 V or hold); DO lines, and DI lines (the emergency stop of the wiring map, if any); the
+internal channels ``Dev1/_aoN_vs_aognd``; IsTaskDone / WaitUntilTaskDone; the watchdog timer
+task with DO and AO expiration states, expired by the board's own timer thread. What a board
+refuses gets its DAQmx code (-200462 empty output buffer, -50103 a second AI task, -200560 a
+continuous task never done, -200278 past the end of a finite acquisition, -200644 / -200678
+after a watchdog expiry, ...); an RPC it does not serve answers UNIMPLEMENTED.
 
 Time: paced (default), samples become available as the wall clock advances (a read waits;
 too long -> DAQmx -200284; a reader more than the input buffer behind -> -200279; an AO writer
-behind the generation -> -200290, the output then holds its last value). ``fast=True``
+behind the generation -> -200290, the output then goes to its idle state). ``fast=True``
 generates samples the moment they are read (no timeouts, no overflow; AO still underflows when
-a read needs samples that were never written).
+a read needs samples that were never written); the device clock then moves only with AI reads,
+waits and on-demand reads (1 ms each). The watchdog timer always runs on the wall clock.
 
 Errors go back as NI's server sends them: gRPC status UNKNOWN with trailing metadata
 ``ni-error: <code>`` (plus ``ni-samps-per-chan-read`` on reads), so the client raises
