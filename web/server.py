@@ -95,6 +95,7 @@ class WebApp:
             web.get("/api/examples", self.examples),
             web.post("/api/start", self.start),
             web.post("/api/command", self.command),
+            web.post("/api/start_test", self.start_test),
             web.static("/static", STATIC),
         ])
         self.app.on_startup.append(self._start_ticker)
@@ -188,6 +189,16 @@ class WebApp:
             return web.json_response({"ok": False, "error": str(err), "data": {}})
         out = await self._daemon(lambda: self.link.try_command(
             "start", spec=spec, operator=s.name, notes="started from sfdrig web"))
+        return web.json_response(out)
+
+    async def start_test(self, request: web.Request) -> web.Response:
+        """Start a structure test with its default settings; its questions come back in the
+        status, so this page (or a terminal) is its operator."""
+        s = self._guard(request, need_operator=True)
+        body = await request.json()
+        test = str(body.get("test", ""))
+        out = await self._daemon(lambda: self.link.try_command(
+            "start_test", test=test, operator=s.name, notes="started from sfdrig web"))
         return web.json_response(out)
 
     async def command(self, request: web.Request) -> web.Response:

@@ -238,3 +238,27 @@ def test_on_the_nidaqmx_backend_the_person_reads_the_instruments(tmp_path: Path)
         server.terminate()
         server.wait(10)
         server.stdout.close()  # type: ignore[union-attr]
+
+
+def test_ctrl_c_at_a_prompt_aborts_the_test_without_a_traceback(daemon_factory) -> None:
+    d = daemon_factory()
+    t = Terminal(d.command, "--only", "impact", "--runs-dir", str(d.runs_dir))
+    t.next()
+    t.type("")
+    where, text = t.next()
+    assert "Strike the housing along x" in text
+    t.child.sendintr()  # Ctrl-C at the strike prompt
+    t.child.expect(pexpect.EOF)
+    out = t.child.before
+    t.child.close()
+    assert t.child.exitstatus == 130 and "Traceback" not in out
+    assert "impact: abort sent (drives ramp to zero)" in out
+    with CommandClient(d.command) as c:
+        deadline = 600  # status replies, not sleeps: the abort reaches idle within a block
+        while (st := c.status())["state"] != "idle" and deadline:
+            deadline -= 1
+    assert st["last_run"]["status"] == "aborted"
+    assert "operator pressed Ctrl-C in `sfdrig structure` (impact)" in st["last_run"]["reason"]
+    with open_run(Path(st["last_run"]["path"])) as r:
+        assert r.attrs["status"] == "aborted" and r.steps == []
+        assert r.channel("shaker_x")[-1] == 0.0

@@ -262,21 +262,19 @@ def test_the_operator_answers_a_structure_test_in_the_page(daemon_factory, web_f
     """The same operator protocol as the terminal: the page shows the daemon's question, an
     entry with a wrong unit is refused with the daemon's reason, a right one is taken, a point is
     repeated, and the test is aborted half way from the question (pump off, run closed)."""
-    from control.client import CommandClient
-
     d = daemon_factory()
     url = web_factory(d)
     page = _open(browser, url)
     viewer = _open(browser, web_factory(d, "--role", "viewer"))
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
-    with CommandClient(d.command) as c:
-        run = c.request("start_test", test="flow", operator="web test",
-                        spec={"repeats": 1, "supply_pressures_pa": [10e3, 15.5e3, 20e3]})
-    run_id = run.data["run_id"]
+    page.select_option("#test-kind", "flow")
+    page.click("#start-test")  # the flow test with its defaults: 8-25 kPa, two passes
+    page.wait_for_function("document.getElementById('message').textContent.includes('run ')")
+    run_id = page.inner_text("#message").removeprefix("start: ok (run ").rstrip(")")
     page.wait_for_selector("#question:not([hidden])", timeout=60_000)
-    assert page.inner_text("#q-where") == "flow 10 kPa pass 1, point 1/3"
-    assert "Set the supply pressure to 10 kPa" in page.inner_text("#q-prompt")
-    assert page.inner_text("#q-shows") == "the simulated instrument shows: 10 kPa"
+    assert page.inner_text("#q-where") == "flow 8 kPa pass 1, point 1/10"
+    assert "Set the supply pressure to 8 kPa" in page.inner_text("#q-prompt")
+    assert page.inner_text("#q-shows") == "the simulated instrument shows: 8 kPa"
     assert page.is_visible("#q-entry") and page.inner_text("#q-unit") == "[kPa]"
     # a viewer sees the question, without a way to answer it
     viewer.wait_for_selector("#question:not([hidden])", timeout=60_000)
@@ -290,24 +288,25 @@ def test_the_operator_answers_a_structure_test_in_the_page(daemon_factory, web_f
                                            "'kg' is not a unit of pressure (use Pa, kPa, MPa, "
                                            "bar, psi)")
     assert page.get_attribute("#message", "class") == "error"
-    page.fill("#q-entry", "10 kPa")
+    page.fill("#q-entry", "8 kPa")
     page.press("#q-entry", "Enter")  # Enter in the field answers too
     page.wait_for_function("document.getElementById('q-where').textContent.startsWith("
-                           "'flow 15.5 kPa')", timeout=60_000)
+                           "'flow 12 kPa')", timeout=60_000)
     page.click("#q-repeat")  # the same point is asked again, under a new number
     first = page.inner_text("#q-id")
     page.wait_for_function(f"document.getElementById('q-id').textContent !== '{first}'",
                            timeout=60_000)
-    assert page.inner_text("#q-where").startswith("flow 15.5 kPa pass 1, point 2/3")
+    assert page.inner_text("#q-where").startswith("flow 12 kPa pass 1, point 2/10")
     page.click("#q-abort")
     page.wait_for_function(f"document.getElementById('run-id').textContent.includes("
                            f"'{run_id} aborted')", timeout=60_000)
     assert not page.is_visible("#question") and page.inner_text("#pump") == "off"
     with open_run(d.runs_dir / f"{run_id}.h5") as r:
         assert r.attrs["status"] == "aborted" and len(r.steps) == 1
-        assert r.steps[0]["supply_pressure_pa"] == 10e3
+        assert r.steps[0]["supply_pressure_pa"] == 8e3
+        assert r.attrs["operator"] == "local"  # who is logged in to the page
         ops = [e["message"] for e in r.events if e["kind"] == "operator"]
         assert np.all(r.channel("shaker_x")[-100:] == 0.0)
     assert any("refused entry '10 kg'" in m for m in ops)
-    assert any(m.endswith("ok '10 kPa' = 10 kPa") for m in ops)
+    assert any(m.endswith("ok '8 kPa' = 8 kPa") for m in ops)
     assert page.errors == [] and viewer.errors == []

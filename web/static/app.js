@@ -297,6 +297,7 @@ $("start-upload").onclick = async () => {
   if (!f) { showMessage("choose a sweep TOML file first", true); return; }
   post("/api/start", { toml: await f.text(), filename: f.name });
 };
+$("start-test").onclick = () => post("/api/start_test", { test: $("test-kind").value });
 $("pause").onclick = () => post("/api/command", { cmd: "pause" });
 $("resume").onclick = () => post("/api/command", { cmd: "resume" });
 $("abort").onclick = () => post("/api/command", { cmd: "abort" });
