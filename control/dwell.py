@@ -86,6 +86,8 @@ class StepRunner(Approach):
         self._last_drive: np.ndarray | None = None  # (X, Y) drive of the last converged step
         self._last_jacobian: np.ndarray | None = None
         self._orbit_per_n = 0.0  # orbit radius per newton of load, last measured [m/N]
+        self._radii: list[float] = []  # recent block maxima of the orbit (`_outside_growth`)
+        self._drives: list[np.ndarray] = []  # the drive (phasors, frequency) at those blocks
         stream.guard = self._guard
 
     def _guard(self, eng: np.ndarray) -> str:
@@ -96,10 +98,38 @@ class StepRunner(Approach):
         if radius > GUARD_FRACTION * lim.displacement_limit_m:
             return (f"the orbit reached {radius * 1e6:.1f} um, over {100 * GUARD_FRACTION:.0f} % "
                     f"of the {lim.displacement_limit_m * 1e6:.4g} um limit")
+        growing = self._outside_growth(radius)
+        if growing:
+            return growing
         load = float(np.max(np.abs(self.signals.load(eng))))
         if load > LOAD_GUARD_FRACTION * lim.max_load_n:
             return (f"the load reached {load:.1f} N, over {100 * LOAD_GUARD_FRACTION:.0f} % of "
                     f"the {lim.max_load_n:g} N limit")
+        return ""
+
+    def _outside_growth(self, radius: float) -> str:
+        """An orbit growing while the drive is held (an outside change: amplifier gain, plant)
+        so fast that it would pass the limit before the drive already written has played: why,
+        or "". Growth: the largest block radius of the last cycle against the cycle before."""
+        stream, synth, lim = self.stream, self.stream.synth, self.limits
+        n = max(1, int(np.ceil(self.fs / max(synth.freq_hz, 1e-9) / stream.block)))
+        held = stream.ahead_blocks + 1 + n  # blocks over which our own changes still show
+        state = np.concatenate([synth.phasors, [synth.freq_hz]])
+        self._radii.append(radius)
+        self._drives.append(state)
+        del self._radii[:-2 * n]
+        del self._drives[:-held]
+        if len(self._radii) < 2 * n or len(self._drives) < held:
+            return ""
+        if any(not np.allclose(d, state, rtol=1e-9, atol=1e-12) for d in self._drives):
+            return ""  # the controller moved the drive: its own raises are watched elsewhere
+        last, prev = max(self._radii[n:]), max(self._radii[:n])
+        growth = (last - prev) / n  # per block
+        if (last > 0.5 * lim.displacement_limit_m
+                and last + growth * (stream.ahead_blocks + 1) > lim.displacement_limit_m):
+            return (f"the orbit grows {growth * 1e6:.1f} um per block at a held drive "
+                    f"({last * 1e6:.1f} um): it would pass the {lim.displacement_limit_m * 1e6:.4g}"
+                    " um limit before the drive already written has played")
         return ""
 
     def _measure(self, plan: StepPlan, first: int, last: int) -> tuple[np.ndarray, ...]:
