@@ -18,8 +18,9 @@ pytestmark = pytest.mark.e2e
 DRY_X = {"motion": "x", "load_n": [30.0], "freq_hz": [30.0, 50.0], "settle_cycles": 5,
          "record_cycles": 10}
 # Paced runs on a shared, loaded test machine: the most AO lead the 100 ms budget allows.
-# 40 N dry stays inside the displacement limit away from the 45 Hz dry resonance.
-LONG_X = {"motion": "x", "load_n": [40.0], "freq_hz": [20.0, 70.0, 80.0, 90.0, 100.0, 110.0],
+# 40 N dry stays inside the displacement limit above the 45 Hz dry resonance (below it the rods
+# alone give about 50 um, and the controller holds the step at the limit and stops the sweep).
+LONG_X = {"motion": "x", "load_n": [40.0], "freq_hz": [70.0, 80.0, 90.0, 100.0, 110.0, 120.0],
           "settle_cycles": 20, "record_cycles": 100,
           "control": {"block_s": 0.0125, "ahead_blocks": 3}}
 
