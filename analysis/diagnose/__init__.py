@@ -12,9 +12,11 @@ baseline and the final model against the held-out signal), ``residual_analysis``
 harmonic / segment numbers), ``report`` (JSON, TOML, HTML + PNG).
 
 Limits, stated:
-- ``sensor_gain`` and ``channel_delay`` need two displacement channels on the axis (probes x1,
-  x2): the twin probe and the model arbitrate; the accelerometers are compared as corroborating
-  evidence only (they are not in the fitted objective).
+- ``sensor_gain`` and ``channel_delay`` need two sensors on the axis (two probes, or a probe and
+  an accelerometer or velocity sensor: every response sensor is in the fitted objective, weighted
+  by its noise). Which of the pair is wrong is told by refitting the effect on the other one; a
+  gain error on a fitted baseline cannot be told from the partner's inverse gain error with the
+  structure scaled, and the finding says so (``cannot_tell_from``).
 - The fitted baseline fits one mass and one damping for both axes and a stiffness per axis
   (RigParams has one mass and one residual damping).
 - Imported runs without a rig description are replayed with the seal off and the film as the

@@ -59,7 +59,13 @@ class RunRecord:
     response_axis : dict of str -> int
         0 for an x channel, 1 for y.
     accel : dict of str -> ndarray (n,)
-        Accelerometers ax, ay [m/s^2] when present (redundant sensors; evidence only).
+        Accelerometers ax, ay [m/s^2] when present (in the fitted objective beside the
+        displacement channels; see `objective_channels`).
+    velocity : dict of str -> ndarray (n,)
+        Velocity channels vx, vy [m/s] when present (in the objective too).
+    derived_displacement : bool
+        The displacement channels were rebuilt from velocity or acceleration at import (they
+        hold no information of their own: the sources stay out of the objective).
     t_oil_c : ndarray or None
         Oil temperature [degC] when recorded.
     lubricated : bool
@@ -78,6 +84,8 @@ class RunRecord:
     responses: dict[str, np.ndarray]
     response_axis: dict[str, int]
     accel: dict[str, np.ndarray] = field(default_factory=dict)
+    velocity: dict[str, np.ndarray] = field(default_factory=dict)
+    derived_displacement: bool = False
     t_oil_c: np.ndarray | None = None
     lubricated: bool = False
     kind: str = "sweep"
@@ -91,6 +99,27 @@ class RunRecord:
     @property
     def axes(self) -> set[int]:
         return set(self.response_axis.values())
+
+    def objective_channels(self) -> dict[str, tuple[int, str]]:
+        """Every measured response the fit compares with the model: name -> (axis, quantity).
+
+        Displacement channels (probes), then velocity and acceleration channels (one
+        accelerometer per axis beside one probe is the pair that tells a sensor fault from
+        the rig). Quantity is "displacement", "velocity" or "acceleration".
+        """
+        out = {ch: (ax, "displacement") for ch, ax in self.response_axis.items()}
+        if not self.derived_displacement:
+            for chans, q in ((self.velocity, "velocity"), (self.accel, "acceleration")):
+                for ch in chans:
+                    out[ch] = (0 if ch.endswith("x") else 1, q)
+        return out
+
+    def signal(self, ch: str) -> np.ndarray:
+        """The samples of objective channel ``ch`` (its own SI units)."""
+        for chans in (self.responses, self.velocity, self.accel):
+            if ch in chans:
+                return chans[ch]
+        raise KeyError(f"{self.name}: no response channel {ch!r}")
 
 
 _PROBE = re.compile(r"^([xy])\d+$")
@@ -144,6 +173,13 @@ def load_run(path: str | Path, run_index: int = 0) -> RunRecord:
             raise DiagnoseError(f"{path}: the force channels hold NaN or infinite samples")
         accel: dict[str, np.ndarray] = {nm: run.channel(nm) for nm in ("ax", "ay")
                                         if nm in names}
+        velocity: dict[str, np.ndarray] = {nm: run.channel(nm) for nm in ("vx", "vy")
+                                           if nm in names}
+        for nm, v in {**accel, **velocity}.items():
+            if not np.all(np.isfinite(v)):
+                raise DiagnoseError(f"{path}: channel {nm!r} holds NaN or infinite samples")
+        derived = any("derived from" in str(run.channel_attrs(nm).get("sensor", ""))
+                      for nm in responses)
         t_oil = run.channel("t_oil") if "t_oil" in names else None
         rig = None
         if run.rig_config:
@@ -156,7 +192,8 @@ def load_run(path: str | Path, run_index: int = 0) -> RunRecord:
         ]
         return RunRecord(
             name=path.name, sample_rate_hz=run.sample_rate_hz, force_n=force,
-            responses=responses, response_axis=axis_of, accel=accel, t_oil_c=t_oil,
+            responses=responses, response_axis=axis_of, accel=accel, velocity=velocity,
+            derived_displacement=derived, t_oil_c=t_oil,
             lubricated=bool(run.attrs.get("lubricated", False)), kind=run.kind, rig=rig,
             segments=segments,
         )

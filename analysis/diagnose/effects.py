@@ -61,11 +61,14 @@ class Context:
         return any(len(r.axes) == 2 and np.any(r.force_n[1] != 0) for r in self.records)
 
     def redundant_channels(self) -> list[str]:
-        """Response channels that share their axis with another channel in the same run."""
+        """Objective channels (probes, accelerometers, velocity sensors) that share their axis
+        with another one in the same run: the pairs whose disagreement is a sensor fault."""
         out: list[str] = []
         for r in self.records:
-            for ch, ax in r.response_axis.items():
-                if sum(1 for a in r.response_axis.values() if a == ax) > 1 and ch not in out:
+            chans = r.objective_channels()
+            axes = [a for a, _ in chans.values()]
+            for ch, (ax, _) in chans.items():
+                if axes.count(ax) > 1 and ch not in out:
                     out.append(ch)
         return out
 
@@ -343,7 +346,8 @@ def _needs_two_axes_film(ctx: Context) -> str | None:
 
 def _needs_redundant(ctx: Context) -> str | None:
     if not ctx.redundant_channels():
-        return "no redundant sensor (two probes on one axis) to tell a sensor fault from the rig"
+        return ("no redundant sensor (a second probe or an accelerometer on the axis) to tell a "
+                "sensor fault from the rig")
     return None
 
 

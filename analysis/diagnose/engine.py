@@ -61,7 +61,7 @@ from analysis.diagnose.effects import (
 from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit, train_sse
 from analysis.diagnose.model import Evaluator, Model, Param, Residuals, residuals, rig_param
 from analysis.diagnose.start import OneMode, one_mode_estimate
-from analysis.diagnose.verdict import Verdict, excited_band, judge, noise_by_channel
+from analysis.diagnose.verdict import Verdict, excited_band, judge
 from simulated_hw.params import RigParams
 
 
@@ -353,8 +353,18 @@ def diagnose(
     # dwells of files from elsewhere sit back to back (what precedes a dwell is not its
     # settling): each is replayed in steady state, after whole periods of its own force
     steady = any(r.kind != "sweep" for r in records)
+    # sensors of different quantities (probe, accelerometer) weighed by their noise
+    weights = ra.noise_weights(records, ra.channel_noise(records, train, without_dwells=True))
     ev = Evaluator(records, warmup_s=warmup_s, oversample=oversample,
-                   steady_state_dwells=steady)
+                   steady_state_dwells=steady, weights=weights)
+    if weights:
+        notes.append("fitted to every response channel, weighted by its noise (factor to "
+                     "displacement-equivalent: " + ", ".join(
+                         f"{ch} {w:.3g} s^{2 if ch.startswith('a') else 1}"
+                         for ch, w in sorted(weights.items())) + ")")
+    elif any(r.derived_displacement for r in records):
+        notes.append("displacement derived from velocity or acceleration at import: fitted to "
+                     "the derived displacement only (the sources hold the same information)")
     fit_train = _fit_subset(ev, train, fit_budget_steps)
     if len(fit_train) < len(train):
         notes.append(f"fitted on {len(fit_train)} of {len(train)} training segments "
@@ -497,7 +507,7 @@ def diagnose(
     # verdict against the signal: what the baseline and the final model explain of it
     rows_base = ra.dwell_table(records, base_test, test)
     noise = ra.noise_floor(rows_base)
-    verdict = judge(records, base_test, cur_test, test, noise_by_channel(rows_base),
+    verdict = judge(records, base_test, cur_test, test, ra.channel_noise(records, test),
                     findings[0].test_residuals if findings else None)
     unexplained = verdict.unexplained
     for f in findings:
@@ -510,6 +520,10 @@ def diagnose(
         verdict.missing["baseline_parameters_on_bound"] = on_bound
         notes.append(f"baseline parameter(s) {on_bound} on a bound of the fit: the baseline "
                      "does not describe the data")
+    for f in findings:
+        if LIBRARY[f.effect].kind == "measurement":
+            f.evidence.update(_sensor_pair_check(ev, ctx, base_model, free_base, findings, f,
+                                                 current, fit_train, test, scale_m, step))
     for f in findings:
         # a runner-up as good as the finding leaves the cause ambiguous, unless it was found
         # too, or, swapped in for the finding next to the other findings, it explains the
@@ -544,6 +558,53 @@ def diagnose(
         extended_rig=ext, elapsed_s=time.perf_counter() - t_start, notes=notes,
         verdict=verdict, amplitude=amplitude,
     )
+
+
+def _sensor_pair_check(ev: Evaluator, ctx: Context, base: Model, free_base: list[Param],
+                       findings: list[Finding], f: Finding, final: Model,
+                       fit_train: list[Segment], test: list[Segment], scale_m: float,
+                       step: int) -> dict[str, Any]:
+    """Which sensor of a disagreeing pair is wrong, and whether the data can tell.
+
+    The same measurement effect is refitted on each other sensor of the finding's axis instead
+    (with the baseline's own parameters and the other findings free): a gain error of the probe
+    and the inverse gain error of the accelerometer, the structure scaled with it, fit alike on
+    a fitted baseline; a configured baseline, or a delay (never negative), tells them apart. A
+    partner within 25 % of the final model's held-out mean square cannot be told from the
+    finding's channel.
+    """
+    ch = f.parameters.get("channel")
+    axis_of: dict[str, int] = {}
+    for rec in ev.records:
+        axis_of.update({c: a for c, (a, _) in rec.objective_channels().items()})
+    if ch not in axis_of:
+        return {}
+    partners = [c for c, a in axis_of.items() if a == axis_of[ch] and c != ch]
+    own = f.variant.params[0]
+    cleared = own.set(final, 0.0 if own.name == "delay_s" else 1.0)
+    others = [p for g in findings if g is not f for p in g.variant.params]
+    final_ms = residuals(ev, final, fit_train, test).rms() ** 2
+    out: dict[str, Any] = {"pair_check": {}}
+    alike: list[str] = []
+    for var in LIBRARY[f.effect].variants(ctx, cleared):
+        partner = var.labels.get("channel")
+        if partner not in partners:
+            continue
+        res = fit(ev, var.starts, free_base + others + var.params, fit_train, scale_m,
+                  max_nfev=20 * (len(free_base) + len(others) + 2), step=step)
+        ms = residuals(ev, res.model, fit_train, test).rms() ** 2
+        out["pair_check"][partner] = {
+            **parameters_of(var, res.model),
+            "held_out_error": math.sqrt(ms)}
+        if ms <= 1.25 * final_ms:
+            alike.append(partner)
+    out["cannot_tell_from"] = alike
+    if alike:
+        out["which_sensor"] = (f"{ch} or {', '.join(alike)}: the pair disagree, and the data "
+                               "cannot tell which of them is wrong")
+    else:
+        out["which_sensor"] = f"{ch} (its partners on the axis explain the data clearly worse)"
+    return out
 
 
 def _swap_check(ev: Evaluator, base: Model, fitted: bool, free_base: list[Param],

@@ -18,6 +18,12 @@ Replay details, stated:
   the steady state the dwell was recorded in, whatever came before it in the file).
 - Each response channel's mean offset (probe gap, amplifier offset) is fitted in closed form on
   the training segments and applied unchanged to held-out segments.
+- Every measured response is compared (`RunRecord.objective_channels`): displacement (the
+  simulated relative displacement), velocity and acceleration (the simulated absolute housing
+  acceleration), each through its own gain and delay. Residuals of channels of different
+  quantities are weighted by their noise (``Evaluator.weights``: the displacement channels' noise
+  over the channel's own), so the objective and every error reported stay in metres of
+  displacement-equivalent noise and a quieter sensor counts more.
 """
 
 from __future__ import annotations
@@ -107,12 +113,17 @@ class Evaluator:
         files hold dwells back to back).
     oversample : dict of int -> int
         Per run index: the force oversampling factor (1: replay at the run's rate).
+    weights : dict of str -> float
+        Per objective channel: the factor applied to its residual (`noise_weights`).
     """
 
     def __init__(self, records: list[RunRecord], warmup_s: float = 0.5,
                  oversample: dict[int, int] | None = None,
-                 steady_state_dwells: bool = False) -> None:
+                 steady_state_dwells: bool = False,
+                 weights: dict[str, float] | None = None) -> None:
         self.records = records
+        #: channel -> factor to displacement-equivalent units (absent: 1)
+        self.weights = dict(weights or {})
         self.warmup_s = warmup_s
         self.steady_state_dwells = steady_state_dwells
         # dwell frequency of each steady-state window, so truth(run, a, b) can find its periods
@@ -195,7 +206,8 @@ class Evaluator:
         return np.hstack([np.tile(f[:, :chunk], (1, lead // chunk)), f])
 
     def truth(self, model: Model, run: int, a: int, b: int) -> np.ndarray:
-        """Simulated relative displacement (2, b - a) [m] of run ``run`` over [a, b): from rest
+        """Simulated response (6, b - a) of run ``run`` over [a, b): relative displacement x, y
+        [m], relative velocity [m/s], absolute housing acceleration [m/s^2]; from rest
         at ``a``, or, for a dwell replayed in steady state, after whole periods of its own
         force (the viscosity of its first sample)."""
         key = (model.sim_key(), run, a, b)
@@ -212,7 +224,8 @@ class Evaluator:
         self.simulations += 1
         if up <= 1:
             tr, _ = simulate_response(force, model.rig, rec.sample_rate_hz, self._fill(rec), visc)
-            xy = np.vstack([tr.x_m, tr.y_m])[:, lead:]
+            xy = np.vstack([tr.x_m, tr.y_m, tr.vx_m_per_s, tr.vy_m_per_s, tr.ax_m_per_s2,
+                            tr.ay_m_per_s2])[:, lead:]
         else:
             fup = self._upsampled(run, a, b, up, lead)
             fup = fup + np.asarray(model.force_offset_n)[:, None]
@@ -224,7 +237,8 @@ class Evaluator:
             shift = 0 if hasattr(physics, "S_FPX") else -1
             idx = (lead + np.arange(b - a)) * up + shift
             idx[idx < 0] = 0
-            xy = np.vstack([tr.x_m[idx], tr.y_m[idx]])
+            xy = np.vstack([tr.x_m[idx], tr.y_m[idx], tr.vx_m_per_s[idx], tr.vy_m_per_s[idx],
+                            tr.ax_m_per_s2[idx], tr.ay_m_per_s2[idx]])
         self._cache[key] = xy
         self._cache_bytes += xy.nbytes
         while self._cache_bytes > self.cache_limit_bytes and len(self._cache) > 1:
@@ -246,16 +260,15 @@ class Evaluator:
         for run, a, b, lst in self.windows(segs):
             rec = self.records[run]
             xy = self.truth(model, run, a, b)
-            t_win = np.arange(a, b) / rec.sample_rate_hz
             chans: dict[str, np.ndarray] = {}
             pge, cde = model.rig.effects.probe_gain_error, model.rig.effects.channel_delay
-            for ch, axis in rec.response_axis.items():
-                sig = xy[axis]
+            for ch, (axis, quantity) in rec.objective_channels().items():
+                sig = xy[_ROW[quantity] + axis]
                 d = model.delay_s.get(ch, 0.0)
                 if cde.enabled and cde.channel == ch:
                     d += cde.delay_s
                 if d != 0.0:
-                    sig = np.interp(t_win - d, t_win, sig, left=0.0)
+                    sig = self._delayed(sig, run, a, b, d)
                 g = model.gain.get(ch, 1.0)
                 if pge.enabled and pge.channel == ch:
                     g *= pge.gain_ratio
@@ -265,9 +278,25 @@ class Evaluator:
                 out[seg] = {ch: v[i0:i1] for ch, v in chans.items()}
         return out
 
+    def _delayed(self, sig: np.ndarray, run: int, a: int, b: int, d: float) -> np.ndarray:
+        """``sig`` (window [a, b)) seen ``d`` seconds late: before the window, the rest it
+        started from, or, for a dwell replayed in steady state, its own periodic past."""
+        fs = self.records[run].sample_rate_hz
+        t_win = np.arange(a, b) / fs
+        chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
+        m = int(math.ceil(d * fs)) + 1
+        if chunk and m < chunk:
+            past = np.concatenate([sig[chunk - m:chunk], sig])
+            return np.interp(t_win - d, np.arange(a - m, b) / fs, past)
+        return np.interp(t_win - d, t_win, sig, left=0.0)
+
     def measured(self, seg: Segment) -> dict[str, np.ndarray]:
         rec = self.records[seg.run]
-        return {ch: v[seg.start:seg.stop] for ch, v in rec.responses.items()}
+        return {ch: rec.signal(ch)[seg.start:seg.stop] for ch in rec.objective_channels()}
+
+
+#: row of `Evaluator.truth` of each quantity's x axis
+_ROW = {"displacement": 0, "velocity": 2, "acceleration": 4}
 
 
 @dataclass
@@ -277,12 +306,14 @@ class Residuals:
     per_segment: dict[Segment, dict[str, np.ndarray]]
     predicted: dict[Segment, dict[str, np.ndarray]]
     offsets: dict[tuple[int, str], float]
+    weights: dict[str, float] = field(default_factory=dict)  # channel -> factor (absent: 1)
 
     def sse(self, seg: Segment) -> tuple[float, int]:
-        """Sum of squares [m^2] and sample count; inf where a trial model diverged."""
+        """Weighted sum of squares [m^2] and sample count; inf where a trial model diverged."""
         chans = self.per_segment[seg]
+        w = self.weights
         with np.errstate(over="ignore", invalid="ignore"):
-            total = float(sum(np.dot(v, v) for v in chans.values()))
+            total = float(sum(w.get(ch, 1.0) ** 2 * np.dot(v, v) for ch, v in chans.items()))
         return (total if math.isfinite(total) else math.inf,
                 int(sum(v.size for v in chans.values())))
 
@@ -296,8 +327,10 @@ class Residuals:
         return math.sqrt(s / n) if n else float("nan")
 
     def vector(self, step: int = 1) -> np.ndarray:
-        return np.concatenate([v[::step] for chans in self.per_segment.values()
-                               for v in chans.values()])
+        """The weighted residuals of every segment and channel, end to end."""
+        w = self.weights
+        return np.concatenate([w.get(ch, 1.0) * v[::step] for chans in self.per_segment.values()
+                               for ch, v in chans.items()])
 
 
 def residuals(ev: Evaluator, model: Model, train: list[Segment],
@@ -323,4 +356,4 @@ def residuals(ev: Evaluator, model: Model, train: list[Segment],
         meas = ev.measured(seg)
         per[seg] = {ch: meas[ch] - p - offsets.get((seg.run, ch), 0.0)
                     for ch, p in chans.items()}
-    return Residuals(per, pred, offsets)
+    return Residuals(per, pred, offsets, ev.weights)

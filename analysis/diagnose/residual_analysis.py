@@ -39,8 +39,9 @@ def harmonics(sig: np.ndarray, start: int, fs: float, freq_hz: float,
 def dwell_table(records: list[RunRecord], res: Residuals, segs: list[Segment]) -> list[dict]:
     """One row per dwell and moving channel: frequency, amplitude, time, errors, harmonics, noise.
 
-    Channels whose 1X amplitude is below 10 % of the dwell's largest are left out (the axis the
-    dwell does not drive).
+    Channels whose 1X amplitude is below 10 % of the dwell's largest of the same quantity are
+    left out (the axis the dwell does not drive). Amplitudes, harmonics and noise are in the
+    channel's own units (``quantity``: m, m/s or m/s^2; the keys say ``_m`` for displacement).
     """
     rows: list[dict[str, Any]] = []
     for seg in segs:
@@ -50,18 +51,24 @@ def dwell_table(records: list[RunRecord], res: Residuals, segs: list[Segment]) -
         fs = rec.sample_rate_hz
         if seg.n < fs / seg.freq_hz:
             continue
-        fits = {ch: harmonics(rec.responses[ch][seg.start:seg.stop], seg.start, fs,
+        fits = {ch: harmonics(rec.signal(ch)[seg.start:seg.stop], seg.start, fs,
                               seg.freq_hz) for ch in res.per_segment[seg]}
-        top = max(abs(f[0][0]) for f in fits.values())
+        kinds = rec.objective_channels()
+        top: dict[str, float] = {}
+        for ch, f in fits.items():
+            q = kinds[ch][1]
+            top[q] = max(top.get(q, 0.0), abs(f[0][0]))
         for ch, r in res.per_segment[seg].items():
             zm, _, noise = fits[ch]
-            if abs(zm[0]) < 0.1 * top:
+            quantity = kinds[ch][1]
+            if abs(zm[0]) < 0.1 * top[quantity]:
                 continue  # an axis the dwell hardly moves: relative errors would be noise
             zr, mean_r, _ = harmonics(r, seg.start, fs, seg.freq_hz)
             zp = zm - zr  # predicted harmonics (residual = measured - predicted)
             amp_m = abs(zm[0])
             rows.append({
-                "segment": seg.label, "run": seg.run, "channel": ch, "set": "",
+                "segment": seg.label, "run": seg.run, "channel": ch, "quantity": quantity,
+                "set": "",
                 "freq_hz": seg.freq_hz, "motion": seg.motion,
                 "time_s": 0.5 * (seg.start + seg.stop) / fs,
                 "amplitude_m": amp_m,
@@ -77,11 +84,12 @@ def dwell_table(records: list[RunRecord], res: Residuals, segs: list[Segment]) -
 
 
 def segment_table(records: list[RunRecord], res: Residuals, segs: list[Segment]) -> list[dict]:
-    """One row per segment: time, measured RMS and residual RMS over its channels."""
+    """One row per segment: time, measured RMS and residual RMS over its displacement
+    channels [m]."""
     rows = []
     for seg in segs:
         rec = records[seg.run]
-        chans = res.per_segment[seg]
+        chans = {ch: v for ch, v in res.per_segment[seg].items() if ch in rec.responses}
         meas = np.concatenate([rec.responses[ch][seg.start:seg.stop] for ch in chans])
         resid = np.concatenate(list(chans.values()))
         rows.append({
@@ -94,15 +102,73 @@ def segment_table(records: list[RunRecord], res: Residuals, segs: list[Segment])
     return rows
 
 
+def _displacement_rows(rows: list[dict]) -> list[dict]:
+    return [r for r in rows if r.get("quantity", "displacement") == "displacement"]
+
+
 def noise_floor(rows: list[dict]) -> float | None:
-    """RMS of the non-periodic part of the measured responses over dwells (None: no dwells)."""
+    """RMS of the non-periodic part of the measured displacement over dwells [m] (None: no
+    dwells)."""
+    rows = _displacement_rows(rows)
     if not rows:
         return None
     return float(np.sqrt(np.mean([r["noise_rms_m"] ** 2 for r in rows])))
 
 
+def channel_noise(records: list[RunRecord], segs: list[Segment],
+                  without_dwells: bool = False) -> dict[str, float]:
+    """Noise mean square of every objective channel (its own units squared).
+
+    Per dwell, what the harmonics 1X..5X leave of the measured signal, over every dwell, whether
+    it moves the channel's axis or not (the noise is there either way). With
+    ``without_dwells``, a channel with no dwell gets the white-noise level from second
+    differences (``var(diff2) / 6``: an upper bound where the signal has content near the sample
+    rate, good enough to weigh sensors against each other, not to judge a model by).
+    """
+    acc: dict[str, list[float]] = {}
+    rough: dict[str, list[float]] = {}
+    for seg in segs:
+        rec = records[seg.run]
+        fs = rec.sample_rate_hz
+        periodic = bool(seg.freq_hz and seg.freq_hz > 0 and seg.n >= 2 * fs / seg.freq_hz)
+        for ch in rec.objective_channels():
+            sig = rec.signal(ch)[seg.start:seg.stop]
+            if periodic:
+                assert seg.freq_hz is not None
+                acc.setdefault(ch, []).append(harmonics(sig, seg.start, fs, seg.freq_hz)[2] ** 2)
+            elif without_dwells and sig.size > 8:
+                rough.setdefault(ch, []).append(float(np.var(np.diff(sig, 2)) / 6.0))
+    out = {ch: float(np.mean(v)) for ch, v in rough.items()}
+    out.update({ch: float(np.mean(v)) for ch, v in acc.items()})
+    return out
+
+
+def noise_weights(records: list[RunRecord], noise_ms: dict[str, float]) -> dict[str, float]:
+    """Per non-displacement objective channel: the factor that brings its residual to
+    displacement-equivalent noise, ``sqrt(noise of the displacement channels / its own)``
+    (mean squares over the channels of each quantity). Displacement channels weigh 1 (absent).
+    A quantity without a noise estimate, or data with noise-free displacement, weighs 0."""
+    by_q: dict[str, list[float]] = {}
+    quantity: dict[str, str] = {}
+    for rec in records:
+        for ch, (_, q) in rec.objective_channels().items():
+            quantity[ch] = q
+            if ch in noise_ms:
+                by_q.setdefault(q, []).append(noise_ms[ch])
+    ref = float(np.mean(by_q["displacement"])) if by_q.get("displacement") else 0.0
+    out: dict[str, float] = {}
+    for ch, q in quantity.items():
+        if q == "displacement":
+            continue
+        own = float(np.mean(by_q[q])) if by_q.get(q) else 0.0
+        out[ch] = math.sqrt(ref / own) if ref > 0 and own > 0 else 0.0
+    return out
+
+
 def summary(rows: list[dict]) -> dict[str, Any]:
-    """Per-harmonic residual amplitude (RMS over dwells) and the fundamental's errors."""
+    """Per-harmonic residual amplitude (RMS over dwells) and the fundamental's errors, over the
+    displacement channels."""
+    rows = _displacement_rows(rows)
     if not rows:
         return {}
     h = np.array([r["residual_harmonics_m"] for r in rows])

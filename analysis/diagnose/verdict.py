@@ -3,8 +3,10 @@
 A model is judged on held-out segments against the signal itself, not against another model:
 
 - signal: the measured response of each channel with the channel's offset removed;
-- noise floor: what no model of the excitation can predict (per dwell, what the harmonics
-  1X..5X leave; for other data the spectrum outside the excited band, when there is one);
+- noise floor: what no model of the excitation can predict, per channel over every held-out
+  segment, whether it moves the channel's axis or not (per dwell, what the harmonics 1X..5X
+  leave; for other data the white-noise level of second differences,
+  ``residual_analysis.channel_noise``);
 - explained fraction: ``1 - max(residual_ms - noise_ms, 0) / (signal_ms - noise_ms)`` (mean
   squares over the held-out samples; 1: everything above the noise floor is explained, 0: no
   better than predicting nothing; negative: worse than nothing).
@@ -61,17 +63,20 @@ def signal_fit(records: list[RunRecord], res: Residuals, segs: list[Segment],
                noise_ms_of: dict[str, float] | None = None) -> SignalFit:
     """Explained fraction of ``res`` on ``segs``; ``noise_ms_of``: noise mean square per channel.
 
-    The channel's offset (``res.offsets``, fitted on training data) is taken off the signal, so
-    a probe's gap is not counted as signal.
+    Per channel in its own units; overall, the channels weighted as in the fit
+    (``res.weights``), so the totals are displacement-equivalent [m]. The channel's offset
+    (``res.offsets``, fitted on training data) is taken off the signal, so a probe's gap is not
+    counted as signal.
     """
     noise_ms_of = noise_ms_of or {}
+    w = res.weights
     sig: dict[str, list[float]] = {}
     resid: dict[str, list[float]] = {}
     count: dict[str, int] = {}
     for seg in segs:
         rec = records[seg.run]
         for ch, r in res.per_segment[seg].items():
-            m = rec.responses[ch][seg.start:seg.stop] - res.offsets.get((seg.run, ch), 0.0)
+            m = rec.signal(ch)[seg.start:seg.stop] - res.offsets.get((seg.run, ch), 0.0)
             with np.errstate(over="ignore", invalid="ignore"):
                 rr = float(np.dot(r, r))
             sig.setdefault(ch, []).append(float(np.dot(m, m)))
@@ -85,23 +90,16 @@ def signal_fit(records: list[RunRecord], res: Residuals, segs: list[Segment],
         s_ms, r_ms = sum(sig[ch]) / n, sum(resid[ch]) / n
         n_ms = noise_ms_of.get(ch, 0.0)
         per[ch] = _fraction(s_ms, r_ms, n_ms)
-        tot_s += s_ms * n
-        tot_r += r_ms * n
-        tot_n += n_ms * n
+        w2 = w.get(ch, 1.0) ** 2  # channels of other quantities in displacement-equivalent
+        tot_s += w2 * s_ms * n
+        tot_r += w2 * r_ms * n
+        tot_n += w2 * n_ms * n
         n_all += n
     if n_all == 0:
         return SignalFit(math.nan, math.nan, math.nan, math.nan)
     return SignalFit(_fraction(tot_s / n_all, tot_r / n_all, tot_n / n_all),
                      math.sqrt(tot_s / n_all), math.sqrt(tot_r / n_all),
                      math.sqrt(tot_n / n_all), per)
-
-
-def noise_by_channel(dwell_rows: list[dict]) -> dict[str, float]:
-    """Noise mean square per channel from the dwell table (what harmonics 1X..5X leave)."""
-    acc: dict[str, list[float]] = {}
-    for r in dwell_rows:
-        acc.setdefault(r["channel"], []).append(r["noise_rms_m"] ** 2)
-    return {ch: float(np.mean(v)) for ch, v in acc.items()}
 
 
 def excited_band(records: list[RunRecord], segs: list[Segment],

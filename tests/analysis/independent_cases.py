@@ -175,4 +175,16 @@ def judged_right(effect: str, doc: dict[str, Any]) -> tuple[bool, str]:
         ok = not confident and verdict in ("unexplained discrepancy", "baseline inadequate")
         return ok, f"found {found}, verdict {verdict}"
     ok = bool(found) and found[0] == (effect, "high") and confident == [effect]
+    first = doc["findings"][0] if doc["findings"] else {}
+    if ok and "channel" in truth_channel_of(effect):
+        # the faulty sensor named, or the pair it cannot tell apart said so
+        named = first["parameters"].get("channel")
+        alike = first["evidence"].get("cannot_tell_from", [])
+        ok = truth_channel_of(effect)["channel"] in (named, *alike)
+        return ok, f"found {found} on channel {named} (cannot tell from {alike}), verdict {verdict}"
     return ok, f"found {found}, verdict {verdict}"
+
+
+def truth_channel_of(effect: str) -> dict[str, str]:
+    """The channel a sensor case makes faulty (``build`` puts every sensor fault on x)."""
+    return {"channel": "x"} if effect in ("sensor_gain", "channel_delay") else {}
