@@ -238,7 +238,9 @@ def _verdict_html(diag: Diagnosis) -> list[str]:
     out = [f"<h2>Verdict: {html.escape(v.text)}</h2>",
            f"<p>Held-out fraction of the signal above the noise floor explained (threshold "
            f"{v.threshold:.0%} for an adequate model; more than "
-           f"{1 - v.to_dict()['unexplained_share']:.0%} for nothing unexplained):</p>"]
+           f"{1 - v.to_dict()['unexplained_share']:.0%} and a residual within "
+           f"{v.to_dict()['noise_margin']:g}x the noise floor (RMS) for nothing "
+           "unexplained):</p>"]
     rows = [{"model": "baseline", **v.baseline.to_dict()}, {"model": "final", **v.final.to_dict()}]
     for r in rows:
         r["per channel"] = ", ".join(f"{k}: {x:.3f}" for k, x in

@@ -11,6 +11,9 @@ A model is judged on held-out segments against the signal itself, not against an
   squares over the held-out samples; 1: everything above the noise floor is explained, 0: no
   better than predicting nothing; negative: worse than nothing).
 
+What the final model leaves is "unexplained" when it exceeds ``UNEXPLAINED_SHARE`` of the signal
+above the noise floor or ``NOISE_MARGIN`` times the noise floor (RMS), where that is known.
+
 When the baseline explains less than ``ADEQUATE`` (0.90), and no single term of the library
 brings it there, the verdict is "baseline inadequate": the baseline does not describe the data,
 so no term added on top of it can be named with confidence; the verdict says what is missing:
@@ -34,6 +37,10 @@ from analysis.diagnose.model import Residuals
 ADEQUATE = 0.90
 #: share of the above-noise signal a model may leave before the rest counts as unexplained
 UNEXPLAINED_SHARE = 0.02
+#: residual RMS, in noise-floor RMS, beyond which what a model leaves is a discrepancy however
+#: small a share of the signal it is (a model describing the data leaves the noise: the clean
+#: independent cases leave 1.03-1.04x)
+NOISE_MARGIN = 1.5
 
 
 @dataclass
@@ -184,7 +191,8 @@ class Verdict:
     def to_dict(self) -> dict[str, Any]:
         return {"verdict": self.text, "threshold": self.threshold,
                 "baseline": self.baseline.to_dict(), "final": self.final.to_dict(),
-                "unexplained_share": UNEXPLAINED_SHARE, "missing": self.missing}
+                "unexplained_share": UNEXPLAINED_SHARE, "noise_margin": NOISE_MARGIN,
+                "missing": self.missing}
 
 
 def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: list[Segment],
@@ -196,8 +204,10 @@ def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: lis
     held-out residuals with it) brings it there: a large effect may hide a sound baseline, but a
     baseline that needs several terms to look adequate does not describe the data, and a term
     added to it is no cause, however much it helps (a broken baseline makes any extra term look
-    like an explanation). What the final model leaves above ``UNEXPLAINED_SHARE`` of that signal
-    is unexplained.
+    like an explanation). What the final model leaves is unexplained when it is more than
+    ``UNEXPLAINED_SHARE`` of that signal, or, where the noise floor is known (dwells), when its
+    RMS exceeds ``NOISE_MARGIN`` times the noise floor's: a slow drift of the structure may leave
+    0.1 % of a strong signal and still six times the noise.
     """
     fb = signal_fit(records, base, segs, noise_ms_of)
     ff = signal_fit(records, final, segs, noise_ms_of)
@@ -207,7 +217,8 @@ def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: lis
     if not adequate and first is not None:
         one = signal_fit(records, first, segs, noise_ms_of).explained
         adequate = math.isfinite(one) and one >= ADEQUATE
-    unexplained = final_x < 1.0 - UNEXPLAINED_SHARE
+    beyond_noise = bool(ff.noise_rms > 0 and ff.residual_rms > NOISE_MARGIN * ff.noise_rms)
+    unexplained = final_x < 1.0 - UNEXPLAINED_SHARE or beyond_noise
     missing: dict[str, Any] = {}
     for name, fit_, res, show in (("baseline", fb, base, not adequate),
                                   ("final", ff, final, unexplained)):

@@ -28,8 +28,6 @@ KNOWN_WRONG: dict[str, str] = {
                    "absolute acceleration (its stated approximation), the generator on the "
                    "relative one, and an absolute accelerometer sees the difference when the "
                    "frame moves",
-    "stiffness_drift": "seed 3: a 9 % drift of K_x leaves 0.13 % of the signal, under the 2 % "
-                       "unexplained share, though about 10x the noise floor: judged explained",
 }
 
 

@@ -59,6 +59,32 @@ def test_explained_fraction_follows_its_definition():
     assert v.missing["baseline"]["residual_peaks"][0]["freq_hz"] == pytest.approx(30.0, abs=1.0)
 
 
+def test_unexplained_is_judged_against_the_noise_floor_too():
+    """A residual far under 2 % of a strong signal but well above the noise is unexplained;
+    one at the noise floor is not; the noise of an axis the data do not move counts too."""
+    rng = np.random.default_rng(2)
+    fs, n = 1000.0, 4000
+    t = np.arange(n) / fs
+    sig = np.sin(2 * np.pi * 30 * t)  # mean square 0.5
+    quiet = rng.normal(0.0, 1e-3, n)  # the other axis: noise only
+    rec = records_from_arrays(np.zeros(n), {"x": sig, "y": quiet}, fs)
+    seg = Segment(0, 0, n, "all")
+    noise_ms = {"x": 1e-6, "y": 1e-6}
+    # 0.05 % of the signal's power, 4x the noise floor (RMS): a discrepancy, though small
+    small = Residuals({seg: {"x": 0.02 * np.sin(2 * np.pi * 30 * t + 1.0),
+                             "y": rng.normal(0.0, 1e-3, n)}}, {}, {})
+    v = judge([rec], small, small, [seg], noise_ms)
+    assert v.final.explained > 0.999 and v.adequate
+    assert v.final.residual_rms / v.final.noise_rms > 3.0
+    assert v.unexplained and v.text == "unexplained discrepancy"
+    floor = Residuals({seg: {"x": rng.normal(0.0, 1e-3, n), "y": rng.normal(0.0, 1e-3, n)}},
+                      {}, {})
+    v = judge([rec], floor, floor, [seg], noise_ms)
+    assert v.final.noise_rms == pytest.approx(1e-3, rel=1e-9)  # both channels' noise
+    assert v.final.residual_rms / v.final.noise_rms < 1.05
+    assert not v.unexplained and v.text == "explained"
+
+
 def test_excited_band_of_broadband_force():
     fs = 500.0
     f = _broadband(40000, fs, (10.0, 40.0), seed=2)
