@@ -88,7 +88,8 @@ def identify_static(run: RunData, skipped: list[Skipped], mass_kg: float, u_mass
     """Static stiffness per axis: displacement against force, averaged over repeats (eq. B.6).
 
     Each step holds a force (``target_value`` [N]) along ``motion`` ("x" or "y"); the mean of the
-    measured force and displacement over the step's span is one data point.
+    measured force and displacement over the step's span is one data point; a step loaded by
+    hand (``gauge_force_n``, the force gauge's reading typed) pairs that with the displacement.
     """
     label = run_label(run)
     levels: dict[tuple[str, float], list[tuple[float, float]]] = defaultdict(list)
@@ -98,7 +99,10 @@ def identify_static(run: RunData, skipped: list[Skipped], mass_kg: float, u_mass
             skipped.append(Skipped(label, "static", f"motion {axis!r} is not x or y",
                                    int(st["index"])))
             continue
-        f = _span_mean(run, "f" + axis, st, "static", skipped)
+        if "gauge_force_n" in st:  # loaded by hand: the force gauge's reading as typed
+            f: float | None = float(st["gauge_force_n"])
+        else:
+            f = _span_mean(run, "f" + axis, st, "static", skipped)
         d = _span_mean(run, axis, st, "static", skipped)
         if f is None or d is None:
             continue

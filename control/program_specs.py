@@ -37,6 +37,14 @@ class StaticSpec(_Steady):
     settle_s: float = Field(0.3, gt=0, description="hold before recording [s]")
     record_s: float = Field(0.5, gt=0, description="recorded hold [s]")
     corrections: int = Field(2, ge=0, le=10, description="drive corrections toward the force")
+    load_by: Literal["shaker", "hand"] = Field(
+        "shaker", description="'shaker': the shakers hold each load, the load cells read it; "
+        "'hand': the operator pushes the housing with a force gauge and types its reading, "
+        "shakers at 0 V (the report's way, IV.1)")
+    force_gauge_unit: Literal["N", "lbf", "lb"] = Field(
+        "lbf", description="the hand force gauge's unit (IV.1: +/- 0.5 lb)")
+    force_gauge_range_n: float = Field(
+        222.4, gt=0, description="the force gauge's range, +/- [N] (a 50 lbf gauge)")
 
 
 class ImpactSpec(_Spec):

@@ -53,6 +53,13 @@ class RigHands(Protocol):
     def set_journal(self, installed: bool) -> None:
         """Take the journal out (no seal contact) or put it back."""
 
+    def push(self, axis: str, force_n: float) -> None:
+        """Push the housing along ``axis`` with about ``force_n`` through the force gauge and
+        hold (0: let go)."""
+
+    def force_gauge_reading_n(self, axis: str) -> float:
+        """What the force gauge pushing along ``axis`` shows now [N], to its resolution."""
+
 
 @dataclass
 class ProgramOutcome:

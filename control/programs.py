@@ -39,6 +39,7 @@ from control.program_stream import (
     signal,
     step_dict,
 )
+from control.static_by_hand import static_levels_by_hand
 from daq.backend import DaqBackend
 from storage import RunWriter
 
@@ -138,6 +139,8 @@ def run_static_test(backend: DaqBackend, listener: Listener, spec: StaticSpec | 
                     hands: RigHands | None = None) -> ProgramOutcome:
     """Static load steps per axis: DC force levels, each held and recorded once steady,
     ``repeats`` passes. Without an operator every steady point is kept (unattended).
+    ``spec.load_by="hand"``: the operator pushes with a force gauge instead of the shakers
+    (`control.static_by_hand`; an operator is needed).
 
     Each step: ``target_kind="load"``, ``target_value`` the force asked [N], ``motion`` the axis,
     ``freq_hz=0``; the analysis uses the measured means over the span.
@@ -146,7 +149,10 @@ def run_static_test(backend: DaqBackend, listener: Listener, spec: StaticSpec | 
 
     def body(stream: Stream, steps: list[dict[str, Any]]) -> None:
         journal_out(stream, hands, "static")
-        _static_levels(stream, steps, spec, spec.repeats, "static", "load")
+        if spec.load_by == "hand":
+            static_levels_by_hand(stream, steps, spec, hands)
+        else:
+            _static_levels(stream, steps, spec, spec.repeats, "static", "load")
 
     return run_program("static", backend, listener, spec, body, operator)
 

@@ -1,17 +1,19 @@
 """The operator's hands on the simulated rig, and a stand-in operator for unattended runs.
 
 On the real rig a person strikes the housing with the impact hammer, reads the dial gauges, turns
-the pump's pressure regulator and takes the journal out. On the simulated rig `SimulatedHands`
-does these to the rig model when the operator's answer asks for them (`control.program_stream.
-RigHands`). `StandInOperator` answers every question at once the way a careful technician would
-(the demo, `sfdrig structure --unattended`). This wiring lives in the composition root, so
-`control` never imports `simulated_hw`.
+the pump's pressure regulator, pushes the housing with a force gauge and takes the journal out. On
+the simulated rig `SimulatedHands` does these to the rig model when the operator's answer asks for
+them (`control.program_stream.RigHands`). `StandInOperator` answers every question at once the
+way a careful technician would (the demo, `sfdrig structure --unattended`). This wiring lives in
+the composition root, so `control` never imports `simulated_hw`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from control.operator import OperatorDesk, Question
 from simulated_hw.backend import SimulatedBackend
@@ -19,6 +21,8 @@ from simulated_hw.backend import SimulatedBackend
 DIAL_GAUGE_RESOLUTION_M = 0.0001 * 0.0254  # +/- 0.0001 in dial gauges (Appendix A)
 DOUBLE_HIT_DELAY_S = 0.03  # the hammer bounces back onto the housing
 OVERLOAD_FACTOR = 1.25  # an overload hit: this much beyond the hammer channel's range
+FORCE_GAUGE_RESOLUTION_N = 0.1 * 4.4482216152605  # a hand force gauge showing 0.1 lbf
+PUSH_SCATTER = 0.03  # a hand holds the asked force to a few percent (1 sigma)
 
 
 @dataclass
@@ -26,7 +30,13 @@ class SimulatedHands:
     backend: SimulatedBackend
     gauge_resolution_m: float = DIAL_GAUGE_RESOLUTION_M
     hammer_channel: str = "hammer"
+    seed: int = 0
+    force_gauge_resolution_n: float = FORCE_GAUGE_RESOLUTION_N
+    push_scatter: float = PUSH_SCATTER
+    _pushed: dict[str, float] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        self._rng = np.random.default_rng(self.seed)
 
     def strike(self, axis: str, peak_force_n: float, kind: str = "ok") -> None:
         """Hit the housing along ``axis`` with a 2 ms half-sine pulse; ``kind`` "double" adds a
@@ -47,6 +57,18 @@ class SimulatedHands:
             raise RuntimeError("the gauge is read before the rig has moved: acquire first")
         z = float((truth.x_m if axis == "x" else truth.y_m)[-1])
         return self.gauge_resolution_m * math.floor(z / self.gauge_resolution_m + 0.5)
+
+    def push(self, axis: str, force_n: float) -> None:
+        """Push the housing with the force gauge: the asked force, off by a seeded few percent
+        as a hand holds it, as an external force on the housing (0: let go)."""
+        applied = float(force_n) * (1.0 + self.push_scatter * float(self._rng.standard_normal()))
+        self._rig().push(axis, applied)
+        self._pushed[axis] = applied
+
+    def force_gauge_reading_n(self, axis: str) -> float:
+        """The force gauge pushing along ``axis``: the force applied, to its resolution [N]."""
+        f = self._pushed.get(axis, 0.0)
+        return self.force_gauge_resolution_n * math.floor(f / self.force_gauge_resolution_n + 0.5)
 
     def set_supply_pressure(self, pressure_pa: float) -> None:
         """Turn the regulator: the pump's supply pressure when it runs [Pa]."""

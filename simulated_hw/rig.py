@@ -124,6 +124,8 @@ class RigModel:
         self._mu_ref, self._t_ref = params.film.reference_viscosity()
         # impact hammer: pending half-sine pulses (start sample, axis, peak N, duration samples)
         self._impacts: list[tuple[int, int, float, int]] = []
+        # a hand pushing with a force gauge: held force per axis, ramped (from, to, start, width)
+        self._push = [(0.0, 0.0, 0, 1), (0.0, 0.0, 0, 1)]
         self._build_sensor_tables()
         self.last_truth: physics.Truth | None = None
 
@@ -153,6 +155,17 @@ class RigModel:
         width = max(2, int(round(duration_s * self.fs)))
         self._impacts.append((start, 0 if axis == "x" else 1, float(peak_force_n), width))
 
+    def push(self, axis: str, force_n: float, ramp_s: float = 0.5) -> None:
+        """A hand pushes the housing along ``axis`` with ``force_n`` (0: lets go), reached over
+        ``ramp_s`` and held: an external force that no channel reads (the person reads the
+        force gauge)."""
+        if axis not in ("x", "y"):
+            raise ValueError(f"axis must be 'x' or 'y', got {axis!r}")
+        a = 0 if axis == "x" else 1
+        now = self._push_at(a, np.array([self.sample_index]))[0]
+        self._push[a] = (float(now), float(force_n), self.sample_index,
+                         max(1, int(round(ramp_s * self.fs))))
+
     @property
     def temperature_c(self) -> float:
         return self._temp_c
@@ -181,7 +194,8 @@ class RigModel:
         force = np.empty_like(cmd)
         physics.shaker_force(cmd, self._shaker_pole, sh.max_force_n, self._shaker_state, force)
         hammer = self._hammer_block(n)
-        external = force + hammer
+        idx = self.sample_index + np.arange(n)
+        external = force + hammer + np.stack([self._push_at(0, idx), self._push_at(1, idx)])
         fill, visc, p_in, p_rec, temp = self._oil_block(n)
         out = np.empty((physics.N_OUT, n))
         physics.integrate(external, fill, visc, self._kp, self._state, out)
@@ -205,6 +219,10 @@ class RigModel:
                 keep.append((start, axis, peak, width))
         self._impacts = keep
         return hammer
+
+    def _push_at(self, axis: int, idx: np.ndarray) -> np.ndarray:
+        start_n, end_n, start, width = self._push[axis]
+        return start_n + (end_n - start_n) * np.clip((idx - start) / width, 0.0, 1.0)
 
     def _oil_block(self, n: int) -> tuple[np.ndarray, ...]:
         oil = self.params.oil

@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         if args.backend == "sim":  # on the real rig a person's hands do these
             from sfdrig.simulated_operator import SimulatedHands
 
-            hands = SimulatedHands(backend)
+            hands = SimulatedHands(backend, seed=args.seed)
         daemon = Daemon(backend, channel_map, config, hands=hands)
     except PermissionError as err:
         print(f"daemon: {err}", file=sys.stderr)

@@ -44,6 +44,10 @@ TESTS = ("static", "impact", "probe_calibration", "flow")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--only", choices=TESTS, action="append", help="run only these tests")
+    p.add_argument("--load-by", choices=("shaker", "hand"), default=None,
+                   help="static test: 'shaker' (default: the shakers hold each load, the load "
+                   "cells read it) or 'hand' (the operator pushes with a force gauge and types "
+                   "its reading, shakers at 0 V, as in the report's IV.1)")
     p.add_argument("--operator", default="", help="name stored in the run files")
     p.add_argument("--notes", default="", help="notes stored in the run files")
     p.add_argument("--spec", type=Path, metavar="FILE.toml",
@@ -63,7 +67,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | None = None,
                         seed: int = 0, only: list[str] | None = None,
-                        operator: str = "", quiet: bool = False) -> list[Path]:
+                        operator: str = "", quiet: bool = False,
+                        load_by: str | None = None) -> list[Path]:
     """Run the tests and return the run files written, in order."""
     out_dir.mkdir(parents=True, exist_ok=True)
     cm = load_channel_map(channels_path) if channels_path else default_channel_map()
@@ -76,12 +81,14 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
             test_params.seal.enabled = False
         backend = SimulatedBackend(test_params, seed=seed + i)
         backend.configure(cm)
-        hands = SimulatedHands(backend)
+        hands = SimulatedHands(backend, seed=seed + i)
         run_id = f"{stamp}-{kind}"
         path = out_dir / f"{run_id}.h5"
         spec: StaticSpec | ImpactSpec | ProbeCalSpec | FlowSpec
         spec = {"static": StaticSpec, "impact": ImpactSpec, "probe_calibration": ProbeCalSpec,
                 "flow": FlowSpec}[kind]()
+        if isinstance(spec, StaticSpec) and load_by:
+            spec = spec.model_copy(update={"load_by": load_by})
         writer = create_run_writer(path, kind, backend, run_id=run_id,
                                    rig_config=test_params, test_spec=spec, operator=operator,
                                    lubricated=kind == "flow", overwrite=True)
@@ -115,12 +122,14 @@ def run(args: argparse.Namespace) -> int:
         try:
             params = rig_params_named_or_file(args.rig) if args.rig else RigParams()
             run_structure_tests(args.out, params, args.channels, args.seed, args.only,
-                                args.operator)
+                                args.operator, load_by=args.load_by)
         except (ValueError, OSError) as err:
             print(f"sfdrig structure: {err}", file=sys.stderr)
             return 2
         return 0
     specs = sweep_fields(args.spec, args.fields, who="structure", required=False)
+    if args.load_by:
+        specs.setdefault("static", {})["load_by"] = args.load_by
     unknown = sorted(set(specs) - set(TESTS))
     if unknown:
         print(f"sfdrig structure: settings for unknown test(s) {', '.join(unknown)} (tests: "

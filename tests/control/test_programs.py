@@ -320,3 +320,49 @@ def test_an_unsteady_point_is_not_recorded(tmp_path: Path) -> None:
     not_steady = [q for q in desk.asked if "Not steady" in q.prompt]
     assert len(not_steady) == 1 and "x moved" in not_steady[0].prompt
     assert not_steady[0].choices == ["repeat", "skip", "abort"]  # no way to accept it
+
+
+def test_static_programme_by_hand(tmp_path: Path) -> None:
+    """Loads pushed by hand with a force gauge (IV.1): shakers at 0 V, the typed gauge readings
+    paired with the probes give Table 2 as the shaker-held loads do."""
+    from sfdrig.simulated_operator import SimulatedHands
+
+    params = no_seal()
+    b = backend(params)
+    spec = StaticSpec(load_by="hand", repeats=2, record_s=0.3)
+    w = create_run_writer(tmp_path / "h.h5", "static", b, run_id="h", rig_config=params,
+                          test_spec=spec)
+    desk = ScriptedDesk(accept_all)
+    out = run_static_test(b, w, spec, operator=desk, hands=SimulatedHands(b, seed=4))
+    w.close()
+    assert out.completed and out.steps == 2 * 2 * 5
+    with open_run(tmp_path / "h.h5") as r:
+        steps = r.steps
+        assert np.all(r.channel("shaker_x") == 0.0) and np.all(r.channel("shaker_y") == 0.0)
+        for st in steps:
+            assert st["load_by"] == "hand" and st["gauge_text"].endswith(" lbf")
+            assert st["gauge_force_n"] == pytest.approx(float(st["gauge_text"][:-4]) * 4.44822,
+                                                        rel=1e-5)
+            # the hand is off the asked force by a few percent, the gauge says by how much
+            assert st["gauge_force_n"] == pytest.approx(st["target_value"], rel=0.12, abs=0.3)
+            # the push is not on the load cells: they read the idle shakers' stingers
+            fx = r.signal("f" + st["motion"], st["first_sample"], st["last_sample"]).mean()
+            assert abs(fx) < 0.05
+        assert any(abs(st["gauge_force_n"] - st["target_value"]) > 0.01 * 40 for st in steps)
+        skipped: list = []
+        fits = identify_static(r, skipped, 9.7, 0.01)
+    assert skipped == []
+    k = {f.axis: f.k_n_per_m for f in fits}
+    assert k["x"] == pytest.approx(788e3, rel=0.01)
+    assert k["y"] == pytest.approx(823e3, rel=0.01)
+    assert sum("Push the housing along" in q.prompt for q in desk.asked) == 16  # 0 N: hands off
+    assert sum(q.entry is not None and q.entry.unit == "lbf" for q in desk.asked) == 20
+
+
+def test_static_by_hand_needs_an_operator(tmp_path: Path) -> None:
+    b = backend(no_seal())
+    w = create_run_writer(tmp_path / "h.h5", "static", b, run_id="h")
+    out = run_static_test(b, w, StaticSpec(load_by="hand"))
+    w.close()
+    assert not out.completed and out.steps == 0
+    assert "static loads by hand need an operator" in out.reason

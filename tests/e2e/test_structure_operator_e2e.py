@@ -262,3 +262,53 @@ def test_ctrl_c_at_a_prompt_aborts_the_test_without_a_traceback(daemon_factory) 
     with open_run(Path(st["last_run"]["path"])) as r:
         assert r.attrs["status"] == "aborted" and r.steps == []
         assert r.channel("shaker_x")[-1] == 0.0
+
+
+def test_static_by_hand_at_the_terminal_gives_table_2(daemon_factory) -> None:
+    """`--load-by hand`: the operator pushes with the force gauge and types its reading at each
+    load (a wrong unit refused, one reading repeated); the shakers stay at 0 V."""
+    d = daemon_factory()
+    t = Terminal(d.command, "--only", "static", "--load-by", "hand", "--set", 'static.axes=["x"]',
+                 "--set", "static.repeats=2", "--runs-dir", str(d.runs_dir))
+    where, text = t.next()
+    assert where == "static setup"
+    t.type("")
+    typed, refused, pushes = [], [], 0
+    repeated = False
+    while (q := t.next()) is not None:
+        where, text = q
+        if "Push the housing along" in text or "take the force gauge off" in text:
+            pushes += "Push the housing along" in text
+            t.type("")
+            continue
+        assert "Probes steady: keep pushing, read the force gauge on x" in text
+        assert re.search(r"probes x [-+]\d+\.\d\d um over 0\.5 s", text)
+        reading = re.search(r"the simulated instrument shows: (\S+) lbf", text).group(1)
+        if not refused:
+            t.type(f"{reading} kg")
+            refused.append(t.refused())
+        if not repeated and where.startswith("static x +40 N by hand pass 1"):
+            repeated = True
+            t.type("r")  # read again: the push, the steady wait and the reading are redone
+            continue
+        entry = f"{reading} lbf" if len(typed) % 2 else f"{float(reading) * 4.4482216:.2f} N"
+        t.type(entry)
+        typed.append((where, entry))
+    status, _, path, code, rest = t.finish()
+    assert status == "completed" and code == 0 and "Traceback" not in rest
+    assert refused == ["answer: force gauge x: 'kg' is not a unit of force (use N, kN, lbf, lb)"]
+    assert repeated and pushes == 8 + 1 and len(typed) == 10
+    with open_run(d.runs_dir / path.name) as r:
+        steps = r.steps
+        assert np.all(r.channel("shaker_x") == 0.0) and np.all(r.channel("shaker_y") == 0.0)
+        fits = identify_static(r, [], 9.7, 0.01)
+        ops = [e["message"] for e in r.events if e["kind"] == "operator"]
+    answers = [m for m in ops if m.startswith("answer #")]
+    assert [s["gauge_text"] for s in steps] == [e for _, e in typed]
+    # every typed reading is in the run's events, as typed and in the gauge's unit
+    for where, entry in typed:
+        assert sum(f"({where}): ok {entry!r} = " in m and m.endswith(" lbf") for m in answers) == 1
+    assert sum(m.startswith("refused entry '") and "is not a unit of force" in m
+               for m in ops) == 1
+    (fit,) = fits
+    assert abs(fit.k_n_per_m - 788e3) / 788e3 < 0.03  # Table 2, as the shaker-loaded test
