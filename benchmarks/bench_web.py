@@ -121,6 +121,8 @@ def main() -> int:
     ap.add_argument("--fast", action="store_true",
                     help="daemon in --fast mode (not paced: more data than real time, no AO "
                          "underflow; latencies then mean nothing): for memory and lost blocks")
+    ap.add_argument("--priority", choices=["normal", "high", "realtime"], default="normal",
+                    help="the daemon's --priority (realtime: SCHED_FIFO, as on the rig's PC)")
     ap.add_argument("--dir", type=Path, default=None, help="where the run file goes")
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
@@ -133,7 +135,9 @@ def main() -> int:
     channels.write_text(channel_map_toml())
     runs = work / "runs"
     daemon = subprocess.Popen([sys.executable, "-m", "sfdrig", "daemon", "--runs-dir", str(runs),
-                               "--channels", str(channels), *(["--fast"] if args.fast else [])],
+                               "--channels", str(channels), *(["--fast"] if args.fast else []),
+                               *(["--priority", args.priority] if args.priority != "normal"
+                                 else [])],
                               cwd=REPO, stdout=subprocess.PIPE,
                               text=True)
     eps = dict(p.split("=", 1) for p in first_line(daemon, "daemon").split())
