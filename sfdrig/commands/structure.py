@@ -118,6 +118,10 @@ def _logged_to(writer: Any) -> Callable[[str, str], None]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.load_by and args.only and "static" not in args.only:
+        print(f"sfdrig structure: --load-by {args.load_by} sets how the static test is loaded, "
+              f"but --only {' '.join(args.only)} leaves the static test out", file=sys.stderr)
+        return 2
     if args.unattended:
         try:
             params = rig_params_named_or_file(args.rig) if args.rig else RigParams()

@@ -41,3 +41,13 @@ def test_bad_rig_file_is_refused(tmp_path: Path, capsys):
     rig.write_text("[structure]\nmass_kg = -3\n")
     assert main(["structure", "--unattended", "--out", str(tmp_path), "--rig", str(rig)]) == 2
     assert "structure.mass_kg = -3" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("unattended", [True, False])
+def test_load_by_without_the_static_test_is_refused(tmp_path: Path, capsys, unattended):
+    args = ["structure", "--out", str(tmp_path), "--only", "flow", "--load-by", "hand"]
+    assert main(args + (["--unattended"] if unattended else [])) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == ("sfdrig structure: --load-by hand sets how the static test is loaded, "
+                           "but --only flow leaves the static test out")
+    assert not list(tmp_path.glob("*.h5"))
