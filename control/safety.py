@@ -3,9 +3,11 @@
 Limits (all configurable, `SafetyLimits`): drive volts, load (the shaker's 448 N rating or lower),
 displacement (default half the 127 um radial clearance), the drive's envelope rate and its
 sample-to-sample slew, the permitted frequency range, the fade time of a safe shutdown, the
-open-loop check and the pump interlock. A trip anywhere makes the sweep engine ramp both drives to
-zero: with 10 ms blocks and one block written ahead, the fade begins at most 20 ms after the
-offending sample, so ``block_s * (1 + ahead_blocks) + fade_s`` must stay within the 100 ms budget.
+open-loop check and the pump interlock. A trip anywhere makes the sweep engine stop both drives:
+the AO already queued is dropped and the drives are at 0 V from the end of the block the trip was
+seen in (`DriveStream.shutdown` with ``cut``). Where the board cannot drop it (no AO idle output
+0 V), the queue plays out and the fade follows, so ``block_s * (1 + ahead_blocks) + fade_s`` must
+stay within the 100 ms budget.
 """
 
 from __future__ import annotations

@@ -1,9 +1,10 @@
 """The acquisition loop's I/O: synthesise a drive block, check it, write it, read the next AI
 block, convert, check, publish. The one place where AO is written.
 
-AO streams ahead of the generation by ``ahead_blocks`` blocks (default one 10 ms block): short,
-because a stream cannot be un-written, and any trip must reach zero drive within 100 ms. Samples
-read are kept for a while (`DriveStream.window`) so that the lock-in can look back over them.
+AO streams ahead of the generation by ``ahead_blocks`` blocks (the underflow margin). A trip does
+not let that queue play: the backend stops it (`DaqBackend.cut_ao`) and the drives are at 0 V
+from the first sample not generated (or, where the backend resumes, fade from it). Samples read
+are kept for a while (`DriveStream.window`) so that the lock-in can look back over them.
 """
 
 from __future__ import annotations
@@ -93,7 +94,8 @@ class DriveStream:
         self.check_limits = True
         #: called with (first_sample, ai, ao) for every block read, e.g. lock-in accumulators
         self.taps: list[Callable[[int, np.ndarray, np.ndarray], None]] = []
-        self._fifo: deque[np.ndarray] = deque()
+        self._fifo: deque[np.ndarray] = deque()  # AO blocks written, not yet read
+        self._states: deque[_SynthState] = deque()  # the synthesiser before each of them
         self._hist: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
         self._hist_len = 0
         self._started = False
@@ -114,15 +116,19 @@ class DriveStream:
     def start(self) -> None:
         """Prefill the AO buffer (zeros from the synthesiser) and start the tasks."""
         for _ in range(self.ahead_blocks):
-            self._write(self.synth.next_block(self.block), check=True)
+            state = _snapshot(self.synth)
+            self._write(self.synth.next_block(self.block), state, check=True)
         self.backend.start()
         self._started = True
 
-    def _write(self, ao: np.ndarray, check: bool) -> None:
+    def _write(self, ao: np.ndarray, state: _SynthState, check: bool) -> None:
+        """Write ``ao``, synthesised from ``state`` (kept until the block is read: a trip's
+        fade starts from the synthesiser as it was at the first sample not generated)."""
         if check:
             self.monitor.check_ao(ao, self.synth.sample - ao.shape[1])
         self.backend.write_ao(ao)
         self._fifo.append(ao)
+        self._states.append(state)
 
     def cycle(self) -> None:
         """Write the next drive block, read the next AI block, publish and check it."""
@@ -130,7 +136,7 @@ class DriveStream:
         ao = self.synth.next_block(self.block)
         self._measure_margin()
         try:
-            self._write(ao, check=True)
+            self._write(ao, state, check=True)
         except BaseException:
             _restore(self.synth, state)  # the fade must continue from what was written
             raise
@@ -163,6 +169,8 @@ class DriveStream:
         volts = self.backend.read_ai(self.block)
         eng = self.cm.to_engineering(volts)
         ao = self._fifo.popleft()
+        if self._states:
+            self._states.popleft()
         first = self.sample
         self.sample += self.block
         self._hist.append((first, eng, ao))
@@ -174,7 +182,7 @@ class DriveStream:
             tap(first, eng, ao)
         self.listener.on_block(first, eng, ao)
         if self.contact_event is None:
-            # contact is a fault whenever it happens, also while the drives fade
+            # contact is a fault whenever it happens, also after a trip
             self.contact_event = self.monitor.contact(eng, first)
         if check:
             self.monitor.check_ai(eng, first)
@@ -209,8 +217,14 @@ class DriveStream:
         n = self.synth.fade_out(ramp_s)
         self.advance_to(self.synth.sample + n + self.block * (self.ahead_blocks + 1))
 
-    def shutdown(self, fade_s: float) -> None:
+    def shutdown(self, fade_s: float, cut: bool = False) -> None:
         """Fade both drives to zero, write a block of zeros, read out the buffer, stop the tasks.
+
+        ``cut`` (a trip): the AO already queued is not let play out first. The backend drops
+        what it has not generated (`DaqBackend.cut_ao`) and the fade starts from the first
+        sample dropped, or the drives are at 0 V from there (a board's AO task stopped);
+        either way the motion after the trip is read out for as long as the queue and the
+        fade would have lasted.
 
         Never raises: a failure on the way is logged, and the tasks are stopped regardless. If
         reading fails (a stalled acquisition), the fade and the zeros are still written. The
@@ -219,24 +233,15 @@ class DriveStream:
         reading = True
         try:
             if self._started:
-                n = self.synth.fade_out(fade_s)
-                blocks = [self.synth.next_block(self.block)
-                          for _ in range(math.ceil(n / self.block) + 1)]
-                self.zero_sample = self.synth.sample
-                blocks.append(np.zeros((len(self.cm.ao), self.block)))
-                self.synth.sample += self.block
-                for ao in blocks:
+                for ao in self._tail(fade_s, cut):
                     self.backend.write_ao(ao)
-                    self._fifo.append(ao)
-                    if reading:
-                        try:
-                            self._read_one(check=False)
-                        except Exception:
-                            log.exception("acquisition failed while ramping down; the fade is "
-                                          "still written")
-                            reading = False
                 while reading and self._fifo:
-                    self._read_one(check=False)
+                    try:
+                        self._read_one(check=False)
+                    except Exception:
+                        log.exception("acquisition failed while ramping down; the fade is "
+                                      "written")
+                        reading = False
         except Exception:
             log.exception("error while ramping the drives down; stopping the tasks")
             try:
@@ -249,3 +254,42 @@ class DriveStream:
             except Exception:
                 log.exception("could not stop the tasks")
             self._started = False
+
+    def _tail(self, fade_s: float, cut: bool) -> list[np.ndarray]:
+        """The end of the stream after a stop: the AO still to write (the fade and the zeros),
+        with the queue of blocks to read rebuilt to what the outputs will show."""
+        fs = self.cm.sample_rate_hz
+        queued = (np.concatenate(list(self._fifo), axis=1) if self._fifo
+                  else np.zeros((len(self.cm.ao), 0)))
+        at, resumes = self.synth.sample, True
+        if cut:
+            done = self.backend.cut_ao()
+            at, resumes = min(max(done.at, self.sample), self.synth.sample), done.resumes
+            if at < self.synth.sample:
+                self._rewind(at)
+        kept = queued[:, :at - self.sample]
+        new = []
+        if resumes:
+            n = self.synth.fade_out(fade_s)
+            if n:
+                new.append(self.synth.next_block(n))
+        self.zero_sample = at + sum(a.shape[1] for a in new)
+        end = self.zero_sample + self.block
+        if cut:  # read the motion out for as long as the queue and the fade would have taken
+            end = max(end, self.sample + self.block * (self.ahead_blocks + 1)
+                      + math.ceil(fade_s * fs))
+        end = self.sample + math.ceil((end - self.sample) / self.block) * self.block
+        new.append(np.zeros((len(self.cm.ao), end - self.zero_sample)))
+        self.synth.sample = end
+        tail = np.concatenate([kept, *new], axis=1)
+        self._fifo = deque(tail[:, i:i + self.block] for i in range(0, tail.shape[1], self.block))
+        self._states.clear()
+        return new if resumes else []
+
+    def _rewind(self, at: int) -> None:
+        """Put the synthesiser back to where it was at sample ``at`` (queued, not generated)."""
+        first = self.synth.sample - self.block * len(self._states)
+        index = (at - first) // self.block
+        _restore(self.synth, self._states[index])
+        if at > self.synth.sample:
+            self.synth.next_block(at - self.synth.sample)

@@ -37,7 +37,7 @@ from control.stream import DriveStream
 from control.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
 from daq.channels import ChannelMap
-from daq.errors import DaqError
+from daq.errors import DaqError, EmergencyStopError
 
 log = logging.getLogger(__name__)
 
@@ -280,6 +280,7 @@ class SweepEngine:
         runner = StepRunner(stream, self.spec, self.limits, self._emit)
         runner.on_update = self._on_update
         status, reason = State.COMPLETED, ""
+        cut = False  # a trip or the emergency stop: the AO already queued does not play
         with self._hold_pump():
             try:
                 stream.start()
@@ -298,7 +299,7 @@ class SweepEngine:
                 status, reason = State.ABORTED, ab.reason
                 self._emit_safe("abort", reason)
             except LimitTrip as trip:
-                status, reason = State.ABORTED, str(trip)
+                status, reason, cut = State.ABORTED, str(trip), True
                 self._emit_safe("limit_trip", reason, trip.sample if trip.sample >= 0 else None)
             except InterlockError as err:
                 status, reason = State.ABORTED, str(err)
@@ -306,6 +307,9 @@ class SweepEngine:
             except _StepFailed as err:
                 status, reason = State.ABORTED, str(err)
                 self._emit_safe("abort", reason)
+            except EmergencyStopError as err:
+                status, reason, cut = State.FAILED, f"{type(err).__name__}: {err}", True
+                self._emit_safe("error", reason)
             except Exception as err:  # noqa: BLE001 - any failure must end in a safe stop
                 log.exception("sweep failed")
                 status, reason = State.FAILED, f"{type(err).__name__}: {err}"
@@ -313,7 +317,7 @@ class SweepEngine:
             finally:
                 if self._machine.state not in FINAL and self._machine.state is not State.STOPPING:
                     self._machine.to(State.STOPPING)
-                stream.shutdown(self.limits.fade_s)
+                stream.shutdown(self.limits.fade_s, cut=cut)
                 self._emit_safe("info", stream.margin_report())
                 if stream.contact_event is not None:
                     # the housing touched the journal (maybe after a trip, while fading)

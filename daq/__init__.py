@@ -1,6 +1,6 @@
 """Hardware boundary: channel map and calibration, the DaqBackend protocol, the nidaqmx backend."""
 
-from daq.backend import DaqBackend
+from daq.backend import AoCut, DaqBackend
 from daq.channels import (
     AnalogInput,
     AnalogOutput,
@@ -23,7 +23,7 @@ from daq.errors import (
 )
 
 __all__ = [
-    "AnalogInput", "AnalogOutput", "ChannelConfigError", "ChannelKind", "ChannelMap",
+    "AnalogInput", "AnalogOutput", "AoCut", "ChannelConfigError", "ChannelKind", "ChannelMap",
     "DaqBackend", "DaqBufferOverflowError", "DaqConnectionError", "DaqError", "DaqTimeoutError",
     "DaqUnderflowError", "DeviceSpec", "DigitalOutput", "EmergencyStopError",
     "EmergencyStopInput", "default_channel_map", "load_channel_map",

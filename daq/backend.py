@@ -13,17 +13,34 @@ Life cycle: ``configure(channel_map)`` -> ``write_ao(prefill)`` -> ``start()`` -
 - ``estop_pressed`` reads the optional emergency-stop input (False without one). ``read_ai``
   raises `daq.errors.EmergencyStopError` once when it finds it pressed (later reads deliver the
   ramp-down); the first ``write_ao`` of a run refuses while it is pressed.
+- ``cut_ao`` (a trip) stops the AO already queued from playing: the samples written but not yet
+  generated are dropped, and the drives either go on with the next ``write_ao`` from the sample it
+  names (the caller writes a fast fade from there) or are at 0 V from that sample on (the
+  generation stopped, AO idle output 0 V). A drive is never left holding a non-zero value: where
+  neither can be done, nothing is dropped.
 - ``feed_watchdog`` resets the board's watchdog timer, where the backend has one (`read_ai` feeds
   it too); if nobody feeds it, the board turns the relays off and the drives to 0 V by itself.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from daq.channels import ChannelMap
+
+
+@dataclass(frozen=True)
+class AoCut:
+    """What `DaqBackend.cut_ao` did: the AO samples from ``at`` on (counted from the start of
+    the run, = the AI sample each is generated with) will not play. ``resumes``: the next
+    ``write_ao`` is generated from sample ``at`` on; otherwise the generation has stopped and
+    the drives show 0 V from ``at`` on (later writes are not generated)."""
+
+    at: int
+    resumes: bool
 
 
 @runtime_checkable
@@ -57,6 +74,9 @@ class DaqBackend(Protocol):
     def feed_watchdog(self) -> None:
         """Reset the board's watchdog timer (no-op without one); the daemon calls it while
         idle, `read_ai` during a run."""
+
+    def cut_ao(self) -> AoCut:
+        """Stop the AO already queued from playing, at once (see `AoCut`)."""
 
     def ao_backlog(self) -> int:
         """Samples written to AO but not yet generated."""

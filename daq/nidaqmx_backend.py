@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from daq.backend import AoCut
 from daq.channels import ChannelMap
 from daq.errors import (
     ATTR_NOT_SUPPORTED,
@@ -288,6 +289,25 @@ class NidaqmxBackend:
         with translate_errors("asking for the AO samples generated"):
             generated = int(self._ao.out_stream.total_samp_per_chan_generated)
         return self._ao_written - generated
+
+    def cut_ao(self) -> AoCut:
+        """A trip: stop the AO task at once (DAQmx Stop Task: the samples written but not
+        generated are never generated) and, with AO idle output 0 V, the drives are at 0 V from
+        the next sample of the AI clock; AI keeps acquiring. Without idle output 0 V a stopped
+        task would hold its last sample on the amplifiers, so nothing is dropped: the queue
+        plays out and the caller's fade follows it."""
+        if self._ao is None or not self._running or not self.ao_idle_zero:
+            return AoCut(self._ao_written, True)
+        out = self._ao.out_stream
+        with translate_errors("stopping the AO task (a trip: drives to 0 V at once)"):
+            before = int(out.total_samp_per_chan_generated)
+            self._ao.stop()
+        try:  # the exact count once stopped; a device that answers only while running: before
+            with translate_errors("asking for the AO samples generated"):
+                generated = int(out.total_samp_per_chan_generated)
+        except DaqError:
+            generated = before
+        return AoCut(generated, False)
 
     def stop(self) -> None:
         """Stop AI, then AO; the last AO samples written stay on the outputs."""

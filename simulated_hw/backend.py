@@ -5,6 +5,12 @@ under a second. Paced mode (``realtime=True``) behaves as hardware does: samples
 as the wall clock advances, a read waits for them (timeout -> DAQmx -200284), a reader that falls
 more than the buffer behind loses data (-200279), and an AO writer that falls behind the
 generation underflows (-200290). The clock and the sleep are injectable for tests.
+
+A trip's `cut_ao` drops the AO queued beyond the generation (fast mode: beyond the samples read;
+the rig has not simulated them yet). ``cut_stops=True`` (default): the generation stops there
+with the drives at 0 V, as a board's AO task stopped with idle output 0 V does;
+``cut_stops=False``: the stream goes on with the next write (the caller's fade) from the first
+sample dropped, which a board cannot do (`benchmarks/bench_trip.py` compares the two).
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from daq.backend import AoCut
 from daq.channels import ChannelMap
 from daq.errors import (
     INPUT_BUFFER_OVERWRITTEN,
@@ -25,6 +32,10 @@ from daq.errors import (
 from simulated_hw import physics
 from simulated_hw.params import RigParams
 from simulated_hw.rig import RigModel
+
+#: Paced: what a resuming cut leaves queued past the generation, so that the fade written next
+#: arrives before the generation does [s].
+CUT_MARGIN_S = 0.002
 
 
 class SimulatedBackend:
@@ -38,6 +49,7 @@ class SimulatedBackend:
         buffer_s: float = 10.0,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
+        cut_stops: bool = True,
     ) -> None:
         self.params = params if params is not None else RigParams()
         self.seed = seed
@@ -53,6 +65,8 @@ class SimulatedBackend:
         self._t0 = 0.0
         self._read = 0  # samples handed to the reader
         self._closed = False
+        self.cut_stops = cut_stops
+        self._ao_stopped = False  # a stopping cut: the drives are at 0 V until the next start
 
     # --- protocol -------------------------------------------------------------------------
     @property
@@ -76,6 +90,7 @@ class SimulatedBackend:
     def start(self) -> None:
         self._require_rig()
         self._running = True
+        self._ao_stopped = False
         self._t0 = self._clock()
 
     def write_ao(self, block: np.ndarray) -> None:
@@ -89,6 +104,8 @@ class SimulatedBackend:
                 raise error_for_code(
                     f"{ch.name}: AO sample outside the channel range {ch.range_v} V", -200561
                 )
+        if self._ao_stopped:
+            return  # the generation has stopped: nothing written now plays
         if self.realtime and self._running:
             generated = self._generated()
             if generated > self._read + self._ao_queued:
@@ -104,12 +121,18 @@ class SimulatedBackend:
             raise ValueError(f"read_ai: n must be positive, got {n}")
         if self.realtime:
             self._wait_for(self._read + n, timeout_s)
-        if self._ao_queued < n:
+        if self._ao_stopped:  # what is left of the queue, then the drives at 0 V
+            take = min(n, self._ao_queued)
+            ao = np.zeros((len(self.channel_map.ao), n))
+            if take:
+                ao[:, :take] = self._take_ao(take)
+        elif self._ao_queued < n:
             raise error_for_code(
                 f"AO buffer ran dry: {self._ao_queued} samples queued, {n} needed",
                 OUTPUT_UNDERFLOW,
             )
-        ao = self._take_ao(n)
+        else:
+            ao = self._take_ao(n)
         self._read += n
         return rig.process(ao)
 
@@ -122,6 +145,28 @@ class SimulatedBackend:
         if self.realtime and self._running:
             return self._read + self._ao_queued - self._generated()
         return self._ao_queued
+
+    def cut_ao(self) -> AoCut:
+        """Drop the AO queued beyond the generation (see the module doc)."""
+        keep = self._ao_queued
+        if self._running and not self._ao_stopped:
+            keep = 0
+            if self.realtime:
+                margin = 0 if self.cut_stops else int(CUT_MARGIN_S * self.sample_rate_hz)
+                keep = min(max(self._generated() + margin - self._read, 0), self._ao_queued)
+            dropped = self._ao_queued - keep
+            while dropped:
+                last = self._ao_chunks[-1]
+                if last.shape[1] <= dropped:
+                    self._ao_chunks.pop()
+                    dropped -= last.shape[1]
+                    self._ao_queued -= last.shape[1]
+                else:
+                    self._ao_chunks[-1] = last[:, :last.shape[1] - dropped]
+                    self._ao_queued -= dropped
+                    dropped = 0
+            self._ao_stopped = self.cut_stops
+        return AoCut(self._read + keep, not self._ao_stopped)
 
     def feed_watchdog(self) -> None:
         """No watchdog: the in-process rig stops with the process that runs it."""

@@ -4,12 +4,17 @@ mocked)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 
+from control.listener import RecordingListener
+from control.safety import AxisSignals
 from daq.channels import default_channel_map
 from simulated_hw.backend import SimulatedBackend
 from simulated_hw.params import RigParams
+from simulated_hw.rig import RigModel
 
 
 class WriteLog(SimulatedBackend):
@@ -55,3 +60,35 @@ class GainJump(WriteLog):
         k = np.arange(self._ao_samples, self._ao_samples + block.shape[1])
         self._ao_samples += block.shape[1]
         SimulatedBackend.write_ao(self, np.where(k >= self.at_sample, block * self.factor, block))
+
+
+class GainKnob(RecordingListener):
+    """The amplifier's gain turned from 1 to ``factor`` times over ``ramp_s`` from ``at_s`` (a
+    knob on the rig: the simulated rig's shaker constant changes, the software is not told);
+    keeps the largest orbit radius measured. ``rig`` gives the rig the samples come from (the
+    in-process backend's, or the device server's while its AI runs)."""
+
+    def __init__(self, rig: Callable[[], RigModel], factor: float = 3.0, ramp_s: float = 0.0,
+                 at_s: float = 1.0, fs: float = 10_000.0) -> None:
+        super().__init__(keep_blocks=True)
+        self.rig, self.factor, self.ramp, self.at = rig, factor, ramp_s * fs, int(at_s * fs)
+        self.signals = AxisSignals.from_channel_map(default_channel_map())
+        self.peak_m = 0.0
+        self.g0: float | None = None
+
+    def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
+        super().on_block(first_sample, ai, ao)
+        d = self.signals.displacement(ai)
+        self.peak_m = max(self.peak_m, float(np.hypot(d[0], d[1]).max()))
+        end = first_sample + ai.shape[1]
+        if end < self.at:
+            return
+        rig = self.rig()
+        shaker = rig.params.shaker
+        if self.g0 is None:
+            self.g0 = shaker.force_per_volt_n
+        frac = 1.0 if self.ramp <= 0 else min(1.0, (end - self.at) / self.ramp)
+        gain = self.g0 * (1.0 + (self.factor - 1.0) * frac)
+        if gain != shaker.force_per_volt_n:
+            rig.params = rig.params.model_copy(
+                update={"shaker": shaker.model_copy(update={"force_per_volt_n": gain})})

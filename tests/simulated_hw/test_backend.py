@@ -137,3 +137,39 @@ def test_rig_params_toml_round_trip_and_errors(tmp_path):
         rig_params_from_dict({"structure": {"mass_kg": -1.0}}, "x.toml")
     with pytest.raises(RigParamsError, match=r"seal.frction_force_n"):
         rig_params_from_dict({"seal": {"frction_force_n": 20}}, "x.toml")
+
+
+def test_a_stopping_cut_drops_what_the_paced_generation_has_not_reached():
+    clock = FakeClock()
+    be = paced(clock)
+    be.write_ao(np.vstack([np.full(3000, 1.0), np.zeros(3000)]))
+    be.start()
+    be.read_ai(1000)
+    clock.now += 0.00555  # 55 more samples generated while the program looked at the block
+    cut = be.cut_ao()
+    assert (cut.at, cut.resumes) == (1055, False)
+    assert be.ao_backlog() == 0  # written and not generated: nothing left to play
+    be.write_ao(np.ones((2, 100)))  # a stopped generation plays nothing written now
+    be.read_ai(3000, timeout_s=1.0)  # the drives at 0 V: no underflow however long AI runs
+    be.stop()
+    be.write_ao(np.zeros((2, 100)))  # a new run primes it again
+    be.start()
+    with pytest.raises(DaqUnderflowError):
+        be.read_ai(1000)
+
+
+def test_a_resuming_cut_continues_the_stream_at_the_first_sample_dropped():
+    clock = FakeClock()
+    be = SimulatedBackend(seed=1, realtime=True, buffer_s=1.0, clock=clock, sleep=clock.sleep,
+                          cut_stops=False)
+    be.configure(CM)
+    be.write_ao(np.zeros((2, 3000)))
+    be.start()
+    be.read_ai(1000)
+    clock.now += 0.00555
+    cut = be.cut_ao()
+    assert (cut.at, cut.resumes) == (1075, True)  # 55 generated + the 2 ms margin
+    be.write_ao(np.zeros((2, 500)))  # samples 1075..1574
+    be.read_ai(500, timeout_s=1.0)
+    with pytest.raises(DaqUnderflowError):
+        be.read_ai(500, timeout_s=1.0)
