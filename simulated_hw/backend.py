@@ -66,7 +66,7 @@ class SimulatedBackend:
         self._read = 0  # samples handed to the reader
         self._closed = False
         self.cut_stops = cut_stops
-        self._ao_stopped = False  # a stopping cut: the drives are at 0 V until the next start
+        self._ao_stopped = False  # a stopping cut: the drives are at 0 V until the run stops
 
     # --- protocol -------------------------------------------------------------------------
     @property
@@ -90,7 +90,6 @@ class SimulatedBackend:
     def start(self) -> None:
         self._require_rig()
         self._running = True
-        self._ao_stopped = False
         self._t0 = self._clock()
 
     def write_ao(self, block: np.ndarray) -> None:
@@ -177,6 +176,7 @@ class SimulatedBackend:
 
     def stop(self) -> None:
         self._running = False
+        self._ao_stopped = False  # the next run primes the AO again
 
     def close(self) -> None:
         self._running = False

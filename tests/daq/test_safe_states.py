@@ -222,10 +222,11 @@ def test_a_sweep_that_underflows_ends_with_the_drives_at_zero(
     assert device.ao_hold == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}  # both terminals at 0 V
 
 
-def _trip_through_nidaqmx(server: SimulatedDeviceServer, ramp_s: float) -> tuple[object, object,
-                                                                                   int, int]:
-    """Dry X 30 um at 40 Hz through nidaqmx, the amplifier gain x3 from 1 s over ``ramp_s``:
-    (outcome, knob, AO samples the board generated, AO samples written)."""
+def _trip_through_nidaqmx(server: SimulatedDeviceServer, ramp_s: float, then: object = None
+                          ) -> tuple[object, object, int, int, object]:
+    """Dry X 30 um at 40 Hz through nidaqmx, the amplifier gain x3 from 1 s over ``ramp_s``,
+    then the sweep ``then`` on the same backend: (outcome, knob, AO samples the board generated,
+    AO samples written, the outcome of ``then``)."""
     from control.sweep import SweepEngine, SweepSpec
     from tests.control.conftest import GainKnob
 
@@ -250,9 +251,10 @@ def _trip_through_nidaqmx(server: SimulatedDeviceServer, ramp_s: float) -> tuple
         out = SweepEngine(backend, spec, listener=knob).run()
         ao_task = server.servicer.tasks[next(n for n in server.servicer.tasks if "-ao-" in n)]
         generated = ao_task.ao_generated
+        after = SweepEngine(backend, then).run() if then is not None else None
     finally:
         backend.close()
-    return out, knob, generated, written
+    return out, knob, generated, written, after
 
 
 def test_a_trip_stops_the_board_s_ao_at_once_and_the_motion_within_10_percent(
@@ -260,14 +262,18 @@ def test_a_trip_stops_the_board_s_ao_at_once_and_the_motion_within_10_percent(
     """Gain x3 over 0.1 s: the trip stops the AO task (DAQmx Stop Task) at the end of the block
     it was seen in; the 30 ms queued on the board are never generated, the terminals go to
     0 V (idle output), and the housing peaks at 1.03x the limit (1.68x when the queue and the
-    fade played out)."""
-    out, knob, generated, written = _trip_through_nidaqmx(fast_server, ramp_s=0.1)
+    fade played out). The next run primes the stopped AO task again and completes."""
+    from control.sweep import SweepSpec
+
+    out, knob, generated, written, after = _trip_through_nidaqmx(
+        fast_server, ramp_s=0.1, then=SweepSpec(motion="x", amplitude_m=[20e-6], freq_hz=[60.0]))
     assert out.status == "aborted" and "exceeds the 63.5 um limit" in out.reason
     k = knob.events_of("limit_trip")[0][2]
     cut = (k // 100 + 1) * 100
     assert generated == cut and written >= cut + 300
     assert fast_server.device.ao_hold == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
     assert knob.peak_m <= 1.10 * 63.5e-6, f"peak {knob.peak_m / 63.5e-6:.3f}x the limit"
+    assert after.status == "completed"
 
 
 @pytest.mark.xfail(strict=True, reason=(
@@ -275,6 +281,6 @@ def test_a_trip_stops_the_board_s_ao_at_once_and_the_motion_within_10_percent(
     "within the AI block in which the limit is passed (benchmarks/bench_trip.py)"))
 def test_a_trip_after_a_sudden_gain_rise_through_nidaqmx_stays_within_10_percent(
         fast_server: SimulatedDeviceServer) -> None:
-    out, knob, _, _ = _trip_through_nidaqmx(fast_server, ramp_s=0.0)
+    out, knob, _, _, _ = _trip_through_nidaqmx(fast_server, ramp_s=0.0)
     assert out.status == "aborted" and knob.events_of("limit_trip")
     assert knob.peak_m <= 1.10 * 63.5e-6, f"peak {knob.peak_m / 63.5e-6:.3f}x the limit"

@@ -152,10 +152,11 @@ def test_a_stopping_cut_drops_what_the_paced_generation_has_not_reached():
     be.write_ao(np.ones((2, 100)))  # a stopped generation plays nothing written now
     be.read_ai(3000, timeout_s=1.0)  # the drives at 0 V: no underflow however long AI runs
     be.stop()
-    be.write_ao(np.zeros((2, 100)))  # a new run primes it again
+    be.write_ao(np.zeros((2, 1000)))  # a new run primes it again
     be.start()
+    be.read_ai(1000, timeout_s=1.0)
     with pytest.raises(DaqUnderflowError):
-        be.read_ai(1000)
+        be.read_ai(1000, timeout_s=1.0)
 
 
 def test_a_resuming_cut_continues_the_stream_at_the_first_sample_dropped():
