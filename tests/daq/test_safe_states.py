@@ -284,3 +284,17 @@ def test_a_trip_after_a_sudden_gain_rise_through_nidaqmx_stays_within_10_percent
     out, knob, _, _, _ = _trip_through_nidaqmx(fast_server, ramp_s=0.0)
     assert out.status == "aborted" and knob.events_of("limit_trip")
     assert knob.peak_m <= 1.10 * 63.5e-6, f"peak {knob.peak_m / 63.5e-6:.3f}x the limit"
+
+
+def test_a_trip_on_a_board_without_idle_output_zero_lets_the_queue_and_the_fade_play(
+        no_idle_zero_server: SimulatedDeviceServer) -> None:
+    """A stopped task there would hold its last sample on the amplifiers: nothing is dropped,
+    the 30 ms queued and the fade play out and the terminals end at 0 V (the last sample)."""
+    out, knob, generated, written, _ = _trip_through_nidaqmx(no_idle_zero_server, ramp_s=0.1)
+    assert out.status == "aborted" and "exceeds the 63.5 um limit" in out.reason
+    assert generated == written
+    k = knob.events_of("limit_trip")[0][2]
+    shown = knob.ao()
+    assert np.any(shown[:, (k // 100 + 1) * 100:(k // 100 + 4) * 100] != 0)  # the queue played
+    assert np.all(shown[:, k + 1_000:] == 0)  # at 0 V within 100 ms of the trip
+    assert no_idle_zero_server.device.ao_hold == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
