@@ -235,17 +235,24 @@ class Subscriber:
         heartbeats prove the subscription is live (`wait_connected`).
     rcvhwm : int
         Receive high-water mark [messages]; 0 means no limit.
+    rcvbuf : int
+        Kernel receive buffer [bytes]; 0 (default) leaves it to the OS, which on Linux may grow
+        it to tens of MB (``net.ipv4.tcp_rmem``): a client that stops reading is only seen to
+        lose messages once that is full.
     keys : ClientKeys, optional
         CURVE keys when the daemon requires them.
     """
 
     def __init__(self, endpoint: str, topics: list[str] | None = None, rcvhwm: int = 1000,
-                 keys: ClientKeys | None = None, context: zmq.Context | None = None) -> None:
+                 keys: ClientKeys | None = None, context: zmq.Context | None = None,
+                 rcvbuf: int = 0) -> None:
         self.endpoint = endpoint
         self._ctx = context or zmq.Context.instance()
         self._sock = self._ctx.socket(zmq.SUB)
         self._sock.linger = 0
         self._sock.rcvhwm = rcvhwm
+        if rcvbuf > 0:
+            self._sock.rcvbuf = rcvbuf
         if keys is not None:
             secure_client_socket(self._sock, keys)
         wanted = [t.encode() for t in (topics or [t.decode() for t in TOPICS])]

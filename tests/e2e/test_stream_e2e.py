@@ -191,13 +191,17 @@ def test_pause_resume_abort_and_the_pump_interlock_on_the_real_engine(daemon_fac
 
 def test_a_subscriber_that_stops_reading_loses_messages_not_the_run(daemon_factory):
     d = daemon_factory("--sndhwm", "10")
+    # What the kernel may buffer for the slow reader is bounded (its receive buffer 64 kB, the
+    # daemon's send buffer at most net.ipv4.tcp_wmem's 4 MB: ~260 blocks of 16 kB); the sweep
+    # streams ~1,600 blocks, so the slow reader must lose some.
+    spec = {**LONG_X, "record_cycles": 300}
     with CommandClient(d.command, timeout_s=10) as c, \
-            Subscriber(d.data, topics=["block"], rcvhwm=1) as slow, \
+            Subscriber(d.data, topics=["block"], rcvhwm=1, rcvbuf=65536) as slow, \
             Subscriber(d.data, topics=["event"]) as events:
         slow.wait_connected()
         events.wait_connected()
         seq_before = c.status()["next_seq"]["block"]
-        reply = c.start_sweep(LONG_X)  # fast mode: blocks come much faster than real time
+        reply = c.start_sweep(spec)  # fast mode: blocks come much faster than real time
         run_id = reply.data["run_id"]
         while True:  # `slow` reads nothing until the run is over
             msg = events.recv(timeout_s=120)
