@@ -139,7 +139,7 @@ def run_impact_test(backend: DaqBackend, listener: Listener, operator: Any,
         if spec.hammer_channel not in cm.ai_names:
             raise ProgramError(f"impact: no hammer channel {spec.hammer_channel!r} in the "
                                f"channel map ({cm.ai_names})")
-        journal_out(stream, hands, "impact")
+        journal_out(stream, hands, "impact", "hammer")
         for axis in spec.axes:
             _impact_axis(stream, steps, spec, axis, hands)
 

@@ -271,16 +271,28 @@ def ask(stream: Stream, question: Question, hold_v: np.ndarray, ramp_s: float,
             time.sleep(stream.block / stream.fs)
 
 
-def journal_out(stream: Stream, hands: RigHands | None, kind: str) -> None:
-    """Ask for the journal to be taken out: the report's structure tests had no seal contact."""
+#: what the operator does next, by test: the shakers load the housing, or the operator does
+NEXT_AFTER_JOURNAL_OUT = {
+    "shakers": "stand clear of the housing: the shakers will load it",
+    "hammer": "the shakers stay at 0 V; have the hammer ready: you will strike the housing",
+    "hand": "the shakers stay at 0 V; have the force gauge ready: you will push the housing",
+}
+
+
+def journal_out(stream: Stream, hands: RigHands | None, kind: str, loaded_by: str) -> None:
+    """Ask for the journal to be taken out: the report's structure tests had no seal contact.
+
+    ``loaded_by``: a key of ``NEXT_AFTER_JOURNAL_OUT`` (who moves the housing next).
+    """
     if stream.operator is None:
         return
     stream.where = f"{kind} setup"
     ask(stream, Question(
         id=0, where=f"{kind} setup", choices=["ok", "abort"],
         prompt="Take the journal out (no seal contact, as in the report's structure tests), "
-               "leave the shakers attached through the load cells, stand clear of the housing; "
-               "accept when ready"), np.zeros(stream.n_ao), 0.1)
+               "leave the shakers attached through the load cells; "
+               f"{NEXT_AFTER_JOURNAL_OUT[loaded_by]}; accept when ready"),
+        np.zeros(stream.n_ao), 0.1)
     if hands is not None:
         hands.set_journal(False)
         stream.listener.on_event("operator", "journal out (simulated rig)", stream.sample)

@@ -148,7 +148,8 @@ def run_static_test(backend: DaqBackend, listener: Listener, spec: StaticSpec | 
     spec = spec or StaticSpec()
 
     def body(stream: Stream, steps: list[dict[str, Any]]) -> None:
-        journal_out(stream, hands, "static")
+        journal_out(stream, hands, "static",
+                    "hand" if spec.load_by == "hand" else "shakers")
         if spec.load_by == "hand":
             static_levels_by_hand(stream, steps, spec, hands)
         else:
@@ -195,7 +196,7 @@ def run_probe_calibration(backend: DaqBackend, listener: Listener, operator: Ope
 
     def body(stream: Stream, steps: list[dict[str, Any]]) -> None:
         current.append(stream)
-        journal_out(stream, hands, "probe_calibration")
+        journal_out(stream, hands, "probe_calibration", "shakers")
         _static_levels(stream, steps, spec, 1, "probe_calibration", "displacement",
                        read)
 

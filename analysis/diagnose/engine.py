@@ -29,7 +29,9 @@ Procedure
    spectral peaks and the channels explained worst); above it, a share of more than 2 % left is
    "unexplained". Under either, and when a baseline parameter sits on a bound, every finding is
    low-confidence; so is a finding whose runner-up (not found itself in a later round) explains
-   the held-out data nearly as well (held-out MSE within 25 %).
+   the held-out data nearly as well (held-out MSE within 25 %), and a refinement: a term found
+   once the model already left nothing unexplained, explaining less than 0.5 % of the signal
+   (``verdict.refinement_share``).
 """
 
 from __future__ import annotations
@@ -61,7 +63,7 @@ from analysis.diagnose.effects import (
 from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit, train_sse
 from analysis.diagnose.model import Evaluator, Model, Param, Residuals, residuals, rig_param
 from analysis.diagnose.start import OneMode, one_mode_estimate
-from analysis.diagnose.verdict import Verdict, excited_band, judge
+from analysis.diagnose.verdict import Verdict, excited_band, judge, refinement_share, signal_fit
 from simulated_hw.params import RigParams
 
 
@@ -524,6 +526,17 @@ def diagnose(
         if LIBRARY[f.effect].kind == "measurement":
             f.evidence.update(_sensor_pair_check(ev, ctx, base_model, free_base, findings, f,
                                                  current, fit_train, test, scale_m, step))
+    noise_of = ra.channel_noise(records, test)
+    before_res = base_test
+    for f in findings:
+        assert f.test_residuals is not None
+        refinement, share = refinement_share(signal_fit(records, before_res, test, noise_of),
+                                             signal_fit(records, f.test_residuals, test,
+                                                        noise_of))
+        f.evidence["share_of_signal_explained"] = share
+        if refinement:
+            f.evidence["refinement"] = True
+        before_res = f.test_residuals
     for f in findings:
         # a runner-up as good as the finding leaves the cause ambiguous, unless it was found
         # too, or, swapped in for the finding next to the other findings, it explains the
@@ -538,7 +551,8 @@ def diagnose(
                 f.evidence["runner_up"]["held_out_error_swapped"] = swap_rms
                 if swap_rms**2 > 1.25 * cur_test.rms() ** 2:
                     f.evidence["ambiguous"] = False
-        weak = unexplained or not verdict.adequate or bool(on_bound)
+        weak = (unexplained or not verdict.adequate or bool(on_bound)
+                or f.evidence.get("refinement", False))
         f.evidence["confidence"] = "low" if (weak or f.evidence.get("ambiguous")) else "high"
     if not findings and unexplained:
         notes.append("the baseline misses something that no effect of the library explains")

@@ -25,7 +25,7 @@ from scipy.signal import butter, sosfiltfilt
 
 from analysis.diagnose.data import DiagnoseError, RunRecord, Segment, split_segments
 from analysis.diagnose.model import Residuals
-from analysis.diagnose.verdict import UNEXPLAINED_SHARE, Verdict, judge
+from analysis.diagnose.verdict import SignalFit, Verdict, judge, refinement_share
 
 #: library effects the inverse model can hold, with their column and parameter name
 INVERSE_EFFECTS = {
@@ -33,8 +33,6 @@ INVERSE_EFFECTS = {
     "cubic_stiffness": "k3_N_per_m3",
     "quadratic_stiffness": "k2_N_per_m2",
 }
-#: share of the signal a term must explain to be a cause once the rest is explained
-REFINEMENT_SHARE = 0.005
 BASE_TERMS = ("mass_kg", "damping_Ns_per_m", "stiffness_N_per_m", "force_offset_N")
 
 
@@ -193,14 +191,14 @@ def diagnose_inverse(records: list[RunRecord],
                                        {"criterion_before": cur_crit, "criterion_after": crit}))
         cur_test, cur_terms, cur_theta, cur_crit = res, t2, th, crit
     verdict = judge(frecs, base_test, cur_test, test, {})
-    sig_ms = verdict.final.signal_rms ** 2
+    sig = verdict.final.signal_rms
+
+    def fit_of(rms: float) -> SignalFit:  # no noise floor here: the force's own error
+        return SignalFit(1.0 - (rms / sig) ** 2, sig, rms, 0.0)
+
     for f in findings:
-        # a term added once the model leaves less than UNEXPLAINED_SHARE of the signal, and
-        # that explains less than REFINEMENT_SHARE of it, refines the model; it is no cause
-        share = (f.error_before**2 - f.error_after**2) / sig_ms
+        refinement, share = refinement_share(fit_of(f.error_before), fit_of(f.error_after))
         f.evidence["share_of_signal_explained"] = share
-        refinement = (f.error_before**2 < UNEXPLAINED_SHARE * sig_ms
-                      and share < REFINEMENT_SHARE)
         if refinement:
             f.evidence["refinement"] = True
         weak = verdict.unexplained or not verdict.adequate or refinement

@@ -37,6 +37,8 @@ from analysis.diagnose.model import Residuals
 ADEQUATE = 0.90
 #: share of the above-noise signal a model may leave before the rest counts as unexplained
 UNEXPLAINED_SHARE = 0.02
+#: share of the signal a term must explain to be a cause once the rest is explained
+REFINEMENT_SHARE = 0.005
 #: residual RMS, in noise-floor RMS, beyond which what a model leaves is a discrepancy however
 #: small a share of the signal it is (a model describing the data leaves the noise: the clean
 #: independent cases leave 1.03-1.04x)
@@ -193,6 +195,21 @@ class Verdict:
                 "baseline": self.baseline.to_dict(), "final": self.final.to_dict(),
                 "unexplained_share": UNEXPLAINED_SHARE, "noise_margin": NOISE_MARGIN,
                 "missing": self.missing}
+
+
+def refinement_share(before: SignalFit, after: SignalFit) -> tuple[bool, float]:
+    """Whether a term is a refinement, and the share of the signal it explains.
+
+    A term added once the model before it left nothing unexplained (under
+    ``UNEXPLAINED_SHARE`` of the signal above the noise floor and, where the floor is known,
+    within ``NOISE_MARGIN`` of it), and that explains less than ``REFINEMENT_SHARE`` of the
+    signal, refines the model: the data support it, but it names no cause (on Silverbox, a
+    circuit, a micro-slip element fits what the polynomial leaves, 0.002 % of the signal).
+    """
+    share = after.explained - before.explained
+    beyond_noise = before.noise_rms > 0 and before.residual_rms > NOISE_MARGIN * before.noise_rms
+    explained = before.explained >= 1.0 - UNEXPLAINED_SHARE and not beyond_noise
+    return bool(explained and share < REFINEMENT_SHARE), float(share)
 
 
 def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: list[Segment],

@@ -34,11 +34,18 @@ def test_silverbox_nonlinear_stiffness_is_found(shared_dir, tmp_path):
     assert 0.012 < base < 0.017  # the README's linear model: 14.1 mV
     names = [f["effect"] for f in doc["findings"]]
     assert names[0] == "cubic_stiffness"
-    assert set(names) <= {"cubic_stiffness", "quadratic_stiffness"}
+    assert doc["findings"][0]["evidence"]["confidence"] == "high"
+    assert "quadratic_stiffness" in names  # the circuit's asymmetry
+    # The circuit has no friction: what the polynomial leaves (< 0.01 % of the signal) may be fit
+    # by a micro-slip element, but nothing after the cubic is named as a cause.
+    for f in doc["findings"][1:]:
+        assert f["evidence"]["refinement"] is True, f["effect"]
+        assert f["evidence"]["confidence"] == "low", f["effect"]
+        assert f["evidence"]["share_of_signal_explained"] < 0.005
     k3 = doc["findings"][0]["parameters"]["k3_N_per_m3"]
     assert k3 > 0  # a hardening spring
     final = doc["findings"][-1]["error_after"]
-    assert final <= 0.0005  # target: 0.5 mV or less on the held-out arrow test (0.40 mV seen)
+    assert final <= 0.0005  # target: 0.5 mV or less on the held-out arrow test (0.32 mV seen)
     assert doc["findings"][0]["gain_interval"][0] > 10
     assert not doc["unexplained"]
     assert doc["verdict"]["verdict"] == "explained"

@@ -67,6 +67,7 @@ def test_static_test_at_the_terminal_gives_table_2(daemon_factory) -> None:
                  "--set", "static.repeats=2", "--runs-dir", str(d.runs_dir))
     where, text = t.next()
     assert where == "static setup" and "Take the journal out" in text
+    assert "stand clear of the housing: the shakers will load it" in text
     t.type("maybe")
     assert t.refused() == "answer: #1: 'maybe' is not a choice here (ok, abort)"
     t.type("")
@@ -133,7 +134,9 @@ def test_probe_calibration_at_the_terminal_gives_table_a1(daemon_factory) -> Non
 def test_impact_at_the_terminal_rejects_bad_hits_and_gives_table_3(daemon_factory) -> None:
     d = daemon_factory()
     t = Terminal(d.command, "--only", "impact", "--runs-dir", str(d.runs_dir))
-    t.next()
+    where, text = t.next()
+    assert where == "impact setup" and "you will strike the housing" in text
+    assert "stand clear" not in text
     t.type("")
     strikes = iter(["d", "o"])  # x: a double hit, then an overload, then clean hits
     reviews = iter(["n"])  # x: the operator rejects the first clean hit
@@ -243,7 +246,9 @@ def test_on_the_nidaqmx_backend_the_person_reads_the_instruments(tmp_path: Path)
 def test_ctrl_c_at_a_prompt_aborts_the_test_without_a_traceback(daemon_factory) -> None:
     d = daemon_factory()
     t = Terminal(d.command, "--only", "impact", "--runs-dir", str(d.runs_dir))
-    t.next()
+    where, text = t.next()
+    assert where == "impact setup" and "you will strike the housing" in text
+    assert "stand clear" not in text
     t.type("")
     where, text = t.next()
     assert "Strike the housing along x" in text
@@ -271,7 +276,8 @@ def test_static_by_hand_at_the_terminal_gives_table_2(daemon_factory) -> None:
     t = Terminal(d.command, "--only", "static", "--load-by", "hand", "--set", 'static.axes=["x"]',
                  "--set", "static.repeats=2", "--runs-dir", str(d.runs_dir))
     where, text = t.next()
-    assert where == "static setup"
+    assert where == "static setup" and "you will push the housing" in text
+    assert "stand clear" not in text
     t.type("")
     typed, refused, pushes = [], [], 0
     repeated = False
