@@ -218,7 +218,7 @@ class DriveStream:
         self.advance_to(self.synth.sample + n + self.block * (self.ahead_blocks + 1))
 
     def shutdown(self, fade_s: float, cut: bool = False) -> None:
-        """Fade both drives to zero, write a block of zeros, read out the buffer, stop the tasks.
+        """Fade both drives to zero, write two blocks of zeros, read out the buffer, stop the tasks.
 
         ``cut`` (a trip): the AO already queued is not let play out first. The backend drops
         what it has not generated (`DaqBackend.cut_ao`) and the fade starts from the first
@@ -274,7 +274,8 @@ class DriveStream:
             if n:
                 new.append(self.synth.next_block(n))
         self.zero_sample = at + sum(a.shape[1] for a in new)
-        end = self.zero_sample + self.block
+        # at least two blocks of zeros: the run file shows the drives at rest after the fade
+        end = self.zero_sample + 2 * self.block
         if cut:  # read the motion out for as long as the queue and the fade would have taken
             end = max(end, self.sample + self.block * (self.ahead_blocks + 1)
                       + math.ceil(fade_s * fs))
