@@ -1,8 +1,13 @@
 """The rig's equations of motion, integrated sample by sample (numba-compiled).
 
-Per axis z in {x, y}, relative to the journal (which sits on the frame):
-    (M + f (M_f + D)) z'' + (C_rv + f C_sfd) z' + K_s z + F_seal + F_effects = F_in
-with f the film fill fraction (0 dry, 1 full). The seal's dry friction F_mu acts against the 2-D
+Per axis z in {x, y}, relative to the journal (which sits on the frame), h = z + z_f the
+housing's absolute displacement (z_f the frame's, 0 unless the frame mode is on):
+    (M + f M_f) h'' + f D z'' + (C_rv + f C_sfd) z' + K_s z + F_seal + F_effects = F_in
+    m_fr z_f'' + c_fr z_f' + k_fr z_f = f D z'' + (C_rv + f C_sfd) z' + K_s z + F_seal + F_effects
+with f the film fill fraction (0 dry, 1 full). The film's forces (damping and added mass) depend on
+the motion relative to the journal and react on the frame; the oil in the plenum (M_f) moves with
+the housing. With a rigid frame z = h and the first line is the whole model (a joint on the
+frame's spring adds its force to k_fr z_f). The seal's dry friction F_mu acts against the 2-D
 relative velocity vector: it sticks while the force it must hold stays below F_mu, and slips
 otherwise. Coulomb friction is integrated implicitly (a velocity-level projection, as in
 Moreau's time stepping), so sticking is exact rather than smoothed.
@@ -14,9 +19,9 @@ sliding; the relative position never passes c. The film law (eq. 16) is only use
 clearance, its eccentricity held below 0.95. Approximation: the normal and tangential impulses are
 solved one after the other (exact when the mass matrix has no cross terms).
 
-Approximations, stated: the film's added mass acts on the housing's absolute acceleration (the
-frame's motion is small and only present with the second-mode effect); with cross-coupled mass the
-slip direction of the friction step is taken from the trial velocity (exact without cross mass).
+Approximations, stated: with cross-coupled mass the slip direction of the friction step is taken
+from the trial velocity (exact without cross mass); the frame's damping force in the output
+acceleration uses its velocity moved from the half-step like the housing's.
 """
 
 from __future__ import annotations
@@ -49,7 +54,9 @@ N_OUT = 12
 @numba.njit(cache=True, inline="always")
 def _coefficients(x, y, fi, visc_i, vbar, p):  # noqa: ANN001, ANN202
     """Housing mass matrix and damping matrix at this instant (film fill, eccentricity, air);
-    the Y diagonal differs from X by the structure's own per-axis mass and damping."""
+    the Y diagonal differs from X by the structure's own per-axis mass and damping. The mass
+    matrix is the total M + f (M_f + D); its part that acts on the acceleration relative to the
+    journal, the film's added mass, is [[da, m12], [m21, da]] (the cross terms are all film)."""
     clear = p[P_CLEAR]
     ecc2 = (x * x + y * y) / (clear * clear)
     if ecc2 > 0.9025:  # eps capped at 0.95: the formula diverges at contact
@@ -64,7 +71,8 @@ def _coefficients(x, y, fi, visc_i, vbar, p):  # noqa: ANN001, ANN202
             alpha = p[P_AIR_MAX]
         afac = (1.0 - alpha) ** 3
     cfilm = fi * visc_i * p[P_C0] * efac * afac
-    m11 = p[P_M] + fi * p[P_MF] + fi * p[P_D] * afac
+    da = fi * p[P_D] * afac
+    m11 = p[P_M] + fi * p[P_MF] + da
     m12 = fi * p[P_DXY] * afac
     m21 = fi * p[P_DYX] * afac
     c11 = p[P_CRV] + cfilm
@@ -72,7 +80,22 @@ def _coefficients(x, y, fi, visc_i, vbar, p):  # noqa: ANN001, ANN202
     c21 = fi * p[P_CYX]
     m22 = m11 + p[P_DM_Y]
     c22 = c11 + p[P_DC_Y]
-    return m11, m12, m21, m22, c11, c12, c21, c22, cfilm
+    return m11, m12, m21, m22, c11, c12, c21, c22, cfilm, da
+
+
+@numba.njit(cache=True, inline="always")
+def _schur(a11, a12, a21, a22, b11, b12, b21, b22, e11, e12, e21, e22):  # noqa: ANN001, ANN202
+    """For the 2x2-block system [[A, B], [B, D]] (housing, frame) with E = D^-1: G = B E and
+    the Schur complement S = A - G B, which eliminate the frame: S vh = r1 - G r2."""
+    g11 = b11 * e11 + b12 * e21
+    g12 = b11 * e12 + b12 * e22
+    g21 = b21 * e11 + b22 * e21
+    g22 = b21 * e12 + b22 * e22
+    s11 = a11 - (g11 * b11 + g12 * b21)
+    s12 = a12 - (g11 * b12 + g12 * b22)
+    s21 = a21 - (g21 * b11 + g22 * b21)
+    s22 = a22 - (g21 * b12 + g22 * b22)
+    return g11, g12, g21, g22, s11, s12, s21, s22
 
 
 @numba.njit(cache=True, inline="always")
@@ -150,13 +173,14 @@ def integrate(
         fi = fill[i]
         frx = fry = 0.0
         rax = ray = 0.0
+        rafx = rafy = 0.0
         contact_n = 0.0
         bounced = False
         bounce_r = bounce_nx = bounce_ny = 0.0
         for k in range(nsub):
             # the kick uses the force at the start of the substep, where x is (leapfrog)
-            m11, m12, m21, m22, c11, c12, c21, c22, _ = _coefficients(x, y, fi, visc[i], vbar,
-                                                                       p)
+            m11, m12, m21, m22, c11, c12, c21, c22, _, da = _coefficients(x, y, fi, visc[i],
+                                                                           vbar, p)
             ex, ey = _elastic(x, y, fpx + k * dfx, fpy + k * dfy, p)
             if compliant:
                 frx, fry, wx, wy = _compliant_seal(x, y, wx, wy, kt, fmu)
@@ -165,11 +189,13 @@ def integrate(
             if joint == 1:
                 ex -= gjx
                 ey -= gjy
-            # the frame (explicit; its reaction uses the damping at the old velocity)
-            # Kick with the damping implicit (trapezoidal) between housing and frame:
-            #   M (vh' - vh)  = h E  - h/2 C (v_rel + v_rel')          v_rel = vh - vf
-            #   m2 (vf' - vf) = h Ef + h/2 C (v_rel + v_rel') - h/2 cf (vf + vf')
-            # Housing block A = M + h/2 C, coupling B = -h/2 C, frame block D = m2 + h/2 (C + cf).
+            # Kick with the damping implicit (trapezoidal) between housing and frame; the film's
+            # added mass Da acts on the relative acceleration (its reaction on the frame):
+            #   M (vh' - vh) + Da (v_rel' - v_rel) = h E  - h/2 C (v_rel + v_rel')
+            #   m2 (vf' - vf) - Da (v_rel' - v_rel) = h Ef + h/2 C (v_rel + v_rel')
+            #                                         - h/2 cf (vf + vf')      v_rel = vh - vf
+            # with M the absolute part. Housing block A = M + Da + h/2 C (the total mass matrix
+            # m), coupling B = -(Da + h/2 C) both ways, frame block D = m2 + Da + h/2 (C + cf).
             vhx = vx + vxf  # absolute housing velocity (x, vx are relative to the frame)
             vhy = vy + vyf
             a11 = m11 + hh * c11
@@ -181,11 +207,14 @@ def integrate(
             if frame_on:
                 m2 = p[P_FRAME_M]
                 cf = p[P_FRAME_C]
-                b11, b12, b21, b22 = -hh * c11, -hh * c12, -hh * c21, -hh * c22
-                d11 = m2 + hh * (c11 + cf)
-                d12 = hh * c12
-                d21 = hh * c21
-                d22 = m2 + hh * (c22 + cf)
+                b11 = -(da + hh * c11)
+                b12 = -(m12 + hh * c12)
+                b21 = -(m21 + hh * c21)
+                b22 = -(da + hh * c22)
+                d11 = m2 + da + hh * (c11 + cf)
+                d12 = m12 + hh * c12
+                d21 = m21 + hh * c21
+                d22 = m2 + da + hh * (c22 + cf)
                 ddet = d11 * d22 - d12 * d21
                 e11, e12, e21, e22 = d22 / ddet, -d12 / ddet, -d21 / ddet, d11 / ddet  # D^-1
                 fx_in = fpx + k * dfx
@@ -197,15 +226,14 @@ def integrate(
                 if joint == 2:
                     r2x -= h * gjx
                     r2y -= h * gjy
+                # the added mass's momentum: -Da vf on the housing's side, -Da v_rel on the frame's
+                r1x -= da * vxf + m12 * vyf
+                r1y -= m21 * vxf + da * vyf
+                r2x -= da * vx + m12 * vy
+                r2y -= m21 * vx + da * vy
                 # G = B D^-1 (2x2); Schur complement S = A - G B; P = I - G (impulse map)
-                g11 = b11 * e11 + b12 * e21
-                g12 = b11 * e12 + b12 * e22
-                g21 = b21 * e11 + b22 * e21
-                g22 = b21 * e12 + b22 * e22
-                s11 = a11 - (g11 * b11 + g12 * b21)
-                s12 = a12 - (g11 * b12 + g12 * b22)
-                s21 = a21 - (g21 * b11 + g22 * b21)
-                s22 = a22 - (g21 * b12 + g22 * b22)
+                g11, g12, g21, g22, s11, s12, s21, s22 = _schur(
+                    a11, a12, a21, a22, b11, b12, b21, b22, e11, e12, e21, e22)
                 sdet = s11 * s22 - s12 * s21
                 i11, i12, i21, i22 = s22 / sdet, -s12 / sdet, -s21 / sdet, s11 / sdet  # S^-1
                 rx = r1x - (g11 * r2x + g12 * r2y)
@@ -307,6 +335,8 @@ def integrate(
             nvy = vhy - nvyf
             rax = (nvx - vx) / h  # relative acceleration over this substep
             ray = (nvy - vy) / h
+            rafx = (nvxf - vxf) / h  # the frame's
+            rafy = (nvyf - vyf) / h
             vx = nvx
             vy = nvy
             vxf = nvxf
@@ -340,23 +370,41 @@ def integrate(
         # the state at t_i: the velocity moved from the half-step, then the forces there
         vox = vx + 0.5 * h * rax
         voy = vy + 0.5 * h * ray
-        m11, m12, m21, m22, c11, c12, c21, c22, cfilm = _coefficients(x, y, fi, visc[i], vbar,
-                                                                      p)
+        m11, m12, m21, m22, c11, c12, c21, c22, cfilm, da = _coefficients(x, y, fi, visc[i],
+                                                                          vbar, p)
         ex, ey = _elastic(x, y, fpx, fpy, p)
         if compliant:
             frx, fry, _, _ = _compliant_seal(x, y, wx, wy, kt, fmu)
         if joint == 1:
             ex -= gjx
             ey -= gjy
-        gx = ex - (c11 * vox + c12 * voy) + frx
+        gx = ex - (c11 * vox + c12 * voy) + frx  # the force on the housing
         gy = ey - (c21 * vox + c22 * voy) + fry
-        det = m11 * m22 - m12 * m21
+        s11, s12, s21, s22 = m11, m12, m21, m22
+        if frame_on:
+            # the housing's absolute acceleration with the frame's: m a_h - Da a_f = g and
+            # -Da a_h + (m2 + Da) a_f = gf (the reaction of g's interface part and the frame's
+            # spring and damping), the frame eliminated: S a_h = g - G gf
+            m2 = p[P_FRAME_M]
+            gfx = fpx - gx - p[P_FRAME_K] * xf - p[P_FRAME_C] * (vxf + 0.5 * h * rafx)
+            gfy = fpy - gy - p[P_FRAME_K] * yf - p[P_FRAME_C] * (vyf + 0.5 * h * rafy)
+            if joint == 2:
+                gfx -= gjx
+                gfy -= gjy
+            n11 = m2 + da
+            ndet = n11 * n11 - m12 * m21
+            e11, e12, e21, e22 = n11 / ndet, -m12 / ndet, -m21 / ndet, n11 / ndet
+            g11, g12, g21, g22, s11, s12, s21, s22 = _schur(
+                m11, m12, m21, m22, -da, -m12, -m21, -da, e11, e12, e21, e22)
+            gx -= g11 * gfx + g12 * gfy
+            gy -= g21 * gfx + g22 * gfy
+        det = s11 * s22 - s12 * s21
         out[O_X, i] = x
         out[O_Y, i] = y
         out[O_VX, i] = vox
         out[O_VY, i] = voy
-        out[O_AX, i] = (m22 * gx - m12 * gy) / det
-        out[O_AY, i] = (-m21 * gx + m11 * gy) / det
+        out[O_AX, i] = (s22 * gx - s12 * gy) / det
+        out[O_AY, i] = (-s21 * gx + s11 * gy) / det
         out[O_FRICX, i] = frx
         out[O_FRICY, i] = fry
         out[O_FILMX, i] = -cfilm * vox - (c12 * voy)

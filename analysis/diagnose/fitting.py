@@ -29,8 +29,11 @@ class FitResult:
 
 
 def apply(model: Model, params: list[Param], values: np.ndarray) -> Model:
+    """``model`` with each parameter set, held within its bounds: a fit at a bound comes back
+    as x0 + ((lo - x0) / s) s, which rounding can put just outside (a joint stiffness of
+    -2e-10 N/m that the rig's validation refuses)."""
     for p, v in zip(params, values, strict=True):
-        model = p.set(model, float(v))
+        model = p.set(model, min(max(float(v), p.lo), p.hi))
     return model
 
 

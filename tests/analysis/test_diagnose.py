@@ -10,8 +10,8 @@ import pytest
 from analysis.diagnose import DiagnoseError, diagnose, load_run, parse_spans
 from analysis.diagnose.data import Segment, records_from_arrays, split_segments
 from analysis.diagnose.engine import bootstrap_gain
-from analysis.diagnose.fitting import arx_linear_guess, levenberg_marquardt
-from analysis.diagnose.model import Evaluator, Model, Residuals, residuals
+from analysis.diagnose.fitting import apply, arx_linear_guess, levenberg_marquardt
+from analysis.diagnose.model import Evaluator, Model, Residuals, residuals, rig_param
 from sfdrig.cli import main
 from simulated_hw import load_rig_params
 from simulated_hw.params import RigParams
@@ -102,6 +102,21 @@ def test_levenberg_marquardt_solves_a_bounded_fit():
     u, _ = levenberg_marquardt(fun, np.array([1.0, 1.0]), np.array([0.0, 0.0]),
                                np.array([2.5, 10.0]), 200)
     assert u[0] == pytest.approx(2.5)  # held on its bound
+
+
+def test_a_parameter_fitted_onto_its_bound_stays_within_it():
+    """A fit that ends on a bound maps back as x0 + ((lo - x0) / s) s, which rounding put at
+    -1.2e-10 N/m for a joint stiffness bounded at 0; the rig's validation refused it and the
+    diagnosis ended in a traceback (independent second_mode case, seed 1)."""
+    x0, s = 837407.452880671, 43843.939722600284
+    u_lo = (0.0 - x0) / s
+    assert x0 + u_lo * s < 0.0  # the rounding this guards against
+    p = rig_param("stiffness_N_per_m", "effects.joint_microslip.stiffness_n_per_m", s, 0.0)
+    m = apply(Model(RigParams()), [p], np.array([x0 + u_lo * s]))
+    assert m.rig.effects.joint_microslip.stiffness_n_per_m == 0.0
+    p_hi = rig_param("slip_force_N", "effects.joint_microslip.slip_force_n", 1.0, 1.0, 5.0)
+    m = apply(Model(RigParams()), [p_hi], np.array([5.0 + 1e-9]))
+    assert m.rig.effects.joint_microslip.slip_force_n == 5.0
 
 
 def test_arx_guess_finds_a_linear_oscillator():
