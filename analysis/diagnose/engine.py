@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -122,6 +122,8 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     verdict: Verdict | None = None
     amplitude: AmplitudeDependence | None = None
+    #: the fitted baseline's order chosen on held-out data: one row per order tried
+    order: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def baseline_rms(self) -> float:
@@ -142,7 +144,10 @@ class Diagnosis:
         return {
             "baseline": {"kind": self.baseline_kind, "rms_error": self.baseline_rms,
                          "units": self.units, "parameters": self.baseline_params,
-                         "train_rms_error": self.baseline_train.rms()},
+                         "train_rms_error": self.baseline_train.rms(),
+                         "modes_per_axis": 2 if self.baseline_model.rig.effects.second_mode
+                         .enabled else 1,
+                         "order_selection": self.order},
             "findings": [f.to_dict() for f in self.findings],
             "unexplained": self.unexplained,
             "extended_model": extended_model_path,
@@ -386,7 +391,6 @@ def diagnose(
         say(f"fitting the linear baseline ({', '.join(p.name for p in free)})")
         model = fit(ev, [model], free, fit_train, scale_m, max_nfev=60, step=step).model
         bparams = {p.name: p.get(model) for p in free}
-    free_base = list(free)
     base_model = model
     base_train = residuals(ev, model, fit_train)
     base_test = residuals(ev, model, fit_train, test, base_train.offsets)
@@ -399,12 +403,28 @@ def diagnose(
                   duration_s=ev.duration_s, x_rms_m=scale_m, f_rms_n=f_rms,
                   f_typ_hz=float(np.median(freqs)) if freqs else _dominant_freq(records,
                                                                                  fit_train))
-    lib: list[Effect] = [LIBRARY[e] for e in (effects or list(LIBRARY))]
-    skipped = {e.id: why for e in lib if (why := e.applicable(ctx)) is not None}
-    lib = [e for e in lib if e.id not in skipped]
-
     lo_hz, hi_hz = excited_band(records, train)
     band = (lo_hz / 1.25, hi_hz * 1.25)
+    order: list[dict[str, Any]] = []
+    wanted = effects or list(LIBRARY)
+    if kind == "fitted" and "second_mode" in wanted:
+        # the fitted baseline's order (modes per axis) is chosen on held-out data, before any
+        # effect: a structure with two modes is no cause on top of a one-mode baseline
+        two, order = _choose_order(ev, ctx, model, free, fit_train, test, scale_m, step, band,
+                                   seed, min_gain, min_gain_lo, say)
+        if two is not None:
+            model = base_model = two.fit.model
+            free = free + two.variant.params
+            bparams = {p.name: p.get(model) for p in free}
+            base_train = residuals(ev, model, fit_train)
+            base_test = residuals(ev, model, fit_train, test, base_train.offsets)
+            ctx = replace(ctx, base=base_model)
+    free_base = list(free)
+    lib: list[Effect] = [LIBRARY[e] for e in wanted]
+    skipped = {e.id: why for e in lib if (why := e.applicable(ctx)) is not None}
+    if base_model.rig.effects.second_mode.enabled and kind == "fitted":
+        skipped["second_mode"] = "in the baseline: its order was chosen on held-out data"
+    lib = [e for e in lib if e.id not in skipped]
     findings: list[Finding] = []
     rounds: list[list[dict[str, Any]]] = []
     current, cur_test = model, base_test
@@ -570,7 +590,7 @@ def diagnose(
         baseline_test=base_test, findings=findings, final_model=current, final_test=cur_test,
         unexplained=unexplained, rounds=rounds, skipped=skipped, noise_floor=noise,
         extended_rig=ext, elapsed_s=time.perf_counter() - t_start, notes=notes,
-        verdict=verdict, amplitude=amplitude,
+        verdict=verdict, amplitude=amplitude, order=order,
     )
 
 
@@ -642,6 +662,55 @@ def _swap_check(ev: Evaluator, base: Model, fitted: bool, free_base: list[Param]
     params += runner.variant.params
     res = fit(ev, [m], params, fit_train, scale_m, max_nfev=20 * (len(params) + 1), step=step)
     return residuals(ev, res.model, fit_train, test).rms()
+
+
+def _choose_order(ev: Evaluator, ctx: Context, one: Model, free: list[Param],
+                  fit_train: list[Segment], test: list[Segment], scale_m: float, step: int,
+                  band: tuple[float, float], seed: int, min_gain: float, min_gain_lo: float,
+                  say: Any) -> tuple[Candidate | None, list[dict[str, Any]]]:
+    """One or two modes per axis for the fitted baseline, chosen on held-out data.
+
+    The second mode (``second_mode``: the frame as a second mass-spring under the housing) is
+    fitted with the one-mode baseline's parameters, from the same starts as the library term,
+    and kept by the same rules as a finding: a lower held-out criterion, a held-out gain of at
+    least ``min_gain`` whose bootstrap interval stays above ``min_gain_lo``, no parameter on a
+    bound, no higher training error, the mode inside the excited band. Returns the two-mode
+    candidate (None: one mode) and the table of both orders.
+    """
+    one_train = train_sse(ev, one, fit_train)[0]
+    one_test = residuals(ev, one, fit_train, test)
+    one_crit, _ = _criterion(one_test, test, len(free))
+    rows: list[dict[str, Any]] = [{"modes_per_axis": 1, "held_out_error": one_test.rms(),
+                                   "criterion": one_crit, "n_params": len(free)}]
+    best: tuple[FitResult, Variant] | None = None
+    for var in LIBRARY["second_mode"].variants(ctx, one):
+        # the best starts (the second mode added to the one-mode fit) refined with every
+        # parameter: the first mode moves once the second takes its share of the response
+        k = len(free) + len(var.params)
+        res = fit(ev, var.starts, free + var.params, fit_train, scale_m, step=step,
+                  keep=var.keep, max_nfev=30 * (k + 1))
+        if best is None or res.train_sse < best[0].train_sse:
+            best = (res, var)
+    if best is None:
+        return None, rows
+    res, var = best
+    two = _judge(ev, "second_mode", var, res, fit_train, test, len(free))
+    gain = one_test.rms() / two.test_rms
+    lo, hi = bootstrap_gain(one_test, two.test, test, seed)
+    why = _not_a_finding(two, one_train, band)
+    if why is None and not (two.criterion < one_crit and gain >= min_gain
+                            and lo >= min_gain_lo):
+        why = f"held-out gain {gain:.3g} [{lo:.3g}, {hi:.3g}] not significant"
+    rows.append({"modes_per_axis": 2, "held_out_error": two.test_rms,
+                 "criterion": two.criterion, "n_params": two.k,
+                 "parameters": parameters_of(var, two.fit.model), "gain": gain,
+                 "gain_interval": [lo, hi], "chosen": why is None,
+                 **({"not_chosen": why} if why else {})})
+    rows[0]["chosen"] = why is not None
+    say(f"baseline order: {'two modes' if why is None else 'one mode'} per axis (two modes: "
+        f"held-out {two.test_rms:.4g}, gain {gain:.3g} [{lo:.3g}, {hi:.3g}]"
+        f"{'' if why is None else '; ' + why})")
+    return (two if why is None else None), rows
 
 
 def _judge(ev: Evaluator, effect: str, var: Variant, res: FitResult, fit_train: list[Segment],

@@ -308,6 +308,13 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
     if diag.baseline_params:
         parts.append(_table([{"parameter": k, "value": v}
                              for k, v in diag.baseline_params.items()], ["parameter", "value"]))
+    if diag.order:
+        parts.append("<p>The fitted baseline's order, chosen on the held-out data:</p>")
+        parts.append(_table([{
+            "modes per axis": r["modes_per_axis"], "held-out RMS error": r["held_out_error"],
+            "criterion": r["criterion"], "parameters": r["n_params"],
+            "chosen": "yes" if r["chosen"] else r.get("not_chosen", "no")} for r in diag.order],
+            ["modes per axis", "held-out RMS error", "criterion", "parameters", "chosen"]))
     parts.append("<h2>Findings</h2>")
     if diag.findings:
         parts.append(_table([{

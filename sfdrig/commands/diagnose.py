@@ -146,6 +146,10 @@ def _run(args: argparse.Namespace) -> int:
         log(f"report: {page}")
     u = diag.units
     print(f"baseline ({diag.baseline_kind}): held-out RMS error {diag.baseline_rms:.4g} {u}")
+    for row in diag.order:
+        print(f"  order: {row['modes_per_axis']} mode(s) per axis, held-out "
+              f"{row['held_out_error']:.4g} {u}"
+              + (" (chosen)" if row["chosen"] else f" ({row.get('not_chosen', 'not chosen')})"))
     for f in diag.findings:
         params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                            for k, v in f.parameters.items())
