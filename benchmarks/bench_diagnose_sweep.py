@@ -72,9 +72,15 @@ def main() -> int:
     for f in diag.findings:
         print(f"  found {f.effect} {f.parameters} gain {f.gain:.3g} "
               f"[{f.gain_interval[0]:.3g}, {f.gain_interval[1]:.3g}] "
-              f"({f.evidence.get('confidence')} confidence)")
+              f"({f.evidence.get('confidence')} confidence; share of the signal "
+              f"{f.evidence.get('share_of_signal_explained', float('nan')):.3g}"
+              f"{', refinement' if f.evidence.get('refinement') else ''}"
+              f"{', ambiguous' if f.evidence.get('ambiguous') else ''})")
     if diag.verdict is not None:
-        print(f"  verdict: {diag.verdict.text}")
+        v = diag.verdict
+        print(f"  verdict: {v.text} (explained: baseline {v.baseline.explained:.4f}, final "
+              f"{v.final.explained:.4f}; residual {v.final.residual_rms:.3g} against a noise "
+              f"floor {v.final.noise_rms:.3g})")
     return 0 if wall <= 60.0 else 1
 
 

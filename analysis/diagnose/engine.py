@@ -30,8 +30,8 @@ Procedure
    "unexplained". Under either, and when a baseline parameter sits on a bound, every finding is
    low-confidence; so is a finding whose runner-up (not found itself in a later round) explains
    the held-out data nearly as well (held-out MSE within 25 %), and a refinement: a term found
-   once the model already left nothing unexplained, explaining less than 0.5 % of the signal
-   (``verdict.refinement_share``).
+   once the model already left nothing unexplained, explaining less than 0.5 % of the signal and
+   less than 3/4 of what was left (``verdict.refinement_share``).
 """
 
 from __future__ import annotations

@@ -11,7 +11,8 @@ low-pass and central differences; the force is filtered the same way, so both si
 same band. Every term is linear in its parameter, so each model is a least-squares fit on the
 training segments, judged on the held-out ones with the same criterion, bootstrap and verdict
 against the signal (here the force) as the replay. A term found once the model leaves less
-than 2 % of the signal, explaining less than 0.5 % of it, is a refinement (low confidence).
+than 2 % of the signal, explaining less than 0.5 % of it and less than 3/4 of what was left, is a
+refinement (low confidence; `verdict.refinement_share`).
 """
 
 from __future__ import annotations

@@ -16,7 +16,13 @@ from scipy.signal import butter, lsim, sosfiltfilt
 from analysis.diagnose import diagnose
 from analysis.diagnose.data import Segment, records_from_arrays
 from analysis.diagnose.model import Residuals
-from analysis.diagnose.verdict import excited_band, judge, signal_fit
+from analysis.diagnose.verdict import (
+    SignalFit,
+    excited_band,
+    judge,
+    refinement_share,
+    signal_fit,
+)
 
 
 def _modal_response(force: np.ndarray, fs: float,
@@ -134,3 +140,21 @@ def test_three_modes_given_two_are_judged_baseline_inadequate():
     assert all(f.evidence["confidence"] == "low" for f in diag.findings)
     peaks = [p["freq_hz"] for p in v.missing["baseline"]["residual_peaks"]]
     assert any(abs(p - f) < 2 for p in peaks for f in (12.0, 31.0, 67.0)), peaks
+
+
+def test_a_refinement_is_a_minor_term_on_a_model_that_already_explains_the_signal():
+    """Silverbox's figures (signal 53.8 mV; 0.73 -> 0.40 -> 0.32 mV held out): the quadratic and
+    the micro-slip terms refine; a term that removes most of the remainder is its cause however
+    small; nothing is a refinement while the model before it leaves too much, or more than the
+    noise allows."""
+    def fit(res_mv: float, noise_mv: float = 0.0, sig_mv: float = 53.8) -> SignalFit:
+        return SignalFit(1.0 - (res_mv**2 - noise_mv**2) / (sig_mv**2 - noise_mv**2), sig_mv,
+                         res_mv, noise_mv)
+
+    quadratic, share = refinement_share(fit(0.73), fit(0.40))
+    assert quadratic and share == pytest.approx((0.73**2 - 0.40**2) / 53.8**2)
+    assert refinement_share(fit(0.40), fit(0.32))[0]  # micro-slip on a circuit
+    assert not refinement_share(fit(0.73), fit(0.73 / 6.4))[0]  # 97 % of the remainder
+    assert not refinement_share(fit(14.4), fit(13.0))[0]  # 7 % of the signal left before
+    assert not refinement_share(fit(0.73, noise_mv=0.1), fit(0.40, noise_mv=0.1))[0]  # 7x noise
+    assert refinement_share(fit(0.14, noise_mv=0.1), fit(0.125, noise_mv=0.1))[0]
