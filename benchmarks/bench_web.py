@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import atexit
 import json
 import os
 import selectors
@@ -144,6 +145,8 @@ def main() -> int:
     web = subprocess.Popen([sys.executable, "-m", "sfdrig", "web", "--port", "0",
                             "--command-endpoint", eps["command"], "--data-endpoint", eps["data"]],
                            cwd=REPO, stdout=subprocess.PIPE, text=True)
+    # a refused spec or a browser failure ends this script: never leave the two servers behind
+    atexit.register(lambda: [q.kill() for q in (daemon, web) if q.poll() is None])
     url = first_line(web, "sfdrig web").removeprefix("url=")
     print(f"daemon {eps}; web {url}; {args.browsers} browsers, {args.ws_clients} WebSocket "
           f"clients; {args.seconds:g} s")
