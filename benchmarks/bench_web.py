@@ -24,6 +24,7 @@ import argparse
 import asyncio
 import atexit
 import json
+import math
 import os
 import selectors
 import signal
@@ -153,9 +154,12 @@ def main() -> int:
     sockets = SocketClients(url, args.ws_clients)
     if args.ws_clients:
         sockets.start()
+    freqs = [20.0, 30.0, 40.0, 50.0, 60.0]
+    # long enough to outlast the measurement (15 steps; 1500 cycles: about 11 min)
+    cycles = max(1500, math.ceil(1.2 * args.seconds / (3 * sum(1 / f for f in freqs))))
     spec = {"name": "bench_web", "motion": "x", "lubricated": True,
-            "amplitude_m": [13e-6, 25e-6, 38e-6], "freq_hz": [20.0, 30.0, 40.0, 50.0, 60.0],
-            "settle_cycles": 10, "record_cycles": 1500,
+            "amplitude_m": [13e-6, 25e-6, 38e-6], "freq_hz": freqs,
+            "settle_cycles": 10, "record_cycles": cycles,
             "control": {"block_s": 0.0125, "ahead_blocks": 3}}
     rss: list[tuple[float, float]] = []
     # The browsers (children of this process from here on) run at lower priority than the daemon:
