@@ -192,13 +192,18 @@ class WebApp:
         return web.json_response(out)
 
     async def start_test(self, request: web.Request) -> web.Response:
-        """Start a structure test with its default settings; its questions come back in the
-        status, so this page (or a terminal) is its operator."""
+        """Start a structure test, with its default settings or the few the page offers
+        (``spec``, e.g. the static test's ``load_by``; the daemon validates them); its questions
+        come back in the status, so this page (or a terminal) is its operator."""
         s = self._guard(request, need_operator=True)
         body = await request.json()
         test = str(body.get("test", ""))
+        spec = body.get("spec") or {}
+        if not isinstance(spec, dict):
+            return web.json_response({"ok": False, "data": {},
+                                      "error": "start_test: spec must be an object"})
         out = await self._daemon(lambda: self.link.try_command(
-            "start_test", test=test, operator=s.name, notes="started from sfdrig web"))
+            "start_test", test=test, spec=spec, operator=s.name, notes="started from sfdrig web"))
         return web.json_response(out)
 
     async def command(self, request: web.Request) -> web.Response:

@@ -310,3 +310,31 @@ def test_the_operator_answers_a_structure_test_in_the_page(daemon_factory, web_f
     assert any("refused entry '10 kg'" in m for m in ops)
     assert any(m.endswith("ok '8 kPa' = 8 kPa") for m in ops)
     assert page.errors == [] and viewer.errors == []
+
+
+def test_the_page_starts_the_static_test_by_hand(daemon_factory, web_factory, browser):
+    """The page offers the static test loaded by hand (report IV.1: the force gauge): its
+    questions ask the operator to push, never to stand clear, and the shakers stay at 0 V."""
+    d = daemon_factory()
+    page = _open(browser, web_factory(d))
+    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
+    page.select_option("#test-kind", "static:hand")
+    page.click("#start-test")
+    page.wait_for_function("document.getElementById('message').textContent.includes('run ')")
+    run_id = page.inner_text("#message").removeprefix("start: ok (run ").rstrip(")")
+    page.wait_for_selector("#question:not([hidden])", timeout=60_000)
+    assert page.inner_text("#q-where") == "static setup"
+    prompt = page.inner_text("#q-prompt")
+    assert "you will push the housing" in prompt and "stand clear" not in prompt
+    page.click("#q-ok")
+    page.wait_for_function("document.getElementById('q-prompt').textContent.startsWith("
+                           "'Push the housing along')", timeout=60_000)
+    assert "by hand" in page.inner_text("#q-where")
+    page.click("#q-abort")
+    page.wait_for_function(f"document.getElementById('run-id').textContent.includes("
+                           f"'{run_id} aborted')", timeout=60_000)
+    with open_run(d.runs_dir / f"{run_id}.h5") as r:
+        assert r.attrs["status"] == "aborted" and len(r.steps) == 0
+        for drive in r.drive_names:
+            assert np.all(r.channel(drive) == 0.0), drive  # by hand: the shakers never drive
+    assert page.errors == []

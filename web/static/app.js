@@ -297,7 +297,11 @@ $("start-upload").onclick = async () => {
   if (!f) { showMessage("choose a sweep TOML file first", true); return; }
   post("/api/start", { toml: await f.text(), filename: f.name });
 };
-$("start-test").onclick = () => post("/api/start_test", { test: $("test-kind").value });
+// "static:hand": the static test with the operator pushing and reading the force gauge
+$("start-test").onclick = () => {
+  const [test, by] = $("test-kind").value.split(":");
+  post("/api/start_test", by ? { test, spec: { load_by: by } } : { test });
+};
 $("pause").onclick = () => post("/api/command", { cmd: "pause" });
 $("resume").onclick = () => post("/api/command", { cmd: "resume" });
 $("abort").onclick = () => post("/api/command", { cmd: "abort" });
