@@ -11,8 +11,9 @@ class _Spec(BaseModel):
     model_config = ConfigDict(extra="forbid")
     block_samples: int = Field(
         100, ge=10, le=100_000,
-        description="samples per AI/AO block; two blocks are queued ahead, so on a trip the drive "
-        "reaches zero within 2 blocks + the 40 ms fault ramp (60 ms at 10 kS/s)",
+        description="samples per AI/AO block; two blocks are queued ahead. A force trip is seen "
+        "at the end of the block it happens in, and the queue is cut there: the drives are at 0 V "
+        "from then (or fade in 40 ms where the backend cannot stop its AO)",
     )
     ramp_s: float = Field(0.1, gt=0, le=5, description="drive ramp between levels [s]")
     max_force_n: float = Field(448.0, gt=0, description="measured force limit (shaker rating)")

@@ -1,6 +1,10 @@
 """What every non-sweep test programme shares: the DC-level stream (AO written two blocks ahead,
-every block to the listener), the harness that always ends with the drives ramped to zero, the
-wait for a person's answer while the DAQ keeps streaming, and the check that signals are steady.
+every block to the listener), the harness that always ends with the drives at zero, the wait for a
+person's answer while the DAQ keeps streaming, and the check that signals are steady.
+
+A force over the limit or the emergency stop does not let the AO already queued play: as in a
+sweep, the backend drops it (`DaqBackend.cut_ao`) and the drives are at 0 V from the first sample
+not generated (or fade fast from it, where the backend resumes). Every other end ramps.
 
 The operator is an `control.operator.OperatorDesk`; what a person's hands do that the software must
 do on the simulated rig (strike, show a dial gauge, turn the regulator, take the journal out) is an
@@ -19,6 +23,7 @@ import numpy as np
 
 from control.operator import Answer, OperatorDesk, Question
 from daq.backend import DaqBackend
+from daq.errors import EmergencyStopError
 
 
 class Listener(Protocol):
@@ -36,6 +41,10 @@ class ProgramError(RuntimeError):
 
 class ProgramAborted(ProgramError):
     """The operator (or the daemon) asked the programme to stop."""
+
+
+class ForceTrip(ProgramError):
+    """A load cell read more than the programme's force limit: the drives are cut."""
 
 
 class RigHands(Protocol):
@@ -106,6 +115,7 @@ class Stream:
         self._rate = np.zeros(self.n_ao)  # ramp rate toward the target [V per sample]
         self.sample = 0  # next AI sample to read
         self.last_ai = np.zeros((len(self.cm.ai), 0))
+        self._shown_v = np.zeros(self.n_ao)  # the drive at the end of the last block read
         self._started = False
 
     def _write(self, target_v: np.ndarray, ramp_samples: int) -> None:
@@ -127,6 +137,17 @@ class Stream:
         self._written.append(blk)
         self.level_v = blk[:, -1].copy()
 
+    def _read(self) -> np.ndarray:
+        """Read the block the oldest written AO is generated with; AI in engineering units."""
+        volts = self.backend.read_ai(self.block)
+        ai = self.cm.to_engineering(volts)
+        self.last_ai = ai
+        ao = self._written.popleft()
+        self.listener.on_block(self.sample, ai, ao)
+        self.sample += self.block
+        self._shown_v = ao[:, -1].copy()
+        return ai
+
     def start(self) -> None:
         for _ in range(2):
             self._write(self.level_v, 1)
@@ -138,12 +159,7 @@ class Stream:
         remaining = np.max(np.abs(target_v - self.level_v)) if self.n_ao else 0.0
         ramp = int(ramp_s * self.fs) if remaining > 0 else 1
         self._write(target_v, ramp)
-        volts = self.backend.read_ai(self.block)
-        ai = self.cm.to_engineering(volts)
-        self.last_ai = ai
-        ao = self._written.popleft()
-        self.listener.on_block(self.sample, ai, ao)
-        self.sample += self.block
+        ai = self._read()
         if not self._fading:
             if self.operator is not None and self.operator.abort_reason:
                 raise ProgramAborted(f"{self.where or 'programme'}: "
@@ -156,7 +172,7 @@ class Stream:
             if name in self.cm.ai_names:
                 peak = float(np.max(np.abs(ai_row(self.cm, ai, name))))
                 if peak > self.max_force_n:
-                    raise ProgramError(f"{self.where or 'programme'}: {name} reached "
+                    raise ForceTrip(f"{self.where or 'programme'}: {name} reached "
                                        f"{peak:.1f} N, over the {self.max_force_n:g} N limit")
 
     def hold(self, target_v: np.ndarray, seconds: float, ramp_s: float) -> tuple[int, np.ndarray]:
@@ -174,18 +190,47 @@ class Stream:
         blocks = [self.step(target_v, ramp_s) for _ in range(n_blocks)]
         return first, np.concatenate(blocks, axis=1)
 
-    def finish(self, ramp_s: float) -> None:
-        """Ramp to zero, let the queued blocks out, stop (always called)."""
+    def finish(self, ramp_s: float, cut: bool = False) -> None:
+        """Ramp to zero, let the queued blocks out, stop (always called).
+
+        ``cut`` (a force trip or the emergency stop): the queued blocks do not play
+        (`_cut`); the motion is read out for as long as they and the ramp would have taken.
+        """
         if not self._started:
             return
         zero = np.zeros(self.n_ao)
         self._fading = True
         try:
+            if cut:
+                self._cut(ramp_s)
             n_blocks = int(np.ceil(ramp_s * self.fs / self.block)) + 3
             for _ in range(n_blocks):
                 self.step(zero, ramp_s)
         finally:
             self.backend.stop()
+
+    def _cut(self, ramp_s: float) -> None:
+        """Drop the AO not yet generated; the drives are at 0 V from there, or (a backend that
+        resumes) ramp to zero in ``ramp_s`` from the level they had reached. The blocks to read
+        are rebuilt to what the outputs show, and read out."""
+        queued = (np.concatenate(list(self._written), axis=1) if self._written
+                  else np.zeros((self.n_ao, 0)))
+        done = self.backend.cut_ao()
+        at = min(max(done.at, self.sample), self.sample + queued.shape[1]) - self.sample
+        kept = queued[:, :at]
+        level = kept[:, -1] if at else self._shown_v
+        n_ramp = max(int(ramp_s * self.fs), 1) if done.resumes else 0
+        fade = level[:, None] * (1.0 - np.arange(1, n_ramp + 1) / n_ramp)[None, :]
+        total = self.block * int(np.ceil((queued.shape[1] + n_ramp) / self.block))
+        zeros = np.zeros((self.n_ao, total - at - n_ramp))
+        if done.resumes:
+            self.backend.write_ao(np.concatenate([fade, zeros], axis=1))
+        tail = np.concatenate([kept, fade, zeros], axis=1)
+        self._written = deque(tail[:, i:i + self.block] for i in range(0, total, self.block))
+        self.level_v = np.zeros(self.n_ao)
+        self._target = None
+        while self._written:
+            self._read()
 
 
 def ai_row(cm: Any, ai: np.ndarray, name: str) -> np.ndarray:
@@ -225,19 +270,24 @@ def run_program(kind: str, backend: DaqBackend, listener: Listener, spec: Any,
     steps: list[dict[str, Any]] = []
     listener.on_event("state", f"{kind} programme started: {spec.model_dump_json()}", 0)
     outcome = ProgramOutcome(kind, 0, True)
-    clean = False
+    clean = cut = False
     try:
         stream.start()
         body(stream, steps)
         clean = True
     except ProgramError as err:
         outcome.completed, outcome.reason = False, str(err)
+        cut = isinstance(err, ForceTrip)
         listener.on_event("abort", str(err), stream.sample)
+    except EmergencyStopError:
+        cut = True
+        raise
     finally:
         if operator is not None:
             operator.withdraw()
-        # a fault (ProgramError or anything unexpected) fades the drives fast
-        stream.finish(spec.ramp_s if clean else FAULT_RAMP_S)
+        # a fault (ProgramError or anything unexpected) fades the drives fast; a force trip or
+        # the emergency stop cuts them
+        stream.finish(spec.ramp_s if clean else FAULT_RAMP_S, cut=cut)
     state = "completed" if outcome.completed else "aborted"
     listener.on_event("state", f"{kind} programme {state}", stream.sample)
     outcome.steps, outcome.samples, outcome.step_dicts = len(steps), stream.sample, steps
@@ -348,7 +398,7 @@ def hold_steady(stream: Stream, target_v: np.ndarray, record_s: float, ramp_s: f
 
 
 __all__: Sequence[str] = [
-    "FAULT_RAMP_S", "Listener", "ProgramAborted", "ProgramError", "ProgramOutcome", "RigHands",
-    "Steadiness", "Stream", "ai_row", "ask", "ask_unsteady", "hold_steady", "journal_out",
-    "run_program", "signal", "step_dict", "unsteady",
+    "FAULT_RAMP_S", "ForceTrip", "Listener", "ProgramAborted", "ProgramError", "ProgramOutcome",
+    "RigHands", "Steadiness", "Stream", "ai_row", "ask", "ask_unsteady", "hold_steady",
+    "journal_out", "run_program", "signal", "step_dict", "unsteady",
 ]

@@ -28,9 +28,9 @@ from control.programs import (
     run_static_test,
 )
 from daq.channels import default_channel_map
-from simulated_hw.backend import SimulatedBackend
 from simulated_hw.params import RigParams
 from storage import open_run
+from tests.control.conftest import WriteLog
 
 MIL_M = 25.4e-6
 GAUGE_RESOLUTION_M = 0.0001 * 0.0254  # dial gauge, +/- 0.0001 in (Appendix A)
@@ -43,8 +43,8 @@ def no_seal() -> RigParams:
     return p
 
 
-def backend(params: RigParams, seed: int = 3) -> SimulatedBackend:
-    b = SimulatedBackend(params, seed=seed)
+def backend(params: RigParams, seed: int = 3) -> WriteLog:
+    b = WriteLog(params, seed=seed)
     b.configure(default_channel_map())
     return b
 
@@ -191,7 +191,33 @@ def test_static_programme_stops_at_the_force_limit(tmp_path: Path) -> None:
         assert trip - first_over <= 100  # detected within the 10 ms block
         drive = np.abs(r.channel("shaker_x"))
         assert drive[first_over] > 1.0
-        assert np.all(drive[first_over + 1000:] == 0.0)
+        # the two blocks queued ahead do not play: 0 V from the end of the trip's block
+        assert trip % 100 == 0 and drive[trip - 1] > 1.0
+        assert np.all(drive[trip:] == 0.0)
+        assert len(drive) >= trip + 200 + 400  # the motion read out (queue + 40 ms ramp)
+    written = b.ao_written()[0]
+    assert np.all(np.abs(written[trip:trip + 200]) > 1.0)  # it had been written
+
+
+def test_a_force_trip_on_a_resuming_backend_fades_from_the_first_sample_not_generated(
+        tmp_path: Path) -> None:
+    """A backend that takes back its queue and goes on (the in-process rig with
+    ``cut_stops=False``): the 40 ms fault ramp starts where the generation was, no step."""
+    b = WriteLog(no_seal(), seed=3, cut_stops=False)
+    b.configure(default_channel_map())
+    w = create_run_writer(tmp_path / "s.h5", "static", b, run_id="s")
+    out = run_static_test(b, w, StaticSpec(forces_n=(20.0, 120.0), max_force_n=100.0))
+    w.close()
+    assert not out.completed and "over the 100 N limit" in out.reason
+    with open_run(tmp_path / "s.h5") as r:
+        trip = next(e["sample"] for e in r.events if e["kind"] == "abort")
+        drive = r.channel("shaker_x")
+    level = drive[trip - 1]
+    assert abs(level) > 1.0
+    fade = drive[trip:trip + 400]  # 40 ms at 10 kS/s, linear to zero
+    np.testing.assert_allclose(fade, level * (1 - np.arange(1, 401) / 400), atol=1e-12)
+    assert np.all(drive[trip + 400:] == 0.0)
+    assert np.max(np.abs(np.diff(drive[trip - 1:trip + 401]))) <= abs(level) / 400 + 1e-12
 
 
 def test_probe_calibration_programme(tmp_path: Path) -> None:

@@ -298,3 +298,40 @@ def test_a_trip_on_a_board_without_idle_output_zero_lets_the_queue_and_the_fade_
     assert np.any(shown[:, (k // 100 + 1) * 100:(k // 100 + 4) * 100] != 0)  # the queue played
     assert np.all(shown[:, k + 1_000:] == 0)  # at 0 V within 100 ms of the trip
     assert no_idle_zero_server.device.ao_hold == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
+
+
+def test_a_force_trip_in_a_test_programme_stops_the_board_s_ao_at_once(
+        fast_server: SimulatedDeviceServer) -> None:
+    """The static programme's force limit through nidaqmx: the two blocks queued on the board
+    are never generated (the AO task stopped at the end of the block the force was seen in),
+    the terminals are at 0 V, and the motion after is read out."""
+    from control.listener import RecordingListener
+    from control.programs import StaticSpec, run_static_test
+
+    backend = NidaqmxBackend(watchdog_timeout_s=None)
+    written = 0
+    try:
+        backend.configure(on_server(fast_server))
+        write = backend.write_ao
+
+        def counted(block: np.ndarray) -> None:
+            nonlocal written
+            write(block)
+            written += block.shape[1]
+
+        backend.write_ao = counted  # type: ignore[method-assign]
+        listener = RecordingListener(keep_blocks=True)
+        out = run_static_test(backend, listener,
+                              StaticSpec(forces_n=(20.0, 120.0), max_force_n=100.0))
+        ao_task = fast_server.servicer.tasks[
+            next(n for n in fast_server.servicer.tasks if "-ao-" in n)]
+        generated = ao_task.ao_generated
+    finally:
+        backend.close()
+    assert not out.completed and "over the 100 N limit" in out.reason
+    trip = listener.events_of("abort")[0][2]
+    assert generated == trip and written >= trip + 200
+    shown = listener.ao()
+    assert np.abs(shown[0, trip - 1]) > 1.0 and np.all(shown[:, trip:] == 0)
+    assert shown.shape[1] >= trip + 600  # the motion read out (queue + 40 ms ramp)
+    assert fast_server.device.ao_hold == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
