@@ -222,6 +222,19 @@ def test_a_sweep_that_underflows_ends_with_the_drives_at_zero(
     assert device.ao_hold == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}  # both terminals at 0 V
 
 
+def _count_writes(backend: NidaqmxBackend) -> list[int]:
+    """Count the AO samples written from now on: ``[n]``, kept up to date."""
+    written = [0]
+    write = backend.write_ao
+
+    def counted(block: np.ndarray) -> None:
+        write(block)
+        written[0] += block.shape[1]
+
+    backend.write_ao = counted  # type: ignore[method-assign]
+    return written
+
+
 def _trip_through_nidaqmx(server: SimulatedDeviceServer, ramp_s: float, then: object = None
                           ) -> tuple[object, object, int, int, object]:
     """Dry X 30 um at 40 Hz through nidaqmx, the amplifier gain x3 from 1 s over ``ramp_s``,
@@ -235,17 +248,9 @@ def _trip_through_nidaqmx(server: SimulatedDeviceServer, ramp_s: float, then: ob
         return server.device.rig
 
     backend = NidaqmxBackend(watchdog_timeout_s=None)
-    written = 0
     try:
         backend.configure(on_server(server))
-        write = backend.write_ao
-
-        def counted(block: np.ndarray) -> None:
-            nonlocal written
-            write(block)
-            written += block.shape[1]
-
-        backend.write_ao = counted  # type: ignore[method-assign]
+        written = _count_writes(backend)
         knob = GainKnob(rig, factor=3.0, ramp_s=ramp_s)
         spec = SweepSpec(motion="x", amplitude_m=[30e-6], freq_hz=[40.0])
         out = SweepEngine(backend, spec, listener=knob).run()
@@ -254,7 +259,7 @@ def _trip_through_nidaqmx(server: SimulatedDeviceServer, ramp_s: float, then: ob
         after = SweepEngine(backend, then).run() if then is not None else None
     finally:
         backend.close()
-    return out, knob, generated, written, after
+    return out, knob, generated, written[0], after
 
 
 def test_a_trip_stops_the_board_s_ao_at_once_and_the_motion_within_10_percent(
@@ -309,17 +314,9 @@ def test_a_force_trip_in_a_test_programme_stops_the_board_s_ao_at_once(
     from control.programs import StaticSpec, run_static_test
 
     backend = NidaqmxBackend(watchdog_timeout_s=None)
-    written = 0
     try:
         backend.configure(on_server(fast_server))
-        write = backend.write_ao
-
-        def counted(block: np.ndarray) -> None:
-            nonlocal written
-            write(block)
-            written += block.shape[1]
-
-        backend.write_ao = counted  # type: ignore[method-assign]
+        written = _count_writes(backend)
         listener = RecordingListener(keep_blocks=True)
         out = run_static_test(backend, listener,
                               StaticSpec(forces_n=(20.0, 120.0), max_force_n=100.0))
@@ -330,7 +327,7 @@ def test_a_force_trip_in_a_test_programme_stops_the_board_s_ao_at_once(
         backend.close()
     assert not out.completed and "over the 100 N limit" in out.reason
     trip = listener.events_of("abort")[0][2]
-    assert generated == trip and written >= trip + 200
+    assert generated == trip and written[0] >= trip + 200
     shown = listener.ao()
     assert np.abs(shown[0, trip - 1]) > 1.0 and np.all(shown[:, trip:] == 0)
     assert shown.shape[1] >= trip + 600  # the motion read out (queue + 40 ms ramp)
