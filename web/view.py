@@ -151,7 +151,9 @@ class LiveView:
             if msg.topic == "block" and msg.array is not None:
                 self._on_block(h, msg.array)
             elif msg.topic == "step":
-                self.steps.append(step_point(h["step"], *self.tolerance))
+                point = step_point(h["step"], *self.tolerance)  # JSON-safe once, not per frame
+                self.steps.append({k: finite(v) if isinstance(v, float) else v
+                                   for k, v in point.items()})
                 self._step_times.append(msg.received_at)
             elif msg.topic == "event":
                 self.events.append({"time": h.get("time", msg.received_at), "kind": h["kind"],
@@ -214,15 +216,16 @@ class LiveView:
         self._t_acquired = float(h.get("t_acquired", 0.0))
         self._block_seq = int(h["seq"])
 
-    def _recent(self) -> np.ndarray:
-        """The buffered samples in time order, (rows, m)."""
+    def _span(self, lo: int, hi: int, rows: slice = slice(None)) -> np.ndarray:
+        """Buffered samples ``lo:hi`` (0 = the oldest kept) of ``rows``, in time order: a view
+        when they lie in one piece of the ring, else a copy of just that span."""
         assert self._buf is not None
         size = self._buf.shape[1]
-        m = min(self._write, size)
-        i = self._write % size
-        if self._write <= size:
-            return self._buf[:, :m].copy()
-        return np.concatenate([self._buf[:, i:], self._buf[:, :i]], axis=1)
+        p0 = (self._write - min(self._write, size) + lo) % size
+        length = hi - lo
+        if p0 + length <= size:
+            return self._buf[rows, p0:p0 + length]
+        return np.concatenate([self._buf[rows, p0:], self._buf[rows, :p0 + length - size]], axis=1)
 
     # --- read from the web server's loop ---------------------------------------------------
     def frame(self, now: float | None = None) -> dict[str, Any]:
@@ -239,8 +242,7 @@ class LiveView:
                 "status": status,
                 "time_left_s": self._time_left(status, now),
                 "traces": traces,
-                "steps": [{k: (finite(v) if isinstance(v, float) else v) for k, v in s.items()}
-                          for s in self.steps],
+                "steps": list(self.steps),
                 "events": list(self.events)[-50:],
                 "lost": dict(self.lost),
             }
@@ -255,16 +257,19 @@ class LiveView:
         return max(0.0, per_step * (total - done) - (now - self._step_times[-1]))
 
     def _traces(self) -> dict[str, Any]:
-        data = self._recent()
+        """Per frame, whatever the number of browsers: the trigger search reads the drive rows
+        only, and only the shown window of all rows is read (never a copy of the whole ring)."""
+        assert self._buf is not None
+        m = min(self._write, self._buf.shape[1])
         fs = self._fs
         names = self._channels
         drives = names[self._n_ai:]
         freq = float((self.status.get("progress") or {}).get("freq_hz") or 0.0)
         # trigger on the first drive that moves: `cycles` drive periods starting at an upward
         # crossing, so the picture stands still
-        start, stop, triggered = max(0, data.shape[1] - int(0.1 * fs)), data.shape[1], False
-        for d in range(self._n_ai, len(names)):
-            v = data[d]
+        start, stop, triggered = max(0, m - int(0.1 * fs)), m, False
+        drive_rows = self._span(0, m, slice(self._n_ai, None))
+        for v in drive_rows:
             if np.ptp(v) <= 1e-6:
                 continue
             up = upward_crossings(v)
@@ -272,7 +277,7 @@ class LiveView:
                 start, stop, triggered = int(up[-1 - self.cycles]), int(up[-1]), True
                 freq = self.cycles * fs / (stop - start)
             break
-        window = data[:, start:stop]
+        window = self._span(start, stop)
         n = window.shape[1]
         step = max(1, math.ceil(n / self.points))
         dec = window[:, ::step]
@@ -280,7 +285,9 @@ class LiveView:
         rows = {name: dec[i] for i, name in enumerate(names)}
         units = self.status.get("units") or {}
         drawn = [n for n in names if n in drives or units.get(n, "N") in TRACE_UNITS]
-        means = {n: finite(float(window[i].mean())) for i, n in enumerate(names[: self._n_ai])}
+        ai_means = window[: self._n_ai].mean(axis=1) if n else np.full(self._n_ai, math.nan)
+        means = {name: finite(float(v)) for name, v in zip(names[: self._n_ai], ai_means,
+                                                            strict=True)}
         x = self._mean_rows(rows, ("x1", "x2"), "x")
         y = self._mean_rows(rows, ("y1", "y2"), "y")
         harmonics: dict[str, list[float]] = {}

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from aiohttp import web as aioweb
+from threadpoolctl import threadpool_limits
 
 from control.client import DaemonUnavailable
 from control.security import KeyFileError, is_loopback
@@ -85,6 +86,10 @@ def run(args: argparse.Namespace) -> int:
     except DaemonUnavailable as err:
         link.close()
         return _fail(str(err))
+    # The frame's lock-in fit is a small matrix product (0.4 ms on one thread). OpenBLAS would
+    # spread it over every core and spin-wait there: on a loaded 2-core machine, 20 times the CPU
+    # for the same product, taken from the paced daemon (README "Measured figures").
+    threadpool_limits(limits=1, user_api="blas")
     config = WebConfig(key_dir=args.keys, anonymous_role=args.role, examples_dir=args.examples,
                        fps=args.fps, secure_cookie=tls is not None)
     app = WebApp(link, config)

@@ -208,7 +208,9 @@ def test_a_viewer_sees_the_page_and_controls_nothing(daemon_factory, web_factory
     page.goto(url)
     page.set_input_files("#key", str(keys / "clients" / "viewer.key_secret"))
     page.click("#login")
-    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'viewer'")
+    # the login page (no window.sfdrig) may still be shown when the wait starts
+    page.wait_for_function(
+        "window.sfdrig && window.sfdrig.frames >= 2 && window.sfdrig.role === 'viewer'")
     assert page.inner_text("#who") == "viewer (viewer)"
     assert not page.is_visible("#controls") and page.is_visible("#viewer-note")
     # the server refuses even a hand-made request from the viewer's session
@@ -230,7 +232,7 @@ def test_a_viewer_sees_the_page_and_controls_nothing(daemon_factory, web_factory
     op = _open(browser.new_context(), url)  # a second browser session, with its own cookie
     op.set_input_files("#key", str(keys / "clients" / "operator.key_secret"))
     op.click("#login")
-    op.wait_for_function("window.sfdrig.role === 'operator'")
+    op.wait_for_function("window.sfdrig && window.sfdrig.role === 'operator'")
     assert op.is_visible("#abort")
     op.click("#pump-on")
     op.wait_for_function("document.getElementById('pump').textContent === 'ON'")
