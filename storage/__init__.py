@@ -4,8 +4,9 @@ Imports no sibling package: channel metadata arrives as plain dicts / JSON.
 """
 
 from storage.errors import ImportDataError, MissingSignalError, RunFileError
+from storage.layout import EVENT_KINDS, FORMAT, FORMAT_VERSION, KINDS, STATUSES
 from storage.reader import CANONICAL_SIGNALS, RunData, open_run
-from storage.runfile import EVENT_KINDS, FORMAT, FORMAT_VERSION, KINDS, STATUSES, RunWriter
+from storage.runfile import RunWriter
 
 __all__ = [
     "CANONICAL_SIGNALS",

@@ -19,7 +19,7 @@ import h5py
 import numpy as np
 
 from storage.errors import MissingSignalError, RunFileError
-from storage.runfile import FORMAT, FORMAT_VERSION, N_HARMONICS, STEP_KEYS
+from storage.layout import FORMAT, FORMAT_VERSION, N_HARMONICS, STEP_KEYS
 
 #: Canonical signals and where they come from.
 CANONICAL_SIGNALS = ("fx", "fy", "x", "y", "ax", "ay", "t_oil")

@@ -121,7 +121,7 @@ def close_interrupted(path: str | Path, reason: str) -> int:
     time (the file's last change). Returns ``last_sample``."""
     path = Path(path)
     stopped = datetime.fromtimestamp(path.stat().st_mtime, UTC).isoformat(timespec="milliseconds")
-    from storage.runfile import LIBVER  # the format bounds every run file is written with
+    from storage.layout import LIBVER  # the format bounds every run file is written with
 
     clear_open_flags(path)
     with h5py.File(path, "r+", libver=LIBVER) as f:

@@ -1,18 +1,5 @@
-"""Run-file writer: one HDF5 file per run, written in SWMR mode (contract B).
-
-Layout (``format="sfdrig-run"``, ``format_version=1``)::
-
-    /                 root attrs: run_id, kind, start/stop time, operator, notes, software_version,
-                      sample_rate_hz, channel_map, rig_config, test_spec (JSON), lubricated,
-                      status, status_reason
-    /channels/<ai>    float64 1-D, engineering units; attrs units, kind, sensor, gain_v_per_unit,
-                      offset_v, physical_channel
-    /drive/<ao>       float64 1-D, drive volts written, same time base
-    /steps            compound, one row per dwell
-    /step_harmonics   complex128 (n_steps, n_ai, 5), attr ``channels`` (JSON list)
-    /step_drive_v     complex128 (n_steps, n_ao), attr ``channels`` (JSON list)
-    /events           compound (time, sample, kind, message)
-    /results          empty group, for analysis only
+"""Run-file writer: one HDF5 file per run, written in SWMR mode (contract B); the layout is in
+`storage.layout`.
 
 SWMR forbids creating objects or attributes once it is switched on, so everything is created first;
 the final status and stop time are written after the SWMR session is closed (file reopened r+).
@@ -27,7 +14,6 @@ about one second lost).
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import threading
@@ -35,119 +21,32 @@ import time
 import zlib
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from datetime import UTC, datetime
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 
-from storage.recovery import writer_identity
-
-FORMAT = "sfdrig-run"
-#: HDF5 file-format bounds: the 1.10 format is the oldest that supports SWMR, and capping it
-#: there keeps run files readable by HDF5 1.10-1.14 tools (HDFView, MATLAB, h5dump) even when
-#: h5py is built on a newer library.
-LIBVER = ("v110", "v110")
-FORMAT_VERSION = 1
-KINDS = ("sweep", "static", "impact", "probe_calibration", "flow", "imported")
-STATUSES = ("running", "completed", "aborted", "failed")
-EVENT_KINDS = ("state", "limit_trip", "abort", "pump", "operator", "warning", "error", "info")
-N_HARMONICS = 5
-STEP_KEYS = (
-    "index", "freq_hz", "target_kind", "target_value", "motion", "first_sample", "last_sample",
-    "updates", "converged", "reason",
+from storage.layout import (
+    EVENT_KINDS,
+    FORMAT,
+    FORMAT_VERSION,
+    KINDS,
+    LIBVER,
+    N_HARMONICS,
+    STATUSES,
+    STEP_KEYS,
+    check_name,
+    create_layout,
+    default_chunk_samples,
+    event_row,
+    hdf5_text,
+    installed_software_version,
+    json_attr,
+    step_rows,
+    utc_now_iso,
 )
-CHANNEL_ATTRS = ("units", "kind", "sensor", "gain_v_per_unit", "offset_v", "physical_channel")
-
-# Fixed-length UTF-8 strings: variable-length data lives in the global heap, which SWMR readers
-# cannot follow safely while the file grows.
-_REASON_BYTES = 512
-_EXTRA_BYTES = 4096
-_MESSAGE_BYTES = 1024
-STEP_DTYPE = np.dtype([
-    ("index", "<i8"),
-    ("freq_hz", "<f8"),
-    ("target_kind", h5py.string_dtype("utf-8", 16)),
-    ("target_value", "<f8"),
-    ("motion", h5py.string_dtype("utf-8", 24)),
-    ("first_sample", "<i8"),
-    ("last_sample", "<i8"),
-    ("updates", "<i8"),
-    ("converged", "?"),
-    ("reason", h5py.string_dtype("utf-8", _REASON_BYTES)),
-    ("extra", h5py.string_dtype("utf-8", _EXTRA_BYTES)),  # JSON of keys beyond contract A
-])
-EVENT_DTYPE = np.dtype([
-    ("time", h5py.string_dtype("utf-8", 32)),
-    ("sample", "<i8"),
-    ("kind", h5py.string_dtype("utf-8", 16)),
-    ("message", h5py.string_dtype("utf-8", _MESSAGE_BYTES)),
-])
-
-
-def utc_now_iso() -> str:
-    """Current UTC time, ISO 8601 with milliseconds (e.g. ``2026-01-02T03:04:05.678+00:00``)."""
-    return datetime.now(UTC).isoformat(timespec="milliseconds")
-
-
-def installed_software_version() -> str:
-    """Installed sfdrig version (read from package metadata, not by importing sfdrig)."""
-    try:
-        return f"sfdrig {metadata.version('sfdrig')}"
-    except metadata.PackageNotFoundError:
-        return "sfdrig (unknown version)"
-
-
-def hdf5_text(text: Any) -> str:
-    """``text`` as a string HDF5 stores whole, whatever it holds: a NUL (which ends an HDF5
-    string, and which h5py refuses in variable-length ones) is written as the two characters
-    ``\\0``; a lone UTF-16 surrogate (not encodable as UTF-8) as its escape, e.g. ``\\ud800``."""
-    return (str(text).replace("\x00", "\\0")
-            .encode("utf-8", errors="backslashreplace").decode("utf-8"))
-
-
-def _fit_utf8(text: str, n_bytes: int) -> bytes:
-    """UTF-8 bytes of `hdf5_text` (``text``) cut to at most ``n_bytes`` on a character
-    boundary."""
-    raw = hdf5_text(text).encode("utf-8")
-    if len(raw) <= n_bytes:
-        return raw
-    marker = b" [truncated]"
-    return raw[: n_bytes - len(marker)].decode("utf-8", errors="ignore").encode() + marker
-
-
-def _json_attr(value: Any, what: str) -> str:
-    if value is None:
-        return ""
-    if isinstance(value, str):
-        if value:
-            try:
-                json.loads(value)
-            except json.JSONDecodeError as err:
-                raise ValueError(f"{what} is a string but not valid JSON: {err}") from None
-        return value
-    if hasattr(value, "model_dump"):  # a pydantic model, without importing pydantic here
-        value = value.model_dump(mode="json")
-    try:
-        return json.dumps(value, sort_keys=True)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{what} cannot be written as JSON: {err}") from None
-
-
-def _check_name(name: Any, what: str) -> str:
-    if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
-        raise ValueError(f"{what}: invalid name {name!r} (non-empty, no '/')")
-    return name
-
-
-def default_chunk_samples(sample_rate_hz: float) -> int:
-    """About 1/8 s of samples per chunk, a power of two in [4096, 16384] (32-128 kB of
-    float64): a completed chunk is compressed inside `RunWriter.on_block`, so small chunks
-    spread that work evenly over the blocks instead of stalling one block in every second."""
-    n = 2 ** round(math.log2(max(sample_rate_hz / 8.0, 1.0)))
-    return int(min(max(n, 4096), 16384))
+from storage.recovery import writer_identity
 
 
 class RunWriter:
@@ -261,12 +160,12 @@ class RunWriter:
         chans: list[dict[str, Any]] = []
         for i, ch in enumerate(channels):
             meta = {"name": ch} if isinstance(ch, str) else dict(ch)
-            _check_name(meta.get("name"), f"channels[{i}]")
+            check_name(meta.get("name"), f"channels[{i}]")
             chans.append(meta)
         if not chans:
             raise ValueError("a run needs at least one analog-input channel")
         ai_names = [c["name"] for c in chans]
-        ao_list = [_check_name(n, f"ao_names[{i}]") for i, n in enumerate(ao_names)]
+        ao_list = [check_name(n, f"ao_names[{i}]") for i, n in enumerate(ao_names)]
         for label, names in (("channels", ai_names), ("ao_names", ao_list)):
             dup = {n for n in names if names.count(n) > 1}
             if dup:
@@ -336,8 +235,8 @@ class RunWriter:
             raise OSError(f"{path}: cannot create run file: {err}") from None
         self._file = f
         try:
-            self._create_layout(
-                f, chans, compression,
+            layout = create_layout(
+                f, chans, ao_list, self.chunk_samples, compression,
                 attrs={
                     "format": FORMAT,
                     "format_version": FORMAT_VERSION,
@@ -349,15 +248,18 @@ class RunWriter:
                     "notes": hdf5_text(notes),
                     "software_version": software_version or installed_software_version(),
                     "sample_rate_hz": float(sample_rate_hz),
-                    "channel_map": _json_attr(channel_map, "channel_map"),
-                    "rig_config": _json_attr(rig_config, "rig_config"),
-                    "test_spec": _json_attr(test_spec, "test_spec"),
+                    "channel_map": json_attr(channel_map, "channel_map"),
+                    "rig_config": json_attr(rig_config, "rig_config"),
+                    "test_spec": json_attr(test_spec, "test_spec"),
                     "lubricated": bool(lubricated),
                     "status": "running",
                     "status_reason": "",
                     **writer_identity(),
                 },
             )
+            self._dsets = layout.samples
+            self._steps, self._harm = layout.steps, layout.harmonics
+            self._drive_v, self._events = layout.drive_v, layout.events
             f.flush()
             if swmr:
                 f.swmr_mode = True
@@ -375,64 +277,6 @@ class RunWriter:
                 target=self._io_loop, name=f"RunWriter-io-{run_id}", daemon=True
             )
             self._io_thread.start()
-
-    def _create_layout(
-        self, f: h5py.File, chans: list[dict[str, Any]], compression: str, attrs: dict[str, Any]
-    ) -> None:
-        for key, value in attrs.items():
-            f.attrs[key] = value
-        opts: dict[str, Any] = {"compression": compression, "shuffle": True}
-        if compression == "gzip":
-            # Whole chunks are written directly: no chunk cache that could hold a stale copy
-            # of a chunk partly written at a flush.
-            opts.update(compression_opts=1, rdcc_nbytes=0)
-        self._dsets: list[h5py.Dataset] = []
-        g = f.create_group("channels")
-        for meta in chans:
-            ds = g.create_dataset(
-                meta["name"], shape=(0,), maxshape=(None,), dtype="<f8",
-                chunks=(self.chunk_samples,), **opts,
-            )
-            for key in CHANNEL_ATTRS:
-                value = meta.get(key)
-                if key in ("gain_v_per_unit", "offset_v"):
-                    ds.attrs[key] = float("nan") if value is None else float(value)
-                else:
-                    ds.attrs[key] = "" if value is None else str(value)
-            self._dsets.append(ds)
-        g = f.create_group("drive")
-        for name in self.ao_names:
-            ds = g.create_dataset(
-                name, shape=(0,), maxshape=(None,), dtype="<f8", chunks=(self.chunk_samples,),
-                **opts,
-            )
-            ds.attrs["units"] = "V"
-            ds.attrs["kind"] = "shaker_drive"
-            self._dsets.append(ds)
-        n_ai, n_ao = len(self.ai_names), len(self.ao_names)
-        self._steps = f.create_dataset(
-            "steps", shape=(0,), maxshape=(None,), dtype=STEP_DTYPE, chunks=(64,),
-            compression="gzip", compression_opts=4,
-        )
-        self._harm = f.create_dataset(
-            "step_harmonics", shape=(0, n_ai, N_HARMONICS), maxshape=(None, n_ai, N_HARMONICS),
-            dtype="<c16", chunks=(16, n_ai, N_HARMONICS),
-        )
-        self._harm.attrs["channels"] = json.dumps(self.ai_names)
-        self._harm.attrs["harmonics"] = "1X..5X, complex amplitude Z = z_c - i z_s"
-        if n_ao:
-            self._drive_v = f.create_dataset(
-                "step_drive_v", shape=(0, n_ao), maxshape=(None, n_ao), dtype="<c16",
-                chunks=(64, n_ao),
-            )
-        else:  # chunk dimensions must be positive: an empty fixed dataset
-            self._drive_v = f.create_dataset("step_drive_v", shape=(0, 0), dtype="<c16")
-        self._drive_v.attrs["channels"] = json.dumps(self.ao_names)
-        self._events = f.create_dataset(
-            "events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(64,),
-            compression="gzip", compression_opts=4,
-        )
-        f.create_group("results")
 
     # --- contract A ---------------------------------------------------------------------------
     def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray | None) -> None:
@@ -486,42 +330,10 @@ class RunWriter:
 
     def on_step(self, step: Mapping[str, Any]) -> None:
         """Append one dwell's result (contract A step dict) and flush the file."""
-        row = np.zeros((), dtype=STEP_DTYPE)
-        harm = np.full((len(self.ai_names), N_HARMONICS), np.nan + 1j * np.nan)
-        drive = np.full(len(self.ao_names), np.nan + 1j * np.nan)
-        extra: dict[str, Any] = {k: v for k, v in step.items()
-                                 if k not in STEP_KEYS and k not in ("harmonics", "drive_v")}
         try:
-            row["index"] = int(step.get("index", self._n_steps))
-            row["freq_hz"] = _float(step.get("freq_hz"))
-            row["target_kind"] = _fit_utf8(step.get("target_kind") or "", 16)
-            row["target_value"] = _float(step.get("target_value"))
-            row["motion"] = _fit_utf8(step.get("motion") or "", 24)
-            row["first_sample"] = int(step.get("first_sample", -1))
-            row["last_sample"] = int(step.get("last_sample", -1))
-            row["updates"] = int(step.get("updates", 0))
-            row["converged"] = bool(step.get("converged", False))
-            row["reason"] = _fit_utf8(step.get("reason") or "", _REASON_BYTES)
-            unknown: dict[str, Any] = {}
-            for name, values in (step.get("harmonics") or {}).items():
-                if name not in self.ai_names:
-                    unknown[name] = values
-                    continue
-                for k, reim in enumerate(list(values)[:N_HARMONICS]):
-                    harm[self.ai_names.index(name), k] = complex(reim[0], reim[1])
-            if unknown:
-                extra["harmonics"] = unknown
-            for name, reim in (step.get("drive_v") or {}).items():
-                if name in self.ao_names:
-                    drive[self.ao_names.index(name)] = complex(reim[0], reim[1])
-                else:
-                    extra.setdefault("drive_v", {})[name] = reim
-        except (TypeError, ValueError, IndexError) as err:
-            raise ValueError(f"{self.path}: malformed step dict: {err}") from None
-        text = json.dumps(extra, default=_jsonable) if extra else ""
-        if len(text.encode()) > _EXTRA_BYTES:
-            text = json.dumps({"_dropped": f"extra keys too long ({len(text)} chars)"})
-        row["extra"] = text.encode()
+            row, harm, drive = step_rows(step, self._n_steps, self.ai_names, self.ao_names)
+        except ValueError as err:
+            raise ValueError(f"{self.path}: {err}") from None
         with self._io_lock:
             self._check_open()
             self._write_pending()  # the dwell's samples reach the file before its row
@@ -538,11 +350,7 @@ class RunWriter:
 
     def on_event(self, kind: str, message: str, sample: int) -> None:
         """Log one event (kind from `EVENT_KINDS`; others are kept as given) and flush."""
-        row = np.zeros((), dtype=EVENT_DTYPE)
-        row["time"] = utc_now_iso().encode()
-        row["sample"] = int(sample)
-        row["kind"] = _fit_utf8(kind, 16)
-        row["message"] = _fit_utf8(message, _MESSAGE_BYTES)
+        row = event_row(kind, message, sample)
         with self._io_lock:
             self._check_open()
             self._write_pending()
@@ -758,12 +566,7 @@ def _shuffle_deflate(x: np.ndarray) -> bytes:
     return zlib.compress(shuffled.data, 1)
 
 
-def _jsonable(value: Any) -> Any:
-    """numpy scalars and arrays as plain JSON values; anything else as its text."""
-    if isinstance(value, np.ndarray | np.generic):
-        return value.tolist()
-    return str(value)
-
-
-def _float(value: Any) -> float:
-    return float("nan") if value is None else float(value)
+__all__ = [
+    "EVENT_KINDS", "FORMAT", "FORMAT_VERSION", "KINDS", "LIBVER", "N_HARMONICS", "STATUSES",
+    "STEP_KEYS", "RunWriter", "default_chunk_samples", "hdf5_text", "utc_now_iso",
+]

@@ -11,7 +11,7 @@ from storage import open_run
 from storage.errors import ImportDataError
 from storage.importers import CANONICAL, import_file, parse_assignments, parse_scale
 from storage.importers.conditions import MOTIONS, Conditions, resolve_conditions
-from storage.runfile import KINDS
+from storage.layout import KINDS
 
 NAME = "import"
 HELP = "import measured data (CSV, MATLAB .mat, NI TDMS) into a run file, all or nothing"

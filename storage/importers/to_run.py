@@ -20,7 +20,8 @@ from storage.importers.csv_format import read_csv
 from storage.importers.mat_format import read_mat
 from storage.importers.segments import segment_record
 from storage.importers.tdms_format import read_tdms
-from storage.runfile import KINDS, RunWriter, utc_now_iso
+from storage.layout import KINDS, utc_now_iso
+from storage.runfile import RunWriter
 
 READERS = {".csv": read_csv, ".txt": read_csv, ".mat": read_mat, ".tdms": read_tdms}
 
