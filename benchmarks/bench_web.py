@@ -10,7 +10,9 @@ for ``--seconds``. Reported:
   in that frame. It includes the wait for the next frame tick (10 frames/s: 0-100 ms);
 - blocks lost: by the daemon's publisher queue (``dropped_in_daemon``), by the web process's
   subscription (sequence gaps), and in the run file (samples written against samples acquired);
-- the web process's resident memory, sampled every 5 s, and its CPU.
+- the web process's resident memory, sampled every 5 s, its CPU and the daemon's (CPU-seconds
+  per second: the figure that does not depend on the machine's other load), and the load
+  average.
 
 The browsers run at niceness 10 (``--browser-nice``): on the rig the browsers sit on other
 machines, here they share 2 cores with the paced daemon.
@@ -95,6 +97,7 @@ class SocketClients:
                 fr = json.loads(msg.data)
                 if fr.get("type") != "frame":
                     continue
+                await ws.send_str("drawn")  # as the page does: the server sends the next frame
                 self.frames[i] += 1
                 self.last = fr
                 if fr["t_acquired"] > 0 and fr["block_seq"] != last_seq:
@@ -182,7 +185,9 @@ def main() -> int:
         for page in pages:
             page.evaluate("window.sfdrig.latencies = []")
         sockets.reset()
+        st = c.status()  # the pages' resets above may take seconds on a loaded machine
         t0, cpu0, s0 = time.monotonic(), cpu_s(web.pid), st["samples"]
+        dcpu0, load0 = cpu_s(daemon.pid), os.getloadavg()[0]
         while (t := time.monotonic() - t0) < args.seconds:
             rss.append((t, rss_mb(web.pid)))
             print(f"  t {t:6.1f} s: web RSS {rss[-1][1]:.1f} MB, daemon {st['state']}, "
@@ -195,6 +200,7 @@ def main() -> int:
             if st["state"] not in ("arming", "running", "paused"):
                 break
         elapsed, cpu = time.monotonic() - t0, cpu_s(web.pid) - cpu0
+        dcpu, load1 = cpu_s(daemon.pid) - dcpu0, os.getloadavg()[0]
         samples = st["samples"] - s0
         lat = [v for page in pages for v in page.evaluate("window.sfdrig.latencies")]
         frames = [page.evaluate("window.sfdrig.frames") for page in pages]
@@ -225,7 +231,8 @@ def main() -> int:
     print(f"daemon: dropped_in_daemon {st['dropped_in_daemon']}; {n_blocks} blocks published; "
           f"run file {n_file} samples = {n_file / block_n:.2f} blocks of {block_n}")
     print(f"web subscription lost (seq gaps): {web_lost}; web CPU "
-          f"{100 * cpu / elapsed:.0f} % of one core")
+          f"{100 * cpu / elapsed:.1f} % of one core; daemon CPU {100 * dcpu / elapsed:.0f} %; "
+          f"load average (1 min) {load0:.1f} at the start, {load1:.1f} at the end")
     for what, fr, lt in (("browser (painted)", frames, lat),
                          ("WebSocket client (received)", socket_frames, socket_lat)):
         if not fr:

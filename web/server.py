@@ -3,8 +3,10 @@
 Every ``1 / fps`` seconds the server computes one frame from the `LiveView` (decimated on the
 server) and serialises it once, off the event loop (orjson: a frame is about 10,000 numbers);
 the same bytes go to every connected browser, so a browser costs a send, never a frame or an
-encoding. Each browser has a sender task that always sends the newest frame: a slow browser
-skips frames, it never makes the others wait, and it never reaches back to the daemon. Commands
+encoding. Each browser has a sender task that sends the newest frame once the browser has
+drawn the previous one (it answers each frame with ``drawn``): a slow browser skips frames, frames
+never queue up in its network buffers (seconds of delay), it never makes the others wait, and it
+never reaches back to the daemon. Commands
 are POSTs checked against the browser's role (`web.auth`) and sent to the daemon's command
 socket by the `DaemonLink`.
 """
@@ -32,6 +34,7 @@ log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
 COMMANDS = ("pause", "resume", "abort", "pump", "reset", "answer")
 MAX_UPLOAD_BYTES = 256 * 1024
+DRAWN = "drawn"  # a browser's answer to each frame: send the next one
 
 
 @dataclass
@@ -62,7 +65,8 @@ class WebConfig:
 @dataclass(eq=False)  # hashed by identity: one per connection
 class _Browser:
     ws: web.WebSocketResponse
-    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    wake: asyncio.Event = field(default_factory=asyncio.Event)  # a newer frame is there
+    drawn: asyncio.Event = field(default_factory=asyncio.Event)  # the last one sent is drawn
     frame: bytes = b""  # the newest frame's JSON text, shared by all browsers
     sent: int = 0
 
@@ -235,12 +239,15 @@ class WebApp:
         await ws.send_str(json.dumps({"type": "hello", "name": s.name, "role": s.role,
                                       "examples": list(self._example_files()),
                                       "login": self.cfg.key_dir is not None}))
+        b.drawn.set()
         self.browsers.add(b)
         sender = asyncio.create_task(self._send_frames(b))
         try:
-            async for msg in ws:  # the page sends nothing we act on; this waits for the close
+            async for msg in ws:  # the page only says it drew a frame; this waits for the close
                 if msg.type == WSMsgType.ERROR:
                     break
+                if msg.type == WSMsgType.TEXT and msg.data == DRAWN:
+                    b.drawn.set()
         finally:
             self.browsers.discard(b)
             sender.cancel()
@@ -248,7 +255,9 @@ class WebApp:
 
     async def _send_frames(self, b: _Browser) -> None:
         while not b.ws.closed:
+            await b.drawn.wait()  # then the newest frame, whatever came meanwhile
             await b.wake.wait()
+            b.drawn.clear()
             b.wake.clear()
             try:
                 # the newest frame (older ones were skipped), as a text message

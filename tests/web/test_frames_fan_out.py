@@ -57,6 +57,7 @@ async def _serve_frames(browsers: int, counts: dict[str, int]) -> tuple[int, lis
                 assert msg.type == WSMsgType.TEXT, msg
                 if json.loads(msg.data)["type"] == "frame":
                     got[i].append(msg.data.encode())
+                    await sockets[i].send_str("drawn")  # as the page does after painting
 
         await asyncio.gather(*(read(i) for i in range(browsers)))
         made = app.frames_made
@@ -89,3 +90,38 @@ def test_each_frame_is_computed_and_encoded_once_for_all_browsers(browsers, monk
     assert len(by_time) <= made and all(len(v) == 1 for v in by_time.values())
     fr = json.loads(got[0][-1])
     assert fr["traces"]["triggered"] and 0 < len(fr["traces"]["t_ms"]) <= 200
+
+
+async def _slow_and_quick() -> tuple[float, float, float]:
+    view = LiveView(buffer_s=0.5, cycles=3, points=200)
+    for msg in blocks(40.0, 20):
+        view.on_message(msg)
+    app = WebApp(_ViewOnly(view), WebConfig(fps=50.0))  # type: ignore[arg-type]
+
+    async def next_frame(ws: Any) -> dict[str, Any]:
+        while True:
+            msg = await ws.receive(timeout=30)
+            assert msg.type == WSMsgType.TEXT, msg
+            fr = json.loads(msg.data)
+            if fr["type"] == "frame":
+                return fr
+
+    async with TestClient(TestServer(app.app)) as client:
+        slow = await client.ws_connect("/ws")
+        first = await next_frame(slow)  # and it does not say it has drawn it
+        quick = await client.ws_connect("/ws")
+        for _ in range(10):
+            quick_last = await next_frame(quick)
+            await quick.send_str("drawn")
+        await slow.send_str("drawn")
+        second = await next_frame(slow)
+        await slow.close()
+        await quick.close()
+    return first["server_time"], quick_last["server_time"], second["server_time"]
+
+
+def test_a_browser_that_has_not_drawn_gets_the_newest_frame_next_not_a_queue():
+    """A page that is slow to draw is sent nothing meanwhile; when it has drawn, it gets the
+    newest frame, not the ones made while it was busy (queued, they would arrive seconds late)."""
+    first, quick_last, second = asyncio.run(_slow_and_quick())
+    assert first < quick_last <= second

@@ -314,7 +314,12 @@ function connect() {
   ws.onmessage = (ev) => {
     const m = JSON.parse(ev.data);
     if (m.type === "hello") setupControls(m);
-    else if (m.type === "frame") onFrame(m);
+    else if (m.type === "frame") {
+      onFrame(m);
+      // ask for the next frame once this one is painted: a slow page skips frames instead of
+      // letting them queue up (seconds late) in the network buffers
+      requestAnimationFrame(() => { if (ws.readyState === WebSocket.OPEN) ws.send("drawn"); });
+    }
   };
   ws.onclose = () => { showMessage("connection to sfdrig web lost; reconnecting", true); setTimeout(connect, 1000); };
 }
