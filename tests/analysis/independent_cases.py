@@ -1,12 +1,14 @@
 """Hidden-effect cases on the independent generator (``tests.independent_rig``), for diagnose.
 
 Each case is lubricated X dwells (20-60 Hz x 13/25/38 um, one probe and one accelerometer per
-axis, the rig without seal), made by a generator that shares no code with ``simulated_hw`` or
-``analysis``, written as the canonical CSV, imported with ``sfdrig import --lubricated --rig``
+axis, the rig without seal; the cross-coupling case X, Y and circular dwells in turn, since a
+film coupling needs motion and force on both axes), made by a generator that shares no code with
+``simulated_hw`` or ``analysis``, written as the canonical CSV, imported with ``sfdrig import
+--lubricated --rig``
 (the rig described correctly: no seal, the film's centred damping without the eccentricity law)
 and handed to diagnose as a run file. One hidden effect per case, added through the
 generator's extension points (extra forces, time-varying parameters, sensor transforms, the
-frame); magnitudes drawn from a seeded generator:
+frame, the film's cross terms, air, a joint); magnitudes drawn from a seeded generator:
 
 ======================== ===================================================================
 case                     hidden in the generator
@@ -22,28 +24,52 @@ second_mode              the frame: 100 kg on 5..7 MN/m (36..42 Hz)
 viscosity_drift          film damping falling 15..25 % over the run (oil temperature recorded)
 sensor_gain              the x probe reading 1.06..1.10 or 0.90..0.94 of the truth
 channel_delay            the x probe 120..200 us late
+cross_coupling           film cross damping C_xy 800..1500 N.s/m, C_yx = C_xy x (0.5..1.0)
+air_entrainment          L_eff = L (1 - a), tau a' = k |v| - a, k 6..14 s/m, tau 50 ms (film
+                         damping and added mass 10..30 % lower at 60 Hz, 38 um)
+joint_microslip          a Dahl joint beside the rods' spring, k_j 0.25..0.4 of K (taken from
+                         it: stuck, the rig is as described), slip force k_j x (20..40 um)
 stiffness_drift          K_x falling 8..12 % over the run (not in the library)
 ======================== ===================================================================
+
+Judged right (``judged_right``): the effect named first with high confidence, its main
+parameter within the library's tolerance (``analysis.diagnose.effects.LIBRARY``), no other
+cause with high confidence.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from tests.independent_rig import FrameMode, Generator, RigSpec, Sensors, delay, gain, grid
+from analysis.diagnose.effects import LIBRARY
+from tests.independent_rig import (
+    AirEntrainment,
+    DahlJoint,
+    FrameMode,
+    Generator,
+    RigSpec,
+    Sensors,
+    delay,
+    gain,
+    grid,
+)
 
 FREQS_HZ = (20.0, 30.0, 40.0, 50.0, 60.0)
 AMPS_M = (13e-6, 25e-6, 38e-6)
 RECORD_S = 0.5
 K_X = 788e3
+K_Y = 823e3
 CASES = ("clean", "coulomb_friction", "cubic_stiffness", "quadratic_stiffness",
          "amplitude_dependent_damping", "added_mass", "second_mode", "viscosity_drift",
-         "sensor_gain", "channel_delay", "stiffness_drift")
+         "sensor_gain", "channel_delay", "cross_coupling", "air_entrainment", "joint_microslip",
+         "stiffness_drift")
+#: cases whose dwells move both axes in turn (the motion of each inferred on import)
+BOTH_AXES = ("cross_coupling",)
 OUTSIDE_LIBRARY = ("stiffness_drift",)
 
 #: the rig as described to diagnose (RigParams TOML): no seal, the film's centred damping
@@ -69,8 +95,11 @@ class IndependentCase:
     notes: dict[str, Any] = field(default_factory=dict)
 
 
-def _program(rng: np.random.Generator) -> list:
+def _program(rng: np.random.Generator, both_axes: bool = False) -> list:
     dwells = list(grid(list(FREQS_HZ), list(AMPS_M), "x", record_s=RECORD_S))
+    if both_axes:  # x, y, circular in turn over the grid (each motion at every frequency)
+        motions = ("x", "y", "circular_forward")
+        dwells = [replace(d, motion=motions[i % 3]) for i, d in enumerate(dwells)]
     order = rng.permutation(len(dwells))  # time not confounded with frequency or amplitude
     return [dwells[i] for i in order]
 
@@ -131,6 +160,21 @@ def build(effect: str, seed: int) -> tuple[RigSpec, Sensors, Generator, dict[str
         tau = float(rng.uniform(120e-6, 200e-6))
         sensors.transforms["x_m"] = [delay(tau)]
         truth.update(channel="x", delay_s=tau)
+    elif effect == "cross_coupling":
+        cxy = float(rng.uniform(800, 1500))
+        cyx = cxy * float(rng.uniform(0.5, 1.0))
+        rig.film_cross_damping_ns_per_m = (cxy, cyx)
+        truth.update(c_xy_Ns_per_m=cxy, c_yx_Ns_per_m=cyx)
+    elif effect == "air_entrainment":
+        k_air = float(rng.uniform(6, 14))
+        rig.air = AirEntrainment(coefficient_s_per_m=k_air, time_constant_s=0.05)
+        truth["coefficient_s_per_m"] = k_air
+    elif effect == "joint_microslip":
+        k_j = float(rng.uniform(0.25, 0.4)) * K_X
+        f_s = k_j * float(rng.uniform(20e-6, 40e-6))
+        rig.stiffness_x_n_per_m, rig.stiffness_y_n_per_m = K_X - k_j, K_Y - k_j
+        rig.joint = DahlJoint(stiffness_n_per_m=k_j, slip_force_n=f_s)
+        truth.update(slip_force_N=f_s, stiffness_N_per_m=k_j)
     elif effect == "stiffness_drift":
         drop = float(rng.uniform(0.08, 0.12))
         rig.stiffness_x_n_per_m = lambda t, _d=drop: K_X * (1 - _d * t / duration)
@@ -145,25 +189,29 @@ def make_independent_case(tmp: Path, effect: str, seed: int) -> IndependentCase:
     from sfdrig.cli import main
 
     _, _, gen, truth = build(effect, seed)
-    rec = gen.run(_program(np.random.default_rng(seed + 7)))
+    both = effect in BOTH_AXES
+    rec = gen.run(_program(np.random.default_rng(seed + 7), both_axes=both))
     csv = rec.to_csv(tmp / f"{effect}-{seed}.csv")
     rig_toml = tmp / "rig.toml"
     rig_toml.write_text(RIG_TOML)
     run = tmp / f"{effect}-{seed}.h5"
-    rc = main(["import", str(csv), "--out", str(run), "--lubricated", "--motion", "x",
+    motion = [] if both else ["--motion", "x"]  # both axes: each dwell's motion inferred
+    rc = main(["import", str(csv), "--out", str(run), "--lubricated", *motion,
                "--seal", "none", "--rig", str(rig_toml), "--overwrite"])
     if rc != 0:
         raise RuntimeError(f"sfdrig import failed on {csv} (exit {rc})")
     return IndependentCase(effect, truth, run, rig_toml)
 
 
-def judged_right(effect: str, doc: dict[str, Any]) -> tuple[bool, str]:
+def judged_right(effect: str, doc: dict[str, Any],
+                 truth: dict[str, Any] | None = None) -> tuple[bool, str]:
     """Whether a diagnose JSON document judges case ``effect`` right, and why not.
 
     Clean: no finding and nothing unexplained. Outside the library: unexplained or baseline
     inadequate, no high-confidence finding. Library effect: named first with high confidence
     (a sensor effect: the sensor named; a pair it cannot tell apart: said so), no other cause
-    with high confidence.
+    with high confidence, and (given ``truth``) its main parameter within the library's
+    tolerance.
     """
     found = [(f["effect"], f["evidence"].get("confidence")) for f in doc["findings"]]
     confident = [e for e, c in found if c == "high"]
@@ -176,6 +224,12 @@ def judged_right(effect: str, doc: dict[str, Any]) -> tuple[bool, str]:
         return ok, f"found {found}, verdict {verdict}"
     ok = bool(found) and found[0] == (effect, "high") and confident == [effect]
     first = doc["findings"][0] if doc["findings"] else {}
+    lib = LIBRARY[effect]
+    if ok and truth is not None and lib.main in truth:
+        got, want = float(first["parameters"][lib.main]), float(truth[lib.main])
+        if abs(got - want) > lib.tolerance * abs(want):
+            return False, (f"found {found}, {lib.main} = {got:.4g} (truth {want:.4g}, "
+                           f"tolerance {lib.tolerance:.0%}), verdict {verdict}")
     if ok and "channel" in truth_channel_of(effect):
         # the faulty sensor named, or the pair it cannot tell apart said so
         named = first["parameters"].get("channel")

@@ -2,12 +2,15 @@
 
 Two integrations, chosen per dwell:
 
-- linear and time-invariant rig (no seal, no extra force, no time-varying parameter): the exact
-  steady state in closed form, the force solved from the target displacement (``F = Z / H``);
+- linear and time-invariant rig (no seal, air, joint, extra force or time-varying parameter):
+  the exact steady state in closed form (2x2 receptance, the film's cross terms included), the
+  force solved from the target displacement on the axes where it is not zero, the other axis
+  unforced (a unidirectional load: a coupled film moves that axis too);
 - otherwise scipy's ``solve_ivp`` (DOP853, tight tolerances) from the linear steady state (with
-  eq. 9's equivalent seal damping), settled for ``settle_cycles``, the force corrected by the
-  linear receptance until the fundamental of the displacement is on target (within
-  ``amplitude_tolerance``), then recorded from the dense output.
+  eq. 9's equivalent seal damping, the air fraction at its steady mean, the joint on its
+  closed-form loop), settled for ``settle_cycles``, the force corrected by the linear receptance
+  until the fundamental of the displacement is on target (within ``amplitude_tolerance``), then
+  recorded from the dense output.
 
 Phase convention: ``z(t) = Re(Z e^{i w (t - t0)})`` with t0 the start of the dwell's record.
 """
@@ -22,10 +25,12 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from tests.independent_rig.rig import Param, RigSpec, value_at
+from tests.independent_rig.rig import N_STATE, Param, RigSpec, value_at
 from tests.independent_rig.sensors import COLUMNS, SIGNALS, CleanSignal, Sensors
 
 MOTIONS = ("x", "y", "circular_forward", "circular_backward", "elliptical")
+#: absolute tolerances of the ODE state: z, v, frame f, vf, air fraction, joint force
+_ATOL = np.array([1e-13, 1e-13, 1e-10, 1e-10, 1e-13, 1e-13, 1e-10, 1e-10, 1e-9, 1e-8, 1e-8])
 
 
 def motion_shape(motion: str, amplitude: float, ellipse_ratio: float = 0.5) -> np.ndarray:
@@ -79,6 +84,7 @@ class Segment:
     accel: CleanSignal  # t -> (2, n) absolute housing acceleration [m/s^2]
     force: CleanSignal  # t -> (2, n) shaker force [N]
     iterations: int = 0
+    state: CleanSignal | None = None  # t -> (N_STATE, n) the ODE state (ODE path only)
 
 
 @dataclass
@@ -186,15 +192,17 @@ class Generator:
 
         first = segments[0]
         # start on the first dwell's steady state (its own record, sampled just before t0)
-        y0 = np.zeros(8)
         t0 = first.t0_s
-        y0[0:2] = np.asarray(first.z(np.array([t0])))[:, 0]
-        y0[2:4] = np.asarray(first.v(np.array([t0])))[:, 0]
+        if first.state is not None:
+            y0 = np.asarray(first.state(np.array([t0])))[:, 0]
+        else:
+            y0 = np.zeros(N_STATE)
+            y0[0:2] = np.asarray(first.z(np.array([t0])))[:, 0]
+            y0[2:4] = np.asarray(first.v(np.array([t0])))[:, 0]
         t_end = n_total / self.fs_hz + 2.0 / max(seg.freq_hz for seg in segments)
         f_min = min(seg.freq_hz for seg in segments)
-        atol = np.array([1e-13, 1e-13, 1e-10, 1e-10, 1e-13, 1e-13, 1e-10, 1e-10])
         sol = solve_ivp(lambda t, y: self.rig.derivative(t, y, shaker(t)), (t0, t_end), y0,
-                        method="DOP853", rtol=1e-8, atol=atol, dense_output=True,
+                        method="DOP853", rtol=1e-8, atol=_ATOL, dense_output=True,
                         max_step=0.05 / max(f_min, 1.0))
         if not sol.success:
             raise RuntimeError(f"solve_ivp failed: {sol.message}")
@@ -211,20 +219,20 @@ class Generator:
     def _dwell(self, dwell: Dwell, t0: float, first: int, n: int) -> Segment:
         omega = 2 * math.pi * dwell.freq_hz
         target = motion_shape(dwell.motion, dwell.amplitude_m, dwell.ellipse_ratio)
-        h = self.rig.receptance(omega, t0)
         if dwell.force_n is not None:
             force = motion_shape(dwell.motion, dwell.force_n, dwell.ellipse_ratio)
             target = np.zeros(2, dtype=complex)
         else:
-            force = target / h
+            force = self.rig.force_for(target, omega, t0,
+                                       self.rig.steady_air_fraction(target, omega))
         if self.rig.is_linear_time_invariant:
             return self._closed_form(dwell, omega, force, target, t0, first, n)
         return self._integrated(dwell, omega, force, target, t0, first, n)
 
     def _closed_form(self, dwell: Dwell, omega: float, force: np.ndarray, target: np.ndarray,
                      t0: float, first: int, n: int) -> Segment:
-        z_amp = self.rig.receptance(omega, t0) * force
-        h_abs = z_amp * (1.0 + self.rig.frame_per_relative(omega, t0))
+        z_amp = self.rig.receptance_matrix(omega, t0) @ force
+        h_abs = z_amp + self.rig.frame_per_relative(omega, t0) @ z_amp
 
         def harmonic(amp: np.ndarray, factor: complex) -> CleanSignal:
             return lambda t: np.real(np.outer(amp * factor, np.exp(1j * omega * (
@@ -244,10 +252,14 @@ class Generator:
         f_mu = value_at(rig.seal_friction_n, t0)
         amp = np.maximum(np.abs(target), 1e-9)
         c_seal = 4 * f_mu / (math.pi * omega * amp) if target.any() else np.zeros(2)
-        h_lin = np.array([rig.receptance(omega, t0, float(c))[k] for k, c in enumerate(c_seal)])
-        h_free = rig.receptance(omega, t0)
+        air = rig.steady_air_fraction(target, omega)
+        h_lin = np.array([rig.receptance(omega, t0, float(c), air)[k]
+                          for k, c in enumerate(c_seal)])
+        h_free = rig.receptance(omega, t0, air_fraction=air)
         if target.any():  # harmonic balance: the nonlinear forces' fundamental on the target
-            force = target / h_free - self._nonlinear_fundamental(target, omega, t0)
+            held = np.abs(target) > 0
+            force = np.where(held, rig.force_for(target, omega, t0, air)
+                             - self._nonlinear_fundamental(target, omega, t0), 0.0)
         # Iterate on a short record (a few cycles after settling), then integrate the whole
         # record once with the converged force.
         n_cyc = max(1, min(4, int((n / self.fs_hz) // period)))
@@ -256,13 +268,15 @@ class Generator:
         # so the linear part's receptance is the right first guess (eq. 9's C_seal is not)
         iterations = 0
         prev: tuple[np.ndarray, np.ndarray] | None = None
+        settled = None
         while target.any():
             iterations += 1
             sol = self._solve(self._harmonic_force(force, omega, t0), omega, h_lin, force, t0,
                               t_start, t0 + (n_cyc + 1) * period)
+            settled = sol
             z = sol.sol(t_meas)[0:2]  # type: ignore[attr-defined]
             measured = 2 * np.mean(z * np.exp(-1j * omega * (t_meas - t0)), axis=1)
-            err = target - measured
+            err = np.where(np.abs(target) > 0, target - measured, 0.0)  # free axes move freely
             if np.max(np.abs(err)) <= self.amplitude_tolerance * np.max(np.abs(target)):
                 break
             if iterations >= self.max_iterations:
@@ -276,7 +290,11 @@ class Generator:
             force = force + np.where(np.abs(target) > 0, err / gain_est, 0.0)
         f_amp = force
         shaker = self._harmonic_force(f_amp, omega, t0)
-        sol = self._solve(shaker, omega, h_lin, f_amp, t0, t_start, t_end)
+        # the converged trial is settled under this very force: go on from it a period before
+        # the record (margin for sensor delays) instead of settling again
+        y_start = None if settled is None else settled.sol(t0 - period)  # type: ignore[attr-defined]
+        sol = self._solve(shaker, omega, h_lin, f_amp, t0,
+                          t_start if y_start is None else t0 - period, t_end, y_start)
         return self._segment_from(sol, dwell.freq_hz, dwell.motion, target, f_amp, first, n,
                                   t0, shaker, iterations)
 
@@ -285,32 +303,41 @@ class Generator:
         moves exactly as ``target`` (the describing function of the nonlinear terms)."""
         phases = np.linspace(0.0, 2 * math.pi, 256, endpoint=False)
         acc = np.zeros(2, dtype=complex)
+        joint = self.rig.joint
         for ph in phases:
             rot = np.exp(1j * ph)
             z, v = np.real(target * rot), np.real(1j * omega * target * rot)
-            acc += self.rig.nonlinear_force(t0 + ph / omega, z, v) * np.conj(rot)
+            f = self.rig.nonlinear_force(t0 + ph / omega, z, v)
+            if joint is not None:  # the joint's steady loop, against the motion
+                f = f - joint.loop_force(z, v, np.abs(target))
+            acc += f * np.conj(rot)
         return 2 * acc / phases.size
 
     @staticmethod
     def _harmonic_force(f_amp: np.ndarray, omega: float,
                         t0: float) -> Callable[[float], np.ndarray]:
-        amp = f_amp.copy()
-        return lambda t: np.real(amp * np.exp(1j * omega * (t - t0)))
+        (ar, ai), (br, bi) = ((float(a.real), float(a.imag)) for a in f_amp)
+
+        def force(t: float) -> np.ndarray:
+            c, s = math.cos(omega * (t - t0)), math.sin(omega * (t - t0))
+            return np.array([ar * c - ai * s, br * c - bi * s])
+        return force
 
     def _solve(self, shaker: Callable[[float], np.ndarray], omega: float, h_lin: np.ndarray,
-               f_amp: np.ndarray, t0: float, t_start: float, t_end: float) -> object:
-        """Integrate from the linear steady state of force ``Re(f_amp e^{iw(t - t0)})``."""
+               f_amp: np.ndarray, t0: float, t_start: float, t_end: float,
+               y0: np.ndarray | None = None) -> object:
+        """Integrate from ``y0`` or else the linear steady state of force
+        ``Re(f_amp e^{iw(t - t0)})``."""
         rig = self.rig
-        z_c = h_lin * f_amp * np.exp(1j * omega * (t_start - t0))
-        y0 = np.zeros(8)
-        y0[0:2] = np.real(z_c)
-        y0[2:4] = np.real(1j * omega * z_c)
-        f_c = rig.frame_per_relative(omega, t0) * z_c
-        y0[4:6] = np.real(f_c)
-        y0[6:8] = np.real(1j * omega * f_c)
-        atol = np.array([1e-13, 1e-13, 1e-10, 1e-10, 1e-13, 1e-13, 1e-10, 1e-10])
+        if y0 is None:
+            z_amp = h_lin * f_amp
+            z_c = z_amp * np.exp(1j * omega * (t_start - t0))
+            y0 = rig.initial_state(np.real(z_c), np.real(1j * omega * z_c), omega, z_amp)
+            f_c = rig.frame_per_relative(omega, t0) @ z_c
+            y0[4:6] = np.real(f_c)
+            y0[6:8] = np.real(1j * omega * f_c)
         sol = solve_ivp(lambda t, y: rig.derivative(t, y, shaker(t)), (t_start, t_end), y0,
-                        method="DOP853", rtol=1e-8, atol=atol, dense_output=True,
+                        method="DOP853", rtol=1e-8, atol=_ATOL, dense_output=True,
                         max_step=0.05 / (omega / (2 * math.pi)))
         if not sol.success:
             raise RuntimeError(f"solve_ivp failed: {sol.message}")
@@ -342,8 +369,11 @@ class Generator:
             t = np.atleast_1d(np.asarray(t, dtype=float))
             return np.stack([shaker(float(tk)) for tk in t], axis=1)
 
+        def state(t: np.ndarray) -> np.ndarray:
+            return np.asarray(dense(np.asarray(t, dtype=float)))
+
         return Segment(kind, freq_hz, motion, target, f_amp, first, first + n, t0, z=z, v=v,
-                       accel=accel, force=force, iterations=iterations)
+                       accel=accel, force=force, iterations=iterations, state=state)
 
     # --- sweeps -------------------------------------------------------------------------------
     def _sweep(self, sweep: Sweep, t0: float, first: int, n: int) -> Segment:
