@@ -199,6 +199,29 @@ def _film(ident: Identification) -> list[Comparison]:
                 "Film (Figs. 33-34)", "C_sfd (38 um - 13 um) / mean", axis, "1", 0.0, rise, u,
                 "'nearly constant and very similar for both amplitudes' read as 0; band: the "
                 "identification's 95 % uncertainty of the difference", "a slight rise allowed"))
+    out.extend(_film_at_60hz(ident))
+    return out
+
+
+def _film_at_60hz(ident: Identification) -> list[Comparison]:
+    """Section VI.3: at 60 Hz, where eq. 9's seal term is smallest, the film damping is
+    invariant with amplitude: C_sfd(38 um) - C_sfd(13 um) at 60 Hz over their mean, per axis."""
+    assert ident.lubricated is not None
+    row = find(load_table("text_and_figures"), "C_sfd_amplitude_change_60Hz")
+    out = []
+    for axis in ("x", "y"):
+        pts = {amp: [p for p in ident.lubricated.points if p.axis == axis
+                     and abs(p.freq_hz - 60.0) < 0.5 and abs(p.target_m * 1e6 - amp) < 1.0]
+               for amp in (13, 38)}
+        if not all(len(v) == 1 for v in pts.values()):
+            continue
+        lo, hi = pts[13][0], pts[38][0]
+        mean = 0.5 * (lo.c_sfd + hi.c_sfd)
+        out.append(Comparison(
+            "Film (section VI.3)", "C_sfd (38 um - 13 um) / mean at 60 Hz", axis, "1", row.value,
+            (hi.c_sfd - lo.c_sfd) / mean, float(np.hypot(lo.u_c_sfd, hi.u_c_sfd) / mean),
+            "'invariant at 60 Hz' read as 0; band: the identification's 95 % uncertainty of the "
+            "difference of the two dwells", "eq. 9 method"))
     return out
 
 

@@ -14,10 +14,17 @@ import numpy as np
 import pytest
 
 from analysis.calibration.compare import Comparison, compare, table_errors
-from analysis.calibration.fit import fit_residual_damping, fit_structure
+from analysis.calibration.fit import (
+    AMPLITUDE_INVARIANCE_60HZ,
+    FittedTerm,
+    fit_eccentricity_law,
+    fit_residual_damping,
+    fit_structure,
+)
 from analysis.calibration.plan import ReportPlan
 from analysis.identify import identify
 from analysis.report_tables import find, load_table
+from sfdrig.commands.calibrate import simulator
 from sfdrig.report_plan import run_report_plan
 from simulated_hw.params import RigParams, rig_params_named_or_file
 
@@ -149,6 +156,12 @@ def test_calibrated_film_damping_average_and_trends(side_by_side):
         a_n = _get(nominal, "Film (Figs. 33-34)", q, axis).simulated
         a_r = _get(report, "Film (Figs. 33-34)", q, axis).simulated
         assert 0 < a_r < a_n  # "rising slightly with amplitude"
+        # section VI.3, "invariant at 60 Hz": eq. 16's eccentricity law alone gives +0.082 (see
+        # below); the calibrated rig has it off
+        r60_n = _get(nominal, "Film (section VI.3)", AMPLITUDE_INVARIANCE_60HZ, axis)
+        r60_r = _get(report, "Film (section VI.3)", AMPLITUDE_INVARIANCE_60HZ, axis)
+        assert r60_n.simulated > 0.08
+        assert r60_r.within and abs(r60_r.simulated) < 0.05
 
 
 def test_calibrated_added_mass_rises_with_amplitude_as_table_f1(side_by_side):
@@ -163,3 +176,53 @@ def test_calibrated_added_mass_rises_with_amplitude_as_table_f1(side_by_side):
     for axis in ("x", "y"):
         assert _get(report, "Table 6", "D", axis).within
         assert _get(report, "Table 6", "M_t", axis).within
+
+
+def _energy_averaged_eccentricity_factor(eps0: float) -> float:
+    """(1 + 2 e^2) / (1 - e^2)^2 with e = eps0 sin(t), weighted by the velocity squared over a
+    cycle (written here from eq. 16, independently of the simulator)."""
+    t = np.linspace(0.0, 2 * np.pi, 20001)[:-1]
+    e2 = (eps0 * np.sin(t)) ** 2
+    w = np.cos(t) ** 2
+    return float(np.sum((1 + 2 * e2) / (1 - e2) ** 2 * w) / np.sum(w))
+
+
+def _plan_60hz() -> ReportPlan:
+    return ReportPlan(structure=(), dry_loads_n=(), lub_amplitudes_m=(13e-6, 38e-6),
+                      lub_freqs_hz=(60.0,))
+
+
+def test_60hz_amplitude_row_is_the_films_own_law_without_the_seal():
+    # known answer: without the seal the 60 Hz row is eq. 16's energy-averaged eccentricity law
+    # (13 against 38 um of the 127 um clearance: +0.082); with the law off the film is constant
+    lo, hi = (_energy_averaged_eccentricity_factor(a / 127e-6) for a in (13e-6, 38e-6))
+    expected = (hi - lo) / (0.5 * (hi + lo))
+    assert 0.08 < expected < 0.085
+    for law, want in ((True, expected), (False, 0.0)):
+        p = rig_params_named_or_file("report")
+        p.seal.enabled = False
+        p.film.eccentricity_law = law
+        with tempfile.TemporaryDirectory() as tmp:
+            paths = run_report_plan(Path(tmp), p, _plan_60hz(), seed=3)
+            with contextlib.redirect_stdout(io.StringIO()):
+                rows = [r for r in compare(identify(paths))
+                        if r.quantity == AMPLITUDE_INVARIANCE_60HZ]
+        assert {r.axis for r in rows} == {"x", "y"}
+        for r in rows:
+            assert r.simulated == pytest.approx(want, abs=0.005), (law, r.axis, r.simulated)
+            assert 0 < r.band < 0.2
+
+
+def test_eccentricity_law_is_switched_off_by_the_60hz_invariance():
+    # with the seal of the calibrated rig, the law makes the 60 Hz film damping rise with
+    # amplitude (the report: invariant); the fit turns it off and names the rows that decided
+    p = rig_params_named_or_file("report")
+    p.film.eccentricity_law = True
+    terms: list[FittedTerm] = []
+    rejected: list[str] = []
+    logged: list[str] = []
+    keys = fit_eccentricity_law(simulator(3), _plan_60hz(), p, terms, rejected, logged.append)
+    assert p.film.eccentricity_law is False
+    assert [t.name for t in terms] == ["film.eccentricity_law"] and not rejected
+    assert keys == {f"Film (section VI.3)|{AMPLITUDE_INVARIANCE_60HZ}|{a}" for a in "xy"}
+    assert len(logged) == 2 and "on" in logged[0] and "off" in logged[1]
