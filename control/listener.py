@@ -9,7 +9,8 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-EVENT_KINDS = ("state", "limit_trip", "abort", "pump", "operator", "warning", "error", "info")
+EVENT_KINDS = ("state", "limit_trip", "abort", "fault", "pump", "operator", "warning", "error",
+               "info")
 
 
 @runtime_checkable

@@ -54,7 +54,8 @@ class SafetyLimits(BaseModel):
     max_freq_hz: float = Field(500.0, gt=0, description="highest permitted excitation [Hz]")
     fade_s: float = Field(
         0.04, gt=0, le=0.08,
-        description="ramp to zero on any trip (overrides max_drive_rate_v_per_s) [s]",
+        description="ramp to zero on a stop (abort, pause, an error); on a trip only where "
+                    "the board cannot drop its queued AO (overrides max_drive_rate_v_per_s) [s]",
     )
     open_loop_min_ratio: float = Field(
         0.2, gt=0, lt=1, description="open loop when measured load < ratio x nominal load"

@@ -1,5 +1,6 @@
 """The acquisition loop's I/O: synthesise a drive block, check it, write it, read the next AI
-block, convert, check, publish. The one place where AO is written.
+block, convert, check, publish. Where a sweep writes AO (the structure tests write theirs in
+`control.program_stream`).
 
 AO streams ahead of the generation by ``ahead_blocks`` blocks (the underflow margin). A trip does
 not let that queue play: the backend stops it (`DaqBackend.cut_ao`) and the drives are at 0 V

@@ -39,7 +39,8 @@ LIBVER = ("v110", "v110")
 FORMAT_VERSION = 1
 KINDS = ("sweep", "static", "impact", "probe_calibration", "flow", "imported")
 STATUSES = ("running", "completed", "aborted", "failed")
-EVENT_KINDS = ("state", "limit_trip", "abort", "pump", "operator", "warning", "error", "info")
+EVENT_KINDS = ("state", "limit_trip", "abort", "fault", "pump", "operator", "warning", "error",
+               "info")
 N_HARMONICS = 5
 STEP_KEYS = (
     "index", "freq_hz", "target_kind", "target_value", "motion", "first_sample", "last_sample",

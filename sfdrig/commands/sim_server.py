@@ -17,7 +17,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="TCP port; 0 picks a free one (the first line of stdout says which)")
     parser.add_argument("--host", default="127.0.0.1",
                         help="address to bind (default: %(default)s)")
-    parser.add_argument("--rig", help="rig parameters TOML (default: the report's rig)")
+    parser.add_argument("--rig", default="nominal", metavar="NAME|RIG.toml",
+                        help="simulated rig: 'nominal' (the report's stated values, the default), "
+                             "'report' (calibrated to its measured tables) or a TOML")
     parser.add_argument("--channels",
                         help="wiring: channel map TOML saying which sensor is on which terminal "
                              "(default: the report's channel map)")
@@ -35,13 +37,13 @@ def run(args: argparse.Namespace) -> int:
     from daq.channels import default_channel_map, load_channel_map
     from daq.errors import ChannelConfigError
     from simulated_hw.grpc_server import SimulatedDeviceServer
-    from simulated_hw.params import RigParams, RigParamsError, load_rig_params
+    from simulated_hw.params import RigParamsError, rig_params_named_or_file
 
     if not 0 <= args.port <= 65535:
         print(f"sim-server: --port {args.port} is not a TCP port (0..65535)", file=sys.stderr)
         return 2
     try:
-        params = load_rig_params(args.rig) if args.rig else RigParams()
+        params = rig_params_named_or_file(args.rig)
         wiring = load_channel_map(args.channels) if args.channels else default_channel_map()
     except (RigParamsError, ChannelConfigError) as err:
         print(f"sim-server: {err}", file=sys.stderr)

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", dest="fields", action="append", default=[],
                         metavar="KEY=VALUE",
                         help="a sweep field given inline, VALUE in TOML syntax "
-                             "(e.g. --set 'freqs_hz=[20, 40]'); overrides the file")
+                             "(e.g. --set 'freq_hz=[20, 40]'); overrides the file")
     parser.add_argument("--operator", default="", help="recorded in the run file")
     parser.add_argument("--notes", default="", help="recorded in the run file")
     parser.add_argument("--no-follow", action="store_true",

@@ -70,9 +70,12 @@ def test_sim_server_refuses_a_missing_rig_file(tmp_path) -> None:
     assert str(missing) in proc.stderr and proc.stdout == ""
 
 
-def test_sim_server_stops_cleanly_on_sigint() -> None:
+@pytest.mark.parametrize("rig", [None, "report"])
+def test_sim_server_stops_cleanly_on_sigint(rig: str | None) -> None:
+    """Also with a named rig (``--rig report``, as the daemon and the demo take it)."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0"],
+        [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0",
+         *(["--rig", rig] if rig else [])],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:

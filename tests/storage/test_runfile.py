@@ -543,3 +543,11 @@ def test_channel_map_json_is_stored_verbatim(tmp_path: Path) -> None:
     with open_run(tmp_path / "c.h5") as run:
         assert run.channel_map == cmap and run.rig_config is None and run.test_spec is None
         assert run.drive_names == [] and run.steps == []
+
+
+def test_the_event_kinds_of_the_listener_and_the_run_file_agree() -> None:
+    """Two copies (control must not import h5py to name an event): kept equal here."""
+    from control.listener import EVENT_KINDS as sent
+    from storage.layout import EVENT_KINDS as stored
+
+    assert sent == stored and "fault" in stored
