@@ -7,7 +7,9 @@ for ``--seconds``. Reported:
 
 - sample-to-screen latency per painted frame: the page's clock when the frame is painted
   (``requestAnimationFrame`` after drawing) minus the daemon's ``t_acquired`` of the newest block
-  in that frame. It includes the wait for the next frame tick (10 frames/s: 0-100 ms);
+  in that frame: the age of the newest sample on the screen. (A sample that arrives just after a
+  frame tick is first drawn up to one tick later, 100 ms at 10 frames/s, in a frame that also
+  holds newer samples; that wait is not in this figure);
 - blocks lost: by the daemon's publisher queue (``dropped_in_daemon``), by the web process's
   subscription (sequence gaps), and in the run file (samples written against samples acquired);
 - the web process's resident memory, sampled every 5 s, its CPU and the daemon's (CPU-seconds
