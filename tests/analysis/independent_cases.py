@@ -28,7 +28,7 @@ cross_coupling           film cross damping C_xy 800..1500 N.s/m, C_yx = C_xy x 
 air_entrainment          L_eff = L (1 - a), tau a' = k |v| - a, k 6..14 s/m, tau 50 ms (film
                          damping and added mass 10..30 % lower at 60 Hz, 38 um)
 joint_microslip          a Dahl joint beside the rods' spring, k_j 0.25..0.4 of K (taken from
-                         it: stuck, the rig is as described), slip force k_j x (20..40 um)
+                         it: stuck, the rig is as described), slip force k_j x (20..40 um), 4..13 N
 stiffness_drift          K_x falling 8..12 % over the run (not in the library)
 ======================== ===================================================================
 
