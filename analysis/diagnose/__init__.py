@@ -7,7 +7,10 @@ module writes the JSON, the extended rig TOML and the HTML page. The effect libr
 Modules: ``data`` (runs, segments, train/held-out split), ``model`` (the replay through
 `simulated_hw.simulate_response`), ``effects`` (the library), ``fitting`` (output-error
 Levenberg-Marquardt), ``start`` (the fitted baseline's start from the data: dynamic stiffness
-per dwell or H1 FRF), ``engine`` (baseline, rounds, significance, bootstrap), ``verdict`` (the
+per dwell or H1 FRF), ``baseline`` (the fitted baseline and its order chosen on held-out
+data), ``candidates`` (candidates and findings: criterion, bootstrap, what is not a finding),
+``evidence`` (sensor pair, runner-up swap, corroboration), ``engine`` (the steps: baseline,
+rounds, verdict, confidence), ``verdict`` (the
 baseline and the final model against the held-out signal), ``residual_analysis`` (per dwell /
 harmonic / segment numbers), ``report`` (JSON, TOML, HTML + PNG).
 

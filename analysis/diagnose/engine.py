@@ -1,5 +1,9 @@
 """Diagnose: baseline, candidate effects fitted on training data and judged on held-out data.
 
+``diagnose`` runs the steps; the fitted baseline and its order are ``baseline.py``, the rules a
+candidate meets ``candidates.py``, the evidence for and against a finding ``evidence.py``, the
+verdict against the signal ``verdict.py``.
+
 Procedure
 ---------
 1. Baseline. ``config``: the rig configuration as it stands. ``fitted``: mass, damping and
@@ -45,6 +49,25 @@ import numpy as np
 
 from analysis.diagnose import residual_analysis as ra
 from analysis.diagnose.amplitude import AmplitudeDependence, check_levels
+from analysis.diagnose.baseline import (
+    Baseline,
+    choose_order,
+    data_start,
+    fit_linear,
+    fit_subset,
+    is_imported,
+)
+from analysis.diagnose.candidates import (
+    Candidate,
+    Finding,
+    Problem,
+    bootstrap_gain,
+    criterion,
+    judge_candidate,
+    not_a_finding,
+    on_bound,
+    total_sse,
+)
 from analysis.diagnose.data import (
     DiagnoseError,
     RunRecord,
@@ -52,51 +75,14 @@ from analysis.diagnose.data import (
     split_by_runs,
     split_segments,
 )
-from analysis.diagnose.effects import (
-    LIBRARY,
-    Context,
-    Effect,
-    Variant,
-    extended_rig,
-    parameters_of,
-)
-from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit, train_sse
-from analysis.diagnose.model import Evaluator, Model, Param, Residuals, residuals, rig_param
-from analysis.diagnose.start import OneMode, one_mode_estimate
+from analysis.diagnose.effects import LIBRARY, Context, Effect, Variant, extended_rig, parameters_of
+from analysis.diagnose.evidence import effect_evidence, sensor_pair_check, swap_check
+from analysis.diagnose.fitting import FitResult, fit, train_sse
+from analysis.diagnose.model import Evaluator, Model, Residuals, residuals
 from analysis.diagnose.verdict import Verdict, excited_band, judge, refinement_share, signal_fit
 from simulated_hw.params import RigParams
 
-
-@dataclass
-class Candidate:
-    effect: str
-    variant: Variant
-    fit: FitResult
-    test: Residuals
-    test_rms: float
-    criterion: float
-    k: int
-
-
-@dataclass
-class Finding:
-    effect: str
-    parameters: dict[str, Any]
-    error_before: float
-    error_after: float
-    gain: float
-    gain_interval: tuple[float, float]
-    evidence: dict[str, Any]
-    model: Model
-    variant: Variant
-    runner_up: Candidate | None = None
-    test_residuals: Residuals | None = None  # held-out residuals of the model with it
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"effect": self.effect, "parameters": self.parameters,
-                "error_before": self.error_before, "error_after": self.error_after,
-                "gain": self.gain, "gain_interval": list(self.gain_interval),
-                "evidence": self.evidence}
+__all__ = ["Diagnosis", "Finding", "diagnose"]
 
 
 @dataclass
@@ -166,109 +152,6 @@ class Diagnosis:
         }
 
 
-# --- baseline ----------------------------------------------------------------------------
-def _imported(records: list[RunRecord], rig: RigParams | None) -> bool:
-    return rig is None and all(r.rig is None for r in records)
-
-
-def baseline_params(model: Model, records: list[RunRecord], imported: bool) -> list[Param]:
-    st = model.rig.structure
-    c_crit = 2 * math.sqrt(st.stiffness_x_n_per_m * st.mass_kg)
-    ps = [
-        rig_param("mass_kg", "structure.mass_kg", 0.05 * st.mass_kg, 1e-3 * st.mass_kg),
-        rig_param("damping_Ns_per_m", "structure.residual_damping_ns_per_m",
-                  0.1 * max(st.residual_damping_ns_per_m, 0.02 * c_crit), 0.0),
-        rig_param("stiffness_x_N_per_m", "structure.stiffness_x_n_per_m",
-                  0.02 * st.stiffness_x_n_per_m, 1e-3 * st.stiffness_x_n_per_m),
-    ]
-    if any(1 in r.axes for r in records):
-        ps.append(rig_param("stiffness_y_N_per_m", "structure.stiffness_y_n_per_m",
-                            0.02 * st.stiffness_y_n_per_m, 1e-3 * st.stiffness_y_n_per_m))
-    # Offsets: each response channel's offset is fitted in closed form (model.residuals); a
-    # force offset would be redundant with it for a linear structure (and ill-conditioned).
-    return ps
-
-
-def _fit_subset(ev: Evaluator, train: list[Segment], budget: float) -> list[Segment]:
-    """Evenly spread training segments whose simulation work stays within ``budget`` steps."""
-    def work(s: Segment) -> float:
-        rec = ev.records[s.run]
-        sub = ev.oversample.get(s.run, 1)
-        return (s.n + ev.warmup_s * rec.sample_rate_hz) * sub
-    total = sum(work(s) for s in train)
-    if total <= budget:
-        return train
-    k = max(2, int(len(train) * budget / total))
-    idx = np.unique(np.linspace(0, len(train) - 1, k).round().astype(int))
-    return [train[i] for i in idx]
-
-
-def _data_start(records: list[RunRecord], train: list[Segment], base_rig: RigParams,
-                notes: list[str], say: Any) -> tuple[Model, float]:
-    """Start of the fitted baseline from the data alone, and the replay's warm-up [s].
-
-    A frequency-domain fit of the dynamic stiffness per axis (``start.py``), the film's known
-    added mass and centred damping taken off when the runs are lubricated; the equation-error
-    ARX estimate where that has too few points. The warm-up before each replayed segment covers
-    four decay times of the estimated mode (at least 0.5 s, at most 30 s), so a lightly damped
-    structure has forgotten its start from rest before it is scored.
-    """
-    film = base_rig.film
-    lub = any(r.lubricated for r in records)
-    d_mass = film.fluid_mass_kg + film.added_mass() if lub else 0.0
-    d_damp = (film.eq16_damping_centred(film.viscosity_pa_s(base_rig.oil.initial_temperature_c))
-              if lub else 0.0)
-    est = {ax: one_mode_estimate(records, train, ax, d_mass, d_damp) for ax in (0, 1)}
-    st = base_rig.structure
-    x, y = est[0], est[1]
-    if x is None and y is None:
-        try:
-            m_kg, c, k, _ = arx_linear_guess(records[0], train)
-        except ValueError as err:
-            raise DiagnoseError(f"cannot start the fitted baseline: {err}") from None
-        x = OneMode(m_kg, c, k, 0)
-        notes.append("fitted baseline started from an equation-error (ARX) estimate")
-    first = x if x is not None else y
-    assert first is not None
-    update = {"mass_kg": first.mass_kg, "residual_damping_ns_per_m": first.damping_ns_per_m,
-              "stiffness_x_n_per_m": (x or first).stiffness_n_per_m,
-              "stiffness_y_n_per_m": (y or first).stiffness_n_per_m}
-    if first.damping_ns_per_m <= 0.0:
-        update["residual_damping_ns_per_m"] = 0.02 * 2 * math.sqrt(
-            first.stiffness_n_per_m * first.mass_kg)
-    model = Model(rig=base_rig.model_copy(update={"structure": st.model_copy(update=update)}))
-    tau = first.decay_time_s()
-    warmup = float(min(30.0, max(0.5, 4 * tau)))
-    say(f"start from the data: {first.natural_hz:.4g} Hz, damping ratio "
-        f"{first.damping_ratio:.3g}, warm-up {warmup:.3g} s")
-    notes.append(f"fitted baseline started from the data ({first.points} frequency points): "
-                 f"{first.natural_hz:.4g} Hz, damping ratio {first.damping_ratio:.3g}; each "
-                 f"replayed window starts {warmup:.3g} s early (four decay times) from rest")
-    return model, warmup
-
-
-# --- significance ------------------------------------------------------------------------
-def bootstrap_gain(before: Residuals, after: Residuals, segs: list[Segment], seed: int,
-                   n_boot: int = 2000) -> tuple[float, float]:
-    """95 % percentile interval of RMS-before / RMS-after over resampled held-out segments."""
-    sb = np.array([before.sse(s)[0] for s in segs])
-    sa = np.array([after.sse(s)[0] for s in segs])
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, len(segs), size=(n_boot, len(segs)))
-    ratio = np.sqrt(sb[idx].sum(axis=1) / np.maximum(sa[idx].sum(axis=1), 1e-300))
-    lo, hi = np.percentile(ratio, [2.5, 97.5])
-    return float(lo), float(hi)
-
-
-def _criterion(res: Residuals, segs: list[Segment], k: int) -> tuple[float, int]:
-    s, n = 0.0, 0
-    for seg in segs:
-        a, b = res.sse(seg)
-        s += a
-        n += b
-    return n * math.log(max(s / n, 1e-300)) + k * math.log(n), n
-
-
 # --- main --------------------------------------------------------------------------------
 def diagnose(
     records: list[RunRecord],
@@ -311,9 +194,74 @@ def diagnose(
     """
     t_start = time.perf_counter()
     say = log or (lambda msg: None)
+    kind, imported = _check_request(records, baseline, rig, effects)
+    fitted = kind == "fitted"
+    notes: list[str] = []
+    base_rig, oversample = _replay_rig(records, rig, imported, notes)
+    train, test = _split(records, train_spans, test_spans, train_runs)
+    start_model, warmup_s = Model(rig=base_rig), 0.5
+    if fitted:
+        start_model, warmup_s = data_start(records, train, base_rig, notes, say)
+    ev = _evaluator(records, train, warmup_s, oversample, notes)
+    pb = _problem(ev, train, test, fit_budget_steps, notes)
+
+    # 1. baseline, and (fitted) its order chosen on held-out data, before any effect: a
+    # structure with two modes is no cause on top of a one-mode baseline
+    base = fit_linear(pb, start_model, records, fitted, say)
+    say(f"baseline ({kind}): held-out RMS error {base.test.rms():.4g}")
+    ctx = _context(pb, train, base.model, fitted)
+    lo_hz, hi_hz = excited_band(records, train)
+    band = (lo_hz / 1.25, hi_hz * 1.25)
+    wanted = effects or list(LIBRARY)
+    if fitted and "second_mode" in wanted:
+        base = choose_order(pb, ctx, base, band, seed, min_gain, min_gain_lo, say)
+        ctx = replace(ctx, base=base.model)
+
+    # 2. rounds of effects
+    lib, skipped = _applicable(wanted, ctx, base.model, fitted)
+    search = _search_effects(pb, ctx, lib, base, band, max_effects, seed, min_gain,
+                             min_gain_lo, say)
+    findings = search.findings
+
+    # 3. verdict against the signal: what the baseline and the final model explain of it,
+    # and the evidence that decides each finding's confidence
+    noise = ra.noise_floor(ra.dwell_table(records, base.test, test))
+    verdict = judge(records, base.test, search.test, test, ra.channel_noise(records, test),
+                    findings[0].test_residuals if findings else None)
+    on_bound = _what_the_baseline_misses(verdict, base, findings, notes)
+    for f in findings:
+        if LIBRARY[f.effect].kind == "measurement":
+            f.evidence.update(sensor_pair_check(pb, ctx, base.free, findings, f, search.model))
+    _share_of_signal(records, test, base.test, findings)
+    _confidence(pb, base, findings, search, verdict, bool(on_bound))
+    if not findings and verdict.unexplained:
+        notes.append("the baseline misses something that no effect of the library explains")
+    # amplitude dependence over the levels (runs or amplitude groups), of the data and of the
+    # baseline's prediction; a finding the trend beyond the baseline argues against is low
+    amplitude = check_levels(ev, base.model, pb.fit_train, train + test, base.train.offsets,
+                             findings)
+    say(f"amplitude dependence: {amplitude.text}")
+    ext = extended_rig(search.model, ev.duration_s)
+    if imported:
+        ext = ext.model_copy(update={"substeps": int(min(32, max(oversample.values())))})
+    return Diagnosis(
+        baseline_kind=kind, units="m", records=records, train=train, test=test,
+        baseline_model=base.model, baseline_params=base.params, baseline_train=base.train,
+        baseline_test=base.test, findings=findings, final_model=search.model,
+        final_test=search.test, unexplained=verdict.unexplained, rounds=search.rounds,
+        skipped=skipped, noise_floor=noise, extended_rig=ext,
+        elapsed_s=time.perf_counter() - t_start, notes=notes, verdict=verdict,
+        amplitude=amplitude, order=base.order,
+    )
+
+
+# --- set-up ------------------------------------------------------------------------------
+def _check_request(records: list[RunRecord], baseline: str | None, rig: RigParams | None,
+                   effects: list[str] | None) -> tuple[str, bool]:
+    """The baseline's kind ("config" or "fitted") and whether the runs are imported data."""
     if not records:
         raise DiagnoseError("no runs to diagnose")
-    imported = _imported(records, rig)
+    imported = is_imported(records, rig)
     kind = baseline or ("fitted" if imported else "config")
     if kind not in ("config", "fitted"):
         raise DiagnoseError(f"--baseline must be 'config' or 'fitted', got {kind!r}")
@@ -324,9 +272,12 @@ def diagnose(
     unknown = [e for e in (effects or []) if e not in LIBRARY]
     if unknown:
         raise DiagnoseError(f"unknown effect(s) {unknown}; the library has {list(LIBRARY)}")
-    rates = {r.sample_rate_hz for r in records}
-    notes: list[str] = []
+    return kind, imported
 
+
+def _replay_rig(records: list[RunRecord], rig: RigParams | None, imported: bool,
+                notes: list[str]) -> tuple[RigParams, dict[int, int]]:
+    """The rig the runs are replayed through, and the force oversampling per run."""
     base_rig = rig or records[0].rig or RigParams()
     # replays leave the journal contact out: a run that touched it ended in a fault, imported
     # data has no journal, and the eccentricity law's fitted clearance may sit inside the orbit
@@ -344,19 +295,25 @@ def diagnose(
                         for r in records})
         notes.append(f"imported data without a rig description: seal off, {', '.join(films)}; "
                      f"force oversampled x{oversample[0]} for the replay")
+    rates = {r.sample_rate_hz for r in records}
     if len(rates) > 1:
         notes.append(f"runs at different sample rates {sorted(rates)}")
+    return base_rig, oversample
+
+
+def _split(records: list[RunRecord], train_spans: list[tuple[int, int]] | None,
+           test_spans: list[tuple[int, int]] | None,
+           train_runs: list[int] | None) -> tuple[list[Segment], list[Segment]]:
     if train_runs is not None:
         if train_spans is not None or test_spans is not None:
             raise DiagnoseError("give either --train/--test sample spans or --train-runs/"
                                 "--test-runs, not both")
-        train, test = split_by_runs(records, train_runs)
-    else:
-        train, test = split_segments(records, train_spans, test_spans)
-    start_model = Model(rig=base_rig)
-    warmup_s = 0.5
-    if kind == "fitted":
-        start_model, warmup_s = _data_start(records, train, base_rig, notes, say)
+        return split_by_runs(records, train_runs)
+    return split_segments(records, train_spans, test_spans)
+
+
+def _evaluator(records: list[RunRecord], train: list[Segment], warmup_s: float,
+               oversample: dict[int, int], notes: list[str]) -> Evaluator:
     # dwells of files from elsewhere sit back to back (what precedes a dwell is not its
     # settling): each is replayed in steady state, after whole periods of its own force
     steady = any(r.kind != "sweep" for r in records)
@@ -372,7 +329,13 @@ def diagnose(
     elif any(r.derived_displacement for r in records):
         notes.append("displacement derived from velocity or acceleration at import: fitted to "
                      "the derived displacement only (the sources hold the same information)")
-    fit_train = _fit_subset(ev, train, fit_budget_steps)
+    return ev
+
+
+def _problem(ev: Evaluator, train: list[Segment], test: list[Segment],
+             fit_budget_steps: float, notes: list[str]) -> Problem:
+    records = ev.records
+    fit_train = fit_subset(ev, train, fit_budget_steps)
     if len(fit_train) < len(train):
         notes.append(f"fitted on {len(fit_train)} of {len(train)} training segments "
                      "(evenly spread) to bound the fitting time")
@@ -382,85 +345,64 @@ def diagnose(
     # residual samples used by the fit: about 10 per period of the 5th harmonic
     f_hi = max([s.freq_hz for s in train if s.freq_hz] or [0.0])
     step = max(1, int(min(r.sample_rate_hz for r in records) / (50 * f_hi))) if f_hi else 1
-    model = start_model
-    free: list[Param] = []
-    free_base: list[Param] = []
-    bparams: dict[str, float] = {}
-    if kind == "fitted":
-        free = baseline_params(model, records, imported)
-        say(f"fitting the linear baseline ({', '.join(p.name for p in free)})")
-        model = fit(ev, [model], free, fit_train, scale_m, max_nfev=60, step=step).model
-        bparams = {p.name: p.get(model) for p in free}
-    base_model = model
-    base_train = residuals(ev, model, fit_train)
-    base_test = residuals(ev, model, fit_train, test, base_train.offsets)
-    say(f"baseline ({kind}): held-out RMS error {base_test.rms():.4g}")
+    return Problem(ev, fit_train, test, scale_m, step)
 
+
+def _context(pb: Problem, train: list[Segment], base: Model, fitted: bool) -> Context:
+    records = pb.ev.records
     f_rms = float(np.sqrt(np.mean(np.concatenate(
-        [records[s.run].force_n[:, s.start:s.stop].ravel() for s in fit_train]) ** 2)))
+        [records[s.run].force_n[:, s.start:s.stop].ravel() for s in pb.fit_train]) ** 2)))
     freqs = [s.freq_hz for s in train if s.freq_hz]
-    ctx = Context(records=records, base=base_model, fitted_baseline=(kind == "fitted"),
-                  duration_s=ev.duration_s, x_rms_m=scale_m, f_rms_n=f_rms,
-                  f_typ_hz=float(np.median(freqs)) if freqs else _dominant_freq(records,
-                                                                                 fit_train))
-    lo_hz, hi_hz = excited_band(records, train)
-    band = (lo_hz / 1.25, hi_hz * 1.25)
-    order: list[dict[str, Any]] = []
-    wanted = effects or list(LIBRARY)
-    if kind == "fitted" and "second_mode" in wanted:
-        # the fitted baseline's order (modes per axis) is chosen on held-out data, before any
-        # effect: a structure with two modes is no cause on top of a one-mode baseline
-        two, order = _choose_order(ev, ctx, model, free, fit_train, test, scale_m, step, band,
-                                   seed, min_gain, min_gain_lo, say)
-        if two is not None:
-            model = base_model = two.fit.model
-            free = free + two.variant.params
-            bparams = {p.name: p.get(model) for p in free}
-            base_train = residuals(ev, model, fit_train)
-            base_test = residuals(ev, model, fit_train, test, base_train.offsets)
-            ctx = replace(ctx, base=base_model)
-    free_base = list(free)
+    return Context(records=records, base=base, fitted_baseline=fitted,
+                   duration_s=pb.ev.duration_s, x_rms_m=pb.scale_m, f_rms_n=f_rms,
+                   f_typ_hz=float(np.median(freqs)) if freqs else _dominant_freq(
+                       records, pb.fit_train))
+
+
+def _dominant_freq(records: list[RunRecord], segs: list[Segment]) -> float:
+    s = segs[0]
+    rec = records[s.run]
+    x = next(iter(rec.responses.values()))[s.start:s.stop]
+    spec = np.abs(np.fft.rfft(x - x.mean()))
+    f = np.fft.rfftfreq(x.size, 1 / rec.sample_rate_hz)
+    return float(f[1:][np.argmax(spec[1:])])
+
+
+def _applicable(wanted: list[str], ctx: Context, base: Model,
+                fitted: bool) -> tuple[list[Effect], dict[str, str]]:
+    """The library's effects to try, and why the others are not tried."""
     lib: list[Effect] = [LIBRARY[e] for e in wanted]
     skipped = {e.id: why for e in lib if (why := e.applicable(ctx)) is not None}
-    if base_model.rig.effects.second_mode.enabled and kind == "fitted":
+    if base.rig.effects.second_mode.enabled and fitted:
         skipped["second_mode"] = "in the baseline: its order was chosen on held-out data"
-    lib = [e for e in lib if e.id not in skipped]
+    return [e for e in lib if e.id not in skipped], skipped
+
+
+# --- rounds of effects -------------------------------------------------------------------
+@dataclass
+class _Search:
+    """The outcome of the rounds: findings, the final model and its held-out residuals."""
+    findings: list[Finding]
+    rounds: list[list[dict[str, Any]]]
+    model: Model
+    test: Residuals
+
+
+def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline,
+                    band: tuple[float, float], max_effects: int, seed: int, min_gain: float,
+                    min_gain_lo: float, say: Any) -> _Search:
+    """Round after round, the best significant effect on top of the model so far."""
+    free = list(base.free)
     findings: list[Finding] = []
     rounds: list[list[dict[str, Any]]] = []
-    current, cur_test = model, base_test
-    cur_crit, _ = _criterion(cur_test, test, len(free))
+    current, cur_test = base.model, base.test
+    cur_crit, _ = criterion(cur_test, pb.test, len(free))
     for _round in range(max_effects):
-        cands: list[Candidate] = []
-        for eff in lib:
-            if any(f.effect == eff.id for f in findings):
-                continue
-            t0 = time.process_time()
-            best: tuple[FitResult, Variant] | None = None
-            for var in eff.variants(ctx, current):
-                # screening: the new effect's parameters only (the rest held)
-                res = fit(ev, var.starts, var.params, fit_train, scale_m, step=step,
-                          keep=var.keep)
-                if best is None or res.train_sse < best[0].train_sse:
-                    best = (res, var)
-            if best is None:
-                continue
-            res, var = best
-            cands.append(_judge(ev, eff.id, var, res, fit_train, test, len(free)))
-            say(f"  {eff.id:28s} held-out {cands[-1].test_rms:.4g}  "
-                f"({time.process_time() - t0:.1f} s CPU, {res.nfev} evaluations)")
-        cur_train = train_sse(ev, current, fit_train)[0]
-        rejected: list[dict[str, Any]] = []
-        kept: list[Candidate] = []
-        for cand in cands:
-            why = _not_a_finding(cand, cur_train, band)
-            if why is None:
-                kept.append(cand)
-            else:
-                rejected.append({"effect": cand.effect, "not_a_finding": why,
-                                 "parameters": parameters_of(cand.variant, cand.fit.model),
-                                 "held_out_error": cand.test_rms})
-                say(f"  {cand.effect:28s} not a finding: {why}")
-        cands = kept
+        cands = _screen(pb, ctx, lib, findings, current, len(free), say)
+        cur_train = train_sse(pb.ev, current, pb.fit_train)[0]
+        cands, rejected = _drop_non_findings(cands, cur_train, band, "")
+        for r in rejected:
+            say(f"  {r['effect']:28s} not a finding: {r['not_a_finding']}")
         if not cands:
             rounds.append(rejected)
             break
@@ -471,20 +413,14 @@ def diagnose(
             for i in range(min(2, len(cands))):
                 cand = cands[i]
                 k_joint = len(free) + len(cand.variant.params)
-                res = fit(ev, [cand.fit.model], free + cand.variant.params, fit_train, scale_m,
-                          max_nfev=20 * (k_joint + 1), step=step)
+                res = fit(pb.ev, [cand.fit.model], free + cand.variant.params, pb.fit_train,
+                          pb.scale_m, max_nfev=20 * (k_joint + 1), step=pb.step)
                 if res.train_sse <= cand.fit.train_sse:
-                    cands[i] = _judge(ev, cand.effect, cand.variant, res, fit_train, test,
-                                      len(free))
+                    cands[i] = judge_candidate(pb, cand.effect, cand.variant, res, len(free))
                 say(f"  joint refit {cand.effect:16s} held-out {cands[i].test_rms:.4g}")
             # a joint refit may move a parameter onto its bound or raise the training error
-            for cj in list(cands):
-                why = _not_a_finding(cj, cur_train, band)
-                if why is not None:
-                    cands.remove(cj)
-                    rejected.append({"effect": cj.effect, "not_a_finding": f"joint refit: {why}",
-                                     "parameters": parameters_of(cj.variant, cj.fit.model),
-                                     "held_out_error": cj.test_rms})
+            cands, more = _drop_non_findings(cands, cur_train, band, "joint refit: ")
+            rejected += more
             if not cands:
                 rounds.append(rejected)
                 break
@@ -497,7 +433,7 @@ def diagnose(
         } for c in cands] + rejected)
         top = cands[0]
         gain = before / top.test_rms
-        lo, hi = bootstrap_gain(cur_test, top.test, test, seed + len(findings))
+        lo, hi = bootstrap_gain(cur_test, top.test, pb.test, seed + len(findings))
         significant = top.criterion < cur_crit and gain >= min_gain and lo >= min_gain_lo
         say(f"round {len(rounds)}: best {top.effect} gain {gain:.3g} [{lo:.3g}, {hi:.3g}]"
             f"{'' if significant else ' (not significant)'}")
@@ -505,12 +441,12 @@ def diagnose(
             break
         runner = cands[1] if len(cands) > 1 else None
         evidence: dict[str, Any] = {
-            "train_error_before": math.sqrt(_sse(residuals(ev, current, fit_train))
+            "train_error_before": math.sqrt(total_sse(residuals(pb.ev, current, pb.fit_train))
                                             / top.fit.train_n),
             "train_error_after": math.sqrt(top.fit.train_sse / top.fit.train_n),
             "criterion_before": cur_crit, "criterion_after": top.criterion,
             "n_params": len(top.variant.params),
-            "held_out_segments": len(test),
+            "held_out_segments": len(pb.test),
         }
         if runner is not None:
             evidence["runner_up"] = {"effect": runner.effect,
@@ -518,34 +454,75 @@ def diagnose(
                                      "parameters": parameters_of(runner.variant,
                                                                  runner.fit.model)}
             evidence["ambiguous"] = bool(top.test_rms**2 > runner.test_rms**2 / 1.25)
-        evidence.update(_effect_evidence(top.effect, records, test, cur_test, top.test,
-                                         top.fit.model, ev.duration_s))
+        evidence.update(effect_evidence(top.effect, ctx.records, pb.test, cur_test, top.test))
         findings.append(Finding(top.effect, parameters_of(top.variant, top.fit.model), before,
                                 top.test_rms, gain, (lo, hi), evidence, top.fit.model,
                                 top.variant, runner, top.test))
         free = free + top.variant.params
         current, cur_test, cur_crit = top.fit.model, top.test, top.criterion
+    return _Search(findings, rounds, current, cur_test)
 
-    # verdict against the signal: what the baseline and the final model explain of it
-    rows_base = ra.dwell_table(records, base_test, test)
-    noise = ra.noise_floor(rows_base)
-    verdict = judge(records, base_test, cur_test, test, ra.channel_noise(records, test),
-                    findings[0].test_residuals if findings else None)
-    unexplained = verdict.unexplained
+
+def _screen(pb: Problem, ctx: Context, lib: list[Effect], findings: list[Finding],
+            current: Model, n_free: int, say: Any) -> list[Candidate]:
+    """Every effect not yet found, its own parameters fitted (the rest held), judged."""
+    cands: list[Candidate] = []
+    for eff in lib:
+        if any(f.effect == eff.id for f in findings):
+            continue
+        t0 = time.process_time()
+        best: tuple[FitResult, Variant] | None = None
+        for var in eff.variants(ctx, current):
+            res = fit(pb.ev, var.starts, var.params, pb.fit_train, pb.scale_m, step=pb.step,
+                      keep=var.keep)
+            if best is None or res.train_sse < best[0].train_sse:
+                best = (res, var)
+        if best is None:
+            continue
+        res, var = best
+        cands.append(judge_candidate(pb, eff.id, var, res, n_free))
+        say(f"  {eff.id:28s} held-out {cands[-1].test_rms:.4g}  "
+            f"({time.process_time() - t0:.1f} s CPU, {res.nfev} evaluations)")
+    return cands
+
+
+def _drop_non_findings(cands: list[Candidate], cur_train: float, band: tuple[float, float],
+                       prefix: str) -> tuple[list[Candidate], list[dict[str, Any]]]:
+    """The candidates that can be findings, and a row for each that cannot."""
+    kept: list[Candidate] = []
+    rejected: list[dict[str, Any]] = []
+    for cand in cands:
+        why = not_a_finding(cand, cur_train, band)
+        if why is None:
+            kept.append(cand)
+        else:
+            rejected.append({"effect": cand.effect, "not_a_finding": prefix + why,
+                             "parameters": parameters_of(cand.variant, cand.fit.model),
+                             "held_out_error": cand.test_rms})
+    return kept, rejected
+
+
+# --- judgement of the findings -----------------------------------------------------------
+def _what_the_baseline_misses(verdict: Verdict, base: Baseline, findings: list[Finding],
+                              notes: list[str]) -> list[str]:
+    """A second mode found on an inadequate baseline, and the baseline's parameters on a
+    bound (returned), entered in the verdict's list of what is missing."""
     for f in findings:
         if f.effect == "second_mode" and not verdict.adequate:
             # a second mass-spring term helps: the baseline lacks a degree of freedom
             verdict.missing.setdefault("modes", []).append(
                 {"term": "second_mode", **f.parameters})
-    on_bound = [p.name for p in free_base if _on_bound(p, base_model)]
-    if on_bound:
-        verdict.missing["baseline_parameters_on_bound"] = on_bound
-        notes.append(f"baseline parameter(s) {on_bound} on a bound of the fit: the baseline "
+    on_bound_ = [p.name for p in base.free if on_bound(p, base.model)]
+    if on_bound_:
+        verdict.missing["baseline_parameters_on_bound"] = on_bound_
+        notes.append(f"baseline parameter(s) {on_bound_} on a bound of the fit: the baseline "
                      "does not describe the data")
-    for f in findings:
-        if LIBRARY[f.effect].kind == "measurement":
-            f.evidence.update(_sensor_pair_check(ev, ctx, base_model, free_base, findings, f,
-                                                 current, fit_train, test, scale_m, step))
+    return on_bound_
+
+
+def _share_of_signal(records: list[RunRecord], test: list[Segment], base_test: Residuals,
+                     findings: list[Finding]) -> None:
+    """Each finding's share of the held-out signal, and whether it is only a refinement."""
     noise_of = ra.channel_noise(records, test)
     before_res = base_test
     for f in findings:
@@ -557,6 +534,12 @@ def diagnose(
         if refinement:
             f.evidence["refinement"] = True
         before_res = f.test_residuals
+
+
+def _confidence(pb: Problem, base: Baseline, findings: list[Finding], search: _Search,
+                verdict: Verdict, base_on_bound: bool) -> None:
+    """High confidence only on an adequate baseline that leaves nothing unexplained, for a
+    finding that is no refinement and whose cause is not ambiguous."""
     for f in findings:
         # a runner-up as good as the finding leaves the cause ambiguous, unless it was found
         # too, or, swapped in for the finding next to the other findings, it explains the
@@ -566,243 +549,10 @@ def diagnose(
             if f.runner_up.effect in found:
                 f.evidence["ambiguous"] = False
             else:
-                swap_rms = _swap_check(ev, base_model, kind == "fitted", free_base, findings, f,
-                                       current, fit_train, test, scale_m, step)
+                swap_rms = swap_check(pb, base.model, base.free, findings, f, search.model)
                 f.evidence["runner_up"]["held_out_error_swapped"] = swap_rms
-                if swap_rms**2 > 1.25 * cur_test.rms() ** 2:
+                if swap_rms**2 > 1.25 * search.test.rms() ** 2:
                     f.evidence["ambiguous"] = False
-        weak = (unexplained or not verdict.adequate or bool(on_bound)
+        weak = (verdict.unexplained or not verdict.adequate or base_on_bound
                 or f.evidence.get("refinement", False))
         f.evidence["confidence"] = "low" if (weak or f.evidence.get("ambiguous")) else "high"
-    if not findings and unexplained:
-        notes.append("the baseline misses something that no effect of the library explains")
-    # amplitude dependence over the levels (runs or amplitude groups), of the data and of the
-    # baseline's prediction; a finding the trend beyond the baseline argues against is low
-    amplitude = check_levels(ev, base_model, fit_train, train + test, base_train.offsets,
-                             findings)
-    say(f"amplitude dependence: {amplitude.text}")
-    ext = extended_rig(current, ev.duration_s)
-    if imported:
-        ext = ext.model_copy(update={"substeps": int(min(32, max(oversample.values())))})
-    return Diagnosis(
-        baseline_kind=kind, units="m", records=records, train=train, test=test,
-        baseline_model=base_model, baseline_params=bparams, baseline_train=base_train,
-        baseline_test=base_test, findings=findings, final_model=current, final_test=cur_test,
-        unexplained=unexplained, rounds=rounds, skipped=skipped, noise_floor=noise,
-        extended_rig=ext, elapsed_s=time.perf_counter() - t_start, notes=notes,
-        verdict=verdict, amplitude=amplitude, order=order,
-    )
-
-
-def _sensor_pair_check(ev: Evaluator, ctx: Context, base: Model, free_base: list[Param],
-                       findings: list[Finding], f: Finding, final: Model,
-                       fit_train: list[Segment], test: list[Segment], scale_m: float,
-                       step: int) -> dict[str, Any]:
-    """Which sensor of a disagreeing pair is wrong, and whether the data can tell.
-
-    The same measurement effect is refitted on each other sensor of the finding's axis instead
-    (with the baseline's own parameters and the other findings free): a gain error of the probe
-    and the inverse gain error of the accelerometer, the structure scaled with it, fit alike on
-    a fitted baseline; a configured baseline, or a delay (never negative), tells them apart. A
-    partner within 25 % of the final model's held-out mean square cannot be told from the
-    finding's channel.
-    """
-    ch = f.parameters.get("channel")
-    axis_of: dict[str, int] = {}
-    for rec in ev.records:
-        axis_of.update({c: a for c, (a, _) in rec.objective_channels().items()})
-    if ch not in axis_of:
-        return {}
-    partners = [c for c, a in axis_of.items() if a == axis_of[ch] and c != ch]
-    own = f.variant.params[0]
-    cleared = own.set(final, 0.0 if own.name == "delay_s" else 1.0)
-    others = [p for g in findings if g is not f for p in g.variant.params]
-    final_ms = residuals(ev, final, fit_train, test).rms() ** 2
-    out: dict[str, Any] = {"pair_check": {}}
-    alike: list[str] = []
-    for var in LIBRARY[f.effect].variants(ctx, cleared):
-        partner = var.labels.get("channel")
-        if partner not in partners:
-            continue
-        res = fit(ev, var.starts, free_base + others + var.params, fit_train, scale_m,
-                  max_nfev=20 * (len(free_base) + len(others) + 2), step=step)
-        ms = residuals(ev, res.model, fit_train, test).rms() ** 2
-        out["pair_check"][partner] = {
-            **parameters_of(var, res.model),
-            "held_out_error": math.sqrt(ms)}
-        if ms <= 1.25 * final_ms:
-            alike.append(partner)
-    out["cannot_tell_from"] = alike
-    if alike:
-        out["which_sensor"] = (f"{ch} or {', '.join(alike)}: the pair disagree, and the data "
-                               "cannot tell which of them is wrong")
-    else:
-        out["which_sensor"] = f"{ch} (its partners on the axis explain the data clearly worse)"
-    return out
-
-
-def _swap_check(ev: Evaluator, base: Model, fitted: bool, free_base: list[Param],
-                findings: list[Finding], f: Finding, final: Model, fit_train: list[Segment],
-                test: list[Segment], scale_m: float, step: int) -> float:
-    """Held-out RMS of the final model with finding ``f`` replaced by its runner-up."""
-    assert f.runner_up is not None
-    m = base
-    params = list(free_base)
-    for p in free_base:
-        m = p.set(m, p.get(final))
-    for g in findings:
-        if g is f:
-            continue
-        for p in g.variant.params:
-            m = p.set(m, p.get(final))
-        params += g.variant.params
-    runner = f.runner_up
-    for p in runner.variant.params:
-        m = p.set(m, p.get(runner.fit.model))
-    params += runner.variant.params
-    res = fit(ev, [m], params, fit_train, scale_m, max_nfev=20 * (len(params) + 1), step=step)
-    return residuals(ev, res.model, fit_train, test).rms()
-
-
-def _choose_order(ev: Evaluator, ctx: Context, one: Model, free: list[Param],
-                  fit_train: list[Segment], test: list[Segment], scale_m: float, step: int,
-                  band: tuple[float, float], seed: int, min_gain: float, min_gain_lo: float,
-                  say: Any) -> tuple[Candidate | None, list[dict[str, Any]]]:
-    """One or two modes per axis for the fitted baseline, chosen on held-out data.
-
-    The second mode (``second_mode``: the frame as a second mass-spring under the housing) is
-    fitted with the one-mode baseline's parameters, from the same starts as the library term,
-    and kept by the same rules as a finding: a lower held-out criterion, a held-out gain of at
-    least ``min_gain`` whose bootstrap interval stays above ``min_gain_lo``, no parameter on a
-    bound, no higher training error, the mode inside the excited band. Returns the two-mode
-    candidate (None: one mode) and the table of both orders.
-    """
-    one_train = train_sse(ev, one, fit_train)[0]
-    one_test = residuals(ev, one, fit_train, test)
-    one_crit, _ = _criterion(one_test, test, len(free))
-    rows: list[dict[str, Any]] = [{"modes_per_axis": 1, "held_out_error": one_test.rms(),
-                                   "criterion": one_crit, "n_params": len(free)}]
-    best: tuple[FitResult, Variant] | None = None
-    for var in LIBRARY["second_mode"].variants(ctx, one):
-        # the best starts (the second mode added to the one-mode fit) refined with every
-        # parameter: the first mode moves once the second takes its share of the response
-        k = len(free) + len(var.params)
-        res = fit(ev, var.starts, free + var.params, fit_train, scale_m, step=step,
-                  keep=var.keep, max_nfev=30 * (k + 1))
-        if best is None or res.train_sse < best[0].train_sse:
-            best = (res, var)
-    if best is None:
-        return None, rows
-    res, var = best
-    two = _judge(ev, "second_mode", var, res, fit_train, test, len(free))
-    gain = one_test.rms() / two.test_rms
-    lo, hi = bootstrap_gain(one_test, two.test, test, seed)
-    why = _not_a_finding(two, one_train, band)
-    if why is None and not (two.criterion < one_crit and gain >= min_gain
-                            and lo >= min_gain_lo):
-        why = f"held-out gain {gain:.3g} [{lo:.3g}, {hi:.3g}] not significant"
-    rows.append({"modes_per_axis": 2, "held_out_error": two.test_rms,
-                 "criterion": two.criterion, "n_params": two.k,
-                 "parameters": parameters_of(var, two.fit.model), "gain": gain,
-                 "gain_interval": [lo, hi], "chosen": why is None,
-                 **({"not_chosen": why} if why else {})})
-    rows[0]["chosen"] = why is not None
-    say(f"baseline order: {'two modes' if why is None else 'one mode'} per axis (two modes: "
-        f"held-out {two.test_rms:.4g}, gain {gain:.3g} [{lo:.3g}, {hi:.3g}]"
-        f"{'' if why is None else '; ' + why})")
-    return (two if why is None else None), rows
-
-
-def _judge(ev: Evaluator, effect: str, var: Variant, res: FitResult, fit_train: list[Segment],
-           test: list[Segment], n_free: int) -> Candidate:
-    test_res = residuals(ev, res.model, fit_train, test)
-    k = n_free + len(var.params)
-    crit, _ = _criterion(test_res, test, k)
-    return Candidate(effect, var, res, test_res, test_res.rms(), crit, k)
-
-
-def _on_bound(p: Param, model: Model) -> bool:
-    v = p.get(model)
-    tol = 1e-3 * p.scale
-    return bool((math.isfinite(p.lo) and v - p.lo <= tol)
-                or (math.isfinite(p.hi) and p.hi - v <= tol))
-
-
-def _not_a_finding(c: Candidate, cur_train_sse: float,
-                   band: tuple[float, float]) -> str | None:
-    """Why candidate ``c`` cannot be a finding (None: it can).
-
-    A term that raises the training error, a parameter held on a bound of its fit, or a mode
-    outside the excited band (the data say nothing about it) explains nothing.
-    """
-    if c.fit.train_sse > cur_train_sse * (1 + 1e-9):
-        return "raises the training error"
-    bound = [p.name for p in c.variant.params if _on_bound(p, c.fit.model)]
-    if bound:
-        return f"parameter(s) {bound} on a bound of the fit"
-    if c.effect == "second_mode":
-        f = c.fit.model.rig.effects.second_mode.frequency_hz
-        if not band[0] <= f <= band[1]:
-            return (f"mode at {f:.4g} Hz outside the excited band "
-                    f"{band[0]:.4g}..{band[1]:.4g} Hz")
-    return None
-
-
-def _sse(res: Residuals) -> float:
-    return sum(res.sse(s)[0] for s in res.per_segment)
-
-
-def _dominant_freq(records: list[RunRecord], segs: list[Segment]) -> float:
-    s = segs[0]
-    rec = records[s.run]
-    x = next(iter(rec.responses.values()))[s.start:s.stop]
-    spec = np.abs(np.fft.rfft(x - x.mean()))
-    f = np.fft.rfftfreq(x.size, 1 / rec.sample_rate_hz)
-    return float(f[1:][np.argmax(spec[1:])])
-
-
-def _effect_evidence(effect: str, records: list[RunRecord], test: list[Segment],
-                     before: Residuals, after: Residuals, model: Model,
-                     duration_s: float) -> dict[str, Any]:
-    """Effect-specific corroboration: dwell errors before/after, redundant sensors, oil temp."""
-    out: dict[str, Any] = {}
-    rb = ra.summary(ra.dwell_table(records, before, test))
-    rf = ra.summary(ra.dwell_table(records, after, test))
-    if rb:
-        out["dwell_errors_before"] = rb
-        out["dwell_errors_after"] = rf
-    if effect == "sensor_gain":
-        out["accelerometer_check"] = _accel_check(records, test)
-    if effect == "viscosity_drift":
-        temps = [r.t_oil_c for r in records if r.t_oil_c is not None]
-        if temps:
-            t = temps[0]
-            rise = float(np.mean(t[-100:]) - np.mean(t[:100]))
-            out["oil_temperature_rise_c"] = rise
-            out["eq1_relative_change_from_temperature"] = math.expm1(-0.01665 * rise)
-    return out
-
-
-def _accel_check(records: list[RunRecord], segs: list[Segment]) -> dict[str, float]:
-    """Per probe: median of |displacement from the accelerometer| / |probe| at 1X over dwells.
-
-    The accelerometer is an independent sensor: -A / w^2 is the displacement it measures.
-    A probe whose ratio departs from 1 while its twin stays at 1 has the wrong gain.
-    """
-    ratios: dict[str, list[float]] = {}
-    for seg in segs:
-        if not seg.freq_hz:
-            continue
-        rec = records[seg.run]
-        w = 2 * math.pi * seg.freq_hz
-        for ch, axis in rec.response_axis.items():
-            acc_name = "ax" if axis == 0 else "ay"
-            if acc_name not in rec.accel:
-                continue
-            za, _, _ = ra.harmonics(rec.accel[acc_name][seg.start:seg.stop], seg.start,
-                                    rec.sample_rate_hz, seg.freq_hz, 1)
-            zx, _, _ = ra.harmonics(rec.responses[ch][seg.start:seg.stop], seg.start,
-                                    rec.sample_rate_hz, seg.freq_hz, 1)
-            if abs(zx[0]) > 0:
-                ratios.setdefault(ch, []).append(abs(zx[0]) / (abs(za[0]) / w**2))
-    return {ch: float(np.median(v)) for ch, v in ratios.items()}

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
+from analysis.diagnose.candidates import bootstrap_gain
 from analysis.diagnose.data import DiagnoseError, RunRecord, Segment, split_segments
 from analysis.diagnose.model import Residuals
 from analysis.diagnose.verdict import SignalFit, Verdict, judge, refinement_share
@@ -139,8 +140,6 @@ def diagnose_inverse(records: list[RunRecord],
                      cutoff_hz: float | None = None, seed: int = 0, max_effects: int = 3,
                      min_gain: float = 1.05, min_gain_lo: float = 0.999) -> InverseDiagnosis:
     """Judge the measured force from the measured motion; find the library terms it misses."""
-    from analysis.diagnose.engine import bootstrap_gain
-
     if not records:
         raise DiagnoseError("no runs to diagnose")
     fs = min(r.sample_rate_hz for r in records)

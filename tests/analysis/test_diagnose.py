@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from analysis.diagnose import DiagnoseError, diagnose, load_run, parse_spans
+from analysis.diagnose.candidates import bootstrap_gain
 from analysis.diagnose.data import Segment, records_from_arrays, split_segments
-from analysis.diagnose.engine import bootstrap_gain
 from analysis.diagnose.fitting import apply, arx_linear_guess, levenberg_marquardt
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals, rig_param
 from sfdrig.cli import main

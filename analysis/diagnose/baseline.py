@@ -1,0 +1,209 @@
+"""The fitted baseline: a linear model of the rig from the data alone, its order chosen on
+held-out data.
+
+1. Start (`data_start`): a frequency-domain fit of the dynamic stiffness per axis
+   (``start.py``), or an equation-error ARX estimate where that has too few points; the
+   replay's warm-up from the estimated decay time.
+2. Refinement (`fit_linear`): mass, damping and stiffness per axis by output error.
+3. Order (`choose_order`): one or two modes per axis, the second kept by the rules a finding
+   meets (``candidates.py``), before any effect is tried.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from analysis.diagnose.candidates import (
+    Candidate,
+    Problem,
+    bootstrap_gain,
+    criterion,
+    judge_candidate,
+    not_a_finding,
+)
+from analysis.diagnose.data import DiagnoseError, RunRecord, Segment
+from analysis.diagnose.effects import LIBRARY, Context, Variant, parameters_of
+from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit, train_sse
+from analysis.diagnose.model import Evaluator, Model, Param, Residuals, residuals, rig_param
+from analysis.diagnose.start import OneMode, one_mode_estimate
+from simulated_hw.params import RigParams
+
+
+@dataclass
+class Baseline:
+    """The baseline model, its free parameters (none for a configured baseline), and its
+    residuals on the fitted training segments and on the held-out segments."""
+    model: Model
+    free: list[Param]
+    train: Residuals
+    test: Residuals
+    #: the fitted baseline's order chosen on held-out data: one row per order tried
+    order: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def params(self) -> dict[str, float]:
+        return {p.name: p.get(self.model) for p in self.free}
+
+
+def is_imported(records: list[RunRecord], rig: RigParams | None) -> bool:
+    """Runs without a rig description (imported data) and none given."""
+    return rig is None and all(r.rig is None for r in records)
+
+
+def baseline_params(model: Model, records: list[RunRecord]) -> list[Param]:
+    st = model.rig.structure
+    c_crit = 2 * math.sqrt(st.stiffness_x_n_per_m * st.mass_kg)
+    ps = [
+        rig_param("mass_kg", "structure.mass_kg", 0.05 * st.mass_kg, 1e-3 * st.mass_kg),
+        rig_param("damping_Ns_per_m", "structure.residual_damping_ns_per_m",
+                  0.1 * max(st.residual_damping_ns_per_m, 0.02 * c_crit), 0.0),
+        rig_param("stiffness_x_N_per_m", "structure.stiffness_x_n_per_m",
+                  0.02 * st.stiffness_x_n_per_m, 1e-3 * st.stiffness_x_n_per_m),
+    ]
+    if any(1 in r.axes for r in records):
+        ps.append(rig_param("stiffness_y_N_per_m", "structure.stiffness_y_n_per_m",
+                            0.02 * st.stiffness_y_n_per_m, 1e-3 * st.stiffness_y_n_per_m))
+    # Offsets: each response channel's offset is fitted in closed form (model.residuals); a
+    # force offset would be redundant with it for a linear structure (and ill-conditioned).
+    return ps
+
+
+def fit_subset(ev: Evaluator, train: list[Segment], budget: float) -> list[Segment]:
+    """Evenly spread training segments whose simulation work stays within ``budget`` steps."""
+    def work(s: Segment) -> float:
+        rec = ev.records[s.run]
+        sub = ev.oversample.get(s.run, 1)
+        return (s.n + ev.warmup_s * rec.sample_rate_hz) * sub
+    total = sum(work(s) for s in train)
+    if total <= budget:
+        return train
+    k = max(2, int(len(train) * budget / total))
+    idx = np.unique(np.linspace(0, len(train) - 1, k).round().astype(int))
+    return [train[i] for i in idx]
+
+
+def data_start(records: list[RunRecord], train: list[Segment], base_rig: RigParams,
+               notes: list[str], say: Any) -> tuple[Model, float]:
+    """Start of the fitted baseline from the data alone, and the replay's warm-up [s].
+
+    A frequency-domain fit of the dynamic stiffness per axis (``start.py``), the film's known
+    added mass and centred damping taken off when the runs are lubricated; the equation-error
+    ARX estimate where that has too few points. The warm-up before each replayed segment covers
+    four decay times of the estimated mode (at least 0.5 s, at most 30 s), so a lightly damped
+    structure has forgotten its start from rest before it is scored.
+    """
+    film = base_rig.film
+    lub = any(r.lubricated for r in records)
+    d_mass = film.fluid_mass_kg + film.added_mass() if lub else 0.0
+    d_damp = (film.eq16_damping_centred(film.viscosity_pa_s(base_rig.oil.initial_temperature_c))
+              if lub else 0.0)
+    est = {ax: one_mode_estimate(records, train, ax, d_mass, d_damp) for ax in (0, 1)}
+    st = base_rig.structure
+    x, y = est[0], est[1]
+    if x is None and y is None:
+        try:
+            m_kg, c, k, _ = arx_linear_guess(records[0], train)
+        except ValueError as err:
+            raise DiagnoseError(f"cannot start the fitted baseline: {err}") from None
+        x = OneMode(m_kg, c, k, 0)
+        notes.append("fitted baseline started from an equation-error (ARX) estimate")
+    first = x if x is not None else y
+    assert first is not None
+    update = {"mass_kg": first.mass_kg, "residual_damping_ns_per_m": first.damping_ns_per_m,
+              "stiffness_x_n_per_m": (x or first).stiffness_n_per_m,
+              "stiffness_y_n_per_m": (y or first).stiffness_n_per_m}
+    if first.damping_ns_per_m <= 0.0:
+        update["residual_damping_ns_per_m"] = 0.02 * 2 * math.sqrt(
+            first.stiffness_n_per_m * first.mass_kg)
+    model = Model(rig=base_rig.model_copy(update={"structure": st.model_copy(update=update)}))
+    tau = first.decay_time_s()
+    warmup = float(min(30.0, max(0.5, 4 * tau)))
+    say(f"start from the data: {first.natural_hz:.4g} Hz, damping ratio "
+        f"{first.damping_ratio:.3g}, warm-up {warmup:.3g} s")
+    notes.append(f"fitted baseline started from the data ({first.points} frequency points): "
+                 f"{first.natural_hz:.4g} Hz, damping ratio {first.damping_ratio:.3g}; each "
+                 f"replayed window starts {warmup:.3g} s early (four decay times) from rest")
+    return model, warmup
+
+
+def fit_linear(pb: Problem, start: Model, records: list[RunRecord], fitted: bool,
+               say: Any) -> Baseline:
+    """The baseline: ``start`` as it is (configured), or its mass, damping and stiffness per
+    axis refined by output error (fitted)."""
+    model = start
+    free: list[Param] = []
+    if fitted:
+        free = baseline_params(model, records)
+        say(f"fitting the linear baseline ({', '.join(p.name for p in free)})")
+        model = fit(pb.ev, [model], free, pb.fit_train, pb.scale_m, max_nfev=60,
+                    step=pb.step).model
+    return _with_residuals(pb, model, free, [])
+
+
+def _with_residuals(pb: Problem, model: Model, free: list[Param],
+                    order: list[dict[str, Any]]) -> Baseline:
+    train = residuals(pb.ev, model, pb.fit_train)
+    test = residuals(pb.ev, model, pb.fit_train, pb.test, train.offsets)
+    return Baseline(model, free, train, test, order)
+
+
+def choose_order(pb: Problem, ctx: Context, one: Baseline, band: tuple[float, float],
+                 seed: int, min_gain: float, min_gain_lo: float, say: Any) -> Baseline:
+    """One or two modes per axis for the fitted baseline, chosen on held-out data.
+
+    The second mode (``second_mode``: the frame as a second mass-spring under the housing) is
+    fitted with the one-mode baseline's parameters, from the same starts as the library term,
+    and kept by the same rules as a finding: a lower held-out criterion, a held-out gain of at
+    least ``min_gain`` whose bootstrap interval stays above ``min_gain_lo``, no parameter on a
+    bound, no higher training error, the mode inside the excited band. Returns the baseline of
+    the order chosen, with the table of both orders.
+    """
+    two, rows = _two_modes(pb, ctx, one.model, one.free, band, seed, min_gain, min_gain_lo,
+                           say)
+    if two is None:
+        return Baseline(one.model, one.free, one.train, one.test, rows)
+    return _with_residuals(pb, two.fit.model, one.free + two.variant.params, rows)
+
+
+def _two_modes(pb: Problem, ctx: Context, one: Model, free: list[Param],
+               band: tuple[float, float], seed: int, min_gain: float, min_gain_lo: float,
+               say: Any) -> tuple[Candidate | None, list[dict[str, Any]]]:
+    """The two-mode candidate if chosen (None: one mode), and the table of both orders."""
+    one_train = train_sse(pb.ev, one, pb.fit_train)[0]
+    one_test = residuals(pb.ev, one, pb.fit_train, pb.test)
+    one_crit, _ = criterion(one_test, pb.test, len(free))
+    rows: list[dict[str, Any]] = [{"modes_per_axis": 1, "held_out_error": one_test.rms(),
+                                   "criterion": one_crit, "n_params": len(free)}]
+    best: tuple[FitResult, Variant] | None = None
+    for var in LIBRARY["second_mode"].variants(ctx, one):
+        # the best starts (the second mode added to the one-mode fit) refined with every
+        # parameter: the first mode moves once the second takes its share of the response
+        k = len(free) + len(var.params)
+        res = fit(pb.ev, var.starts, free + var.params, pb.fit_train, pb.scale_m, step=pb.step,
+                  keep=var.keep, max_nfev=30 * (k + 1))
+        if best is None or res.train_sse < best[0].train_sse:
+            best = (res, var)
+    if best is None:
+        return None, rows
+    res, var = best
+    two = judge_candidate(pb, "second_mode", var, res, len(free))
+    gain = one_test.rms() / two.test_rms
+    lo, hi = bootstrap_gain(one_test, two.test, pb.test, seed)
+    why = not_a_finding(two, one_train, band)
+    if why is None and not (two.criterion < one_crit and gain >= min_gain
+                            and lo >= min_gain_lo):
+        why = f"held-out gain {gain:.3g} [{lo:.3g}, {hi:.3g}] not significant"
+    rows.append({"modes_per_axis": 2, "held_out_error": two.test_rms,
+                 "criterion": two.criterion, "n_params": two.k,
+                 "parameters": parameters_of(var, two.fit.model), "gain": gain,
+                 "gain_interval": [lo, hi], "chosen": why is None,
+                 **({"not_chosen": why} if why else {})})
+    rows[0]["chosen"] = why is not None
+    say(f"baseline order: {'two modes' if why is None else 'one mode'} per axis (two modes: "
+        f"held-out {two.test_rms:.4g}, gain {gain:.3g} [{lo:.3g}, {hi:.3g}]"
+        f"{'' if why is None else '; ' + why})")
+    return (two if why is None else None), rows
