@@ -36,8 +36,8 @@ def main() -> int:
     ap.add_argument("--k3", type=float, default=-5e13, help="hidden cubic spring [N/m^3]")
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--no-rig", action="store_true",
-                    help="import without the rig description (fitted baseline, the simulator's "
-                         "default film law) instead of the correct one")
+                    help="import without the rig description (fitted linear baseline, the "
+                         "film's centred damping and added mass) instead of the correct one")
     args = ap.parse_args()
     duration = args.samples / args.fs
     k3 = args.k3

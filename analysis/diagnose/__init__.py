@@ -22,8 +22,9 @@ Limits, stated:
   structure scaled, and the finding says so (``cannot_tell_from``).
 - The fitted baseline fits one mass and one damping for both axes and a stiffness per axis
   (RigParams has one mass and one residual damping).
-- Imported runs without a rig description are replayed with the seal off and the film as the
-  run file's lubricated flag says.
+- Imported runs without a rig description are replayed with the seal off, the film as the
+  run file's lubricated flag says, linear (no eccentricity law: that is the library's
+  ``amplitude_dependent_damping``), the oil at a constant temperature.
 - Lubricated runs are replayed with the film full from sample 0 and the oil temperature of the
   configuration (initial temperature, configured warming): a drift shows as ``viscosity_drift``,
   corroborated by the recorded oil temperature when there is one.

@@ -77,7 +77,7 @@ from analysis.diagnose.data import (
 )
 from analysis.diagnose.effects import LIBRARY, Context, Effect, Variant, extended_rig, parameters_of
 from analysis.diagnose.evidence import effect_evidence, sensor_pair_check, swap_check
-from analysis.diagnose.fitting import FitResult, fit, train_sse
+from analysis.diagnose.fitting import FitResult, Following, fit, following, train_sse
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals
 from analysis.diagnose.verdict import Verdict, excited_band, judge, refinement_share, signal_fit
 from simulated_hw.params import RigParams
@@ -203,6 +203,7 @@ def diagnose(
     if fitted:
         start_model, warmup_s = data_start(records, train, base_rig, notes, say)
     ev = _evaluator(records, train, warmup_s, oversample, notes)
+    train, test = _settled(ev, train, notes), _settled(ev, test, notes)
     pb = _problem(ev, train, test, fit_budget_steps, notes)
 
     # 1. baseline, and (fitted) its order chosen on held-out data, before any effect: a
@@ -286,12 +287,17 @@ def _replay_rig(records: list[RunRecord], rig: RigParams | None, imported: bool,
     oversample: dict[int, int] = {}
     if imported:
         # imported data without a rig description: no seal; the film as the run file says
-        # (its lubricated flag); force interpolated between samples (see model.py)
-        base_rig = base_rig.model_copy(update={"seal": base_rig.seal.model_copy(
-            update={"enabled": False})})
+        # (its lubricated flag), linear (its centred damping and added mass: the eccentricity
+        # law is the library's amplitude_dependent_damping, for the data to show, not a
+        # prior of the baseline), the oil at a constant temperature; force interpolated
+        # between samples (see model.py)
+        base_rig = base_rig.model_copy(update={
+            "seal": base_rig.seal.model_copy(update={"enabled": False}),
+            "film": base_rig.film.model_copy(update={"eccentricity_law": False}),
+            "oil": base_rig.oil.model_copy(update={"warming_c_per_hour": 0.0})})
         for i, r in enumerate(records):
             oversample[i] = int(min(32, max(1, math.ceil(4000.0 / r.sample_rate_hz))))
-        films = sorted({"film on (lubricated)" if r.lubricated else "film off (dry)"
+        films = sorted({"linear film on (lubricated)" if r.lubricated else "film off (dry)"
                         for r in records})
         notes.append(f"imported data without a rig description: seal off, {', '.join(films)}; "
                      f"force oversampled x{oversample[0]} for the replay")
@@ -330,6 +336,26 @@ def _evaluator(records: list[RunRecord], train: list[Segment], warmup_s: float,
         notes.append("displacement derived from velocity or acceleration at import: fitted to "
                      "the derived displacement only (the sources hold the same information)")
     return ev
+
+
+def _settled(ev: Evaluator, segs: list[Segment], notes: list[str]) -> list[Segment]:
+    """``segs`` without the samples a replay from rest cannot get right.
+
+    A segment replayed from rest has ``warmup_s`` before it to forget that start, except
+    within ``warmup_s`` of its run's first sample, where the measured motion's initial state
+    is unknown: there its first samples (up to the warm-up, at most half the segment) are not
+    scored. Scored, a start transient of a few milliseconds can outweigh seconds of data.
+    """
+    out: list[Segment] = []
+    for seg in segs:
+        warm = int(ev.warmup_s * ev.records[seg.run].sample_rate_hz)
+        if seg.start < warm and not ev.periodic_chunk(seg):
+            start = max(seg.start, min(warm, seg.stop - seg.n // 2))
+            notes.append(f"{ev.records[seg.run].name}: samples {seg.start}-{start} not scored "
+                         "(replayed from rest at the run's start: its initial state is unknown)")
+            seg = replace(seg, start=start)
+        out.append(seg)
+    return out
 
 
 def _problem(ev: Evaluator, train: list[Segment], test: list[Segment],
@@ -398,7 +424,10 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
     current, cur_test = base.model, base.test
     cur_crit, _ = criterion(cur_test, pb.test, len(free))
     for _round in range(max_effects):
-        cands = _screen(pb, ctx, lib, findings, current, len(free), say)
+        # a fitted baseline follows each screened term (its parameters to first order): it
+        # absorbed part of every term when it was fitted alone (``fitting.Following``)
+        follow = following(pb.ev, current, base.free, pb.fit_train, pb.scale_m, pb.step)
+        cands = _screen(pb, ctx, lib, findings, current, len(free), follow, say)
         cur_train = train_sse(pb.ev, current, pb.fit_train)[0]
         cands, rejected = _drop_non_findings(cands, cur_train, band, "")
         for r in rejected:
@@ -464,8 +493,10 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
 
 
 def _screen(pb: Problem, ctx: Context, lib: list[Effect], findings: list[Finding],
-            current: Model, n_free: int, say: Any) -> list[Candidate]:
-    """Every effect not yet found, its own parameters fitted (the rest held), judged."""
+            current: Model, n_free: int, follow: Following | None,
+            say: Any) -> list[Candidate]:
+    """Every effect not yet found, its own parameters fitted (the rest held, or following to
+    first order: ``follow``), judged."""
     cands: list[Candidate] = []
     for eff in lib:
         if any(f.effect == eff.id for f in findings):
@@ -474,7 +505,7 @@ def _screen(pb: Problem, ctx: Context, lib: list[Effect], findings: list[Finding
         best: tuple[FitResult, Variant] | None = None
         for var in eff.variants(ctx, current):
             res = fit(pb.ev, var.starts, var.params, pb.fit_train, pb.scale_m, step=pb.step,
-                      keep=var.keep)
+                      keep=var.keep, follow=follow)
             if best is None or res.train_sse < best[0].train_sse:
                 best = (res, var)
         if best is None:

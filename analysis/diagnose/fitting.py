@@ -49,20 +49,74 @@ def train_sse(ev: Evaluator, model: Model, train: list[Segment]) -> tuple[float,
     return (sse if math.isfinite(sse) else math.inf), int(r.size)
 
 
+@dataclass
+class Following:
+    """Parameters (a fitted baseline's) that follow a screened term to first order.
+
+    Their Jacobian ``J`` (of the decimated, scaled training residual, per typical scale) is
+    taken once at ``at``; a screened term is then fitted against the residual with ``J``'s
+    column space projected out (what the followers cannot absorb), and the followers are moved
+    by the Gauss-Newton step ``-J^+ r`` at its optimum. Without it a term that the linear
+    baseline partly absorbed when it was fitted (a softening spring: a lower fitted stiffness)
+    is judged against a baseline that already took its share of the data, and looks useless.
+    """
+    params: list[Param]
+    q: np.ndarray  # orthonormal basis of J's columns (n x r)
+    pinv: np.ndarray  # J^+ (k x n)
+
+    def project(self, r: np.ndarray) -> np.ndarray:
+        return r - self.q @ (self.q.T @ r)
+
+    def follow(self, ev: Evaluator, model: Model, train: list[Segment], scale_m: float,
+               step: int) -> Model:
+        """``model`` with the followers moved by the Gauss-Newton step at ``model``."""
+        r = _finite(residuals(ev, model, train).vector(step) / scale_m)
+        du = -self.pinv @ r
+        values = [p.get(model) + d * p.scale for p, d in zip(self.params, du, strict=True)]
+        return apply(model, self.params, np.array(values))
+
+
+def following(ev: Evaluator, at: Model, params: list[Param], train: list[Segment],
+              scale_m: float, step: int, h: float = 1e-3) -> Following | None:
+    """The first-order dependence of the training residual on ``params`` at model ``at``."""
+    if not params:
+        return None
+    r0 = _finite(residuals(ev, at, train).vector(step) / scale_m)
+    cols = []
+    for p in params:
+        x = p.get(at)
+        d = h if x + h * p.scale <= p.hi else -h
+        m = apply(at, [p], np.array([x + d * p.scale]))
+        cols.append((_finite(residuals(ev, m, train).vector(step) / scale_m) - r0) / d)
+    jac = np.column_stack(cols)
+    u, sv, _ = np.linalg.svd(jac, full_matrices=False)
+    rank = int(np.sum(sv > 1e-9 * max(float(sv[0]), 1e-300)))
+    return Following(list(params), u[:, :rank], np.linalg.pinv(jac, rcond=1e-9))
+
+
 def fit(ev: Evaluator, starts: list[Model], params: list[Param], train: list[Segment],
         scale_m: float, max_nfev: int | None = None, screen: bool = True,
-        step: int = 1, keep: int = 1) -> FitResult:
+        step: int = 1, keep: int = 1, follow: Following | None = None) -> FitResult:
     """Fit ``params`` from each start model; return the best on training data.
 
     With ``screen`` and more than ``keep`` starts, the starts are first ranked by their training
     error and only the best ``keep`` are refined. ``step`` decimates the residual vector
     (samples) the least-squares problem sees; the reported training error uses every sample.
+    With ``follow``, its parameters follow ``params`` to first order (`Following`).
     """
     if not params:
         sse, n = train_sse(ev, starts[0], train)
         return FitResult(starts[0], sse, n, 1)
+
+    def vec(m: Model) -> np.ndarray:
+        r = _finite(residuals(ev, m, train).vector(step) / scale_m)
+        return follow.project(r) if follow is not None else r
+
     if screen and len(starts) > keep:
-        ranked = sorted(starts, key=lambda m: train_sse(ev, m, train)[0])
+        if follow is None:
+            ranked = sorted(starts, key=lambda m: train_sse(ev, m, train)[0])
+        else:
+            ranked = sorted(starts, key=lambda m: float(np.sum(vec(m) ** 2)))
         starts = ranked[:keep]
     best: FitResult | None = None
     nfev_total = 0
@@ -78,14 +132,18 @@ def fit(ev: Evaluator, starts: list[Model], params: list[Param], train: list[Seg
 
         def fun(u: np.ndarray, _x0: np.ndarray = x0, _s: np.ndarray = scales,
                 _start: Model = start) -> np.ndarray:
-            m = apply(_start, params, _x0 + u * _s)
-            return _finite(residuals(ev, m, train).vector(step) / scale_m)
+            return vec(apply(_start, params, _x0 + u * _s))
 
         x_opt, nfev = levenberg_marquardt(fun, u0, lo, hi,
                                           max_nfev or 12 * (len(params) + 1))
         nfev_total += nfev
         model = apply(start, params, x0 + x_opt * scales)
         sse, n = train_sse(ev, model, train)
+        if follow is not None:
+            moved = follow.follow(ev, model, train, scale_m, step)
+            sse_moved, _ = train_sse(ev, moved, train)
+            if sse_moved < sse:
+                model, sse = moved, sse_moved
         if best is None or sse < best.train_sse:
             best = FitResult(model, sse, n, 0)
     assert best is not None

@@ -14,6 +14,7 @@ import math
 from typing import Any
 
 import numpy as np
+from scipy.signal import welch
 
 from analysis.diagnose.data import RunRecord, Segment
 from analysis.diagnose.model import Residuals
@@ -123,14 +124,18 @@ def channel_noise(records: list[RunRecord], segs: list[Segment],
     it moves the channel's axis or not (the noise is there either way). With
     ``without_dwells``, a channel with no dwell gets the white-noise level from second
     differences (``var(diff2) / 6``: an upper bound where the signal has content near the sample
-    rate, good enough to weigh sensors against each other, not to judge a model by).
+    rate, good enough to weigh sensors against each other, not to judge a model by); without it,
+    a block of other data (a sweep) gets the white level of its spectrum above the excitation's
+    harmonics where it has such a band (`_quiet_band`), else none.
     """
     acc: dict[str, list[float]] = {}
     rough: dict[str, list[float]] = {}
+    white: dict[str, list[float]] = {}
     for seg in segs:
         rec = records[seg.run]
         fs = rec.sample_rate_hz
         periodic = bool(seg.freq_hz and seg.freq_hz > 0 and seg.n >= 2 * fs / seg.freq_hz)
+        cut = None if periodic or without_dwells else _quiet_band(rec, seg)
         for ch in rec.objective_channels():
             sig = rec.signal(ch)[seg.start:seg.stop]
             if periodic:
@@ -138,9 +143,45 @@ def channel_noise(records: list[RunRecord], segs: list[Segment],
                 acc.setdefault(ch, []).append(harmonics(sig, seg.start, fs, seg.freq_hz)[2] ** 2)
             elif without_dwells and sig.size > 8:
                 rough.setdefault(ch, []).append(float(np.var(np.diff(sig, 2)) / 6.0))
+            elif cut is not None:
+                level = _white_level(sig, fs, cut)
+                if level is not None:
+                    white.setdefault(ch, []).append(level)
     out = {ch: float(np.mean(v)) for ch, v in rough.items()}
+    out.update({ch: float(np.mean(v)) for ch, v in white.items()})
     out.update({ch: float(np.mean(v)) for ch, v in acc.items()})
     return out
+
+
+#: samples per Welch window of the white-noise level of a block
+_NPER = 1024
+
+
+def _quiet_band(rec: RunRecord, seg: Segment) -> tuple[float, float] | None:
+    """The band of block ``seg`` with nothing of the excitation in it: above five times the
+    force's highest frequency (1.25 x where its spectrum falls below 1e-4 of its peak: the
+    harmonics a nonlinear structure makes) up to 0.8 x Nyquist (clear of an anti-alias
+    filter's edge); None when that band is narrower than a fifth of Nyquist (broadband force)."""
+    if seg.n < 4 * _NPER:
+        return None
+    fs = rec.sample_rate_hz
+    f, p = welch(rec.force_n[:, seg.start:seg.stop], fs, nperseg=_NPER, axis=-1)
+    pf = p.sum(axis=0)
+    if not np.any(pf > 0):
+        return None
+    f_hi = float(f[np.nonzero(pf > 1e-4 * pf.max())[0][-1]])
+    lo, hi = 5 * 1.25 * f_hi, 0.8 * fs / 2
+    return (lo, hi) if hi - lo >= 0.2 * fs / 2 else None
+
+
+def _white_level(sig: np.ndarray, fs: float, band: tuple[float, float]) -> float | None:
+    """Mean square of the white noise in ``sig``: the median PSD over ``band`` times the
+    Nyquist frequency (None when it is below 1e-10 of the signal's mean square: noise-free
+    data, whose floor is the integrator's round-off and judges nothing)."""
+    f, p = welch(sig - np.mean(sig), fs, nperseg=_NPER)
+    sel = (f >= band[0]) & (f <= band[1])
+    ms = float(np.median(p[sel])) * fs / 2
+    return ms if ms > 1e-10 * float(np.var(sig)) else None
 
 
 def noise_weights(records: list[RunRecord], noise_ms: dict[str, float]) -> dict[str, float]:
