@@ -4,7 +4,8 @@ Every ``1 / fps`` seconds the server computes one frame from the `LiveView` (dec
 server) and serialises it once, off the event loop (orjson: a frame is about 10,000 numbers);
 the same bytes go to every connected browser, so a browser costs a send, never a frame or an
 encoding. Each browser has a sender task that sends the newest frame once the browser has
-drawn the previous one (it answers each frame with ``drawn``): a slow browser skips frames, frames
+drawn the previous one (it answers each frame with ``drawn``, after painting or at the latest
+after 250 ms): a slow browser skips frames, frames
 never queue up in its network buffers (seconds of delay), it never makes the others wait, and it
 never reaches back to the daemon. Commands
 are POSTs checked against the browser's role (`web.auth`) and sent to the daemon's command
@@ -92,6 +93,7 @@ class WebApp:
         self.sessions = Sessions()
         self.browsers: set[_Browser] = set()
         self.frames_made = 0
+        self.frame_errors = 0  # frames that could not be made (logged; the ticker goes on)
         self.app = web.Application(client_max_size=MAX_UPLOAD_BYTES)
         self.app.add_routes([
             web.get("/", self.index),
@@ -272,11 +274,17 @@ class WebApp:
         while True:
             t0 = loop.time()
             if self.browsers:
-                data = await loop.run_in_executor(None, self._encoded_frame)
-                self.frames_made += 1
-                for b in list(self.browsers):
-                    b.frame = data
-                    b.wake.set()
+                try:
+                    data = await loop.run_in_executor(None, self._encoded_frame)
+                except Exception:  # noqa: BLE001 - one bad frame must not freeze every page
+                    self.frame_errors += 1
+                    log.exception("frame %d could not be made; the next tick tries again",
+                                  self.frames_made + self.frame_errors)
+                else:
+                    self.frames_made += 1
+                    for b in list(self.browsers):
+                        b.frame = data
+                        b.wake.set()
             await asyncio.sleep(max(0.0, period - (loop.time() - t0)))  # frame pacing
 
     def _encoded_frame(self) -> bytes:

@@ -125,3 +125,39 @@ def test_a_browser_that_has_not_drawn_gets_the_newest_frame_next_not_a_queue():
     newest frame, not the ones made while it was busy (queued, they would arrive seconds late)."""
     first, quick_last, second = asyncio.run(_slow_and_quick())
     assert first < quick_last <= second
+
+
+def test_a_frame_that_cannot_be_made_does_not_stop_the_frames(caplog):
+    """A frame whose making raises (a bug, a value the encoder refuses) is logged and skipped:
+    the ticker goes on and the page gets the next one (before, every page froze for good)."""
+    counts = {"computed": 0}
+    view = LiveView(buffer_s=0.5, cycles=3, points=200)
+    for msg in blocks(40.0, 20):
+        view.on_message(msg)
+    frame = view.frame
+
+    def failing_once(now: float | None = None) -> dict[str, Any]:
+        counts["computed"] += 1
+        if counts["computed"] == 2:
+            raise ValueError("a frame that cannot be made")
+        return frame(now)
+
+    view.frame = failing_once  # type: ignore[method-assign]
+    app = WebApp(_ViewOnly(view), WebConfig(fps=50.0))  # type: ignore[arg-type]
+
+    async def run() -> int:
+        async with TestClient(TestServer(app.app)) as client:
+            ws = await client.ws_connect("/ws")
+            frames = 0
+            while frames < 3:
+                msg = await ws.receive(timeout=30)
+                assert msg.type == WSMsgType.TEXT, msg
+                if json.loads(msg.data)["type"] == "frame":
+                    frames += 1
+                    await ws.send_str("drawn")
+            await ws.close()
+            return frames
+
+    assert asyncio.run(run()) == 3
+    assert app.frame_errors == 1 and counts["computed"] >= 4
+    assert "could not be made" in caplog.text

@@ -309,16 +309,27 @@ $("pump-on").onclick = () => post("/api/command", { cmd: "pump", on: true });
 $("pump-off").onclick = () => post("/api/command", { cmd: "pump", on: false });
 $("reset").onclick = () => post("/api/command", { cmd: "reset" });
 
+const DRAWN_LATEST_MS = 250;  // the next frame is asked for by then even if not painted
+
 function connect() {
   const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws");
   ws.onmessage = (ev) => {
     const m = JSON.parse(ev.data);
     if (m.type === "hello") setupControls(m);
     else if (m.type === "frame") {
-      onFrame(m);
       // ask for the next frame once this one is painted: a slow page skips frames instead of
-      // letting them queue up (seconds late) in the network buffers
-      requestAnimationFrame(() => { if (ws.readyState === WebSocket.OPEN) ws.send("drawn"); });
+      // letting them queue up (seconds late) in the network buffers. Whatever happens while
+      // drawing, the next frame is asked for: after painting, or at the latest after
+      // DRAWN_LATEST_MS (a page whose painting is held back, e.g. a hidden tab or a starved
+      // headless browser, still gets the state and the operator's questions, at that pace)
+      let asked = false;
+      const ask = () => {
+        if (!asked && ws.readyState === WebSocket.OPEN) { asked = true; ws.send("drawn"); }
+      };
+      try { onFrame(m); } finally {
+        requestAnimationFrame(ask);
+        setTimeout(ask, DRAWN_LATEST_MS);
+      }
     }
   };
   ws.onclose = () => { showMessage("connection to sfdrig web lost; reconnecting", true); setTimeout(connect, 1000); };
