@@ -294,8 +294,8 @@ def test_the_operator_answers_a_structure_test_in_the_page(daemon_factory, web_f
     page.press("#q-entry", "Enter")  # Enter in the field answers too
     page.wait_for_function("document.getElementById('q-where').textContent.startsWith("
                            "'flow 12 kPa')", timeout=60_000)
-    page.click("#q-repeat")  # the same point is asked again, under a new number
-    first = page.inner_text("#q-id")
+    first = page.inner_text("#q-id")  # read before the click: the new question can be
+    page.click("#q-repeat")           # drawn before a read after the click returns
     page.wait_for_function(f"document.getElementById('q-id').textContent !== '{first}'",
                            timeout=60_000)
     assert page.inner_text("#q-where").startswith("flow 12 kPa pass 1, point 2/10")
