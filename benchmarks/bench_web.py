@@ -172,9 +172,12 @@ def main() -> int:
     # daemon past its 37.5 ms of AO lead and it faults (DAQmx -200290) within 0.2 s of the start.
     os.nice(args.browser_nice)
     with sync_playwright() as p, CommandClient(eps["command"], timeout_s=20) as c:
-        browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_FLAGS)
+        # no browser process at all when only WebSocket clients are measured
+        browser = (p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_FLAGS)
+                   if args.browsers else None)
         pages = []
         for _ in range(args.browsers):
+            assert browser is not None
             page = browser.new_context().new_page()
             page.goto(url)
             page.wait_for_function("window.sfdrig.frames >= 1", timeout=60_000)
@@ -214,7 +217,8 @@ def main() -> int:
         while (st := c.status())["state"] not in ("idle", "fault"):
             time.sleep(0.2)
         n_blocks = st["next_seq"]["block"] - seq0
-        browser.close()
+        if browser is not None:
+            browser.close()
     if args.ws_clients:
         sockets.close()
     web.send_signal(signal.SIGTERM)

@@ -16,11 +16,24 @@ COMMAND_MODULES = (
     "demo", "daemon", "sweep", "watch", "pump", "status", "runs", "abort", "keys", "proxy",
     "sim_server", "structure", "identify", "import_data", "diagnose", "calibrate", "web",
 )
+# The command name of each module where it differs from the module's name.
+_NAMED = {"import": "import_data", "sim-server": "sim_server"}
 
 
-def _load_commands() -> list[ModuleType]:
+def _module_of(argv: list[str]) -> str | None:
+    """The module of the command ``argv`` names, or None (no command, an option first, or an
+    unknown name: then every command is loaded, for --help and argparse's error)."""
+    if not argv or argv[0].startswith("-"):
+        return None
+    name = _NAMED.get(argv[0], argv[0])
+    return name if name in COMMAND_MODULES else None
+
+
+def _load_commands(only: str | None = None) -> list[ModuleType]:
+    # one command loads only its own module: `sfdrig web` or `sfdrig watch` do not carry the
+    # simulator's numba/LLVM (90 MB resident) or h5py, and every command starts sooner
     mods = []
-    for name in COMMAND_MODULES:
+    for name in (only,) if only else COMMAND_MODULES:
         try:
             mods.append(importlib.import_module(f"sfdrig.commands.{name}"))
         except ModuleNotFoundError as err:
@@ -29,13 +42,13 @@ def _load_commands() -> list[ModuleType]:
     return mods
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sfdrig",
         description="Squeeze-film-damper rig: shaker control, live data, run files, analysis.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for mod in _load_commands():
+    for mod in _load_commands(only):
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
@@ -43,7 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser(_module_of(argv)).parse_args(argv)
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:

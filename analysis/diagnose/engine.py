@@ -46,6 +46,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from analysis.diagnose import residual_analysis as ra
 from analysis.diagnose.amplitude import AmplitudeDependence, check_levels
@@ -153,6 +154,10 @@ class Diagnosis:
 
 
 # --- main --------------------------------------------------------------------------------
+# The fits' matrix products are small (a Jacobian of a few columns): on one BLAS thread they
+# cost half the CPU and half the wall time that OpenBLAS's spinning threads take on 2 cores
+# (25 dwells: 14.4 s CPU against 31.8 s; README "Measured figures").
+@threadpool_limits.wrap(limits=1, user_api="blas")
 def diagnose(
     records: list[RunRecord],
     baseline: str | None = None,

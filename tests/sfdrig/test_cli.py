@@ -1,0 +1,36 @@
+"""The command line loads only the module of the command it runs."""
+
+from __future__ import annotations
+
+import importlib
+import subprocess
+import sys
+
+import pytest
+
+from sfdrig.cli import COMMAND_MODULES, _module_of, build_parser
+
+
+@pytest.mark.parametrize("module", COMMAND_MODULES)
+def test_every_command_name_finds_its_module(module: str) -> None:
+    name = importlib.import_module(f"sfdrig.commands.{module}").NAME
+    assert _module_of([name, "--help"]) == module
+
+
+def test_no_command_or_an_unknown_one_loads_every_command() -> None:
+    assert _module_of([]) is None
+    assert _module_of(["--help"]) is None
+    assert _module_of(["bogus"]) is None
+    names = set(build_parser()._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+    assert len(names) == len(COMMAND_MODULES)
+
+
+def test_the_web_command_does_not_load_the_simulator() -> None:
+    # a fresh interpreter: what `sfdrig web` imports before it serves
+    code = ("import sys; from sfdrig.cli import build_parser, _module_of; "
+            "build_parser(_module_of(['web'])).parse_args(['web', '--port', '0']); "
+            "print(sorted(m for m in ('numba', 'h5py', 'simulated_hw', 'analysis') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[]"
