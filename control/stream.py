@@ -196,6 +196,11 @@ class DriveStream:
                                        self.block / self.cm.sample_rate_hz)
                     self.guard_event = (first, why)
 
+    @property
+    def kept_samples(self) -> int:
+        """Past samples held for `window` now (at most ``keep`` plus one block)."""
+        return self._hist_len
+
     def window(self, first: int, last: int) -> tuple[np.ndarray, np.ndarray]:
         """AI (engineering units) and AO samples ``first <= k < last``, already read."""
         if last > self.sample:

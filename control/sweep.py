@@ -268,8 +268,9 @@ class SweepEngine:
         fs = cm.sample_rate_hz
         cfg = self.spec.control
         block = max(1, int(round(cfg.block_s * fs)))
-        keep = int(fs * (self.spec.record_cycles + cfg.window_cycles + 2) / min(
-            p.freq_hz for p in self.plan)) + 4 * block
+        # what the lock-in looks back over: a control window (the recording is demodulated as
+        # it arrives, never read back), so a long record does not hold its samples in memory
+        keep = int(fs * (cfg.window_cycles + 2) / min(p.freq_hz for p in self.plan)) + 4 * block
         np.linalg.solve(np.eye(2), np.ones(2))  # load LAPACK now, not in the first step
         synth = SineSynthesizer(len(cm.ao), fs)
         stream = DriveStream(

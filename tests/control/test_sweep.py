@@ -234,3 +234,26 @@ def test_lubricated_elliptical_orbit_downwards():
         x, y = _amp(step, ["x1", "x2"]), _amp(step, ["y1", "y2"])
         assert abs(abs(x) / 30e-6 - 1) <= 0.01 and abs(abs(y) / 18e-6 - 1) <= 0.01
         assert np.degrees(np.angle(y / x)) == pytest.approx(40.0, abs=1.0)
+
+
+
+def test_a_long_record_is_not_kept_in_memory(backend):
+    """The recording is demodulated as it arrives: the stream's look-back holds a control window,
+    whatever the record length (it held the whole record: 2.5 GB in the daemon for 1,500 cycles
+    at 20 Hz and 1 MS/s)."""
+    kept: list[int] = []
+
+    class Watch(RecordingListener):
+        def on_block(self, first: int, ai: np.ndarray, ao: np.ndarray) -> None:
+            super().on_block(first, ai, ao)
+            assert engine._stream is not None
+            kept.append(engine._stream.kept_samples)
+
+    spec = SweepSpec(motion="x", load_n=[20.0], freq_hz=[80.0], record_cycles=800)
+    engine = SweepEngine(backend, spec, limits=DRY_LIMITS, listener=Watch())
+    out = engine.run()
+    assert out.status == "completed"
+    record = 800 * 10_000 / 80.0  # 100,000 samples recorded in the step
+    assert out.steps[0].last_sample - out.steps[0].first_sample == record
+    window = (spec.control.window_cycles + 2) * 10_000 / 80.0 + 4 * 100  # + 4 blocks
+    assert max(kept) <= window + 100  # at most one block beyond it
