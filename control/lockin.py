@@ -38,15 +38,20 @@ class LockIn:
         Sample clock [S/s].
     n_harmonics : int
         Harmonics to fit (1X..n X); 5 by default.
+    cache_size : int
+        Windows (f, n) whose matrices are kept, least recently used dropped first. A window of
+        n samples costs 8 n (1 + 2H) bytes: 0.8 MB for 3 cycles at 20 Hz and 62.5 kS/s.
     """
 
-    def __init__(self, sample_rate_hz: float, n_harmonics: int = N_HARMONICS) -> None:
+    def __init__(self, sample_rate_hz: float, n_harmonics: int = N_HARMONICS,
+                 cache_size: int = 32) -> None:
         if not sample_rate_hz > 0:
             raise ValueError(f"sample_rate_hz must be > 0, got {sample_rate_hz}")
         if n_harmonics < 1:
             raise ValueError(f"n_harmonics must be >= 1, got {n_harmonics}")
         self.fs = float(sample_rate_hz)
         self.n_harmonics = n_harmonics
+        self.cache_size = max(1, cache_size)
         self._cache: OrderedDict[tuple[float, int], tuple[np.ndarray, np.ndarray]] = (
             OrderedDict())
 
@@ -82,7 +87,7 @@ class LockIn:
         ginv = np.zeros_like(gram)
         ginv[np.ix_(active, active)] = np.linalg.inv(gram[np.ix_(active, active)])
         self._cache[key] = (basis, ginv)
-        if len(self._cache) > 32:
+        if len(self._cache) > self.cache_size:
             self._cache.popitem(last=False)
         return basis, ginv
 

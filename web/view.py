@@ -198,7 +198,10 @@ class LiveView:
             self._n_ai = int(h["n_ai"])
             self._fs = fs
             self._write = 0
-            self._lockin = LockIn(fs)
+            # a frame's window (whole cycles between two crossings) is a new n as the sweep
+            # moves on: keep the current step's few windows only; 32 of them at low frequency
+            # held about 26 MB, the web process's slow growth over a long sweep
+            self._lockin = LockIn(fs, cache_size=4)
         first = int(h["first_sample"])
         if first != self._last_sample + 1:
             self._write = 0  # a lost block or a new run: traces start afresh

@@ -62,3 +62,14 @@ def test_cycles_to_samples_and_change():
         pytest.approx(0.01)
     with pytest.raises(ValueError, match="too short"):
         LockIn(FS).demodulate(np.zeros(5), 0, 10.0)
+
+
+def test_the_matrix_cache_keeps_the_most_recent_windows():
+    li = LockIn(10_000.0, cache_size=3)
+    x = np.cos(2 * np.pi * 50.0 * np.arange(1000) / 10_000.0)
+    for n in range(800, 1000, 20):  # ten windows
+        li.demodulate(x[:n], 0, 50.0)
+    assert [k[1] for k in li._cache] == [940, 960, 980]
+    z, _ = li.demodulate(x[:960], 0, 50.0)  # a hit moves to the end, and fits as before
+    assert abs(z[0]) == pytest.approx(1.0, rel=1e-3)
+    assert [k[1] for k in li._cache] == [940, 980, 960]

@@ -143,3 +143,20 @@ def test_steps_and_time_left_from_the_finished_steps():
 
 def test_upward_crossings():
     assert upward_crossings(np.array([-1.0, 0.0, 1.0, -2.0, -1.0, 3.0])).tolist() == [1, 5]
+
+
+def test_memory_held_for_the_harmonics_stays_bounded_over_a_sweep():
+    """Frames over a sweep 20 -> 60 Hz, each window a new n: the lock-in keeps the matrices of a
+    few windows (it kept 32: tens of MB at 62.5 kS/s, the web process's slow growth)."""
+    view = LiveView(buffer_s=0.5, cycles=3, points=200)
+    held = []
+    for i, f in enumerate(np.linspace(20.0, 60.0, 41)):
+        view.set_status({"run_id": "R1", "progress": {"freq_hz": float(f)}})
+        for m in blocks(float(f), 12, seed=i):
+            view.on_message(m)
+        assert view.frame(now=2000.0)["traces"]["triggered"]
+        assert view._lockin is not None
+        held.append(sum(b.nbytes + g.nbytes for b, g in view._lockin._cache.values()))
+    window_20hz = 3 * FS / 20.0 * 11 * 8  # bytes of the basis of 3 cycles at 20 Hz
+    assert max(held) <= 4 * window_20hz * 1.01
+    assert len(view._lockin._cache) == 4
