@@ -31,6 +31,7 @@ import json
 import math
 import os
 import selectors
+import shutil
 import signal
 import subprocess
 import sys
@@ -130,7 +131,9 @@ def main() -> int:
                          "underflow; latencies then mean nothing): for memory and lost blocks")
     ap.add_argument("--priority", choices=["normal", "high", "realtime"], default="normal",
                     help="the daemon's --priority (realtime: SCHED_FIFO, as on the rig's PC)")
-    ap.add_argument("--dir", type=Path, default=None, help="where the run file goes")
+    ap.add_argument("--dir", type=Path, default=None,
+                    help="where the run file goes (kept; default: a temporary directory, "
+                         "removed at the end)")
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
@@ -138,6 +141,8 @@ def main() -> int:
     from storage.reader import open_run
 
     work = Path(tempfile.mkdtemp(prefix="bench_web_", dir=args.dir))
+    if args.dir is None:  # a 30-min run file is about 4 GB: not left in /tmp
+        atexit.register(shutil.rmtree, work, True)
     channels = work / "channels16.toml"
     channels.write_text(channel_map_toml())
     runs = work / "runs"
