@@ -24,6 +24,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from analysis.diagnose import diagnose, load_run  # noqa: E402
+from analysis.diagnose.report import order_label, order_status  # noqa: E402
 from sfdrig.cli import main as sfdrig_main  # noqa: E402
 from tests.analysis.independent_cases import RIG_TOML  # noqa: E402
 from tests.independent_rig import Generator, RigSpec, Sensors, Sweep  # noqa: E402
@@ -69,6 +70,9 @@ def main() -> int:
           f"baseline {diag.baseline_kind}")
     print(f"diagnose: {wall:.1f} s wall, {cpu:.1f} s CPU "
           f"({len(diag.rounds)} rounds, target 60 s)")
+    for row in diag.order:
+        print(f"  order: {order_label(row)}, held-out {row.get('held_out_error', float('nan')):.4g}"
+              f" m ({order_status(row)})")
     for f in diag.findings:
         print(f"  found {f.effect} {f.parameters} gain {f.gain:.3g} "
               f"[{f.gain_interval[0]:.3g}, {f.gain_interval[1]:.3g}] "

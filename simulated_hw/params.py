@@ -28,6 +28,10 @@ class Structure(_Model):
                            "where mass_y_kg is set) [kg]")
     stiffness_x_n_per_m: float = Field(788e3, gt=0, description="K_sx (static tests) [N/m]")
     stiffness_y_n_per_m: float = Field(823e3, gt=0, description="K_sy (static tests) [N/m]")
+    stiffness_xy_n_per_m: float = Field(
+        0.0, description="k_xy, the rods' cross stiffness (their principal axes turned away "
+        "from the probes' x and y): force -k_xy y on x and -k_xy x on y; a rod set has "
+        "|k_xy| < sqrt(K_sx K_sy) (checked where a rig file is read) [N/m]")
     residual_damping_ns_per_m: float = Field(370.0, ge=0, description="C_rv (Table 4) [N.s/m]")
     mass_y_kg: float | None = Field(
         None, gt=0, description="M along Y where it differs (Table 3: 8.8 kg X, 9.7 kg Y); None: "
@@ -264,7 +268,19 @@ class RigParamsError(ValueError):
 
 
 def rig_params_from_dict(data: dict[str, Any], source: str = "<dict>") -> RigParams:
-    return validate(RigParams, data, "rig parameters", source, RigParamsError)
+    """Rig parameters from a TOML document or dict, every problem named with its field.
+
+    The cross stiffness is checked here, at the boundary, rather than on every `RigParams`:
+    a fit moves K_sx, K_sy and k_xy one at a time and may pass through a trial that is no
+    rod set (the replay then diverges and scores badly; a refusal would end the fit)."""
+    params = validate(RigParams, data, "rig parameters", source, RigParamsError)
+    st = params.structure
+    if st.stiffness_xy_n_per_m**2 >= st.stiffness_x_n_per_m * st.stiffness_y_n_per_m:
+        raise RigParamsError(
+            f"invalid rig parameters in {source}:\n  structure.stiffness_xy_n_per_m = "
+            f"{st.stiffness_xy_n_per_m!r}: a rod set has |k_xy| < sqrt(K_sx K_sy) = "
+            f"{math.sqrt(st.stiffness_x_n_per_m * st.stiffness_y_n_per_m):.6g} N/m")
+    return params
 
 
 def load_rig_params(path: str | Path) -> RigParams:

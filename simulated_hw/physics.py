@@ -4,13 +4,15 @@ Per axis z in {x, y}, relative to the journal (which sits on the frame), h = z +
 housing's absolute displacement (z_f the frame's, 0 unless the frame mode is on):
     (M + f M_f) h'' + f D z'' + (C_rv + f C_sfd) z' + K_s z + F_seal + F_effects = F_in
     m_fr z_f'' + c_fr z_f' + k_fr z_f = f D z'' + (C_rv + f C_sfd) z' + K_s z + F_seal + F_effects
-with f the film fill fraction (0 dry, 1 full). The film's forces (damping and added mass) depend on
-the motion relative to the journal and react on the frame; the oil in the plenum (M_f) moves with
-the housing. With a rigid frame z = h and the first line is the whole model (a joint on the
-frame's spring adds its force to k_fr z_f). The seal's dry friction F_mu acts against the 2-D
-relative velocity vector: it sticks while the force it must hold stays below F_mu, and slips
-otherwise. Coulomb friction is integrated implicitly (a velocity-level projection, as in
-Moreau's time stepping), so sticking is exact rather than smoothed.
+with f the film fill fraction (0 dry, 1 full) and K_s the rods' 2x2 stiffness [[K_x, k_xy],
+[k_xy, K_y]] (k_xy: their principal axes turned away from the probes' x and y). The film's
+forces (damping and added mass) depend on the motion relative to the journal and react on the
+frame; the oil in the plenum (M_f) moves with the housing. With a rigid frame z = h and the
+first line is the whole model (a joint on the frame's spring adds its force to k_fr z_f). The
+seal's dry friction F_mu acts against the 2-D relative velocity vector: it sticks while the
+force it must hold stays below F_mu, and slips otherwise. Coulomb friction is integrated
+implicitly (a velocity-level projection, as in Moreau's time stepping), so sticking is exact
+rather than smoothed.
 
 The journal is a wall at the radial clearance c: where the housing would pass it within a step,
 a normal impulse lands it on the wall and reflects the excess approach velocity with the
@@ -35,8 +37,8 @@ import numpy as np
 (P_M, P_MF, P_D, P_DXY, P_DYX, P_KX, P_KY, P_CRV, P_C0, P_CXY, P_CYX, P_FMU, P_CLEAR, P_ECC,
  P_K3, P_K2, P_AIR_K, P_AIR_MAX, P_AIR_TAU, P_FRAME_ON, P_FRAME_M, P_FRAME_K, P_FRAME_C,
  P_DT, P_NSUB, P_SEAL_KT, P_DM_Y, P_DC_Y, P_CONTACT_ON, P_RESTITUTION,
- P_CONTACT_MU, P_JOINT_ON, P_JOINT_K, P_JOINT_FS) = range(34)
-N_PARAMS = 34
+ P_CONTACT_MU, P_JOINT_ON, P_JOINT_K, P_JOINT_FS, P_KXY) = range(35)
+N_PARAMS = 35
 
 # Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|;
 # the previous sample's force (the force is interpolated linearly between samples); the compliant
@@ -100,9 +102,11 @@ def _schur(a11, a12, a21, a22, b11, b12, b21, b22, e11, e12, e21, e22):  # noqa:
 
 @numba.njit(cache=True, inline="always")
 def _elastic(x, y, fx_in, fy_in, p):  # noqa: ANN001, ANN202
-    """External force minus the structure's restoring force (linear and nonlinear)."""
-    fx = fx_in - p[P_KX] * x - p[P_K3] * x * x * x - p[P_K2] * x * x
-    fy = fy_in - p[P_KY] * y - p[P_K3] * y * y * y - p[P_K2] * y * y
+    """External force minus the structure's restoring force (linear and nonlinear); the
+    cross stiffness k_xy (rods whose principal axes are turned from x and y) is symmetric, as
+    a conservative spring's must be. Subtracted last, so k_xy = 0 changes no bit."""
+    fx = fx_in - p[P_KX] * x - p[P_K3] * x * x * x - p[P_K2] * x * x - p[P_KXY] * y
+    fy = fy_in - p[P_KY] * y - p[P_K3] * y * y * y - p[P_K2] * y * y - p[P_KXY] * x
     return fx, fy
 
 

@@ -24,6 +24,7 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
     p[physics.P_D] = film.added_mass()
     p[physics.P_KX] = st.stiffness_x_n_per_m
     p[physics.P_KY] = st.stiffness_y_n_per_m
+    p[physics.P_KXY] = st.stiffness_xy_n_per_m
     p[physics.P_CRV] = st.residual_damping_ns_per_m
     p[physics.P_DM_Y] = st.mass_y() - st.mass_kg
     p[physics.P_DC_Y] = st.residual_damping_y() - st.residual_damping_ns_per_m

@@ -21,7 +21,9 @@ Limits, stated:
   gain error on a fitted baseline cannot be told from the partner's inverse gain error with the
   structure scaled, and the finding says so (``cannot_tell_from``).
 - The fitted baseline fits one mass and one damping for both axes and a stiffness per axis
-  (RigParams has one mass and one residual damping).
+  (RigParams has one mass and one residual damping), and the rods' cross stiffness where its
+  order takes it in (both axes' responses measured). With a configured baseline (a rig
+  description) a cross stiffness the description lacks is no effect of the library.
 - Imported runs without a rig description are replayed with the seal off, the film as the
   run file's lubricated flag says, linear (no eccentricity law: that is the library's
   ``amplitude_dependent_damping``), the oil at a constant temperature.

@@ -5,13 +5,15 @@ held-out data.
    (``start.py``), or an equation-error ARX estimate where that has too few points; the
    replay's warm-up from the estimated decay time.
 2. Refinement (`fit_linear`): mass, damping and stiffness per axis by output error.
-3. Order (`choose_order`): one or two modes per axis, the second kept by the rules a finding
-   meets (``candidates.py``), before any effect is tried.
+3. Order (`choose_order`): one or two modes per axis, then the axes uncoupled or coupled by
+   a structural cross stiffness (where both axes' responses are measured), each kept by the
+   rules a finding meets (``candidates.py``), before any effect is tried.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -152,58 +154,144 @@ def _with_residuals(pb: Problem, model: Model, free: list[Param],
 
 
 def choose_order(pb: Problem, ctx: Context, one: Baseline, band: tuple[float, float],
-                 seed: int, min_gain: float, min_gain_lo: float, say: Any) -> Baseline:
-    """One or two modes per axis for the fitted baseline, chosen on held-out data.
+                 seed: int, min_gain: float, min_gain_lo: float, say: Any,
+                 second_mode: bool = True) -> Baseline:
+    """The fitted baseline's order, chosen on held-out data: one or two modes per axis, then
+    the axes uncoupled or coupled by a structural cross stiffness.
 
     The second mode (``second_mode``: the frame as a second mass-spring under the housing) is
-    fitted with the one-mode baseline's parameters, from the same starts as the library term,
-    and kept by the same rules as a finding: a lower held-out criterion, a held-out gain of at
-    least ``min_gain`` whose bootstrap interval stays above ``min_gain_lo``, no parameter on a
-    bound, no higher training error, the mode inside the excited band. Returns the baseline of
-    the order chosen, with the table of both orders.
+    fitted with the one-mode baseline's parameters, from the same starts as the library term.
+    The coupling (``_coupled_axes``) is fitted on the order chosen so far, with its parameters.
+    Each is kept by the same rules as a finding: a lower held-out criterion, a held-out gain of
+    at least ``min_gain`` whose bootstrap interval stays above ``min_gain_lo``, no parameter on
+    a bound, no higher training error, a mode inside the excited band. Returns the baseline of
+    the order chosen, with the table of every order tried (and the coupling's reason when it
+    was not tried).
     """
-    two, rows = _two_modes(pb, ctx, one.model, one.free, band, seed, min_gain, min_gain_lo,
-                           say)
-    if two is None:
-        return Baseline(one.model, one.free, one.train, one.test, rows)
-    return _with_residuals(pb, two.fit.model, one.free + two.variant.params, rows)
+    rules = _Rules(band, seed, min_gain, min_gain_lo)
+    rows = [_order_row(pb, one, modes_per_axis=1)]
+    chosen, chosen_row = one, rows[0]
+    if second_mode:
+        two, two_row = _two_modes(pb, ctx, one, rules, say)
+        if two_row is not None:
+            rows.append(two_row)
+            if two is not None:
+                chosen, chosen_row = two, two_row
+    coupled, coupled_row = _coupled_axes(pb, chosen, rules, say)
+    rows.append(coupled_row)
+    if coupled is not None:
+        chosen, chosen_row = coupled, coupled_row
+    for r in rows:
+        r["chosen"] = r is chosen_row
+    chosen.order = rows
+    return chosen
 
 
-def _two_modes(pb: Problem, ctx: Context, one: Model, free: list[Param],
-               band: tuple[float, float], seed: int, min_gain: float, min_gain_lo: float,
-               say: Any) -> tuple[Candidate | None, list[dict[str, Any]]]:
-    """The two-mode candidate if chosen (None: one mode), and the table of both orders."""
-    one_train = train_sse(pb.ev, one, pb.fit_train)[0]
-    one_test = residuals(pb.ev, one, pb.fit_train, pb.test)
-    one_crit, _ = criterion(one_test, pb.test, len(free))
-    rows: list[dict[str, Any]] = [{"modes_per_axis": 1, "held_out_error": one_test.rms(),
-                                   "criterion": one_crit, "n_params": len(free)}]
+@dataclass(frozen=True)
+class _Rules:
+    """What an order must meet to be chosen: the excited band, the bootstrap's seed, the least
+    held-out gain and the least lower end of its interval."""
+    band: tuple[float, float]
+    seed: int
+    min_gain: float
+    min_gain_lo: float
+
+
+def _order_row(pb: Problem, base: Baseline, modes_per_axis: int) -> dict[str, Any]:
+    crit, _ = criterion(base.test, pb.test, len(base.free))
+    return {"modes_per_axis": modes_per_axis, "coupled_axes": False,
+            "held_out_error": base.test.rms(), "criterion": crit, "n_params": len(base.free)}
+
+
+def _judged(pb: Problem, base: Baseline, cand: Candidate,
+            rules: _Rules) -> tuple[dict[str, Any], str | None]:
+    """The order table's row of candidate ``cand`` on top of ``base``, and why it is not
+    chosen (None: chosen), by the rules a finding meets."""
+    base_train = train_sse(pb.ev, base.model, pb.fit_train)[0]
+    base_crit, _ = criterion(base.test, pb.test, len(base.free))
+    gain = base.test.rms() / cand.test_rms
+    lo, hi = bootstrap_gain(base.test, cand.test, pb.test, rules.seed)
+    why = not_a_finding(cand, base_train, rules.band)
+    if why is None and not (cand.criterion < base_crit and gain >= rules.min_gain
+                            and lo >= rules.min_gain_lo):
+        why = f"held-out gain {gain:.3g} [{lo:.3g}, {hi:.3g}] not significant"
+    row = {"held_out_error": cand.test_rms, "criterion": cand.criterion, "n_params": cand.k,
+           "parameters": parameters_of(cand.variant, cand.fit.model), "gain": gain,
+           "gain_interval": [lo, hi], **({"not_chosen": why} if why else {})}
+    return row, why
+
+
+def _two_modes(pb: Problem, ctx: Context, one: Baseline, rules: _Rules,
+               say: Any) -> tuple[Baseline | None, dict[str, Any] | None]:
+    """The two-mode baseline if chosen (None: one mode), and its row (None: not fitted)."""
     best: tuple[FitResult, Variant] | None = None
-    for var in LIBRARY["second_mode"].variants(ctx, one):
+    for var in LIBRARY["second_mode"].variants(ctx, one.model):
         # the best starts (the second mode added to the one-mode fit) refined with every
         # parameter: the first mode moves once the second takes its share of the response
-        k = len(free) + len(var.params)
-        res = fit(pb.ev, var.starts, free + var.params, pb.fit_train, pb.scale_m, step=pb.step,
-                  keep=var.keep, max_nfev=30 * (k + 1))
+        k = len(one.free) + len(var.params)
+        res = fit(pb.ev, var.starts, one.free + var.params, pb.fit_train, pb.scale_m,
+                  step=pb.step, keep=var.keep, max_nfev=30 * (k + 1))
         if best is None or res.train_sse < best[0].train_sse:
             best = (res, var)
     if best is None:
-        return None, rows
+        return None, None
     res, var = best
-    two = judge_candidate(pb, "second_mode", var, res, len(free))
-    gain = one_test.rms() / two.test_rms
-    lo, hi = bootstrap_gain(one_test, two.test, pb.test, seed)
-    why = not_a_finding(two, one_train, band)
-    if why is None and not (two.criterion < one_crit and gain >= min_gain
-                            and lo >= min_gain_lo):
-        why = f"held-out gain {gain:.3g} [{lo:.3g}, {hi:.3g}] not significant"
-    rows.append({"modes_per_axis": 2, "held_out_error": two.test_rms,
-                 "criterion": two.criterion, "n_params": two.k,
-                 "parameters": parameters_of(var, two.fit.model), "gain": gain,
-                 "gain_interval": [lo, hi], "chosen": why is None,
-                 **({"not_chosen": why} if why else {})})
-    rows[0]["chosen"] = why is not None
+    two = judge_candidate(pb, "second_mode", var, res, len(one.free))
+    row, why = _judged(pb, one, two, rules)
     say(f"baseline order: {'two modes' if why is None else 'one mode'} per axis (two modes: "
-        f"held-out {two.test_rms:.4g}, gain {gain:.3g} [{lo:.3g}, {hi:.3g}]"
-        f"{'' if why is None else '; ' + why})")
-    return (two if why is None else None), rows
+        f"held-out {two.test_rms:.4g}, gain {row['gain']:.3g} [{row['gain_interval'][0]:.3g}, "
+        f"{row['gain_interval'][1]:.3g}]{'' if why is None else '; ' + why})")
+    row = {"modes_per_axis": 2, "coupled_axes": False, **row}
+    if why is not None:
+        return None, row
+    return _with_residuals(pb, two.fit.model, one.free + var.params, []), row
+
+
+def _coupled_axes(pb: Problem, base: Baseline, rules: _Rules,
+                  say: Any) -> tuple[Baseline | None, dict[str, Any]]:
+    """The baseline ``base`` with its axes coupled by a structural cross stiffness if chosen
+    (None: uncoupled), and its row in the order table.
+
+    k_xy is in phase with the displacement (the rods' principal axes turned away from x and
+    y), unlike the film's cross-coupled damping and mass (the library's ``cross_coupling``),
+    which is why it belongs to the baseline and is judged here, before any effect. It is
+    fitted with every parameter of ``base``, from 0 and from +-5 % of the mean axis stiffness,
+    within the bound no rod set reaches, |k_xy| < sqrt(K_x K_y).
+    """
+    modes = 2 if base.model.rig.effects.second_mode.enabled else 1
+    row: dict[str, Any] = {"modes_per_axis": modes, "coupled_axes": True}
+    why_not = _why_not_coupled(pb.ev.records)
+    if why_not is not None:
+        say(f"baseline order: axes uncoupled (coupling not tried: {why_not})")
+        return None, {**row, "not_tried": why_not}
+    st = base.model.rig.structure
+    k_mean = 0.5 * (st.stiffness_x_n_per_m + st.stiffness_y_n_per_m)
+    bound = math.sqrt(st.stiffness_x_n_per_m * st.stiffness_y_n_per_m)
+    k_xy = rig_param("stiffness_xy_N_per_m", "structure.stiffness_xy_n_per_m", 0.02 * k_mean,
+                     -bound, bound)
+    var = Variant({}, [k_xy], [k_xy.set(base.model, r * k_mean) for r in (0.0, 0.05, -0.05)])
+    k = len(base.free) + 1
+    t0 = time.process_time()
+    res = fit(pb.ev, var.starts, base.free + var.params, pb.fit_train, pb.scale_m,
+              step=pb.step, max_nfev=20 * (k + 1))
+    cand = judge_candidate(pb, "coupled_axes", var, res, len(base.free))
+    judged, why = _judged(pb, base, cand, rules)
+    lo, hi = judged["gain_interval"]
+    say(f"baseline order: axes {'coupled' if why is None else 'uncoupled'} (coupled: k_xy "
+        f"{k_xy.get(res.model):.4g} N/m, held-out {cand.test_rms:.4g}, gain "
+        f"{judged['gain']:.3g} [{lo:.3g}, {hi:.3g}]{'' if why is None else '; ' + why}; "
+        f"{time.process_time() - t0:.1f} s CPU, {res.nfev} evaluations)")
+    row.update(judged)
+    if why is not None:
+        return None, row
+    return _with_residuals(pb, res.model, base.free + var.params, []), row
+
+
+def _why_not_coupled(records: list[RunRecord]) -> str | None:
+    """Why the axes' coupling cannot be fitted on these runs (None: it can): a coupling shows
+    only in the response of the axis it couples to, so both axes' responses must be measured
+    in one run (a probe, velocity sensor or accelerometer on each)."""
+    for r in records:
+        if {ax for ax, _ in r.objective_channels().values()} >= {0, 1}:
+            return None
+    return "no run measures the responses of both axes (a sensor on x and one on y)"

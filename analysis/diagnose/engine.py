@@ -134,6 +134,8 @@ class Diagnosis:
                          "train_rms_error": self.baseline_train.rms(),
                          "modes_per_axis": 2 if self.baseline_model.rig.effects.second_mode
                          .enabled else 1,
+                         "coupled_axes": self.baseline_model.rig.structure
+                         .stiffness_xy_n_per_m != 0.0,
                          "order_selection": self.order},
             "findings": [f.to_dict() for f in self.findings],
             "unexplained": self.unexplained,
@@ -212,15 +214,17 @@ def diagnose(
     pb = _problem(ev, train, test, fit_budget_steps, notes)
 
     # 1. baseline, and (fitted) its order chosen on held-out data, before any effect: a
-    # structure with two modes is no cause on top of a one-mode baseline
+    # structure with two modes, or with its axes coupled by the rods, is no cause on top of a
+    # one-mode, uncoupled baseline
     base = fit_linear(pb, start_model, records, fitted, say)
     say(f"baseline ({kind}): held-out RMS error {base.test.rms():.4g}")
     ctx = _context(pb, train, base.model, fitted)
     lo_hz, hi_hz = excited_band(records, train)
     band = (lo_hz / 1.25, hi_hz * 1.25)
     wanted = effects or list(LIBRARY)
-    if fitted and "second_mode" in wanted:
-        base = choose_order(pb, ctx, base, band, seed, min_gain, min_gain_lo, say)
+    if fitted:
+        base = choose_order(pb, ctx, base, band, seed, min_gain, min_gain_lo, say,
+                            second_mode="second_mode" in wanted)
         ctx = replace(ctx, base=base.model)
 
     # 2. rounds of effects

@@ -38,6 +38,26 @@ def write_json(diag: Diagnosis, path: Path, extended_model_path: str | None) -> 
     path.write_text(json.dumps(diagnosis_json(diag, extended_model_path), indent=2) + "\n")
 
 
+def order_label(row: dict[str, Any]) -> str:
+    """One row of the fitted baseline's order table in words: modes per axis, and the axes
+    uncoupled or coupled (with the fitted cross stiffness)."""
+    n = row["modes_per_axis"]
+    text = f"{n} mode{'s' if n > 1 else ''} per axis, axes "
+    if not row.get("coupled_axes"):
+        return text + "uncoupled"
+    k_xy = row.get("parameters", {}).get("stiffness_xy_N_per_m")
+    return text + "coupled" + (f" (k_xy {k_xy:.4g} N/m)" if k_xy is not None else "")
+
+
+def order_status(row: dict[str, Any]) -> str:
+    """Whether the order of ``row`` was chosen, and if not, why (or why it was not tried)."""
+    if row["chosen"]:
+        return "chosen"
+    if "not_tried" in row:
+        return f"not tried: {row['not_tried']}"
+    return str(row.get("not_chosen", "not chosen"))
+
+
 def write_extended_model(diag: Diagnosis, path: Path) -> None:
     """The extended rig model as TOML (`simulated_hw.load_rig_params` loads it as it is)."""
     head = "# Extended rig model written by sfdrig diagnose"
@@ -311,10 +331,10 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
     if diag.order:
         parts.append("<p>The fitted baseline's order, chosen on the held-out data:</p>")
         parts.append(_table([{
-            "modes per axis": r["modes_per_axis"], "held-out RMS error": r["held_out_error"],
-            "criterion": r["criterion"], "parameters": r["n_params"],
-            "chosen": "yes" if r["chosen"] else r.get("not_chosen", "no")} for r in diag.order],
-            ["modes per axis", "held-out RMS error", "criterion", "parameters", "chosen"]))
+            "order": order_label(r), "held-out RMS error": r.get("held_out_error", ""),
+            "criterion": r.get("criterion", ""), "parameters": r.get("n_params", ""),
+            "chosen": "yes" if r["chosen"] else order_status(r)} for r in diag.order],
+            ["order", "held-out RMS error", "criterion", "parameters", "chosen"]))
     parts.append("<h2>Findings</h2>")
     if diag.findings:
         parts.append(_table([{

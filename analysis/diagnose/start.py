@@ -47,6 +47,10 @@ class OneMode:
         return 2 * self.mass_kg / max(self.damping_ns_per_m, 1e-12)
 
 
+#: an axis whose 1X force is below this fraction of the other axis's is not driven in a dwell
+_UNDRIVEN = 0.01
+
+
 def _axis_response(rec: RunRecord, axis: int) -> np.ndarray | None:
     chans = [v for c, v in rec.responses.items() if rec.response_axis[c] == axis]
     return np.mean(chans, axis=0) if chans else None
@@ -72,6 +76,12 @@ def _points(records: list[RunRecord], segs: list[Segment],
         zf, _, _ = harmonics(f[seg.start:seg.stop], seg.start, fs, seg.freq_hz, 1)
         zz, _, _ = harmonics(z[seg.start:seg.stop], seg.start, fs, seg.freq_hz, 1)
         if abs(zz[0]) == 0 or abs(zf[0]) == 0:
+            continue
+        other, _, _ = harmonics(rec.force_n[1 - axis, seg.start:seg.stop], seg.start, fs,
+                                seg.freq_hz, 1)
+        if abs(zf[0]) < _UNDRIVEN * abs(other[0]):
+            # a dwell driven along the other axis: this axis's force and motion are its load
+            # cell's and probe's noise (or a coupling's), and their ratio no dynamic stiffness
             continue
         w_all.append(2 * math.pi * seg.freq_hz)
         d_all.append(complex(zf[0] / zz[0]))

@@ -106,7 +106,13 @@ def _select_runs(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from analysis.diagnose import DiagnoseError, diagnose, load_run, parse_spans
-    from analysis.diagnose.report import write_extended_model, write_json, write_report
+    from analysis.diagnose.report import (
+        order_label,
+        order_status,
+        write_extended_model,
+        write_json,
+        write_report,
+    )
     from simulated_hw.params import RigParamsError, load_rig_params
 
     def log(msg: str) -> None:
@@ -147,9 +153,9 @@ def _run(args: argparse.Namespace) -> int:
     u = diag.units
     print(f"baseline ({diag.baseline_kind}): held-out RMS error {diag.baseline_rms:.4g} {u}")
     for row in diag.order:
-        print(f"  order: {row['modes_per_axis']} mode(s) per axis, held-out "
-              f"{row['held_out_error']:.4g} {u}"
-              + (" (chosen)" if row["chosen"] else f" ({row.get('not_chosen', 'not chosen')})"))
+        print(f"  order: {order_label(row)}"
+              + (f", held-out {row['held_out_error']:.4g} {u}" if "held_out_error" in row else "")
+              + f" ({order_status(row)})")
     for f in diag.findings:
         params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                            for k, v in f.parameters.items())

@@ -30,6 +30,9 @@ air_entrainment          L_eff = L (1 - a), tau a' = k |v| - a, k 6..14 s/m, tau
 joint_microslip          a Dahl joint beside the rods' spring, k_j 0.25..0.4 of K (taken from
                          it: stuck, the rig is as described), slip force k_j x (20..40 um), 4..13 N
 stiffness_drift          K_x falling 8..12 % over the run (not in the library)
+coupled_axes             the rods' cross stiffness k_xy = r sqrt(K_x K_y), r in 0.12..0.18,
+                         either sign (principal axes turned from the probes'; a baseline
+                         order, not a library effect: ``coupling_judged_right``)
 ======================== ===================================================================
 
 Judged right (``judged_right``): the effect named first with high confidence, its main
@@ -68,8 +71,10 @@ CASES = ("clean", "coulomb_friction", "cubic_stiffness", "quadratic_stiffness",
          "amplitude_dependent_damping", "added_mass", "second_mode", "viscosity_drift",
          "sensor_gain", "channel_delay", "cross_coupling", "air_entrainment", "joint_microslip",
          "stiffness_drift")
+#: cases the fitted baseline's order should take in (not library effects)
+BASELINE_CASES = ("coupled_axes",)
 #: cases whose dwells move both axes in turn (the motion of each inferred on import)
-BOTH_AXES = ("cross_coupling",)
+BOTH_AXES = ("cross_coupling", "coupled_axes")
 OUTSIDE_LIBRARY = ("stiffness_drift",)
 
 #: the rig as described to diagnose (RigParams TOML): no seal, the film's centred damping
@@ -179,25 +184,35 @@ def build(effect: str, seed: int) -> tuple[RigSpec, Sensors, Generator, dict[str
         drop = float(rng.uniform(0.08, 0.12))
         rig.stiffness_x_n_per_m = lambda t, _d=drop: K_X * (1 - _d * t / duration)
         truth["stiffness_drop"] = drop
+    elif effect == "coupled_axes":
+        k_xy = sign * float(rng.uniform(0.12, 0.18)) * math.sqrt(K_X * K_Y)
+        rig.stiffness_xy_n_per_m = k_xy
+        truth["stiffness_xy_N_per_m"] = k_xy
     else:
-        raise ValueError(f"unknown case {effect!r} (one of {CASES})")
+        raise ValueError(f"unknown case {effect!r} (one of {CASES + BASELINE_CASES})")
     return rig, sensors, Generator(rig, sensors, **gen_kw), truth
 
 
-def make_independent_case(tmp: Path, effect: str, seed: int) -> IndependentCase:
-    """Generate, write the CSV and import it as a run file (through ``sfdrig import``)."""
+def make_independent_case(tmp: Path, effect: str, seed: int, rig_described: bool = True,
+                          both_axes: bool | None = None) -> IndependentCase:
+    """Generate, write the CSV and import it as a run file (through ``sfdrig import``).
+
+    ``rig_described=False`` imports it without the rig description (diagnose then fits its
+    baseline from the data); ``both_axes`` moves both axes in turn (default: the cases of
+    ``BOTH_AXES``)."""
     from sfdrig.cli import main
 
     _, _, gen, truth = build(effect, seed)
-    both = effect in BOTH_AXES
+    both = effect in BOTH_AXES if both_axes is None else both_axes
     rec = gen.run(_program(np.random.default_rng(seed + 7), both_axes=both))
     csv = rec.to_csv(tmp / f"{effect}-{seed}.csv")
     rig_toml = tmp / "rig.toml"
     rig_toml.write_text(RIG_TOML)
     run = tmp / f"{effect}-{seed}.h5"
     motion = [] if both else ["--motion", "x"]  # both axes: each dwell's motion inferred
+    rig = ["--rig", str(rig_toml)] if rig_described else []
     rc = main(["import", str(csv), "--out", str(run), "--lubricated", *motion,
-               "--seal", "none", "--rig", str(rig_toml), "--overwrite"])
+               "--seal", "none", *rig, "--overwrite"])
     if rc != 0:
         raise RuntimeError(f"sfdrig import failed on {csv} (exit {rc})")
     return IndependentCase(effect, truth, run, rig_toml)
@@ -242,3 +257,35 @@ def judged_right(effect: str, doc: dict[str, Any],
 def truth_channel_of(effect: str) -> dict[str, str]:
     """The channel a sensor case makes faulty (``build`` puts every sensor fault on x)."""
     return {"channel": "x"} if effect in ("sensor_gain", "channel_delay") else {}
+
+
+def coupling_chosen(doc: dict[str, Any]) -> float | None:
+    """The cross stiffness of the fitted baseline's order chosen [N/m] (None: uncoupled)."""
+    for row in doc["baseline"]["order_selection"]:
+        if row["chosen"] and row["coupled_axes"]:
+            return float(row["parameters"]["stiffness_xy_N_per_m"])
+    return None
+
+
+def coupling_judged_right(doc: dict[str, Any], truth: dict[str, Any],
+                          tolerance: float = 0.10) -> tuple[bool, str]:
+    """Whether a diagnose JSON document of the ``coupled_axes`` case (imported without a rig
+    description) judges it right, and why not: the coupled order chosen, its cross stiffness
+    within ``tolerance`` of the truth, and no finding with high confidence (in particular not
+    the film's ``cross_coupling``)."""
+    found = [(f["effect"], f["evidence"].get("confidence")) for f in doc["findings"]]
+    confident = [e for e, c in found if c == "high"]
+    k_xy, want = coupling_chosen(doc), float(truth["stiffness_xy_N_per_m"])
+    why = (f"order {order_summary(doc)}, k_xy {k_xy} (truth {want:.4g}), found {found}, "
+           f"verdict {doc.get('verdict', {}).get('verdict', '')}")
+    ok = (k_xy is not None and abs(k_xy - want) <= tolerance * abs(want) and not confident)
+    return ok, why
+
+
+def order_summary(doc: dict[str, Any]) -> list[tuple[Any, ...]]:
+    """The fitted baseline's order table in short: (modes per axis, coupled, chosen, cross
+    stiffness, held-out gain, why not chosen) per row."""
+    return [(r["modes_per_axis"], r["coupled_axes"], r["chosen"],
+             r.get("parameters", {}).get("stiffness_xy_N_per_m"), r.get("gain"),
+             r.get("not_chosen") or r.get("not_tried"))
+            for r in doc["baseline"]["order_selection"]]

@@ -12,10 +12,12 @@ from analysis.diagnose.candidates import bootstrap_gain
 from analysis.diagnose.data import Segment, records_from_arrays, split_segments
 from analysis.diagnose.fitting import apply, arx_linear_guess, levenberg_marquardt
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals, rig_param
+from analysis.diagnose.start import one_mode_estimate
 from sfdrig.cli import main
 from simulated_hw import load_rig_params
 from simulated_hw.params import RigParams
 from tests.analysis.hidden_effects import make_case
+from tests.analysis.independent_cases import make_independent_case
 
 
 def test_parse_spans():
@@ -183,6 +185,47 @@ def test_cli_json_report_and_extended_model(tmp_path, capsys):
     again = json.loads((tmp_path / "again.json").read_text())
     assert rc == 0 and again["findings"] == []
     assert again["baseline"]["rms_error"] == pytest.approx(f["error_after"], rel=0.05)
+
+
+def test_the_start_leaves_out_an_axis_a_dwell_does_not_drive(tmp_path):
+    """Dwells along x, along y and circular (independent generator, clean, lubricated): the
+    undriven axis of a dwell (its force and motion only noise) gives no point, so each axis's
+    start is its structure (before: x 3.85 kg, 0 N.s/m, 882 kN/m from 15 points; y none)."""
+    case = make_independent_case(tmp_path, "clean", 1, rig_described=False, both_axes=True)
+    rec = load_run(case.run)
+    film = RigParams().film
+    film_mass = film.fluid_mass_kg + film.added_mass()
+    film_damping = film.eq16_damping_centred(film.viscosity_pa_s(24.0))
+    for axis, k_n_per_m in ((0, 788e3), (1, 823e3)):
+        est = one_mode_estimate([rec], rec.segments, axis, film_mass, film_damping)
+        assert est is not None and est.points == 10  # 5 dwells along the axis, 5 circular
+        assert est.stiffness_n_per_m == pytest.approx(k_n_per_m, rel=0.01)
+        assert est.mass_kg == pytest.approx(9.7, rel=0.01)
+        assert est.damping_ns_per_m == pytest.approx(370.0, rel=0.05)
+
+
+def test_cli_coupled_axes_in_the_order_table_report_and_extended_model(tmp_path, capsys):
+    """Imported without the rig description, rods turned from x and y (the independent
+    generator): the CLI's order lines, the HTML table and the JSON show the coupled order
+    chosen with its cross stiffness, and the extended rig TOML carries it."""
+    case = make_independent_case(tmp_path, "coupled_axes", 3, rig_described=False)
+    out, rep = tmp_path / "out.json", tmp_path / "report"
+    rc = main(["diagnose", str(case.run), "--json", str(out), "--report", str(rep), "--quiet",
+               "--effects", "cubic_stiffness", "--max-effects", "1"])
+    assert rc == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if "order:" in ln]
+    assert len(lines) == 2  # one mode uncoupled, one mode coupled (no second mode asked for)
+    assert "axes uncoupled" in lines[0] and "(chosen)" not in lines[0]
+    assert "axes coupled (k_xy" in lines[1] and lines[1].endswith("(chosen)")
+    doc = json.loads(out.read_text())
+    base = doc["baseline"]
+    want = case.truth["stiffness_xy_N_per_m"]
+    assert base["coupled_axes"] is True
+    assert base["parameters"]["stiffness_xy_N_per_m"] == pytest.approx(want, rel=0.1)
+    assert [r["coupled_axes"] for r in base["order_selection"]] == [False, True]
+    assert "axes coupled (k_xy" in (rep / "index.html").read_text()
+    ext = load_rig_params(doc["extended_model"])
+    assert ext.structure.stiffness_xy_n_per_m == pytest.approx(want, rel=0.1)
 
 
 def test_cli_bad_input_exits_2(tmp_path, capsys):

@@ -110,9 +110,13 @@ def test_two_modes_give_a_two_mode_baseline_chosen_on_held_out_data():
     rec = records_from_arrays(force, {"x": x}, fs)
     diag = diagnose([rec], "fitted", [(0, 15000)], [(15000, 30000)], seed=0, max_effects=2,
                     effects=["cubic_stiffness", "coulomb_friction", "second_mode"])
-    one, two = diag.order
+    one, two, coupled = diag.order
     assert (one["modes_per_axis"], one["chosen"]) == (1, False)
     assert (two["modes_per_axis"], two["chosen"]) == (2, True)
+    # one axis measured: the coupling is not tried, and the table says why
+    assert (coupled["modes_per_axis"], coupled["coupled_axes"], coupled["chosen"]) == (
+        2, True, False)
+    assert "both axes" in coupled["not_tried"] and "held_out_error" not in coupled
     assert two["gain"] > 5 and two["gain_interval"][0] > 5  # 8.8 [7.9, 9.7] seen
     assert diag.to_dict()["baseline"]["modes_per_axis"] == 2
     assert diag.skipped["second_mode"].startswith("in the baseline")

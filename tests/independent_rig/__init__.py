@@ -14,6 +14,7 @@ Extension points (add hidden effects without editing this package):
   for relative displacement ``z`` and velocity ``v`` (2-vectors) at time ``t``;
 - any scalar ``RigSpec`` parameter as a function of time (``film_damping_ns_per_m=lambda t: ...``);
 - ``RigSpec.frame = FrameMode(frequency_hz=39.0)``: the frame as a second mode;
+- ``RigSpec.stiffness_xy_n_per_m``: the rods' cross stiffness (principal axes turned from x, y);
 - ``RigSpec.film_cross_damping_ns_per_m`` / ``film_cross_mass_kg``: the film's cross-coupled
   damping and added mass (C_xy, C_yx; D_xy, D_yx);
 - ``RigSpec.air = AirEntrainment(coefficient_s_per_m=10.0)``: air in the film at speed;

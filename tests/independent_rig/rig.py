@@ -7,6 +7,8 @@ displacement and f the frame's (0 unless a frame mode is given)::
     m_fr f'' + c_fr f' + k_fr f = (C_rv + C_film) z' + K_z z + D z'' + F_seal - sum(F_extra)
 
 M_f and D only when lubricated (D: eq. 15, C_film: eq. 16 at the centre or a given constant).
+K_z z is the rods' force, with their cross stiffness k_xy where they are turned from x and y
+(``stiffness_xy_n_per_m``: K_sx z_x + k_xy z_y on x, k_xy z_x + K_sy z_y on y).
 The seal's dry friction ``F_seal = F_mu v / sqrt(|v|^2 + v_eps^2)`` acts against the 2-D relative
 velocity vector, regularised (smooth) so that an ODE solver can integrate it: an approximation of
 true sticking, good while the peak velocity is far above ``v_eps`` (default 0.1 mm/s, against
@@ -171,6 +173,11 @@ class RigSpec:
     ----------
     housing_mass_kg, stiffness_x_n_per_m, stiffness_y_n_per_m, residual_damping_ns_per_m
         M = 9.7 kg, K_sx = 788 kN/m, K_sy = 823 kN/m, C_rv = 370 N.s/m (Tables 1-3).
+    stiffness_xy_n_per_m
+        The rods' cross stiffness k_xy (0: their principal axes are x and y): the rods' force on
+        x is ``-(K_sx z_x + k_xy z_y)``, on y ``-(k_xy z_x + K_sy z_y)``, a symmetric matrix
+        (a spring stores energy; turned by theta from principal stiffnesses K_1, K_2,
+        k_xy = (K_1 - K_2) sin(theta) cos(theta)).
     lubricated
         Film present (M_f, D, C_film and the film's cross terms act) or dry.
     fluid_mass_kg, added_mass_kg, film_damping_ns_per_m
@@ -195,6 +202,7 @@ class RigSpec:
     stiffness_x_n_per_m: Param = 788e3
     stiffness_y_n_per_m: Param = 823e3
     residual_damping_ns_per_m: Param = 370.0
+    stiffness_xy_n_per_m: float = 0.0
     lubricated: bool = True
     fluid_mass_kg: Param = 0.62
     added_mass_kg: Param = field(default_factory=_FILM.eq15_added_mass_kg)
@@ -223,8 +231,10 @@ class RigSpec:
                     if self.lubricated else 0.0)
 
     def stiffness(self, t: float) -> np.ndarray:
-        return np.array([value_at(self.stiffness_x_n_per_m, t),
-                         value_at(self.stiffness_y_n_per_m, t)])
+        """The rods' stiffness matrix [[K_sx, k_xy], [k_xy, K_sy]] [N/m]."""
+        k_xy = float(self.stiffness_xy_n_per_m)
+        return np.array([[value_at(self.stiffness_x_n_per_m, t), k_xy],
+                         [k_xy, value_at(self.stiffness_y_n_per_m, t)]])
 
     def cross_terms(self, film_scale: float = 1.0) -> tuple[float, float, float, float]:
         """(C_xy, C_yx, D_xy, D_yx) of the film (0 when dry)."""
@@ -262,9 +272,9 @@ class RigSpec:
         cxy, cyx, dxy, dyx = self.cross_terms(scale)
         c = self.damping(t, scale) + np.asarray(extra_damping, dtype=float)
         iw, w2 = 1j * omega, omega**2
-        r = np.diag(self.stiffness(t) + iw * c - w2 * d).astype(complex)
-        r[0, 1] = iw * cxy - w2 * dxy
-        r[1, 0] = iw * cyx - w2 * dyx
+        r = self.stiffness(t) + np.diag(iw * c - w2 * d)
+        r[0, 1] += iw * cxy - w2 * dxy
+        r[1, 0] += iw * cyx - w2 * dyx
         return r, m_abs
 
     def receptance_matrix(self, omega: float, t: float = 0.0,
@@ -332,7 +342,7 @@ class RigSpec:
         if cached is not None:
             return cached  # type: ignore[no-any-return]
         m_abs, d = self.masses(t)
-        kx, ky = self.stiffness(t)
+        kx, ky = np.diag(self.stiffness(t))
         c_rv = value_at(self.residual_damping_ns_per_m, t)
         out = (m_abs, d, c_rv, self.damping(t) - c_rv, float(kx), float(ky),
                value_at(self.seal_friction_n, t))
@@ -368,7 +378,9 @@ class RigSpec:
         d *= scale
         cxy, cyx, dxy, dyx = self.cross_terms(scale)
         # internal force: what the housing transmits to the rods, film and seal (and the frame)
-        ix, iy = c * vx + cxy * vy + kx * zx, c * vy + cyx * vx + ky * zy
+        k_xy = self.stiffness_xy_n_per_m
+        ix = c * vx + cxy * vy + kx * zx + k_xy * zy
+        iy = c * vy + cyx * vx + ky * zy + k_xy * zx
         if f_mu:
             s = f_mu / math.sqrt(vx * vx + vy * vy + self.seal_v_eps_m_per_s**2)
             ix, iy = ix + s * vx, iy + s * vy

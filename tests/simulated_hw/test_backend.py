@@ -139,6 +139,19 @@ def test_rig_params_toml_round_trip_and_errors(tmp_path):
         rig_params_from_dict({"seal": {"frction_force_n": 20}}, "x.toml")
 
 
+def test_the_cross_stiffness_loads_from_a_rig_file_and_must_be_a_rod_set(tmp_path):
+    f = tmp_path / "rig.toml"
+    f.write_text("[structure]\nstiffness_xy_n_per_m = -1.2e5\n")
+    assert load_rig_params(f).structure.stiffness_xy_n_per_m == -1.2e5
+    p = RigParams()
+    p.structure.stiffness_xy_n_per_m = 9.5e4
+    f.write_text(p.to_toml())
+    assert load_rig_params(f) == p
+    # |k_xy| >= sqrt(K_x K_y) = 805.3 kN/m: no rod set, a stiffness matrix that is not positive
+    with pytest.raises(RigParamsError, match=r"structure.stiffness_xy_n_per_m = -810000.0"):
+        rig_params_from_dict({"structure": {"stiffness_xy_n_per_m": -8.1e5}}, "x.toml")
+
+
 def test_a_stopping_cut_drops_what_the_paced_generation_has_not_reached():
     clock = FakeClock()
     be = paced(clock)

@@ -456,3 +456,24 @@ def test_joint_on_the_frame_needs_the_frame_mode():
                                           "stiffness_n_per_m": 1e5}
     with pytest.raises(ValueError, match="needs effects.second_mode.enabled"):
         RigParams.model_validate(data)
+
+
+def test_cross_stiffness_static_deflection_is_the_2x2_stiffness_solution():
+    """A static force on x, the rods' cross stiffness k_xy on: x and y settle where the
+    symmetric 2x2 stiffness matrix [[K_x, k_xy], [k_xy, K_y]] puts them, within 1e-6."""
+    params = RigParams(seal=Seal(enabled=False))
+    params.contact.enabled = False
+    st = params.structure
+    k_x, k_y = st.stiffness_x_n_per_m, st.stiffness_y_n_per_m
+    st.stiffness_xy_n_per_m = k_xy = 0.15 * math.sqrt(k_x * k_y)
+    force_n = 40.0
+    t = np.arange(int(3.0 * FS)) / FS
+    ramp = force_n * np.minimum(t / 0.2, 1.0)  # raised gently: no ringing to wait for
+    tr, _ = simulate_response(np.vstack([ramp, np.zeros(t.size)]), params, FS, fill=0.0)
+    det = k_x * k_y - k_xy**2
+    assert tr.x_m[-1] == pytest.approx(k_y / det * force_n, rel=1e-6)
+    assert tr.y_m[-1] == pytest.approx(-k_xy / det * force_n, rel=1e-6)
+    # and the force on y alone moves x the same way (the spring is symmetric)
+    tr, _ = simulate_response(np.vstack([np.zeros(t.size), ramp]), params, FS, fill=0.0)
+    assert tr.x_m[-1] == pytest.approx(-k_xy / det * force_n, rel=1e-6)
+    assert tr.y_m[-1] == pytest.approx(k_x / det * force_n, rel=1e-6)
