@@ -18,6 +18,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from threadpoolctl import threadpool_limits
+
 from control.daemon import Daemon, DaemonConfig
 from control.security import KeyFileError, load_server_keys
 from daq.channels import ChannelMap, default_channel_map, load_channel_map
@@ -95,6 +97,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"daemon: --watchdog-s {args.watchdog_s:g} must be 0 (none) or 0.05..60 s",
               file=sys.stderr)
         return 2
+    # One BLAS thread: OpenBLAS started its worker when numpy was imported, before the priority
+    # below, so the worker stays at normal priority; a SCHED_FIFO acquisition thread whose
+    # lock-in product waited on it was delayed by every other process (underflows at load 2-4)
+    threadpool_limits(limits=1, user_api="blas")
     try:
         scheduling = apply_priority(args.priority)
     except PriorityError as err:
