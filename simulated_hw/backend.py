@@ -88,8 +88,11 @@ class SimulatedBackend:
         self._ao_chunks, self._ao_queued, self._read = [], 0, 0
 
     def start(self) -> None:
+        """Start the generation and the acquisition: a new run counts its samples from 0, as a
+        board's tasks do (the rig itself keeps moving from where the last run left it)."""
         self._require_rig()
         self._running = True
+        self._read = 0
         self._t0 = self._clock()
 
     def write_ao(self, block: np.ndarray) -> None:
@@ -175,8 +178,11 @@ class SimulatedBackend:
         return False
 
     def stop(self) -> None:
+        """Stop both tasks: what was written and not generated is dropped (a board's buffer
+        is), and the next run primes the AO again and counts from sample 0."""
         self._running = False
-        self._ao_stopped = False  # the next run primes the AO again
+        self._ao_stopped = False
+        self._ao_chunks, self._ao_queued = [], 0
 
     def close(self) -> None:
         self._running = False

@@ -187,3 +187,33 @@ def test_a_resuming_cut_continues_the_stream_at_the_first_sample_dropped():
     be.read_ai(500, timeout_s=1.0)
     with pytest.raises(DaqUnderflowError):
         be.read_ai(500, timeout_s=1.0)
+
+
+def test_a_second_run_starts_counting_from_zero_and_waits_only_for_its_own_samples():
+    """Issue 21's blocker: the paced read count survived `start()`, so run n waited for the
+    samples of runs 1..n-1 first and the eleventh read of a day timed out (-200284)."""
+    clock = FakeClock()
+    be = paced(clock)
+    for run in range(12):
+        be.write_ao(np.full((2, 5000), 0.01 * run))
+        be.start()
+        t0 = clock.now
+        be.read_ai(2000, timeout_s=1.0)
+        be.read_ai(2000, timeout_s=1.0)
+        assert clock.now - t0 == pytest.approx(0.4), f"run {run}"  # 4000 samples at 10 kS/s
+        be.stop()
+        assert be.ao_backlog() == 0, f"run {run}: the old queue outlived stop()"
+
+
+def test_stop_drops_the_queue_the_next_run_plays_only_its_own_prefill():
+    be = SimulatedBackend(seed=1)
+    be.configure(CM)
+    be.write_ao(np.full((2, 3000), 0.5))
+    be.start()
+    be.read_ai(1000)
+    be.stop()  # 2000 samples of 0.5 V were queued and never generated
+    be.write_ao(np.zeros((2, 1000)))
+    be.start()
+    be.read_ai(1000)  # only the new prefill: no underflow, nothing of the old run left
+    with pytest.raises(DaqUnderflowError):
+        be.read_ai(1)
