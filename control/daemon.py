@@ -26,6 +26,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -116,6 +117,7 @@ class Daemon:
         self._stop_reason = ""
         self._stop = threading.Event()
         self._watchdog_error = ""
+        self._pump_hold = ExitStack()  # the pump interlock, held from a run's start to its end
 
         self._ctx = zmq.Context()
         self._auth: Any = None
@@ -248,6 +250,11 @@ class Daemon:
             self._engine_factory = self._engine_factory or SweepEngine
         return self._spec_parser, self._engine_factory
 
+    def hold_pump(self, what: str) -> None:
+        """Hold the pump relay as it is until the run ends (`control.pump.PumpRelay`: the one
+        place that refuses a switch while a run holds it)."""
+        self._pump_hold.enter_context(self.pump.shakers_running(what))
+
     # --- called from the acquisition thread ---------------------------------------------------
     def _run_started(self, job: RunJob) -> None:
         with self.sm.lock:
@@ -273,6 +280,7 @@ class Daemon:
             except Exception:
                 log.exception("publishing the end of run %s failed", job.run_id)
             self.job = None
+            self._pump_hold.close()  # the run is over: the pump may be switched again
             if fault:
                 self.fault_reason = reason
                 self.sm.fire("fault")

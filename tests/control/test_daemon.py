@@ -79,21 +79,13 @@ class ScriptEngine:
         self._running.set()
 
 
-class FakePump:
-    def __init__(self, backend):
-        self.is_on = False
-
-    def set(self, on):
-        self.is_on = on
-
-
 @pytest.fixture
 def daemon(tmp_path: Path):
     backend = SimulatedBackend(seed=3)
     cfg = DaemonConfig(runs_dir=tmp_path / "runs", sndhwm=0, lossless_publish=True,
                        heartbeat_s=0.05)
     d = Daemon(backend, default_channel_map(), cfg, engine_factory=ScriptEngine,
-               pump_factory=FakePump, spec_parser=ScriptSpec.model_validate)
+               spec_parser=ScriptSpec.model_validate)  # the real PumpRelay on the sim rig
     t = threading.Thread(target=d.serve, name="test-daemon-serve")
     t.start()
     yield d
@@ -203,3 +195,43 @@ def test_malformed_frames_get_error_replies(daemon: Daemon):
         reply = json.loads(c.send_raw([b"", b"{}", b"{}"]))
         assert reply["error"] == "expected one JSON request frame, got 2 frames"
         assert c.status()["state"] == "idle"
+
+
+def test_the_pump_stays_as_the_run_started_it_while_running_and_paused(daemon: Daemon):
+    """Issue 21: pump on was accepted during a dry sweep (and while it was paused), so a run
+    recorded dry had oil-wet dwells; pump off during a lubricated run must be refused too."""
+    ep = daemon.endpoints
+    with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        assert c.pump(False).data["pump_on"] is False
+        run_id = c.start_sweep({"blocks": 10, "hold_after": 3}).data["run_id"]
+        assert ScriptEngine.last.held.wait(10)
+        for state in ("running", "paused"):
+            with pytest.raises(CommandRefused) as refused:
+                c.pump(True)
+            assert f"cannot be switched on during the dry sweep {run_id}" in str(refused.value)
+            assert "recorded as dry" in str(refused.value)
+            assert c.status()["pump_on"] is False and c.status()["state"] == state
+            assert not daemon.backend.rig.pump_on
+            if state == "running":
+                assert c.pause().state is DaemonState.PAUSED
+        assert c.pump(False).data["pump_on"] is False  # no change: allowed
+        c.abort("test over")
+        wait_state(c, sub, "idle")
+        assert c.pump(True).data["pump_on"] is True  # the run is over
+
+        run_id = c.start_sweep({"blocks": 10, "hold_after": 3, "lubricated": True}
+                               ).data["run_id"]
+        assert ScriptEngine.last.held.wait(10)
+        for state in ("running", "paused"):
+            with pytest.raises(CommandRefused) as refused:
+                c.pump(False)
+            message = str(refused.value)
+            assert "cannot be switched off while the shakers run" in message
+            assert f"the lubricated sweep {run_id}" in message and "drained" in message
+            assert c.status()["pump_on"] is True and daemon.backend.rig.pump_on
+            if state == "running":
+                assert c.pause().state is DaemonState.PAUSED
+        c.abort("test over")
+        wait_state(c, sub, "idle")
+        assert c.pump(False).data["pump_on"] is False
