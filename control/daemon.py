@@ -365,8 +365,19 @@ class Daemon:
         if self._auth is not None:
             self._auth.stop()
         self._ctx.term()
-        if self.cfg.state_file is not None:
-            self.cfg.state_file.unlink(missing_ok=True)
+        self._remove_state_file()
+
+    def _remove_state_file(self) -> None:
+        """Remove ``daemon.json`` only if it is this process's (never another daemon's)."""
+        path = self.cfg.state_file
+        if path is None:
+            return
+        try:
+            if json.loads(path.read_text()).get("pid") != os.getpid():
+                return
+        except (OSError, ValueError, AttributeError):
+            return
+        path.unlink(missing_ok=True)
 
     def _write_state_file(self) -> None:
         if self.cfg.state_file is None:
