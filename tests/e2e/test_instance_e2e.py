@@ -103,3 +103,27 @@ def test_two_daemons_on_one_board_are_refused(tmp_path, monkeypatch):
         second.proc.communicate(timeout=10)
     finally:
         server.stop()
+
+
+def _ni_driver_missing() -> bool:
+    import nidaqmx.system
+
+    try:
+        _ = nidaqmx.system.System.local().driver_version
+    except Exception:  # noqa: BLE001 - DaqNotFoundError, or no driver library at all
+        return True
+    return False
+
+
+@pytest.mark.skipif(not _ni_driver_missing(), reason="NI-DAQmx is installed here")
+def test_the_nidaqmx_backend_without_the_driver_is_one_line(tmp_path):
+    out = daemon_cli("--runs-dir", str(tmp_path / "runs"), "--backend", "nidaqmx",
+                     env={"SFDRIG_RUNTIME_DIR": str(tmp_path / "locks")})
+    assert out.returncode == 2, out
+    assert out.stdout == "" and "Traceback" not in out.stderr
+    assert out.stderr.count("\n") == 1, out.stderr
+    assert out.stderr.startswith("daemon: creating the AI task ")
+    assert "NI-DAQmx driver not available: Could not find an installation of NI-DAQmx" \
+        in out.stderr
+    assert out.stderr.endswith("(install NI-DAQmx, give --grpc-target HOST:PORT of an NI gRPC "
+                               "device server, or use --backend sim)\n")
