@@ -68,6 +68,18 @@ def test_sweep_status_pump_watch_from_the_command_line(daemon_factory, tmp_path)
     assert "2 steps" in out.stdout and "fx" in out.stdout and "um" in out.stdout
 
 
+def test_a_client_command_into_a_closed_pipe_ends_quietly(daemon_factory):
+    """Issue 21: `sfdrig status --json | head` ended in a BrokenPipeError traceback."""
+    from tests.sfdrig.test_cli import run_into_a_closed_pipe
+
+    d = daemon_factory()
+    runs = str(d.runs_dir)
+    for args in (["status", "--json", "--runs-dir", runs], ["status", "--runs-dir", runs],
+                 ["runs", "--dir", runs]):
+        out = run_into_a_closed_pipe(*args)
+        assert (out.returncode, out.stderr) == (141, ""), (args, out.stderr)
+
+
 def test_proxy_relays_every_block_in_sequence(daemon_factory):
     d = daemon_factory("--sndhwm", "0")
     proxy = subprocess.Popen(

@@ -34,3 +34,22 @@ def test_the_web_command_does_not_load_the_simulator() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == "[]"
+
+
+def run_into_a_closed_pipe(*args: str, **kwargs) -> subprocess.CompletedProcess[str]:
+    """``sfdrig ARGS | head -0``: stdout is a pipe whose reader has already gone."""
+    import os
+
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        return subprocess.run([sys.executable, "-m", "sfdrig", *args], stdout=write,
+                              stderr=subprocess.PIPE, text=True, timeout=120, **kwargs)
+    finally:
+        os.close(write)
+
+
+@pytest.mark.parametrize("args", [["--help"], ["identify", "--help"]])
+def test_help_into_a_closed_pipe_ends_quietly(args: list[str]) -> None:
+    out = run_into_a_closed_pipe(*args)  # argparse swallows it; the exit flush must too
+    assert out.returncode in (0, 141) and out.stderr == ""
