@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import ValidationError
 
 from control.acquisition import BackgroundWriter, FanOut, RunJob
-from control.daemon_state import TransitionError
+from control.daemon_state import TransitionError, refusal
 from control.errors import TargetError
 from control.runs import create_sweep_file, new_run_id
 from control.wire import (
@@ -68,7 +68,10 @@ class CommandHandler:
             with self.d.sm.lock:
                 return self._dispatch(req)
         except TransitionError as err:
-            return self._error(ErrorKind.FORBIDDEN, f"{req.cmd}: {err}", req.cmd, req.request_id)
+            message = f"{req.cmd}: {err}"
+            if self.d.sm.state is S.FAULT and self.d.fault_reason:
+                message += f" (the fault: {self.d.fault_reason})"
+            return self._error(ErrorKind.FORBIDDEN, message, req.cmd, req.request_id)
 
     def _error(self, kind: ErrorKind, message: str, cmd: str = "", rid: str = "") -> Reply:
         return Reply(ok=False, cmd=cmd, request_id=rid, state=self.d.sm.state, error_kind=kind,
@@ -205,7 +208,7 @@ class CommandHandler:
 
         d = self.d
         if not d.sm.allowed("start"):
-            d.sm.fire("start")  # raises the TransitionError that names the state
+            raise TransitionError(refusal("start_test", d.sm.state))
         try:
             spec = SPECS[req.test].model_validate(req.spec)
         except ValidationError as err:

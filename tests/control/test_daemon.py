@@ -28,6 +28,7 @@ class ScriptSpec(BaseModel):
     block_size: int = 500
     hold_after: int | None = None  # wait at this block until aborted
     lubricated: bool = False
+    fail_at: int | None = None  # the DAQ fails at this block (a fault)
 
 
 class ScriptEngine:
@@ -54,6 +55,8 @@ class ScriptEngine:
                     self.held.set()
                     self._aborted.wait()
                 self._running.wait()
+                if self.spec.fail_at == i:
+                    raise RuntimeError("the board stopped answering")
                 if self._aborted.is_set():
                     return SimpleNamespace(status="aborted", reason=self.reason)
                 ao = np.full((2, n), 0.01 * (i % 7))
@@ -235,3 +238,52 @@ def test_the_pump_stays_as_the_run_started_it_while_running_and_paused(daemon: D
         c.abort("test over")
         wait_state(c, sub, "idle")
         assert c.pump(False).data["pump_on"] is False
+
+
+def test_refusals_name_the_requests_allowed_now_and_how_to_reset_a_fault(daemon: Daemon):
+    """Issue 21: refusals listed the machine's events ("allowed: fault, finished"), never the
+    requests, and never said how a fault is reset; reset must lead to a sweep that runs."""
+    ep = daemon.endpoints
+    with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        with pytest.raises(CommandRefused) as refused:
+            c.pause()
+        assert refused.value.reply.error == ("pause: 'pause' is not allowed while idle (allowed "
+                                             "now: start, start_test, pump, status, list_runs)")
+        c.start_sweep({"blocks": 10, "hold_after": 3})
+        assert ScriptEngine.last.held.wait(10)
+        with pytest.raises(CommandRefused) as refused:
+            c.start_sweep({"blocks": 1})
+        assert refused.value.reply.error == ("start: 'start' is not allowed while running "
+                                             "(allowed now: pause, abort, pump, status, "
+                                             "list_runs)")
+        c.abort("next")
+        wait_state(c, sub, "idle")
+
+        run_id = c.start_sweep({"blocks": 10, "fail_at": 2}).data["run_id"]
+        wait_state(c, sub, "fault")
+        status = c.status()
+        assert status["fault_reason"] == "RuntimeError: the board stopped answering"
+        assert status["last_run"]["run_id"] == run_id
+        for start in (lambda: c.start_sweep({"blocks": 4}),
+                      lambda: c.request("start_test", test="impact")):
+            with pytest.raises(CommandRefused) as refused:
+                start()
+            cmd = refused.value.reply.cmd
+            assert refused.value.reply.error == (
+                f"{cmd}: '{cmd}' is not allowed while fault (allowed now: reset, pump, status, "
+                "list_runs); reset the fault with `sfdrig status --reset` (or Reset on the web "
+                "page) once its cause is cleared (the fault: RuntimeError: the board stopped "
+                "answering)")
+        assert c.reset().state is DaemonState.IDLE
+        assert c.status()["fault_reason"] == ""
+        reply = c.start_sweep({"blocks": 8, "block_size": 400})
+        while (msg := sub.recv(timeout_s=10)) is not None:  # not a heartbeat from before it
+            if msg.topic == "event" and msg.header["message"].startswith(
+                    f"run {reply.data['run_id']} "):
+                break
+        assert msg is not None, "the run after the reset did not end"
+        last = c.status()["last_run"]
+        assert (last["run_id"], last["status"]) == (reply.data["run_id"], "completed")
+    with open_run(last["path"]) as run:
+        assert run.status == "completed" and run.n_samples == 8 * 400
