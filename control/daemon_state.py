@@ -39,8 +39,8 @@ COMMAND_EVENTS = {"start": ("start", "start_test"), "pause": ("pause",), "resume
 #: Requests no state refuses (the pump interlock may refuse a switch; see `control.pump`).
 ALWAYS_ALLOWED = ("pump", "status", "list_runs")
 #: How an operator acknowledges a fault, named in every refusal while in fault.
-RESET_HINT = ("reset the fault with `sfdrig status --reset` (or Reset on the web page) once its "
-              "cause is cleared")
+RESET_HINT = ("reset the fault with `sfdrig status --reset` (or Reset fault on the web page) "
+              "once its cause is cleared")
 
 
 def allowed_commands(state: DaemonState) -> list[str]:

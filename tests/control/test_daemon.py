@@ -272,9 +272,9 @@ def test_refusals_name_the_requests_allowed_now_and_how_to_reset_a_fault(daemon:
             cmd = refused.value.reply.cmd
             assert refused.value.reply.error == (
                 f"{cmd}: '{cmd}' is not allowed while fault (allowed now: reset, pump, status, "
-                "list_runs); reset the fault with `sfdrig status --reset` (or Reset on the web "
-                "page) once its cause is cleared (the fault: RuntimeError: the board stopped "
-                "answering)")
+                "list_runs); reset the fault with `sfdrig status --reset` (or Reset fault on "
+                "the web page) once its cause is cleared (the fault: RuntimeError: the board "
+                "stopped answering)")
         assert c.reset().state is DaemonState.IDLE
         assert c.status()["fault_reason"] == ""
         reply = c.start_sweep({"blocks": 8, "block_size": 400})
