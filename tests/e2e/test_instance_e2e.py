@@ -58,6 +58,12 @@ def test_the_state_of_a_killed_daemon_is_taken_over(tmp_path):
     dead.proc.wait(10)
     dead.proc.communicate(timeout=10)
     assert json.loads((runs / "daemon.json").read_text())["pid"] == dead.proc.pid  # left behind
+    status = subprocess.run([sys.executable, "-m", "sfdrig", "status", "--runs-dir", str(runs)],
+                            capture_output=True, text=True, timeout=60)
+    assert status.returncode == 1 and status.stdout == ""
+    assert status.stderr == (f"the daemon that wrote {runs / 'daemon.json'} (pid "
+                             f"{dead.proc.pid}) is not running: start `sfdrig daemon --runs-dir "
+                             f"{runs}` (it takes the stale file over)\n")
     second = start_daemon(runs)
     try:
         state = json.loads((runs / "daemon.json").read_text())
