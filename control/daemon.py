@@ -128,6 +128,9 @@ class Daemon:
                                    block_when_full=config.lossless_publish)
         self.loop = AcquisitionLoop(self._run_started, self._run_done)
         self.commands = CommandHandler(self)
+        # before anyone is told the endpoints (`sfdrig daemon` prints them next): a client that
+        # reads daemon.json then finds these, not a dead predecessor's
+        self._write_state_file()
 
     # --- sockets --------------------------------------------------------------------------
     def _bind(self) -> tuple[zmq.Socket, zmq.Socket, dict[str, str]]:
@@ -160,7 +163,6 @@ class Daemon:
     # --- the command loop -------------------------------------------------------------------
     def serve(self) -> None:
         """Answer commands and send heartbeats until `stop` (or a signal) asks to shut down."""
-        self._write_state_file()
         next_beat = 0.0
         try:
             while not self._stop.is_set():
