@@ -128,7 +128,9 @@ def test_ctrl_c_on_sweep_aborts_and_counts_the_steps_the_file_holds(daemon_facto
     sweep = subprocess.Popen(
         [sys.executable, "-m", "sfdrig", "sweep", "--set", "motion='x'", "--set",
          "load_n=[40.0]", "--set", "freq_hz=[70.0, 80.0, 90.0, 100.0, 110.0, 120.0]",
-         "--set", "settle_cycles=20", "--set", "record_cycles=100", *conn],
+         "--set", "settle_cycles=20", "--set", "record_cycles=100",
+         # the paced e2e tests' AO lead (tests/e2e/test_stream_e2e.py LONG_X): a loaded machine
+         "--set", "control.block_s=0.0125", "--set", "control.ahead_blocks=3", *conn],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lines: list[str] = []
