@@ -125,8 +125,8 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 1
     except OSError as err:
-        print(f"daemon: cannot lock {getattr(err, 'filename', '') or 'the runs directory'}: "
-              f"{err.strerror or err}", file=sys.stderr)
+        print(f"daemon: cannot use the runs directory {args.runs_dir}: {err.strerror or err}",
+              file=sys.stderr)
         return 2
     try:
         backend, channel_map, rig = build_backend(args, channel_map)
