@@ -125,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 1
     except OSError as err:
-        print(f"daemon: cannot use the runs directory {args.runs_dir}: {err.strerror or err}",
+        where = err.filename or args.runs_dir  # the runs directory, or the device locks' dir
+        print(f"daemon: cannot use {where} (for its lock file): {err.strerror or err}",
               file=sys.stderr)
         return 2
     try:
