@@ -109,6 +109,8 @@ class CommandHandler:
                 self._operator_event("resumed by operator")
                 return self._ok(req)
             case AbortRequest():
+                if d.sm.state is S.ABORTING:  # pressed again: it is under way, not refused
+                    return self._ok(req, already_aborting=True)
                 d.sm.fire("abort")
                 assert d.job is not None
                 d.job.abort_reason = req.reason

@@ -46,6 +46,8 @@ RESET_HINT = ("reset the fault with `sfdrig status --reset` (or Reset fault on t
 def allowed_commands(state: DaemonState) -> list[str]:
     """The requests the daemon takes in ``state``, in the order of `COMMAND_EVENTS`."""
     fired = {e for (s, e) in TRANSITIONS if s is state}
+    if state is S.ABORTING:
+        fired.add("abort")  # answered ok (under way), not refused: `control.commands`
     return [c for e, cmds in COMMAND_EVENTS.items() if e in fired for c in cmds] \
         + list(ALWAYS_ALLOWED)
 

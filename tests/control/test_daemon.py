@@ -29,10 +29,12 @@ class ScriptSpec(BaseModel):
     hold_after: int | None = None  # wait at this block until aborted
     lubricated: bool = False
     fail_at: int | None = None  # the DAQ fails at this block (a fault)
+    slow_abort: bool = False  # an abort takes until the test releases it (state aborting)
 
 
 class ScriptEngine:
     gates: dict[str, threading.Event] = {}
+    abort_done = threading.Event()
 
     def __init__(self, backend, spec, limits=None, listener=None, pump=None):
         self.backend, self.spec, self.listener, self.pump = backend, spec, listener, pump
@@ -41,6 +43,7 @@ class ScriptEngine:
         self._running.set()
         self.reason = ""
         self.held = threading.Event()
+        self.aborting = threading.Event()
         ScriptEngine.last = self
         self.progress = {"block": 0, "blocks": spec.blocks}
 
@@ -58,6 +61,9 @@ class ScriptEngine:
                 if self.spec.fail_at == i:
                     raise RuntimeError("the board stopped answering")
                 if self._aborted.is_set():
+                    if self.spec.slow_abort:
+                        self.aborting.set()
+                        assert ScriptEngine.abort_done.wait(10)
                     return SimpleNamespace(status="aborted", reason=self.reason)
                 ao = np.full((2, n), 0.01 * (i % 7))
                 b.write_ao(ao)
@@ -287,3 +293,24 @@ def test_refusals_name_the_requests_allowed_now_and_how_to_reset_a_fault(daemon:
         assert (last["run_id"], last["status"]) == (reply.data["run_id"], "completed")
     with open_run(last["path"]) as run:
         assert run.status == "completed" and run.n_samples == 8 * 400
+
+
+def test_an_abort_while_aborting_is_not_refused(daemon: Daemon):
+    """Pressed twice: the second abort is answered ok (it is under way), not "not allowed"."""
+    ScriptEngine.abort_done.clear()
+    ep = daemon.endpoints
+    with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        run_id = c.start_sweep({"blocks": 10, "hold_after": 3, "slow_abort": True}
+                               ).data["run_id"]
+        assert ScriptEngine.last.held.wait(10)
+        assert c.abort("first").state is DaemonState.ABORTING
+        assert ScriptEngine.last.aborting.wait(10)
+        again = c.abort("second")
+        assert (again.ok, again.state, again.data) == (True, DaemonState.ABORTING,
+                                                       {"already_aborting": True})
+        ScriptEngine.abort_done.set()
+        while (msg := sub.recv(timeout_s=10)) is not None:
+            if msg.topic == "event" and msg.header["message"].startswith(f"run {run_id} "):
+                break
+        assert msg is not None and msg.header["message"] == f"run {run_id} aborted: first"
