@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import ValidationError
 
 from control.acquisition import BackgroundWriter, FanOut, RunJob
-from control.daemon_state import TransitionError
+from control.daemon_state import TransitionError, refusal
 from control.errors import TargetError
 from control.runs import create_sweep_file, new_run_id
 from control.wire import (
@@ -68,7 +68,10 @@ class CommandHandler:
             with self.d.sm.lock:
                 return self._dispatch(req)
         except TransitionError as err:
-            return self._error(ErrorKind.FORBIDDEN, f"{req.cmd}: {err}", req.cmd, req.request_id)
+            message = f"{req.cmd}: {err}"
+            if self.d.sm.state is S.FAULT and self.d.fault_reason:
+                message += f" (the fault: {self.d.fault_reason})"
+            return self._error(ErrorKind.FORBIDDEN, message, req.cmd, req.request_id)
 
     def _error(self, kind: ErrorKind, message: str, cmd: str = "", rid: str = "") -> Reply:
         return Reply(ok=False, cmd=cmd, request_id=rid, state=self.d.sm.state, error_kind=kind,
@@ -106,6 +109,8 @@ class CommandHandler:
                 self._operator_event("resumed by operator")
                 return self._ok(req)
             case AbortRequest():
+                if d.sm.state is S.ABORTING:  # pressed again: it is under way, not refused
+                    return self._ok(req, already_aborting=True)
                 d.sm.fire("abort")
                 assert d.job is not None
                 d.job.abort_reason = req.reason
@@ -133,12 +138,13 @@ class CommandHandler:
             job.fanout.on_event("operator", message, job.fanout.last_sample)
 
     def _pump(self, req: PumpRequest) -> Reply:
+        """Switch the pump. Whether it may be switched now is `control.pump.PumpRelay`'s
+        decision alone: from a run's start to its end the daemon holds the relay
+        (`Daemon.hold_pump`), so a dry run refuses on and a lubricated run refuses off."""
         d = self.d
-        if d.sm.state in (S.ARMING, S.ABORTING):
-            raise TransitionError(f"'pump' is not allowed while {d.sm.state.value}")
         try:
             d.pump.set(req.on)
-        except (RuntimeError, ValueError) as err:  # InterlockError: shakers running
+        except (RuntimeError, ValueError) as err:  # InterlockError: a run holds the relay
             return self._error(ErrorKind.FORBIDDEN, f"pump: {err}", req.cmd, req.request_id)
         message = f"pump switched {'on' if req.on else 'off'} by operator"
         job = d.job
@@ -189,6 +195,8 @@ class CommandHandler:
         fanout.required.append(background)
         d.job = RunJob(run_id, path, engine, background, fanout)
         d.publisher.set_run(run_id)
+        lubricated = bool(getattr(spec, "lubricated", False))
+        d.hold_pump(f"the {'lubricated' if lubricated else 'dry'} sweep {run_id}")
         d.sm.fire("start")
         d.loop.submit(d.job)
         plan = getattr(engine, "plan", None)
@@ -202,7 +210,7 @@ class CommandHandler:
 
         d = self.d
         if not d.sm.allowed("start"):
-            d.sm.fire("start")  # raises the TransitionError that names the state
+            raise TransitionError(refusal("start_test", d.sm.state))
         try:
             spec = SPECS[req.test].model_validate(req.spec)
         except ValidationError as err:
@@ -230,6 +238,8 @@ class CommandHandler:
         fanout.required.append(background)
         d.job = RunJob(run_id, path, engine, background, fanout)
         d.publisher.set_run(run_id)
+        if req.test in DRY_TESTS:  # the flow test switches the pump itself
+            d.hold_pump(f"the dry {req.test} test {run_id}")
         d.sm.fire("start")
         d.loop.submit(d.job)
         return self._ok(req, run_id=run_id, path=str(path))

@@ -26,6 +26,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -116,6 +117,7 @@ class Daemon:
         self._stop_reason = ""
         self._stop = threading.Event()
         self._watchdog_error = ""
+        self._pump_hold = ExitStack()  # the pump interlock, held from a run's start to its end
 
         self._ctx = zmq.Context()
         self._auth: Any = None
@@ -126,6 +128,9 @@ class Daemon:
                                    block_when_full=config.lossless_publish)
         self.loop = AcquisitionLoop(self._run_started, self._run_done)
         self.commands = CommandHandler(self)
+        # before anyone is told the endpoints (`sfdrig daemon` prints them next): a client that
+        # reads daemon.json then finds these, not a dead predecessor's
+        self._write_state_file()
 
     # --- sockets --------------------------------------------------------------------------
     def _bind(self) -> tuple[zmq.Socket, zmq.Socket, dict[str, str]]:
@@ -158,7 +163,6 @@ class Daemon:
     # --- the command loop -------------------------------------------------------------------
     def serve(self) -> None:
         """Answer commands and send heartbeats until `stop` (or a signal) asks to shut down."""
-        self._write_state_file()
         next_beat = 0.0
         try:
             while not self._stop.is_set():
@@ -248,6 +252,11 @@ class Daemon:
             self._engine_factory = self._engine_factory or SweepEngine
         return self._spec_parser, self._engine_factory
 
+    def hold_pump(self, what: str) -> None:
+        """Hold the pump relay as it is until the run ends (`control.pump.PumpRelay`: the one
+        place that refuses a switch while a run holds it)."""
+        self._pump_hold.enter_context(self.pump.shakers_running(what))
+
     # --- called from the acquisition thread ---------------------------------------------------
     def _run_started(self, job: RunJob) -> None:
         with self.sm.lock:
@@ -273,6 +282,7 @@ class Daemon:
             except Exception:
                 log.exception("publishing the end of run %s failed", job.run_id)
             self.job = None
+            self._pump_hold.close()  # the run is over: the pump may be switched again
             if fault:
                 self.fault_reason = reason
                 self.sm.fire("fault")
@@ -357,8 +367,19 @@ class Daemon:
         if self._auth is not None:
             self._auth.stop()
         self._ctx.term()
-        if self.cfg.state_file is not None:
-            self.cfg.state_file.unlink(missing_ok=True)
+        self._remove_state_file()
+
+    def _remove_state_file(self) -> None:
+        """Remove ``daemon.json`` only if it is this process's (never another daemon's)."""
+        path = self.cfg.state_file
+        if path is None:
+            return
+        try:
+            if json.loads(path.read_text()).get("pid") != os.getpid():
+                return
+        except (OSError, ValueError, AttributeError):
+            return
+        path.unlink(missing_ok=True)
 
     def _write_state_file(self) -> None:
         if self.cfg.state_file is None:

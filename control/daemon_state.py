@@ -1,4 +1,5 @@
-"""The daemon's state machine: one transition table, refusals name the state and what it allows."""
+"""The daemon's state machine: one transition table; refusals name the state, the requests it
+allows and, in fault, how to reset it."""
 
 from __future__ import annotations
 
@@ -31,6 +32,34 @@ TRANSITIONS: dict[tuple[DaemonState, str], DaemonState] = {
 }
 
 
+#: The requests that fire an event of the table (the other events are the daemon's own:
+#: armed, finished, fault); `start_test` fires "start" as `start` does.
+COMMAND_EVENTS = {"start": ("start", "start_test"), "pause": ("pause",), "resume": ("resume",),
+                  "abort": ("abort",), "reset": ("reset",)}
+#: Requests no state refuses (the pump interlock may refuse a switch; see `control.pump`).
+ALWAYS_ALLOWED = ("pump", "status", "list_runs")
+#: How an operator acknowledges a fault, named in every refusal while in fault.
+RESET_HINT = ("reset the fault with `sfdrig status --reset` (or Reset fault on the web page) "
+              "once its cause is cleared")
+
+
+def allowed_commands(state: DaemonState) -> list[str]:
+    """The requests the daemon takes in ``state``, in the order of `COMMAND_EVENTS`."""
+    fired = {e for (s, e) in TRANSITIONS if s is state}
+    if state is S.ABORTING:
+        fired.add("abort")  # answered ok (under way), not refused: `control.commands`
+    return [c for e, cmds in COMMAND_EVENTS.items() if e in fired for c in cmds] \
+        + list(ALWAYS_ALLOWED)
+
+
+def refusal(request: str, state: DaemonState) -> str:
+    """Why ``request`` is refused in ``state``: the requests allowed now, and in fault how to
+    reset it."""
+    text = (f"'{request}' is not allowed while {state.value} (allowed now: "
+            f"{', '.join(allowed_commands(state))})")
+    return text + ("; " + RESET_HINT if state is S.FAULT else "")
+
+
 class TransitionError(RuntimeError):
     """An event the transition table does not allow in the current state."""
 
@@ -57,11 +86,7 @@ class StateMachine:
         with self.lock:
             new = TRANSITIONS.get((self._state, event))
             if new is None:
-                allowed = sorted(e for (s, e) in TRANSITIONS if s is self._state)
-                raise TransitionError(
-                    f"'{event}' is not allowed while {self._state.value} "
-                    f"(allowed: {', '.join(allowed) or 'none'})"
-                )
+                raise TransitionError(refusal(event, self._state))
             old, self._state = self._state, new
             if self._on_change is not None:
                 self._on_change(old, new, event)

@@ -1,10 +1,13 @@
 """The oil pump relay and its interlock with the shakers.
 
-`PumpRelay` switches the pump through a relay line of the DAQ (`DaqBackend.set_do`). While a sweep
-engine holds the relay (`PumpRelay.shakers_running`), switching the pump off is refused with
-`InterlockError`: a squeeze film must not be drained while the housing is shaken. The pressure side
-of the interlock (a lubricated sweep waits, with zero drive, for the inlet pressure to build) lives
-in the sweep engine, which owns the acquisition.
+`PumpRelay` switches the pump through a relay line of the DAQ (`DaqBackend.set_do`). While a run
+holds the relay (`PumpRelay.shakers_running`: the daemon from a run's start to its end, a sweep
+engine for as long as it runs), the pump stays as it was when the run started, and this class is
+the one place that refuses a switch, with `InterlockError` saying why: off during a lubricated
+run (a squeeze film must not be drained while the housing is shaken), on during a dry run (oil in
+the film would make dwells wet that the run file records as dry). The pressure side of the
+interlock (a lubricated sweep waits, with zero drive, for the inlet pressure to build) lives in
+the sweep engine, which owns the acquisition.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ class PumpRelay:
         self._on_change = on_change
         self._lock = threading.Lock()
         self._on = False
-        self._holds = 0
+        self._holds: list[str] = []  # what holds the relay (outermost first)
 
     @property
     def is_on(self) -> bool:
@@ -52,21 +55,30 @@ class PumpRelay:
     @property
     def shakers_active(self) -> bool:
         """Whether a sweep engine holds the interlock (its shakers may be moving)."""
-        return self._holds > 0
+        return bool(self._holds)
 
     def set(self, on: bool) -> None:
-        """Switch the pump on or off.
+        """Switch the pump on or off (switching it to the state it is in is always allowed).
 
         Raises
         ------
         InterlockError
-            On an attempt to switch it off while the shakers run.
+            On an attempt to switch it while a run holds it: off during a lubricated run, on
+            during a dry one.
         """
         with self._lock:
-            if not on and self._holds > 0:
+            if self._holds and bool(on) != self._on:
+                what = self._holds[0]
+                if on:
+                    raise InterlockError(
+                        f"pump {self.name!r} cannot be switched on during {what}: its dwells "
+                        "are recorded as dry and oil in the film would make them wet; abort "
+                        "the run or let it end first"
+                    )
                 raise InterlockError(
-                    f"pump {self.name!r} cannot be switched off while the shakers run: "
-                    "stop or abort the sweep first"
+                    f"pump {self.name!r} cannot be switched off while the shakers run "
+                    f"({what}): a squeeze film must not be drained while the housing is "
+                    "shaken; abort the run or let it end first"
                 )
             self._backend.set_do(self.name, bool(on))
             changed = self._on != bool(on)
@@ -75,12 +87,14 @@ class PumpRelay:
             self._on_change(self._on, f"pump {self.name!r} switched {'on' if on else 'off'}")
 
     @contextmanager
-    def shakers_running(self) -> Iterator[None]:
-        """Hold the interlock for the duration of a run: the pump cannot be switched off."""
+    def shakers_running(self, what: str = "") -> Iterator[None]:
+        """Hold the interlock for the duration of a run: the pump stays as it is now (on for a
+        lubricated run, off for a dry one). ``what`` names the run in refusals."""
         with self._lock:
-            self._holds += 1
+            entry = what or ("a lubricated run" if self._on else "a dry run")
+            self._holds.append(entry)
         try:
             yield
         finally:
             with self._lock:
-                self._holds -= 1
+                self._holds.remove(entry)

@@ -1,6 +1,8 @@
 """Text that crosses a boundary (a request, a reply, a run file): what is refused, what is
 made safe. JSON can carry NULs and lone UTF-16 surrogates; UTF-8, HDF5 strings and C strings
-cannot, so requests refuse them and anything echoed back is made safe."""
+cannot, so requests refuse them and anything echoed back is made safe. The one exception is the
+reason of an abort (`SafeReason`): an abort is never refused for its text, which is replaced
+instead, with a note saying so."""
 
 from __future__ import annotations
 
@@ -8,9 +10,10 @@ import math
 import re
 from typing import Annotated, Any
 
-from pydantic import AfterValidator
+from pydantic import AfterValidator, BeforeValidator
 
 _SURROGATE = re.compile("[\ud800-\udfff]")
+_NUL = re.compile("\x00")
 
 
 def safe_text(text: Any, max_chars: int | None = None) -> str:
@@ -49,3 +52,38 @@ def _printable(text: str) -> str:
 
 #: A request string: no NULs, no lone surrogates (refused as `invalid`, naming the field).
 Text = Annotated[str, AfterValidator(_printable)]
+
+
+def sanitised_reason(value: Any, default: str = "operator abort", max_chars: int = 500) -> str:
+    """A reason that every encoder and a run file take, whatever was sent: NULs and lone
+    surrogates become U+FFFD, text longer than ``max_chars`` is cut, a value that is not text
+    (or is blank) becomes ``default``; each replacement is noted at the end, e.g.
+    ``"stop\ufffdnow [reason sanitised: 1 NUL replaced by U+FFFD]"``."""
+    if value is None or isinstance(value, str) and not value.strip():
+        return default
+    if not isinstance(value, str):
+        kind = {bool: "boolean", int: "number", float: "number", list: "list",
+                dict: "object"}.get(type(value), type(value).__name__)
+        return f"{default} [reason sanitised: a JSON {kind} was sent, not text]"
+    notes = []
+    text, nuls = _NUL.subn("\ufffd", value)
+    if nuls:
+        notes.append(f"{nuls} NUL{'s' if nuls > 1 else ''} replaced by U+FFFD")
+    text, lone = _SURROGATE.subn("\ufffd", text)
+    if lone:
+        notes.append(f"{lone} lone surrogate{'s' if lone > 1 else ''} replaced by U+FFFD")
+    if len(text) > max_chars:
+        notes.append(f"cut from {len(text)} to {max_chars} characters")
+        text = text[:max_chars]
+    return f"{text} [reason sanitised: {'; '.join(notes)}]" if notes else text
+
+
+def _lenient_id(value: Any) -> str:
+    return sanitised_reason(value, "", 128).partition(" [reason sanitised")[0][:128] \
+        if isinstance(value, str) else ""
+
+
+#: A reason that is replaced, never refused (`sanitised_reason`): an abort must always happen.
+SafeReason = Annotated[str, BeforeValidator(sanitised_reason)]
+#: A request id that is made safe, never refused (for the requests that must always act).
+SafeRequestId = Annotated[str, BeforeValidator(_lenient_id)]

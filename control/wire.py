@@ -31,7 +31,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
-from control.text import Text, safe_json, safe_text
+from control.text import SafeReason, SafeRequestId, Text, safe_json, safe_text
 
 #: Live-data topics (the first frame of every PUB message).
 TOPIC_BLOCK = b"block"
@@ -117,8 +117,14 @@ class ResumeRequest(_Request):
 
 
 class AbortRequest(_Request):
+    """Abort the run. Never refused for what it carries (only for the state: nothing to abort):
+    a reason with NULs, lone surrogates, too long or not text is replaced (`SafeReason`, noted
+    in the reason), a bad request id is made safe and unknown fields are ignored."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True, strict=True)
     cmd: Literal["abort"]
-    reason: Text = Field("operator abort", min_length=1, max_length=500)
+    request_id: SafeRequestId = ""
+    reason: SafeReason = "operator abort"
 
 
 class PumpRequest(_Request):

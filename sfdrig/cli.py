@@ -1,13 +1,17 @@
 """The `sfdrig` command line: one sub-command per module in `sfdrig.commands`.
 
 Each command module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
-The CLI wires backends and configs; it never talks to hardware itself.
+The CLI wires backends and configs; it never talks to hardware itself. Every command ends
+without a traceback on Ctrl-C (exit 130) and on a closed pipe (`sfdrig status --json | head`:
+quietly, exit 141), handled here once.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
 from types import ModuleType
 
@@ -57,12 +61,29 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    args = build_parser(_module_of(argv)).parse_args(argv)
     try:
-        return int(args._run(args) or 0)
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+        args = build_parser(_module_of(argv)).parse_args(argv)
+        try:
+            code = int(args._run(args) or 0)
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+            code = 130
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush
+        return code
+    except BrokenPipeError:
+        # `sfdrig status --json | head`: the reader has gone; stop quietly, as `cat` would
+        _discard_stdout()
+        return 128 + signal.SIGPIPE
+
+
+def _discard_stdout() -> None:
+    """Point stdout at /dev/null, so that nothing left in its buffer fails again at exit."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # no file descriptor (tests capture stdout)
+        pass
 
 
 if __name__ == "__main__":

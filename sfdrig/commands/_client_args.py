@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 from control.client import CommandClient, Subscriber
@@ -33,7 +34,12 @@ def add_connection_arguments(parser: argparse.ArgumentParser, data: bool = False
 def _state(args: argparse.Namespace) -> dict[str, str]:
     path = Path(args.runs_dir) / STATE_FILE_NAME
     try:
-        return dict(json.loads(path.read_text()))
+        state = dict(json.loads(path.read_text()))
+        if _gone(state.get("pid")):
+            raise SystemExit(
+                f"the daemon that wrote {path} (pid {state['pid']}) is not running: start "
+                f"`sfdrig daemon --runs-dir {args.runs_dir}` (it takes the stale file over)")
+        return state
     except FileNotFoundError:
         raise SystemExit(
             f"no daemon state file {path}: is `sfdrig daemon --runs-dir {args.runs_dir}` running? "
@@ -41,6 +47,19 @@ def _state(args: argparse.Namespace) -> dict[str, str]:
         ) from None
     except (OSError, ValueError) as err:
         raise SystemExit(f"cannot read {path}: {err}") from None
+
+
+def _gone(pid: object) -> bool:
+    """Whether ``pid`` names no process on this computer (a killed daemon's state file)."""
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # another user's process: alive
+        return False
+    return False
 
 
 def keys(args: argparse.Namespace) -> ClientKeys | None:

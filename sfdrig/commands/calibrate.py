@@ -26,7 +26,7 @@ HELP = ("run the report's test plan on the simulated rig, compare with the repor
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("calibration"), metavar="DIR",
+    parser.add_argument("--out", type=Path, default=Path("out/calibration"), metavar="DIR",
                         help="writes DIR/calibrated-rig.toml and DIR/calibration.json "
                              "(default: %(default)s)")
     parser.add_argument("--rig", default="nominal", metavar="NAME|RIG.toml",

@@ -7,6 +7,9 @@ down the safe way (drives ramped to zero, run file closed valid, marked aborted 
 
 The first line on stdout is ``command=<endpoint> data=<endpoint>``; the same endpoints go to
 ``RUNS_DIR/daemon.json`` for the client commands.
+
+One daemon per runs directory and per board (`control.instance`): a second one is refused with
+the first one's pid and endpoints, before it touches the runs directory or the board.
 """
 
 from __future__ import annotations
@@ -21,9 +24,10 @@ from typing import Any
 from threadpoolctl import threadpool_limits
 
 from control.daemon import Daemon, DaemonConfig
+from control.instance import AlreadyRunning, InstanceLock, device_lock, runs_lock
 from control.security import KeyFileError, load_server_keys
 from daq.channels import ChannelMap, default_channel_map, load_channel_map
-from daq.errors import ChannelConfigError
+from daq.errors import ChannelConfigError, DaqConnectionError, DaqError
 from sfdrig.commands._client_args import DEFAULT_RUNS_DIR, STATE_FILE_NAME
 from sfdrig.commands._priority import LEVELS, PriorityError, apply_priority
 
@@ -110,8 +114,24 @@ def run(args: argparse.Namespace) -> int:
     try:
         channel_map = load_channel_map(args.channels) if args.channels else default_channel_map()
         keys = load_server_keys(args.keys) if args.keys else None
-        backend, channel_map, rig = build_backend(args, channel_map)
     except (ChannelConfigError, KeyFileError, ValueError, OSError) as err:
+        print(f"daemon: {err}", file=sys.stderr)
+        return 2
+    try:
+        locks = take_locks(args, channel_map)
+    except AlreadyRunning as err:
+        print(f"daemon: {err}: stop it first"
+              + (", or give another --runs-dir" if "runs directory" in str(err) else ""),
+              file=sys.stderr)
+        return 1
+    except OSError as err:
+        where = err.filename or args.runs_dir  # the runs directory, or the device locks' dir
+        print(f"daemon: cannot use {where} (for its lock file): {err.strerror or err}",
+              file=sys.stderr)
+        return 2
+    try:
+        backend, channel_map, rig = build_backend(args, channel_map)
+    except (ChannelConfigError, KeyFileError, DaqError, ValueError, OSError) as err:
         print(f"daemon: {err}", file=sys.stderr)
         return 2
     config = DaemonConfig(
@@ -126,14 +146,46 @@ def run(args: argparse.Namespace) -> int:
 
             hands = SimulatedHands(backend, seed=args.seed)
         daemon = Daemon(backend, channel_map, config, hands=hands)
-    except PermissionError as err:
-        print(f"daemon: {err}", file=sys.stderr)
+    except (PermissionError, DaqError, ChannelConfigError) as err:
+        # e.g. --backend nidaqmx without the NI-DAQmx driver: one line, no traceback
+        hint = (" (install NI-DAQmx, give --grpc-target HOST:PORT of an NI gRPC device server, "
+                "or use --backend sim)" if isinstance(err, DaqConnectionError)
+                and args.backend == "nidaqmx" else "")
+        print(f"daemon: {' '.join(str(err).split())}{hint}", file=sys.stderr)
+        _close_quietly(backend)
         return 2
+    for lock in locks:
+        lock.update(command=daemon.endpoints["command"], data=daemon.endpoints["data"])
     # Hand the GIL over every millisecond (default 5 ms): the acquisition thread's AO lead is
     # tens of milliseconds, and the writer, publisher and command threads must not eat it.
     sys.setswitchinterval(0.001)
     signal.signal(signal.SIGTERM, lambda s, f: daemon.stop("SIGTERM received"))
     signal.signal(signal.SIGINT, lambda s, f: daemon.stop("SIGINT (Ctrl-C) received"))
     print(f"command={daemon.endpoints['command']} data={daemon.endpoints['data']}", flush=True)
-    daemon.serve()
+    daemon.serve()  # removes daemon.json on the way out, while the locks are still held
+    for lock in locks:
+        lock.release()
     return 0
+
+
+def take_locks(args: argparse.Namespace, channel_map: ChannelMap) -> list[InstanceLock]:
+    """The runs directory's lock and, on a board, the device's (`control.instance`); held for
+    the life of the process (the kernel drops them when it ends, however it ends)."""
+    runs_dir = Path(args.runs_dir)
+    locks = [runs_lock(runs_dir).acquire()]
+    if args.backend == "nidaqmx":
+        target = args.grpc_target or channel_map.grpc_target
+        try:
+            locks.append(device_lock(channel_map.device.name, target).acquire(
+                runs_dir=str(runs_dir.resolve())))
+        except BaseException:
+            locks[0].release()
+            raise
+    return locks
+
+
+def _close_quietly(backend: Any) -> None:
+    try:
+        backend.close()
+    except Exception:  # noqa: BLE001 - already failing; the first error is the one shown
+        logging.getLogger("sfdrig.daemon").debug("closing the backend failed", exc_info=True)

@@ -46,7 +46,7 @@ LUBRICATED_SWEEP: dict[str, Any] = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("demo-out"),
+    parser.add_argument("--out", type=Path, default=Path("out/demo"),
                         help="output directory: runs/ and report/ (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="simulated rig seed")
     parser.add_argument("--rig", default="nominal", metavar="NAME|RIG.toml",

@@ -40,8 +40,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"samples    {st['samples']} at {st['sample_rate_hz']:g} S/s")
         if p:
             print("progress   " + "  ".join(f"{k}={v}" for k, v in p.items()))
-    if st.get("fault_reason"):
-        print(f"fault      {st['fault_reason']}")
+    if st.get("fault_reason") or st["state"] == "fault":
+        print(f"fault      {st.get('fault_reason') or '?'} (once its cause is cleared, reset it "
+              "with `sfdrig status --reset`)")
     last = st.get("last_run") or {}
     if last:
         print(f"last run   {last['run_id']}: {last['status']}"

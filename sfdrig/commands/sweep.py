@@ -36,18 +36,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--notes", default="", help="recorded in the run file")
     parser.add_argument("--no-follow", action="store_true",
                         help="start the sweep and return without following it")
+    parser.epilog = ("Ctrl-C while following aborts the sweep: the daemon ramps the drives to "
+                     "zero and closes the run file as aborted (the steps so far are kept); "
+                     "with --no-follow, stop it with `sfdrig abort`.")
     add_connection_arguments(parser, data=True)
+
+
+#: Fields that are alternatives: an override of one side replaces the file's other side (the
+#: frequencies as a list or as a range, a range by step or by points, the target's kind).
+ALTERNATIVES = (
+    ({"freq_hz"}, {"freq_start_hz", "freq_stop_hz", "freq_step_hz", "freq_points", "spacing"}),
+    ({"freq_step_hz"}, {"freq_points", "spacing"}),
+    ({"amplitude_m"}, {"load_n"}),
+)
 
 
 def sweep_fields(path: Path | None, assignments: list[str], who: str = "sweep",
                  required: bool = True) -> dict[str, Any]:
-    """The sweep spec dict from a TOML file plus ``KEY=VALUE`` overrides (dotted keys nest)."""
+    """The sweep spec dict from a TOML file plus ``KEY=VALUE`` overrides (dotted keys nest);
+    an override of the frequencies or of the target replaces whichever form the file used."""
     spec: dict[str, Any] = {}
     if path is not None:
         try:
             spec = tomllib.loads(path.read_text())
         except (OSError, tomllib.TOMLDecodeError) as err:
             raise SystemExit(f"{who}: cannot read {path}: {err}") from None
+    overridden = {a.partition("=")[0].strip() for a in assignments}
+    for one, other in ALTERNATIVES:
+        for mine, theirs in ((one, other), (other, one)):
+            if overridden & mine and not overridden & theirs:
+                for key in theirs:
+                    spec.pop(key, None)
     for a in assignments:
         key, sep, value = a.partition("=")
         if not sep or not key.strip():
@@ -129,8 +148,12 @@ def _fmt(v: Any) -> str:
 
 
 def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: float = 30.0,
-           total: int | None = None) -> tuple[str, str, list[dict[str, Any]]]:
+           total: int | None = None, steps: list[dict[str, Any]] | None = None,
+           ) -> tuple[str, str, list[dict[str, Any]]]:
     """Print progress and step results of ``run_id`` until it ends.
+
+    ``steps`` collects the step dicts as they come (pass the same list again to go on after an
+    interruption: the steps before it still count).
 
     Returns
     -------
@@ -138,7 +161,7 @@ def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: 
         How the run ended ("completed", "aborted", "failed") and its step dicts.
     """
     tty = out.isatty() if hasattr(out, "isatty") else False
-    steps: list[dict[str, Any]] = []
+    steps = [] if steps is None else steps
     last_progress = ""
     last_msg = time.monotonic()
     while True:
@@ -187,14 +210,15 @@ def run(args: argparse.Namespace) -> int:
                 reply = client.start_sweep(spec, args.operator, args.notes)
                 run_id = reply.data["run_id"]
                 print(f"run {run_id} started: {reply.data['path']}", flush=True)
+                steps: list[dict[str, Any]] = []  # those before a Ctrl-C count too
                 try:
-                    status, reason, steps = follow(sub, run_id,
+                    status, reason, steps = follow(sub, run_id, steps=steps,
                                                    total=reply.data.get("steps_total"))
                 except KeyboardInterrupt:
                     # The operator stopped watching a sweep they started: stop the sweep too.
                     client.abort("operator pressed Ctrl-C in `sfdrig sweep`")
                     print(f"\nrun {run_id}: abort sent (drives ramp to zero)", flush=True)
-                    status, reason, steps = follow(sub, run_id)
+                    status, reason, steps = follow(sub, run_id, steps=steps)
     except CommandRefused as err:
         print(f"sweep: {err}")
         return 1

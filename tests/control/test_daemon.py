@@ -28,10 +28,13 @@ class ScriptSpec(BaseModel):
     block_size: int = 500
     hold_after: int | None = None  # wait at this block until aborted
     lubricated: bool = False
+    fail_at: int | None = None  # the DAQ fails at this block (a fault)
+    slow_abort: bool = False  # an abort takes until the test releases it (state aborting)
 
 
 class ScriptEngine:
     gates: dict[str, threading.Event] = {}
+    abort_done = threading.Event()
 
     def __init__(self, backend, spec, limits=None, listener=None, pump=None):
         self.backend, self.spec, self.listener, self.pump = backend, spec, listener, pump
@@ -40,6 +43,7 @@ class ScriptEngine:
         self._running.set()
         self.reason = ""
         self.held = threading.Event()
+        self.aborting = threading.Event()
         ScriptEngine.last = self
         self.progress = {"block": 0, "blocks": spec.blocks}
 
@@ -54,7 +58,12 @@ class ScriptEngine:
                     self.held.set()
                     self._aborted.wait()
                 self._running.wait()
+                if self.spec.fail_at == i:
+                    raise RuntimeError("the board stopped answering")
                 if self._aborted.is_set():
+                    if self.spec.slow_abort:
+                        self.aborting.set()
+                        assert ScriptEngine.abort_done.wait(10)
                     return SimpleNamespace(status="aborted", reason=self.reason)
                 ao = np.full((2, n), 0.01 * (i % 7))
                 b.write_ao(ao)
@@ -79,21 +88,13 @@ class ScriptEngine:
         self._running.set()
 
 
-class FakePump:
-    def __init__(self, backend):
-        self.is_on = False
-
-    def set(self, on):
-        self.is_on = on
-
-
 @pytest.fixture
 def daemon(tmp_path: Path):
     backend = SimulatedBackend(seed=3)
     cfg = DaemonConfig(runs_dir=tmp_path / "runs", sndhwm=0, lossless_publish=True,
                        heartbeat_s=0.05)
     d = Daemon(backend, default_channel_map(), cfg, engine_factory=ScriptEngine,
-               pump_factory=FakePump, spec_parser=ScriptSpec.model_validate)
+               spec_parser=ScriptSpec.model_validate)  # the real PumpRelay on the sim rig
     t = threading.Thread(target=d.serve, name="test-daemon-serve")
     t.start()
     yield d
@@ -203,3 +204,113 @@ def test_malformed_frames_get_error_replies(daemon: Daemon):
         reply = json.loads(c.send_raw([b"", b"{}", b"{}"]))
         assert reply["error"] == "expected one JSON request frame, got 2 frames"
         assert c.status()["state"] == "idle"
+
+
+def test_the_pump_stays_as_the_run_started_it_while_running_and_paused(daemon: Daemon):
+    """Issue 21: pump on was accepted during a dry sweep (and while it was paused), so a run
+    recorded dry had oil-wet dwells; pump off during a lubricated run must be refused too."""
+    ep = daemon.endpoints
+    with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        assert c.pump(False).data["pump_on"] is False
+        run_id = c.start_sweep({"blocks": 10, "hold_after": 3}).data["run_id"]
+        assert ScriptEngine.last.held.wait(10)
+        for state in ("running", "paused"):
+            with pytest.raises(CommandRefused) as refused:
+                c.pump(True)
+            assert f"cannot be switched on during the dry sweep {run_id}" in str(refused.value)
+            assert "recorded as dry" in str(refused.value)
+            assert c.status()["pump_on"] is False and c.status()["state"] == state
+            assert not daemon.backend.rig.pump_on
+            if state == "running":
+                assert c.pause().state is DaemonState.PAUSED
+        assert c.pump(False).data["pump_on"] is False  # no change: allowed
+        c.abort("test over")
+        wait_state(c, sub, "idle")
+        assert c.pump(True).data["pump_on"] is True  # the run is over
+
+        run_id = c.start_sweep({"blocks": 10, "hold_after": 3, "lubricated": True}
+                               ).data["run_id"]
+        assert ScriptEngine.last.held.wait(10)
+        for state in ("running", "paused"):
+            with pytest.raises(CommandRefused) as refused:
+                c.pump(False)
+            message = str(refused.value)
+            assert "cannot be switched off while the shakers run" in message
+            assert f"the lubricated sweep {run_id}" in message and "drained" in message
+            assert c.status()["pump_on"] is True and daemon.backend.rig.pump_on
+            if state == "running":
+                assert c.pause().state is DaemonState.PAUSED
+        c.abort("test over")
+        wait_state(c, sub, "idle")
+        assert c.pump(False).data["pump_on"] is False
+
+
+def test_refusals_name_the_requests_allowed_now_and_how_to_reset_a_fault(daemon: Daemon):
+    """Issue 21: refusals listed the machine's events ("allowed: fault, finished"), never the
+    requests, and never said how a fault is reset; reset must lead to a sweep that runs."""
+    ep = daemon.endpoints
+    with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        with pytest.raises(CommandRefused) as refused:
+            c.pause()
+        assert refused.value.reply.error == ("pause: 'pause' is not allowed while idle (allowed "
+                                             "now: start, start_test, pump, status, list_runs)")
+        c.start_sweep({"blocks": 10, "hold_after": 3})
+        assert ScriptEngine.last.held.wait(10)
+        with pytest.raises(CommandRefused) as refused:
+            c.start_sweep({"blocks": 1})
+        assert refused.value.reply.error == ("start: 'start' is not allowed while running "
+                                             "(allowed now: pause, abort, pump, status, "
+                                             "list_runs)")
+        c.abort("next")
+        wait_state(c, sub, "idle")
+
+        run_id = c.start_sweep({"blocks": 10, "fail_at": 2}).data["run_id"]
+        wait_state(c, sub, "fault")
+        status = c.status()
+        assert status["fault_reason"] == "RuntimeError: the board stopped answering"
+        assert status["last_run"]["run_id"] == run_id
+        for start in (lambda: c.start_sweep({"blocks": 4}),
+                      lambda: c.request("start_test", test="impact")):
+            with pytest.raises(CommandRefused) as refused:
+                start()
+            cmd = refused.value.reply.cmd
+            assert refused.value.reply.error == (
+                f"{cmd}: '{cmd}' is not allowed while fault (allowed now: reset, pump, status, "
+                "list_runs); reset the fault with `sfdrig status --reset` (or Reset fault on "
+                "the web page) once its cause is cleared (the fault: RuntimeError: the board "
+                "stopped answering)")
+        assert c.reset().state is DaemonState.IDLE
+        assert c.status()["fault_reason"] == ""
+        reply = c.start_sweep({"blocks": 8, "block_size": 400})
+        while (msg := sub.recv(timeout_s=10)) is not None:  # not a heartbeat from before it
+            if msg.topic == "event" and msg.header["message"].startswith(
+                    f"run {reply.data['run_id']} "):
+                break
+        assert msg is not None, "the run after the reset did not end"
+        last = c.status()["last_run"]
+        assert (last["run_id"], last["status"]) == (reply.data["run_id"], "completed")
+    with open_run(last["path"]) as run:
+        assert run.status == "completed" and run.n_samples == 8 * 400
+
+
+def test_an_abort_while_aborting_is_not_refused(daemon: Daemon):
+    """Pressed twice: the second abort is answered ok (it is under way), not "not allowed"."""
+    ScriptEngine.abort_done.clear()
+    ep = daemon.endpoints
+    with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        run_id = c.start_sweep({"blocks": 10, "hold_after": 3, "slow_abort": True}
+                               ).data["run_id"]
+        assert ScriptEngine.last.held.wait(10)
+        assert c.abort("first").state is DaemonState.ABORTING
+        assert ScriptEngine.last.aborting.wait(10)
+        again = c.abort("second")
+        assert (again.ok, again.state, again.data) == (True, DaemonState.ABORTING,
+                                                       {"already_aborting": True})
+        ScriptEngine.abort_done.set()
+        while (msg := sub.recv(timeout_s=10)) is not None:
+            if msg.topic == "event" and msg.header["message"].startswith(f"run {run_id} "):
+                break
+        assert msg is not None and msg.header["message"] == f"run {run_id} aborted: first"

@@ -73,6 +73,24 @@ def test_pump_cannot_be_switched_off_while_the_shakers_run():
     assert not pump.is_on
 
 
+def test_a_dry_run_refuses_pump_on_and_a_lubricated_one_pump_off():
+    be = make_backend()
+    pump = PumpRelay(be)
+    with pump.shakers_running("the dry sweep R1"):
+        with pytest.raises(InterlockError, match="cannot be switched on during the dry sweep "
+                                                 "R1: its dwells are recorded as dry"):
+            pump.set(True)
+        pump.set(False)  # what it is already: allowed
+        assert not pump.is_on and not be.rig.pump_on
+    pump.set(True)
+    refused = pytest.raises(InterlockError, match=r"switched off while the shakers run \(a "
+                                                  r"lubricated run\): a squeeze film")
+    with pump.shakers_running(), refused:  # unnamed: named by the pump's state at the start
+        pump.set(False)
+    pump.set(False)
+    assert not pump.shakers_active and not be.rig.pump_on
+
+
 def test_pressure_lost_while_running_trips():
     """A pump failure mid-run (the relay drops out behind the software's back)."""
     be = make_backend(seed=5)

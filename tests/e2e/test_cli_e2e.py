@@ -68,6 +68,18 @@ def test_sweep_status_pump_watch_from_the_command_line(daemon_factory, tmp_path)
     assert "2 steps" in out.stdout and "fx" in out.stdout and "um" in out.stdout
 
 
+def test_a_client_command_into_a_closed_pipe_ends_quietly(daemon_factory):
+    """Issue 21: `sfdrig status --json | head` ended in a BrokenPipeError traceback."""
+    from tests.sfdrig.test_cli import run_into_a_closed_pipe
+
+    d = daemon_factory()
+    runs = str(d.runs_dir)
+    for args in (["status", "--json", "--runs-dir", runs], ["status", "--runs-dir", runs],
+                 ["runs", "--dir", runs]):
+        out = run_into_a_closed_pipe(*args)
+        assert (out.returncode, out.stderr) == (141, ""), (args, out.stderr)
+
+
 def test_proxy_relays_every_block_in_sequence(daemon_factory):
     d = daemon_factory("--sndhwm", "0")
     proxy = subprocess.Popen(
@@ -106,3 +118,48 @@ def test_proxy_relays_every_block_in_sequence(daemon_factory):
         proxy.send_signal(signal.SIGTERM)
         assert proxy.wait(30) == 0
         proxy.communicate(timeout=10)
+
+
+def test_ctrl_c_on_sweep_aborts_and_counts_the_steps_the_file_holds(daemon_factory, tmp_path):
+    """Issue 21: after Ctrl-C the last line said "(0 steps)" when the file held 2; and
+    `sfdrig pump on` during a dry sweep was accepted (the run stays recorded dry)."""
+    d = daemon_factory(fast=False)  # paced: the sweep is still running when Ctrl-C comes
+    conn = ["--runs-dir", str(d.runs_dir)]
+    sweep = subprocess.Popen(
+        [sys.executable, "-m", "sfdrig", "sweep", "--set", "motion='x'", "--set",
+         "load_n=[40.0]", "--set", "freq_hz=[70.0, 80.0, 90.0, 100.0, 110.0, 120.0]",
+         "--set", "settle_cycles=20", "--set", "record_cycles=100",
+         # the paced e2e tests' AO lead (tests/e2e/test_stream_e2e.py LONG_X): a loaded machine
+         "--set", "control.block_s=0.0125", "--set", "control.ahead_blocks=3", *conn],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    lines: list[str] = []
+    sel = selectors.DefaultSelector()
+    sel.register(sweep.stdout, selectors.EVENT_READ)  # type: ignore[arg-type]
+    try:
+        while sum(ln.startswith("step ") for ln in lines) < 2:
+            assert sel.select(120), f"no step line within 120 s: {lines}"
+            line = sweep.stdout.readline()  # type: ignore[union-attr]
+            assert line, f"sweep ended early: {lines} {sweep.stderr.read()}"  # type: ignore
+            lines.append(line.rstrip("\n"))
+    finally:
+        sel.close()
+    refused = sfdrig("pump", "on", *conn)
+    assert refused.returncode == 1 and "Traceback" not in refused.stderr
+    assert "cannot be switched on during the dry sweep" in refused.stdout, refused.stdout
+    assert "recorded as dry" in refused.stdout
+    sweep.send_signal(signal.SIGINT)
+    out, err = sweep.communicate(timeout=120)
+    lines += out.splitlines()
+    assert sweep.returncode == 1 and "Traceback" not in err, err
+    run_id = lines[0].split()[1]
+    assert any(ln.endswith(": abort sent (drives ramp to zero)") for ln in lines), lines
+    with open_run(d.runs_dir / f"{run_id}.h5") as run:
+        assert run.status == "aborted" and not run.attrs["lubricated"]
+        assert run.attrs["status_reason"] == "operator pressed Ctrl-C in `sfdrig sweep`"
+        held = len(run.steps)
+    assert held >= 2
+    assert lines[-1] == (f"run {run_id} aborted: operator pressed Ctrl-C in `sfdrig sweep` "
+                         f"({held} steps)")
+    status = sfdrig("status", *conn)
+    assert "pump       off" in status.stdout and "state      idle" in status.stdout

@@ -34,3 +34,46 @@ def test_the_web_command_does_not_load_the_simulator() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == "[]"
+
+
+def run_into_a_closed_pipe(*args: str, **kwargs) -> subprocess.CompletedProcess[str]:
+    """``sfdrig ARGS | head -0``: stdout is a pipe whose reader has already gone."""
+    import os
+
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        return subprocess.run([sys.executable, "-m", "sfdrig", *args], stdout=write,
+                              stderr=subprocess.PIPE, text=True, timeout=120, **kwargs)
+    finally:
+        os.close(write)
+
+
+@pytest.mark.parametrize("args", [["--help"], ["identify", "--help"]])
+def test_help_into_a_closed_pipe_ends_quietly(args: list[str]) -> None:
+    out = run_into_a_closed_pipe(*args)  # argparse swallows it; the exit flush must too
+    assert out.returncode in (0, 141) and out.stderr == ""
+
+
+def test_default_outputs_go_where_git_ignores_them() -> None:
+    """Issue 21: `sfdrig demo` and `sfdrig calibrate` wrote into the repository root, not
+    ignored. Every command's default --out (and run directory) must be ignored by git."""
+    import argparse
+    import shutil
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    if shutil.which("git") is None or not (root / ".git").exists():
+        pytest.skip("not a git checkout")
+    defaults = {}
+    for name, sub in build_parser()._subparsers._group_actions[0].choices.items():  # type: ignore[union-attr]
+        assert isinstance(sub, argparse.ArgumentParser)
+        for action in sub._actions:
+            if action.dest in ("out", "runs_dir") and isinstance(action.default, Path):
+                defaults[f"{name} --{action.dest}"] = action.default
+    assert defaults["demo --out"] == Path("out/demo")
+    assert defaults["calibrate --out"] == Path("out/calibration")
+    for what, path in defaults.items():
+        probe = path / "probe.json"  # a file the command would write there
+        ignored = subprocess.run(["git", "check-ignore", "-q", str(probe)], cwd=root)
+        assert ignored.returncode == 0, f"{what}: {path} is not ignored by .gitignore"
