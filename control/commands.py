@@ -260,9 +260,15 @@ class CommandHandler:
     def _refusal(self, spec: Any) -> tuple[ErrorKind, str] | None:
         """Why a valid sweep must not start now (before a run file exists), or None."""
         d = self.d
-        if getattr(spec, "lubricated", False) and not d.pump.is_on:
+        lubricated = bool(getattr(spec, "lubricated", False))
+        if lubricated and not d.pump.is_on:
             return ErrorKind.FORBIDDEN, "start: a lubricated sweep needs the pump on " \
                 "(send pump on first)"
+        if not lubricated and d.pump.is_on:
+            # the run file would call oil-wet dwells dry, and identify would treat them so
+            return ErrorKind.FORBIDDEN, "start: a dry sweep needs the pump off (its dwells " \
+                "are recorded as dry; oil in the film would make them wet): send pump off " \
+                "first, or set lubricated = true"
         from control.sweep import SweepSpec, check_sweep
 
         if isinstance(spec, SweepSpec):

@@ -152,7 +152,10 @@ def test_pause_resume_abort_and_the_pump_interlock_on_the_real_engine(daemon_fac
             Subscriber(d.data, topics=["block", "event"], rcvhwm=0) as sub:
         sub.wait_connected()
         c.pump(True)
-        reply = c.start_sweep(LONG_X)
+        dry = c.request("start", check=False, spec=LONG_X)
+        assert (dry.ok, dry.error_kind) == (False, "forbidden")
+        assert "a dry sweep needs the pump off" in dry.error
+        reply = c.start_sweep({**LONG_X, "lubricated": True})
         run_id = reply.data["run_id"]
 
         def wait_drive(driven: bool) -> None:
