@@ -83,6 +83,26 @@ class ControlSettings(BaseModel):
                     "at a new frequency (from 80 % of the predicted drive) or a correction "
                     "raises the drive, watching the response block by block",
     )
+    nominal_mass_kg: float = Field(
+        9.7, gt=0, le=1e4,
+        description="moving mass of the 1-DOF plant estimate that sets the first drive at a new "
+                    "frequency (the housing; the film's added mass below when lubricated) [kg]",
+    )
+    lubricated_added_mass_kg: float = Field(
+        8.2, ge=0, le=1e4,
+        description="the film's added mass in the plant estimate of a lubricated sweep "
+                    "(plenum oil M_f plus eq. 15's D) [kg]",
+    )
+    nominal_damping_ns_per_m: float = Field(
+        370.0, gt=0, le=1e7,
+        description="damping of the plant estimate: the lightest the rig has (dry, no film), so "
+                    "the estimate overstates the orbit near the resonance [N.s/m]",
+    )
+    plant_uncertainty: float = Field(
+        0.3, ge=0, lt=1,
+        description="the plant estimate's stiffness and mass may each be off by this fraction: "
+                    "its compliance is the largest over that band (the resonance widened) [-]",
+    )
     algorithm: Literal["newton_broyden", "proportional"] = Field(
         "newton_broyden",
         description="2x2 Newton-Broyden (default) or a plain per-axis proportional level loop",
