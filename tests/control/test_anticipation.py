@@ -129,7 +129,8 @@ def test_a_load_whose_orbit_would_pass_the_margin_stops_with_that_reason():
     """The lead's case: 40 N on X below the dry resonance moves the housing 56-64 um (the trip is
     at 63.5 um); 25 Hz used to 'converge' at a 63.5 um 1X orbit. Each step now stops below the
     soft limit with the displacement limit as its reason, its drive held where the orbit is
-    under the 80 % margin (measured: peak 51.9 um; held 1X 47, 42, 39 um)."""
+    under the 80 % margin (measured: peak 51.9 um; held 1X 47, 42, 39 um; since issue 21's
+    approach at each step's own frequency peak 51.5 um, held 1X 47, 46, 40 um)."""
     spec = SweepSpec(motion="x", load_n=[40.0], freq_hz=[20.0, 25.0, 30.0],
                      on_not_converged="continue")
     out, rec = _sweep(spec)
@@ -159,7 +160,10 @@ def test_a_load_orbit_moves_to_a_new_frequency_below_the_margin():
     """bench_control's dry circular 40 N sweep with the frame mode tripped on its way from 20 to
     30 Hz (the frequency moved at 80 % of the 40 N drive: 32 N gave 63.6 um at 30 Hz). It now
     moves at the load that gives half the margin at the compliance measured at 20 Hz and is
-    raised from there (measured: 30 Hz held at 22.6 N, 55.3 um, no trip)."""
+    raised from there (measured: 30 Hz held at 22.6 N, 55.3 um, no trip). Since issue 21 the
+    frequency moves at zero drive and 30 Hz starts from the plant estimate there (6 N); its
+    break-away orbit kept growing at a held drive (52 -> 57.4 um, the soft limit) until a raise
+    that passes the margin backed off at once (measured: peak 53.6 um, 30 Hz held at ~20 N)."""
     spec = SweepSpec(motion="circular_forward", load_n=[40.0], freq_hz=[20.0, 30.0],
                      on_not_converged="continue")
     out, rec = _sweep(spec, frame=True)
