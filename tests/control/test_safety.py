@@ -12,7 +12,7 @@ from control.sweep import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
 from daq.errors import DaqTimeoutError
 from simulated_hw.params import RigParams
-from tests.control.conftest import GainJump, GainKnob, WriteLog, make_backend
+from tests.control.conftest import TRIP_AT_S, GainJump, GainKnob, WriteLog, make_backend
 
 FS = 10_000
 
@@ -227,14 +227,8 @@ def test_contact_after_a_trip_is_recorded_as_a_fault():
 
 
 LIMIT_M = 63.5e-6
-#: dry X 30 um at 40 Hz (near the resonance), amplifier gain x3 from `TRIP_AT_S`, in the dwell
-#: (its recording starts at 2.4 s: the first drive at 40 Hz is the plant estimate's, raised
-#: from there; before issue 21 it started at 1.2 s and the knob turned at 1 s, as in
-#: benchmarks/bench_trip.py). Where in its block the orbit passes the limit decides the peak:
-#: over one 40 Hz period of knob times (2.500-2.524 s) the 0.1 s rise peaked at 1.03-1.52x;
-#: 2.503 s gives 1.03x, as 1 s did on the old timeline.
+#: dry X 30 um at 40 Hz (near the resonance), amplifier gain x3 from `TRIP_AT_S` (conftest)
 TRIP_SPEC = SweepSpec(motion="x", amplitude_m=[30e-6], freq_hz=[40.0])
-TRIP_AT_S = 2.503
 
 
 def test_a_trip_after_a_gain_rise_over_0_1_s_stops_within_10_percent_of_the_limit():
