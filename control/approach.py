@@ -190,13 +190,15 @@ class Approach:
             prior = np.zeros(2, dtype=np.complex128)
             prior[a] = np.linalg.solve(self._prior_jacobian(plan)[np.ix_(a, a)], plan.shape[a])
             low = min(low, START_FRACTION * float(np.max(np.abs(prior))))
-        # and at no more than the load that the plant estimate at this very frequency (1-DOF,
-        # lightest damping, widened resonance; or the compliance measured here, if larger) says
-        # gives `START_MARGIN` of the displacement margin: what a drive does here is known
-        # only once it is measured here
-        start_n = (START_MARGIN * self._response_cap("displacement")
-                   / self._plant_compliance(plan.freq_hz))
-        low = min(low, start_n / float(np.max(self.gain_n_per_v)))
+        if not same_freq:
+            # and at no more than the load that the plant estimate at this very frequency
+            # (1-DOF, lightest damping, widened resonance; or the compliance measured here, if
+            # larger) says gives `START_MARGIN` of the displacement margin: what a drive does
+            # here is known only once it is measured here (at the same frequency it is: the
+            # raise goes on from the present drive)
+            start_n = (START_MARGIN * self._response_cap("displacement")
+                       / self._plant_compliance(plan.freq_hz))
+            low = min(low, start_n / float(np.max(self.gain_n_per_v)))
         now = float(np.max(np.abs(synth.phasors)))
         if now > low:
             self.stream.advance_to(self._ramp(synth.phasors * (low / now), None))

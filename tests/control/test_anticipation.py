@@ -298,6 +298,16 @@ def test_the_reported_case_400_n_at_150_hz(watched_frequency):
     assert rec.peak_m < 0.85 * LIMIT_M
 
 
+def test_several_loads_at_one_frequency_then_across_the_resonance(watched_frequency):
+    """Frequency-major: 100, 250, 400 N at 150 Hz (the drive raised from the last step's, the
+    frequency unchanged), then at 80 Hz (measured dry: 150 Hz all converge, 80 Hz held by the
+    displacement limit at 50.8-50.9 um: 100 N there is ~60 um; peak 52.0 um)."""
+    spec = SweepSpec(motion="x", load_n=[100.0, 250.0, 400.0], freq_hz=[150.0, 80.0],
+                     order="frequency_major", on_not_converged="continue")
+    out, _ = _never_through_the_resonance(spec, watched_frequency)
+    assert [s.converged for s in out.steps if s.plan.freq_hz == 150.0] == [True, True, True]
+
+
 def test_a_displacement_target_across_the_resonance_both_ways(watched_frequency):
     """30 um on X through the dry resonance, up and down (45 and 60 Hz need little force: the
     plant estimate starts them a few newtons from rest); all converge (measured: 4 of 4)."""
