@@ -1,8 +1,9 @@
 """How a dwell approaches its drive without learning by tripping (issue 11's anticipation).
 
 The margins every drive update keeps from the trip levels, and the moves that get there: the
-start of a step (a guess predicted from the steps already run, held inside the margins; at a new
-frequency the frequency moves at a fraction of it and the drive is then raised), the watched raise
+start of a step (a guess predicted from the steps already run, held inside the margins; a new
+frequency is set at zero drive, never glided to under one, and the first drive there is what a
+plant estimate at that frequency allows, raised from there), the watched raise
 (block by block, at most a given growth per latency, stopped by the orbit, the margins or the soft
 limit) and the break-away of a stuck housing. `Approach` is the base of `control.dwell.StepRunner`,
 which provides the attributes declared below and runs the converge-settle-record loop.
@@ -49,10 +50,10 @@ START_MARGIN = 0.5
 #: Before a new frequency the drive goes to zero and waits (at most `QUIET_MAX_S`) until the
 #: orbit has rung down under this fraction of the displacement limit.
 QUIET_FRACTION = 0.05
+QUIET_MAX_S = 0.5
 #: A watched raise whose orbit passes the displacement margin backs the drive off to this
 #: fraction of the margin, scaled from the orbit measured.
 BACK_OFF = 0.9
-QUIET_MAX_S = 0.5
 
 
 class Approach:

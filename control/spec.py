@@ -64,7 +64,8 @@ class ControlSettings(BaseModel):
     )
     initial_stiffness_n_per_m: float = Field(
         1.0e6, ge=1.0e3, le=1.0e10,
-        description="first guess of |force / displacement|, first displacement step only [N/m]",
+        description="first guess of |force / displacement| (first displacement step), and the "
+                    "stiffness of the plant estimate at a new frequency [N/m]",
     )
     aim_fraction: float = Field(
         0.5, gt=0, le=1,
