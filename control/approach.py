@@ -240,7 +240,8 @@ class Approach:
         """The largest orbit per newton of load [m/N] the rig may have at ``freq_hz``: a 1-DOF
         mass-spring-damper from the nominal parameters (`ControlSettings`), its stiffness and
         mass each anywhere within ``plant_uncertainty`` (the film's added mass too when
-        lubricated), with the lightest damping; or the compliance measured within 10 % of this
+        lubricated), with the lightest damping (dry; lubricated, half the film's at the centre
+        added); or the compliance measured within 10 % of this
         frequency in this run, if that is larger."""
         cfg = self.cfg
         u = cfg.plant_uncertainty
@@ -250,7 +251,9 @@ class Approach:
         k = cfg.initial_stiffness_n_per_m
         lo, hi = k * (1 - u) - m_hi * w2, k * (1 + u) - m * (1 - u) * w2
         dyn = 0.0 if lo <= 0.0 <= hi else min(abs(lo), abs(hi))
-        model = 1.0 / float(np.hypot(dyn, cfg.nominal_damping_ns_per_m * np.sqrt(w2)))
+        c = cfg.nominal_damping_ns_per_m + (cfg.lubricated_damping_ns_per_m
+                                            if self.spec.lubricated else 0.0)
+        model = 1.0 / float(np.hypot(dyn, c * np.sqrt(w2)))
         measured = [c for f, c in self._compliance.items() if abs(f - freq_hz) <= 0.1 * freq_hz]
         return max([model, *measured])
 

@@ -99,6 +99,12 @@ class ControlSettings(BaseModel):
         description="damping of the plant estimate: the lightest the rig has (dry, no film), so "
                     "the estimate overstates the orbit near the resonance [N.s/m]",
     )
+    lubricated_damping_ns_per_m: float = Field(
+        2500.0, ge=0, le=1e7,
+        description="the film's damping counted in the plant estimate of a lubricated sweep: "
+                    "half eq. 16's 5,060 N.s/m at the centre (a film not yet full, air "
+                    "entrained) [N.s/m]",
+    )
     plant_uncertainty: float = Field(
         0.3, ge=0, lt=1,
         description="the plant estimate's stiffness and mass may each be off by this fraction: "
