@@ -173,9 +173,12 @@ class Approach:
             # growing amplitude tripped 400 N at 150 Hz at 87-126 um. The drive goes to zero,
             # the orbit rings down, the frequency is set, and the step is approached at it.
             self._new_frequency(plan.freq_hz)
+        # a drive on at this very frequency (not after a new one, nor after a pause): its orbit
+        # is measured, so the step may go on from it
+        here = same_freq and float(np.max(np.abs(synth.phasors))) > 0
         lowering = float(np.linalg.norm(rows_guess)) <= float(np.linalg.norm(synth.phasors))
-        if (cfg.algorithm == "proportional" or (same_freq and plan.target_kind == "displacement")
-                or (same_freq and lowering)):
+        if (cfg.algorithm == "proportional" or (here and plan.target_kind == "displacement")
+                or (here and lowering)):
             return ctl, self._ramp(rows_guess, None)
         # the drive predicted from other frequencies is a guess: start at `START_FRACTION` of
         # it, then raise the drive watching every block; stop near the target. A load target
@@ -191,12 +194,12 @@ class Approach:
             prior = np.zeros(2, dtype=np.complex128)
             prior[a] = np.linalg.solve(self._prior_jacobian(plan)[np.ix_(a, a)], plan.shape[a])
             low = min(low, START_FRACTION * float(np.max(np.abs(prior))))
-        if not same_freq:
+        if not here:
             # and at no more than the load that the plant estimate at this very frequency
             # (1-DOF, lightest damping, widened resonance; or the compliance measured here, if
             # larger) says gives `START_MARGIN` of the displacement margin: what a drive does
-            # here is known only once it is measured here (at the same frequency it is: the
-            # raise goes on from the present drive)
+            # here is known only once it is measured here (with a drive on here it is: the
+            # raise goes on from it)
             start_n = (START_MARGIN * self._response_cap("displacement")
                        / self._plant_compliance(plan.freq_hz))
             low = min(low, start_n / float(np.max(self.gain_n_per_v)))
