@@ -111,6 +111,10 @@ def end_line(run_id: str, status: str, reason: str, steps: int,
     frequency, the peak, and what to do."""
     line = f"run {run_id} {status}" + (f": {reason}" if reason else "") + f" ({steps} steps)"
     trip = (summary or {}).get("tripped_at")
+    if "-200290" in reason:  # not a trip: the computer did not keep the AO fed
+        return (line + ". What to do: the AO stream ran dry (the computer fell behind its 30 ms "
+                "lead; the drives ramped to zero): ease the machine's load or start the daemon "
+                "with --priority high, then run again.")
     if not trip or summary is None:
         return line
     at = _at(trip)

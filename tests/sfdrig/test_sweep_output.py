@@ -70,3 +70,10 @@ def test_the_summary_comes_from_the_daemons_last_run_of_this_run_only():
     print(peak_line(summary), file=buf)
     assert buf.getvalue() == ("peak orbit 52.0 um of the 63.5 um limit, peak load 400.0 N of "
                               "448 N; no journal-housing contact\n")
+
+
+def test_an_underflow_says_what_to_do():
+    last = end_line("R3", "failed", "DaqUnderflowError: AO generation ran past the samples "
+                    "written (DAQmx code -200290)", 0, {"tripped_at": None})
+    assert last.startswith("run R3 failed: DaqUnderflowError")
+    assert "What to do: the AO stream ran dry" in last and "--priority high" in last
