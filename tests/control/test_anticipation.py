@@ -274,7 +274,7 @@ def test_load_targets_up_to_the_rating_never_glide_through_the_resonance(
     """Issue 21: 400 N on X at 150 Hz started at 0 Hz and glided up through the resonance at a
     growing drive: it tripped every time at 87-126 um (once at the journal). Before this change
     this matrix (X, 100-440 N, 20/80/30/150 Hz, seed 0) tripped in 7 of 8 sweeps (peaks
-    88.7-126.1 um). Measured now: no trip, peaks 51.2-52.1 um; 150 Hz converges up to 400 N dry
+    88.7-126.1 um). Measured now: no trip, peaks 51.1-52.1 um; 150 Hz converges up to 400 N dry
     (1X 11.5 um at 100 N, 50.5 um at 400 N) and 440 N is held by the displacement limit (dry)
     or the load limit (lubricated); 20 and 30 Hz (50-150 um needed) and 80 Hz above 100-250 N
     are held by the displacement limit at 39-51 um."""
