@@ -1,8 +1,9 @@
 """How a dwell approaches its drive without learning by tripping (issue 11's anticipation).
 
 The margins every drive update keeps from the trip levels, and the moves that get there: the
-start of a step (a guess predicted from the steps already run, held inside the margins; at a new
-frequency the frequency moves at a fraction of it and the drive is then raised), the watched raise
+start of a step (a guess predicted from the steps already run, held inside the margins; a new
+frequency is set at zero drive, never glided to under one, and the first drive there is what a
+plant estimate at that frequency allows, raised from there), the watched raise
 (block by block, at most a given growth per latency, stopped by the orbit, the margins or the soft
 limit) and the break-away of a stuck housing. `Approach` is the base of `control.dwell.StepRunner`,
 which provides the attributes declared below and runs the converge-settle-record loop.
@@ -43,6 +44,16 @@ GUARD_FRACTION = 0.9
 LOAD_GUARD_FRACTION = 0.95
 #: A correction that raises the drive stops where the orbit passes this fraction of the target.
 RAISE_STOP = 1.2
+#: The first drive at a new frequency aims at no more than this fraction of the displacement
+#: margin by the plant estimate there (`Approach._plant_compliance`); watched raises go on.
+START_MARGIN = 0.5
+#: Before a new frequency the drive goes to zero and waits (at most `QUIET_MAX_S`) until the
+#: orbit has rung down under this fraction of the displacement limit.
+QUIET_FRACTION = 0.05
+QUIET_MAX_S = 0.5
+#: A watched raise whose orbit passes the displacement margin backs the drive off to this
+#: fraction of the margin, scaled from the orbit measured.
+BACK_OFF = 0.9
 
 
 class Approach:
@@ -59,9 +70,13 @@ class Approach:
     ao_row: list[int]
     gain_n_per_v: np.ndarray
     limited_by: str
+    #: the drive a watched raise backed off to when it passed the displacement margin [V]
+    ceiling_v: float
     _last_drive: np.ndarray | None
     _last_jacobian: np.ndarray | None
-    _orbit_per_n: float
+    _compliance: dict[float, float]
+    _guard_reason: str
+    _left_hz: float
 
     def _prior_jacobian(self, plan: StepPlan) -> np.ndarray:
         g = self.gain_n_per_v
@@ -152,18 +167,26 @@ class Approach:
         if peak > self.limits.max_drive_v:
             rows_guess *= self.limits.max_drive_v / peak
         same_freq = abs(plan.freq_hz - synth.freq_hz) <= 1e-9 * plan.freq_hz
+        if not same_freq:
+            # issue 21: the frequency never glides under a drive (from 0 Hz at the start of a
+            # run, or from the last step's frequency): a glide through the ~45 Hz resonance at a
+            # growing amplitude tripped 400 N at 150 Hz at 87-126 um. The drive goes to zero,
+            # the orbit rings down, the frequency is set, and the step is approached at it.
+            self._new_frequency(plan.freq_hz)
+        # a drive on at this very frequency (not after a new one, nor after a pause): its orbit
+        # is measured, so the step may go on from it
+        here = same_freq and float(np.max(np.abs(synth.phasors))) > 0
         lowering = float(np.linalg.norm(rows_guess)) <= float(np.linalg.norm(synth.phasors))
-        if (cfg.algorithm == "proportional" or (same_freq and plan.target_kind == "displacement")
-                or (same_freq and lowering)):
-            return ctl, self._ramp(rows_guess, plan.freq_hz)
-        # a new frequency: the drive predicted from other frequencies is a guess, and the path
-        # there may cross a resonance. Move the frequency at no more than `START_FRACTION` of
-        # the guess, then raise the drive watching every block; stop near the target. A load
-        # target is raised the same way: nothing predicts its orbit before it is measured, and
-        # the raise stops at the displacement margin (the step then fails with that reason).
+        if (cfg.algorithm == "proportional" or (here and plan.target_kind == "displacement")
+                or (here and lowering)):
+            return ctl, self._ramp(rows_guess, None)
+        # the drive predicted from other frequencies is a guess: start at `START_FRACTION` of
+        # it, then raise the drive watching every block; stop near the target. A load target
+        # is raised the same way (the raise stops at the displacement margin and the step then
+        # fails with that reason).
         low = ((START_FRACTION_KNOWN if known else START_FRACTION)
                * float(np.max(np.abs(rows_guess))))
-        if plan.freq_hz < synth.freq_hz and not known:
+        if not same_freq and plan.freq_hz < self._left_hz and not known:
             # downwards, towards the stiffness line: a drive predicted from above (where mass
             # dominates) can be many times too much; start from the nominal stiffness instead
             # (not needed where a step at this very frequency converged: it predicts from here)
@@ -171,25 +194,76 @@ class Approach:
             prior = np.zeros(2, dtype=np.complex128)
             prior[a] = np.linalg.solve(self._prior_jacobian(plan)[np.ix_(a, a)], plan.shape[a])
             low = min(low, START_FRACTION * float(np.max(np.abs(prior))))
-        if plan.target_kind == "load" and self._orbit_per_n > 0:
-            # the orbit a load makes at the new frequency is unknown (a resonance may lie on
-            # the way): the frequency moves at a load that gives half the displacement margin at
-            # the last measured compliance; the raise from there is watched
-            half_n = 0.5 * self._response_cap("displacement") / self._orbit_per_n
-            low = min(low, half_n / float(np.max(self.gain_n_per_v)))
+        if not here:
+            # and at no more than the load that the plant estimate at this very frequency
+            # (1-DOF, lightest damping, widened resonance; or the compliance measured here, if
+            # larger) says gives `START_MARGIN` of the displacement margin: what a drive does
+            # here is known only once it is measured here (with a drive on here it is: the
+            # raise goes on from it)
+            start_n = (START_MARGIN * self._response_cap("displacement")
+                       / self._plant_compliance(plan.freq_hz))
+            low = min(low, start_n / float(np.max(self.gain_n_per_v)))
         now = float(np.max(np.abs(synth.phasors)))
         if now > low:
             self.stream.advance_to(self._ramp(synth.phasors * (low / now), None))
-        # the frequency moves at the lower of the present and the start drive (upwards from a
-        # low frequency the path may pass the resonance), along the guess's direction
         level = min(now, low) if now > 0 else low
         start = rows_guess * (level / max(float(np.max(np.abs(rows_guess))), 1e-12))
-        self.stream.advance_to(self._ramp(start, plan.freq_hz))
+        self.stream.advance_to(self._ramp(start, None))
         # stop near the target; where this frequency's tangent predicts it, at the target itself
         self._watched_raise(plan, rows_guess, 1.0 if known else 0.9, cfg.start_growth)
         if self.limited_by:
             ctl.saturated = True
+        ctl.max_drive_v = min(ctl.max_drive_v, self.ceiling_v)
         return ctl, synth.sample
+
+    def _new_frequency(self, freq_hz: float) -> None:
+        """Drive to zero, wait for the orbit to ring down, then set ``freq_hz`` (at zero drive
+        a frequency change is a step of nothing; the phase stays continuous)."""
+        stream, synth = self.stream, self.stream.synth
+        self._left_hz = synth.freq_hz
+        zero = np.zeros(len(self.cm.ao), dtype=np.complex128)
+        if np.any(synth.phasors != 0) or np.any(synth.target_phasors != 0):
+            stream.advance_to(self._ramp(zero, None))
+        if synth.freq_hz > 0:
+            # the free ring of the last orbit (dry: 7 % damping, ~50 ms decay, friction stops
+            # it sooner) must not add to the first orbit measured at the new frequency
+            cyc = cycles_to_samples(synth.freq_hz, self.fs, 1.0)
+            quiet = QUIET_FRACTION * self.limits.displacement_limit_m
+            deadline = stream.sample + int(QUIET_MAX_S * self.fs)
+            while stream.sample < deadline:
+                stream.cycle()
+                ai, _ = stream.window(max(stream.sample - cyc, 0), stream.sample)
+                disp = self.signals.displacement(ai)
+                disp = disp - disp.mean(axis=1, keepdims=True)
+                if float(np.max(np.hypot(disp[0], disp[1]))) < quiet:
+                    break
+        synth.ramp_to(None, freq_hz, 0.0)
+
+    def _plant_compliance(self, freq_hz: float) -> float:
+        """The largest orbit per newton of load [m/N] the rig may have at ``freq_hz``: a 1-DOF
+        mass-spring-damper from the nominal parameters (`ControlSettings`), its stiffness and
+        mass each anywhere within ``plant_uncertainty`` (the film's added mass too when
+        lubricated), with the lightest damping (dry; lubricated, half the film's at the centre
+        added); or the compliance measured within 10 % of this
+        frequency in this run, if that is larger."""
+        cfg = self.cfg
+        u = cfg.plant_uncertainty
+        w2 = (2 * np.pi * freq_hz) ** 2
+        m = cfg.nominal_mass_kg
+        m_hi = (m + (cfg.lubricated_added_mass_kg if self.spec.lubricated else 0.0)) * (1 + u)
+        k = cfg.initial_stiffness_n_per_m
+        lo, hi = k * (1 - u) - m_hi * w2, k * (1 + u) - m * (1 - u) * w2
+        dyn = 0.0 if lo <= 0.0 <= hi else min(abs(lo), abs(hi))
+        c = cfg.nominal_damping_ns_per_m + (cfg.lubricated_damping_ns_per_m
+                                            if self.spec.lubricated else 0.0)
+        model = 1.0 / float(np.hypot(dyn, c * np.sqrt(w2)))
+        measured = [c for f, c in self._compliance.items() if abs(f - freq_hz) <= 0.1 * freq_hz]
+        return max([model, *measured])
+
+    def _note_compliance(self, freq_hz: float, orbit_m: float, load_n: float) -> None:
+        """Keep the largest orbit per newton measured at ``freq_hz`` (`_plant_compliance`)."""
+        if load_n > self.limits.open_loop_min_load_n:
+            self._compliance[freq_hz] = max(self._compliance.get(freq_hz, 0.0), orbit_m / load_n)
 
     def _watched_raise(self, plan: StepPlan, top_rows: np.ndarray, stop_fraction: float,
                        growth: float) -> None:
@@ -215,6 +289,7 @@ class Approach:
         cap_f = LOAD_MARGIN * self.limits.max_load_n
         top = np.asarray(top_rows, dtype=np.complex128)
         self.limited_by = ""
+        self.ceiling_v = np.inf
         radius = 0.0
         watch_end = -1  # a load target's final raise is watched for one latency
         while True:
@@ -246,6 +321,15 @@ class Approach:
             if radius > cap_d:
                 self.limited_by = (f"the displacement limit "
                                    f"({self.limits.displacement_limit_m * 1e6:.4g} um)")
+                # past the margin while raising (a break-away jump, or an orbit still building
+                # up at the last drive: dry, 30 Hz with the frame mode it grew 52 -> 57 um at
+                # a held drive): back off at once, and no higher again in this step
+                synth.ramp_to(synth.phasors * (BACK_OFF * cap_d / radius), None,
+                              stream.block / fs)
+                self.ceiling_v = float(np.max(np.abs(synth.target_phasors)))
+                self._guard_reason = self._guard_reason or (
+                    f"the displacement limit ({self.limits.displacement_limit_m * 1e6:.4g} um; "
+                    f"the orbit reached {radius * 1e6:.1f} um as the drive was raised)")
             elif float(np.max(np.abs(self.signals.load(ai)))) > cap_f:
                 self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
             if radius >= stop_at or self.limited_by:
@@ -276,6 +360,7 @@ class Approach:
         self._watched_raise(plan, top, ctl.stuck_fraction, self.cfg.breakaway_growth)
         if self.limited_by:
             ctl.saturated = True
+        ctl.max_drive_v = min(ctl.max_drive_v, self.ceiling_v)
         end = self.stream.synth.sample
         return end, end + cycles_to_samples(self.stream.synth.freq_hz, self.fs,
                                             self.cfg.wait_cycles)

@@ -275,6 +275,10 @@ class Daemon:
         with self.sm.lock:
             self._last_run = {"run_id": job.run_id, "path": str(job.path), "status": status,
                               "reason": reason}
+            summary = getattr(job.engine, "summary", None)
+            if isinstance(summary, dict) and summary:
+                # the run's peak orbit and load, any contact, where a trip came (issue 21)
+                self._last_run["summary"] = as_dict(summary)
             try:
                 self.publisher.on_event("state", f"run {job.run_id} {status}"
                                         + (f": {reason}" if reason else ""),

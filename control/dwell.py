@@ -81,11 +81,13 @@ class StepRunner(Approach):
         )
         self.open_loop_checked = np.zeros(2, dtype=bool)
         self.limited_by = ""  # what held the drive back in the present step
+        self.ceiling_v = np.inf
         self._guard_reason = ""  # the soft limit's event in the present step, if any
         self.on_update: Callable[[int], None] | None = None
         self._last_drive: np.ndarray | None = None  # (X, Y) drive of the last converged step
         self._last_jacobian: np.ndarray | None = None
-        self._orbit_per_n = 0.0  # orbit radius per newton of load, last measured [m/N]
+        self._compliance: dict[float, float] = {}  # largest orbit per newton at a frequency
+        self._left_hz = 0.0  # the frequency the last frequency change left [Hz]
         self._radii: list[float] = []  # recent block maxima of the orbit (`_outside_growth`)
         self._drives: list[np.ndarray] = []  # the drive (phasors, frequency) at those blocks
         stream.guard = self._guard
@@ -210,8 +212,8 @@ class StepRunner(Approach):
             # after an in-tolerance window, jump to the one that ends with the settling time
             w0 = next_free if prev_ok is None else max(next_free, settle_end - w)
             ctrl, other, drive, s_ctrl, s_other = self._measure(plan, w0, w0 + w)
-            if plan.target_kind == "load" and float(np.max(np.abs(ctrl))) > 0:
-                self._orbit_per_n = orbit_peak_radius(other) / float(np.max(np.abs(ctrl)))
+            disp_w, load_w = (other, ctrl) if plan.target_kind == "load" else (ctrl, other)
+            self._note_compliance(f, orbit_peak_radius(disp_w), float(np.max(np.abs(load_w))))
             if log.isEnabledFor(logging.DEBUG):
                 log.debug("%s window %d-%d drive %s response %s", plan.describe(), w0, w0 + w,
                           np.round(drive, 4), np.round(ctrl, 9))
@@ -358,6 +360,7 @@ class StepRunner(Approach):
             # before the orbit runs away
             held_before = self.limited_by
             self._watched_raise(plan, rows, RAISE_STOP, self.cfg.start_growth)
+            ctl.max_drive_v = min(ctl.max_drive_v, self.ceiling_v)
             if self.limited_by:
                 ctl.saturated = True
             else:

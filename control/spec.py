@@ -64,7 +64,8 @@ class ControlSettings(BaseModel):
     )
     initial_stiffness_n_per_m: float = Field(
         1.0e6, ge=1.0e3, le=1.0e10,
-        description="first guess of |force / displacement|, first displacement step only [N/m]",
+        description="first guess of |force / displacement| (first displacement step), and the "
+                    "stiffness of the plant estimate at a new frequency [N/m]",
     )
     aim_fraction: float = Field(
         0.5, gt=0, le=1,
@@ -82,6 +83,32 @@ class ControlSettings(BaseModel):
         description="largest relative drive raise per latency when a displacement step starts "
                     "at a new frequency (from 80 % of the predicted drive) or a correction "
                     "raises the drive, watching the response block by block",
+    )
+    nominal_mass_kg: float = Field(
+        9.7, gt=0, le=1e4,
+        description="moving mass of the 1-DOF plant estimate that sets the first drive at a new "
+                    "frequency (the housing; the film's added mass below when lubricated) [kg]",
+    )
+    lubricated_added_mass_kg: float = Field(
+        8.2, ge=0, le=1e4,
+        description="the film's added mass in the plant estimate of a lubricated sweep "
+                    "(plenum oil M_f plus eq. 15's D) [kg]",
+    )
+    nominal_damping_ns_per_m: float = Field(
+        370.0, gt=0, le=1e7,
+        description="damping of the plant estimate: the lightest the rig has (dry, no film), so "
+                    "the estimate overstates the orbit near the resonance [N.s/m]",
+    )
+    lubricated_damping_ns_per_m: float = Field(
+        2500.0, ge=0, le=1e7,
+        description="the film's damping counted in the plant estimate of a lubricated sweep: "
+                    "half eq. 16's 5,060 N.s/m at the centre (a film not yet full, air "
+                    "entrained) [N.s/m]",
+    )
+    plant_uncertainty: float = Field(
+        0.3, ge=0, lt=1,
+        description="the plant estimate's stiffness and mass may each be off by this fraction: "
+                    "its compliance is the largest over that band (the resonance widened) [-]",
     )
     algorithm: Literal["newton_broyden", "proportional"] = Field(
         "newton_broyden",

@@ -22,10 +22,11 @@ import numpy as np
 
 from control.dwell import StepResult, StepRunner
 from control.errors import InterlockError, LimitTrip, TargetError
-from control.listener import NullListener, SweepListener
+from control.listener import Fanout, NullListener, SweepListener
 from control.plan import StepPlan
 from control.pump import PumpRelay
-from control.safety import SafetyLimits, SafetyMonitor, validate_targets
+from control.run_summary import RunPeaks, peak_line
+from control.safety import AxisSignals, SafetyLimits, SafetyMonitor, validate_targets
 from control.spec import (
     ControlSettings,
     SweepSpec,
@@ -84,6 +85,8 @@ class SweepOutcome:
     samples : int
         Samples acquired in the run.
     sample_rate_hz : float
+    summary : dict
+        `control.run_summary.RunPeaks.summary`: peak orbit and load, contact, where a trip came.
     """
 
     status: str
@@ -91,6 +94,7 @@ class SweepOutcome:
     steps: list[StepResult] = field(default_factory=list)
     samples: int = 0
     sample_rate_hz: float = 0.0
+    summary: dict[str, Any] = field(default_factory=dict)
 
     @property
     def rig_time_s(self) -> float:
@@ -135,6 +139,7 @@ class SweepEngine:
         self._machine = StateMachine(self._on_state)
         self._stream: DriveStream | None = None
         self.results: list[StepResult] = []
+        self.peaks: RunPeaks | None = None
 
     # --- thread-safe controls ---------------------------------------------------------------
     @property
@@ -144,6 +149,11 @@ class SweepEngine:
     @property
     def state(self) -> State:
         return self._machine.state
+
+    @property
+    def summary(self) -> dict[str, Any]:
+        """The run's peaks, contact and trip (`RunPeaks.summary`); {} before it started."""
+        return self.peaks.summary if self.peaks is not None else {}
 
     def pause(self) -> None:
         """Ramp the drives to zero and hold (acquisition continues) until `resume`."""
@@ -272,6 +282,10 @@ class SweepEngine:
         # it arrives, never read back), so a long record does not hold its samples in memory
         keep = int(fs * (cfg.window_cycles + 2) / min(p.freq_hz for p in self.plan)) + 4 * block
         np.linalg.solve(np.eye(2), np.ones(2))  # load LAPACK now, not in the first step
+        # the run's peak orbit and load and any contact, for the end of run (issue 21)
+        self.peaks = RunPeaks(AxisSignals.from_channel_map(cm), self.limits.displacement_limit_m,
+                              self.limits.max_load_n)
+        self.listener = Fanout(self.listener, self.peaks)
         synth = SineSynthesizer(len(cm.ao), fs)
         stream = DriveStream(
             self.backend, synth, SafetyMonitor(self.limits, cm), self.listener, block,
@@ -327,8 +341,10 @@ class SweepEngine:
                         self._emit_safe("fault", msg, k)
                     if status is State.COMPLETED:
                         status, reason = State.FAILED, msg
+                self._emit_safe("info", peak_line(self.peaks.summary))
                 self._machine.to(status)
-        return SweepOutcome(status.value, reason, list(self.results), stream.sample, fs)
+        return SweepOutcome(status.value, reason, list(self.results), stream.sample, fs,
+                            self.peaks.summary)
 
     def _on_update(self, updates: int) -> None:
         self._progress = replace(self._progress, updates=updates, sample=self._sample())
@@ -341,6 +357,12 @@ class SweepEngine:
                 self._progress, step_index=plan.index, freq_hz=plan.freq_hz,
                 target_value=plan.target_value, updates=0, sample=stream.sample,
             )
+            if self.peaks is not None:
+                self.peaks.where = {"step_index": plan.index, "steps_total": len(self.plan),
+                                    "freq_hz": plan.freq_hz, "motion": plan.motion,
+                                    "target": (f"{plan.target_value * 1e6:.4g} um"
+                                               if plan.target_kind == "displacement"
+                                               else f"{plan.target_value:.4g} N")}
             try:
                 result = runner.run(plan)
             except _Pause:

@@ -20,6 +20,7 @@ import numpy as np
 
 from control.client import Message
 from control.lockin import LockIn
+from control.run_summary import CONTACT, peak_line
 
 UM = 1e-6
 TWO_AXIS = ("circular_forward", "circular_backward", "elliptical")
@@ -141,6 +142,10 @@ class LiveView:
         self.tolerance = (1.0, 1.0)
         self.lost: dict[str, int] = {}
         self._lockin: LockIn | None = None
+        # this run's peak orbit radius and load, seen live, and its first contact (issue 21)
+        self._peak_m = 0.0
+        self._peak_n = 0.0
+        self._contact = ""
 
     # --- fed from the subscriber thread ----------------------------------------------------
     def on_message(self, msg: Message) -> None:
@@ -158,6 +163,9 @@ class LiveView:
             elif msg.topic == "event":
                 self.events.append({"time": h.get("time", msg.received_at), "kind": h["kind"],
                                     "message": h["message"], "run_id": h.get("run_id", "")})
+                if (h["kind"] in ("fault", "limit_trip") and h["message"].startswith(CONTACT)
+                        and not self._contact):
+                    self._contact = h["message"]
             elif msg.topic == "status":
                 self._on_status(h["status"], msg.received_at)
 
@@ -179,6 +187,8 @@ class LiveView:
         self._run_started = None
         self._write = 0
         self._last_sample = -1
+        self._peak_m = self._peak_n = 0.0
+        self._contact = ""
 
     def _on_status(self, status: dict[str, Any], now: float) -> None:
         self.status = status
@@ -218,6 +228,41 @@ class LiveView:
         self._last_sample = first + n - 1
         self._t_acquired = float(h.get("t_acquired", 0.0))
         self._block_seq = int(h["seq"])
+        self._note_peaks(block)
+
+    def _note_peaks(self, block: np.ndarray) -> None:
+        """The run's largest orbit radius (mean of each axis's probes) and load, live."""
+        rows = {name: block[i] for i, name in enumerate(self._channels[: self._n_ai])}
+        x = self._mean_rows(rows, ("x1", "x2"), "x")
+        y = self._mean_rows(rows, ("y1", "y2"), "y")
+        if x is not None and y is not None:
+            self._peak_m = max(self._peak_m, float(np.max(np.hypot(x, y))))
+        loads = [np.abs(rows[f]).max() for f in ("fx", "fy") if f in rows]
+        if loads:
+            self._peak_n = max(self._peak_n, float(max(loads)))
+
+    def _peaks(self, status: dict[str, Any]) -> dict[str, Any] | None:
+        """The run's peaks for the page: the daemon's summary once the run has ended (every
+        block counted), else what this view has seen so far (blocks may be dropped)."""
+        last = status.get("last_run") or {}
+        summary = last.get("summary")
+        if (not status.get("run_id") and isinstance(summary, dict) and summary
+                and last.get("run_id") == self.run_id):
+            return {"run_id": self.run_id, "final": True, "text": peak_line(summary),
+                    "peak_displacement_m": finite(summary["peak_displacement_m"]),
+                    "peak_load_n": finite(summary["peak_load_n"]),
+                    "contact": summary.get("contact") or "",
+                    "tripped": bool(summary.get("tripped_at"))}
+        if not self.run_id or self._last_sample < 0:
+            return None
+        safety = status.get("safety") or {}
+        limit = safety.get("displacement_limit_m")
+        text = f"peak orbit {self._peak_m / UM:.1f} um" + (
+            f" of the {limit / UM:.4g} um limit" if limit else "") + (
+            f", peak load {self._peak_n:.1f} N; ") + (self._contact or f"no {CONTACT}")
+        return {"run_id": self.run_id, "final": False, "text": text,
+                "peak_displacement_m": finite(self._peak_m), "peak_load_n": finite(self._peak_n),
+                "contact": self._contact, "tripped": False}
 
     def _span(self, lo: int, hi: int, rows: slice = slice(None)) -> np.ndarray:
         """Buffered samples ``lo:hi`` (0 = the oldest kept) of ``rows``, in time order: a view
@@ -244,6 +289,7 @@ class LiveView:
                 "block_seq": self._block_seq,
                 "status": status,
                 "time_left_s": self._time_left(status, now),
+                "peaks": self._peaks(status),
                 "traces": traces,
                 "steps": list(self.steps),
                 "events": list(self.events)[-50:],

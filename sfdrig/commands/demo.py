@@ -22,8 +22,9 @@ from typing import Any
 
 from analysis.report import write_report
 from control.client import CommandClient, Subscriber
+from control.run_summary import peak_line
 from sfdrig.commands.structure import run_structure_tests
-from sfdrig.commands.sweep import UM, achieved, follow
+from sfdrig.commands.sweep import UM, achieved, follow, run_summary
 from simulated_hw.params import rig_params_named_or_file
 
 NAME = "demo"
@@ -84,6 +85,9 @@ def run_sweep(client: CommandClient, sub: Subscriber, spec: dict[str, Any]) -> d
     status, reason, steps = follow(sub, run_id, idle_timeout_s=120,
                                    total=reply.data.get("steps_total"))
     print(f"run {run_id}: {status}" + (f" ({reason})" if reason else ""), flush=True)
+    peaks = run_summary(client, run_id)
+    if peaks is not None:
+        print(f"  {peak_line(peaks)}", flush=True)
     return {"name": spec["name"], "run_id": run_id, "path": reply.data["path"],
             "status": status, "reason": reason, "steps": steps}
 

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from control.client import CommandRefused, DaemonUnavailable
+from control.run_summary import peak_line
 from sfdrig.commands._client_args import add_connection_arguments, command_client
 
 NAME = "status"
@@ -47,5 +48,7 @@ def run(args: argparse.Namespace) -> int:
     if last:
         print(f"last run   {last['run_id']}: {last['status']}"
               + (f" ({last['reason']})" if last.get("reason") else ""))
+        if isinstance(last.get("summary"), dict) and last["summary"]:
+            print(f"           {peak_line(last['summary'])}")
     print(f"endpoints  command={st['endpoints']['command']} data={st['endpoints']['data']}")
     return 0

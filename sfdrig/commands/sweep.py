@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from control.client import CommandRefused, DaemonUnavailable, Subscriber
+from control.client import CommandClient, CommandRefused, DaemonUnavailable, Subscriber
+from control.run_summary import end_line, peak_line
 from sfdrig.commands._client_args import add_connection_arguments, command_client, subscriber
 
 NAME = "sweep"
@@ -188,13 +189,24 @@ def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: 
             steps.append(h["step"])
             print(("\r\x1b[K" if tty else "") + step_line(h["step"], total), file=out, flush=True)
         elif msg.topic == "event" and h["run_id"] in (run_id, ""):
-            if h["kind"] in ("limit_trip", "abort", "error", "warning", "pump", "operator"):
+            if h["kind"] in ("limit_trip", "fault", "abort", "error", "warning", "pump",
+                             "operator"):
                 print(("\r\x1b[K" if tty else "") + f"{h['kind']}: {h['message']}", file=out,
                       flush=True)
             prefix = f"run {run_id} "
             if h["kind"] == "state" and h["message"].startswith(prefix):
                 status, _, reason = h["message"][len(prefix):].partition(": ")
                 return status, reason, steps
+
+
+def run_summary(client: CommandClient, run_id: str) -> dict[str, Any] | None:
+    """The ended run's summary from the daemon's status (peaks, contact, trip), or None."""
+    try:
+        last = client.status().get("last_run") or {}
+    except (CommandRefused, DaemonUnavailable):
+        return None
+    summary = last.get("summary") if last.get("run_id") == run_id else None
+    return summary if isinstance(summary, dict) and summary else None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -219,12 +231,15 @@ def run(args: argparse.Namespace) -> int:
                     client.abort("operator pressed Ctrl-C in `sfdrig sweep`")
                     print(f"\nrun {run_id}: abort sent (drives ramp to zero)", flush=True)
                     status, reason, steps = follow(sub, run_id, steps=steps)
+                summary = run_summary(client, run_id)
     except CommandRefused as err:
         print(f"sweep: {err}")
         return 1
     except DaemonUnavailable as err:
         print(f"sweep: {err}")
         return 1
-    print(f"run {run_id} {status}" + (f": {reason}" if reason else "")
-          + f" ({len(steps)} steps)")
+    if summary is not None:
+        print(peak_line(summary))
+    # the last line: how it ended; after a trip what tripped, where, the peak, what to do
+    print(end_line(run_id, status, reason, len(steps), summary))
     return 0 if status == "completed" else 1

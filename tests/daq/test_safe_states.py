@@ -205,7 +205,7 @@ def test_a_sweep_that_underflows_ends_with_the_drives_at_zero(
     class Stall(RecordingListener):
         def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
             super().on_block(first_sample, ai, ao)
-            if first_sample == 5_000:  # 0.5 s in: the drives are up
+            if first_sample == 25_000:  # 2.5 s in, recording: the drives are up
                 fake_clock.advance(0.2)
 
     backend = NidaqmxBackend(watchdog_timeout_s=None)
@@ -217,7 +217,7 @@ def test_a_sweep_that_underflows_ends_with_the_drives_at_zero(
     finally:
         backend.close()
     assert out.status == "failed" and "-200290" in out.reason
-    assert np.abs(listener.ao()[0, 4_000:5_000]).max() > 0.3  # it was driving
+    assert np.abs(listener.ao()[0, 24_000:25_000]).max() > 0.3  # it was driving
     device = clocked_server.device
     assert device.ao_hold == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}  # both terminals at 0 V
 
@@ -237,11 +237,12 @@ def _count_writes(backend: NidaqmxBackend) -> list[int]:
 
 def _trip_through_nidaqmx(server: SimulatedDeviceServer, ramp_s: float, then: object = None
                           ) -> tuple[object, object, int, int, object]:
-    """Dry X 30 um at 40 Hz through nidaqmx, the amplifier gain x3 from 1 s over ``ramp_s``,
+    """Dry X 30 um at 40 Hz through nidaqmx, the amplifier gain x3 from `TRIP_AT_S` (2.503 s,
+    in the dwell) over ``ramp_s``,
     then the sweep ``then`` on the same backend: (outcome, knob, AO samples the board generated,
     AO samples written, the outcome of ``then``)."""
     from control.sweep import SweepEngine, SweepSpec
-    from tests.control.conftest import GainKnob
+    from tests.control.conftest import TRIP_AT_S, GainKnob
 
     def rig():
         assert server.device.rig is not None
@@ -251,7 +252,7 @@ def _trip_through_nidaqmx(server: SimulatedDeviceServer, ramp_s: float, then: ob
     try:
         backend.configure(on_server(server))
         written = _count_writes(backend)
-        knob = GainKnob(rig, factor=3.0, ramp_s=ramp_s)
+        knob = GainKnob(rig, factor=3.0, ramp_s=ramp_s, at_s=TRIP_AT_S)
         spec = SweepSpec(motion="x", amplitude_m=[30e-6], freq_hz=[40.0])
         out = SweepEngine(backend, spec, listener=knob).run()
         ao_task = server.servicer.tasks[next(n for n in server.servicer.tasks if "-ao-" in n)]

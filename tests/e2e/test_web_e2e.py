@@ -166,12 +166,25 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     assert abs(float(first_row[4].split()[0]) - 40.0) < 0.4  # within the 1 % band
     page.wait_for_function("/^\\d+ (s|min)/.test(document.getElementById('time-left').textContent)",
                            timeout=10_000)
+    # the run's peak orbit and load so far, and no contact (issue 21)
+    peaks = page.inner_text("#peaks")
+    assert peaks.startswith(f"run {run_id} (so far): peak orbit "), peaks
+    assert "of the 63.5 um limit, peak load" in peaks
+    assert peaks.endswith("no journal-housing contact")
+    assert 1.0 < float(peaks.split("peak orbit ")[1].split()[0]) < 63.5
 
     page.click("#abort")
     page.wait_for_function(f"document.getElementById('run-id').textContent.includes("
                            f"'{run_id} aborted')", timeout=60_000)
     assert page.inner_text("#state") == "idle"
     assert "operator abort from sfdrig web" in page.inner_text("#events")
+    # once it has ended: the daemon's summary of the whole run (every block counted)
+    page.wait_for_function("document.getElementById('peaks').textContent.includes('of 448 N')",
+                           timeout=10_000)
+    peaks = page.inner_text("#peaks")
+    assert peaks.startswith(f"run {run_id}: peak orbit ") and "(so far)" not in peaks, peaks
+    assert peaks.endswith("no journal-housing contact")
+    assert page.get_attribute("#peaks", "class") == ""
     assert page.errors == []
 
     with open_run(d.runs_dir / f"{run_id}.h5") as run:

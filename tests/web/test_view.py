@@ -160,3 +160,36 @@ def test_memory_held_for_the_harmonics_stays_bounded_over_a_sweep():
     window_20hz = 3 * FS / 20.0 * 11 * 8  # bytes of the basis of 3 cycles at 20 Hz
     assert max(held) <= 4 * window_20hz * 1.01
     assert len(view._lockin._cache) == 4
+
+
+def test_the_runs_peak_orbit_load_and_contact_live_then_the_daemons_summary():
+    """Issue 21: the page shows the run's peak orbit (radius about the probes' zero, as the limit
+    sees it) and load while it runs, any journal-housing contact, and the daemon's summary (every
+    block counted) once it has ended."""
+    view = LiveView(buffer_s=0.5)
+    view.set_status({"run_id": "R1", "safety": {"displacement_limit_m": 63.5e-6}})
+    assert view.frame()["peaks"] is None  # nothing measured yet
+    for m in blocks(20.0, 8):  # radius: 20 um (+5 um offset on x, +5 % 3X) -> 26 um at most
+        view.on_message(m)
+    pk = view.frame()["peaks"]
+    assert pk["final"] is False and pk["run_id"] == "R1"
+    assert pk["peak_displacement_m"] == pytest.approx(26e-6, rel=0.01)
+    assert pk["peak_load_n"] == pytest.approx(40.0, rel=1e-3)
+    assert pk["contact"] == "" and "no journal-housing contact" in pk["text"]
+    assert "peak orbit 26.0 um of the 63.5 um limit, peak load 40.0 N" in pk["text"]
+    contact = "journal-housing contact: orbit radius 124.5 um at the 127 um clearance"
+    view.on_message(Message("event", {"run_id": "R1", "seq": 1, "kind": "fault",
+                                      "message": contact, "time": 1.0}, None, 1010.0))
+    assert view.frame()["peaks"]["contact"] == contact
+    assert view.frame()["peaks"]["text"].endswith(contact)
+    # the run ended: the daemon's summary (it saw every block) replaces what the view saw
+    summary = {"peak_displacement_m": 125.0e-6, "displacement_limit_m": 63.5e-6,
+               "peak_displacement_at": {"step_index": 0, "steps_total": 1, "freq_hz": 150.0},
+               "peak_load_n": 119.8, "max_load_n": 448.0, "peak_load_at": {},
+               "contact": contact, "tripped_at": {"message": "displacement 64.7 um ..."}}
+    view.set_status({"run_id": "", "last_run": {"run_id": "R1", "status": "aborted",
+                                                "summary": summary}})
+    pk = view.frame()["peaks"]
+    assert pk["final"] and pk["tripped"]
+    assert pk["text"] == ("peak orbit 125.0 um of the 63.5 um limit (step 1/1, 150.0 Hz), "
+                          f"peak load 119.8 N of 448 N; {contact}")

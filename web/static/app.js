@@ -188,6 +188,14 @@ function drawStatus(fr) {
   $("p-in").textContent = means.p_in === undefined || means.p_in === null ? "" : `inlet ${fmt(means.p_in / 1e3, 1)} kPa`;
   const lost = Object.values(fr.lost || {}).reduce((a, b) => a + b, 0);
   $("lost").textContent = String(lost);
+  // the run's peak orbit and load and any journal-housing contact (the daemon's summary once
+  // the run has ended)
+  const pk = fr.peaks;
+  $("peaks").hidden = !pk;
+  if (pk) {
+    $("peaks").textContent = `run ${pk.run_id}${pk.final ? "" : " (so far)"}: ${pk.text}`;
+    $("peaks").className = pk.contact || pk.tripped ? "bad" : "";
+  }
   const ev = $("events");
   ev.innerHTML = "";
   for (const e of fr.events.slice().reverse()) {

@@ -1,0 +1,79 @@
+"""What `sfdrig sweep` prints at the end of a run (issue 21): the run's peak orbit and load, any
+journal-housing contact, and, after a trip, a last line that says what tripped, at which step
+and frequency, the peak, and what to do. From real runs on the simulated rig (in process)."""
+
+from __future__ import annotations
+
+import io
+
+from control.run_summary import end_line, peak_line
+from control.sweep import SweepEngine, SweepSpec
+from daq.channels import default_channel_map
+from sfdrig.commands import sweep as sweep_cmd
+from simulated_hw.params import RigParams
+from tests.control.conftest import GainJump, make_backend
+
+
+def test_a_completed_run_prints_its_peaks_and_the_usual_last_line():
+    out = SweepEngine(make_backend(), SweepSpec(motion="x", load_n=[400.0],
+                                                freq_hz=[150.0])).run()
+    assert out.status == "completed", out.reason
+    line = peak_line(out.summary)
+    # measured: 52.0 um at 400 N
+    assert line.startswith("peak orbit 5")
+    assert "um of the 63.5 um limit (step 1/1, 150.0 Hz)" in line
+    assert "peak load 40" in line and "N of 448 N" in line
+    assert line.endswith("; no journal-housing contact")
+    assert end_line("R1", out.status, out.reason, 1, out.summary) == "run R1 completed (1 steps)"
+
+
+def test_a_trip_says_what_where_the_peak_and_what_to_do():
+    """The amplifier's gain x3 during a 40 N dwell at 60 Hz: the limit trips and the housing's
+    momentum carries it to the journal after the cut."""
+    be = GainJump(RigParams(), seed=8, factor=3.0, at_sample=30_028)
+    be.configure(default_channel_map())
+    out = SweepEngine(be, SweepSpec(motion="x", load_n=[40.0], freq_hz=[60.0],
+                                    record_cycles=200)).run()
+    assert out.status == "aborted"
+    s = out.summary
+    assert s["tripped_at"]["freq_hz"] == 60.0 and s["tripped_at"]["step_index"] == 0
+    assert s["contact"].startswith("journal-housing contact")
+    assert s["peak_displacement_m"] > 0.97 * 127e-6  # at the journal
+    last = end_line("R2", out.status, out.reason, len(out.steps), s)
+    assert last.startswith("run R2 aborted by a limit trip at step 1/1, 60.0 Hz (x 40 N): "
+                           "displacement 6")
+    assert "exceeds the 63.5 um limit; peak orbit 12" in last
+    assert "journal-housing contact: orbit radius 12" in last
+    assert "the drives were cut to 0 V" in last
+    assert "What to do: check the journal and the housing for contact marks" in last
+    assert "lower the target at that frequency" in last
+    assert "\n" not in last
+    assert peak_line(s).endswith(s["contact"])
+
+
+class _Client:
+    def __init__(self, last_run: dict) -> None:
+        self.last_run = last_run
+
+    def status(self) -> dict:
+        return {"state": "idle", "last_run": self.last_run}
+
+
+def test_the_summary_comes_from_the_daemons_last_run_of_this_run_only():
+    summary = {"peak_displacement_m": 52e-6, "displacement_limit_m": 63.5e-6,
+               "peak_load_n": 400.0, "max_load_n": 448.0, "contact": "", "tripped_at": None}
+    client = _Client({"run_id": "R1", "status": "completed", "summary": summary})
+    assert sweep_cmd.run_summary(client, "R1") == summary  # type: ignore[arg-type]
+    assert sweep_cmd.run_summary(client, "R0") is None  # type: ignore[arg-type]
+    assert sweep_cmd.run_summary(_Client({}), "R1") is None  # type: ignore[arg-type]
+    buf = io.StringIO()
+    print(peak_line(summary), file=buf)
+    assert buf.getvalue() == ("peak orbit 52.0 um of the 63.5 um limit, peak load 400.0 N of "
+                              "448 N; no journal-housing contact\n")
+
+
+def test_an_underflow_says_what_to_do():
+    last = end_line("R3", "failed", "DaqUnderflowError: AO generation ran past the samples "
+                    "written (DAQmx code -200290)", 0, {"tripped_at": None})
+    assert last.startswith("run R3 failed: DaqUnderflowError")
+    assert "What to do: the AO stream ran dry" in last and "--priority high" in last
