@@ -21,6 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from control.ao_writer import AoWriter
 from control.operator import Answer, OperatorDesk, Question
 from daq.backend import DaqBackend
 from daq.errors import EmergencyStopError
@@ -117,10 +118,33 @@ class Stream:
         self.last_ai = np.zeros((len(self.cm.ai), 0))
         self._shown_v = np.zeros(self.n_ao)  # the drive at the end of the last block read
         self._started = False
+        #: the AO's writer: queued, or (a regenerating backend) the ring a late host cannot
+        #: underflow, two blocks ahead of the generation
+        self.writer = AoWriter(backend, block, 2 * block)
+        self._prefill: list[np.ndarray] = []
 
     def _write(self, target_v: np.ndarray, ramp_samples: int) -> None:
-        """Write one block moving linearly toward ``target_v``: a new target sets the rate so
-        that the whole change takes ``ramp_samples``; the level then arrives exactly."""
+        """Write the next block moving linearly toward ``target_v`` (a regenerating backend: as
+        many as keep the lead, after skipping what the ring played while the host was late:
+        the ramp moves on over those samples, and what the ring played is what is recorded)."""
+        if not self.writer.regenerating:
+            self.backend.write_ao(self._next(target_v, ramp_samples))
+            return
+        if not self._started:  # the prefill: written as the ring's start by `start`
+            self._prefill.append(self._next(target_v, ramp_samples))
+            return
+        skip = self.writer.late_skip(self.sample)
+        for _ in range(skip // self.block):
+            self._next(target_v, ramp_samples)
+            self._written[-1] = self.writer.played(self.block)
+        self.writer.clear_played()
+        while self.writer.wants_write():
+            self.writer.write(self._next(target_v, ramp_samples))
+
+    def _next(self, target_v: np.ndarray, ramp_samples: int) -> np.ndarray:
+        """The next block moving linearly toward ``target_v``, queued to be read: a new target
+        sets the rate so that the whole change takes ``ramp_samples``; the level then arrives
+        exactly."""
         n = self.block
         target_v = np.asarray(target_v, dtype=float)
         if self._target is None or not np.array_equal(target_v, self._target):
@@ -133,9 +157,9 @@ class Stream:
         for row, ch in enumerate(self.cm.ao):
             lo, hi = ch.range_v
             np.clip(blk[row], lo, hi, out=blk[row])
-        self.backend.write_ao(blk)
         self._written.append(blk)
         self.level_v = blk[:, -1].copy()
+        return blk
 
     def _read(self) -> np.ndarray:
         """Read the block the oldest written AO is generated with; AI in engineering units."""
@@ -149,8 +173,11 @@ class Stream:
         return ai
 
     def start(self) -> None:
+        self._prefill = []
         for _ in range(2):
             self._write(self.level_v, 1)
+        if self.writer.regenerating:
+            self.writer.prefill(np.concatenate(self._prefill, axis=1))
         self.backend.start()
         self._started = True
 
@@ -204,10 +231,33 @@ class Stream:
             if cut:
                 self._cut(ramp_s)
             n_blocks = int(np.ceil(ramp_s * self.fs / self.block)) + 3
+            if not cut and self.writer.regenerating and self._fade_in_ring(ramp_s, n_blocks):
+                return
             for _ in range(n_blocks):
                 self.step(zero, ramp_s)
         finally:
             self.backend.stop()
+
+    def _fade_in_ring(self, ramp_s: float, n_blocks: int) -> bool:
+        """Ring mode: the ramp to zero and zeros over the rest of the ring in one write, so a
+        host late while it plays cannot make the ring repeat an earlier level; then read out."""
+        zero = np.zeros(self.n_ao)
+        ramp = int(ramp_s * self.fs)
+        skip = self.writer.late_skip(self.sample)
+        for _ in range(skip // self.block):
+            self._next(zero, ramp)
+            self._written[-1] = self.writer.played(self.block)
+        at = self.writer.pos
+        if self.writer.generated + (self.writer.ring or 0) - at < (n_blocks + 1) * self.block:
+            return False
+        blocks = [self._next(zero, ramp) for _ in range(n_blocks)]
+        self.writer.fill_ring(at, np.concatenate(blocks, axis=1))
+        self.writer.pos = at + n_blocks * self.block
+        while self._written:
+            self._read()
+            self.writer.generated = self.sample
+            self.writer.clear_played()
+        return True
 
     def _cut(self, ramp_s: float) -> None:
         """Drop the AO not yet generated; the drives are at 0 V from there, or (a backend that
@@ -216,6 +266,10 @@ class Stream:
         queued = (np.concatenate(list(self._written), axis=1) if self._written
                   else np.zeros((self.n_ao, 0)))
         done = self.backend.cut_ao()
+        if self.writer.regenerating and done.at > self.sample + queued.shape[1]:
+            # the host was late: the ring played on past what was written, up to the cut
+            n = self.block * int(np.ceil((done.at - self.sample - queued.shape[1]) / self.block))
+            queued = np.concatenate([queued, self.writer.played(n)], axis=1)
         at = min(max(done.at, self.sample), self.sample + queued.shape[1]) - self.sample
         kept = queued[:, :at]
         level = kept[:, -1] if at else self._shown_v
@@ -223,7 +277,10 @@ class Stream:
         fade = level[:, None] * (1.0 - np.arange(1, n_ramp + 1) / n_ramp)[None, :]
         total = self.block * int(np.ceil((queued.shape[1] + n_ramp) / self.block))
         zeros = np.zeros((self.n_ao, total - at - n_ramp))
-        if done.resumes:
+        if done.resumes and self.writer.regenerating:
+            self.writer.generated = self.sample + at
+            self.writer.fill_ring(self.sample + at, np.concatenate([fade, zeros], axis=1))
+        elif done.resumes:
             self.backend.write_ao(np.concatenate([fade, zeros], axis=1))
         tail = np.concatenate([kept, fade, zeros], axis=1)
         self._written = deque(tail[:, i:i + self.block] for i in range(0, total, self.block))

@@ -194,3 +194,31 @@ def test_a_drive_over_the_limit_trips_before_it_is_written():
     be, stream, _ = _stream(clock, limits=SafetyLimits(max_drive_v=0.5))
     with pytest.raises(LimitTrip):
         stream.start()
+
+
+def test_the_structure_tests_dc_stream_rides_a_stall_on_the_ring():
+    """`control.program_stream.Stream` writes through the same ring: a 0.4 s stall while a DC
+    level is held plays that level (not an underflow), the record is what played, and the
+    finish ramps to 0 V and leaves only zeros in the ring."""
+    from control.program_stream import Stream
+
+    clock = Clock()
+    be = Played(clock)
+    be.configure(CM)
+    listener = RecordingListener()
+    stream = Stream(be, listener, BLOCK)
+    stream.start()
+    level = np.array([1.5, -0.8])
+    stream.hold(level, 1.2, 0.1)  # more than a ring at the level: the ring holds it all
+    clock.now += 0.4
+    first, ai = stream.hold(level, 0.3, 0.1)
+    stream.finish(0.05)
+    generated = np.concatenate(be.generated_ao, axis=1)
+    np.testing.assert_array_equal(_recorded_ao(listener), generated)
+    assert stream.writer.late_events >= 1
+    assert stream.writer.repeated >= 0.4 * FS - 3 * BLOCK
+    held = generated[:, int(0.2 * FS):first + ai.shape[1]]
+    np.testing.assert_allclose(held, level[:, None] * np.ones_like(held), atol=1e-12)
+    assert _steps(generated) <= float(np.max(np.abs(level))) / (0.05 * FS) + 1e-12
+    assert not np.any(generated[:, -2 * BLOCK:])
+    assert not np.any(stream.writer.mirror)
