@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from control.ao_writer import AoWriter
+from control.errors import LimitTrip
 from control.listener import SweepListener
 from control.safety import SafetyMonitor
 from control.synthesis import SineSynthesizer
@@ -34,6 +35,9 @@ log = logging.getLogger(__name__)
 
 #: What the soft limit (`DriveStream.guard`) leaves of the drive.
 GUARD_CUT = 0.5
+#: Ring mode: blocks of the predicted drive written per cycle beyond the lead, until the ring
+#: holds the current command's continuation up to a ring ahead (8: a 2 s ring in 0.25 s).
+PREDICT_BLOCKS = 8
 
 
 @dataclass
@@ -118,6 +122,11 @@ class DriveStream:
         #: writes the AO (queued, or into the backend's ring) and measures how the host kept
         #: its lead
         self.writer = AoWriter(backend, block_samples, ahead_blocks * block_samples)
+        # ring mode: a copy of the synthesiser running ahead of the lead, whose samples (the
+        # current command's continuation) fill the ring up to a ring ahead of the generation,
+        # so a late host hears the drive it would have written, not the drive of a ring ago
+        self._pred: SineSynthesizer | None = None
+        self._pred_end = 0
 
     @property
     def min_ao_backlog(self) -> int | None:
@@ -150,7 +159,10 @@ class DriveStream:
         fade starts from the synthesiser as it was at the first sample not generated)."""
         if check:
             self.monitor.check_ao(ao, self.synth.sample - ao.shape[1])
-        self.writer.write(ao)
+        if self._predicted(ao.shape[1]):
+            self.writer.pos += ao.shape[1]  # the ring holds these samples already
+        else:
+            self.writer.write(ao)
         self._fifo.append(ao)
         self._states.append(state)
 
@@ -171,9 +183,49 @@ class DriveStream:
                 raise
             if not self.writer.regenerating:
                 break
+        if self.writer.regenerating:
+            self._predict()
         self._read_one(check=self.check_limits)
         if self.interrupt is not None:
             self.interrupt()
+
+    def _predicted(self, n: int) -> bool:
+        """Whether the ring already holds the next ``n`` samples as the synthesiser will make
+        them: the prediction started from its state with the same commands since."""
+        return (self._pred is not None and self._pred.revision == self.synth.revision
+                and self._pred_end >= self.writer.pos + n)
+
+    def _predict(self) -> None:
+        """Ring mode: extend the prediction (the synthesiser's continuation without a new
+        command) by up to `PREDICT_BLOCKS` blocks, up to a ring ahead of the generation less a
+        block and the margin. A new command restarts it from the position; a predicted block
+        over a drive limit ends it until the next command."""
+        w = self.writer
+        assert w.ring is not None
+        if self._pred is None or self._pred.revision != self.synth.revision or \
+                self._pred_end < w.pos:
+            if self._pred is not None and self._pred.revision == self.synth.revision and \
+                    self._pred_end < 0:
+                return  # over a limit: nothing more until the next command
+            self._pred = SineSynthesizer(self.synth.n_channels, self.synth.fs)
+            _restore(self._pred, _snapshot(self.synth))
+            self._pred_end = w.pos
+        limit = w.generated + w.ring - self.block - w.margin
+        start, parts = self._pred_end, list[np.ndarray]()
+        while len(parts) < PREDICT_BLOCKS and self._pred_end + self.block <= limit:
+            blk = self._pred.next_block(self.block)
+            try:
+                self.monitor.check_ao(blk, self._pred_end)
+            except LimitTrip:
+                self._pred_end = -1
+                break
+            parts.append(blk)
+            self._pred_end += self.block
+        if parts:
+            w.write_at(start, np.concatenate(parts, axis=1))
+
+    def _forget_prediction(self) -> None:
+        self._pred = None
 
     def _catch_up(self) -> None:
         """Ring mode: read the generation; if it has come within the margin of the next
@@ -288,6 +340,7 @@ class DriveStream:
         w = self.writer
         at = self.block * math.ceil(max(w.generated + w.margin, self.sample) / self.block)
         index = (at - self.sample) // self.block
+        self._forget_prediction()
         if index < len(self._fifo):
             _restore(self.synth, self._states[index])
             for _ in range(len(self._fifo) - index):
@@ -398,6 +451,7 @@ class DriveStream:
 
     def _rewind(self, at: int) -> None:
         """Put the synthesiser back to where it was at sample ``at`` (queued, not generated)."""
+        self._forget_prediction()
         first = self.synth.sample - self.block * len(self._states)
         index = (at - first) // self.block
         _restore(self.synth, self._states[index])

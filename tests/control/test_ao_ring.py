@@ -222,3 +222,28 @@ def test_the_structure_tests_dc_stream_rides_a_stall_on_the_ring():
     assert _steps(generated) <= float(np.max(np.abs(level))) / (0.05 * FS) + 1e-12
     assert not np.any(generated[:, -2 * BLOCK:])
     assert not np.any(stream.writer.mirror)
+
+
+def test_a_stall_just_after_a_new_command_plays_the_new_command_not_the_old_ring():
+    """The ring holds the current command's continuation (the prediction), not the drive of a
+    ring ago: a step to 70 Hz at a third of the amplitude, then a 0.5 s stall 0.3 s later,
+    plays exactly what the host would have written."""
+    clock = Clock()
+    be, stream, listener = _stream(clock)
+    stream.taps.append(Stall(clock, int(1.5 * FS), 0.5))
+    stream.start()
+    stream.advance_to(int(1.2 * FS))
+    at = stream.synth.sample
+    stream.synth.ramp_to(AMP / 3, 70.0, 0.1)
+    stream.advance_to(int(2.5 * FS))
+    generated = np.concatenate(be.generated_ao, axis=1)
+    n = generated.shape[1]
+    ref = SineSynthesizer(len(CM.ao), FS)
+    ref.ramp_to(AMP, FREQ, 0.0)
+    first = np.concatenate([ref.next_block(BLOCK) for _ in range(at // BLOCK)], axis=1)
+    ref.ramp_to(AMP / 3, 70.0, 0.1)
+    rest = np.concatenate([ref.next_block(BLOCK) for _ in range((n - at) // BLOCK)], axis=1)
+    np.testing.assert_allclose(generated, np.concatenate([first, rest], axis=1), atol=1e-12)
+    np.testing.assert_array_equal(_recorded_ao(listener), generated)
+    assert stream.writer.repeated >= 0.5 * FS - 4 * BLOCK
+    stream.shutdown(0.04)

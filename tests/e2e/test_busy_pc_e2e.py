@@ -56,6 +56,7 @@ def test_a_paced_sweep_beside_three_busy_processes_completes_without_underflow(
         events: list[str] = []
         blocks, steps, end = collect_run_with_events(sub, run_id, events)
     assert all(p.poll() is None for p in busy), "the busy processes ran throughout"
+    print([e for e in events if e.startswith("AO ")], end)
     assert end == f"run {run_id} completed", (end, events)
     assert not any("200290" in e for e in events), events
     assert len(steps) == len(SPEC["freq_hz"])
