@@ -60,7 +60,7 @@ def session(backend, cm, seconds: float, rng: np.random.Generator) -> dict:
     from control.safety import SafetyLimits, SafetyMonitor
     from control.stream import DriveStream
     from control.synthesis import SineSynthesizer
-    from daq.errors import DaqUnderflowError
+    from daq.errors import DaqError, DaqUnderflowError, DaqWatchdogExpiredError
 
     fs = cm.sample_rate_hz
     block = int(0.01 * fs)
@@ -69,7 +69,7 @@ def session(backend, cm, seconds: float, rng: np.random.Generator) -> dict:
     stream = DriveStream(backend, synth, SafetyMonitor(SafetyLimits(), cm), listener, block,
                          ahead_blocks=3, keep_samples=4 * block)
     stream.check_limits = False
-    out: dict = {"underflow_after_s": None}
+    out: dict = {"underflow_after_s": None, "watchdog_expired_after_s": None, "error": None}
     stream.start()
     t0 = time.monotonic()
     next_change = 0.0
@@ -84,8 +84,15 @@ def session(backend, cm, seconds: float, rng: np.random.Generator) -> dict:
     except DaqUnderflowError:
         out["underflow_after_s"] = time.monotonic() - t0
         abort_at = None
+    except DaqWatchdogExpiredError:  # the host stalled past the watchdog: the board safed
+        out["watchdog_expired_after_s"] = time.monotonic() - t0
+        abort_at = None
+    except DaqError as err:
+        out["error"] = str(err)
+        abort_at = None
     stream.shutdown(0.04)
-    ao = np.concatenate([b[2] for b in listener.blocks], axis=1)
+    ao = (np.concatenate([b[2] for b in listener.blocks], axis=1) if listener.blocks
+          else np.zeros((len(cm.ao), 0)))
     live = np.flatnonzero(np.any(ao != 0.0, axis=0))
     w = stream.writer
     out.update(
@@ -157,6 +164,11 @@ def main() -> None:
     print(f"underflows: {sum(r['underflow_after_s'] is not None for r in results)} "
           f"(after {[round(r['underflow_after_s'], 2) for r in results if r['underflow_after_s']]}"
           f" s)")
+    expired = [round(r["watchdog_expired_after_s"], 2) for r in results
+               if r["watchdog_expired_after_s"] is not None]
+    print(f"watchdog expiries (the host stalled past it; the board set 0 V): {len(expired)} "
+          f"(after {expired} s); other errors: "
+          f"{[r['error'] for r in results if r['error']]}")
     print(f"host late {late} times, at worst {max(r['max_late_ms'] for r in results):.1f} ms "
           f"short of the margin; ring repeated {sum(r['repeated_s'] for r in results):.2f} s")
     if aborts:

@@ -237,6 +237,17 @@ class DriveStream:
         if self.writer.regenerating:
             self.writer.clear_played()
 
+    def generation(self) -> int:
+        """The sample the AO is generating now: on a ring the board's count (a late host's
+        reads lag it), otherwise the next AI sample to read (the lead keeps them together).
+        What a stop's event is stamped with: its 0 V is timed from here."""
+        if self.writer.regenerating and self._started:
+            try:
+                return max(self.backend.ao_generated(), self.sample)
+            except Exception:  # noqa: BLE001 - a stamp, never a reason to fail the stop
+                log.exception("could not read the AO generation count")
+        return self.sample
+
     def margin_report(self) -> str:
         """The AO lead and how it was kept (the underflow margin, or how often and how late
         the host was and what the ring repeated), in words."""
