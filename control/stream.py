@@ -35,6 +35,8 @@ log = logging.getLogger(__name__)
 
 #: What the soft limit (`DriveStream.guard`) leaves of the drive.
 GUARD_CUT = 0.5
+#: The stop budget: an abort has the drives at 0 V this long after it is handled [s].
+STOP_S = 0.1
 #: Ring mode: blocks of the predicted drive written per cycle beyond the lead, until the ring
 #: holds the current command's continuation up to a ring ahead (8: a 2 s ring in 0.25 s).
 PREDICT_BLOCKS = 8
@@ -444,6 +446,9 @@ class DriveStream:
         if cut:  # read the motion out for as long as the queue and the fade would have taken
             end = max(end, self.sample + self.block * (self.ahead_blocks + 1)
                       + math.ceil(fade_s * fs))
+        elif self.writer.regenerating:  # the file holds the whole 100 ms stop budget and more
+            end = max(end, max(self.sample, self.writer.generated) + math.ceil(STOP_S * fs)
+                      + self.block)
         end = self.sample + math.ceil((end - self.sample) / self.block) * self.block
         new.append(np.zeros((len(self.cm.ao), end - self.zero_sample)))
         self.synth.sample = end
