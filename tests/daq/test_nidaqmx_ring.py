@@ -156,3 +156,24 @@ def test_a_trip_through_nidaqmx_cuts_to_zero_at_the_end_of_its_block(clocked_ser
     assert not np.any(generated[:, seen:])
     recorded = np.concatenate([b[2] for b in listener.blocks], axis=1)
     np.testing.assert_array_equal(recorded, generated)
+
+
+def test_a_hung_host_is_stopped_by_the_watchdog_not_by_the_ring(clocked_server, fake_clock,
+                                                                ring_backend):
+    """A ring repeats for as long as a hung host leaves it: the board's watchdog (0.8 s here,
+    on the board's clock) sets the drives to 0 V, and the host learns it at its next call."""
+    from daq.errors import DaqWatchdogExpiredError
+
+    stream, listener, spy, fs = _stream(clocked_server, ring_backend, [])
+    stream.start()
+    stream.advance_to(int(1.2 * fs))
+    fed_at = ring_backend.ao_generated()
+    ring_backend.feed_watchdog()
+    fake_clock.advance(1.5)  # hung for 1.5 s
+    with pytest.raises(DaqWatchdogExpiredError):
+        stream.advance_to(stream.sample + int(2.0 * fs))
+    stream.shutdown(0.04)
+    generated = spy.upto(fed_at + int(1.5 * fs))
+    expiry = fed_at + int(0.8 * fs)
+    assert np.any(generated[:, expiry - 100:expiry - 1])  # the ring played on until then
+    assert not np.any(generated[:, expiry + 1:])  # 0 V from the expiry
