@@ -34,6 +34,8 @@ class Listener(Protocol):
 
 
 FAULT_RAMP_S = 0.04  # drive fade on a fault [s]
+#: ring mode: blocks of the predicted level written per cycle beyond the lead
+PREDICT_BLOCKS = 8
 
 
 class ProgramError(RuntimeError):
@@ -122,6 +124,12 @@ class Stream:
         #: underflow, two blocks ahead of the generation
         self.writer = AoWriter(backend, block, 2 * block)
         self._prefill: list[np.ndarray] = []
+        # ring mode: the current ramp's continuation written ahead (level, target, rate), the
+        # target it follows (`_cmd` counts new targets) and where it has reached
+        self._cmd = 0
+        self._pred_cmd = -1
+        self._pred: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._pred_end = 0
 
     def _write(self, target_v: np.ndarray, ramp_samples: int) -> None:
         """Write the next block moving linearly toward ``target_v`` (a regenerating backend: as
@@ -139,26 +147,61 @@ class Stream:
             self._written[-1] = self.writer.played(self.block)
         self.writer.clear_played()
         while self.writer.wants_write():
-            self.writer.write(self._next(target_v, ramp_samples))
+            blk = self._next(target_v, ramp_samples)
+            if self._pred_cmd == self._cmd and self._pred_end >= self.writer.pos + self.block:
+                self.writer.pos += self.block  # the ring holds this block already
+            else:
+                self.writer.write(blk)
+        self._predict()
+
+    def _predict(self) -> None:
+        """Ring mode: keep the ring filled, up to a ring ahead of the generation, with the
+        current ramp's continuation (as `DriveStream` does), so a late host hears the level it
+        is moving to, not one from a ring ago. A new target restarts it from the position."""
+        w = self.writer
+        assert w.ring is not None
+        if self._pred_cmd != self._cmd or self._pred_end < w.pos:
+            target = self.level_v if self._target is None else self._target
+            self._pred = (self.level_v.copy(), target.copy(), self._rate.copy())
+            self._pred_cmd, self._pred_end = self._cmd, w.pos
+        assert self._pred is not None
+        level, target, rate = self._pred
+        limit = w.generated + w.ring - self.block - w.margin
+        start, parts = self._pred_end, list[np.ndarray]()
+        while len(parts) < PREDICT_BLOCKS and self._pred_end + self.block <= limit:
+            blk = self._ramp_block(level, target, rate)
+            level = blk[:, -1].copy()
+            parts.append(blk)
+            self._pred_end += self.block
+        self._pred = (level, target, rate)
+        if parts:
+            w.write_at(start, np.concatenate(parts, axis=1))
 
     def _next(self, target_v: np.ndarray, ramp_samples: int) -> np.ndarray:
         """The next block moving linearly toward ``target_v``, queued to be read: a new target
         sets the rate so that the whole change takes ``ramp_samples``; the level then arrives
         exactly."""
-        n = self.block
         target_v = np.asarray(target_v, dtype=float)
         if self._target is None or not np.array_equal(target_v, self._target):
             self._target = target_v.copy()
             self._rate = np.abs(target_v - self.level_v) / max(int(ramp_samples), 1)
-        delta = self._target - self.level_v
-        k = np.arange(1, n + 1)[None, :]
-        moved = np.minimum(self._rate[:, None] * k, np.abs(delta)[:, None])
-        blk = self.level_v[:, None] + np.sign(delta)[:, None] * moved
+            self._cmd += 1
+        blk = self._ramp_block(self.level_v, self._target, self._rate)
+        self._written.append(blk)
+        self.level_v = blk[:, -1].copy()
+        return blk
+
+    def _ramp_block(self, level: np.ndarray, target: np.ndarray,
+                    rate: np.ndarray) -> np.ndarray:
+        """One block from ``level`` toward ``target`` at ``rate`` [V per sample], clipped to
+        the channels' ranges."""
+        delta = target - level
+        k = np.arange(1, self.block + 1)[None, :]
+        moved = np.minimum(rate[:, None] * k, np.abs(delta)[:, None])
+        blk = level[:, None] + np.sign(delta)[:, None] * moved
         for row, ch in enumerate(self.cm.ao):
             lo, hi = ch.range_v
             np.clip(blk[row], lo, hi, out=blk[row])
-        self._written.append(blk)
-        self.level_v = blk[:, -1].copy()
         return blk
 
     def _read(self) -> np.ndarray:

@@ -247,3 +247,29 @@ def test_a_stall_just_after_a_new_command_plays_the_new_command_not_the_old_ring
     np.testing.assert_array_equal(_recorded_ao(listener), generated)
     assert stream.writer.repeated >= 0.5 * FS - 4 * BLOCK
     stream.shutdown(0.04)
+
+
+def test_the_dc_stream_ring_holds_the_level_it_is_moving_to():
+    """A stall 0.3 s after a new level (well within a ring of the old one) plays the new ramp
+    and level, not the old level the ring held a ring ago."""
+    from control.program_stream import Stream
+
+    clock = Clock()
+    be = Played(clock)
+    be.configure(CM)
+    listener = RecordingListener()
+    stream = Stream(be, listener, BLOCK)
+    stream.start()
+    stream.hold(np.array([1.0, 1.0]), 1.2, 0.05)
+    stream.step(np.array([2.0, -1.0]), 0.1)  # the new target is set here
+    at = stream.sample
+    for _ in range(30):
+        stream.step(np.array([2.0, -1.0]), 0.1)
+    clock.now += 0.5
+    stream.hold(np.array([2.0, -1.0]), 0.3, 0.1)
+    stream.finish(0.05)
+    generated = np.concatenate(be.generated_ao, axis=1)
+    np.testing.assert_array_equal(_recorded_ao(listener), generated)
+    assert stream.writer.repeated >= 0.5 * FS - 3 * BLOCK
+    late = generated[:, at + int(0.2 * FS):at + int(0.8 * FS)]  # the stall is in here
+    np.testing.assert_allclose(late, np.array([[2.0], [-1.0]]) * np.ones_like(late), atol=1e-12)
