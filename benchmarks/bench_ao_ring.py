@@ -169,8 +169,9 @@ def main() -> None:
     print(f"watchdog expiries (the host stalled past it; the board set 0 V): {len(expired)} "
           f"(after {expired} s); other errors: "
           f"{[r['error'] for r in results if r['error']]}")
-    print(f"host late {late} times, at worst {max(r['max_late_ms'] for r in results):.1f} ms "
-          f"short of the margin; ring repeated {sum(r['repeated_s'] for r in results):.2f} s")
+    print(f"host late {late} times, its next sample at worst "
+          f"{max(r['max_late_ms'] for r in results):.1f} ms short of the generation + margin; "
+          f"played from the ring while late: {sum(r['repeated_s'] for r in results):.2f} s")
     if aborts:
         print(f"abort to 0 V: {len(aborts)} aborts, max {max(aborts):.1f} ms, median "
               f"{float(np.median(aborts)):.1f} ms")

@@ -168,9 +168,10 @@ class AoWriter:
         text = (f"AO ring {self.ring / fs:g} s, lead {lead_ms:.0f} ms; host late "
                 f"{self.late_events} times")
         if self.late_events:
-            text += (f" (at worst {1e3 * self.max_late / fs:.1f} ms short of the "
-                     f"{1e3 * self.margin / fs:.0f} ms margin), {self.repeated} samples "
-                     f"({self.repeated / fs:.3f} s) repeated by the ring")
+            text += (f" (its next sample at worst {1e3 * self.max_late / fs:.1f} ms short of "
+                     f"the generation + the {1e3 * self.margin / fs:.0f} ms margin), "
+                     f"{self.repeated} samples ({self.repeated / fs:.3f} s) played from the "
+                     "ring while it was late")
         if self.min_backlog is not None:
             text += (f"; tightest lead {1e3 * self.min_backlog / fs:.1f} ms (AI sample "
                      f"{self.min_backlog_at})")
