@@ -129,6 +129,7 @@ class DriveStream:
         # so a late host hears the drive it would have written, not the drive of a ring ago
         self._pred: SineSynthesizer | None = None
         self._pred_end = 0
+        self._pred_prev: np.ndarray | None = None  # the drive before the next predicted block
 
     @property
     def min_ao_backlog(self) -> int | None:
@@ -212,15 +213,17 @@ class DriveStream:
             self._pred = SineSynthesizer(self.synth.n_channels, self.synth.fs)
             _restore(self._pred, _snapshot(self.synth))
             self._pred_end = w.pos
+            self._pred_prev = self.monitor.last_ao
         limit = w.generated + w.ring - self.block - w.margin
         start, parts = self._pred_end, list[np.ndarray]()
         while len(parts) < PREDICT_BLOCKS and self._pred_end + self.block <= limit:
             blk = self._pred.next_block(self.block)
             try:
-                self.monitor.check_ao(blk, self._pred_end)
+                self.monitor.check_ao_after(blk, self._pred_end, self._pred_prev)
             except LimitTrip:
                 self._pred_end = -1
                 break
+            self._pred_prev = blk[:, -1:]
             parts.append(blk)
             self._pred_end += self.block
         if parts:
@@ -360,6 +363,10 @@ class DriveStream:
                 self._fifo.pop()
                 self._states.pop()
             w.pos = at
+            # the slew check goes on from the last sample kept, not from the blocks dropped
+            before = self._fifo[-1] if self._fifo else (self._hist[-1][2] if self._hist
+                                                         else None)
+            self.monitor.last_ao = before
         return w.pos
 
     def shutdown(self, fade_s: float, cut: bool = False) -> None:
