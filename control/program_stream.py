@@ -21,6 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from control.ao_writer import AoWriter
 from control.operator import Answer, OperatorDesk, Question
 from daq.backend import DaqBackend
 from daq.errors import EmergencyStopError
@@ -33,6 +34,8 @@ class Listener(Protocol):
 
 
 FAULT_RAMP_S = 0.04  # drive fade on a fault [s]
+#: ring mode: blocks of the predicted level written per cycle beyond the lead
+PREDICT_BLOCKS = 8
 
 
 class ProgramError(RuntimeError):
@@ -117,25 +120,89 @@ class Stream:
         self.last_ai = np.zeros((len(self.cm.ai), 0))
         self._shown_v = np.zeros(self.n_ao)  # the drive at the end of the last block read
         self._started = False
+        #: the AO's writer: queued, or (a regenerating backend) the ring a late host cannot
+        #: underflow, two blocks ahead of the generation
+        self.writer = AoWriter(backend, block, 2 * block)
+        self._prefill: list[np.ndarray] = []
+        # ring mode: the current ramp's continuation written ahead (level, target, rate), the
+        # target it follows (`_cmd` counts new targets) and where it has reached
+        self._cmd = 0
+        self._pred_cmd = -1
+        self._pred: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._pred_end = 0
 
     def _write(self, target_v: np.ndarray, ramp_samples: int) -> None:
-        """Write one block moving linearly toward ``target_v``: a new target sets the rate so
-        that the whole change takes ``ramp_samples``; the level then arrives exactly."""
-        n = self.block
+        """Write the next block moving linearly toward ``target_v`` (a regenerating backend: as
+        many as keep the lead, after skipping what the ring played while the host was late:
+        the ramp moves on over those samples, and what the ring played is what is recorded)."""
+        if not self.writer.regenerating:
+            self.backend.write_ao(self._next(target_v, ramp_samples))
+            return
+        if not self._started:  # the prefill: written as the ring's start by `start`
+            self._prefill.append(self._next(target_v, ramp_samples))
+            return
+        skip = self.writer.late_skip(self.sample)
+        for _ in range(skip // self.block):
+            self._next(target_v, ramp_samples)
+            self._written[-1] = self.writer.played(self.block)
+        self.writer.clear_played()
+        while self.writer.wants_write():
+            blk = self._next(target_v, ramp_samples)
+            if self._pred_cmd == self._cmd and self._pred_end >= self.writer.pos + self.block:
+                self.writer.pos += self.block  # the ring holds this block already
+            else:
+                self.writer.write(blk)
+        self._predict()
+
+    def _predict(self) -> None:
+        """Ring mode: keep the ring filled, up to a ring ahead of the generation, with the
+        current ramp's continuation (as `DriveStream` does), so a late host hears the level it
+        is moving to, not one from a ring ago. A new target restarts it from the position."""
+        w = self.writer
+        assert w.ring is not None
+        if self._pred_cmd != self._cmd or self._pred_end < w.pos:
+            target = self.level_v if self._target is None else self._target
+            self._pred = (self.level_v.copy(), target.copy(), self._rate.copy())
+            self._pred_cmd, self._pred_end = self._cmd, w.pos
+        assert self._pred is not None
+        level, target, rate = self._pred
+        limit = w.generated + w.ring - self.block - w.margin
+        start, parts = self._pred_end, list[np.ndarray]()
+        while len(parts) < PREDICT_BLOCKS and self._pred_end + self.block <= limit:
+            blk = self._ramp_block(level, target, rate)
+            level = blk[:, -1].copy()
+            parts.append(blk)
+            self._pred_end += self.block
+        self._pred = (level, target, rate)
+        if parts:
+            w.write_at(start, np.concatenate(parts, axis=1))
+
+    def _next(self, target_v: np.ndarray, ramp_samples: int) -> np.ndarray:
+        """The next block moving linearly toward ``target_v``, queued to be read: a new target
+        sets the rate so that the whole change takes ``ramp_samples``; the level then arrives
+        exactly."""
         target_v = np.asarray(target_v, dtype=float)
         if self._target is None or not np.array_equal(target_v, self._target):
             self._target = target_v.copy()
             self._rate = np.abs(target_v - self.level_v) / max(int(ramp_samples), 1)
-        delta = self._target - self.level_v
-        k = np.arange(1, n + 1)[None, :]
-        moved = np.minimum(self._rate[:, None] * k, np.abs(delta)[:, None])
-        blk = self.level_v[:, None] + np.sign(delta)[:, None] * moved
+            self._cmd += 1
+        blk = self._ramp_block(self.level_v, self._target, self._rate)
+        self._written.append(blk)
+        self.level_v = blk[:, -1].copy()
+        return blk
+
+    def _ramp_block(self, level: np.ndarray, target: np.ndarray,
+                    rate: np.ndarray) -> np.ndarray:
+        """One block from ``level`` toward ``target`` at ``rate`` [V per sample], clipped to
+        the channels' ranges."""
+        delta = target - level
+        k = np.arange(1, self.block + 1)[None, :]
+        moved = np.minimum(rate[:, None] * k, np.abs(delta)[:, None])
+        blk = level[:, None] + np.sign(delta)[:, None] * moved
         for row, ch in enumerate(self.cm.ao):
             lo, hi = ch.range_v
             np.clip(blk[row], lo, hi, out=blk[row])
-        self.backend.write_ao(blk)
-        self._written.append(blk)
-        self.level_v = blk[:, -1].copy()
+        return blk
 
     def _read(self) -> np.ndarray:
         """Read the block the oldest written AO is generated with; AI in engineering units."""
@@ -149,8 +216,11 @@ class Stream:
         return ai
 
     def start(self) -> None:
+        self._prefill = []
         for _ in range(2):
             self._write(self.level_v, 1)
+        if self.writer.regenerating:
+            self.writer.prefill(np.concatenate(self._prefill, axis=1))
         self.backend.start()
         self._started = True
 
@@ -204,10 +274,33 @@ class Stream:
             if cut:
                 self._cut(ramp_s)
             n_blocks = int(np.ceil(ramp_s * self.fs / self.block)) + 3
+            if not cut and self.writer.regenerating and self._fade_in_ring(ramp_s, n_blocks):
+                return
             for _ in range(n_blocks):
                 self.step(zero, ramp_s)
         finally:
             self.backend.stop()
+
+    def _fade_in_ring(self, ramp_s: float, n_blocks: int) -> bool:
+        """Ring mode: the ramp to zero and zeros over the rest of the ring in one write, so a
+        host late while it plays cannot make the ring repeat an earlier level; then read out."""
+        zero = np.zeros(self.n_ao)
+        ramp = int(ramp_s * self.fs)
+        skip = self.writer.late_skip(self.sample)
+        for _ in range(skip // self.block):
+            self._next(zero, ramp)
+            self._written[-1] = self.writer.played(self.block)
+        at = self.writer.pos
+        if self.writer.generated + (self.writer.ring or 0) - at < (n_blocks + 1) * self.block:
+            return False
+        blocks = [self._next(zero, ramp) for _ in range(n_blocks)]
+        self.writer.fill_ring(at, np.concatenate(blocks, axis=1))
+        self.writer.pos = at + n_blocks * self.block
+        while self._written:
+            self._read()
+            self.writer.generated = self.sample
+            self.writer.clear_played()
+        return True
 
     def _cut(self, ramp_s: float) -> None:
         """Drop the AO not yet generated; the drives are at 0 V from there, or (a backend that
@@ -216,6 +309,10 @@ class Stream:
         queued = (np.concatenate(list(self._written), axis=1) if self._written
                   else np.zeros((self.n_ao, 0)))
         done = self.backend.cut_ao()
+        if self.writer.regenerating and done.at > self.sample + queued.shape[1]:
+            # the host was late: the ring played on past what was written, up to the cut
+            n = self.block * int(np.ceil((done.at - self.sample - queued.shape[1]) / self.block))
+            queued = np.concatenate([queued, self.writer.played(n)], axis=1)
         at = min(max(done.at, self.sample), self.sample + queued.shape[1]) - self.sample
         kept = queued[:, :at]
         level = kept[:, -1] if at else self._shown_v
@@ -223,7 +320,10 @@ class Stream:
         fade = level[:, None] * (1.0 - np.arange(1, n_ramp + 1) / n_ramp)[None, :]
         total = self.block * int(np.ceil((queued.shape[1] + n_ramp) / self.block))
         zeros = np.zeros((self.n_ao, total - at - n_ramp))
-        if done.resumes:
+        if done.resumes and self.writer.regenerating:
+            self.writer.generated = self.sample + at
+            self.writer.fill_ring(self.sample + at, np.concatenate([fade, zeros], axis=1))
+        elif done.resumes:
             self.backend.write_ao(np.concatenate([fade, zeros], axis=1))
         tail = np.concatenate([kept, fade, zeros], axis=1)
         self._written = deque(tail[:, i:i + self.block] for i in range(0, total, self.block))

@@ -190,8 +190,25 @@ class SafetyMonitor:
         #: row of p_in, set (by the engine) once a lubricated run is primed: pressure is watched
         self.pressure_row: int | None = None
 
+    @property
+    def last_ao(self) -> np.ndarray | None:
+        """The last drive sample checked, shape (n_ao, 1): the slew check's reference for the
+        next block (a stream that drops blocks it had written sets it back)."""
+        return self._last_ao
+
+    @last_ao.setter
+    def last_ao(self, value: np.ndarray | None) -> None:
+        self._last_ao = None if value is None else np.asarray(value)[:, -1:].copy()
+
     def check_ao(self, block: np.ndarray, first_sample: int) -> None:
         """Raise `LimitTrip` if a drive block to be written breaks the volt or slew limit."""
+        self.check_ao_after(block, first_sample, self._last_ao)
+        self._last_ao = block[:, -1:].copy()
+
+    def check_ao_after(self, block: np.ndarray, first_sample: int,
+                       prev: np.ndarray | None) -> None:
+        """`check_ao` for a block that follows ``prev`` (the drive before it, or None),
+        leaving the monitor's own reference alone: a prediction written ahead of the lead."""
         lim = self.limits
         peak = np.abs(block).max(axis=1)
         if np.any(peak > lim.max_drive_v + 1e-9):
@@ -201,7 +218,6 @@ class SafetyMonitor:
                 f"drive {row} would reach {peak[row]:.3f} V, above the {lim.max_drive_v:g} V "
                 "limit", first_sample + k, "drive_v",
             )
-        prev = self._last_ao
         ext = block if prev is None else np.concatenate([prev[:, -1:], block], axis=1)
         if ext.shape[1] > 1:
             slew = np.abs(np.diff(ext, axis=1)) * self.fs
@@ -214,7 +230,6 @@ class SafetyMonitor:
                     f"{lim.slew_limit_v_per_s:.4g} V/s limit",
                     first_sample + k - (0 if prev is None else 1), "drive_slew",
                 )
-        self._last_ao = block[:, -1:].copy()
 
     def contact(self, eng: np.ndarray, first_sample: int) -> tuple[int, str] | None:
         """(sample, message) of the first journal-housing contact in the block, or None.

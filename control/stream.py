@@ -2,10 +2,16 @@
 block, convert, check, publish. Where a sweep writes AO (the structure tests write theirs in
 `control.program_stream`).
 
-AO streams ahead of the generation by ``ahead_blocks`` blocks (the underflow margin). A trip does
-not let that queue play: the backend stops it (`DaqBackend.cut_ao`) and the drives are at 0 V
-from the first sample not generated (or, where the backend resumes, fade from it). Samples read
-are kept for a while (`DriveStream.window`) so that the lock-in can look back over them.
+AO streams ahead of the generation by ``ahead_blocks`` blocks, through `control.ao_writer.AoWriter`.
+On a regenerating backend (`DaqBackend.ao_ring_samples`) the blocks go into the ring at their
+absolute sample and a late host makes the board repeat the ring instead of underflowing: the
+stream then skips forward (the synthesiser is phase-continuous by absolute sample) and records
+what the ring played. A stop (abort, pause, normal end) rewrites the ring from the generation
+plus the writer's margin with the fade and then zeros over a whole ring, so nothing stale can
+play again whatever the host does next. A trip does not let the AO queued play: the backend
+stops it (`DaqBackend.cut_ao`) and the drives are at 0 V from the first sample not generated
+(or, where the backend resumes, fade from it). Samples read are kept for a while
+(`DriveStream.window`) so that the lock-in can look back over them.
 """
 
 from __future__ import annotations
@@ -18,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from control.ao_writer import AoWriter
+from control.errors import LimitTrip
 from control.listener import SweepListener
 from control.safety import SafetyMonitor
 from control.synthesis import SineSynthesizer
@@ -27,6 +35,11 @@ log = logging.getLogger(__name__)
 
 #: What the soft limit (`DriveStream.guard`) leaves of the drive.
 GUARD_CUT = 0.5
+#: The stop budget: an abort has the drives at 0 V this long after it is handled [s].
+STOP_S = 0.1
+#: Ring mode: blocks of the predicted drive written per cycle beyond the lead, until the ring
+#: holds the current command's continuation up to a ring ahead (8: a 2 s ring in 0.25 s).
+PREDICT_BLOCKS = 8
 
 
 @dataclass
@@ -108,17 +121,39 @@ class DriveStream:
         self.guard_event: tuple[int, str] | None = None
         #: the first journal-housing contact seen (sample, message), checked on every block
         self.contact_event: tuple[int, str] | None = None
-        #: the underflow margin measured: the fewest AO samples still queued ahead of the
-        #: generation when a block was written, and the AI sample at which that was
-        self.min_ao_backlog: int | None = None
-        self.min_ao_backlog_sample = 0
+        #: writes the AO (queued, or into the backend's ring) and measures how the host kept
+        #: its lead
+        self.writer = AoWriter(backend, block_samples, ahead_blocks * block_samples)
+        # ring mode: a copy of the synthesiser running ahead of the lead, whose samples (the
+        # current command's continuation) fill the ring up to a ring ahead of the generation,
+        # so a late host hears the drive it would have written, not the drive of a ring ago
+        self._pred: SineSynthesizer | None = None
+        self._pred_end = 0
+        self._pred_prev: np.ndarray | None = None  # the drive before the next predicted block
+
+    @property
+    def min_ao_backlog(self) -> int | None:
+        """The fewest AO samples written ahead of the generation before a write (ring mode:
+        negative when the generation had passed them)."""
+        return self.writer.min_backlog
+
+    @property
+    def min_ao_backlog_sample(self) -> int:
+        """The AI sample at which `min_ao_backlog` was seen."""
+        return self.writer.min_backlog_at
 
     # --- running ----------------------------------------------------------------------------
     def start(self) -> None:
         """Prefill the AO buffer (zeros from the synthesiser) and start the tasks."""
+        blocks = []
         for _ in range(self.ahead_blocks):
             state = _snapshot(self.synth)
-            self._write(self.synth.next_block(self.block), state, check=True)
+            ao = self.synth.next_block(self.block)
+            self.monitor.check_ao(ao, self.synth.sample - ao.shape[1])
+            self._fifo.append(ao)
+            self._states.append(state)
+            blocks.append(ao)
+        self.writer.prefill(np.concatenate(blocks, axis=1))
         self.backend.start()
         self._started = True
 
@@ -127,39 +162,101 @@ class DriveStream:
         fade starts from the synthesiser as it was at the first sample not generated)."""
         if check:
             self.monitor.check_ao(ao, self.synth.sample - ao.shape[1])
-        self.backend.write_ao(ao)
+        if self._predicted(ao.shape[1]):
+            self.writer.pos += ao.shape[1]  # the ring holds these samples already
+        else:
+            self.writer.write(ao)
         self._fifo.append(ao)
         self._states.append(state)
 
     def cycle(self) -> None:
-        """Write the next drive block, read the next AI block, publish and check it."""
-        state = _snapshot(self.synth)
-        ao = self.synth.next_block(self.block)
-        self._measure_margin()
-        try:
-            self._write(ao, state, check=True)
-        except BaseException:
-            _restore(self.synth, state)  # the fade must continue from what was written
-            raise
+        """Write the next drive block(s), read the next AI block, publish and check it.
+
+        Without a ring: one block. With one: first, if the host is late, skip the samples the
+        ring plays (or is about to) and record what it plays there; then write while the lead
+        is short (one block when on time; up to the whole lead after a skip)."""
+        self._catch_up()
+        while self.writer.wants_write():
+            state = _snapshot(self.synth)
+            ao = self.synth.next_block(self.block)
+            try:
+                self._write(ao, state, check=True)
+            except BaseException:
+                _restore(self.synth, state)  # the fade must continue from what was written
+                raise
+            if not self.writer.regenerating:
+                break
+        if self.writer.regenerating:
+            self._predict()
         self._read_one(check=self.check_limits)
         if self.interrupt is not None:
             self.interrupt()
 
-    def _measure_margin(self) -> None:
-        """How far ahead of the generation the AO still is, just before a write: at 0 the
-        board underflows (-200290); the minimum over the run is the margin the lead left."""
-        backlog = self.backend.ao_backlog()
-        if self.min_ao_backlog is None or backlog < self.min_ao_backlog:
-            self.min_ao_backlog, self.min_ao_backlog_sample = backlog, self.sample
+    def _predicted(self, n: int) -> bool:
+        """Whether the ring already holds the next ``n`` samples as the synthesiser will make
+        them: the prediction started from its state with the same commands since."""
+        return (self._pred is not None and self._pred.revision == self.synth.revision
+                and self._pred_end >= self.writer.pos + n)
+
+    def _predict(self) -> None:
+        """Ring mode: extend the prediction (the synthesiser's continuation without a new
+        command) by up to `PREDICT_BLOCKS` blocks, up to a ring ahead of the generation less a
+        block and the margin. A new command restarts it from the position; a predicted block
+        over a drive limit ends it until the next command."""
+        w = self.writer
+        assert w.ring is not None
+        if self._pred is None or self._pred.revision != self.synth.revision or \
+                self._pred_end < w.pos:
+            if self._pred is not None and self._pred.revision == self.synth.revision and \
+                    self._pred_end < 0:
+                return  # over a limit: nothing more until the next command
+            self._pred = SineSynthesizer(self.synth.n_channels, self.synth.fs)
+            _restore(self._pred, _snapshot(self.synth))
+            self._pred_end = w.pos
+            self._pred_prev = self.monitor.last_ao
+        limit = w.generated + w.ring - self.block - w.margin
+        start, parts = self._pred_end, list[np.ndarray]()
+        while len(parts) < PREDICT_BLOCKS and self._pred_end + self.block <= limit:
+            blk = self._pred.next_block(self.block)
+            try:
+                self.monitor.check_ao_after(blk, self._pred_end, self._pred_prev)
+            except LimitTrip:
+                self._pred_end = -1
+                break
+            self._pred_prev = blk[:, -1:]
+            parts.append(blk)
+            self._pred_end += self.block
+        if parts:
+            w.write_at(start, np.concatenate(parts, axis=1))
+
+    def _forget_prediction(self) -> None:
+        self._pred = None
+
+    def _catch_up(self) -> None:
+        """Ring mode: read the generation; if it has come within the margin of the next
+        position, move past it by whole blocks: the synthesiser is advanced over them (so the
+        drive keeps its phase) and what the ring plays there is queued for the record."""
+        skip = self.writer.late_skip(self.sample)
+        if skip:
+            self._skip(skip)
+        if self.writer.regenerating:
+            self.writer.clear_played()
+
+    def generation(self) -> int:
+        """The sample the AO is generating now: on a ring the board's count (a late host's
+        reads lag it), otherwise the next AI sample to read (the lead keeps them together).
+        What a stop's event is stamped with: its 0 V is timed from here."""
+        if self.writer.regenerating and self._started:
+            try:
+                return max(self.backend.ao_generated(), self.sample)
+            except Exception:  # noqa: BLE001 - a stamp, never a reason to fail the stop
+                log.exception("could not read the AO generation count")
+        return self.sample
 
     def margin_report(self) -> str:
-        """The AO lead and the underflow margin measured, in words."""
-        fs = self.cm.sample_rate_hz
-        lead_ms = 1e3 * self.ahead_blocks * self.block / fs
-        if self.min_ao_backlog is None:
-            return f"AO lead {lead_ms:.0f} ms; no block written after the start"
-        return (f"AO lead {lead_ms:.0f} ms; underflow margin {1e3 * self.min_ao_backlog / fs:.1f}"
-                f" ms at the tightest (AI sample {self.min_ao_backlog_sample})")
+        """The AO lead and how it was kept (the underflow margin, or how often and how late
+        the host was and what the ring repeated), in words."""
+        return self.writer.report(self.cm.sample_rate_hz)
 
     def advance_to(self, sample: int) -> None:
         """Cycle until every sample before ``sample`` has been read."""
@@ -219,9 +316,58 @@ class DriveStream:
 
     # --- stopping ---------------------------------------------------------------------------
     def ramp_down(self, ramp_s: float) -> None:
-        """Ramp both drives to zero (normal stop or pause) and keep streaming until they are."""
+        """Ramp both drives to zero (normal stop or pause) and keep streaming until they are.
+
+        Ring mode: the whole ramp is written at once, from the generation plus the margin,
+        followed by zeros over the rest of the ring, so a host late during the ramp cannot
+        make the ring repeat the drive from before it."""
+        if self.writer.regenerating:
+            self._catch_up()
+            self._truncate_to_margin()
         n = self.synth.fade_out(ramp_s)
-        self.advance_to(self.synth.sample + n + self.block * (self.ahead_blocks + 1))
+        end = self.synth.sample + n + self.block * (self.ahead_blocks + 1)
+        if self.writer.regenerating and n:
+            self._write_fade(n)
+        self.advance_to(end)
+
+    def _write_fade(self, n: int) -> None:
+        """Ring mode: the next ``n`` samples of the synthesiser (a fade) from the position
+        (the generation plus the margin), then zeros over the ring, in one write."""
+        ring = self.writer.ring
+        assert ring is not None
+        at = self.writer.pos
+        m = self.block * math.ceil(n / self.block)
+        if self.writer.generated + ring - at < m + self.block:
+            return  # longer than the ring: written block by block as usual
+        parts = []
+        for _ in range(m // self.block):
+            state = _snapshot(self.synth)
+            ao = self.synth.next_block(self.block)
+            self.monitor.check_ao(ao, self.synth.sample - self.block)
+            self._fifo.append(ao)
+            self._states.append(state)
+            parts.append(ao)
+        self.writer.fill_ring(at, np.concatenate(parts, axis=1))
+        self.writer.pos = at + m
+
+    def _truncate_to_margin(self) -> int:
+        """Ring mode: drop what was written beyond the generation plus the margin (whole
+        blocks), putting the synthesiser back to that sample; returns it."""
+        w = self.writer
+        at = self.block * math.ceil(max(w.generated + w.margin, self.sample) / self.block)
+        index = (at - self.sample) // self.block
+        self._forget_prediction()
+        if index < len(self._fifo):
+            _restore(self.synth, self._states[index])
+            for _ in range(len(self._fifo) - index):
+                self._fifo.pop()
+                self._states.pop()
+            w.pos = at
+            # the slew check goes on from the last sample kept, not from the blocks dropped
+            before = self._fifo[-1] if self._fifo else (self._hist[-1][2] if self._hist
+                                                         else None)
+            self.monitor.last_ao = before
+        return w.pos
 
     def shutdown(self, fade_s: float, cut: bool = False) -> None:
         """Fade both drives to zero, write two blocks of zeros, read out the buffer, stop the tasks.
@@ -239,8 +385,12 @@ class DriveStream:
         reading = True
         try:
             if self._started:
-                for ao in self._tail(fade_s, cut):
-                    self.backend.write_ao(ao)
+                at, tail = self._tail(fade_s, cut)
+                if not self.writer.regenerating:
+                    for ao in tail:
+                        self.backend.write_ao(ao)
+                elif tail:  # the fade, then zeros over the rest of the ring, in one write
+                    self.writer.fill_ring(at, np.concatenate(tail, axis=1))
                 while reading and self._fifo:
                     try:
                         self._read_one(check=False)
@@ -248,10 +398,20 @@ class DriveStream:
                         log.exception("acquisition failed while ramping down; the fade is "
                                       "written")
                         reading = False
+                    if tail and self.writer.regenerating:
+                        # once the fade has played, zeros over it too: the whole ring is 0 V
+                        # even if the host now stalls past a ring before the task stops
+                        self.writer.generated = self.sample
+                        self.writer.clear_played()
         except Exception:
             log.exception("error while ramping the drives down; stopping the tasks")
             try:
-                self.backend.write_ao(np.zeros((len(self.cm.ao), self.block)))
+                if self.writer.regenerating:
+                    assert self.writer.ring is not None
+                    self.writer.write_at(self.backend.ao_generated() + self.writer.margin,
+                                         np.zeros((len(self.cm.ao), self.writer.ring)))
+                else:
+                    self.backend.write_ao(np.zeros((len(self.cm.ao), self.block)))
             except Exception:
                 log.exception("could not write zeros")
         finally:
@@ -261,18 +421,26 @@ class DriveStream:
                 log.exception("could not stop the tasks")
             self._started = False
 
-    def _tail(self, fade_s: float, cut: bool) -> list[np.ndarray]:
-        """The end of the stream after a stop: the AO still to write (the fade and the zeros),
-        with the queue of blocks to read rebuilt to what the outputs will show."""
+    def _tail(self, fade_s: float, cut: bool) -> tuple[int, list[np.ndarray]]:
+        """The end of the stream after a stop: where the AO still to write goes and what it is
+        (the fade and the zeros; nothing when a cut stopped the generation), with the queue of
+        blocks to read rebuilt to what the outputs will show. Ring mode: a normal stop starts
+        from the generation plus the margin (not after the lead), a cut from the sample the
+        backend names, past what the host wrote if it was late (the ring played that)."""
         fs = self.cm.sample_rate_hz
-        queued = (np.concatenate(list(self._fifo), axis=1) if self._fifo
-                  else np.zeros((len(self.cm.ao), 0)))
         at, resumes = self.synth.sample, True
         if cut:
             done = self.backend.cut_ao()
+            if self.writer.regenerating and done.at > self.writer.pos:
+                self._skip(done.at - self.writer.pos)  # the ring played it
             at, resumes = min(max(done.at, self.sample), self.synth.sample), done.resumes
             if at < self.synth.sample:
                 self._rewind(at)
+        elif self.writer.regenerating:  # the fade from the generation plus the margin
+            self._catch_up()
+            at = self._truncate_to_margin()
+        queued = (np.concatenate(list(self._fifo), axis=1) if self._fifo
+                  else np.zeros((len(self.cm.ao), 0)))
         kept = queued[:, :at - self.sample]
         new = []
         if resumes:
@@ -285,16 +453,28 @@ class DriveStream:
         if cut:  # read the motion out for as long as the queue and the fade would have taken
             end = max(end, self.sample + self.block * (self.ahead_blocks + 1)
                       + math.ceil(fade_s * fs))
+        elif self.writer.regenerating:  # the file holds the whole 100 ms stop budget and more
+            end = max(end, max(self.sample, self.writer.generated) + math.ceil(STOP_S * fs)
+                      + self.block)
         end = self.sample + math.ceil((end - self.sample) / self.block) * self.block
         new.append(np.zeros((len(self.cm.ao), end - self.zero_sample)))
         self.synth.sample = end
+        self.writer.pos = end
         tail = np.concatenate([kept, *new], axis=1)
         self._fifo = deque(tail[:, i:i + self.block] for i in range(0, tail.shape[1], self.block))
         self._states.clear()
-        return new if resumes else []
+        return at, (new if resumes else [])
+
+    def _skip(self, n: int) -> None:
+        """Move past at least ``n`` samples (whole blocks) the ring plays, as a late host does."""
+        for _ in range(math.ceil(n / self.block)):
+            self._states.append(_snapshot(self.synth))
+            self.synth.next_block(self.block)
+            self._fifo.append(self.writer.played(self.block))
 
     def _rewind(self, at: int) -> None:
         """Put the synthesiser back to where it was at sample ``at`` (queued, not generated)."""
+        self._forget_prediction()
         first = self.synth.sample - self.block * len(self._states)
         index = (at - first) // self.block
         _restore(self.synth, self._states[index])

@@ -312,7 +312,7 @@ class SweepEngine:
                     reason = f"{bad} of {len(self.results)} steps did not converge"
             except _Abort as ab:
                 status, reason = State.ABORTED, ab.reason
-                self._emit_safe("abort", reason)
+                self._emit_safe("abort", reason, stream.generation())
             except LimitTrip as trip:
                 status, reason, cut = State.ABORTED, str(trip), True
                 self._emit_safe("limit_trip", reason, trip.sample if trip.sample >= 0 else None)

@@ -45,6 +45,9 @@ class SineSynthesizer:
         self._phasor = np.zeros(n_channels, dtype=np.complex128)
         self._phasor_target = np.zeros(n_channels, dtype=np.complex128)
         self._phasor_left = 0
+        #: counts the commands (`ramp_to`, `fade_out`): equal counts on copies of one
+        #: synthesiser mean the same commands, so they produce the same samples
+        self.revision = 0
 
     # --- state ------------------------------------------------------------------------------
     @property
@@ -111,6 +114,7 @@ class SineSynthesizer:
             Length of the ramp [samples].
         """
         n = max(0, int(math.ceil(ramp_s * self.fs - 1e-9)))
+        self.revision += 1
         if phasors is not None:
             p = np.asarray(phasors, dtype=np.complex128)
             if p.shape != (self.n_channels,):

@@ -6,9 +6,16 @@ Life cycle: ``configure(channel_map)`` -> ``write_ao(prefill)`` -> ``start()`` -
 - AI is hardware-timed and continuous; ``read_ai`` returns the next ``n`` samples per channel, in
   volts, shape ``(n_ai, n)``, in channel-map order, with no gap: a lost sample is an exception
   (`daq.errors.DaqBufferOverflowError`), never a silent jump.
-- AO streams without regeneration on the AI sample clock and AI start trigger, so sample ``k`` of
-  the AO stream is generated at the instant AI sample ``k`` is taken. The caller keeps the AO
-  buffer ahead of the generation; running dry raises `daq.errors.DaqUnderflowError`.
+- AO streams on the AI sample clock and AI start trigger, so sample ``k`` of the AO stream is
+  generated at the instant AI sample ``k`` is taken, in one of two modes (`ao_ring_samples`):
+  non-regenerating (None): every sample written plays once, in order; running dry raises
+  `daq.errors.DaqUnderflowError` (-200290). Regenerating (a ring of B samples): the board plays
+  ring position ``k mod B`` at sample ``k`` for ever, whatever was last written there; the caller
+  writes each block at its absolute sample (``write_ao(block, at=k)``) a lead ahead of
+  `ao_generated`, and a caller that is late makes the board repeat what the ring held (from one
+  ring earlier) instead of underflowing. Before `start` the whole ring is written (the prefill).
+  A write is only sure to play if it lands ahead of the generation by at least `ao_min_lead`
+  samples (a board's on-board FIFO already holds the samples just ahead of the generation).
 - ``set_do`` switches a relay line at once (software-timed).
 - ``estop_pressed`` reads the optional emergency-stop input (False without one). ``read_ai``
   raises `daq.errors.EmergencyStopError` once when it finds it pressed (later reads deliver the
@@ -59,8 +66,21 @@ class DaqBackend(Protocol):
     def start(self) -> None:
         """Start AO (armed on the AI start trigger), then AI. Prefill AO first."""
 
-    def write_ao(self, block: np.ndarray) -> None:
-        """Queue the next AO samples, volts, shape ``(n_ao, n)``; never regenerated."""
+    @property
+    def ao_ring_samples(self) -> int | None:
+        """The regenerating AO ring's length [samples], or None for a non-regenerating stream."""
+
+    @property
+    def ao_min_lead(self) -> int:
+        """How far ahead of the generation a ring write must land to be sure to play [samples]."""
+
+    def write_ao(self, block: np.ndarray, at: int | None = None) -> None:
+        """Write AO samples, volts, shape ``(n_ao, n)``. Non-regenerating: queued after the last
+        (``at`` must be None or that position). Regenerating: written to ring positions
+        ``(at + i) mod B`` (``at`` None: right after the last sample written; ``n <= B``)."""
+
+    def ao_generated(self) -> int:
+        """AO samples generated since `start` (DAQmx TotalSampPerChanGenerated); 0 before."""
 
     def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
         """The next ``n`` AI samples per channel, volts, shape ``(n_ai, n)``."""
@@ -79,7 +99,9 @@ class DaqBackend(Protocol):
         """Stop the AO already queued from playing, at once (see `AoCut`)."""
 
     def ao_backlog(self) -> int:
-        """Samples written to AO but not yet generated."""
+        """Samples written to AO but not yet generated: the end of the samples written less
+        `ao_generated` (regenerating, negative when the generation has passed the last sample
+        written: the ring is repeating)."""
 
     def stop(self) -> None:
         """Stop the tasks; the last AO samples written stay on the outputs (write zeros first)."""

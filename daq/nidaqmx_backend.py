@@ -5,9 +5,18 @@ map names one (``ChannelMap.grpc_target = "host:port"``). Three tasks:
 
 - AI: one voltage channel per analog input (with its range), hardware-timed, continuous, on the
   onboard clock; read with `AnalogMultiChannelReader` (no per-read attribute round trips).
-- AO: one voltage channel per shaker drive, non-regenerating, on ``/<dev>/ai/SampleClock`` and
-  armed on ``/<dev>/ai/StartTrigger``, so AO sample ``k`` is generated as AI sample ``k`` is taken;
-  written with `AnalogMultiChannelWriter`.
+- AO: one voltage channel per shaker drive on ``/<dev>/ai/SampleClock`` and armed on
+  ``/<dev>/ai/StartTrigger``, so AO sample ``k`` is generated as AI sample ``k`` is taken;
+  written with `AnalogMultiChannelWriter`. Non-regenerating, or (``ao_ring_s``) a regenerating
+  ring of that many seconds (DAQmx ALLOW_REGENERATION, buffer = the ring): each block is
+  written at its absolute sample ``k`` through the write position (``out_stream.relative_to =
+  FIRST_SAMPLE``, ``out_stream.offset = k mod B``), the generation count is
+  ``TotalSampPerChanGenerated``, and a late host makes the board repeat the ring instead of
+  underflowing. The device's on-board FIFO holds samples ahead of the generation that a write
+  can no longer change, so the backend shrinks it (``out_stream.output_onbrd_buf_size``, where
+  the device lets it) and names what is left in `ao_min_lead`. A ring repeats its drive for as
+  long as a hung host leaves it: it needs the watchdog (below), whose expiry sets the drives to
+  0 V; without AO expiration states the backend falls back to the non-regenerating stream.
 - DO: one line per relay, software-timed.
 - DI: the optional emergency-stop line, read once per `read_ai` (software-timed).
 
@@ -32,6 +41,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import time
 import uuid
 from collections.abc import Iterator
@@ -53,6 +63,14 @@ from daq.errors import (
 )
 
 _log = logging.getLogger(__name__)
+
+#: how much longer than the watchdog timeout the AO ring must be [s]
+RING_OVER_WATCHDOG_S = 0.2
+#: what the backend asks the on-board AO FIFO to hold in ring mode [s]; the writer's margin
+#: covers it and a transfer
+ONBOARD_S = 0.002
+#: a write's transfer to the device's buffer, beyond the FIFO [s]
+TRANSFER_S = 0.003
 
 #: gRPC message limit: one read of 100,000 samples x 16 channels is 12.8 MB of doubles.
 MAX_MESSAGE_BYTES = 256 * 1024 * 1024
@@ -110,13 +128,32 @@ class NidaqmxBackend:
     watchdog_timeout_s : float or None
         The board's watchdog timer [s]: relays off and drives to 0 V if it is not fed for
         this long. None: no watchdog.
+    ao_ring_s : float or None
+        The regenerating AO ring [s]; None: non-regenerating. Needs the watchdog, at least
+        ``RING_OVER_WATCHDOG_S`` shorter than the ring (a hung host is stopped by it before an
+        abort's fade could come round again).
     """
 
     def __init__(self, buffer_s: float = 10.0, connect_timeout_s: float = 5.0,
                  grpc_target: str | None = None,
-                 watchdog_timeout_s: float | None = 1.0) -> None:
+                 watchdog_timeout_s: float | None = 1.0,
+                 ao_ring_s: float | None = None) -> None:
         if buffer_s <= 0:
             raise ValueError(f"buffer_s must be positive, got {buffer_s}")
+        if ao_ring_s is not None:
+            if not ao_ring_s > 0:
+                raise ValueError(f"ao_ring_s must be positive or None, got {ao_ring_s}")
+            if watchdog_timeout_s is None or \
+                    watchdog_timeout_s + RING_OVER_WATCHDOG_S > ao_ring_s:
+                raise ValueError(
+                    f"ao_ring_s = {ao_ring_s:g} s needs a watchdog_timeout_s of at most "
+                    f"{ao_ring_s - RING_OVER_WATCHDOG_S:g} s, got {watchdog_timeout_s}: a ring "
+                    "repeats its drive for as long as a hung host leaves it")
+        self.ao_ring_s = ao_ring_s
+        self._ring: int | None = None  # the ring in use (samples), once configured
+        self._written_end = 0
+        #: the on-board FIFO samples a write cannot change any more (ring mode)
+        self._onboard = 0
         if watchdog_timeout_s is not None and not 0 < watchdog_timeout_s <= 60:
             raise ValueError(f"watchdog_timeout_s must be in (0, 60] s or None, got "
                              f"{watchdog_timeout_s}")
@@ -162,6 +199,28 @@ class NidaqmxBackend:
             return self._grpc_override
         return self._map.grpc_target if self._map is not None else None
 
+    @property
+    def ao_ring_samples(self) -> int | None:
+        """The regenerating ring in use [samples] (None: non-regenerating; before configure:
+        what ``ao_ring_s`` asks for)."""
+        if self._ao is None and self._map is not None and self.ao_ring_s is not None:
+            return max(int(round(self.ao_ring_s * self._map.sample_rate_hz)), 1)
+        return self._ring
+
+    @property
+    def ao_min_lead(self) -> int:
+        """The on-board FIFO plus a transfer [samples]: a ring write closer to the generation
+        than this may not play."""
+        fs = self._map.sample_rate_hz if self._map is not None else 0.0
+        return self._onboard + int(math.ceil(TRANSFER_S * fs))
+
+    def ao_generated(self) -> int:
+        """AO samples generated since the start (DAQmx TotalSampPerChanGenerated)."""
+        if self._ao is None or not self._running:
+            return 0
+        with translate_errors("asking for the AO samples generated"):
+            return int(self._ao.out_stream.total_samp_per_chan_generated)
+
     def configure(self, channel_map: ChannelMap) -> None:
         """Create the AI, AO and DO tasks for ``channel_map``; nothing starts yet.
 
@@ -173,7 +232,7 @@ class NidaqmxBackend:
             raise DaqError("cannot reconfigure while running; stop first")
         self.close()
         self._map = channel_map
-        self._ao_written = 0
+        self._ao_written = self._written_end = 0
         try:
             self._create_tasks(channel_map)
         except BaseException:
@@ -191,8 +250,9 @@ class NidaqmxBackend:
             self._ai.start()
         self._running = True
 
-    def write_ao(self, block: np.ndarray) -> None:
-        """Queue the next AO samples, volts, shape ``(n_ao, n)``; never regenerated."""
+    def write_ao(self, block: np.ndarray, at: int | None = None) -> None:
+        """Queue the next AO samples, volts, shape ``(n_ao, n)``; in ring mode write them at
+        absolute sample ``at`` (None: after the last written), split at the ring's end."""
         cm = self.channel_map
         arr = np.ascontiguousarray(block, dtype=np.float64)
         if arr.ndim != 2 or arr.shape[0] != len(cm.ao) or arr.shape[1] == 0:
@@ -205,6 +265,26 @@ class NidaqmxBackend:
                                          "pressed: release it before starting")
             self._estop_latched = False
             self._clear_expired_watchdog()  # the operator's decision
+        if self._ring is None:
+            if at is not None and at != self._ao_written:
+                raise ValueError(f"a non-regenerating AO stream writes at sample "
+                                 f"{self._ao_written}, not {at}")
+            self._write_many(arr)
+            return
+        at = self._written_end if at is None else int(at)
+        if arr.shape[1] > self._ring or at < 0:
+            raise ValueError(f"AO write of {arr.shape[1]} samples at {at}: the ring holds "
+                             f"{self._ring}, positions start at 0")
+        first = at % self._ring
+        split = min(arr.shape[1], self._ring - first)
+        for offset, part in ((first, arr[:, :split]), (0, arr[:, split:])):
+            if part.shape[1]:
+                with translate_errors(f"setting the AO write position to {offset}"):
+                    self._ao.out_stream.offset = offset
+                self._write_many(np.ascontiguousarray(part))
+        self._written_end = max(self._written_end, at + arr.shape[1])
+
+    def _write_many(self, arr: np.ndarray) -> None:
         with translate_errors(f"writing {arr.shape[1]} AO samples"):
             written = self._writer.write_many_sample(arr, timeout=self.buffer_s)
         self._ao_written += int(written)
@@ -284,11 +364,10 @@ class NidaqmxBackend:
         """Samples written to AO but not yet generated (DAQmx TotalSampPerChanGenerated)."""
         if self._ao is None:
             return 0
+        end = self._ao_written if self._ring is None else self._written_end
         if not self._running:
-            return self._ao_written
-        with translate_errors("asking for the AO samples generated"):
-            generated = int(self._ao.out_stream.total_samp_per_chan_generated)
-        return self._ao_written - generated
+            return end
+        return end - self.ao_generated()
 
     def cut_ao(self) -> AoCut:
         """A trip: stop the AO task at once (DAQmx Stop Task: the samples written but not
@@ -297,7 +376,7 @@ class NidaqmxBackend:
         task would hold its last sample on the amplifiers, so nothing is dropped: the queue
         plays out and the caller's fade follows it."""
         if self._ao is None or not self._running or not self.ao_idle_zero:
-            return AoCut(self._ao_written, True)
+            return AoCut(self._ao_written if self._ring is None else self._written_end, True)
         out = self._ao.out_stream
         with translate_errors("stopping the AO task (a trip: drives to 0 V at once)"):
             before = int(out.total_samp_per_chan_generated)
@@ -321,7 +400,7 @@ class NidaqmxBackend:
             except DaqError as err:
                 first = first or err
         self._running = False
-        self._ao_written = 0  # a restart counts its generation from zero again
+        self._ao_written = self._written_end = 0  # a restart counts from zero again
         if first is not None:
             raise first
 
@@ -343,6 +422,7 @@ class NidaqmxBackend:
                 task._handle = None
         self._reader = self._writer = self._do_writer = self._estop_reader = None
         self._running = False
+        self._ring = None
         if self._channel is not None:
             self._channel.close()
             self._channel = None
@@ -391,7 +471,7 @@ class NidaqmxBackend:
 
     def _create_tasks(self, cm: ChannelMap) -> None:
         nidaqmx = _nidaqmx()
-        from nidaqmx.constants import AcquisitionType, LineGrouping, RegenerationMode
+        from nidaqmx.constants import AcquisitionType, LineGrouping
 
         dev = cm.device.name
         fs = cm.sample_rate_hz
@@ -429,7 +509,6 @@ class NidaqmxBackend:
                     fs, source=f"/{dev}/ai/SampleClock",
                     sample_mode=AcquisitionType.CONTINUOUS, samps_per_chan=buffer)
                 self._ao.triggers.start_trigger.cfg_dig_edge_start_trig(f"/{dev}/ai/StartTrigger")
-                self._ao.out_stream.regen_mode = RegenerationMode.DONT_ALLOW_REGENERATION
             self._set_ao_idle_zero()
             self._writer = nidaqmx.stream_writers.AnalogMultiChannelWriter(
                 self._ao.out_stream, auto_start=False)
@@ -457,6 +536,50 @@ class NidaqmxBackend:
                 self._estop_task.in_stream)
         if self.watchdog_timeout_s is not None:
             self._create_watchdog(nidaqmx, cm)
+        if self._ao is not None:
+            self._set_regeneration(cm)
+
+    def _set_regeneration(self, cm: ChannelMap) -> None:
+        """The AO's mode: the ring (``ao_ring_s``) where the watchdog sets the drives to 0 V on
+        expiry, otherwise non-regenerating."""
+        from nidaqmx.constants import RegenerationMode, WriteRelativeTo
+
+        ring = None
+        if self.ao_ring_s is not None:
+            if self.watchdog_sets_ao:
+                ring = max(int(round(self.ao_ring_s * cm.sample_rate_hz)), 1)
+            else:
+                _log.warning("the watchdog cannot set the drives to 0 V on this device: a "
+                             "ring would repeat for as long as a hung host left it, so the AO "
+                             "streams without regeneration")
+        out = self._ao.out_stream
+        if ring is None:
+            with translate_errors("setting the AO to non-regenerating"):
+                out.regen_mode = RegenerationMode.DONT_ALLOW_REGENERATION
+            self._ring = None
+            return
+        with translate_errors(f"setting up the regenerating AO ring of {ring} samples"):
+            out.regen_mode = RegenerationMode.ALLOW_REGENERATION
+            out.output_buf_size = ring
+            out.relative_to = WriteRelativeTo.FIRST_SAMPLE
+            out.offset = 0
+        self._onboard = self._shrink_onboard(int(math.ceil(ONBOARD_S * cm.sample_rate_hz)))
+        self._ring = ring
+
+    def _shrink_onboard(self, wanted: int) -> int:
+        """Ask the device's on-board AO FIFO to hold ``wanted`` samples; answer what it holds
+        (the samples ahead of the generation a write can no longer change)."""
+        out = self._ao.out_stream
+        try:
+            with translate_errors(f"setting the on-board AO buffer to {wanted} samples"):
+                out.output_onbrd_buf_size = wanted
+            with translate_errors("reading the on-board AO buffer size"):
+                return int(out.output_onbrd_buf_size)
+        except DaqError as err:
+            if err.code not in (ATTR_NOT_SUPPORTED_IN_TASK, ATTR_NOT_SUPPORTED):
+                raise
+            _log.warning("%s: assuming the device's FIFO is %d samples ahead", err, wanted)
+            return wanted
 
     def _set_ao_idle_zero(self) -> None:
         """AO idle output 0 V, where the device has the property (-200452 where not)."""

@@ -11,6 +11,12 @@ the rig has not simulated them yet). ``cut_stops=True`` (default): the generatio
 with the drives at 0 V, as a board's AO task stopped with idle output 0 V does;
 ``cut_stops=False``: the stream goes on with the next write (the caller's fade) from the first
 sample dropped, which a board cannot do (`benchmarks/bench_trip.py` compares the two).
+
+``ao_ring_s`` (None: non-regenerating) makes the AO a regenerating ring of that many seconds, as
+`NidaqmxBackend` with ``ao_ring_s`` makes the board's: position ``k mod B`` plays at sample ``k``.
+Paced, what plays is fixed when the wall clock generates it (a write changes only what has not
+been generated yet), so a late writer hears the ring repeat, exactly as on a board; fast, the
+generation is the samples read.
 """
 
 from __future__ import annotations
@@ -50,7 +56,11 @@ class SimulatedBackend:
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
         cut_stops: bool = True,
+        ao_ring_s: float | None = None,
     ) -> None:
+        if ao_ring_s is not None and not ao_ring_s > 0:
+            raise ValueError(f"ao_ring_s must be positive or None, got {ao_ring_s}")
+        self.ao_ring_s = ao_ring_s
         self.params = params if params is not None else RigParams()
         self.seed = seed
         self.realtime = realtime
@@ -67,6 +77,13 @@ class SimulatedBackend:
         self._closed = False
         self.cut_stops = cut_stops
         self._ao_stopped = False  # a stopping cut: the drives are at 0 V until the run stops
+        # the regenerating ring (ao_ring_s): its content, the end of the samples written, and
+        # what the generation has fixed already (samples _played_from.. not yet read)
+        self._ring: np.ndarray | None = None
+        self._written_end = 0
+        self._played: list[np.ndarray] = []
+        self._played_to = 0  # AO fixed for every sample before this (from the ring)
+        self._stopped_at: int | None = None  # a stopping cut: 0 V from this sample on
 
     # --- protocol -------------------------------------------------------------------------
     @property
@@ -86,6 +103,57 @@ class SimulatedBackend:
         physics.warm_up()  # before start: a paced first read must not wait for the compiler
         self.rig = RigModel(self.params, channel_map, self.seed)
         self._ao_chunks, self._ao_queued, self._read = [], 0, 0
+        self._reset_ring()
+
+    @property
+    def ao_ring_samples(self) -> int | None:
+        if self.ao_ring_s is None:
+            return None
+        return max(int(round(self.ao_ring_s * self.sample_rate_hz)), 1)
+
+    @property
+    def ao_min_lead(self) -> int:
+        """Paced: a write lands at once, nothing between it and the generation."""
+        return 0
+
+    def ao_generated(self) -> int:
+        if not self._running:
+            return 0
+        return self._generated() if self.realtime else self._read
+
+    def _reset_ring(self) -> None:
+        ring = self.ao_ring_samples if self._map is not None else None
+        self._ring = None if ring is None else np.zeros((len(self.channel_map.ao), ring))
+        self._written_end, self._played, self._played_to = 0, [], 0
+        self._stopped_at = None
+
+    def _fix_played(self, upto: int) -> None:
+        """The ring's content for samples ``_played_to..upto`` is what plays there: fix it now,
+        before a write changes the ring (a board has generated them already)."""
+        ring = self._ring
+        assert ring is not None
+        if upto <= self._played_to:
+            return
+        k = np.arange(self._played_to, upto)
+        block = ring[:, k % ring.shape[1]]
+        if self._stopped_at is not None:
+            block[:, k >= self._stopped_at] = 0.0
+        self._played.append(block)
+        self._played_to = upto
+
+    def _take_played(self, n: int) -> np.ndarray:
+        self._fix_played(self._read + n)
+        parts, got = [], 0
+        while got < n:
+            chunk = self._played[0]
+            take = min(n - got, chunk.shape[1])
+            parts.append(chunk[:, :take])
+            if take == chunk.shape[1]:
+                self._played.pop(0)
+            else:
+                self._played[0] = chunk[:, take:]
+            got += take
+        return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
 
     def start(self) -> None:
         """Start the generation and the acquisition: a new run counts its samples from 0, as a
@@ -93,9 +161,10 @@ class SimulatedBackend:
         self._require_rig()
         self._running = True
         self._read = 0
+        self._played, self._played_to, self._stopped_at = [], 0, None
         self._t0 = self._clock()
 
-    def write_ao(self, block: np.ndarray) -> None:
+    def write_ao(self, block: np.ndarray, at: int | None = None) -> None:
         cm = self.channel_map
         arr = np.asarray(block, dtype=np.float64)
         if arr.ndim != 2 or arr.shape[0] != len(cm.ao):
@@ -108,12 +177,31 @@ class SimulatedBackend:
                 )
         if self._ao_stopped:
             return  # the generation has stopped: nothing written now plays
+        if self._ring is not None:
+            self._write_ring(arr, self._written_end if at is None else int(at))
+            return
+        if at is not None and at != self._read + self._ao_queued:
+            raise ValueError(f"a non-regenerating AO stream writes at sample "
+                             f"{self._read + self._ao_queued}, not {at}")
         if self.realtime and self._running:
             generated = self._generated()
             if generated > self._read + self._ao_queued:
                 raise error_for_code("AO generation ran past the samples written", OUTPUT_UNDERFLOW)
         self._ao_chunks.append(arr.copy())
         self._ao_queued += arr.shape[1]
+
+    def _write_ring(self, arr: np.ndarray, at: int) -> None:
+        ring = self._ring
+        assert ring is not None
+        n, size = arr.shape[1], ring.shape[1]
+        if n > size:
+            raise ValueError(f"AO write of {n} samples is longer than the {size}-sample ring")
+        if at < 0:
+            raise ValueError(f"AO write position must be >= 0, got {at}")
+        if self._running:  # what the clock has generated already keeps what it played
+            self._fix_played(self.ao_generated())
+        ring[:, (at + np.arange(n)) % size] = arr
+        self._written_end = max(self._written_end, at + n)
 
     def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
         rig = self._require_rig()
@@ -123,7 +211,9 @@ class SimulatedBackend:
             raise ValueError(f"read_ai: n must be positive, got {n}")
         if self.realtime:
             self._wait_for(self._read + n, timeout_s)
-        if self._ao_stopped:  # what is left of the queue, then the drives at 0 V
+        if self._ring is not None:
+            ao = self._take_played(n)
+        elif self._ao_stopped:  # what is left of the queue, then the drives at 0 V
             take = min(n, self._ao_queued)
             ao = np.zeros((len(self.channel_map.ao), n))
             if take:
@@ -143,13 +233,18 @@ class SimulatedBackend:
         self._require_rig().set_relay(name, value)
 
     def ao_backlog(self) -> int:
-        """Samples written and not yet generated: paced, the wall clock generates them."""
+        """Samples written and not yet generated: paced, the wall clock generates them
+        (regenerating: negative once the generation has passed the last sample written)."""
+        if self._ring is not None:
+            return self._written_end - self.ao_generated()
         if self.realtime and self._running:
             return self._read + self._ao_queued - self._generated()
         return self._ao_queued
 
     def cut_ao(self) -> AoCut:
         """Drop the AO queued beyond the generation (see the module doc)."""
+        if self._ring is not None:
+            return self._cut_ring()
         keep = self._ao_queued
         if self._running and not self._ao_stopped:
             keep = 0
@@ -170,6 +265,19 @@ class SimulatedBackend:
             self._ao_stopped = self.cut_stops
         return AoCut(self._read + keep, not self._ao_stopped)
 
+    def _cut_ring(self) -> AoCut:
+        if not self._running or self._ao_stopped:
+            at = self._stopped_at if self._stopped_at is not None else self._written_end
+            return AoCut(at, not self._ao_stopped)
+        margin = 0 if self.cut_stops or not self.realtime else \
+            int(CUT_MARGIN_S * self.sample_rate_hz)
+        at = self.ao_generated() + margin
+        self._fix_played(at)
+        if self.cut_stops:
+            self._stopped_at = at
+            self._ao_stopped = True
+        return AoCut(at, not self._ao_stopped)
+
     def feed_watchdog(self) -> None:
         """No watchdog: the in-process rig stops with the process that runs it."""
 
@@ -183,6 +291,7 @@ class SimulatedBackend:
         self._running = False
         self._ao_stopped = False
         self._ao_chunks, self._ao_queued = [], 0
+        self._reset_ring()
 
     def close(self) -> None:
         self._running = False
@@ -201,7 +310,8 @@ class SimulatedBackend:
         return self.rig
 
     def _generated(self) -> int:
-        return int((self._clock() - self._t0) * self.sample_rate_hz)
+        # a hair over the float product: 0.01 s at 10 kS/s is 100 samples, not 99.99999
+        return int((self._clock() - self._t0) * self.sample_rate_hz + 1e-6)
 
     def _wait_for(self, needed: int, timeout_s: float) -> None:
         fs = self.sample_rate_hz

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 from pathlib import Path
@@ -32,6 +33,11 @@ from sfdrig.commands._client_args import DEFAULT_RUNS_DIR, STATE_FILE_NAME
 from sfdrig.commands._priority import LEVELS, PriorityError, apply_priority
 
 NAME = "daemon"
+#: the regenerating AO ring by default [s] (integer and half-integer Hz are whole cycles)
+DEFAULT_RING_S = 2.0
+#: how much longer than the board's watchdog the ring must be [s]: a hung host's watchdog
+#: expiry (drives 0 V) comes before an abort's fade (margin + fade <= 0.1 s) could replay
+RING_OVER_WATCHDOG_S = 0.2
 HELP = "run the acquisition daemon (state machine, sweeps, live data, run files)"
 
 
@@ -67,6 +73,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "daemon stops feeding it this long (hung, killed, PC down) the "
                              "board turns the pump relay off and the drives to 0 V by itself; "
                              "0 = none (default: %(default)s)")
+    parser.add_argument("--ao-ring-s", type=float, default=None, metavar="S",
+                        help="the regenerating AO ring [s]: a late host makes the board repeat "
+                             "what it holds instead of underflowing; 0: non-regenerating "
+                             "(-200290 when the host is late). Default: 2 s, or with "
+                             "--backend nidaqmx whole seconds >= the watchdog + 0.2 s (a hung "
+                             "host is stopped by the watchdog before an abort's fade could "
+                             "come round again), and none without a watchdog")
     parser.add_argument("--priority", choices=LEVELS, default="normal",
                         help="scheduling: high = nice -10, realtime = SCHED_FIFO; refused "
                              "with a reason where the OS does not allow it (default: "
@@ -74,20 +87,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-level", default="WARNING", help="(default: %(default)s)")
 
 
+def ao_ring_s(args: argparse.Namespace) -> float | None:
+    """The AO ring the arguments ask for (None: non-regenerating); see ``--ao-ring-s``."""
+    if args.ao_ring_s is not None:
+        return args.ao_ring_s if args.ao_ring_s > 0 else None
+    if args.backend != "nidaqmx":
+        return DEFAULT_RING_S
+    if args.watchdog_s <= 0:
+        return None  # a ring nothing stops if the host hangs: the non-regenerating stream
+    return float(max(DEFAULT_RING_S, math.ceil(args.watchdog_s + RING_OVER_WATCHDOG_S)))
+
+
 def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[Any, ChannelMap,
                                                                                Any]:
     """(backend, channel map, rig config or None), chosen from the arguments."""
+    ring = ao_ring_s(args)
     if args.backend == "nidaqmx":
         from daq.nidaqmx_backend import NidaqmxBackend
 
         watchdog = args.watchdog_s if args.watchdog_s > 0 else None
-        return (NidaqmxBackend(grpc_target=args.grpc_target, watchdog_timeout_s=watchdog),
-                channel_map, None)
+        return (NidaqmxBackend(grpc_target=args.grpc_target, watchdog_timeout_s=watchdog,
+                               ao_ring_s=ring), channel_map, None)
     from simulated_hw.backend import SimulatedBackend
     from simulated_hw.params import RigParams, rig_params_named_or_file
 
     params = rig_params_named_or_file(args.rig) if args.rig else RigParams()
-    backend = SimulatedBackend(params, seed=args.seed, realtime=not args.fast)
+    backend = SimulatedBackend(params, seed=args.seed, realtime=not args.fast, ao_ring_s=ring)
     return backend, channel_map, params
 
 
@@ -100,6 +125,17 @@ def run(args: argparse.Namespace) -> int:
     if not (args.watchdog_s == 0 or 0.05 <= args.watchdog_s <= 60):
         print(f"daemon: --watchdog-s {args.watchdog_s:g} must be 0 (none) or 0.05..60 s",
               file=sys.stderr)
+        return 2
+    ring = ao_ring_s(args)
+    if ring is not None and not 0.5 <= ring <= 60:
+        print(f"daemon: --ao-ring-s {ring:g} must be 0 (non-regenerating) or 0.5..60 s",
+              file=sys.stderr)
+        return 2
+    if ring is not None and args.backend == "nidaqmx" and \
+            (args.watchdog_s <= 0 or args.watchdog_s + RING_OVER_WATCHDOG_S > ring):
+        print(f"daemon: --ao-ring-s {ring:g} needs the board's watchdog, at most "
+              f"{ring - RING_OVER_WATCHDOG_S:g} s (--watchdog-s {args.watchdog_s:g}): a ring "
+              "repeats its drive for as long as a hung host leaves it", file=sys.stderr)
         return 2
     # One BLAS thread: OpenBLAS started its worker when numpy was imported, before the priority
     # below, so the worker stays at normal priority; a SCHED_FIFO acquisition thread whose

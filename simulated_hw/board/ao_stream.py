@@ -6,7 +6,11 @@ Three ways a DAQmx AO buffer plays (the same rules as NI-DAQmx):
 - non-regenerating: every sample written is generated once, in order; running out of samples
   stops the generation with -200290 (underflow);
 - regenerating (nidaqmx's default): the buffer written before the start plays in a loop; writes
-  while running overwrite it from the write position onwards;
+  while running overwrite it from the write position onwards: the current write position
+  (after the last sample written) plus ``out_stream.offset``, or with ``out_stream.relative_to``
+  FIRST_SAMPLE the buffer's sample ``offset`` (0 <= offset < the buffer). What is overwritten
+  ahead of the generation plays when the generation gets there; the on-board FIFO is not
+  modelled (a write lands at once);
 - finite: ``samps_per_chan`` samples are generated (looping a shorter regenerating buffer), then
   the task is done.
 
@@ -19,8 +23,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from daq.errors import OUTPUT_UNDERFLOW
-from simulated_hw.board.codes import IDLE_ZERO_VOLTS, daq_error
+from daq.errors import INVALID_ATTRIBUTE_VALUE, OUTPUT_UNDERFLOW
+from simulated_hw.board.codes import (
+    IDLE_ZERO_VOLTS,
+    WRITE_REL_FIRST_SAMPLE,
+    daq_error,
+)
 from simulated_hw.board.tasks import SimTask
 
 
@@ -38,12 +46,23 @@ def generating(task: SimTask) -> bool:
 def queue(task: SimTask, block: np.ndarray) -> None:
     """Put ``block`` (n_ch, n) in the task's buffer (see the module doc for the modes)."""
     n = block.shape[1]
+    first = task.write_relative_to == WRITE_REL_FIRST_SAMPLE
     if task.regenerating and task.running and task.regen_data is not None:
         data = task.regen_data
-        pos = task.ao_written % data.shape[1]
-        idx = (pos + np.arange(n)) % data.shape[1]
-        data[:, idx[-data.shape[1]:]] = block[:, -data.shape[1]:]
+        size = data.shape[1]
+        if first and not 0 <= task.write_offset < size:
+            raise daq_error(INVALID_ATTRIBUTE_VALUE,
+                            f"task {task.name!r}: write offset {task.write_offset} relative to "
+                            f"the first sample is outside the {size}-sample buffer")
+        pos = task.write_offset if first else (task.ao_written + task.write_offset) % size
+        idx = (pos + np.arange(n)) % size
+        data[:, idx[-size:]] = block[:, -size:]
     else:
+        if task.regenerating and first and task.write_offset != task.ao_queued:
+            raise daq_error(INVALID_ATTRIBUTE_VALUE,
+                            f"task {task.name!r}: before the start the simulated device writes "
+                            f"a regenerating buffer in order (offset {task.ao_queued}), not at "
+                            f"offset {task.write_offset}")
         task.ao_chunks.append(block.copy())
         task.ao_queued += n
     task.ao_written += n

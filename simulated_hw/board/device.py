@@ -338,6 +338,10 @@ class SimDevice(SafeStates, OnDemandAi):
         assert self.ai_task is not None
         return min(due, self.ai_task.samps_per_chan) if self.ai_task.finite else due
 
+    def _sample_at(self, t: float) -> int:
+        """The AI samples produced by device time ``t`` (paced mode; never before now's)."""
+        return max(int((t - self.t0) * self.ai_rate) + 1, self.generated)
+
     @property
     def ai_rate(self) -> float:
         assert self.ai_task is not None and self.ai_task.rate_hz is not None
@@ -348,6 +352,13 @@ class SimDevice(SafeStates, OnDemandAi):
         generations on their own clocks otherwise, and the watchdog timers."""
         with self.lock:
             if self.ai_task is not None and not self.fast:
+                # a watchdog that expired on the way acts from its own instant, not from the
+                # end of this catch-up (its thread does so live; a clock that jumped needs it)
+                for deadline in sorted(self.watchdog_timer.deadlines()):
+                    at = self._sample_at(deadline)
+                    if self.generated < at < self._due():
+                        self._advance(at)
+                        self.watchdog_timer.expire_due(deadline)
                 self._advance(self._due())
             ai_clock_done = self.ai_task is None or (
                 self.ai_task.finite and self.generated >= self.ai_task.samps_per_chan)

@@ -35,6 +35,7 @@ class SafeStates:
     lines: dict[str, bool]
     _advance: Callable[[int], None]
     _due: Callable[[], int]
+    _sample_at: Callable[[float], int]
     _set_lines: Callable[[dict[str, bool]], None]
 
     # --- the watchdog timer ---------------------------------------------------------------
@@ -74,9 +75,14 @@ class SafeStates:
     def _expire(self, w: Watchdog) -> None:
         """The board's own action on expiry: outputs and lines to their expiration states,
         the generations on them stopped, both held there until the expiration is cleared."""
+        deadline = w.deadline()
         if self.ai_task is not None and not self.fast:
-            self._advance(self._due())  # everything before the expiry happened first
-        w.expired, w.expired_at = True, self._clock()
+            due = self._due()  # everything before the expiry happened first, nothing after
+            if deadline is not None:
+                due = min(due, self._sample_at(deadline))
+            self._advance(due)
+        w.expired = True
+        w.expired_at = deadline if deadline is not None else self._clock()
         _log.warning("watchdog on %s expired: AO %s, lines %s", w.device_name, w.ao_states,
                      w.do_states)
         for task in list(self.ao_tasks):

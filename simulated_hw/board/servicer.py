@@ -24,6 +24,7 @@ from daq.errors import (
 )
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
+    AO_FIFO_SAMPLES,
     ATTR_AI_MEAS_TYPE,
     ATTR_AO_IDLE_OUTPUT,
     ATTR_AO_OUTPUT_TYPE,
@@ -36,6 +37,7 @@ from simulated_hw.board.codes import (
     ATTR_INCONSISTENT,
     ATTR_INPUT_BUF_SIZE,
     ATTR_OUTPUT_BUF_SIZE,
+    ATTR_OUTPUT_ONBRD_BUF_SIZE,
     ATTR_READ_AVAIL,
     ATTR_READ_CHANNELS,
     ATTR_READ_DEFAULT_N,
@@ -50,7 +52,9 @@ from simulated_hw.board.codes import (
     ATTR_TASK_NUM_CHANS,
     ATTR_WRITE_GENERATED,
     ATTR_WRITE_NUM_CHANS,
+    ATTR_WRITE_OFFSET,
     ATTR_WRITE_REGEN,
+    ATTR_WRITE_REL_TO,
     ATTR_WRITE_SPACE,
     CHAN_AI,
     CHAN_AO,
@@ -76,6 +80,8 @@ from simulated_hw.board.codes import (
     REPEATED_PHYSICAL_CHAN,
     TASK_NOT_RUNNING,
     WRITE_NUM_CHANS_MISMATCH,
+    WRITE_REL_CURR_POS,
+    WRITE_REL_FIRST_SAMPLE,
     daq_error,
 )
 from simulated_hw.board.device import SimDevice
@@ -419,19 +425,35 @@ class SimulatedDaqmxServicer(WatchdogRpcs, pb_grpc.NiDAQmxServicer):
     @reports_daq_errors
     def GetWriteAttributeInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
-        if request.attribute_raw != ATTR_WRITE_REGEN:
-            raise _unsupported("write", request.attribute_raw)
-        return pb.GetWriteAttributeInt32Response(value_raw=task.regen_mode)
+        attr = request.attribute_raw
+        if attr == ATTR_WRITE_REGEN:
+            value = task.regen_mode
+        elif attr == ATTR_WRITE_REL_TO and task.kind == "ao":
+            value = task.write_relative_to
+        elif attr == ATTR_WRITE_OFFSET and task.kind == "ao":
+            value = task.write_offset
+        else:
+            raise _unsupported("write", attr)
+        return pb.GetWriteAttributeInt32Response(value_raw=value)
 
     @reports_daq_errors
     def SetWriteAttributeInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
-        if request.attribute_raw != ATTR_WRITE_REGEN:
-            raise _unsupported("write", request.attribute_raw)
-        if request.value_raw not in (REGEN_ALLOW, REGEN_DONT_ALLOW):
-            raise daq_error(INVALID_ATTRIBUTE_VALUE,
-                            f"regeneration mode {request.value_raw} is not a valid value")
-        task.regen_mode = request.value_raw
+        attr, value = request.attribute_raw, request.value_raw
+        if attr == ATTR_WRITE_REGEN:
+            if value not in (REGEN_ALLOW, REGEN_DONT_ALLOW):
+                raise daq_error(INVALID_ATTRIBUTE_VALUE,
+                                f"regeneration mode {value} is not a valid value")
+            task.regen_mode = value
+        elif attr == ATTR_WRITE_REL_TO and task.kind == "ao":
+            if value not in (WRITE_REL_FIRST_SAMPLE, WRITE_REL_CURR_POS):
+                raise daq_error(INVALID_ATTRIBUTE_VALUE,
+                                f"write relative-to {value} is not a valid value")
+            task.write_relative_to = value
+        elif attr == ATTR_WRITE_OFFSET and task.kind == "ao":
+            task.write_offset = value
+        else:
+            raise _unsupported("write", attr)
         return pb.SetWriteAttributeInt32Response(status=0)
 
     @reports_daq_errors
@@ -471,6 +493,8 @@ class SimulatedDaqmxServicer(WatchdogRpcs, pb_grpc.NiDAQmxServicer):
             value = task.input_buffer()
         elif request.attribute_raw == ATTR_OUTPUT_BUF_SIZE:
             value = task.output_buffer()
+        elif request.attribute_raw == ATTR_OUTPUT_ONBRD_BUF_SIZE and task.kind == "ao":
+            value = task.onboard_samples or AO_FIFO_SAMPLES // max(len(task.channels), 1)
         else:
             raise _unsupported("buffer", request.attribute_raw)
         return pb.GetBufferAttributeUInt32Response(value=value)
@@ -478,6 +502,14 @@ class SimulatedDaqmxServicer(WatchdogRpcs, pb_grpc.NiDAQmxServicer):
     @reports_daq_errors
     def SetBufferAttributeUInt32(self, request, context):  # noqa: N802
         task = self._task(request.task)
+        if request.attribute_raw == ATTR_OUTPUT_ONBRD_BUF_SIZE and task.kind == "ao":
+            most = AO_FIFO_SAMPLES // max(len(task.channels), 1)
+            if not 2 <= request.value <= most:
+                raise daq_error(INVALID_ATTRIBUTE_VALUE,
+                                f"on-board output buffer of {request.value} samples: the "
+                                f"device's FIFO holds 2..{most} per channel for this task")
+            task.onboard_samples = int(request.value)
+            return pb.SetBufferAttributeUInt32Response(status=0)
         if request.attribute_raw not in (ATTR_INPUT_BUF_SIZE, ATTR_OUTPUT_BUF_SIZE):
             raise _unsupported("buffer", request.attribute_raw)
         task.buffer_samples = int(request.value)

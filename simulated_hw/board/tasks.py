@@ -15,6 +15,7 @@ from simulated_hw.board.codes import (
     NO_CHANS_IN_TASK,
     NO_CHANS_OF_GIVEN_TYPE,
     REGEN_ALLOW,
+    WRITE_REL_CURR_POS,
     daq_error,
 )
 
@@ -54,6 +55,9 @@ class SimTask:
     buffer_samples: int | None = None
     trigger_source: str = ""
     regen_mode: int = REGEN_ALLOW
+    write_relative_to: int = WRITE_REL_CURR_POS  # where a write starts: out_stream.relative_to
+    write_offset: int = 0  # ... and the offset from there (out_stream.offset)
+    onboard_samples: int | None = None  # AO: the on-board FIFO in use (None: the whole FIFO)
     running: bool = False
     error: DaqError | None = None  # sticky asynchronous error (overflow, underflow)
     # AO: samples written and not yet generated, as (n_ch, k) chunks

@@ -69,6 +69,17 @@ class WatchdogTimer:
             self._thread.start()
         self._wake.set()
 
+    def deadlines(self) -> list[float]:
+        """When each running watchdog expires unless fed (device clock) [s]."""
+        return [d for w in self._watchdogs() if (d := w.deadline()) is not None]
+
+    def expire_due(self, now: float) -> None:
+        """Expire what is due at ``now`` (under the lock; a catch-up's instant)."""
+        for w in self._watchdogs():
+            deadline = w.deadline()
+            if deadline is not None and now >= deadline:
+                self._expire(w)
+
     def check(self) -> None:
         """Expire what is due now (under the lock)."""
         now = self._clock()

@@ -217,3 +217,51 @@ def test_stop_drops_the_queue_the_next_run_plays_only_its_own_prefill():
     be.read_ai(1000)  # only the new prefill: no underflow, nothing of the old run left
     with pytest.raises(DaqUnderflowError):
         be.read_ai(1)
+
+
+def test_ring_mode_plays_position_k_mod_b_and_a_late_writer_hears_it_repeat():
+    """ao_ring_s: writes land at absolute samples; what the (paced) clock has generated is
+    fixed, so a write after the generation passed a sample changes only the next ring."""
+    clock = FakeClock()
+    be = SimulatedBackend(seed=1, realtime=True, clock=clock, sleep=clock.sleep, ao_ring_s=0.1)
+    be.configure(CM)
+    assert be.ao_ring_samples == 1000 and be.ao_min_lead == 0
+    ring = np.vstack([np.arange(1000) * 1e-3, -np.arange(1000) * 1e-3])
+    be.write_ao(ring, at=0)
+    be.start()
+    played = []
+    orig = be._take_played
+
+    def take(n):
+        out = orig(n)
+        played.append(out.copy())
+        return out
+
+    be._take_played = take  # type: ignore[method-assign]
+    be.read_ai(500)
+    clock.now += 0.1  # late: the generation is at 1,500, nothing was written past 1,000
+    assert be.ao_generated() == 1500 and be.ao_backlog() == -500
+    be.write_ao(np.full((2, 200), 5.0), at=1400)  # 1,400..1,499 played already: next ring
+    be.read_ai(2500)
+    ao = np.concatenate(played, axis=1)
+    np.testing.assert_array_equal(ao[:, :1500], ring[:, np.arange(1500) % 1000])
+    np.testing.assert_array_equal(ao[:, 1500:1600], 5.0)  # written in time
+    np.testing.assert_array_equal(ao[:, 1600:2400], ring[:, np.arange(1600, 2400) % 1000])
+    np.testing.assert_array_equal(ao[:, 2400:2600], 5.0)  # the write at 1,400 a ring on
+    cut = be.cut_ao()
+    assert cut.at == 3000 and not cut.resumes
+    be.read_ai(500)
+    np.testing.assert_array_equal(played[-1], 0.0)  # stopped: 0 V from the cut
+    be.stop()
+
+
+def test_ring_writes_are_checked():
+    be = SimulatedBackend(seed=1, ao_ring_s=0.1)
+    be.configure(CM)
+    with pytest.raises(ValueError, match="longer than"):
+        be.write_ao(np.zeros((2, 1001)), at=0)
+    with pytest.raises(DaqError) as err:
+        be.write_ao(np.full((2, 10), 11.0), at=0)
+    assert err.value.code == -200561
+    with pytest.raises(ValueError, match="ao_ring_s"):
+        SimulatedBackend(ao_ring_s=0.0)

@@ -293,3 +293,53 @@ def test_reset_device_clears_tasks(server: SimulatedDeviceServer, channel: grpc.
     with pytest.raises(nidaqmx.errors.DaqError) as info:
         task.close()
     assert info.value.error_code == -200088
+
+
+def test_regenerating_writes_at_the_write_position(channel: grpc.Channel) -> None:
+    """out_stream.relative_to FIRST_SAMPLE + offset place a write in a running regenerating
+    buffer (as sfdrig's AO ring does); the on-board buffer size can be shrunk; bad values are
+    -200077 and attributes the board lacks still -200197."""
+    from nidaqmx.constants import WriteRelativeTo
+    from nidaqmx.errors import DaqError
+
+    opts = _options(channel)
+    loop = np.zeros((2, 10))
+    with nidaqmx.Task(grpc_options=opts) as ao, nidaqmx.Task(grpc_options=opts) as ai:
+        ao.ao_channels.add_ao_voltage_chan("Dev1/ao0:1")
+        ao.timing.cfg_samp_clk_timing(1_000.0, sample_mode=AcquisitionType.CONTINUOUS)
+        out = ao.out_stream
+        assert out.regen_mode == RegenerationMode.ALLOW_REGENERATION
+        assert out.output_onbrd_buf_size == 8191 // 2
+        out.output_onbrd_buf_size = 20
+        assert out.output_onbrd_buf_size == 20
+        with pytest.raises(DaqError) as err:
+            out.output_onbrd_buf_size = 9000
+        assert err.value.error_code == -200077
+        out.relative_to = WriteRelativeTo.FIRST_SAMPLE
+        out.offset = 0
+        ao.write(loop)
+        ao.start()
+        out.offset = 7
+        ao.write(np.array([[1.0, 2.0, 3.0, 4.0, 5.0], [-1.0, -2.0, -3.0, -4.0, -5.0]]))
+        assert out.relative_to == WriteRelativeTo.FIRST_SAMPLE and out.offset == 7
+        with pytest.raises(DaqError) as err:
+            out._interpreter.set_write_attribute_int32(out._handle, 0x190C, 12345)
+        assert err.value.error_code == -200077
+        with pytest.raises(DaqError) as err:
+            _ = out.wait_mode  # a write attribute the simulated board does not have
+        assert err.value.error_code == -200197
+        out.offset = 10  # outside the 10-sample buffer
+        with pytest.raises(DaqError) as err:
+            ao.write(loop)
+        assert err.value.error_code == -200077
+        ai.ai_channels.add_ai_voltage_chan("Dev1/_ao0_vs_aognd")
+        ai.timing.cfg_samp_clk_timing(1_000.0, sample_mode=AcquisitionType.FINITE,
+                                      samps_per_chan=30)
+        x = np.array(ai.read(nidaqmx.constants.READ_ALL_AVAILABLE))
+        generated = ao.out_stream.total_samp_per_chan_generated
+    # positions 7, 8, 9, 0, 1 of the loop now hold 1..5 (the write wrapped); AO sample k plays
+    # position k mod 10
+    loop_now = np.array([4.0, 5.0, 0, 0, 0, 0, 0, 1.0, 2.0, 3.0])
+    first = generated - 31  # the count is one past the last AO sample the AI saw (above)
+    # (the AI's first sample sees the AO sample generated before the AI started: skip it)
+    np.testing.assert_array_equal(x[1:], loop_now[np.arange(first + 1, first + 30) % 10])

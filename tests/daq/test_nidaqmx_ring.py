@@ -1,0 +1,179 @@
+"""The regenerating AO ring through the official nidaqmx client against the simulated PXIe-6358
+(gRPC, in process, paced on a fake clock): the write position (out_stream.relative_to/offset),
+the generation count, a late host, the ramped stop and the trip's cut, as on the board."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from control.listener import RecordingListener
+from control.safety import SafetyLimits, SafetyMonitor
+from control.stream import DriveStream
+from control.synthesis import SineSynthesizer
+from daq.nidaqmx_backend import NidaqmxBackend
+from simulated_hw.grpc_server import SimulatedDeviceServer
+
+from .conftest import FakeClock, on_server
+
+AMP = np.array([0.6, 0.6j])
+FREQ = 20.0
+
+
+class Generated:
+    """What the board's AO terminals of the shaker drives showed, sample by sample (a spy on
+    the simulated device's terminals, read as the acquisition runs)."""
+
+    def __init__(self, server: SimulatedDeviceServer, rows: list[int]) -> None:
+        self.parts: dict[int, np.ndarray] = {}
+        device = server.device
+        inner = device._terminals
+
+        def spy(first: int, n: int) -> np.ndarray:
+            out = inner(first, n)
+            self.parts[first] = out[rows].copy()
+            return out
+
+        device._terminals = spy  # type: ignore[method-assign]
+
+    def upto(self, n: int) -> np.ndarray:
+        got = np.concatenate([self.parts[k] for k in sorted(self.parts)], axis=1)
+        return got[:, :n]
+
+
+@pytest.fixture
+def ring_backend() -> Iterator[NidaqmxBackend]:
+    b = NidaqmxBackend(connect_timeout_s=5.0, watchdog_timeout_s=0.8, ao_ring_s=1.0)
+    yield b
+    b.close()
+
+
+def _stream(server, backend, clock_steps):
+    cm = on_server(server)
+    backend.configure(cm)
+    rows = [server.device.spec.ao_channels().index(a.physical_channel) for a in cm.ao]
+    spy = Generated(server, rows)
+    fs = cm.sample_rate_hz
+    synth = SineSynthesizer(len(cm.ao), fs)
+    synth.ramp_to(AMP, FREQ, 0.0)
+    listener = RecordingListener()
+    stream = DriveStream(backend, synth, SafetyMonitor(SafetyLimits(), cm), listener,
+                         int(0.01 * fs), ahead_blocks=3, keep_samples=int(0.04 * fs))
+    stream.check_limits = False
+    # the board's watchdog runs on the fake clock, the backend feeds it by the wall clock:
+    # feed it every block, as the backend does every quarter timeout on a real clock
+    stream.taps.append(lambda *_: backend.feed_watchdog())
+    stream.taps.extend(clock_steps)
+    return stream, listener, spy, fs
+
+
+def _ideal(fs: float, n: int) -> np.ndarray:
+    ref = SineSynthesizer(2, fs)
+    ref.ramp_to(AMP, FREQ, 0.0)
+    return ref.next_block(n)
+
+
+class Stall:
+    def __init__(self, clock: FakeClock, at: int, seconds: float) -> None:
+        self.clock, self.at, self.seconds, self.done = clock, at, seconds, False
+
+    def __call__(self, first: int, ai: np.ndarray, ao: np.ndarray) -> None:
+        if not self.done and first >= self.at:
+            self.done = True
+            self.clock.advance(self.seconds)
+
+
+def test_the_ring_is_set_up_on_the_board(clocked_server, ring_backend):
+    ring_backend.configure(on_server(clocked_server))
+    fs = ring_backend.sample_rate_hz
+    assert ring_backend.ao_ring_samples == int(fs)
+    task = ring_backend._ao
+    from nidaqmx.constants import RegenerationMode, WriteRelativeTo
+    assert task.out_stream.regen_mode == RegenerationMode.ALLOW_REGENERATION
+    assert task.out_stream.relative_to == WriteRelativeTo.FIRST_SAMPLE
+    assert task.out_stream.output_onbrd_buf_size == int(np.ceil(0.002 * fs))
+    assert ring_backend.ao_min_lead == int(np.ceil(0.002 * fs)) + int(np.ceil(0.003 * fs))
+
+
+def test_a_ring_needs_a_watchdog_shorter_than_it():
+    with pytest.raises(ValueError, match="watchdog_timeout_s"):
+        NidaqmxBackend(watchdog_timeout_s=1.0, ao_ring_s=1.0)
+    with pytest.raises(ValueError, match="watchdog_timeout_s"):
+        NidaqmxBackend(watchdog_timeout_s=None, ao_ring_s=2.0)
+
+
+@pytest.mark.parametrize("stall_s", [0.05, 0.3])
+def test_a_late_host_through_nidaqmx_plays_the_same_sine(clocked_server, fake_clock,
+                                                        ring_backend, stall_s):
+    stall = Stall(fake_clock, 0, stall_s)
+    stream, listener, spy, fs = _stream(clocked_server, ring_backend, [stall])
+    stall.at = int(1.3 * fs)
+    stream.start()
+    stream.advance_to(int((2.0 + stall_s) * fs))
+    n = stream.sample
+    recorded = np.concatenate([b[2] for b in listener.blocks], axis=1)
+    generated = spy.upto(n)
+    np.testing.assert_allclose(generated, _ideal(fs, n), atol=1e-9)
+    np.testing.assert_array_equal(recorded, generated)
+    assert stream.writer.late_events >= 1
+    assert stream.writer.repeated >= stall_s * fs - 4 * stream.block
+    stream.shutdown(0.04)
+
+
+@pytest.mark.parametrize("stall_s", [0.0, 0.25])
+def test_abort_through_nidaqmx_ramps_to_zero_within_100_ms(clocked_server, fake_clock,
+                                                            ring_backend, stall_s):
+    stream, listener, spy, fs = _stream(clocked_server, ring_backend, [])
+    stream.start()
+    stream.advance_to(int(1.2 * fs))
+    if stall_s:
+        stream.taps.append(Stall(fake_clock, stream.sample, stall_s))
+    abort_at = ring_backend.ao_generated()
+    stream.shutdown(0.04)
+    generated = spy.upto(stream.sample)
+    live = np.flatnonzero(np.any(generated != 0.0, axis=0))
+    assert int(live[-1]) + 1 - abort_at <= 0.1 * fs
+    sine_step = float(np.max(np.abs(np.diff(_ideal(fs, int(fs)), axis=1))))
+    fade_step = 0.6 / (0.04 * fs)
+    assert np.max(np.abs(np.diff(generated[:, abort_at - 10:], axis=1))) <= \
+        sine_step + fade_step + 1e-12
+    recorded = np.concatenate([b[2] for b in listener.blocks], axis=1)
+    np.testing.assert_array_equal(recorded, generated)
+
+
+def test_a_trip_through_nidaqmx_cuts_to_zero_at_the_end_of_its_block(clocked_server,
+                                                                     ring_backend):
+    stream, listener, spy, fs = _stream(clocked_server, ring_backend, [])
+    stream.start()
+    stream.advance_to(int(1.2 * fs))
+    seen = stream.sample
+    stream.shutdown(0.04, cut=True)
+    generated = spy.upto(stream.sample)
+    assert stream.zero_sample == seen
+    assert np.any(generated[:, seen - 10:seen])
+    assert not np.any(generated[:, seen:])
+    recorded = np.concatenate([b[2] for b in listener.blocks], axis=1)
+    np.testing.assert_array_equal(recorded, generated)
+
+
+def test_a_hung_host_is_stopped_by_the_watchdog_not_by_the_ring(clocked_server, fake_clock,
+                                                                ring_backend):
+    """A ring repeats for as long as a hung host leaves it: the board's watchdog (0.8 s here,
+    on the board's clock) sets the drives to 0 V, and the host learns it at its next call."""
+    from daq.errors import DaqWatchdogExpiredError
+
+    stream, listener, spy, fs = _stream(clocked_server, ring_backend, [])
+    stream.start()
+    stream.advance_to(int(1.2 * fs))
+    fed_at = ring_backend.ao_generated()
+    ring_backend.feed_watchdog()
+    fake_clock.advance(1.5)  # hung for 1.5 s
+    with pytest.raises(DaqWatchdogExpiredError):
+        stream.advance_to(stream.sample + int(2.0 * fs))
+    stream.shutdown(0.04)
+    generated = spy.upto(fed_at + int(1.5 * fs))
+    expiry = fed_at + int(0.8 * fs)
+    assert np.any(generated[:, expiry - 100:expiry - 1])  # the ring played on until then
+    assert not np.any(generated[:, expiry + 1:])  # 0 V from the expiry
