@@ -470,7 +470,11 @@ class DriveStream:
         for _ in range(math.ceil(n / self.block)):
             self._states.append(_snapshot(self.synth))
             self.synth.next_block(self.block)
-            self._fifo.append(self.writer.played(self.block))
+            played = self.writer.played(self.block)
+            self._fifo.append(played)
+            # the next block written follows what the ring played, not what was last written
+            # (at 150 Hz a 10 ms block is 1.5 cycles: that reference saw a jump of 2x the drive)
+            self.monitor.last_ao = played
 
     def _rewind(self, at: int) -> None:
         """Put the synthesiser back to where it was at sample ``at`` (queued, not generated)."""

@@ -293,3 +293,31 @@ def test_the_prediction_leaves_the_slew_check_of_the_written_blocks_alone():
     stream.ramp_down(0.3)  # the fade from the margin, after blocks dropped: no slew trip
     stream.shutdown(0.04)
     assert stream.zero_sample is not None
+
+
+def test_a_late_host_at_a_fast_large_drive_does_not_trip_the_slew_limit():
+    """Found by bench_lab_day on a loaded PC: after a skip the next block written was checked
+    against the last sample *written* before it, not the last one the ring *played*; at 150 Hz a
+    10 ms block is 1.5 cycles, so the check saw a jump of up to twice the amplitude (5 V: up to
+    1e5 V/s against the 3.5e4 V/s limit) and tripped a drive that was perfectly smooth."""
+    clock = Clock()
+    amp = np.array([5.0, 5.0j])
+    be = Played(clock)
+    be.configure(CM)
+    synth = SineSynthesizer(len(CM.ao), FS)
+    synth.ramp_to(amp, 150.0, 0.0)
+    stream = DriveStream(be, synth, SafetyMonitor(SafetyLimits(), CM), RecordingListener(),
+                         BLOCK, ahead_blocks=3, keep_samples=4 * BLOCK)
+    stream.check_limits = False
+    for k, stall_s in enumerate((0.035, 0.05, 0.3)):
+        stream.taps.append(Stall(clock, int((1.5 + k) * FS), stall_s))
+    stream.start()
+    stream.advance_to(int(4.5 * FS))  # raised LimitTrip ('would slew') before the fix
+    generated = np.concatenate(be.generated_ao, axis=1)
+    ref = SineSynthesizer(len(CM.ao), FS)
+    ref.ramp_to(amp, 150.0, 0.0)
+    # the same sine sample for sample (the phase accumulator's rounding reaches 1.5e-8 V at 5 V
+    # after 4.5 s; a skipped or repeated block would be volts)
+    np.testing.assert_allclose(generated, ref.next_block(generated.shape[1]), atol=1e-7)
+    assert stream.writer.late_events >= 3
+    stream.shutdown(0.04)
