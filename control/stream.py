@@ -40,6 +40,11 @@ STOP_S = 0.1
 #: Ring mode: blocks of the predicted drive written per cycle beyond the lead, until the ring
 #: holds the current command's continuation up to a ring ahead (8: a 2 s ring in 0.25 s).
 PREDICT_BLOCKS = 8
+#: Ring mode: blocks written at once when a new command restarts the prediction. Commands come
+#: every block while a step is approached, so the 8 a cycle never got further than 80 ms into
+#: the ring and a host late past that heard an earlier drive (or the zeros before the step):
+#: 300 ms of the present command at each command keep most late hosts on it (bench_lab_day).
+PREDICT_RESTART_BLOCKS = 30
 
 
 @dataclass
@@ -201,7 +206,8 @@ class DriveStream:
     def _predict(self) -> None:
         """Ring mode: extend the prediction (the synthesiser's continuation without a new
         command) by up to `PREDICT_BLOCKS` blocks, up to a ring ahead of the generation less a
-        block and the margin. A new command restarts it from the position; a predicted block
+        block and the margin. A new command restarts it from the position with
+        `PREDICT_RESTART_BLOCKS` at once; a predicted block
         over a drive limit ends it until the next command."""
         w = self.writer
         assert w.ring is not None
@@ -214,9 +220,12 @@ class DriveStream:
             _restore(self._pred, _snapshot(self.synth))
             self._pred_end = w.pos
             self._pred_prev = self.monitor.last_ao
+            most = PREDICT_RESTART_BLOCKS
+        else:
+            most = PREDICT_BLOCKS
         limit = w.generated + w.ring - self.block - w.margin
         start, parts = self._pred_end, list[np.ndarray]()
-        while len(parts) < PREDICT_BLOCKS and self._pred_end + self.block <= limit:
+        while len(parts) < most and self._pred_end + self.block <= limit:
             blk = self._pred.next_block(self.block)
             try:
                 self.monitor.check_ao_after(blk, self._pred_end, self._pred_prev)
@@ -475,6 +484,39 @@ class DriveStream:
             # the next block written follows what the ring played, not what was last written
             # (at 150 Hz a 10 ms block is 1.5 cycles: that reference saw a jump of 2x the drive)
             self.monitor.last_ao = played
+        self._follow_what_played(self._states[-1], self._fifo[-1])
+
+    def _follow_what_played(self, before: _SynthState, played: np.ndarray) -> None:
+        """After a skip: the drive goes on from what the ring played, not from where the
+        command would be by now. Commands come every block while a step is approached, and each
+        one's prediction reaches only a few blocks into the ring, so a host late past it hears an
+        earlier command's drive (or the zeros of the ring-down before the step); jumping from
+        there to the present command is a step in the drive (bench_lab_day on a loaded PC:
+        3.5 V played, 8 V written next at 150 Hz, 'would slew at 4.5e4 V/s'). The last block
+        played is fitted with the synthesiser's own phase over it; where it fits (the same
+        frequency: an earlier command or zeros), the drive continues from those phasors and
+        ramps to the present command again. Where it does not (a drive from another frequency,
+        a ring ago), the synthesiser goes on from zero and the slew check decides."""
+        phase = SineSynthesizer(self.synth.n_channels, self.synth.fs)
+        unit = np.ones(self.synth.n_channels, dtype=np.complex128)
+        basis_rows = []
+        for p in (unit, -1j * unit):  # Re(e^{i theta}) = cos, Re(-i e^{i theta}) = sin
+            _restore(phase, before)
+            phase.ramp_to(p, None, 0.0)
+            basis_rows.append(phase.next_block(played.shape[1])[0])
+        # the envelope may be ramping within the block: phasors linear in time, evaluated at
+        # the next sample (t = 1)
+        t = np.arange(played.shape[1]) / played.shape[1]
+        basis = np.stack([*basis_rows, basis_rows[0] * t, basis_rows[1] * t], axis=1)
+        coef, *_ = np.linalg.lstsq(basis, played.T, rcond=None)
+        fitted = (coef[0] + coef[2]) - 1j * (coef[1] + coef[3])
+        residual = played.T - basis @ coef
+        rms = float(np.sqrt(np.mean(played ** 2)))
+        if float(np.sqrt(np.mean(residual ** 2))) > 0.02 * rms + 1e-3:
+            log.warning("the ring played a drive at another frequency while the host was "
+                        "late; the drive goes on from zero")
+            fitted = np.zeros_like(fitted)
+        self.synth.resume_from(fitted, self.block / self.cm.sample_rate_hz)
 
     def _rewind(self, at: int) -> None:
         """Put the synthesiser back to where it was at sample ``at`` (queued, not generated)."""

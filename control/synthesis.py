@@ -66,6 +66,11 @@ class SineSynthesizer:
         return self._phasor_target.copy()
 
     @property
+    def target_freq_hz(self) -> float:
+        """Frequency the present ramp ends at [Hz]."""
+        return self._freq_target
+
+    @property
     def ramp_samples_left(self) -> int:
         """Samples until both the frequency and the phasor ramps are complete."""
         return max(self._freq_left, self._phasor_left)
@@ -133,6 +138,17 @@ class SineSynthesizer:
             if n == 0:
                 self._freq = float(freq_hz)
         return n
+
+    def resume_from(self, phasors: np.ndarray, ramp_s: float) -> int:
+        """The output is at ``phasors`` now (what was played instead of this synthesiser's
+        samples): go on from there towards the present targets, over at least ``ramp_s`` or what
+        the present ramp had left [samples]. The phase is kept."""
+        p = np.asarray(phasors, dtype=np.complex128)
+        if p.shape != (self.n_channels,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"phasors must be finite, shape ({self.n_channels},), got {p}")
+        left = max(self.ramp_samples_left, int(math.ceil(ramp_s * self.fs - 1e-9)))
+        self._phasor = p.copy()
+        return self.ramp_to(self._phasor_target, self._freq_target, left / self.fs)
 
     def fade_out(self, ramp_s: float) -> int:
         """Ramp every channel's amplitude to zero (keeping frequency and phase) [samples]."""

@@ -321,3 +321,50 @@ def test_a_late_host_at_a_fast_large_drive_does_not_trip_the_slew_limit():
     np.testing.assert_allclose(generated, ref.next_block(generated.shape[1]), atol=1e-7)
     assert stream.writer.late_events >= 3
     stream.shutdown(0.04)
+
+
+class RaiseEveryBlock:
+    """A tap that gives a new command after every block read, as the approach's watched raise
+    does: the amplitude up by ``step`` V per block, up to ``top``."""
+
+    def __init__(self, synth: SineSynthesizer, step: float, top: float) -> None:
+        self.synth, self.step, self.top = synth, step, top
+
+    def __call__(self, first: int, ai: np.ndarray, ao: np.ndarray) -> None:
+        amp = min(abs(self.synth.target_phasors[0]) + self.step, self.top)
+        self.synth.ramp_to(np.array([amp, 0.0]), None, 0.01)
+
+
+@pytest.mark.parametrize("stall_s", [0.15, 0.5])
+def test_a_host_late_past_the_prediction_of_a_raise_goes_on_from_what_played(stall_s):
+    """bench_lab_day on a loaded PC: 400 N at 150 Hz, raised block by block; each command's
+    prediction reaches 8 blocks into the ring, so a host late past it heard an earlier command
+    (3.5 V) and then wrote the present one (8 V) at once: 'would slew at 4.5e4 V/s', the run
+    aborted every time. Now the drive goes on from what played and ramps up again."""
+    clock = Clock()
+    be = Played(clock)
+    be.configure(CM)
+    synth = SineSynthesizer(len(CM.ao), FS)
+    synth.ramp_to(np.array([0.5, 0.0]), 150.0, 0.0)
+    limits = SafetyLimits()
+    stream = DriveStream(be, synth, SafetyMonitor(limits, CM), RecordingListener(),
+                         BLOCK, ahead_blocks=3, keep_samples=4 * BLOCK)
+    stream.check_limits = False
+    stream.taps.append(RaiseEveryBlock(synth, 0.05, 8.0))
+    stream.taps.append(Stall(clock, int(0.6 * FS), stall_s))  # mid-raise, at about 3.5 V
+    stream.start()
+    stream.advance_to(int((2.5 + stall_s) * FS))  # LimitTrip ('would slew') before the fix
+    generated = np.concatenate(be.generated_ao, axis=1)
+    slew = np.abs(np.diff(generated[0])) * FS
+    sine_slew = 2 * np.pi * 150.0 * 8.0  # the 8 V sine's own steepest slope
+    steps = np.flatnonzero(slew > 1.05 * sine_slew)
+    if stall_s < 0.3:  # within the 300 ms each command writes ahead: the commanded drive
+        assert steps.size == 0, f"steps at {steps}: {slew[steps]} V/s"
+    else:  # past it the board plays what the ring held from before (here the zeros before
+        # the step): one step down there, and the host goes on from it without another
+        assert steps.size == 1, f"steps at {steps}: {slew[steps]} V/s"
+        k = steps[0]
+        assert abs(generated[0, k + 1]) < 1e-12 < abs(generated[0, k])
+    assert stream.writer.late_events >= 1
+    assert np.abs(generated[0, -BLOCK:]).max() == pytest.approx(8.0, rel=1e-3)  # raised on
+    stream.shutdown(0.04)
