@@ -297,6 +297,11 @@ class Approach:
             # for a load target (no orbit to stop at) slower as the orbit nears the displacement
             # margin: near break-away a small raise makes a large jump, seen a latency later
             now = synth.phasors
+            # a late host reads blocks older than the lead: what it reads does not show its
+            # last raise yet, so it holds the drive until it has caught up (raising on per block
+            # read, a 20 um step at 25 Hz reached 58 um on a loaded PC: the break-away jump of
+            # raises it had not seen)
+            held = stream.read_lag > stream.block
             slow = max(0.1, 1.0 - radius / cap_d) if plan.target_kind == "load" else 1.0
             room = (per_block ** slow - 1.0) * float(np.linalg.norm(now))
             dist = float(np.linalg.norm(top - now))
@@ -308,7 +313,7 @@ class Approach:
                 self.limited_by = f"the drive limit ({self.limits.max_drive_v:g} V)"
             elif nominal > cap_f:
                 self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
-            else:
+            elif not held:
                 synth.ramp_to(rows, None, stream.block / fs)
             stream.cycle()
             if stream.guard_event is not None:
@@ -334,7 +339,7 @@ class Approach:
                 self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
             if radius >= stop_at or self.limited_by:
                 return
-            if final:
+            if final and not held:
                 if plan.target_kind != "load":
                     return
                 if watch_end < 0:

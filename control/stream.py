@@ -251,6 +251,13 @@ class DriveStream:
         if self.writer.regenerating:
             self.writer.clear_played()
 
+    @property
+    def read_lag(self) -> int:
+        """How far the reading is behind the writing beyond the lead [samples]: 0 while the
+        host keeps up; after a late host's skip, the backlog it still has to read (a command
+        given now is seen that much later than the lead says)."""
+        return max(self.writer.pos - self.sample - self.ahead_blocks * self.block, 0)
+
     def generation(self) -> int:
         """The sample the AO is generating now: on a ring the board's count (a late host's
         reads lag it), otherwise the next AI sample to read (the lead keeps them together).

@@ -368,3 +368,42 @@ def test_a_host_late_past_the_prediction_of_a_raise_goes_on_from_what_played(sta
     assert stream.writer.late_events >= 1
     assert np.abs(generated[0, -BLOCK:]).max() == pytest.approx(8.0, rel=1e-3)  # raised on
     stream.shutdown(0.04)
+
+
+class StallingBackend(Played):
+    """The paced ring backend of a busy host: each read costs ``busy_s`` of the wall clock (so
+    a backlog is read slowly, the drive written on meanwhile) and the host stalls ``stall_s`` at
+    each of the reads listed (the clock jumps)."""
+
+    def __init__(self, clock: Clock, stall_at_reads: set[int], stall_s: float,
+                 busy_s: float) -> None:
+        super().__init__(clock)
+        self.stall_at, self.stall_s, self.busy_s, self.reads = stall_at_reads, stall_s, busy_s, 0
+
+    def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
+        self.reads += 1
+        self._clock.now += self.busy_s + (self.stall_s if self.reads in self.stall_at else 0.0)
+        return super().read_ai(n, timeout_s)
+
+
+def test_a_late_host_does_not_raise_a_stuck_housing_past_what_it_has_seen():
+    """bench_lab_day on a loaded PC: Y 20 um at 25 Hz (the dry seal holds the housing until the
+    drive breaks it away) peaked at 56.7-58.6 um, and was stopped at 90 % of the limit: the
+    watched raise went on raising once per block read while the blocks it read were older than
+    the lead, so it raised past what it could see. Now it holds while it reads a backlog."""
+    from control.sweep import SweepEngine
+
+    peaks = []
+    for stall_s in (0.0, 0.12, 0.25):
+        clock = Clock()
+        # stalls every 15 reads through the approach (the first 1.5 s of the step)
+        be = StallingBackend(clock, set(range(20, 160, 15)) if stall_s else set(), stall_s,
+                             busy_s=0.008 if stall_s else 0.0)
+        be.configure(CM)
+        out = SweepEngine(be, {"motion": "y", "amplitude_m": [20e-6], "freq_hz": [25.0]}).run()
+        assert out.status == "completed", out.reason
+        peaks.append(out.summary["peak_displacement_m"])
+    # on time the approach overshoots the 20 um target to 26.0 um at the break-away; a late
+    # host may not raise it much further (27.8 um at 0.12 and 0.25 s stalls; before the fix the
+    # 0.12 s stalls tripped the 63.5 um limit)
+    assert max(peaks) <= 1.15 * peaks[0], [round(p * 1e6, 1) for p in peaks]
