@@ -9,7 +9,7 @@ every case with five seeds and the clean case with twenty are ``slow``. Cases st
 wrong are marked xfail (strict) with what was measured, so that fixing one shows.
 
 Imported without the rig description (the baseline fitted, its order chosen on held-out data):
-the rods' cross stiffness (``coupled_axes``) is taken into the baseline, within 10 %, and no
+the rods' cross stiffness (``coupled_axes``) is taken into the baseline, within 0.5 %, and no
 cause is named with confidence (not the film's ``cross_coupling``); the film's cross terms are
 not taken for a structural coupling and are still named; clean data moving both axes get an
 uncoupled baseline. CI at the rotating seed, seeds 1-5 ``slow``.
