@@ -64,7 +64,11 @@ def no_leaked_threads_or_processes():
 
 @pytest.fixture
 def shared_dir() -> Path:
-    """../shared beside the repository (real measured data); skip clearly where it is absent."""
+    """../shared beside the repository (real measured data); skip clearly where it is absent,
+    but fail on CI (CI=true), where a missing ../shared is a broken set-up, not a reason to skip."""
     if not SHARED.is_dir():
-        pytest.skip(f"{SHARED} is absent: the measured-data tests need ../shared beside the repo")
+        why = f"{SHARED} is absent: the measured-data tests need ../shared beside the repo"
+        if os.environ.get("CI", "").lower() in ("true", "1"):
+            pytest.fail(f"{why} (CI=true: required on CI)", pytrace=False)
+        pytest.skip(why)
     return SHARED

@@ -7,7 +7,7 @@ amplitudes and motions (the rig's test programme, in a seeded random order so th
 confounded with frequency or amplitude), with the simulator's sensor noise and ADC quantisation,
 and writes the run file with `storage.RunWriter`. Diagnose is handed only the file.
 
-Magnitudes drawn (the tolerances of `analysis.diagnose.effects.LIBRARY` apply to these):
+Magnitudes drawn (`tests/analysis/test_diagnose_hidden.py` writes the tolerances for these):
 
 =========================== ================================================================
 coulomb_friction            seal friction 40..60 N (configured 26 N)

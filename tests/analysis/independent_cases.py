@@ -36,8 +36,8 @@ coupled_axes             the rods' cross stiffness k_xy = r sqrt(K_x K_y), r in 
 ======================== ===================================================================
 
 Judged right (``judged_right``): the effect named first with high confidence, its main
-parameter within the library's tolerance (``analysis.diagnose.effects.LIBRARY``), no other
-cause with high confidence.
+parameter within the tolerance written here (``TOLERANCE``, sized from the accuracy measured on
+these cases, not the library's documented one), no other cause with high confidence.
 """
 
 from __future__ import annotations
@@ -49,7 +49,6 @@ from typing import Any
 
 import numpy as np
 
-from analysis.diagnose.effects import LIBRARY
 from tests.independent_rig import (
     AirEntrainment,
     DahlJoint,
@@ -76,6 +75,26 @@ BASELINE_CASES = ("coupled_axes",)
 #: cases whose dwells move both axes in turn (the motion of each inferred on import)
 BOTH_AXES = ("cross_coupling", "coupled_axes")
 OUTSIDE_LIBRARY = ("stiffness_drift",)
+
+#: Each library case's main parameter (its name in diagnose's JSON) and the relative tolerance it
+#: is judged on, in brackets the largest error measured (2026-11-25; the library documents
+#: 10-20 %): CI's cases (cross coupling, air, joint) at seeds 1-5 and the day's rotating seed
+#: (945), tolerance 3-5x; the others at seeds 1-3 (second mode, viscosity, sensor gain, delay:
+#: 1-2), about 5x
+TOLERANCE: dict[str, tuple[str, float]] = {
+    "coulomb_friction": ("friction_force_N", 0.015),  # [0.34 %]
+    "cubic_stiffness": ("k3_N_per_m3", 0.02),  # [0.48 %]
+    "quadratic_stiffness": ("k2_N_per_m2", 0.0125),  # [0.25 %]
+    "amplitude_dependent_damping": ("clearance_m", 0.002),  # [0.034 %]
+    "added_mass": ("added_mass_kg", 0.01),  # [0.23 %]
+    "second_mode": ("frequency_hz", 2e-4),  # [0.004 %]
+    "viscosity_drift": ("relative_change", 0.12),  # [4.0 %]
+    "sensor_gain": ("gain_ratio", 0.0012),  # [0.024 %]
+    "channel_delay": ("delay_s", 0.006),  # [0.12 %]
+    "cross_coupling": ("c_xy_Ns_per_m", 0.005),  # [0.098 %]
+    "air_entrainment": ("coefficient_s_per_m", 0.006),  # [0.17 %]
+    "joint_microslip": ("slip_force_N", 0.03),  # [0.84 %]
+}
 
 #: the rig as described to diagnose (RigParams TOML): no seal, the film's centred damping
 RIG_TOML = """\
@@ -225,8 +244,7 @@ def judged_right(effect: str, doc: dict[str, Any],
     Clean: no finding and nothing unexplained. Outside the library: unexplained or baseline
     inadequate, no high-confidence finding. Library effect: named first with high confidence
     (a sensor effect: the sensor named; a pair it cannot tell apart: said so), no other cause
-    with high confidence, and (given ``truth``) its main parameter within the library's
-    tolerance.
+    with high confidence, and (given ``truth``) its main parameter within ``TOLERANCE``.
     """
     found = [(f["effect"], f["evidence"].get("confidence")) for f in doc["findings"]]
     confident = [e for e, c in found if c == "high"]
@@ -239,12 +257,12 @@ def judged_right(effect: str, doc: dict[str, Any],
         return ok, f"found {found}, verdict {verdict}"
     ok = bool(found) and found[0] == (effect, "high") and confident == [effect]
     first = doc["findings"][0] if doc["findings"] else {}
-    lib = LIBRARY[effect]
-    if ok and truth is not None and lib.main in truth:
-        got, want = float(first["parameters"][lib.main]), float(truth[lib.main])
-        if abs(got - want) > lib.tolerance * abs(want):
-            return False, (f"found {found}, {lib.main} = {got:.4g} (truth {want:.4g}, "
-                           f"tolerance {lib.tolerance:.0%}), verdict {verdict}")
+    main, tolerance = TOLERANCE[effect]
+    if ok and truth is not None and main in truth:
+        got, want = float(first["parameters"][main]), float(truth[main])
+        if abs(got - want) > tolerance * abs(want):
+            return False, (f"found {found}, {main} = {got:.4g} (truth {want:.4g}, off "
+                           f"{got / want - 1:+.3%}, tolerance {tolerance:.2%}), verdict {verdict}")
     if ok and "channel" in truth_channel_of(effect):
         # the faulty sensor named, or the pair it cannot tell apart said so
         named = first["parameters"].get("channel")
@@ -267,8 +285,13 @@ def coupling_chosen(doc: dict[str, Any]) -> float | None:
     return None
 
 
+#: the rods' cross stiffness taken into the fitted baseline, relative: measured within 0.07 % at
+#: seeds 1-5 (README) and 0.13 % at the rotating seed of 2026-11-25 (945); was 10 %
+COUPLING_TOLERANCE = 0.005
+
+
 def coupling_judged_right(doc: dict[str, Any], truth: dict[str, Any],
-                          tolerance: float = 0.10) -> tuple[bool, str]:
+                          tolerance: float = COUPLING_TOLERANCE) -> tuple[bool, str]:
     """Whether a diagnose JSON document of the ``coupled_axes`` case (imported without a rig
     description) judges it right, and why not: the coupled order chosen, its cross stiffness
     within ``tolerance`` of the truth, and no finding with high confidence (in particular not

@@ -28,6 +28,41 @@ from sfdrig.commands.calibrate import simulator
 from sfdrig.report_plan import run_report_plan
 from simulated_hw.params import RigParams, rig_params_named_or_file
 
+#: The fixed bands the simulated identification is judged on, written here (issue 27; the same
+#: bands as issue 28): the report's stated bands for Tables 2 and 3 (C_s: the report's own
+#: "within ~10 %" of the impact C_s, section IV.4); elsewhere friction F_mu 10 %, residual damping
+#: C_rv 20 %, total masses M_t 10 %, added mass D 15 % or 1 kg (the larger; 2 kg at 13 um), the
+#: film's average damping 10 %, its trends 0.10 of the mean. Not `Comparison.band`, which falls
+#: back on the identification's own 95 % uncertainty (a noisier fit would pass more easily).
+STATED_BANDS: dict[tuple[str, str, str], float] = {
+    ("Table 2", "K_s", "x"): 30.6e3, ("Table 2", "K_s", "y"): 31.5e3,
+    ("Table 3", "K_s", "x"): 40e3, ("Table 3", "K_s", "y"): 46e3,
+    ("Table 3", "M", "x"): 0.5, ("Table 3", "M", "y"): 0.5,
+    ("Table 3", "f_n", "x"): 1.0, ("Table 3", "f_n", "y"): 1.0,
+    ("Table 3", "C_s", "x"): 0.10 * 367, ("Table 3", "C_s", "y"): 0.10 * 315,
+}
+
+
+def fixed_band(row: Comparison) -> float:
+    """The half-width row ``row`` is judged on (its unit); a row without one here is an error."""
+    q = row.quantity
+    if (row.table, q, row.axis) in STATED_BANDS:
+        return STATED_BANDS[row.table, q, row.axis]
+    rel = {"F_mu": 0.10, "C_rv": 0.20, "M_t": 0.10, "C_sfd average": 0.10}
+    if row.table in ("Table 4", "Table 6", "Film (section VI.3)") and q in rel:
+        return rel[q] * abs(row.report)
+    if q == "D at 13 um":
+        return 2.0
+    if q == "D" or q.startswith("D at "):
+        return max(0.15 * abs(row.report), 1.0)
+    if row.table.startswith("Film") and row.unit == "1":  # trends, relative to the mean
+        return 0.10
+    raise AssertionError(f"no fixed band written for {row.key}")
+
+
+def holds(row: Comparison) -> bool:
+    return bool(np.isfinite(row.simulated)) and abs(row.error) <= fixed_band(row)
+
 
 def _table3_rows(params: RigParams, offset_k: float = 0.0) -> list[Comparison]:
     """Table 3 and Table 4's C_rv as `compare` makes them, for an identification that returns
@@ -113,16 +148,98 @@ def _get(rows: dict[str, Comparison], table: str, quantity: str, axis: str) -> C
     return rows[f"{table}|{quantity}|{axis}"]
 
 
-def test_calibrated_rig_reproduces_table3_per_axis(side_by_side):
-    nominal, report = side_by_side["nominal"], side_by_side["report"]
-    for q in ("K_s", "M", "C_s", "f_n"):
-        for axis in ("x", "y"):
-            row = _get(report, "Table 3", q, axis)
-            assert row.within, (q, axis, row.simulated, row.report, row.band)
+#: The calibrated rig on the reduced plan (CI), seed 3, against the fixed bands: the rows that
+#: hold (measured 2026-11-25: 24 of 29) ...
+REDUCED_HOLD = (
+    "Table 2|K_s|x",
+    "Table 3|K_s|x", "Table 3|M|x", "Table 3|C_s|x", "Table 3|f_n|x",
+    "Table 3|K_s|y", "Table 3|M|y", "Table 3|C_s|y", "Table 3|f_n|y",
+    "Table 4|F_mu|xy", "Table 4|C_rv|xy",
+    "Table 6|M_t|x", "Table 6|D|x", "Table F1|D at 13 um|x", "Table F1|D at 25 um|x",
+    "Table F1|D at 38 um|x",
+    "Table 6|M_t|y", "Table 6|D|y", "Table F1|D at 38 um|y",
+    "Film (section VI.3)|C_sfd average|xy",
+    "Film (Figs. 33-34)|C_sfd (38 um - 13 um) / mean|x",
+    "Film (Figs. 33-34)|C_sfd (38 um - 13 um) / mean|y",
+    "Film (section VI.3)|C_sfd (38 um - 13 um) / mean at 60 Hz|x",
+    "Film (section VI.3)|C_sfd (38 um - 13 um) / mean at 60 Hz|y",
+)
+#: ... and the known misses (issue 28), with what was measured
+REDUCED_MISS = {
+    "Table 2|K_s|y": "one spring per axis: 922 kN/m (Table 3's 923) against 786 +/- 31.5 kN/m",
+    "Table F1|D at 13 um|y": "6.06 kg against 3.2 kg (+2.86 kg; band 2 kg)",
+    "Table F1|D at 25 um|y": "8.42 kg against 6.2 kg (+2.22 kg; band 1 kg)",
+    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|x": "+0.147 of the mean (band 0.10)",
+    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|y": "+0.150 of the mean (band 0.10)",
+}
+
+
+def test_the_comparison_has_every_row_judged(side_by_side):
+    assert sorted(side_by_side["report"]) == sorted((*REDUCED_HOLD, *REDUCED_MISS))
+
+
+@pytest.mark.parametrize("key", [
+    *REDUCED_HOLD,
+    *(pytest.param(k, marks=pytest.mark.xfail(reason=f"issue 28: {why}", strict=True))
+      for k, why in REDUCED_MISS.items())])
+def test_calibrated_rig_row_on_its_fixed_band(side_by_side, key):
+    row = side_by_side["report"][key]
+    assert holds(row), (f"{key}: simulated {row.simulated:.4g} against the report's "
+                        f"{row.report:.4g}, fixed band +/- {fixed_band(row):.4g}")
+
+
+def test_nominal_rig_misses_table3_where_calibration_was_needed(side_by_side):
     # the nominal rig misses the natural frequencies (45.4 / 46.4 Hz against 47 / 49), K in Y
-    # (823 against 923 +/- 46 kN/m), M in X (9.7 against 8.8 +/- 0.5 kg) and C_s in Y
-    for q, axis in (("f_n", "x"), ("f_n", "y"), ("K_s", "y"), ("M", "x"), ("C_s", "y")):
-        assert not _get(nominal, "Table 3", q, axis).within, (q, axis)
+    # (823 against 923 +/- 46 kN/m), M in X (9.7 against 8.8 +/- 0.5 kg) and C_s in Y (370
+    # against 315 +/- 31.5 N.s/m); the calibrated rig holds all eight rows (above)
+    nominal = side_by_side["nominal"]
+    missed = {q_axis for q_axis in (("K_s", "x"), ("K_s", "y"), ("M", "x"), ("M", "y"),
+                                    ("C_s", "x"), ("C_s", "y"), ("f_n", "x"), ("f_n", "y"))
+              if not holds(_get(nominal, "Table 3", *q_axis))}
+    assert missed == {("f_n", "x"), ("f_n", "y"), ("K_s", "y"), ("M", "x"), ("C_s", "y")}
+
+
+#: The full plan (`sfdrig calibrate`'s, slow), seed 3: 25 of its 33 rows hold on the fixed bands
+#: (measured 2026-11-25; issue 28 names the other eight: Table 2 K_s y at 922 kN/m; Table F1 D in
+#: Y at 13, 19, 25, 32 um (6.26, 7.69, 8.40, 8.87 kg against 3.2, 5.2, 6.2, 7.7) and in X at
+#: 19 um (7.00 against 8.4 kg); C_sfd rising 0.103 (X) and 0.104 (Y) of the mean from 20 to
+#: 60 Hz at 13 um against 0.10). Exactly these rows: a regression and an improvement both show.
+FULL_HOLD = (
+    "Table 2|K_s|x",
+    "Table 3|K_s|x", "Table 3|M|x", "Table 3|C_s|x", "Table 3|f_n|x",
+    "Table 3|K_s|y", "Table 3|M|y", "Table 3|C_s|y", "Table 3|f_n|y",
+    "Table 4|F_mu|xy", "Table 4|C_rv|xy",
+    "Table 6|M_t|x", "Table 6|D|x", "Table F1|D at 13 um|x", "Table F1|D at 25 um|x",
+    "Table F1|D at 32 um|x", "Table F1|D at 38 um|x",
+    "Table 6|M_t|y", "Table 6|D|y", "Table F1|D at 38 um|y",
+    "Film (section VI.3)|C_sfd average|xy",
+    "Film (Figs. 33-34)|C_sfd (38 um - 13 um) / mean|x",
+    "Film (Figs. 33-34)|C_sfd (38 um - 13 um) / mean|y",
+    "Film (section VI.3)|C_sfd (38 um - 13 um) / mean at 60 Hz|x",
+    "Film (section VI.3)|C_sfd (38 um - 13 um) / mean at 60 Hz|y",
+)
+FULL_MISS = (
+    "Table 2|K_s|y", "Table F1|D at 13 um|y", "Table F1|D at 19 um|x", "Table F1|D at 19 um|y",
+    "Table F1|D at 25 um|y", "Table F1|D at 32 um|y",
+    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|x",
+    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|y",
+)
+
+
+@pytest.mark.slow
+def test_calibrated_rig_holds_25_of_33_rows_of_the_full_plan():
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = run_report_plan(Path(tmp), rig_params_named_or_file("report"), ReportPlan(),
+                                seed=3)
+        with contextlib.redirect_stdout(io.StringIO()):
+            rows = {r.key: r for r in compare(identify(paths))}
+    assert sorted(rows) == sorted((*FULL_HOLD, *FULL_MISS))
+    held = {k for k, r in rows.items() if holds(r)}
+    shown = {k: f"{r.simulated:.4g} vs {r.report:.4g} +/- {fixed_band(r):.4g}"
+             for k, r in rows.items()}
+    assert held == set(FULL_HOLD), (
+        f"now holding, not listed: {[(k, shown[k]) for k in sorted(held - set(FULL_HOLD))]}; "
+        f"no longer holding: {[(k, shown[k]) for k in sorted(set(FULL_HOLD) - held)]}")
 
 
 def test_table2_in_y_is_out_of_reach_beside_table3(side_by_side):
@@ -130,14 +247,19 @@ def test_table2_in_y_is_out_of_reach_beside_table3(side_by_side):
     # (Table 2: 786 +/- 31.5 kN/m; the text: 823 kN/m); one spring per axis cannot give both
     report = side_by_side["report"]
     k2y = _get(report, "Table 2", "K_s", "y")
-    assert k2y.error > 3 * k2y.band
-    assert _get(report, "Table 2", "K_s", "x").within
+    assert k2y.error > 3 * fixed_band(k2y)  # 135.6 kN/m measured
+    assert holds(_get(report, "Table 2", "K_s", "x"))  # 789 against 765 +/- 30.6 kN/m
 
 
 def test_both_rigs_identify_table4_friction_and_residual_damping(side_by_side):
-    for rows in side_by_side.values():
-        assert _get(rows, "Table 4", "F_mu", "xy").within
-        assert _get(rows, "Table 4", "C_rv", "xy").within
+    # the friction and the residual damping the rigs are built with (26 N, 370 N.s/m) come back
+    # within 0.3 % (F_mu, report rig: 25.92 N) and 0.2 % (C_rv, nominal: 370.8 N.s/m) on the
+    # reduced plan: held here to 1.5 % (a few times that), far inside the fixed bands (10 %, 20 %)
+    for name, rows in side_by_side.items():
+        for q in ("F_mu", "C_rv"):
+            row = _get(rows, "Table 4", q, "xy")
+            assert holds(row), (name, q, row.simulated)
+            assert abs(row.rel_error) < 0.015, (name, q, row.simulated)
 
 
 def test_calibrated_film_damping_average_and_trends(side_by_side):
@@ -145,7 +267,8 @@ def test_calibrated_film_damping_average_and_trends(side_by_side):
     avg_n = _get(nominal, "Film (section VI.3)", "C_sfd average", "xy")
     avg_r = _get(report, "Film (section VI.3)", "C_sfd average", "xy")
     assert avg_n.error < -800  # eq. 16 with 3.17 cP, identified with eq. 9: ~4,900 N.s/m
-    assert abs(avg_r.error) < 400 and avg_r.within
+    # measured: 5,965 N.s/m against 6,000 (-35); fixed band 600
+    assert abs(avg_r.error) < 150 and holds(avg_r)
     for axis in ("x", "y"):
         q = "C_sfd change 20-60 Hz / mean, 13 um"
         f_n = _get(nominal, "Film (Fig. 33)", q, axis).simulated
@@ -157,11 +280,11 @@ def test_calibrated_film_damping_average_and_trends(side_by_side):
         a_r = _get(report, "Film (Figs. 33-34)", q, axis).simulated
         assert 0 < a_r < a_n  # "rising slightly with amplitude"
         # section VI.3, "invariant at 60 Hz": eq. 16's eccentricity law alone gives +0.082 (see
-        # below); the calibrated rig has it off
+        # below); the calibrated rig has it off (measured +0.030 / +0.032)
         r60_n = _get(nominal, "Film (section VI.3)", AMPLITUDE_INVARIANCE_60HZ, axis)
         r60_r = _get(report, "Film (section VI.3)", AMPLITUDE_INVARIANCE_60HZ, axis)
         assert r60_n.simulated > 0.08
-        assert r60_r.within and abs(r60_r.simulated) < 0.05
+        assert holds(r60_r) and abs(r60_r.simulated) < 0.05
 
 
 def test_calibrated_added_mass_rises_with_amplitude_as_table_f1(side_by_side):
@@ -172,10 +295,11 @@ def test_calibrated_added_mass_rises_with_amplitude_as_table_f1(side_by_side):
     d38_r = _get(report, "Table F1", "D at 38 um", "x")
     assert d13_n > d38_n + 2.0  # rigid sticking: the opposite of the report's trend
     assert d13_r.simulated < d38_r.simulated  # the report: 6.8 kg at 13 um rising to 9.4 kg
-    assert d13_r.within and d38_r.within
-    for axis in ("x", "y"):
-        assert _get(report, "Table 6", "D", axis).within
-        assert _get(report, "Table 6", "M_t", axis).within
+    # measured: 5.41 kg (band 2 kg) and 8.42 kg (band 1.41 kg)
+    assert holds(d13_r) and holds(d38_r)
+    for axis in ("x", "y"):  # measured: D 8.42 / 9.17 kg, M_t 18.7 / 19.5 kg
+        assert holds(_get(report, "Table 6", "D", axis))
+        assert holds(_get(report, "Table 6", "M_t", axis))
 
 
 def _energy_averaged_eccentricity_factor(eps0: float) -> float:

@@ -2,9 +2,11 @@
 
 The generator (`hidden_effects.py`) hides one effect (or two, or none) in the true rig, records
 sine dwells through the simulator with sensor noise, writes run files, and diagnose gets only the
-files. Each effect's main parameter must come back within the tolerance documented in
-`analysis.diagnose.effects.LIBRARY`. CI runs one seed per effect (seeds rotate over the
-effects); the other seeds of each effect are `slow`.
+files. Each effect's main parameter must come back within the tolerance written here
+(`TOLERANCE`, sized from the accuracy measured on `SEEDS`, not the library's documented one), and
+the finding must take the held-out error down by `MIN_GAIN` and to the noise floor (not the
+engine's own acceptance rule). CI runs one seed per effect (seeds rotate over the effects); the
+other seeds of each effect are `slow`.
 """
 
 from __future__ import annotations
@@ -20,7 +22,54 @@ CI_SEED = 11  # clean, pairs, out-of-library, several runs
 SEEDS = (11, 21, 32, 43, 54)
 #: one seed per effect in CI (rotating through SEEDS); the others behind the `slow` marker
 CI_SEEDS = {e: SEEDS[i % 4] for i, e in enumerate(LIBRARY)}
-SLOW_CASES = [(e, s) for e in LIBRARY for s in SEEDS if s != CI_SEEDS[e]]
+
+#: Each effect's main parameter: (name, relative tolerance), the tolerance a few times the largest
+#: error measured over SEEDS (2026-11-25; in brackets, against the library's documented one).
+TOLERANCE: dict[str, tuple[str, float]] = {
+    "coulomb_friction": ("friction_force_N", 2e-4),  # max 0.004 % [10 %]
+    "cubic_stiffness": ("k3_N_per_m3", 0.02),  # max 0.49 % [10 %]
+    "quadratic_stiffness": ("k2_N_per_m2", 0.005),  # max 0.14 % [10 %]
+    "amplitude_dependent_damping": ("clearance_m", 0.001),  # max 0.023 % [10 %]
+    "added_mass": ("added_mass_kg", 0.003),  # max 0.066 % [10 %]
+    "cross_coupling": ("c_xy_Ns_per_m", 0.001),  # max 0.028 % [15 %]
+    "second_mode": ("frequency_hz", 2e-4),  # max 0.005 % [10 %]
+    "joint_microslip": ("slip_force_N", 0.06),  # max 2.1 % [20 %]
+    "viscosity_drift": ("relative_change", 0.002),  # max 0.04 % [15 %]
+    "sensor_gain": ("gain_ratio", 5e-4),  # max 0.012 % [10 %]
+    "channel_delay": ("delay_s", 0.003),  # max 0.088 % [10 %]
+    "air_entrainment": ("coefficient_s_per_m", 0.005),  # max 0.14 % [15 %]
+}
+#: The held-out error a lone finding must remove, error before / after (the engine accepts a
+#: finding above 1.05 with its interval above 1): half the least measured over SEEDS.
+MIN_GAIN: dict[str, float] = {
+    "coulomb_friction": 25.0,  # 58-158 (high confidence)
+    "cubic_stiffness": 1.25,  # 2.5-4.7
+    "quadratic_stiffness": 3.4,  # 6.9-12.9
+    "amplitude_dependent_damping": 7.5,  # 15-36
+    "added_mass": 3.7,  # 7.5-19
+    "cross_coupling": 13.0,  # 27-59
+    "second_mode": 20.0,  # 40-99
+    "joint_microslip": 3.3,  # 6.8-16 (high confidence)
+    "viscosity_drift": 12.0,  # 25-40
+    "sensor_gain": 3.0,  # 6.0-12
+    "channel_delay": 2.1,  # 4.2-22
+    "air_entrainment": 11.0,  # 23-93
+}
+#: After a lone finding the held-out error is at the noise floor: at most this many noise floors
+#: (measured 0.14-0.77; the joint's Dahl element 0.64-1.52)
+AT_NOISE = {"joint_microslip": 2.0}
+#: Cases judged wrong today (strict xfail, so that a fix shows), with what diagnose does instead
+KNOWN_WRONG: dict[tuple[str, int], str] = {
+    ("coulomb_friction", 21): "named, but low confidence and unexplained (held-out error after "
+                              "7.4 noise floors)",
+    ("coulomb_friction", 43): "named, but low confidence and unexplained (2.6 noise floors after)",
+    ("joint_microslip", 11): "named, but low confidence and unexplained (1.4 noise floors after)",
+    ("joint_microslip", 54): "named, but low confidence and unexplained (1.2 noise floors after)",
+}
+SLOW_CASES = [
+    pytest.param(e, s, marks=[pytest.mark.xfail(reason=KNOWN_WRONG[e, s], strict=True)]
+                 if (e, s) in KNOWN_WRONG else [])
+    for e in LIBRARY for s in SEEDS if s != CI_SEEDS[e]]
 
 
 def _run(tmp_path, effects, seed):
@@ -29,12 +78,14 @@ def _run(tmp_path, effects, seed):
     return case, diagnose(records, seed=seed)
 
 
-def _check_recovered(effect, truth, finding):
-    lib = LIBRARY[effect]
-    true_v = truth[lib.main]
-    got = finding.parameters[lib.main]
-    assert math.isclose(got, true_v, rel_tol=lib.tolerance), (
-        f"{effect}: {lib.main} = {got:.6g}, true {true_v:.6g} (tolerance {lib.tolerance:.0%})")
+def _check_recovered(effect, truth, finding, tolerance=None):
+    main, rel = TOLERANCE[effect]
+    rel = rel if tolerance is None else tolerance
+    true_v = truth[main]
+    got = finding.parameters[main]
+    assert math.isclose(got, true_v, rel_tol=rel), (
+        f"{effect}: {main} = {got:.6g}, true {true_v:.6g} (off {got / true_v - 1:+.3%}, "
+        f"tolerance {rel:.3%})")
     if "channel" in truth:
         assert finding.parameters["channel"] == truth["channel"]
 
@@ -46,11 +97,12 @@ def _check_one(tmp_path, effect, seed):
     assert len(names) == 1, f"hidden {case.effects}, found {names} (spurious second finding)"
     f = diag.findings[0]
     _check_recovered(effect, case.effects[effect], f)
-    assert f.gain > 1.05 and f.gain_interval[0] >= 0.999
-    assert f.gain_interval[0] <= f.gain <= f.gain_interval[1]
-    assert f.error_after < f.error_before
-    assert not diag.unexplained
     assert f.evidence["confidence"] == "high"
+    assert not diag.unexplained
+    assert f.error_before / f.error_after >= MIN_GAIN[effect], (f.error_before, f.error_after)
+    assert f.error_after <= AT_NOISE.get(effect, 1.0) * diag.noise_floor, (
+        f"held-out error after {f.error_after:.3g} m, noise floor {diag.noise_floor:.3g} m")
+    assert f.gain_interval[0] <= f.gain <= f.gain_interval[1]
 
 
 @pytest.mark.parametrize("effect", list(LIBRARY))
@@ -68,20 +120,30 @@ def test_clean_data_has_no_finding(tmp_path):
     case, diag = _run(tmp_path, [], CI_SEED)
     assert diag.findings == []
     assert not diag.unexplained
-    # the replay reproduces the clean rig to the noise floor
-    assert diag.baseline_rms < 1.5 * diag.noise_floor
+    # the replay reproduces the clean rig to the noise floor (measured 0.61 of it)
+    assert diag.baseline_rms < 1.0 * diag.noise_floor
 
 
-@pytest.mark.parametrize("effects", [("cubic_stiffness", "sensor_gain"),
-                                     ("added_mass", "viscosity_drift")])
+#: Two effects hidden together (CI_SEED): each main parameter's tolerance, a few times the error
+#: measured (in brackets); one effect partly masks the other, so wider than alone
+PAIRS: dict[tuple[str, str], dict[str, float]] = {
+    ("cubic_stiffness", "sensor_gain"): {"cubic_stiffness": 0.004,  # 0.072 %
+                                         "sensor_gain": 0.01},  # 0.26 %
+    ("added_mass", "viscosity_drift"): {"added_mass": 0.002,  # 0.025 %
+                                        "viscosity_drift": 0.10},  # 3.4 %
+}
+
+
+@pytest.mark.parametrize("effects", list(PAIRS))
 def test_two_effects_are_both_found(tmp_path, effects):
     case, diag = _run(tmp_path, list(effects), CI_SEED)
     names = [f.effect for f in diag.findings]
     assert sorted(names) == sorted(effects), f"hidden {case.effects}, found {names}"
     for f in diag.findings:
-        _check_recovered(f.effect, case.effects[f.effect], f)
+        _check_recovered(f.effect, case.effects[f.effect], f, PAIRS[effects][f.effect])
         assert f.evidence["confidence"] == "high"
-    assert diag.final_test.rms() < diag.findings[0].error_before
+    # both together take the held-out error to the noise floor (measured 0.59-0.61 of it)
+    assert diag.final_test.rms() <= 1.0 * diag.noise_floor
     assert not diag.unexplained
 
 
@@ -108,4 +170,5 @@ def test_several_run_files_are_diagnosed_together(tmp_path):
     diag = diagnose(records, seed=CI_SEED)
     assert {s.run for s in diag.test} == {0, 1}
     assert [f.effect for f in diag.findings] == ["added_mass"]
-    _check_recovered("added_mass", case.effects["added_mass"], diag.findings[0])
+    # measured 0.16 % off (alone, one run: 0.066 %)
+    _check_recovered("added_mass", case.effects["added_mass"], diag.findings[0], 0.005)

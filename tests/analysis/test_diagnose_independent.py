@@ -3,13 +3,13 @@
 The runs come from ``tests.independent_rig`` (no code shared with ``simulated_hw``), through the
 canonical CSV and ``sfdrig import --lubricated --rig`` (see ``independent_cases.py``). What
 "judged right" means is ``independent_cases.judged_right`` (the main parameter held to the
-library's tolerance). CI runs the clean case and the cross-coupling, air and joint cases with a
-seed that rotates by the day (printed on failure); every case with five seeds and the clean case
-with twenty are ``slow``. Cases still judged wrong are marked xfail
-(strict) with what was measured, so that fixing one shows.
+tolerance written in ``independent_cases.TOLERANCE``). CI runs the clean case and the
+cross-coupling, air and joint cases with a seed that rotates by the day (printed on failure);
+every case with five seeds and the clean case with twenty are ``slow``. Cases still judged
+wrong are marked xfail (strict) with what was measured, so that fixing one shows.
 
 Imported without the rig description (the baseline fitted, its order chosen on held-out data):
-the rods' cross stiffness (``coupled_axes``) is taken into the baseline, within 10 %, and no
+the rods' cross stiffness (``coupled_axes``) is taken into the baseline, within 0.5 %, and no
 cause is named with confidence (not the film's ``cross_coupling``); the film's cross terms are
 not taken for a structural coupling and are still named; clean data moving both axes get an
 uncoupled baseline. CI at the rotating seed, seeds 1-5 ``slow``.

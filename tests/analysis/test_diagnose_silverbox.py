@@ -20,8 +20,7 @@ pytestmark = pytest.mark.needs_shared
 
 def test_silverbox_nonlinear_stiffness_is_found(shared_dir, tmp_path):
     csv = shared_dir / "data" / "silverbox" / "SNLS80mV.csv"
-    if not csv.is_file():
-        pytest.skip(f"{csv} is absent")
+    assert csv.is_file(), f"{csv} is missing from ../shared (present: a broken copy)"
     sb = tmp_path / "sb.h5"
     assert main(["import", str(csv), "--map", "fx_N=V1", "--map", "x_m=V2",
                  "--fs", "610.3515625", "--out", str(sb)]) == 0

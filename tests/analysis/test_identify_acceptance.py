@@ -100,8 +100,10 @@ def ident(runs: dict[str, Path]):
 def test_dry_friction_and_residual_damping(ident) -> None:
     dry = ident.dry
     assert dry is not None
-    assert abs(dry.f_mu_n - 26.0) / 26.0 < 0.05
-    assert abs(dry.c_rv_ns_per_m - 370.0) / 370.0 < 0.15
+    # measured (seeds 11-13): F_mu within 0.021 %, C_rv within 0.15 % (the limits were 5 % and
+    # 15 %: a regression by 100x passed); held to a few times that
+    assert abs(dry.f_mu_n - 26.0) / 26.0 < 0.001
+    assert abs(dry.c_rv_ns_per_m - 370.0) / 370.0 < 0.005
     assert dry.overall.r2 > 0.98
     assert len(dry.by_test) == 2  # one row per load, as Table 4
     assert 0 < dry.u_f_mu_n < 0.1 * dry.f_mu_n
@@ -110,7 +112,7 @@ def test_dry_friction_and_residual_damping(ident) -> None:
 def test_static_stiffness(ident) -> None:
     (fit,) = ident.static
     assert fit.axis == "x"
-    assert abs(fit.k_n_per_m - 788e3) / 788e3 < 0.03
+    assert abs(fit.k_n_per_m - 788e3) / 788e3 < 2e-5  # measured 3e-6 (the limit was 3 %)
     assert 0.005 < fit.u_k_n_per_m / fit.k_n_per_m < 0.08  # Table 2: about 4 %
 
 
@@ -119,9 +121,9 @@ def test_lubricated_stiffness_and_added_mass(ident) -> None:
     d_true = params.film.added_mass()
     fits = [f for f in ident.lubricated.mass_fits if f.method == "stick_slip"]
     assert len(fits) == 2
-    for f in fits:
+    for f in fits:  # measured: K within 1.1 % and 0.02 %, D within 3.0 % and 2.2 %
         assert abs(f.k_n_per_m - 788e3) / 788e3 < 0.03, f
-        assert abs(f.added_mass_kg - d_true) / d_true < 0.10, f
+        assert abs(f.added_mass_kg - d_true) / d_true < 0.08, f
         assert f.r2 > 0.99
 
 
@@ -144,11 +146,13 @@ def test_sfd_damping_against_simulated_value(ident) -> None:
     assert {round(g["amplitude_m"] * 1e6) for g in lub.sfd_by_amplitude} == {25, 38}
     for g in lub.sfd_by_amplitude:
         ref = energy_equivalent_damping(params, g["amplitude_m"], "x", g["t_oil_c"])
-        assert abs(g["stick_slip"]["C_sfd_mean_Ns_per_m"] - ref) / ref < 0.05, (g, ref)
+        # measured: stick-slip 0.18 % and 0.39 % (the limit was 5 %); eq. 9 4.8 % and 2.4 %
+        # (its seal bias: 10 % kept)
+        assert abs(g["stick_slip"]["C_sfd_mean_Ns_per_m"] - ref) / ref < 0.012, (g, ref)
         assert abs(g["eq9"]["C_sfd_mean_Ns_per_m"] - ref) / ref < 0.10, (g, ref)
     for p in lub.points:
         ref = energy_equivalent_damping(params, p.amplitude_m, "x", p.t_oil_c)
-        assert abs(p.c_sfd_ss - ref) / ref < 0.05, p
+        assert abs(p.c_sfd_ss - ref) / ref < 0.02, p  # measured: at most 0.59 % (was 5 %)
 
 
 def test_report_trends(ident) -> None:
@@ -163,7 +167,7 @@ def test_report_trends(ident) -> None:
     for f in LUB_FREQS:
         assert by_amp[25][f] > by_amp[38][f]
     for g in ident.lubricated.sfd_by_amplitude:
-        assert g["stick_slip"]["C_sfd_rel_spread"] < 0.05
+        assert g["stick_slip"]["C_sfd_rel_spread"] < 0.015  # measured 0.38-0.49 % (was 5 %)
         assert g["eq9"]["C_sfd_rel_spread"] < 0.15
         # the total falls by tens of percent over 20-60 Hz; the film alone by a few at most
         assert g["dC_t_df_Ns_per_m_per_Hz"] < -50

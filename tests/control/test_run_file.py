@@ -9,10 +9,8 @@ from control.listener import Fanout, RecordingListener
 from control.pump import PumpRelay
 from control.sweep import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
+from storage import reader, runfile
 from tests.control.conftest import make_backend
-
-runfile = pytest.importorskip("storage.runfile")
-reader = pytest.importorskip("storage.reader")
 
 
 def test_sweep_into_a_run_file(tmp_path):

@@ -18,11 +18,28 @@ def test_transitions_follow_the_table_and_report_changes():
         sm.to(State.RUNNING)
 
 
+def _reachable(start: State) -> set[State]:
+    """The states reachable from ``start`` through TRANSITIONS (``start`` included)."""
+    seen, todo = {start}, [start]
+    while todo:
+        for nxt in TRANSITIONS[todo.pop()]:
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return seen
+
+
 def test_every_state_ends_in_a_final_one():
     for state in State:
         assert state in TRANSITIONS
         if state in FINAL:
             assert not TRANSITIONS[state]
+        else:  # no dead end and no closed loop: some final state can be reached from here
+            assert _reachable(state) & FINAL, f"{state.value} cannot reach a final state"
+    # and every state is one a run can get to (none is dead code of the table)
+    unreachable = set(State) - _reachable(State.IDLE)
+    assert not unreachable, f"never reached from idle: {sorted(s.value for s in unreachable)}"
+    assert {s for s in State if not TRANSITIONS[s]} == FINAL
     # a run can always be stopped once output may have started
     for state in (State.PRIMING, State.RUNNING, State.PAUSED):
         assert State.STOPPING in TRANSITIONS[state]

@@ -1,5 +1,7 @@
 """A bare pyzmq DEALER on the daemon's command socket (not `control.client`): what any program on
-the network can send, frame by frame, with a hard deadline on every reply."""
+the network can send, frame by frame, with a hard deadline on every reply (a hung daemon or a lost
+request: 30 s by default, not a speed figure; how fast the replies come is
+`benchmarks/bench_command_replies.py`'s)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,9 @@ from typing import Any
 
 import zmq
 
+#: the default deadline of a reply [s]: the daemon hung, not slow (see the benchmark)
+DEADLINE_S = 30.0
+
 
 class RawDealer:
     def __init__(self, endpoint: str) -> None:
@@ -17,7 +22,8 @@ class RawDealer:
         self.sock.linger = 0
         self.sock.connect(endpoint)
 
-    def ask(self, frames: list[bytes], timeout_s: float = 1.0) -> tuple[dict[str, Any], float]:
+    def ask(self, frames: list[bytes],
+            timeout_s: float = DEADLINE_S) -> tuple[dict[str, Any], float]:
         """Send ``frames`` as they are; (the parsed reply, seconds it took). Fails the test when
         no reply comes within ``timeout_s``."""
         t0 = time.monotonic()
@@ -28,7 +34,7 @@ class RawDealer:
         elapsed = time.monotonic() - t0
         return json.loads(parts[-1]), elapsed
 
-    def request(self, message: bytes | str, timeout_s: float = 1.0) -> dict[str, Any]:
+    def request(self, message: bytes | str, timeout_s: float = DEADLINE_S) -> dict[str, Any]:
         """One request frame after the empty delimiter, as in the issue: ``[b"", message]``."""
         raw = message.encode() if isinstance(message, str) else message
         return self.ask([b"", raw], timeout_s)[0]

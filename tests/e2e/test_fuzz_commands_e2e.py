@@ -2,7 +2,9 @@
 pyzmq DEALER (not `control.client`). Strategies reach lone surrogates, NULs, huge and non-finite
 numbers, deep nesting, many frames and large frames, and sweeps whose every field is hostile.
 
-Asserted for every message: a reply within 1 s, the daemon alive and idle. At the end: the state
+Asserted for every message: a reply (within `raw_dealer.DEADLINE_S`, a hung daemon, not a slow one:
+how fast the replies come is measured by `benchmarks/bench_command_replies.py`, whose target is
+the 1 s this test once held on a busy machine), the daemon alive and idle. At the end: the state
 unchanged by the refusals, no run file, and no drive written (no block numbered, none streamed).
 The CI version sends `CI_EXAMPLES` generated messages plus the fixed hostile ones; the `slow`
 one `LONG_EXAMPLES` (the README gives both counts)."""
@@ -111,9 +113,8 @@ def fuzz(daemon_factory, n_examples: int) -> None:
         def one(frames: list[bytes]) -> None:
             if is_harmless_valid(frames) and json.loads(frames[0]).get("cmd") == "pump":
                 return  # a valid pump switch is meant to act
-            reply, took = raw.ask([b"", *frames], timeout_s=1.0)
+            reply, _ = raw.ask([b"", *frames])
             sent["n"] += 1
-            assert took < 1.0
             assert reply["state"] == "idle", reply
             if not is_harmless_valid(frames):
                 assert reply["ok"] is False and reply["error_kind"] and reply["error"], reply

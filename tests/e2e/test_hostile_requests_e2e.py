@@ -1,6 +1,7 @@
 """Regression tests of issue 12: each defect's exact message, sent as ``[b"", message]`` from a
-raw DEALER socket to a real daemon process. Every one gets a reply within 1 s naming what is
-wrong; the daemon stays up, its state does not change, and no run file is created."""
+raw DEALER socket to a real daemon process. Every one gets a reply naming what is wrong (how
+fast: `benchmarks/bench_command_replies.py`, target 1 s); the daemon stays up, its state does not
+change, and no run file is created."""
 
 from __future__ import annotations
 
@@ -65,13 +66,12 @@ def test_each_defects_message_is_refused_at_once_and_changes_nothing(daemon_fact
     with CommandClient(d.command, timeout_s=10) as c, RawDealer(d.command) as raw:
         before = c.status()
         for defect, message, kind, text in REFUSED:
-            reply, took = raw.ask([b"", message.encode()], timeout_s=1.0)
+            reply, _ = raw.ask([b"", message.encode()])  # the reply's speed: the benchmark
             where = f"defect {defect}: {message[:90]}"
             assert reply["ok"] is False, where
             assert reply["error_kind"] == kind, (where, reply)
             assert text in reply["error"], (where, reply["error"])
             assert reply["state"] == "idle", where
-            assert took < 1.0, where
             if "request_id" in message:
                 assert reply["request_id"] == "\ufffd", where  # echoed, made encodable
         after = c.status()

@@ -17,6 +17,8 @@ from control.client import CommandClient
 from storage import open_run
 from tests.e2e.conftest import REPO_ROOT
 
+pytestmark = pytest.mark.e2e
+
 QUESTION = re.compile(r"\[([^\]\r\n]+)\] #(\d+)\r\n((?:  [^\r\n]*\r\n)+)> ")
 REFUSED = re.compile(r"  ! ([^\r\n]*)\r\n> ")
 DONE = re.compile(r"\r\n(\w+): (\d+) steps, (\w+)([^\r\n]*) -> ([^\r\n]+\.h5)\r\n")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -42,19 +43,22 @@ def test_train_and_test_halves_of_one_record(lub_csv: Path, tmp_path: Path, caps
     capsys.readouterr()
     rc = main(["diagnose", str(out), "--train", "0:3750", "--test", "3750:7500", "--quiet",
                "--json", str(tmp_path / "d.json")])
-    if rc != 0:
-        _one_error_line(capsys, "lub.h5")
-    else:
-        assert (tmp_path / "d.json").is_file()
+    # the two halves of one record work (once a traceback): one segment fitted, one held out
+    assert rc == 0, capsys.readouterr().err
+    doc = json.loads((tmp_path / "d.json").read_text())
+    assert doc["segments"] == {"train": 1, "test": 1}
+    assert doc["train_runs"] == doc["test_runs"] == ["lub.h5"]
 
 
+@pytest.mark.needs_shared
 def test_emps_with_a_fitted_baseline(shared_dir: Path, tmp_path: Path, capsys) -> None:
+    """EMPS (a drive with no spring) cannot start the fitted baseline: refused in one line
+    naming the file and why (once a traceback), exit 2."""
     out = tmp_path / "emps.h5"
     emps = shared_dir / "data" / "emps" / "DATA_EMPS.mat"  # read in place
     assert main(["import", str(emps), "--map", "time_s=t", "--map", "fx_N=vir", "--scale",
                  "fx_N=35.15065188", "--map", "x_m=qm", "--out", str(out), "--dry"]) == 0
     capsys.readouterr()
     rc = main(["diagnose", str(out), "--baseline", "fitted", "--quiet"])
-    if rc != 0:
-        assert rc == 2
-        _one_error_line(capsys, "emps.h5")
+    assert rc == 2
+    _one_error_line(capsys, "emps.h5", "fitted baseline", "second-order")

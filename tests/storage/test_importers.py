@@ -387,8 +387,7 @@ def test_tdms_errors(tmp_path: Path) -> None:
 def test_silverbox_import_via_cli(shared_dir: Path, tmp_path: Path, monkeypatch,
                                   capsys) -> None:
     src = shared_dir / "data" / "silverbox" / "SNLS80mV.csv"
-    if not src.is_file():
-        pytest.skip(f"{src} is absent")
+    assert src.is_file(), f"{src} is missing from ../shared (present: a broken copy)"
     monkeypatch.chdir(REPO_ROOT)
     out = tmp_path / "sb.h5"
     rc = main(["import", "../shared/data/silverbox/SNLS80mV.csv", "--map", "fx_N=V1",
