@@ -11,8 +11,14 @@ space stayed scattered over the arenas, which grew run after run. Measured (fast
 one-step sweep, 14 channels at 10 kS/s, 200 runs on one daemon; mallinfo2): 28-32 MB in use
 throughout but 5 -> 34 MB held free, RSS 253 MB after run 1, 270 after run 15, 279 after run
 100. With the threshold fixed at its starting value (and one compression pool for all runs,
-`Daemon.deflate_pool`): 243, 248, 252 MB, 255 MB after run 200. ``malloc_trim(0)`` after each
-run instead did not help (267 MB after run 200).
+`Daemon.deflate_pool`): 243, 248, 252 MB, 255 MB after run 200; in a second daemon 259 MB
+after run 100, 260 after 200, 262 after 400 (12 kB a run over runs 200-400, 8 over 300-400).
+``malloc_trim(0)`` after each run instead did not help (267 MB after run 200).
+
+The cost: arrays of 128 KiB or more are mmapped and unmapped each time (page faults). At 1 MS/s
+(16 AI x 62.5 kS/s, `benchmarks/bench_e2e.py --seconds 15` at ``--priority realtime``, load
+12-18) the daemon used 22 and 24 % of a core, against 23 and 22 % with the threshold fixed at
+32 MiB (where the dynamic one ends up), 0 blocks lost in all four.
 """
 
 from __future__ import annotations
