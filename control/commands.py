@@ -186,7 +186,7 @@ class CommandHandler:
         cm = d.channel_map
         try:
             writer = create_sweep_file(path, run_id, cm, spec, req.operator, req.notes,
-                                       d.cfg.rig_config)
+                                       d.cfg.rig_config, pool=d.deflate_pool)
         except Exception as err:  # disk full, permissions: nothing has run
             log.exception("creating %s failed", path)
             return self._error(ErrorKind.FAILED, f"start: cannot create the run file: {err}",
@@ -229,7 +229,7 @@ class CommandHandler:
         try:
             writer = create_sweep_file(path, run_id, d.channel_map, spec, req.operator,
                                        req.notes, d.cfg.rig_config, kind=req.test,
-                                       lubricated=req.test == "flow")
+                                       lubricated=req.test == "flow", pool=d.deflate_pool)
         except Exception as err:  # disk full, permissions: nothing has run
             log.exception("creating %s failed", path)
             return self._error(ErrorKind.FAILED, f"start_test: cannot create the run file: "

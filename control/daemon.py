@@ -127,6 +127,11 @@ class Daemon:
                                    channel_map.sample_rate_hz,
                                    block_when_full=config.lossless_publish)
         self.loop = AcquisitionLoop(self._run_started, self._run_done)
+        # one compression pool for every run file: threads new each run grew the RSS run
+        # after run (each took over another malloc arena; control.native_memory)
+        from storage.runfile import deflate_pool  # h5py: imported when the daemon is built
+
+        self.deflate_pool = deflate_pool("sfdrig-deflate")
         self.commands = CommandHandler(self)
         # before anyone is told the endpoints (`sfdrig daemon` prints them next): a client that
         # reads daemon.json then finds these, not a dead predecessor's
@@ -355,6 +360,8 @@ class Daemon:
             reason = self._stop_reason or "daemon shutdown"
             job.engine.abort(reason)  # the engine records the abort event at its sample
         self.loop.stop()
+        if self.deflate_pool is not None:
+            self.deflate_pool.shutdown()
         self.publisher.on_event("state", f"daemon stopped: {self._stop_reason}", 0)
         self.publisher.close()
         try:

@@ -32,8 +32,9 @@ def writer_chunk_samples(sample_rate_hz: float) -> int:
 
 def create_sweep_file(path: Path, run_id: str, channel_map: ChannelMap, spec: Any,
                       operator: str, notes: str, rig_config: Any, kind: str = "sweep",
-                      lubricated: bool | None = None) -> Any:
-    """A new `storage.RunWriter` for one sweep (or test of ``kind``), its metadata written."""
+                      lubricated: bool | None = None, pool: Any = None) -> Any:
+    """A new `storage.RunWriter` for one sweep (or test of ``kind``), its metadata written;
+    ``pool``: the daemon's compression pool, shared by its runs (`storage.runfile.deflate_pool`)."""
     from storage.runfile import RunWriter
 
     cm = channel_map
@@ -45,7 +46,7 @@ def create_sweep_file(path: Path, run_id: str, channel_map: ChannelMap, spec: An
         test_spec=spec.model_dump(mode="json") if hasattr(spec, "model_dump") else spec,
         lubricated=bool(getattr(spec, "lubricated", False)) if lubricated is None
         else lubricated,
-        chunk_samples=writer_chunk_samples(cm.sample_rate_hz),
+        chunk_samples=writer_chunk_samples(cm.sample_rate_hz), pool=pool,
     )
 
 

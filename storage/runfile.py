@@ -86,6 +86,7 @@ class RunWriter:
         max_backlog_s: float = 30.0,
         overwrite: bool = False,
         swmr: bool = True,
+        pool: ThreadPoolExecutor | None = None,
     ) -> None:
         """Create the run file with every dataset and attribute, then switch SWMR on.
 
@@ -140,6 +141,12 @@ class RunWriter:
             Replace an existing file.
         swmr : bool
             Write in SWMR mode (readers may open the file while it grows).
+        pool : ThreadPoolExecutor, optional
+            Where gzip chunks are compressed: a pool shared by successive writers (from
+            `deflate_pool`; its owner shuts it down, not the writer). By default the writer
+            starts its own and shuts it down at close. A process writing run after run should
+            share one: new threads per run each take over a malloc arena of their own, and the
+            daemon's resident memory grew with every run (`control.native_memory`).
         """
         path = Path(path)
         if kind not in KINDS:
@@ -211,10 +218,12 @@ class RunWriter:
         # gzip chunks are shuffled and deflated here, in threads (zlib releases the GIL), and
         # handed to HDF5 ready-made; HDF5's own filter pipeline would run them one by one.
         self._pool: ThreadPoolExecutor | None = None
-        if compression == "gzip" and (os.cpu_count() or 1) > 1:
-            self._pool = ThreadPoolExecutor(
-                max_workers=min(4, os.cpu_count() or 1), thread_name_prefix=f"RunWriter-{run_id}"
-            )
+        self._own_pool = False
+        if compression == "gzip":
+            self._pool = pool
+            if pool is None:
+                self._pool = deflate_pool(f"RunWriter-{run_id}")
+                self._own_pool = True
         self._samples_flushed = 0
         self._n_steps = 0
         self._n_events = 0
@@ -266,7 +275,7 @@ class RunWriter:
         except BaseException:
             f.close()
             path.unlink(missing_ok=True)
-            if self._pool is not None:
+            if self._pool is not None and self._own_pool:
                 self._pool.shutdown()
             raise
         self.status = "running"
@@ -509,7 +518,7 @@ class RunWriter:
                     self._flushed.notify_all()
         if self._io_thread is not None and self._io_thread is not threading.current_thread():
             self._io_thread.join()
-        if self._pool is not None:
+        if self._pool is not None and self._own_pool:
             self._pool.shutdown()
         error = error or self.flush_error
         if error is not None:
@@ -558,6 +567,13 @@ class RunWriter:
         return f"<RunWriter {self.run_id!r} {self.path} {state}, {self._next_sample} samples>"
 
 
+def deflate_pool(name: str = "RunWriter-deflate") -> ThreadPoolExecutor | None:
+    """A thread pool for `RunWriter`'s gzip chunks (zlib releases the GIL), or None on one
+    core (then each writer compresses on its I/O thread)."""
+    n = min(4, os.cpu_count() or 1)
+    return ThreadPoolExecutor(max_workers=n, thread_name_prefix=name) if n > 1 else None
+
+
 def _shuffle_deflate(x: np.ndarray) -> bytes:
     """One chunk as HDF5's filter pipeline (shuffle, then deflate level 1) would store it."""
     shuffled = np.ascontiguousarray(
@@ -568,5 +584,5 @@ def _shuffle_deflate(x: np.ndarray) -> bytes:
 
 __all__ = [
     "EVENT_KINDS", "FORMAT", "FORMAT_VERSION", "KINDS", "LIBVER", "N_HARMONICS", "STATUSES",
-    "STEP_KEYS", "RunWriter", "default_chunk_samples", "hdf5_text", "utc_now_iso",
+    "STEP_KEYS", "RunWriter", "default_chunk_samples", "deflate_pool", "hdf5_text", "utc_now_iso",
 ]

@@ -26,6 +26,7 @@ from threadpoolctl import threadpool_limits
 
 from control.daemon import Daemon, DaemonConfig
 from control.instance import AlreadyRunning, InstanceLock, device_lock, runs_lock
+from control.native_memory import pin_mmap_threshold
 from control.security import KeyFileError, load_server_keys
 from daq.channels import ChannelMap, default_channel_map, load_channel_map
 from daq.errors import ChannelConfigError, DaqConnectionError, DaqError
@@ -141,6 +142,9 @@ def run(args: argparse.Namespace) -> int:
     # below, so the worker stays at normal priority; a SCHED_FIFO acquisition thread whose
     # lock-in product waited on it was delayed by every other process (underflows at load 2-4)
     threadpool_limits(limits=1, user_api="blas")
+    # Freed sample arrays go back to the kernel, not scattered over the malloc arenas: RSS flat
+    # over days of sweeps (control.native_memory)
+    logging.getLogger("sfdrig.daemon").info("%s", pin_mmap_threshold())
     try:
         scheduling = apply_priority(args.priority)
     except PriorityError as err:

@@ -3,7 +3,17 @@ daemon process, each completing in the same wall time with the same result, and 
 memory, file descriptors and threads flat.
 
 Paced to the wall clock on purpose: the promise is that the fifteenth sweep of a day behaves as
-the first, also on a machine busy with other work (this suite runs in parallel processes).
+the first, also on a machine busy with other work (this suite runs in parallel processes). The
+daemon runs at normal priority: its AO is a regenerating ring (issue 21), so a busy machine makes
+the host late, never the drive underflow.
+
+The memory criterion, from measurements (paced at ``--priority realtime``, one daemon, the sweep
+below, load 7-20 on 2 cores; RSS after each run): the daemon now grows 0.13 MB a run from after
+run 1 to after run 15 (242.1 -> 243.9 MB; 245.9 MB after run 30); before issue 21's fix (glibc's
+dynamic mmap threshold, a compression pool per run: `control.native_memory`) 0.35 MB a run
+(243.8 -> 248.7 MB), and 1.2 MB a run in fast mode. The limit, a fourteenth of one run's data a
+run (0.32 MB, 7 %), is 2.5 times what is measured and fails the daemon before the fix; a leak of
+a tenth of what each run records fails it.
 """
 
 from __future__ import annotations
@@ -26,8 +36,12 @@ FREQ_HZ = 80.0
 ONE_STEP = {"motion": "circular_forward", "load_n": [40.0], "freq_hz": [FREQ_HZ],
             "record_cycles": int(RECORD_S * FREQ_HZ)}
 # What one run's recording would leave behind if it were kept: 14 channels x 10 kS/s x 4 s,
-# float64 (4.5 MB). Thirteen runs after the first may not add one run's worth.
+# float64 (4.5 MB). The fourteen runs after the first may not add one run's worth between them.
 ONE_RUN_BYTES = 14 * 10_000 * RECORD_S * 8
+MAX_GROWTH_PER_RUN = ONE_RUN_BYTES / (SWEEPS - 1)  # 0.32 MB; measured 0.13 MB (see above)
+# A run's threads are joined before its end event, but the kernel lists a thread in
+# /proc/PID/task until it has exited, a little after: wait (bounded) for the counts to settle.
+SETTLE_S = 5.0
 
 
 def _proc(pid: int) -> tuple[int, int, int]:
@@ -39,6 +53,17 @@ def _proc(pid: int) -> tuple[int, int, int]:
     fds = len(list(Path(f"/proc/{pid}/fd").iterdir()))
     threads = len(list(Path(f"/proc/{pid}/task").iterdir()))
     return rss, fds, threads
+
+
+def _settled(pid: int, fds: int, threads: int) -> tuple[int, int, int]:
+    """`_proc` once the open file descriptors and threads are back to ``fds`` and ``threads``,
+    or after `SETTLE_S` (then the caller's assertion says what stayed)."""
+    deadline = time.monotonic() + SETTLE_S
+    while True:
+        now = _proc(pid)
+        if now[1:] == (fds, threads) or time.monotonic() > deadline:
+            return now
+        time.sleep(0.05)
 
 
 def _run_end(sub: Subscriber, run_id: str, timeout_s: float) -> str:
@@ -54,9 +79,10 @@ def test_fifteen_sweeps_back_to_back_on_one_paced_daemon(daemon_factory):
     walls: list[float] = []
     achieved: list[float] = []
     files: list[Path] = []
-    after_first: tuple[int, int, int] | None = None
+    after: list[tuple[int, int, int]] = []  # (RSS, fds, threads) after each run
     with CommandClient(d.command, timeout_s=10) as c, Subscriber(d.data, topics=["event"]) as sub:
         sub.wait_connected()
+        idle = _proc(d.proc.pid)
         for i in range(SWEEPS):
             t0 = time.monotonic()
             run_id = c.start_sweep(ONE_STEP, operator="lab day").data["run_id"]
@@ -64,11 +90,13 @@ def test_fifteen_sweeps_back_to_back_on_one_paced_daemon(daemon_factory):
             walls.append(time.monotonic() - t0)
             assert end == f"run {run_id} completed", f"sweep {i + 1}: {end}"
             files.append(d.runs_dir / f"{run_id}.h5")
-            if i == 0:
-                after_first = _proc(d.proc.pid)
-        last = _proc(d.proc.pid)
+            # (the first run may start what lasts, e.g. a pool: then its counts are the rule)
+            now = _settled(d.proc.pid, *(after[0] if after else idle)[1:])
+            # every run gives back what it opened and started
+            assert not after or now[1:] == after[0][1:], \
+                f"after sweep {i + 1}: (fds, threads) {now[1:]}, after sweep 1: {after[0][1:]}"
+            after.append(now)
         assert c.status()["state"] == "idle"
-    assert after_first is not None
     for i, path in enumerate(files):
         with open_run(path) as run:
             assert run.status == "completed"
@@ -81,8 +109,10 @@ def test_fifteen_sweeps_back_to_back_on_one_paced_daemon(daemon_factory):
     # ... and the same result
     assert np.ptp(achieved) <= 0.02 * np.mean(achieved), \
         f"x amplitude {np.round(np.array(achieved) * 1e6, 3)} um"
-    rss0, fds0, thr0 = after_first
-    rss1, fds1, thr1 = last
-    assert fds1 == fds0, f"file descriptors {fds0} -> {fds1}"
-    assert thr1 == thr0, f"threads {thr0} -> {thr1}"
-    assert rss1 - rss0 < ONE_RUN_BYTES, f"resident memory {rss0 / 1e6:.1f} -> {rss1 / 1e6:.1f} MB"
+    # ... and memory flat: from after the first run (imports, caches and pools warm) to after
+    # the last, less than MAX_GROWTH_PER_RUN a run
+    rss = np.array([a[0] for a in after]) / 1e6
+    growth = (rss[-1] - rss[0]) / (SWEEPS - 1)
+    assert growth < MAX_GROWTH_PER_RUN / 1e6, \
+        f"resident memory grew {growth:.2f} MB a run (limit {MAX_GROWTH_PER_RUN / 1e6:.2f}): " \
+        f"{np.round(rss, 1)} MB after each run"
