@@ -297,12 +297,13 @@ class Approach:
             # for a load target (no orbit to stop at) slower as the orbit nears the displacement
             # margin: near break-away a small raise makes a large jump, seen a latency later
             now = synth.phasors
-            # a late host reads blocks older than the lead: what it reads does not show its
-            # last raise yet, so it holds the drive until it has caught up (raising on per block
-            # read, a 20 um step at 25 Hz reached 58 um on a loaded PC: the break-away jump of
-            # raises it had not seen)
-            held = stream.read_lag > stream.block
-            slow = max(0.1, 1.0 - radius / cap_d) if plan.target_kind == "load" else 1.0
+            # a late host reads blocks older than the lead: a raise is seen that much later, so
+            # the raise per block slows in proportion (at the full rate, a 20 um step at 25 Hz
+            # reached 58 um on a loaded PC: the break-away jump of raises it had not seen)
+            lag = stream.read_lag
+            slow = latency / (latency + lag)
+            if plan.target_kind == "load":
+                slow *= max(0.1, 1.0 - radius / cap_d)
             room = (per_block ** slow - 1.0) * float(np.linalg.norm(now))
             dist = float(np.linalg.norm(top - now))
             final = (dist <= room or room == 0.0
@@ -313,7 +314,7 @@ class Approach:
                 self.limited_by = f"the drive limit ({self.limits.max_drive_v:g} V)"
             elif nominal > cap_f:
                 self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
-            elif not held:
+            else:
                 synth.ramp_to(rows, None, stream.block / fs)
             stream.cycle()
             if stream.guard_event is not None:
@@ -339,11 +340,11 @@ class Approach:
                 self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
             if radius >= stop_at or self.limited_by:
                 return
-            if final and not held:
+            if final:
                 if plan.target_kind != "load":
                     return
                 if watch_end < 0:
-                    watch_end = stream.sample + latency
+                    watch_end = stream.sample + latency + lag
                 elif stream.sample >= watch_end:
                     return
 
