@@ -85,6 +85,7 @@ def test_each_defects_message_is_refused_at_once_and_changes_nothing(daemon_fact
     assert d.terminate() == 0
 
 
+@pytest.mark.paced
 def test_abort_with_a_nul_is_refused_and_a_valid_abort_still_closes_the_run(daemon_factory):
     d = daemon_factory(fast=False)  # paced: the run is still going when the aborts arrive
     spec = {"motion": "x", "load_n": [40.0], "freq_hz": [70.0, 80.0], "settle_cycles": 20,
