@@ -4,23 +4,24 @@ child processes (the daemon, servers and subscribers must all be shut down by th
 Under pytest-xdist (`./dev test` runs two workers) two rules keep the suite what it is serially:
 
 - a test marked ``paced`` (it runs against the wall clock: a paced rig, board or watchdog) never
-  runs beside another test of the suite. All paced tests form one xdist group (one worker, one
-  after the other), and a file lock shared by the workers of a run is held exclusively around
+  runs beside another test of the suite. All paced tests form one group (one worker, one after
+  the other), and a file lock shared by the workers of a run is held exclusively around
   that block and shared around every other test, so the other worker waits while it runs. The
   machine's other load is still there, as it is for a serial run.
-- the tests of a module that uses a module-scoped fixture form one xdist group, so that fixture
-  is built once (by one worker), not once per worker.
+- the tests of a module that use a module-scoped fixture form one group, so that fixture is
+  built once (by one worker), not once per worker.
 """
 
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -65,16 +66,63 @@ def _xdist_worker() -> bool:
     return "PYTEST_XDIST_WORKER" in os.environ
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the xdist_group marks
+def _xdist_group(item: pytest.Item) -> str | None:
+    """The group ``item`` runs in (on one worker, one test after the other), if any: ``paced``,
+    or its module's path where it uses a module- or class-scoped fixture."""
+    if item.get_closest_marker("paced") is not None:
+        return "paced"
+    info = getattr(item, "_fixtureinfo", None)
+    defs = info.name2fixturedefs.values() if info is not None else []
+    if any(d and d[-1].scope in ("module", "class", "package") for d in defs):
+        return item.nodeid.split("::")[0]
+    return None
+
+
+def _run_root(config: pytest.Config) -> Path:
+    """The directory of this run's temporary directories (a worker's basetemp is in it)."""
+    base: Path = config._tmp_path_factory.getbasetemp()  # type: ignore[attr-defined]
+    return base.parent if _xdist_worker() else base
+
+
+@pytest.hookimpl(trylast=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    for item in items:
-        if item.get_closest_marker("paced") is not None:
-            item.add_marker(pytest.mark.xdist_group("paced"))
-            continue
-        info = getattr(item, "_fixtureinfo", None)
-        defs = info.name2fixturedefs.values() if info is not None else []
-        if any(d and d[-1].scope in ("module", "class", "package") for d in defs):
-            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+    """Each worker writes the groups of what it collected (the same for all) for the
+    controller's scheduler (`_GroupScheduling`)."""
+    if not _xdist_worker():
+        return
+    groups = {item.nodeid: g for item in items if (g := _xdist_group(item)) is not None}
+    root = _run_root(config)
+    tmp = root / f"xdist-groups.{os.environ['PYTEST_XDIST_WORKER']}.json"
+    tmp.write_text(json.dumps(groups))
+    tmp.replace(root / "xdist-groups.json")
+
+
+class _XdistGroups:
+    """``--dist loadgroup`` with the groups of `_xdist_group` (pytest-xdist 3.8's own loadgroup
+    marks the group in ``item._nodeid``, which pytest 9.2 no longer reads)."""
+
+    @pytest.hookimpl
+    def pytest_xdist_make_scheduler(self, config: pytest.Config, log: Any) -> Any:
+        if config.getvalue("dist") != "loadgroup":
+            return None
+        from xdist.scheduler import LoadScopeScheduling
+
+        root = _run_root(config)
+
+        class _GroupScheduling(LoadScopeScheduling):  # type: ignore[misc]
+            groups: dict[str, str] | None = None
+
+            def _split_scope(self, nodeid: str) -> str:
+                if self.groups is None:  # called once every worker has collected
+                    self.groups = json.loads((root / "xdist-groups.json").read_text())
+                return self.groups.get(nodeid, nodeid)
+
+        return _GroupScheduling(config, log)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if config.pluginmanager.hasplugin("xdist"):
+        config.pluginmanager.register(_XdistGroups(), "sfdrig-xdist-groups")
 
 
 class _PacedLock:
@@ -117,8 +165,7 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
         return
     if _paced_lock is None:
         # every worker's basetemp is <run's root>/popen-gwN: the lock files go in that root
-        factory = item.config._tmp_path_factory  # type: ignore[attr-defined]
-        _paced_lock = _PacedLock(factory.getbasetemp().parent)
+        _paced_lock = _PacedLock(_run_root(item.config))
     paced = item.get_closest_marker("paced") is not None
     _paced_lock.acquire(fcntl.LOCK_EX if paced else fcntl.LOCK_SH)
     try:
