@@ -1,11 +1,5 @@
 """Fixtures for end-to-end tests: the daemon as a real process on random loopback ports.
 
-A paced daemon (``fast=False``) runs at ``--priority realtime`` (SCHED_FIFO) where this user may
-ask for it, as the README advises for a loaded PC: the suite runs on shared, loaded machines
-(load 4-5 on 2 cores), where a daemon at normal priority may fall behind its 30-40 ms AO lead and
-underflow (-200290), which is that documented limit, not what these tests check. Elsewhere it
-runs at normal priority.
-
 Synchronisation is on messages only: the daemon's first stdout line names its endpoints (read
 with a poll timeout), a subscriber is live once it receives a status heartbeat, and a run has
 ended when its closing event (or a status reply) says so.
@@ -20,7 +14,6 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 
 import pytest
@@ -46,24 +39,12 @@ class DaemonProcess:
             raise
 
 
-@cache
-def may_use_fifo() -> bool:
-    """Whether this user may ask for SCHED_FIFO (checked once, in a child)."""
-    if not hasattr(os, "sched_setscheduler"):
-        return False
-    probe = "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))"
-    return subprocess.run([sys.executable, "-c", probe], capture_output=True).returncode == 0
-
-
 def start_daemon(runs_dir: Path, *extra: str, fast: bool = True,
                  timeout_s: float = 60.0) -> DaemonProcess:
-    """Start ``python -m sfdrig daemon`` and wait (poll, no sleep) for its endpoint line. Paced
-    (``fast=False``) at ``--priority realtime`` where allowed, unless ``extra`` names one."""
+    """Start ``python -m sfdrig daemon`` and wait (poll, no sleep) for its endpoint line."""
     cmd = [sys.executable, "-m", "sfdrig", "daemon", "--runs-dir", str(runs_dir), *extra]
     if fast:
         cmd.append("--fast")
-    elif "--priority" not in extra and may_use_fifo():
-        cmd += ["--priority", "realtime"]
     runs_dir.mkdir(parents=True, exist_ok=True)
     stderr = open(runs_dir.parent / f"{runs_dir.name}.stderr", "w")  # noqa: SIM115
     proc = subprocess.Popen(cmd, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=stderr,
