@@ -1,15 +1,35 @@
 """Suite-wide fixtures: seeded hypothesis, and a guard that fails a test leaking threads or
-child processes (the daemon, servers and subscribers must all be shut down by their tests)."""
+child processes (the daemon, servers and subscribers must all be shut down by their tests).
+
+Tests against the wall clock, and the pytest-xdist workers (`./dev test` runs one per core):
+
+- a test marked ``paced`` (it runs against the wall clock: a paced rig, board or watchdog, a
+  timing bound) runs at normal priority beside the other worker's tests: the product's promise
+  (issue 21) is that a busy PC makes the host late, never the AO underflow (the regenerating
+  ring), so these tests check it on a machine whose both cores are busy. The paced tests form
+  one group (one worker, one after the other), so no two of them compete with each other.
+- the tests of a module that use a module-scoped fixture form one group, so that fixture is
+  built once (by one worker), not once per worker.
+"""
 
 from __future__ import annotations
 
+import json
 import os
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, settings
+from threadpoolctl import threadpool_limits
+
+# One BLAS thread in the test process and the processes it starts (as the daemon, `sfdrig web`
+# and diagnose already limit themselves): the workers already fill the cores, and OpenBLAS's
+# threads spin-wait for a core on a busy machine.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+threadpool_limits(limits=1, user_api="blas")
 
 settings.register_profile(
     "ci", derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
@@ -38,6 +58,69 @@ def _children() -> set[int]:
         if state != "Z":
             alive.add(pid)
     return alive
+
+
+def _xdist_worker() -> bool:
+    return "PYTEST_XDIST_WORKER" in os.environ
+
+
+def _xdist_group(item: pytest.Item) -> str | None:
+    """The group ``item`` runs in (on one worker, one test after the other), if any: ``paced``,
+    or its module's path where it uses a module- or class-scoped fixture."""
+    if item.get_closest_marker("paced") is not None:
+        return "paced"
+    info = getattr(item, "_fixtureinfo", None)
+    defs = info.name2fixturedefs.values() if info is not None else []
+    if any(d and d[-1].scope in ("module", "class", "package") for d in defs):
+        return item.nodeid.split("::")[0]
+    return None
+
+
+def _run_root(config: pytest.Config) -> Path:
+    """The directory of this run's temporary directories (a worker's basetemp is in it)."""
+    base: Path = config._tmp_path_factory.getbasetemp()  # type: ignore[attr-defined]
+    return base.parent if _xdist_worker() else base
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Each worker writes the groups of what it collected (the same for all) for the
+    controller's scheduler (`_GroupScheduling`)."""
+    if not _xdist_worker():
+        return
+    groups = {item.nodeid: g for item in items if (g := _xdist_group(item)) is not None}
+    root = _run_root(config)
+    tmp = root / f"xdist-groups.{os.environ['PYTEST_XDIST_WORKER']}.json"
+    tmp.write_text(json.dumps(groups))
+    tmp.replace(root / "xdist-groups.json")
+
+
+class _XdistGroups:
+    """``--dist loadgroup`` with the groups of `_xdist_group` (pytest-xdist 3.8's own loadgroup
+    marks the group in ``item._nodeid``, which pytest 9.2 no longer reads)."""
+
+    @pytest.hookimpl
+    def pytest_xdist_make_scheduler(self, config: pytest.Config, log: Any) -> Any:
+        if config.getvalue("dist") != "loadgroup":
+            return None
+        from xdist.scheduler import LoadScopeScheduling
+
+        root = _run_root(config)
+
+        class _GroupScheduling(LoadScopeScheduling):  # type: ignore[misc]
+            groups: dict[str, str] | None = None
+
+            def _split_scope(self, nodeid: str) -> str:
+                if self.groups is None:  # called once every worker has collected
+                    self.groups = json.loads((root / "xdist-groups.json").read_text())
+                return self.groups.get(nodeid, nodeid)
+
+        return _GroupScheduling(config, log)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if config.pluginmanager.hasplugin("xdist"):
+        config.pluginmanager.register(_XdistGroups(), "sfdrig-xdist-groups")
 
 
 @pytest.fixture(autouse=True)

@@ -194,6 +194,7 @@ def test_abort_from_another_thread_while_running():
     assert np.all(be.ao_written()[:, -100:] == 0)
 
 
+@pytest.mark.paced
 def test_paced_backend_keeps_up_with_the_clock():
     """Against the wall clock (as on hardware) the loop keeps the AO stream fed: 30 ms ahead
     in the regenerating ring (the daemon's default; without it this test underflowed in 2 of

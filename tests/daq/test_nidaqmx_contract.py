@@ -65,6 +65,7 @@ def lockin_sigma_v(cm: ChannelMap, name: str, params: RigParams, n: int) -> floa
     return math.sqrt(2 * (sigma_v**2 + lsb**2 / 12) / n)
 
 
+@pytest.mark.paced
 def test_grpc_backend_matches_in_process_simulation_paced() -> None:
     """Paced server (10 kS/s real time), 14 AI channels, 3 s.
 

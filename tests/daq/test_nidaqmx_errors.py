@@ -162,6 +162,7 @@ def test_bad_block_shapes_and_counts(fast_server: SimulatedDeviceServer,
         backend.set_do("fan", True)
 
 
+@pytest.mark.paced
 def test_no_server_is_a_connection_error() -> None:
     with socket.socket() as s:  # a port nothing listens on
         s.bind(("127.0.0.1", 0))

@@ -67,6 +67,7 @@ def test_an_underflow_ends_with_the_drives_at_zero_where_the_board_can(
         backend.close()
 
 
+@pytest.mark.paced
 def test_the_watchdog_is_fed_by_the_acquisition_and_trips_when_it_stops() -> None:
     with SimulatedDeviceServer(seed=7) as server:  # paced: the watchdog runs in real time
         backend = NidaqmxBackend(watchdog_timeout_s=0.2)

@@ -78,6 +78,7 @@ def sim_server() -> Iterator[SimServer]:
     server.stop()
 
 
+@pytest.mark.paced
 def test_the_board_stops_what_a_hung_or_dead_daemon_left_running(sim_server, tmp_path):
     d = start_daemon(tmp_path / "runs", "--backend", "nidaqmx", "--grpc-target",
                      sim_server.address, "--watchdog-s", "2", "--priority", "realtime",
@@ -135,6 +136,7 @@ def _wait_for_event(sub: Subscriber, containing: str, timeout_s: float = 30.0) -
             return msg.header["message"]
 
 
+@pytest.mark.paced
 def test_the_emergency_stop_ramps_down_and_latches_a_fault_until_released_and_reset(tmp_path):
     data = default_channel_map().model_dump(mode="json")
     data["estop"] = {"physical_channel": "Dev1/port0/line1"}

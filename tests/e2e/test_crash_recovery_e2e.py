@@ -15,6 +15,7 @@ from tests.e2e.test_stream_e2e import LONG_X, stacked, until_a_step_is_durable
 pytestmark = pytest.mark.e2e
 
 
+@pytest.mark.paced
 def test_a_killed_run_is_closed_interrupted_and_opens_in_plain_h5py(tmp_path):
     runs = tmp_path / "runs"
     d = start_daemon(runs, fast=False)  # paced: the run is still going when it is killed

@@ -85,6 +85,7 @@ def test_each_defects_message_is_refused_at_once_and_changes_nothing(daemon_fact
     assert d.terminate() == 0
 
 
+@pytest.mark.paced
 def test_an_abort_with_a_nul_in_its_reason_is_not_refused_the_reason_is_replaced(
         daemon_factory):
     """Issue 21: an abort must never be refused for its text (it was, as invalid)."""

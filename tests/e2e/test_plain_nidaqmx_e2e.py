@@ -18,6 +18,7 @@ EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "plain_nidaqmx.py"
 LSB_V = 20.0 / 2**16  # one count of the 16-bit +/-10 V AI
 
 
+@pytest.mark.paced
 def test_a_plain_nidaqmx_program_runs_against_the_sim_server() -> None:
     server = subprocess.Popen(
         [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "5"],

@@ -93,6 +93,7 @@ def test_every_block_streamed_in_sequence_and_equal_to_the_run_file(daemon_facto
     assert d.terminate() == 0
 
 
+@pytest.mark.paced
 def test_kill_9_mid_run_leaves_a_file_with_every_flushed_block(daemon_factory):
     d = daemon_factory(fast=False)  # paced: the run is still going when it is killed
     with CommandClient(d.command, timeout_s=10) as c, Subscriber(d.data, rcvhwm=0) as sub:
@@ -115,6 +116,7 @@ def test_kill_9_mid_run_leaves_a_file_with_every_flushed_block(daemon_factory):
         assert len(run.steps) >= 1
 
 
+@pytest.mark.paced
 def test_sigterm_mid_sweep_zeroes_the_drives_within_100_ms(daemon_factory):
     d = daemon_factory(fast=False)
     with CommandClient(d.command, timeout_s=10) as c, \
@@ -146,6 +148,7 @@ def test_sigterm_mid_sweep_zeroes_the_drives_within_100_ms(daemon_factory):
             np.testing.assert_array_equal(run.channel(name, limit), 0.0, err_msg=name)
 
 
+@pytest.mark.paced
 def test_pause_resume_abort_and_the_pump_interlock_on_the_real_engine(daemon_factory):
     d = daemon_factory(fast=False)
     with CommandClient(d.command, timeout_s=10) as c, \

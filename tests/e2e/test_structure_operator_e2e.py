@@ -197,6 +197,7 @@ def test_abort_half_way_through_the_flow_test(daemon_factory) -> None:
                                                                           "pump off"]
 
 
+@pytest.mark.paced
 def test_on_the_nidaqmx_backend_the_person_reads_the_instruments(tmp_path: Path) -> None:
     """The daemon on `--backend nidaqmx` (the real nidaqmx client against `sfdrig sim-server`,
     whose rig has the journal out): no simulated hands, so no prompt shows an instrument's
