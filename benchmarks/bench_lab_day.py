@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import atexit
 import os
-import selectors
 import shutil
 import signal
 import subprocess
@@ -42,22 +41,11 @@ from typing import Any
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                  "--no-first-run", "--disable-background-networking",
-                  "--disable-component-update", "--disable-sync"]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_web import CHROMIUM_FLAGS, first_line  # noqa: E402  (same directory)
+
 BUSY_LOOP = "import time, sys\nend = time.monotonic() + float(sys.argv[1])\n" \
             "while time.monotonic() < end:\n    pass\n"
-
-
-def first_line(proc: subprocess.Popen[str], what: str, timeout_s: float = 120.0) -> str:
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)  # type: ignore[arg-type]
-    ready = sel.select(timeout_s)
-    sel.close()
-    if not ready:
-        proc.kill()
-        raise SystemExit(f"{what} printed nothing within {timeout_s:g} s")
-    return proc.stdout.readline().strip()  # type: ignore[union-attr]
 
 
 def proc_stats(pid: int) -> tuple[float, int, int]:
