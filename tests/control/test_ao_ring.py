@@ -61,12 +61,12 @@ class Stall:
             self.clock.now += self.seconds
 
 
-def _stream(clock: Clock, limits: SafetyLimits | None = None,
-            **kw) -> tuple[Played, DriveStream, RecordingListener]:
+def _stream(clock: Clock, limits: SafetyLimits | None = None, amp: np.ndarray = AMP,
+            freq_hz: float = FREQ, **kw) -> tuple[Played, DriveStream, RecordingListener]:
     be = Played(clock, **kw)
     be.configure(CM)
     synth = SineSynthesizer(len(CM.ao), FS)
-    synth.ramp_to(AMP, FREQ, 0.0)
+    synth.ramp_to(amp, freq_hz, 0.0)
     listener = RecordingListener()
     stream = DriveStream(be, synth, SafetyMonitor(limits or SafetyLimits(), CM), listener,
                          BLOCK, ahead_blocks=3, keep_samples=4 * BLOCK)
@@ -302,13 +302,7 @@ def test_a_late_host_at_a_fast_large_drive_does_not_trip_the_slew_limit():
     1e5 V/s against the 3.5e4 V/s limit) and tripped a drive that was perfectly smooth."""
     clock = Clock()
     amp = np.array([5.0, 5.0j])
-    be = Played(clock)
-    be.configure(CM)
-    synth = SineSynthesizer(len(CM.ao), FS)
-    synth.ramp_to(amp, 150.0, 0.0)
-    stream = DriveStream(be, synth, SafetyMonitor(SafetyLimits(), CM), RecordingListener(),
-                         BLOCK, ahead_blocks=3, keep_samples=4 * BLOCK)
-    stream.check_limits = False
+    be, stream, _ = _stream(clock, amp=amp, freq_hz=150.0)
     for k, stall_s in enumerate((0.035, 0.05, 0.3)):
         stream.taps.append(Stall(clock, int((1.5 + k) * FS), stall_s))
     stream.start()
@@ -342,14 +336,9 @@ def test_a_host_late_past_the_prediction_of_a_raise_goes_on_from_what_played(sta
     (3.5 V) and then wrote the present one (8 V) at once: 'would slew at 4.5e4 V/s', the run
     aborted every time. Now the drive goes on from what played and ramps up again."""
     clock = Clock()
-    be = Played(clock)
-    be.configure(CM)
-    synth = SineSynthesizer(len(CM.ao), FS)
-    synth.ramp_to(np.array([0.5, 0.0]), 150.0, 0.0)
     limits = SafetyLimits()
-    stream = DriveStream(be, synth, SafetyMonitor(limits, CM), RecordingListener(),
-                         BLOCK, ahead_blocks=3, keep_samples=4 * BLOCK)
-    stream.check_limits = False
+    be, stream, _ = _stream(clock, limits, amp=np.array([0.5, 0.0]), freq_hz=150.0)
+    synth = stream.synth
     stream.taps.append(RaiseEveryBlock(synth, 0.05, 8.0))
     stream.taps.append(Stall(clock, int(0.6 * FS), stall_s))  # mid-raise, at about 3.5 V
     stream.start()
