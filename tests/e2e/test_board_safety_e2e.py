@@ -152,6 +152,9 @@ def test_the_emergency_stop_ramps_down_and_latches_a_fault_until_released_and_re
             sub.wait_connected()
             # pressed while idle: a fault, latched while it stays pressed
             server.proc.send_signal(signal.SIGUSR1)
+            # the board logs "released" once at start-up too: wait past it to "pressed", so
+            # that the "released" awaited below is the one SIGUSR2 makes
+            server.next_line("emergency stop pressed", timeout_s=10)
             _wait_for_event(sub, "idle -> fault")
             assert c.status()["fault_reason"] == "emergency stop pressed"
             with pytest.raises(CommandRefused, match="emergency stop is still pressed"):
