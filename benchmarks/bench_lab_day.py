@@ -148,6 +148,11 @@ class Session:
         self.client.request("pump", check=False, on=True)
         self.sweep("lubricated X", LUBRICATED_X)
         self.client.request("pump", check=False, on=False)
+        # dry sweeps are refused while the film drains (--film-drain-s): wait as an operator would
+        t0 = time.monotonic()
+        while (left := self.client.status()["film_drains_for_s"]) > 0:
+            time.sleep(min(left, 1.0))
+        self.record("film drained", t0, "completed", "")
 
     def aborted(self) -> None:
         self.sweep("aborted after step 1", SHORT_CIRCULAR,

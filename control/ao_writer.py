@@ -129,19 +129,27 @@ class AoWriter:
         self.backend.write_ao(data[:, :n], at=at)
         self.mirror[:, (at + np.arange(n)) % self.ring] = data[:, :n]
 
-    def fill_ring(self, at: int, data: np.ndarray) -> int:
+    def fill_ring(self, at: int, data: np.ndarray, urgent: bool = False) -> int:
         """Ring mode: write ``data`` at ``at`` followed by zeros up to the samples the ring will
         play next (the generation read last plus a ring), so that no drive from before is left
         to repeat beyond what is still to play before ``at``; returns the end written. The
         samples ``generated..at`` still hold drive for one ring: `clear_played` zeroes them
-        once they have played."""
+        once they have played. ``urgent`` (a stop): ``data`` goes in a write of its own, first,
+        and the zeros after it in a second one: through gRPC a whole ring of zeros takes a
+        busy host tens of milliseconds to send, and the fade must land before the generation
+        reaches ``at``."""
         assert self.ring is not None
         n = self.generated + self.ring - at
         if n < data.shape[1]:
             raise ValueError(f"{data.shape[1]} samples do not fit in the ring from {at}")
-        full = np.zeros((self.n_ao, n))
-        full[:, :data.shape[1]] = data
-        self.write_at(at, full)
+        if urgent:
+            self.write_at(at, data)
+            if n > data.shape[1]:
+                self.write_at(at + data.shape[1], np.zeros((self.n_ao, n - data.shape[1])))
+        else:
+            full = np.zeros((self.n_ao, n))
+            full[:, :data.shape[1]] = data
+            self.write_at(at, full)
         self._to_clear = (self.generated, at + data.shape[1])
         return at + n
 

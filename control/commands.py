@@ -8,6 +8,7 @@ error reply and changes nothing.
 from __future__ import annotations
 
 import logging
+import math
 from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
@@ -269,6 +270,10 @@ class CommandHandler:
             return ErrorKind.FORBIDDEN, "start: a dry sweep needs the pump off (its dwells " \
                 "are recorded as dry; oil in the film would make them wet): send pump off " \
                 "first, or set lubricated = true"
+        if not lubricated and (wait := d.pump.drains_for_s()) > 0:
+            return ErrorKind.FORBIDDEN, f"start: the film is still draining after the pump " \
+                f"went off: a dry sweep can start in {math.ceil(wait):.0f} s (its dwells are " \
+                f"recorded as dry; the daemon waits {d.pump.drain_s:g} s, --film-drain-s)"
         from control.sweep import SweepSpec, check_sweep
 
         if isinstance(spec, SweepSpec):

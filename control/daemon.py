@@ -70,6 +70,9 @@ class DaemonConfig:
     lossless_publish: bool = False  # wait for the publisher instead of dropping (fast sim only)
     heartbeat_s: float = 0.25
     state_file: Path | None = None
+    # after the pump goes off, a dry sweep waits this long for the film to drain [s]: its
+    # dwells are recorded as dry (the simulated film drains with a 5 s time constant)
+    film_drain_s: float = 30.0
 
 
 class Daemon:
@@ -108,7 +111,7 @@ class Daemon:
             from control.pump import PumpRelay
 
             pump_factory = PumpRelay
-        self.pump = pump_factory(backend)
+        self.pump = pump_factory(backend, drain_s=config.film_drain_s)
 
         self.sm = StateMachine(self._state_changed)
         self.job: RunJob | None = None
@@ -326,6 +329,7 @@ class Daemon:
             # durable in the run file (a reader, or a crash, sees at least these)
             "samples_flushed": job.writer.writer.samples_flushed if job is not None else 0,
             "pump_on": bool(self.pump.is_on),
+            "film_drains_for_s": round(self.pump.drains_for_s(), 1),  # dry sweeps wait [s]
             # what a display draws the orbit and the step table against
             "safety": {"radial_clearance_m": limits.radial_clearance_m,
                        "displacement_limit_m": limits.displacement_limit_m},

@@ -7,12 +7,15 @@ the one place that refuses a switch, with `InterlockError` saying why: off durin
 run (a squeeze film must not be drained while the housing is shaken), on during a dry run (oil in
 the film would make dwells wet that the run file records as dry). The pressure side of the
 interlock (a lubricated sweep waits, with zero drive, for the inlet pressure to build) lives in
-the sweep engine, which owns the acquisition.
+the sweep engine, which owns the acquisition. The film does not empty when the pump stops:
+`PumpRelay.drains_for_s` says how long it still drains (``drain_s`` after the switch off), and
+the daemon refuses a dry sweep until then, for the same reason as a pump on during a dry run.
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -31,6 +34,10 @@ class PumpRelay:
         Relay (digital output) name in the channel map.
     on_change : callable(on: bool, message: str), optional
         Called after every switch (for the run log).
+    drain_s : float
+        How long the film takes to drain after the pump goes off [s] (0: at once).
+    clock : callable, optional
+        Monotonic clock [s] (tests).
     """
 
     def __init__(
@@ -38,7 +45,11 @@ class PumpRelay:
         backend: DaqBackend,
         name: str = "pump",
         on_change: Callable[[bool, str], None] | None = None,
+        drain_s: float = 0.0,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        if not drain_s >= 0:
+            raise ValueError(f"drain_s must be >= 0 s, got {drain_s!r}")
         backend.channel_map.relay(name)  # KeyError naming the missing relay
         self._backend = backend
         self.name = name
@@ -46,11 +57,21 @@ class PumpRelay:
         self._lock = threading.Lock()
         self._on = False
         self._holds: list[str] = []  # what holds the relay (outermost first)
+        self.drain_s = float(drain_s)
+        self._clock = clock
+        self._off_at: float | None = None  # when it last went from on to off
 
     @property
     def is_on(self) -> bool:
         """Whether the relay was last switched on."""
         return self._on
+
+    def drains_for_s(self) -> float:
+        """How much longer the film drains [s]: 0 when the pump is on (the film is full, not
+        draining) or has been off for at least ``drain_s``."""
+        if self._on or self._off_at is None:
+            return 0.0
+        return max(0.0, self.drain_s - (self._clock() - self._off_at))
 
     @property
     def shakers_active(self) -> bool:
@@ -82,6 +103,8 @@ class PumpRelay:
                 )
             self._backend.set_do(self.name, bool(on))
             changed = self._on != bool(on)
+            if changed and not on:
+                self._off_at = self._clock()
             self._on = bool(on)
         if changed and self._on_change is not None:
             self._on_change(self._on, f"pump {self.name!r} switched {'on' if on else 'off'}")

@@ -406,7 +406,7 @@ class DriveStream:
                     for ao in tail:
                         self.backend.write_ao(ao)
                 elif tail:  # the fade, then zeros over the rest of the ring, in one write
-                    self.writer.fill_ring(at, np.concatenate(tail, axis=1))
+                    self.writer.fill_ring(at, np.concatenate(tail, axis=1), urgent=True)
                 while reading and self._fifo:
                     try:
                         self._read_one(check=False)

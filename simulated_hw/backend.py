@@ -21,6 +21,7 @@ generation is the samples read.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 
@@ -66,6 +67,7 @@ class SimulatedBackend:
         self.realtime = realtime
         self.buffer_s = buffer_s
         self._clock = clock
+        self._rest_since: float | None = None  # when the last run stopped (the rig rests)
         self._sleep = sleep
         self._map: ChannelMap | None = None
         self.rig: RigModel | None = None
@@ -102,6 +104,7 @@ class SimulatedBackend:
         self._map = channel_map
         physics.warm_up()  # before start: a paced first read must not wait for the compiler
         self.rig = RigModel(self.params, channel_map, self.seed)
+        self._rest_since = self._clock()
         self._ao_chunks, self._ao_queued, self._read = [], 0, 0
         self._reset_ring()
 
@@ -158,7 +161,8 @@ class SimulatedBackend:
     def start(self) -> None:
         """Start the generation and the acquisition: a new run counts its samples from 0, as a
         board's tasks do (the rig itself keeps moving from where the last run left it)."""
-        self._require_rig()
+        self._rest()
+        self._rest_since = None
         self._running = True
         self._read = 0
         self._played, self._played_to, self._stopped_at = [], 0, None
@@ -230,7 +234,20 @@ class SimulatedBackend:
 
     def set_do(self, name: str, value: bool) -> None:
         self.channel_map.relay(name)  # KeyError names the missing relay
+        self._rest()  # the oil up to now followed the relay as it was
         self._require_rig().set_relay(name, value)
+
+    def _rest(self) -> None:
+        """Between runs the rig rests in real time: its oil goes on filling or draining. In
+        whole seconds (the fraction carries over): a program's own set-up between a relay
+        switch and its start (milliseconds) leaves the rig as the sim-server's board, which
+        starts every acquisition from rest (issue 22), has it, so both give the same samples."""
+        rig = self._require_rig()
+        if self._rest_since is not None and not self._running:
+            whole = math.floor(self._clock() - self._rest_since)
+            if whole >= 1:
+                rig.rest(whole)
+                self._rest_since += whole
 
     def ao_backlog(self) -> int:
         """Samples written and not yet generated: paced, the wall clock generates them
@@ -292,6 +309,7 @@ class SimulatedBackend:
         self._ao_stopped = False
         self._ao_chunks, self._ao_queued = [], 0
         self._reset_ring()
+        self._rest_since = self._clock()
 
     def close(self) -> None:
         self._running = False

@@ -94,6 +94,7 @@ def simulate_response(
 
 
 NOISE_TABLE_SIZE = 1 << 20  # standard normal draws reused with random offsets (4 MiB)
+REST_HORIZON_S = 120.0  # `RigModel.rest` follows the oil this long (24 drain time constants)
 
 
 class RigModel:
@@ -166,6 +167,18 @@ class RigModel:
         now = self._push_at(a, np.array([self.sample_index]))[0]
         self._push[a] = (float(now), float(force_n), self.sample_index,
                          max(1, int(round(ramp_s * self.fs))))
+
+    def rest(self, seconds: float) -> None:
+        """The rig left at rest for ``seconds`` while no task runs (drives at 0 V): the oil
+        keeps pressurising or venting, and the film filling or draining, as the pump relay says.
+        Only these slow states advance, and only over the first `REST_HORIZON_S` (by then the
+        film and the pressures have settled; the oil's warming beyond it is not followed). The
+        housing is not integrated: with no drive it settles within a fraction of a second."""
+        left = int(round(min(max(seconds, 0.0), REST_HORIZON_S) * self.fs))
+        while left > 0:  # one second at a time: bounded memory
+            n = min(left, int(self.fs))
+            self._oil_block(n)
+            left -= n
 
     @property
     def temperature_c(self) -> float:

@@ -81,6 +81,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--backend nidaqmx whole seconds >= the watchdog + 0.2 s (a hung "
                              "host is stopped by the watchdog before an abort's fade could "
                              "come round again), and none without a watchdog")
+    parser.add_argument("--film-drain-s", type=float, default=30.0, metavar="S",
+                        help="after the pump goes off, dry sweeps are refused this long while "
+                             "the film drains (its dwells are recorded as dry); the simulated "
+                             "film drains with a 5 s time constant; measure the real rig's "
+                             "(default: %(default)s)")
     parser.add_argument("--priority", choices=LEVELS, default="normal",
                         help="scheduling: high = nice -10, realtime = SCHED_FIFO; refused "
                              "with a reason where the OS does not allow it (default: "
@@ -126,6 +131,9 @@ def run(args: argparse.Namespace) -> int:
     if not (args.watchdog_s == 0 or 0.05 <= args.watchdog_s <= 60):
         print(f"daemon: --watchdog-s {args.watchdog_s:g} must be 0 (none) or 0.05..60 s",
               file=sys.stderr)
+        return 2
+    if not 0 <= args.film_drain_s <= 3600:
+        print(f"daemon: --film-drain-s {args.film_drain_s:g} must be 0..3600 s", file=sys.stderr)
         return 2
     ring = ao_ring_s(args)
     if ring is not None and not 0.5 <= ring <= 60:
@@ -178,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
         runs_dir=args.runs_dir, command_endpoint=args.command_endpoint,
         data_endpoint=args.data_endpoint, keys=keys, rig_config=rig, sndhwm=args.sndhwm,
         lossless_publish=args.fast, state_file=args.runs_dir / STATE_FILE_NAME,
+        film_drain_s=args.film_drain_s,
     )
     try:
         hands = None

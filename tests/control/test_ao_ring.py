@@ -396,3 +396,29 @@ def test_a_late_host_does_not_raise_a_stuck_housing_past_what_it_has_seen():
     # host may not raise it much further (27.8 um at 0.12 and 0.25 s stalls; before the fix the
     # 0.12 s stalls tripped the 63.5 um limit)
     assert max(peaks) <= 1.15 * peaks[0], [round(p * 1e6, 1) for p in peaks]
+
+
+def test_the_stop_writes_its_fade_before_the_ring_of_zeros():
+    """Through gRPC a ring of zeros (2 s, 2 channels) takes a busy host tens of milliseconds to
+    send; the fade, written alone first, lands sooner (abort 124.7 ms at worst before)."""
+    clock = Clock()
+    be, stream, _ = _stream(clock)
+    writes: list[tuple[int | None, int]] = []
+    write_ao = be.write_ao
+
+    def recording(block, at=None):
+        writes.append((at, block.shape[1]))
+        write_ao(block, at=at)
+
+    be.write_ao = recording
+    stream.start()
+    stream.advance_to(int(1.2 * FS))
+    del writes[:]
+    generated = be.ao_generated()
+    stream.shutdown(0.04)
+    (fade_at, fade_n), (zeros_at, zeros_n) = writes[:2]
+    assert fade_at - generated <= stream.writer.margin + BLOCK  # the fade starts at once
+    assert fade_n <= int(0.2 * FS)  # the fade and the zeros the record shows: small
+    assert zeros_at == fade_at + fade_n  # then zeros up to a ring from the generation
+    assert fade_at + fade_n + zeros_n == generated + stream.writer.ring
+    assert not np.any(stream.writer.mirror)

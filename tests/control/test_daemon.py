@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict
 
 from control.client import CommandClient, CommandRefused, Subscriber
 from control.daemon import TRANSITIONS, Daemon, DaemonConfig, StateMachine, TransitionError
+from control.pump import PumpRelay
 from control.wire import DaemonState
 from daq.channels import default_channel_map
 from simulated_hw.backend import SimulatedBackend
@@ -244,6 +245,54 @@ def test_the_pump_stays_as_the_run_started_it_while_running_and_paused(daemon: D
         c.abort("test over")
         wait_state(c, sub, "idle")
         assert c.pump(False).data["pump_on"] is False
+
+
+def test_a_dry_sweep_waits_for_the_film_to_drain_after_the_pump_goes_off(tmp_path: Path):
+    """Issue 21: a dry sweep started as the pump went off ran on a film still full of oil (the
+    Y displacement step of the lab-day session then failed to converge while the film drained)
+    and was recorded dry. It is refused, saying how long is left, until ``film_drain_s``."""
+    now = [100.0]
+    cfg = DaemonConfig(runs_dir=tmp_path / "runs", sndhwm=0, lossless_publish=True,
+                       heartbeat_s=0.05, film_drain_s=30.0)
+    d = Daemon(SimulatedBackend(seed=3), default_channel_map(), cfg,
+               engine_factory=ScriptEngine, spec_parser=ScriptSpec.model_validate,
+               pump_factory=lambda be, drain_s: PumpRelay(be, drain_s=drain_s,
+                                                          clock=lambda: now[0]))
+    t = threading.Thread(target=d.serve, name="test-daemon-serve")
+    t.start()
+    try:
+        with CommandClient(d.endpoints["command"]) as c, \
+                Subscriber(d.endpoints["data"], rcvhwm=0) as sub:
+            sub.wait_connected()
+            assert c.status()["film_drains_for_s"] == 0.0  # never on: nothing to drain
+            c.pump(True)
+            assert c.status()["film_drains_for_s"] == 0.0  # on: full, not draining
+            c.pump(False)
+            now[0] += 12.5
+            assert c.status()["film_drains_for_s"] == 17.5
+            with pytest.raises(CommandRefused) as refused:
+                c.start_sweep({"blocks": 4})
+            assert refused.value.reply.error == (
+                "start: the film is still draining after the pump went off: a dry sweep can "
+                "start in 18 s (its dwells are recorded as dry; the daemon waits 30 s, "
+                "--film-drain-s)")
+            assert refused.value.reply.error_kind == "forbidden"
+            assert c.status()["state"] == "idle" and not list((tmp_path / "runs").glob("*.h5"))
+            # a lubricated sweep needs the pump, not a dry film: it is not held back
+            c.pump(True)
+            c.start_sweep({"blocks": 4, "lubricated": True})
+            wait_state(c, sub, "idle")
+            c.pump(False)
+            now[0] += 29.75
+            with pytest.raises(CommandRefused, match="can start in 1 s"):
+                c.start_sweep({"blocks": 4})
+            now[0] += 0.25
+            assert c.status()["film_drains_for_s"] == 0.0
+            assert c.start_sweep({"blocks": 4}).ok
+            wait_state(c, sub, "idle")
+    finally:
+        d.stop("test over")
+        t.join(30)
 
 
 def test_refusals_name_the_requests_allowed_now_and_how_to_reset_a_fault(daemon: Daemon):

@@ -9,6 +9,8 @@ from control.errors import InterlockError, TargetError
 from control.listener import RecordingListener
 from control.pump import PumpRelay
 from control.sweep import SweepEngine
+from daq.channels import default_channel_map
+from simulated_hw.backend import SimulatedBackend
 from simulated_hw.params import RigParams
 from tests.control.conftest import make_backend
 
@@ -118,3 +120,41 @@ def test_unconfigured_backend_is_refused():
     with pytest.raises(TargetError, match="not configured"):
         SweepEngine(SimulatedBackend(), {"motion": "x", "load_n": [5.0],
                                          "freq_hz": [30.0]}).run()
+
+
+def test_the_film_drains_for_drain_s_after_the_pump_goes_off():
+    now = [0.0]
+    pump = PumpRelay(make_backend(), drain_s=30.0, clock=lambda: now[0])
+    assert pump.drains_for_s() == 0.0  # never on
+    pump.set(True)
+    now[0] = 50.0
+    assert pump.drains_for_s() == 0.0  # on: the film is full, not draining
+    pump.set(False)
+    now[0] = 60.0
+    assert pump.drains_for_s() == pytest.approx(20.0)
+    pump.set(False)  # off again: the drain does not start over
+    assert pump.drains_for_s() == pytest.approx(20.0)
+    now[0] = 90.0
+    assert pump.drains_for_s() == 0.0
+    with pytest.raises(ValueError, match="drain_s must be >= 0 s, got -1"):
+        PumpRelay(make_backend(), drain_s=-1)
+
+
+def test_the_simulated_film_drains_between_runs_as_the_wall_clock_passes():
+    """Issue 21: the in-process rig only moved while a run read it, so a film filled by a
+    lubricated run was still full whenever the next run started, however long after."""
+    now = [0.0]
+    be = SimulatedBackend(RigParams(), seed=1, realtime=False, clock=lambda: now[0])
+    be.configure(default_channel_map())
+    pump = PumpRelay(be)
+    pump.set(True)
+    now[0] = 10.0  # idle, pump on: pressurised and filled
+    be.start()
+    be.stop()
+    assert be.rig.film_fill > 0.999
+    pump.set(False)
+    tau = RigParams().oil.drain_time_constant_s
+    now[0] += 10 * tau
+    be.start()
+    assert be.rig.film_fill < np.exp(-8)  # drained (less the inlet's venting time)
+    be.stop()

@@ -37,3 +37,10 @@ def test_a_ring_without_a_short_enough_watchdog_is_refused(argv, capsys):
     assert daemon.run(_args(*argv)) == 2
     err = capsys.readouterr().err
     assert err.startswith("daemon: --ao-ring-s"), err
+
+
+@pytest.mark.parametrize("value", ["-1", "7200", "nan"])
+def test_a_film_drain_time_out_of_range_is_refused(value, capsys):
+    assert daemon.run(_args("--film-drain-s", value)) == 2
+    assert capsys.readouterr().err == \
+        f"daemon: --film-drain-s {float(value):g} must be 0..3600 s\n"
