@@ -253,6 +253,8 @@ def main() -> int:
 
     from control.client import CommandClient, Subscriber
 
+    if args.dir is not None:
+        args.dir.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="bench_lab_day_", dir=args.dir))
     if args.dir is None:
         atexit.register(shutil.rmtree, work, True)

@@ -37,8 +37,9 @@ log = logging.getLogger(__name__)
 GUARD_CUT = 0.5
 #: The stop budget: an abort has the drives at 0 V this long after it is handled [s].
 STOP_S = 0.1
-#: Ring mode: blocks of the predicted drive written per cycle beyond the lead, until the ring
-#: holds the current command's continuation up to a ring ahead (8: a 2 s ring in 0.25 s).
+#: Ring mode: blocks of the predicted drive written at once beyond the lead, until the ring
+#: holds the current command's continuation up to a ring ahead (8: a 2 s ring in 0.25 s); then
+#: extended by this many at a time (through gRPC each write is a round trip or two).
 PREDICT_BLOCKS = 8
 #: Ring mode: blocks written at once when a new command restarts the prediction. Commands come
 #: every block while a step is approached, so the 8 a cycle never got further than 80 ms into
@@ -224,6 +225,8 @@ class DriveStream:
         else:
             most = PREDICT_BLOCKS
         limit = w.generated + w.ring - self.block - w.margin
+        if most == PREDICT_BLOCKS and limit - self._pred_end < PREDICT_BLOCKS * self.block:
+            return  # extended by whole chunks: one write per chunk, not one per block
         start, parts = self._pred_end, list[np.ndarray]()
         while len(parts) < most and self._pred_end + self.block <= limit:
             blk = self._pred.next_block(self.block)

@@ -71,6 +71,9 @@ RING_OVER_WATCHDOG_S = 0.2
 ONBOARD_S = 0.002
 #: a write's transfer to the device's buffer, beyond the FIFO [s]
 TRANSFER_S = 0.003
+#: A reader behind the board takes at most this much in one gRPC read [s] (14 channels at
+#: 10 kS/s: 280 kB, well under gRPC's 4 MB message limit).
+AI_CATCH_UP_S = 0.25
 
 #: gRPC message limit: one read of 100,000 samples x 16 channels is 12.8 MB of doubles.
 MAX_MESSAGE_BYTES = 256 * 1024 * 1024
@@ -168,6 +171,9 @@ class NidaqmxBackend:
         self.connect_timeout_s = connect_timeout_s
         self._grpc_override = grpc_target
         self._map: ChannelMap | None = None
+        self._ai_started_at = 0.0  # host monotonic time of the AI start
+        self._ai_taken = 0  # AI samples handed out since the start
+        self._ai_ahead: np.ndarray | None = None  # read from the board, not yet handed out
         self._channel: Any = None  # grpc.Channel
         self._ai: Any = None
         self._ao: Any = None
@@ -249,6 +255,9 @@ class NidaqmxBackend:
         with translate_errors("starting the AI task"):
             self._ai.start()
         self._running = True
+        self._ai_started_at = time.monotonic()
+        self._ai_taken = 0
+        self._ai_ahead = None
 
     def write_ao(self, block: np.ndarray, at: int | None = None) -> None:
         """Queue the next AO samples, volts, shape ``(n_ao, n)``; in ring mode write them at
@@ -298,19 +307,40 @@ class NidaqmxBackend:
         if n <= 0:
             raise ValueError(f"read_ai: n must be positive, got {n}")
         self._require_tasks()
-        if self._estop_task is not None and not self._estop_latched and self.estop_pressed():
-            self._estop_latched = True  # once: the reads of the ramp-down go on
-            raise EmergencyStopError(f"emergency stop pressed ({self._estop_where()})")
-        out = np.empty((len(self.channel_map.ai), n))
-        with translate_errors(f"reading {n} AI samples"):
-            got = self._reader.read_many_sample(out, number_of_samples_per_channel=n,
-                                                timeout=timeout_s)
-        if got != n:  # never hand back a short block silently
-            raise error_for_code(f"reading AI: got {got} of {n} samples", -200284)
+        ahead = self._ai_ahead
+        have = 0 if ahead is None else ahead.shape[1]
+        if have < n:  # a read from the board (the e-stop is read with each)
+            if self._estop_task is not None and not self._estop_latched and \
+                    self.estop_pressed():
+                self._estop_latched = True  # once: the reads of the ramp-down go on
+                raise EmergencyStopError(f"emergency stop pressed ({self._estop_where()})")
+            m = self._ai_read_size(n - have, have)
+            fresh = np.empty((len(self.channel_map.ai), m))
+            with translate_errors(f"reading {m} AI samples"):
+                got = self._reader.read_many_sample(fresh, number_of_samples_per_channel=m,
+                                                    timeout=timeout_s)
+            if got != m:  # never hand back a short block silently
+                raise error_for_code(f"reading AI: got {got} of {m} samples", -200284)
+            ahead = fresh if ahead is None or not have else np.hstack([ahead, fresh])
+        out, rest = ahead[:, :n], ahead[:, n:]
+        self._ai_ahead = rest if rest.shape[1] else None
+        self._ai_taken += n
         if self._watchdog is not None and self.watchdog_timeout_s is not None and \
                 time.monotonic() - self._fed_at > self.watchdog_timeout_s / 4:
             self.feed_watchdog()
         return out
+
+    def _ai_read_size(self, need: int, have: int) -> int:
+        """How many samples the next gRPC read takes: ``need``, or, when the board holds
+        more (its sample clock, counted on the host's monotonic clock, has run ahead of the
+        reads), whole multiples of ``need`` more, up to `AI_CATCH_UP_S` and less one
+        ``need`` for the two clocks' offset: a host that fell behind catches up in a few
+        calls instead of one per block (the e-stop and the gRPC round trip with each). What
+        is read ahead is handed out by the next `read_ai` calls without a call."""
+        fs = self.channel_map.sample_rate_hz
+        held = int((time.monotonic() - self._ai_started_at) * fs) - self._ai_taken - have
+        extra = min(held - 2 * need, int(AI_CATCH_UP_S * fs))
+        return need + need * max(extra // need, 0)
 
     def estop_pressed(self) -> bool:
         """Whether the emergency-stop input reads pressed (False when there is none)."""
@@ -401,6 +431,7 @@ class NidaqmxBackend:
                 first = first or err
         self._running = False
         self._ao_written = self._written_end = 0  # a restart counts from zero again
+        self._ai_ahead = None
         if first is not None:
             raise first
 

@@ -5,6 +5,7 @@ back from the simulated NI-DAQmx device server the same rig response as the in-p
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -105,6 +106,52 @@ def test_grpc_backend_matches_in_process_simulation_paced() -> None:
     p_in = cm.to_engineering(got)[cm.ai_index("p_in")]
     assert abs(p_in[:10].mean()) < 1_000.0
     assert p_in[-1000:].mean() == pytest.approx(params.oil.supply_pressure_pa, rel=0.02)
+
+
+def test_a_host_behind_the_board_catches_up_in_few_reads_and_loses_no_sample() -> None:
+    """Issue 21: through gRPC a lab-day daemon read 100 samples a call (and the e-stop with
+    each); beside 3 busy loops it fell 10 s behind and the board overflowed (-200279) in every
+    run. A host that is late now takes what the board holds in a few calls: after a 0.6 s
+    stall, 60 blocks of 100 are 6 gRPC reads or fewer, and the samples are those a host on time
+    reads (the rig's response matches the in-process rig's on the same drive)."""
+    params = RigParams()
+    cm = default_channel_map()
+    expected = run_sine(SimulatedBackend(params, seed=SEED), cm, 30)
+    small, n_small = 100, 300  # 30 blocks of 1000 in blocks of 100
+    with SimulatedDeviceServer(params=params, seed=SEED) as server:
+        be = NidaqmxBackend()
+        be.configure(on_server(server, cm))
+        be.set_do("pump", True)
+        for k in range(PREFILL_BLOCKS):
+            be.write_ao(drive_block(k, len(cm.ao)))
+        be.start()
+        calls = []
+        read = be._reader.read_many_sample
+        be._reader.read_many_sample = lambda out, **kw: calls.append(kw) or read(out, **kw)
+        blocks, after_stall = [], None
+        for k in range(n_small):
+            if k == 100:
+                be.feed_watchdog()
+                time.sleep(0.6)  # the host stalls (the condition under test, not a wait)
+                after_stall = len(calls)
+            blocks.append(be.read_ai(small))
+            if k == 159:
+                stall_calls = len(calls) - after_stall
+            if k % 10 == 9:  # the drive goes on a block of 1000 at a time
+                be.write_ao(drive_block(k // 10 + PREFILL_BLOCKS, len(cm.ao)))
+        be.stop()
+        be.close()
+    got = np.hstack(blocks)
+    assert got.shape == expected.shape
+    assert stall_calls <= 6, stall_calls  # 60 reads of 100 after the stall
+    first, last = int(FS_HZ), got.shape[1]
+    for name in ("fx", "x1"):
+        i = cm.ai_index(name)
+        z_exp, z_got = lockin(expected[i], first, last), lockin(got[i], first, last)
+        tol = 5 * math.sqrt(2) * lockin_sigma_v(cm, name, params, last - first)
+        assert abs(abs(z_got) - abs(z_exp)) < tol, (name, abs(z_got), abs(z_exp), tol)
+        phase_diff = math.remainder(np.angle(z_got) - np.angle(z_exp), 2 * math.pi)
+        assert abs(phase_diff) * abs(z_exp) < tol, (name, phase_diff, tol / abs(z_exp))
 
 
 def test_grpc_path_is_lossless_in_fast_mode(fast_server: SimulatedDeviceServer) -> None:
