@@ -44,6 +44,7 @@ import logging
 import math
 import time
 import uuid
+from collections import deque
 from collections.abc import Iterator
 from typing import Any
 
@@ -74,6 +75,11 @@ TRANSFER_S = 0.003
 #: A reader behind the board takes at most this much in one gRPC read [s] (14 channels at
 #: 10 kS/s: 280 kB, well under gRPC's 4 MB message limit).
 AI_CATCH_UP_S = 0.25
+#: `NidaqmxBackend.ao_generated` asks the board this often at most [s], and estimates the count
+#: in between from the answers of the last `GEN_OFFSET_WINDOW_S` (short: the board's clock and
+#: the host's drift apart by tens of ppm).
+GEN_QUERY_S = 0.05
+GEN_OFFSET_WINDOW_S = 1.0
 
 #: gRPC message limit: one read of 100,000 samples x 16 channels is 12.8 MB of doubles.
 MAX_MESSAGE_BYTES = 256 * 1024 * 1024
@@ -174,6 +180,8 @@ class NidaqmxBackend:
         self._ai_started_at = 0.0  # host monotonic time of the AI start
         self._ai_taken = 0  # AI samples handed out since the start
         self._ai_ahead: np.ndarray | None = None  # read from the board, not yet handed out
+        #: the board's AO counts of the last `GEN_OFFSET_WINDOW_S`: (host time before, count)
+        self._gen_answers: deque[tuple[float, int]] = deque()
         self._channel: Any = None  # grpc.Channel
         self._ai: Any = None
         self._ao: Any = None
@@ -221,11 +229,33 @@ class NidaqmxBackend:
         return self._onboard + int(math.ceil(TRANSFER_S * fs))
 
     def ao_generated(self) -> int:
-        """AO samples generated since the start (DAQmx TotalSampPerChanGenerated)."""
+        """AO samples generated since the start (DAQmx TotalSampPerChanGenerated).
+
+        The board is asked at most every `GEN_QUERY_S`; in between, the count is the host's
+        monotonic clock since the start times the rate, plus the offset the board's answers of
+        the last second give (each answer paired with the time *before* the question: the
+        count was read after it, so the offset is never too small and neither is the count,
+        which only errs towards a later generation: a write lands further ahead, a fade starts
+        a little later). Through gRPC a question is a round trip: asked every 10 ms block it
+        was a sixth of the daemon's time. Cuts (`cut_ao`) always ask the board."""
         if self._ao is None or not self._running:
             return 0
+        now = time.monotonic()
+        fs = self.channel_map.sample_rate_hz
+        answers = self._gen_answers
+        if answers and now - answers[-1][0] < GEN_QUERY_S and self._gen_paced(fs):
+            offset = min(count - t * fs for t, count in answers)
+            # never below the board's last answer, nor below the AI samples it has handed over
+            # (AO and AI share the sample clock and the start)
+            have = 0 if self._ai_ahead is None else self._ai_ahead.shape[1]
+            return max(int(math.ceil(now * fs + offset)), answers[-1][1],
+                       self._ai_taken + have)
         with translate_errors("asking for the AO samples generated"):
-            return int(self._ao.out_stream.total_samp_per_chan_generated)
+            count = int(self._ao.out_stream.total_samp_per_chan_generated)
+        self._gen_answers.append((now, count))
+        while now - self._gen_answers[0][0] > GEN_OFFSET_WINDOW_S:
+            self._gen_answers.popleft()
+        return count
 
     def configure(self, channel_map: ChannelMap) -> None:
         """Create the AI, AO and DO tasks for ``channel_map``; nothing starts yet.
@@ -255,6 +285,7 @@ class NidaqmxBackend:
         with translate_errors("starting the AI task"):
             self._ai.start()
         self._running = True
+        self._gen_answers.clear()
         self._ai_started_at = time.monotonic()
         self._ai_taken = 0
         self._ai_ahead = None
@@ -329,6 +360,13 @@ class NidaqmxBackend:
                 time.monotonic() - self._fed_at > self.watchdog_timeout_s / 4:
             self.feed_watchdog()
         return out
+
+    def _gen_paced(self, fs: float) -> bool:
+        """Whether the board's answers of the last second count at its sample rate on the
+        host's clock (a real board does; the sim-server's fast mode does not: it generates as
+        fast as it is read, and the count is then always asked)."""
+        (t0, c0), (t1, c1) = self._gen_answers[0], self._gen_answers[-1]
+        return t1 - t0 >= 0.2 and abs((c1 - c0) / (t1 - t0) - fs) < 0.1 * fs
 
     def _ai_read_size(self, need: int, have: int) -> int:
         """How many samples the next gRPC read takes: ``need``, or, when the board holds

@@ -177,3 +177,42 @@ def test_a_hung_host_is_stopped_by_the_watchdog_not_by_the_ring(clocked_server, 
     expiry = fed_at + int(0.8 * fs)
     assert np.any(generated[:, expiry - 100:expiry - 1])  # the ring played on until then
     assert not np.any(generated[:, expiry + 1:])  # 0 V from the expiry
+
+
+def test_the_generation_count_is_asked_at_most_every_50_ms_and_never_runs_behind(monkeypatch):
+    """Through gRPC every question is a round trip; asked every 10 ms block it was a sixth of
+    a lab-day daemon's time (py-spy). Between answers the count comes from the host's clock
+    and the board's answers of the last second: never below the board's own count read just
+    before (a write would land too close), at most 5 ms beyond the one read just after."""
+    from daq.channels import default_channel_map
+
+    with SimulatedDeviceServer() as server:  # paced by the wall clock, as a board
+        be = NidaqmxBackend(watchdog_timeout_s=0.8, ao_ring_s=1.0)
+        try:
+            cm = on_server(server, default_channel_map())
+            be.configure(cm)
+            fs = cm.sample_rate_hz
+            be.write_ao(np.zeros((len(cm.ao), int(fs))), at=0)
+            be.start()
+            out = be._ao.out_stream
+            real = type(out).total_samp_per_chan_generated.fget
+            asked = [0]
+
+            def counted(stream):
+                asked[0] += 1
+                return real(stream)
+
+            monkeypatch.setattr(type(out), "total_samp_per_chan_generated", property(counted))
+            for k in range(150):  # 1.5 s of 10 ms blocks, a question each, as a stream asks
+                before = real(out)
+                generated = be.ao_generated()
+                after = real(out)
+                assert before <= generated <= after + int(0.005 * fs), (k, before, generated,
+                                                                       after)
+                be.read_ai(100)
+                be.feed_watchdog()
+            # the first 0.2 s ask every block; then at most every 50 ms: 51 of 150
+            assert asked[0] <= 20 + 30 + 1, asked[0]
+            be.stop()
+        finally:
+            be.close()
