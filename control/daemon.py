@@ -48,6 +48,7 @@ from control.security import (
 from control.wire import MAX_FRAME_BYTES, DaemonState, ErrorKind, Reply
 from daq.backend import DaqBackend
 from daq.channels import ChannelMap
+from daq.errors import DaqWatchdogExpiredError
 
 __all__ = ["TRANSITIONS", "Daemon", "DaemonConfig", "StateMachine", "TransitionError"]
 
@@ -216,11 +217,22 @@ class Daemon:
         try:
             self.backend.feed_watchdog()
         except Exception as err:  # expired or board gone: say so once, keep serving
-            if str(err) != self._watchdog_error:
+            if isinstance(err, DaqWatchdogExpiredError):
+                self._board_cut("the board's watchdog expired while idle")
+            kind = type(err).__name__  # the message counts the seconds since: not per call
+            if kind != self._watchdog_error:
                 log.error("board watchdog: %s", err)
-            self._watchdog_error = str(err)
+            self._watchdog_error = kind
         else:
             self._watchdog_error = ""
+
+    def _board_cut(self, why: str) -> None:
+        """The board set the drives to 0 V and the relays off by itself (its watchdog): the
+        pump is off now, whatever was asked of it; say so once on the data stream."""
+        if self.pump.is_on:
+            self.pump.switched_off_by_board(why)
+            self.publisher.on_event("pump", f"pump off: {why} (relays off, drives 0 V; the "
+                                    "next start or pump on clears it)", 0)
 
     def stop(self, reason: str = "shutdown requested") -> None:
         """Ask for a safe shutdown (thread- and signal-safe): abort any run, then exit `serve`."""
@@ -295,6 +307,8 @@ class Daemon:
                 log.exception("publishing the end of run %s failed", job.run_id)
             self.job = None
             self._pump_hold.close()  # the run is over: the pump may be switched again
+            if reason.startswith(DaqWatchdogExpiredError.__name__):
+                self._board_cut(f"the board's watchdog expired during run {job.run_id}")
             if fault:
                 self.fault_reason = reason
                 self.sm.fire("fault")

@@ -109,6 +109,17 @@ class PumpRelay:
         if changed and self._on_change is not None:
             self._on_change(self._on, f"pump {self.name!r} switched {'on' if on else 'off'}")
 
+    def switched_off_by_board(self, why: str) -> None:
+        """The board turned the relay off by itself (its watchdog expired): the pump is off
+        and the film starts to drain, whatever a run holds (``why`` goes to the run log)."""
+        with self._lock:
+            changed = self._on
+            if changed:
+                self._on = False
+                self._off_at = self._clock()
+        if changed and self._on_change is not None:
+            self._on_change(False, f"pump {self.name!r} switched off by the board ({why})")
+
     @contextmanager
     def shakers_running(self, what: str = "") -> Iterator[None]:
         """Hold the interlock for the duration of a run: the pump stays as it is now (on for a

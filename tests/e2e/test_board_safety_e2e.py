@@ -89,9 +89,19 @@ def test_the_board_stops_what_a_hung_or_dead_daemon_left_running(sim_server, tmp
         assert "pump       on" in sfdrig("status", *conn).stdout  # idle, fed by heartbeats
         assert sim_server.log.empty(), list(sim_server.log.queue)  # never expired so far
 
-        d.proc.send_signal(signal.SIGSTOP)  # the daemon hangs
-        assert EXPIRED in sim_server.next_line("expired", timeout_s=10)
-        d.proc.send_signal(signal.SIGCONT)
+        with Subscriber(d.data, rcvhwm=0) as sub, CommandClient(d.command, timeout_s=10) as c:
+            sub.wait_connected()
+            d.proc.send_signal(signal.SIGSTOP)  # the daemon hangs
+            assert EXPIRED in sim_server.next_line("expired", timeout_s=10)
+            d.proc.send_signal(signal.SIGCONT)
+            # the daemon learns it from its next feed: the board has the pump off, so has it
+            # (it said "on" until then, and refused a dry start as "pump on")
+            event = _wait_for_event(sub, "pump off")
+            assert event.startswith("pump off: the board's watchdog expired while idle"), event
+            status = c.status()
+            assert status["pump_on"] is False and status["film_drains_for_s"] > 20
+            with pytest.raises(CommandRefused, match="the film is still draining"):
+                c.start_sweep(LONGER_X)
         out = sfdrig("pump", "on", *conn)  # the operator switches it on again: clears it
         assert out.returncode == 0, out
         assert "pump       on" in sfdrig("status", *conn).stdout
