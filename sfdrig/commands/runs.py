@@ -14,8 +14,9 @@ HELP = "list recorded runs (id, date, kind of test, steps, status, duration, fil
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--dir", type=Path, default=None,
-                        help=f"runs directory (default: ${RUNS_DIR_ENV} or ./runs)")
+    parser.add_argument("--runs-dir", "--dir", dest="dir", type=Path, default=None,
+                        help=f"runs directory, as the other commands name it (--dir: the old "
+                             f"name; default: ${RUNS_DIR_ENV} or ./runs)")
     parser.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
 
 

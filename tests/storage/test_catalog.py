@@ -79,7 +79,7 @@ def test_live_run_is_running_not_interrupted(tmp_path: Path) -> None:
 
 
 def test_runs_command_json_and_env(runs_dir: Path, monkeypatch, capsys) -> None:
-    assert main(["runs", "--dir", str(runs_dir), "--json"]) == 0
+    assert main(["runs", "--runs-dir", str(runs_dir), "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
     assert [r["id"] for r in rows] == ["static-a", "sweep-b", "sweep-c", ""]
     assert set(rows[0]) == {"id", "date", "kind", "steps", "status", "duration_s", "file",
