@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -112,6 +113,11 @@ def _print_summary(out: Path) -> None:
               f"{run_data.sample_rate_hz:g} Hz ({run_data.duration_s:.3f} s), channels "
               f"{', '.join(run_data.channel_names)}, {len(run_data.steps)} steps")
         spec = run_data.test_spec or {}
+        restored = run_data.attrs.get("imported_from", "")
+        lubricated = bool(run_data.attrs.get("lubricated", False))
+    if restored:
+        _print_restored(json.loads(restored), lubricated)
+        return
     cond = spec.get("conditions", {})
     src = cond.get("sources", {})
     lub = cond.get("lubricated")
@@ -136,3 +142,17 @@ def _print_summary(out: Path) -> None:
               f"{sw['first_sample']}-{sw['last_sample']}), not a dwell")
     for note in spec.get("derived", []):
         print(f"  {note}")
+
+
+def _print_restored(origin: dict[str, object], lubricated: bool) -> None:
+    """What a restored sfdrig export is: whose run, which samples, its conditions."""
+    print(f"  restored from an sfdrig export ({origin.get('export_format')}) of run "
+          f"{origin.get('run_id')!r}, from its sample {origin.get('first_sample')}: channels, "
+          "steps, harmonics, events and conditions as exported")
+    changed = origin.get("conditions_changed") or {}
+    if isinstance(changed, dict) and "lubricated" in changed:
+        was = changed["lubricated"]
+        print(f"  lubricated: {'yes' if lubricated else 'no'} [{was.get('source')}; the export "
+              f"said {'yes' if was.get('export') else 'no'}]")
+    else:
+        print(f"  lubricated: {'yes' if lubricated else 'no'} [export]")
