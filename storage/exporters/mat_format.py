@@ -104,7 +104,7 @@ def write_mat(exp: ExportSet, out_dir: Path, progress: Progress | None = None,
             for offset, block in exp.blocks(progress=progress):
                 for k, v in block.items():
                     columns[k][offset:offset + len(v), 0] = v
-            scipy.io.savemat(files.tmp(name), {**columns, **tables}, do_compression=True,
+            scipy.io.savemat(files.tmp(name), {**columns, **tables}, do_compression=False,
                              oned_as="column", long_field_names=True)
     return files.paths
 
