@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from sfdrig.commands._batch import run_each
 from storage.errors import ExportError, RunFileError
 from storage.exporters import WRITERS, export_run
 
@@ -57,21 +58,11 @@ def _size(run: Path) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    failed = 0
-    for path in args.runs:
+    def one(path: Path) -> None:
         t0 = time.monotonic()
-        try:
-            progress = _Progress(path) if _size(path) > PROGRESS_VALUES else None
-            files = export_run(path, args.to, args.out, steps=args.steps,
-                               channels=args.channels, progress=progress,
-                               overwrite=args.overwrite)
-        except (ExportError, RunFileError) as err:
-            print(f"error: {err}", file=sys.stderr)
-            failed += 1
-            continue
-        except Exception as err:  # noqa: BLE001 - one line, never a traceback
-            print(f"error: {path}: {type(err).__name__}: {err}", file=sys.stderr)
-            failed += 1
-            continue
+        progress = _Progress(path) if _size(path) > PROGRESS_VALUES else None
+        files = export_run(path, args.to, args.out, steps=args.steps, channels=args.channels,
+                           progress=progress, overwrite=args.overwrite)
         print(f"{path} -> {', '.join(str(f) for f in files)} ({time.monotonic() - t0:.1f} s)")
-    return 2 if failed else 0
+
+    return 2 if run_each(args.runs, one, (ExportError, RunFileError)) else 0

@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from sfdrig.commands._batch import run_each
 from simulated_hw.params import RigParamsError, load_rig_params
 from storage import open_run
 from storage.errors import ImportDataError
@@ -90,20 +91,12 @@ def run(args: argparse.Namespace) -> int:
     if len(files) > 1 and not args.out.is_dir():
         print(f"error: --out {args.out}: several files need an existing folder", file=sys.stderr)
         return 2
-    failed = 0
-    for path in files:
+
+    def one(path: Path) -> None:
         out = args.out / (path.stem + ".h5") if args.out.is_dir() else args.out
-        try:
-            out = _import_one(args, path, out)
-        except ImportDataError as err:
-            print(f"error: {err}", file=sys.stderr)
-            failed += 1
-            continue
-        except Exception as err:  # noqa: BLE001 - one line, never a traceback
-            print(f"error: {path}: {type(err).__name__}: {err}", file=sys.stderr)
-            failed += 1
-            continue
-        _print_summary(out)
+        _print_summary(_import_one(args, path, out))
+
+    failed = run_each(files, one, (ImportDataError,))
     return 2 if failed else 0
 
 

@@ -359,6 +359,9 @@ def select(run: RunData, steps: str | None = None,
             raise ExportError(f"{where}: no channel {', '.join(map(repr, unknown))} (channels "
                               f"{', '.join(names)}; drives {', '.join(run.drive_names)})")
         names = [c for c in names if c in wanted]
+        if not names:
+            raise ExportError(f"{where}: --channels names no input channel (the drives are "
+                              f"always exported; channels {', '.join(run.channel_names)})")
     cols = [Column(n, column_name(n, run.units(n)), "channels", run.channel_attrs(n))
             for n in names]
     cols += [Column(n, column_name(n, "V"), "drive", run.channel_attrs(n))

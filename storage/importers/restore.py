@@ -249,11 +249,14 @@ def _finish_restored(path: Path, attrs: Mapping[str, Any], events: list[dict[str
     the run came from (root attribute ``imported_from``, JSON)."""
     with h5py.File(path, "r+") as f:
         status = str(attrs.get("status", "completed"))
-        if status in STATUSES or status == "interrupted":
-            f.attrs["status"] = status
         for key in ("stop_time", "status_reason"):
             if attrs.get(key) is not None:
                 f.attrs[key] = hdf5_text(attrs[key])
+        if status == "running":  # exported while written: a snapshot, not a live run
+            f.attrs["status"] = "interrupted"
+            f.attrs["status_reason"] = "exported while the run was still being written"
+        elif status in STATUSES or status == "interrupted":
+            f.attrs["status"] = status
         if isinstance(attrs.get("last_sample"), int):  # a run closed as interrupted
             f.attrs["last_sample"] = attrs["last_sample"] - int(provenance["first_sample"])
         rows = f["events"][()]
