@@ -61,8 +61,8 @@ def column_name(channel: str, units: str) -> str:
     for canon, spec in CANONICAL.items():
         if spec is not None and spec[0] == channel and spec[1] == units:
             return canon
-    suffix = _UNIT_SUFFIX.get(units, re.sub(r"\W+", "", units.replace("/", "p")))
-    name = re.sub(r"\W", "_", f"{channel}_{suffix}" if suffix else channel)
+    suffix = _UNIT_SUFFIX.get(units, re.sub(r"[^A-Za-z0-9]+", "", units.replace("/", "p")))
+    name = re.sub(r"[^A-Za-z0-9_]", "_", f"{channel}_{suffix}" if suffix else channel)
     if not name[0].isalpha():
         name = "c_" + name
     return name[:63]

@@ -7,12 +7,16 @@ from __future__ import annotations
 import ast
 import json
 import math
+import re
+import tempfile
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 import scipy.io
+from hypothesis import given
+from hypothesis import strategies as st
 from nptdms import TdmsFile
 
 from control.programs import StaticSpec, create_run_writer, run_static_test
@@ -22,8 +26,9 @@ from daq.channels import default_channel_map
 from sfdrig.cli import main
 from simulated_hw.backend import SimulatedBackend
 from simulated_hw.params import RigParams
-from storage import open_run
-from storage.exporters import export_run
+from storage import RunWriter, open_run
+from storage.errors import ExportError
+from storage.exporters import column_name, export_run
 from storage.exporters.common import select
 from storage.exporters.mat_format import write_mat
 from storage.importers import import_file
@@ -68,7 +73,7 @@ def _same_run(a_path: Path, b_path: Path) -> None:
         assert b.channel_names == a.channel_names and b.drive_names == a.drive_names
         assert b.n_samples == a.n_samples > 0
         for c in a.channel_names + a.drive_names:
-            assert np.array_equal(a.channel(c), b.channel(c)), c
+            assert np.array_equal(a.channel(c), b.channel(c), equal_nan=True), c
             assert json.dumps(b.channel_attrs(c), sort_keys=True) == json.dumps(
                 a.channel_attrs(c), sort_keys=True), c
         assert json.dumps(b.steps) == json.dumps(a.steps)  # NaN targets of imported dwells too
@@ -335,3 +340,67 @@ def test_version_1_files_still_read(runs: dict[str, Path], tmp_path: Path) -> No
     (path,) = export_run(old, "mat", tmp_path / "out")
     with open_run(runs["lub"]) as b:
         assert np.array_equal(scipy.io.loadmat(path, squeeze_me=True)["x1_m"], b.channel("x1"))
+
+
+# --- any run, any format ------------------------------------------------------------------------
+_NAMES = st.text(alphabet="abxyz_1 ä-", min_size=1, max_size=6).filter(
+    lambda s: s.strip() == s and s not in (".", ".."))
+_TEXT = st.text(alphabet=st.characters(codec="utf-8", exclude_categories=("Cs",),
+                                       exclude_characters="\x00"), max_size=30)
+
+
+@given(
+    fmt=st.sampled_from(FORMATS),
+    names=st.lists(_NAMES, min_size=1, max_size=3, unique=True),
+    units=st.lists(st.sampled_from(["N", "m", "m/s^2", "degC", "Pa", "kN", ""]), min_size=3,
+                   max_size=3),
+    values=st.lists(st.floats(width=64), min_size=1, max_size=40),
+    n_ao=st.integers(0, 1),
+    steps=st.lists(st.tuples(st.integers(0, 39), st.integers(1, 40),
+                             st.floats(0, 500, allow_nan=False), _TEXT), max_size=3),
+    events=st.lists(st.tuples(st.integers(0, 40), _TEXT), max_size=3),
+)
+def test_any_run_round_trips(fmt: str, names: list[str], units: list[str], values: list[float],
+                             n_ao: int, steps: list, events: list) -> None:
+    """Any values (NaN, infinities, subnormals, -0), names, units, step and event texts come
+    back the same through every format."""
+    n = len(values)
+    data = np.array(values)
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        chans = [{"name": nm, "units": units[i], "sensor": f"s,{i}\n\"q\""}
+                 for i, nm in enumerate(names)]
+        with RunWriter.create(d / "r.h5", "r", "sweep", chans, ["drv"][:n_ao], 1234.5,
+                              flush_interval_s=0, swmr=False) as w:
+            w.on_block(0, np.stack([np.roll(data, i) for i in range(len(names))]),
+                       data[None, ::-1].copy() if n_ao else None)
+            for i, (a, length, f, reason) in enumerate(steps):
+                w.on_step({"index": i, "freq_hz": f, "target_kind": "load", "target_value": f,
+                           "motion": "x", "first_sample": min(a, n - 1),
+                           "last_sample": min(a + length, n), "updates": 1, "converged": False,
+                           "reason": reason, "note": reason,
+                           "harmonics": {names[0]: [[f, -f]] * 5}})
+            for sample, text in events:
+                w.on_event("info", text, sample)
+        try:
+            (path,) = export_run(d / "r.h5", fmt, d / "out")[:1]
+        except ExportError as err:  # two names that share a column are refused, not merged
+            assert "would share the column" in str(err)
+            return
+        with open_run(d / "r.h5") as a:
+            assert all(re.fullmatch(r"[A-Za-z]\w{0,62}", column_name(c, a.units(c)))
+                       for c in a.channel_names)  # MATLAB variable names
+        _same_run(d / "r.h5", import_file(path, d / "back.h5"))
+
+
+def test_cli_progress_is_a_line_per_tenth(capsys: pytest.CaptureFixture[str]) -> None:
+    from sfdrig.commands.export import _Progress
+
+    p = _Progress(Path("big.h5"))
+    for done in range(0, 1_000_001, 65_536):
+        p(done, 1_000_000)
+    p(1_000_000, 1_000_000)
+    lines = capsys.readouterr().err.splitlines()
+    assert [ln.split(":")[1].split("%")[0].strip() for ln in lines] == [
+        str(10 * k) for k in range(1, 11)]
+    assert lines[-1].startswith("  big.h5: 100 % (1,000,000 of 1,000,000 samples")
