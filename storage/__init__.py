@@ -1,4 +1,5 @@
-"""HDF5 run files (SWMR writer, reader), the run catalog and importers of measured data.
+"""HDF5 run files (SWMR writer, reader), the run catalog, importers of measured data and
+exporters of runs (MAT, CSV, TDMS).
 
 Imports no sibling package: channel metadata arrives as plain dicts / JSON.
 """

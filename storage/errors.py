@@ -17,3 +17,8 @@ class MissingSignalError(RunFileError, KeyError):
 class ImportDataError(ValueError):
     """Measured data that cannot be imported: the message names the file and the line, column or
     variable at fault."""
+
+
+class ExportError(ValueError):
+    """A run that cannot be exported as asked: the message names the run and the step range,
+    channel or folder at fault."""

@@ -1,4 +1,4 @@
-"""What a run file holds, and how it is laid out (``format="sfdrig-run"``, ``format_version=1``)::
+"""What a run file holds, and how it is laid out (``format="sfdrig-run"``, ``format_version=2``)::
 
     /                 root attrs: run_id, kind, start/stop time, operator, notes, software_version,
                       sample_rate_hz, channel_map, rig_config, test_spec (JSON), lubricated,
@@ -11,6 +11,13 @@
     /step_drive_v     complex128 (n_steps, n_ao), attr ``channels`` (JSON list)
     /events           compound (time, sample, kind, message)
     /results          empty group, for analysis only
+
+Version 2 adds only descriptions, no data: the root's ``layout`` and ``time_axis``, the time-axis
+recipe on every signal (``time_start``, ``time_increment``, ``time_units``), and units and
+conventions on every table column (``<column>_units``, ``<column>_description``). A version 1
+file holds the same data and reads the same. Every description is defined here once
+(`LAYOUT_TEXT`, `STEP_COLUMNS`, `HARMONICS_ATTRS`...) and also used by the exporters;
+``docs/run-files.md`` is the guide for readers without our code.
 
 The writer (`storage.runfile`) and the reader (`storage.reader`) share these definitions; this
 module creates the empty layout and turns a step or an event into its rows. Strings are
@@ -36,7 +43,8 @@ FORMAT = "sfdrig-run"
 #: there keeps run files readable by HDF5 1.10-1.14 tools (HDFView, MATLAB, h5dump) even when
 #: h5py is built on a newer library.
 LIBVER = ("v110", "v110")
-FORMAT_VERSION = 1
+#: 2: descriptions added (layout, time-axis recipe, column units and conventions); data as in 1.
+FORMAT_VERSION = 2
 KINDS = ("sweep", "static", "impact", "probe_calibration", "flow", "imported")
 STATUSES = ("running", "completed", "aborted", "failed")
 EVENT_KINDS = ("state", "limit_trip", "abort", "fault", "pump", "operator", "warning", "error",
@@ -70,6 +78,116 @@ EVENT_DTYPE = np.dtype([
     ("kind", h5py.string_dtype("utf-8", 16)),
     ("message", h5py.string_dtype("utf-8", _MESSAGE_BYTES)),
 ])
+
+
+#: The root attribute ``layout``: what each object holds, for a reader without our code.
+LAYOUT_TEXT = """\
+sfdrig run file (format sfdrig-run, see format_version). One run of the squeeze-film-damper rig.
+Root attributes: the run (run_id, kind, start_time/stop_time ISO 8601 UTC, status, status_reason,
+operator, notes), its conditions (lubricated: the film was full of oil for the whole run; the
+daemon refuses to switch the pump on during a dry run), sample_rate_hz, and JSON texts
+channel_map (the wiring), rig_config (the rig description) and test_spec (what was asked).
+/channels/<name>: analog inputs, float64, engineering units (attribute units), one value per
+  sample; attributes kind, sensor, gain_v_per_unit, offset_v, physical_channel.
+/drive/<name>: the shaker drive volts written, same samples.
+  Time of sample k of every signal: time_start + k * time_increment [s] (attributes on each
+  signal), i.e. k / sample_rate_hz seconds after start_time. All signals are simultaneous.
+/steps: one row per step (a dwell of a sweep, or one point of a static, impact, probe-calibration
+  or flow test); units and meaning of each column in the attributes <column>_units and
+  <column>_description. Samples first_sample .. last_sample-1 are the step's record.
+/step_harmonics: complex (step, channel, harmonic 1..5), channel order in attribute channels,
+  units in attribute units; peak amplitude |Z|, phase from run time 0 (see its attributes).
+/step_drive_v: complex (step, drive), the 1X of every drive [V], same convention.
+/events: time (ISO 8601 UTC), sample, kind, message of every state change, trip, abort, operator
+  entry and fault.
+/results: written by the analysis (sfdrig identify), absent or empty otherwise."""
+
+#: The root attribute ``time_axis``.
+TIME_AXIS_TEXT = ("t[k] = k / sample_rate_hz seconds after start_time (sample k = 0, 1, ...); "
+                  "each signal carries it as time_start [s] + k * time_increment [s]")
+
+#: The step fields' meaning in each kind of test (the attribute ``step_fields_by_kind``).
+STEP_FIELDS_BY_KIND = {
+    "sweep": "one dwell at freq_hz; target_kind displacement (target_value the amplitude asked "
+             "[m], 0-peak) or load (the load amplitude asked [N], 0-peak); motion x, y, "
+             "circular_forward, circular_backward or elliptical",
+    "static": "one static load: freq_hz 0 (no excitation), target_kind load, target_value the "
+              "force asked [N], motion the axis; the analysis uses the means over the record",
+    "impact": "one hammer hit: freq_hz 0 (no excitation), target_kind load, target_value the "
+              "hammer's peak force measured [N], motion the axis; extra holds trigger_sample, "
+              "accepted, rejection, hit, pulse_ms",
+    "probe_calibration": "one gauge reading: freq_hz 0, target_kind displacement, target_value "
+                         "the dial-gauge reading typed [m], motion the axis",
+    "flow": "one supply pressure: freq_hz 0, target_kind pressure, target_value the supply "
+            "pressure set [Pa], no motion",
+    "imported": "one dwell found in imported data: freq_hz the dwell's frequency, target_kind "
+                "empty and target_value NaN (nothing was asked), motion given or inferred "
+                "(test_spec.conditions.motion_per_step says which)",
+}
+#: Units of ``target_value`` by ``target_kind``.
+TARGET_UNITS = {"displacement": "m", "load": "N", "pressure": "Pa", "": ""}
+
+#: Units and meaning of every column of ``/steps``.
+STEP_COLUMNS: dict[str, tuple[str, str]] = {
+    "index": ("", "step number, 0-based, in the order run"),
+    "freq_hz": ("Hz", "excitation frequency of the step; 0 for a step without excitation "
+                      "(static, impact, probe calibration, flow: see step_fields_by_kind)"),
+    "target_kind": ("", "what target_value is: displacement, load, pressure (empty: none)"),
+    "target_value": ("m, N or Pa by target_kind", "what the step asked: m for displacement "
+                     "(0-peak amplitude), N for load (0-peak amplitude, or a static force, or an "
+                     "impact's measured peak), Pa for pressure; NaN when nothing was asked"),
+    "motion": ("", "x, y, circular_forward, circular_backward, elliptical (the axis for the "
+                   "structure tests; empty for flow)"),
+    "first_sample": ("sample", "first sample of the step's record (run sample index, 0-based)"),
+    "last_sample": ("sample", "one past the last sample of the record (half-open span)"),
+    "updates": ("", "corrections the amplitude controller made in this step"),
+    "converged": ("", "the target was reached within the tolerance (always true for imported "
+                      "dwells and the structure tests' points)"),
+    "reason": ("", "why the step did not converge or ended (empty when it converged)"),
+    "extra": ("", "JSON of the step's further keys (e.g. an impact hit's accepted, rejection)"),
+}
+#: Attributes of ``/step_harmonics`` (besides ``channels`` and ``units``).
+HARMONICS_ATTRS = {
+    "harmonics": "1X..5X, complex amplitude Z = z_c - i z_s",
+    "dimensions": "(step, channel, harmonic): harmonic index 0..4 is 1X..5X of the step's "
+                  "freq_hz; channel order in the attribute channels",
+    "amplitude_convention": "peak (0-peak, not RMS, not peak-to-peak): |Z| in the channel's "
+                            "units",
+    "phase_reference": "z(t) = Re(Z exp(i h 2 pi freq_hz t)) with t = sample / sample_rate_hz, "
+                       "counted from sample 0 of the run (not from the step's first sample); "
+                       "angle(Z) is the phase in radians, z_c = Re Z, z_s = -Im Z",
+    "fit": "least squares of a constant plus 1X..5X over the step's samples first_sample .. "
+           "last_sample-1 (whole cycles); NaN where the step has no harmonics (freq_hz 0, "
+           "imported dwells)",
+}
+#: Attributes of ``/step_drive_v``.
+DRIVE_V_ATTRS = {
+    "dimensions": "(step, drive): the 1X of every drive over the step's record; drive order in "
+                  "the attribute channels",
+    "units": "V",
+    "amplitude_convention": HARMONICS_ATTRS["amplitude_convention"],
+    "phase_reference": HARMONICS_ATTRS["phase_reference"],
+}
+#: Units and meaning of every column of ``/events``.
+EVENT_COLUMNS: dict[str, tuple[str, str]] = {
+    "time": ("ISO 8601 UTC", "when the event was logged"),
+    "sample": ("sample", "run sample index at the event (time: sample / sample_rate_hz s)"),
+    "kind": ("", "one of " + ", ".join(EVENT_KINDS)),
+    "message": ("", "what happened, in words"),
+}
+
+
+def describe_columns(ds: h5py.Dataset, columns: Mapping[str, tuple[str, str]]) -> None:
+    """Attributes ``<column>_units`` and ``<column>_description`` for every column."""
+    for name, (units, text) in columns.items():
+        ds.attrs[f"{name}_units"] = units
+        ds.attrs[f"{name}_description"] = text
+
+
+def time_axis_attrs(sample_rate_hz: float) -> dict[str, Any]:
+    """The time-axis recipe of a signal: t[k] = time_start + k * time_increment [s]."""
+    return {"time_start": 0.0, "time_increment": 1.0 / float(sample_rate_hz),
+            "time_units": "s", "time_reference": "root attribute start_time (UTC)"}
 
 
 def utc_now_iso() -> str:
@@ -153,6 +271,9 @@ def create_layout(f: h5py.File, chans: Sequence[Mapping[str, Any]], ao_names: Se
     object later)."""
     for key, value in attrs.items():
         f.attrs[key] = value
+    f.attrs["layout"] = LAYOUT_TEXT
+    f.attrs["time_axis"] = TIME_AXIS_TEXT
+    time_axis = time_axis_attrs(float(attrs["sample_rate_hz"]))
     opts: dict[str, Any] = {"compression": compression, "shuffle": True}
     if compression == "gzip":
         # Whole chunks are written directly: no chunk cache that could hold a stale copy
@@ -171,6 +292,7 @@ def create_layout(f: h5py.File, chans: Sequence[Mapping[str, Any]], ao_names: Se
                 ds.attrs[key] = float("nan") if value is None else float(value)
             else:
                 ds.attrs[key] = "" if value is None else str(value)
+        ds.attrs.update(time_axis)
         samples.append(ds)
     g = f.create_group("drive")
     for name in ao_names:
@@ -179,6 +301,7 @@ def create_layout(f: h5py.File, chans: Sequence[Mapping[str, Any]], ao_names: Se
         )
         ds.attrs["units"] = "V"
         ds.attrs["kind"] = "shaker_drive"
+        ds.attrs.update(time_axis)
         samples.append(ds)
     ai_names = [c["name"] for c in chans]
     n_ai, n_ao = len(ai_names), len(ao_names)
@@ -186,12 +309,17 @@ def create_layout(f: h5py.File, chans: Sequence[Mapping[str, Any]], ao_names: Se
         "steps", shape=(0,), maxshape=(None,), dtype=STEP_DTYPE, chunks=(64,),
         compression="gzip", compression_opts=4,
     )
+    describe_columns(steps, STEP_COLUMNS)
+    steps.attrs["step_fields_by_kind"] = json.dumps(STEP_FIELDS_BY_KIND, indent=1)
+    steps.attrs["target_value_units_by_target_kind"] = json.dumps(
+        {k: v for k, v in TARGET_UNITS.items() if k})
     harm = f.create_dataset(
         "step_harmonics", shape=(0, n_ai, N_HARMONICS), maxshape=(None, n_ai, N_HARMONICS),
         dtype="<c16", chunks=(16, n_ai, N_HARMONICS),
     )
     harm.attrs["channels"] = json.dumps(ai_names)
-    harm.attrs["harmonics"] = "1X..5X, complex amplitude Z = z_c - i z_s"
+    harm.attrs.update(HARMONICS_ATTRS)
+    harm.attrs["units"] = json.dumps([str(c.get("units") or "") for c in chans])
     if n_ao:
         drive_v = f.create_dataset(
             "step_drive_v", shape=(0, n_ao), maxshape=(None, n_ao), dtype="<c16",
@@ -200,11 +328,14 @@ def create_layout(f: h5py.File, chans: Sequence[Mapping[str, Any]], ao_names: Se
     else:  # chunk dimensions must be positive: an empty fixed dataset
         drive_v = f.create_dataset("step_drive_v", shape=(0, 0), dtype="<c16")
     drive_v.attrs["channels"] = json.dumps(list(ao_names))
+    drive_v.attrs.update(DRIVE_V_ATTRS)
     events = f.create_dataset(
         "events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(64,),
         compression="gzip", compression_opts=4,
     )
-    f.create_group("results")
+    describe_columns(events, EVENT_COLUMNS)
+    results = f.create_group("results")
+    results.attrs["description"] = "written by the analysis (sfdrig identify) only"
     return RunDatasets(samples, steps, harm, drive_v, events)
 
 

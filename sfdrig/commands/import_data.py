@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
+from sfdrig.commands._batch import run_each
 from simulated_hw.params import RigParamsError, load_rig_params
 from storage import open_run
 from storage.errors import ImportDataError
@@ -89,20 +91,12 @@ def run(args: argparse.Namespace) -> int:
     if len(files) > 1 and not args.out.is_dir():
         print(f"error: --out {args.out}: several files need an existing folder", file=sys.stderr)
         return 2
-    failed = 0
-    for path in files:
+
+    def one(path: Path) -> None:
         out = args.out / (path.stem + ".h5") if args.out.is_dir() else args.out
-        try:
-            out = _import_one(args, path, out)
-        except ImportDataError as err:
-            print(f"error: {err}", file=sys.stderr)
-            failed += 1
-            continue
-        except Exception as err:  # noqa: BLE001 - one line, never a traceback
-            print(f"error: {path}: {type(err).__name__}: {err}", file=sys.stderr)
-            failed += 1
-            continue
-        _print_summary(out)
+        _print_summary(_import_one(args, path, out))
+
+    failed = run_each(files, one, (ImportDataError,))
     return 2 if failed else 0
 
 
@@ -112,6 +106,11 @@ def _print_summary(out: Path) -> None:
               f"{run_data.sample_rate_hz:g} Hz ({run_data.duration_s:.3f} s), channels "
               f"{', '.join(run_data.channel_names)}, {len(run_data.steps)} steps")
         spec = run_data.test_spec or {}
+        restored = run_data.attrs.get("imported_from", "")
+        lubricated = bool(run_data.attrs.get("lubricated", False))
+    if restored:
+        _print_restored(json.loads(restored), lubricated)
+        return
     cond = spec.get("conditions", {})
     src = cond.get("sources", {})
     lub = cond.get("lubricated")
@@ -136,3 +135,17 @@ def _print_summary(out: Path) -> None:
               f"{sw['first_sample']}-{sw['last_sample']}), not a dwell")
     for note in spec.get("derived", []):
         print(f"  {note}")
+
+
+def _print_restored(origin: dict[str, object], lubricated: bool) -> None:
+    """What a restored sfdrig export is: whose run, which samples, its conditions."""
+    print(f"  restored from an sfdrig export ({origin.get('export_format')}) of run "
+          f"{origin.get('run_id')!r}, from its sample {origin.get('first_sample')}: channels, "
+          "steps, harmonics, events and conditions as exported")
+    changed = origin.get("conditions_changed") or {}
+    if isinstance(changed, dict) and "lubricated" in changed:
+        was = changed["lubricated"]
+        print(f"  lubricated: {'yes' if lubricated else 'no'} [{was.get('source')}; the export "
+              f"said {'yes' if was.get('export') else 'no'}]")
+    else:
+        print(f"  lubricated: {'yes' if lubricated else 'no'} [export]")

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -244,3 +246,12 @@ def _check_plausible(canon: str, values: np.ndarray, where: str, name: str) -> N
             f"{where}, {name}: {canon} spans {span:.4g} {unit}, more than any test rig's "
             f"{limit:g} {unit}: another quantity or other units (check --map, or --scale "
             f"{canon}=FACTOR, e.g. 1e-6 for micrometres)")
+
+
+def file_sha256(path: Path) -> str:
+    """SHA-256 of a file's bytes (hex), read in 1 MiB pieces."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()

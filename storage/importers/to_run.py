@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 import uuid
@@ -14,10 +13,11 @@ from typing import Any
 import numpy as np
 
 from storage.errors import ImportDataError
-from storage.importers.common import CANONICAL, MeasuredData
+from storage.importers.common import CANONICAL, MeasuredData, file_sha256
 from storage.importers.conditions import Conditions
 from storage.importers.csv_format import read_csv
 from storage.importers.mat_format import read_mat
+from storage.importers.restore import export_metadata, restore_export
 from storage.importers.segments import segment_record
 from storage.importers.tdms_format import read_tdms
 from storage.layout import KINDS, utc_now_iso
@@ -59,14 +59,6 @@ def dwell_steps(freq_hz: np.ndarray) -> list[dict[str, Any]]:
             "converged": True, "reason": "", "harmonics": {}, "drive_v": {},
         })
     return steps
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def derive_displacement(data: MeasuredData, steps: list[dict[str, Any]]) -> list[str]:
@@ -154,7 +146,7 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
         for st, why in zip(seg.steps, seg.motion_evidence, strict=True)]
     spec_json = {
         "source_file": str(source.resolve()), "source_format": data.source_format,
-        "source_sha256": _sha256(source), "imported_at": utc_now_iso(),
+        "source_sha256": file_sha256(source), "imported_at": utc_now_iso(),
         "signals": {c: data.sources.get(c, "") for c in order}, "time_offset_s":
         data.time_offset_s, "n_samples": data.n_samples, "conditions": cond_json,
         "sweeps": seg.sweeps, "derived": derived,
@@ -229,7 +221,16 @@ def import_file(path: str | Path, out: str | Path, *, mapping: Mapping[str, str]
     ------
     ImportDataError
         Naming the file and the line, column or variable at fault; ``out`` is then untouched.
+
+    A file `sfdrig export` wrote is restored as the run it came from (`restore_export`).
     """
+    meta = export_metadata(Path(path))
+    if meta is not None:
+        if mapping or scale or fs_hz is not None:
+            raise ImportDataError(f"{path}: an sfdrig export names its own columns, sample rate "
+                                  "and units; --map, --scale and --fs do not apply")
+        return restore_export(path, out, meta, run_id=run_id, overwrite=overwrite,
+                              conditions=conditions)
     data = read_measured(path, mapping, fs_hz, scale)
     return write_imported_run(data, out, path, kind=kind, notes=notes, operator=operator,
                               run_id=run_id, overwrite=overwrite,

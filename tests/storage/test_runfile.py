@@ -494,7 +494,7 @@ def test_hdf5_without_format(tmp_path: Path) -> None:
 def test_newer_format_version(good_run: Path) -> None:
     with h5py.File(good_run, "r+") as f:
         f.attrs["format_version"] = FORMAT_VERSION + 1
-    with pytest.raises(RunFileError, match="format_version 2 is newer"):
+    with pytest.raises(RunFileError, match=f"format_version {FORMAT_VERSION + 1} is newer"):
         open_run(good_run)
 
 

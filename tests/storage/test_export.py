@@ -1,0 +1,406 @@
+"""`sfdrig export` and the round trip back through `sfdrig import`, on run files from the simulated
+rig (a lubricated X sweep through the real sweep engine, a static test with steps at 0 Hz), and
+run files that explain themselves (format_version 2) to a reader without our code."""
+
+from __future__ import annotations
+
+import ast
+import json
+import math
+import re
+import tempfile
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import scipy.io
+from hypothesis import given
+from hypothesis import strategies as st
+from nptdms import TdmsFile
+
+from control.programs import StaticSpec, create_run_writer, run_static_test
+from control.pump import PumpRelay
+from control.sweep import SweepEngine, SweepSpec
+from daq.channels import default_channel_map
+from sfdrig.cli import main
+from simulated_hw.backend import SimulatedBackend
+from simulated_hw.params import RigParams
+from storage import RunWriter, open_run
+from storage.errors import ExportError
+from storage.exporters import column_name, export_run
+from storage.exporters.common import select
+from storage.exporters.mat_format import write_mat
+from storage.importers import import_file
+from storage.importers.conditions import read_conditions_file, resolve_conditions
+from tests.storage import doc_reader
+
+FORMATS = ("csv", "mat", "tdms")
+
+
+def _backend(seed: int) -> SimulatedBackend:
+    b = SimulatedBackend(RigParams(), seed=seed)
+    b.configure(default_channel_map())
+    return b
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("export_runs")
+    b = _backend(seed=3)
+    spec = SweepSpec(motion="x", lubricated=True, amplitude_m=[25e-6], freq_hz=[30.0, 50.0],
+                     settle_cycles=10, record_cycles=10)
+    w = create_run_writer(d / "lub.h5", "sweep", b, run_id="lub-1", rig_config=RigParams(),
+                          test_spec=spec, lubricated=True)
+    pump = PumpRelay(b)
+    pump.set(True)
+    out = SweepEngine(b, spec, listener=w, pump=pump).run()
+    pump.set(False)
+    w.close(out.status, out.reason)
+    assert out.status == "completed", out.reason
+    b = _backend(seed=4)
+    w = create_run_writer(d / "static.h5", "static", b, run_id="st-1", rig_config=RigParams())
+    assert run_static_test(b, w, StaticSpec(axes=("x",), forces_n=(-40.0, 40.0), repeats=1,
+                                            record_s=0.2)).completed
+    w.close()
+    return {"lub": d / "lub.h5", "static": d / "static.h5"}
+
+
+def _same_run(a_path: Path, b_path: Path) -> None:
+    """Same samples (bit for bit), channel attributes, steps with harmonics, events and
+    conditions."""
+    with open_run(a_path) as a, open_run(b_path) as b:
+        assert b.channel_names == a.channel_names and b.drive_names == a.drive_names
+        assert b.n_samples == a.n_samples > 0
+        for c in a.channel_names + a.drive_names:
+            assert np.array_equal(a.channel(c), b.channel(c), equal_nan=True), c
+            assert json.dumps(b.channel_attrs(c), sort_keys=True) == json.dumps(
+                a.channel_attrs(c), sort_keys=True), c
+        assert json.dumps(b.steps) == json.dumps(a.steps)  # NaN targets of imported dwells too
+        assert b.events == a.events
+        for key in ("run_id", "kind", "lubricated", "status", "status_reason", "start_time",
+                    "stop_time", "sample_rate_hz", "operator", "notes"):
+            assert b.attrs[key] == a.attrs[key], key
+        assert (b.channel_map, b.rig_config, b.test_spec) == (a.channel_map, a.rig_config,
+                                                              a.test_spec)
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("which", ["lub", "static"])
+def test_round_trip(runs: dict[str, Path], tmp_path: Path, fmt: str, which: str) -> None:
+    files = export_run(runs[which], fmt, tmp_path / "out")
+    back = import_file(files[0], tmp_path / "back.h5")
+    _same_run(runs[which], back)
+    with open_run(back) as b, open_run(runs[which]) as a:
+        assert json.loads(b.attrs["imported_from"])["run_id"] == a.run_id
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_round_trip_of_an_imported_run(tmp_path: Path, fmt: str) -> None:
+    """Data from elsewhere (no targets: NaN; conditions with their sources in test_spec) goes
+    out and comes back with its conditions."""
+    fs, n = 2000.0, 6000
+    t = np.arange(n) / fs
+    freq = np.where(t < 1.5, 20.0, 40.0)
+    rng = np.random.default_rng(7)
+    x = 20e-6 * np.sin(2 * np.pi * freq * t) + 1e-8 * rng.standard_normal(n)
+    fx = 60.0 * np.sin(2 * np.pi * freq * t + 0.3)
+    src = tmp_path / "lab.csv"
+    src.write_text("time_s,freq_hz,fx_N,x_m\n" + "\n".join(
+        f"{a!r},{f!r},{b!r},{c!r}" for a, f, b, c in zip(t.tolist(), freq.tolist(), fx.tolist(),
+                                                         x.tolist(), strict=True)) + "\n")
+    cond = resolve_conditions(src, lubricated=True, motion="x", seal="none")
+    run = import_file(src, tmp_path / "lab.h5", conditions=cond)
+    (path,) = export_run(run, fmt, tmp_path / "out")[:1]
+    back = import_file(path, tmp_path / "back.h5")
+    _same_run(run, back)
+    with open_run(back) as b:
+        assert b.test_spec["conditions"]["seal"] == "none"
+        assert math.isnan(b.steps[0]["target_value"]) and b.steps[1]["freq_hz"] == 40.0
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_round_trip_of_one_step_and_two_channels(runs: dict[str, Path], tmp_path: Path,
+                                                 fmt: str) -> None:
+    """The restored run starts at the step's first sample; its harmonics are re-referred to that
+    time and still describe its samples (fitted here without our code)."""
+    files = export_run(runs["lub"], fmt, tmp_path / "out", steps="1", channels=["fx,x1"])
+    back = import_file(files[0], tmp_path / "back.h5")
+    with open_run(runs["lub"]) as a, open_run(back) as b:
+        step = a.steps[1]
+        s0, s1 = step["first_sample"], step["last_sample"]
+        assert b.channel_names == ["fx", "x1"] and b.drive_names == a.drive_names
+        assert b.n_samples == s1 - s0
+        assert np.array_equal(b.channel("x1"), a.channel("x1", s0, s1))
+        assert np.array_equal(b.channel("shaker_x"), a.channel("shaker_x", s0, s1))
+        (st,) = b.steps
+        assert (st["first_sample"], st["last_sample"], st["index"]) == (0, s1 - s0, 1)
+        assert abs(st["harmonics"]["x1"][0][0] + 1j * st["harmonics"]["x1"][0][1]) == \
+            pytest.approx(abs(complex(*step["harmonics"]["x1"][0])), rel=1e-12)
+        assert b.attrs["lubricated"] is True or b.attrs["lubricated"] == 1
+    rebuilt, stored, _ = doc_reader.step_harmonics_from_samples(back, "x1", 0)
+    assert np.max(np.abs(rebuilt - stored)) < 1e-11 * np.max(np.abs(stored))
+
+
+def test_mat_v5_reads_in_scipy(runs: dict[str, Path], tmp_path: Path) -> None:
+    (path,) = export_run(runs["lub"], "mat", tmp_path)
+    m = scipy.io.loadmat(path, squeeze_me=True)
+    with open_run(runs["lub"]) as r:
+        assert m["Fs"] == r.sample_rate_hz
+        assert np.array_equal(m["x1_m"], r.channel("x1"))
+        assert np.array_equal(m["fx_N"], r.channel("fx"))
+        assert np.array_equal(m["shaker_x_V"], r.channel("shaker_x"))
+        assert m["time_s"][1] - m["time_s"][0] == pytest.approx(1 / r.sample_rate_hz)
+        ch = m["channels"]
+        names = list(ch["channel"].item())
+        k = names.index("x1")
+        assert ch["units"].item()[k] == "m" and ch["sensor"].item()[k] == "H-108912"
+        z = m["harmonics"]["Z"].item()
+        hnames = list(m["harmonics"]["channels"].item())
+        for i, st in enumerate(r.steps):
+            assert z[i, hnames.index("x1"), 0] == complex(*st["harmonics"]["x1"][0])
+        steps = m["steps"]
+        assert list(steps["target_units"].item()) == ["m", "m"]
+        assert list(steps["freq_hz"].item()) == [30.0, 50.0]
+        cond = m["conditions"]
+        assert bool(cond["lubricated"].item()) and cond["run_id"].item() == "lub-1"
+        inside = m["step"] == 1
+        assert np.all(m["freq_hz"][inside] == 50.0)
+        assert np.flatnonzero(inside)[[0, -1]].tolist() == [r.steps[1]["first_sample"],
+                                                             r.steps[1]["last_sample"] - 1]
+
+
+def test_mat_v73_past_the_v5_size(runs: dict[str, Path], tmp_path: Path) -> None:
+    with open_run(runs["lub"]) as r:
+        (path,) = write_mat(select(r), tmp_path, v5_max_bytes=0)
+    assert path.read_bytes()[:19] == b"MATLAB 7.3 MAT-file"
+    with h5py.File(path, "r") as f:
+        assert f["x1_m"].attrs["MATLAB_class"] == b"double"
+        assert f["steps"].attrs["MATLAB_class"] == b"struct"
+        assert f["x1_m"].shape[0] == 1  # MATLAB n x 1, stored transposed
+    back = import_file(path, tmp_path / "back.h5")
+    _same_run(runs["lub"], back)
+
+
+def test_tdms_channel_properties(runs: dict[str, Path], tmp_path: Path) -> None:
+    (path,) = export_run(runs["lub"], "tdms", tmp_path)
+    t = TdmsFile.read(path)
+    with open_run(runs["lub"]) as r:
+        x1 = t["channels"]["x1_m"]
+        assert np.array_equal(x1[:], r.channel("x1"))
+        p = x1.properties
+        assert p["unit_string"] == "m" and p["sensor"] == "H-108912"
+        assert p["gain_v_per_unit"] == pytest.approx(7952.755905511811)
+        assert p["wf_increment"] == pytest.approx(1 / r.sample_rate_hz)
+        assert t["drive"]["shaker_x_V"].properties["unit_string"] == "V"
+        assert t.properties["lubricated"] is True and t.properties["run_id"] == "lub-1"
+        assert list(t["steps"]["target_kind"][:]) == ["displacement"] * 2
+        amp = t["harmonics"]["amplitude"][:]
+        assert amp[0] == abs(complex(*r.steps[0]["harmonics"]["fx"][0]))
+
+
+def test_csv_tables_and_conditions(runs: dict[str, Path], tmp_path: Path) -> None:
+    files = export_run(runs["static"], "csv", tmp_path)
+    names = {f.name for f in files}
+    assert {"static.csv", "static.steps.csv", "static.harmonics.csv", "static.channels.csv",
+            "static.events.csv", "static.csv.conditions.toml", "static.run.json"} == names
+    cond = read_conditions_file(tmp_path / "static.csv.conditions.toml")
+    assert cond == {"lubricated": False, "motion": "x", "seal": repr(26.0)}
+    steps = (tmp_path / "static.steps.csv").read_text().splitlines()
+    assert steps[0].startswith("index,freq_hz,target_kind,target_value,target_units")
+    assert steps[1].split(",")[1:5] == ["0.0", "load", "-40.0", "N"]
+    header = (tmp_path / "static.csv").read_text().splitlines()[0].split(",")
+    assert header[:5] == ["time_s", "step", "freq_hz", "fx_N", "fy_N"]
+    assert "x1_m" in header and "oil_temp_C" in header and "shaker_y_V" in header
+
+
+def test_progress_reaches_the_end(runs: dict[str, Path], tmp_path: Path) -> None:
+    seen: list[tuple[int, int]] = []
+    export_run(runs["lub"], "tdms", tmp_path, progress=lambda d, n: seen.append((d, n)))
+    with open_run(runs["lub"]) as r:
+        n = r.n_samples
+    assert seen[-1] == (n, n) and len(seen) == math.ceil(n / (1 << 18))
+    assert [d for d, _ in seen] == sorted(d for d, _ in seen)
+
+
+def test_cli_export_then_import(runs: dict[str, Path], tmp_path: Path,
+                                capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["export", str(runs["lub"]), "--to", "csv", "--out", str(tmp_path)]) == 0
+    assert main(["import", str(tmp_path / "lub.csv"), "--out", str(tmp_path / "b.h5")]) == 0
+    out = capsys.readouterr().out
+    assert "restored from an sfdrig export (csv) of run 'lub-1'" in out
+    assert "lubricated: yes [export]" in out
+    _same_run(runs["lub"], tmp_path / "b.h5")
+
+
+@pytest.mark.parametrize("args, message", [
+    (["missing.h5", "--to", "csv"], "missing.h5: no such file"),
+    (["LUB", "--to", "csv", "--channels", "x9"], "no channel 'x9' (channels fx, fy, x1"),
+    (["LUB", "--to", "csv", "--channels", "shaker_x"], "--channels names no input channel"),
+    (["LUB", "--to", "mat", "--steps", "2-5"], "--steps 2-5: the run has steps 0-1"),
+    (["LUB", "--to", "mat", "--steps", "1-0"], "--steps 1-0: the range runs backwards"),
+    (["LUB", "--to", "tdms", "--steps", "one"], "--steps 'one': expected N or N-M"),
+    (["LUB", "--to", "csv", "--out", "LUB"], "is a file, not a folder"),
+    (["LUB", "--to", "csv", "--out", "LUB/sub"], "cannot create the folder"),
+])
+def test_bad_input_is_one_line(runs: dict[str, Path], tmp_path: Path,
+                               capsys: pytest.CaptureFixture[str], args: list[str],
+                               message: str) -> None:
+    args = [str(runs["lub"]) if a == "LUB" else str(runs["lub"]) + "/sub" if a == "LUB/sub"
+            else a for a in args]
+    if "--out" not in args:
+        args += ["--out", str(tmp_path / "out")]
+    assert main(["export", *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and message in err, err
+    assert "Traceback" not in err
+    out = tmp_path / "out"
+    assert not out.exists() or not list(out.iterdir())  # nothing half written
+
+
+def test_existing_export_is_kept(runs: dict[str, Path], tmp_path: Path,
+                                 capsys: pytest.CaptureFixture[str]) -> None:
+    export_run(runs["lub"], "mat", tmp_path)
+    before = (tmp_path / "lub.mat").read_bytes()
+    assert main(["export", str(runs["lub"]), "--to", "mat", "--out", str(tmp_path)]) == 2
+    assert "lub.mat: exists already" in capsys.readouterr().err
+    assert (tmp_path / "lub.mat").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lub.mat"]
+
+
+def test_import_refuses_a_contradicting_motion(runs: dict[str, Path], tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    (path,) = export_run(runs["lub"], "tdms", tmp_path)
+    assert main(["import", str(path), "--out", str(tmp_path / "b.h5"), "--motion", "y"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "states each step's motion (x)" in err
+    assert main(["import", str(path), "--out", str(tmp_path / "b.h5"), "--dry"]) == 0
+    with open_run(tmp_path / "b.h5") as b:
+        assert not b.attrs["lubricated"]
+
+
+# --- run files that explain themselves --------------------------------------------------------
+def test_run_file_describes_itself(runs: dict[str, Path]) -> None:
+    with h5py.File(runs["lub"], "r") as f:
+        assert f.attrs["format_version"] == 2 and "/step_harmonics" in f.attrs["layout"]
+        fs = f.attrs["sample_rate_hz"]
+        for group in ("channels", "drive"):
+            for ds in f[group].values():
+                assert ds.attrs["time_start"] == 0.0 and ds.attrs["time_units"] == "s"
+                assert ds.attrs["time_increment"] == 1.0 / fs and ds.attrs["units"]
+        steps = f["steps"]
+        for name in steps.dtype.names:
+            assert f"{name}_units" in steps.attrs and steps.attrs[f"{name}_description"]
+        assert "N for load" in steps.attrs["target_value_description"]
+        assert json.loads(steps.attrs["target_value_units_by_target_kind"]) == {
+            "displacement": "m", "load": "N", "pressure": "Pa"}
+        assert "freq_hz 0" in json.loads(steps.attrs["step_fields_by_kind"])["impact"]
+        h = f["step_harmonics"].attrs
+        assert h["amplitude_convention"].startswith("peak")
+        assert "counted from sample 0 of the run" in h["phase_reference"]
+        assert json.loads(h["units"])[:3] == ["N", "N", "m"]
+
+
+@pytest.mark.parametrize("channel", ["x1", "fx", "ax"])
+@pytest.mark.parametrize("step", [0, 1])
+def test_reader_from_the_docs_matches_the_stored_harmonics(runs: dict[str, Path], channel: str,
+                                                           step: int) -> None:
+    rebuilt, stored, units = doc_reader.step_harmonics_from_samples(runs["lub"], channel, step)
+    assert units in ("m", "N", "m/s^2")
+    assert np.max(np.abs(rebuilt - stored)) < 1e-11 * np.abs(stored[0])
+    assert np.abs(stored[0]) > 0
+
+
+def test_doc_reader_imports_nothing_of_sfdrig() -> None:
+    tree = ast.parse(Path(doc_reader.__file__).read_text())
+    mods = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    mods |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert mods == {"__future__", "json", "pathlib", "h5py", "numpy"}
+
+
+def test_version_1_files_still_read(runs: dict[str, Path], tmp_path: Path) -> None:
+    """A file as version 1 wrote it (no descriptions) reads and exports the same."""
+    old = tmp_path / "old.h5"
+    old.write_bytes(runs["lub"].read_bytes())
+    with h5py.File(old, "r+") as f:
+        f.attrs["format_version"] = 1
+        for key in ("layout", "time_axis"):
+            del f.attrs[key]
+        for ds in [*f["channels"].values(), *f["drive"].values()]:
+            for key in ("time_start", "time_increment", "time_units", "time_reference"):
+                del ds.attrs[key]
+        for key in list(f["steps"].attrs):
+            del f["steps"].attrs[key]
+        for key in list(f["step_harmonics"].attrs):
+            if key != "channels":
+                del f["step_harmonics"].attrs[key]
+    with open_run(old) as a, open_run(runs["lub"]) as b:
+        assert a.attrs["format_version"] == 1
+        assert a.steps == b.steps and np.array_equal(a.channel("x1"), b.channel("x1"))
+    (path,) = export_run(old, "mat", tmp_path / "out")
+    with open_run(runs["lub"]) as b:
+        assert np.array_equal(scipy.io.loadmat(path, squeeze_me=True)["x1_m"], b.channel("x1"))
+
+
+# --- any run, any format ------------------------------------------------------------------------
+_NAMES = st.text(alphabet="abxyz_1 ä-", min_size=1, max_size=6).filter(
+    lambda s: s.strip() == s and s not in (".", ".."))
+_TEXT = st.text(alphabet=st.characters(codec="utf-8", exclude_categories=("Cs",),
+                                       exclude_characters="\x00"), max_size=30)
+
+
+@given(
+    fmt=st.sampled_from(FORMATS),
+    names=st.lists(_NAMES, min_size=1, max_size=3, unique=True),
+    units=st.lists(st.sampled_from(["N", "m", "m/s^2", "degC", "Pa", "kN", ""]), min_size=3,
+                   max_size=3),
+    values=st.lists(st.floats(width=64), min_size=1, max_size=40),
+    n_ao=st.integers(0, 1),
+    steps=st.lists(st.tuples(st.integers(0, 39), st.integers(1, 40),
+                             st.floats(0, 500, allow_nan=False), _TEXT), max_size=3),
+    events=st.lists(st.tuples(st.integers(0, 40), _TEXT), max_size=3),
+)
+def test_any_run_round_trips(fmt: str, names: list[str], units: list[str], values: list[float],
+                             n_ao: int, steps: list, events: list) -> None:
+    """Any values (NaN, infinities, subnormals, -0), names, units, step and event texts come
+    back the same through every format."""
+    n = len(values)
+    data = np.array(values)
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        chans = [{"name": nm, "units": units[i], "sensor": f"s,{i}\n\"q\""}
+                 for i, nm in enumerate(names)]
+        with RunWriter.create(d / "r.h5", "r", "sweep", chans, ["drv"][:n_ao], 1234.5,
+                              flush_interval_s=0, swmr=False) as w:
+            w.on_block(0, np.stack([np.roll(data, i) for i in range(len(names))]),
+                       data[None, ::-1].copy() if n_ao else None)
+            for i, (a, length, f, reason) in enumerate(steps):
+                w.on_step({"index": i, "freq_hz": f, "target_kind": "load", "target_value": f,
+                           "motion": "x", "first_sample": min(a, n - 1),
+                           "last_sample": min(a + length, n), "updates": 1, "converged": False,
+                           "reason": reason, "note": reason,
+                           "harmonics": {names[0]: [[f, -f]] * 5}})
+            for sample, text in events:
+                w.on_event("info", text, sample)
+        try:
+            (path,) = export_run(d / "r.h5", fmt, d / "out")[:1]
+        except ExportError as err:  # two names that share a column are refused, not merged
+            assert "would share the column" in str(err)
+            return
+        with open_run(d / "r.h5") as a:
+            assert all(re.fullmatch(r"[A-Za-z]\w{0,62}", column_name(c, a.units(c)))
+                       for c in a.channel_names)  # MATLAB variable names
+        _same_run(d / "r.h5", import_file(path, d / "back.h5"))
+
+
+def test_cli_progress_is_a_line_per_tenth(capsys: pytest.CaptureFixture[str]) -> None:
+    from sfdrig.commands.export import _Progress
+
+    p = _Progress(Path("big.h5"))
+    for done in range(0, 1_000_001, 65_536):
+        p(done, 1_000_000)
+    p(1_000_000, 1_000_000)
+    lines = capsys.readouterr().err.splitlines()
+    assert [ln.split(":")[1].split("%")[0].strip() for ln in lines] == [
+        str(10 * k) for k in range(1, 11)]
+    assert lines[-1].startswith("  big.h5: 100 % (1,000,000 of 1,000,000 samples")
