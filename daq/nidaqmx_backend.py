@@ -57,6 +57,7 @@ from daq.errors import (
     ChannelConfigError,
     DaqError,
     EmergencyStopError,
+    error_for_code,
 )
 from daq.nidaqmx_session import NidaqmxSession, _nidaqmx, translate_errors
 
