@@ -175,7 +175,7 @@ def format_table(cm: ChannelMap, values: LiveValues) -> str:
         edge = 0.001 * (hi - lo)
         flag = "AT RANGE LIMIT" if values.min_v[i] <= lo + edge or values.max_v[i] >= hi - edge \
             else ""
-        rows.append((ch.name, ch.physical_channel, f"{values.mean[i] * factor:.5g}",
+        rows.append((ch.name, ch.physical_channel, f"{values.mean[i] * factor:.4g}",
                      f"{values.std[i] * factor:.3g}", unit, f"{values.mean_v[i]:.4f}",
                      f"{lo:g} to {hi:g}", flag))
     widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
