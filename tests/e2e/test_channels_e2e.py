@@ -6,6 +6,7 @@ in engineering units."""
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -202,3 +203,20 @@ def test_live_once_flags_an_input_at_its_range_limit(server, tmp_path):
     flagged = [r.split()[0] for r in res.stdout.splitlines() if r.endswith("AT RANGE LIMIT")]
     assert flagged == ["x2"]
     assert float(_table(res.stdout)["x2"][4]) == pytest.approx(-5.0, abs=1e-3)
+
+
+def test_live_refreshes_until_ctrl_c_and_ends_cleanly(server):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sfdrig", "channels", "live", str(EXAMPLE), "--grpc-target",
+         server, "--period-s", "0.1"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
+    tables = 0
+    for line in proc.stdout:  # type: ignore[union-attr]
+        tables += line.startswith("1000 samples per input")
+        if tables == 2:  # a second table: it refreshes
+            break
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert tables == 2
+    assert proc.returncode == 0
+    assert err == "channels live: stopped\n"
