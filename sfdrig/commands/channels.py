@@ -55,12 +55,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from daq.errors import ConfigFileError, DaqError
+    from daq.errors import ConfigFileError, DaqConnectionError, DaqError
 
+    local = False  # the local NI-DAQmx driver
     try:
         if args.action == "write":
             return _write(args)
         cm = _load(args.map, args.grpc_target)
+        local = cm.grpc_target is None
         if args.action == "check":
             return _check(args, cm)
         return _live(args, cm)
@@ -69,7 +71,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"channels {args.action}: {line}", file=sys.stderr)
         return 2
     except DaqError as err:
-        print(f"channels {args.action}: {err}", file=sys.stderr)
+        hint = (" (install NI-DAQmx, or give --grpc-target HOST:PORT of an NI gRPC device "
+                "server)" if isinstance(err, DaqConnectionError) and local else "")
+        print(f"channels {args.action}: {' '.join(str(err).split())}{hint}", file=sys.stderr)
         return 2
 
 
