@@ -18,7 +18,7 @@ import numpy as np
 from daq.channels import AnalogInput, ChannelMap, TerminalConfig
 from daq.errors import DEVICE_NOT_FOUND, DaqError
 from daq.nidaqmx_backend import terminal_configuration
-from daq.nidaqmx_session import NidaqmxSession, _nidaqmx, translate_errors
+from daq.nidaqmx_session import NidaqmxSession, _nidaqmx, close_task, translate_errors
 
 _log = logging.getLogger(__name__)
 
@@ -262,12 +262,7 @@ class LiveReader:
         task, self._task = self._task, None
         if task is None:
             return
-        try:
-            with translate_errors("clearing the live AI task"):
-                task.close()
-        except DaqError as err:
-            _log.warning("close: %s", err)
-            task._handle = None  # spare nidaqmx's "not explicitly closed" warning
+        close_task(task)
 
     def __enter__(self) -> LiveReader:
         return self

@@ -59,7 +59,7 @@ from daq.errors import (
     EmergencyStopError,
     error_for_code,
 )
-from daq.nidaqmx_session import NidaqmxSession, _nidaqmx, translate_errors
+from daq.nidaqmx_session import NidaqmxSession, _nidaqmx, close_task, translate_errors
 
 __all__ = ["NidaqmxBackend", "terminal_configuration", "translate_errors"]
 
@@ -440,14 +440,7 @@ class NidaqmxBackend:
             setattr(self, attr, None)
             if task is None:
                 continue
-            try:
-                with translate_errors("clearing a task"):
-                    task.close()
-            except DaqError as err:
-                _log.warning("close: %s", err)
-                # the task is gone from the driver/server: nothing left to release, so spare
-                # nidaqmx's "not explicitly closed" destructor warning (WatchdogTask has one)
-                task._handle = None
+            close_task(task)
         self._reader = self._writer = self._do_writer = self._estop_reader = None
         self._running = False
         self._ring = None

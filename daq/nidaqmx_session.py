@@ -5,11 +5,14 @@ errors translated to `daq.errors`. Shared by `NidaqmxBackend` (the run's tasks) 
 from __future__ import annotations
 
 import contextlib
+import logging
 import uuid
 from collections.abc import Iterator
 from typing import Any
 
 from daq.errors import ChannelConfigError, DaqConnectionError, DaqError, error_for_code
+
+_log = logging.getLogger(__name__)
 
 #: gRPC message limit: one read of 100,000 samples x 16 channels is 12.8 MB of doubles.
 MAX_MESSAGE_BYTES = 256 * 1024 * 1024
@@ -50,6 +53,19 @@ def translate_errors(action: str) -> Iterator[None]:
         raise
     except ConnectionError as err:
         raise DaqConnectionError(f"{action}: {err}") from err
+
+
+def close_task(task: Any) -> None:
+    """Clear a nidaqmx task. A failure (the driver or server has lost it) is logged, not raised:
+    there is nothing left to release."""
+    try:
+        with translate_errors("clearing a task"):
+            task.close()
+    except DaqError as err:
+        _log.warning("close: %s", err)
+        # the task is gone from the driver/server: spare nidaqmx's "not explicitly closed"
+        # destructor warning (WatchdogTask has one)
+        task._handle = None
 
 
 class NidaqmxSession:

@@ -40,6 +40,13 @@ def term_cfg_bits() -> int:
     return bits
 
 
+def attribute(values: dict[int, Any], group: str, attribute_id: int) -> Any:
+    """``values[attribute_id]``, or the DAQmx error of an attribute the device lacks."""
+    if attribute_id not in values:
+        raise _unsupported(group, attribute_id)
+    return values[attribute_id]
+
+
 class DeviceRpcs:
     """GetDeviceAttributeString, GetDeviceAttributeDoubleArray, GetPhysicalChanAttributeInt32.
     Needs the servicer's ``device``."""
@@ -62,9 +69,8 @@ class DeviceRpcs:
             ATTR_DEV_DO_LINES: ", ".join(spec.do_lines()),
             ATTR_DEV_DI_LINES: ", ".join(spec.do_lines()),  # port lines are inputs or outputs
         }
-        if request.attribute_raw not in values:
-            raise _unsupported("device", request.attribute_raw)
-        return pb.GetDeviceAttributeStringResponse(value=values[request.attribute_raw])
+        return pb.GetDeviceAttributeStringResponse(
+            value=attribute(values, "device", request.attribute_raw))
 
     @reports_daq_errors
     def GetDeviceAttributeDoubleArray(self, request, context):  # noqa: N802
@@ -72,17 +78,16 @@ class DeviceRpcs:
         spec = self.device.spec
         values = {ATTR_DEV_AI_VOLTAGE_RNGS: ranges_within(AI_RANGES_V, spec.ai_range_v),
                   ATTR_DEV_AO_VOLTAGE_RNGS: ranges_within(AO_RANGES_V, spec.ao_range_v)}
-        if request.attribute_raw not in values:
-            raise _unsupported("device", request.attribute_raw)
-        return pb.GetDeviceAttributeDoubleArrayResponse(value=values[request.attribute_raw])
+        return pb.GetDeviceAttributeDoubleArrayResponse(
+            value=attribute(values, "device", request.attribute_raw))
 
     @reports_daq_errors
     def GetPhysicalChanAttributeInt32(self, request, context):  # noqa: N802
-        if request.attribute_raw != ATTR_PHYS_AI_TERM_CFGS:
-            raise _unsupported("physical channel", request.attribute_raw)
+        bits = attribute({ATTR_PHYS_AI_TERM_CFGS: term_cfg_bits()}, "physical channel",
+                         request.attribute_raw)
         self.device.physical(request.physical_channel, "ai",
                              f"physical channel {request.physical_channel!r}")
-        return pb.GetPhysicalChanAttributeInt32Response(value_raw=term_cfg_bits())
+        return pb.GetPhysicalChanAttributeInt32Response(value_raw=bits)
 
 
 def _unsupported(group: str, attribute: int) -> Any:

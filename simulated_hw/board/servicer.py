@@ -87,7 +87,7 @@ from simulated_hw.board.codes import (
     daq_error,
 )
 from simulated_hw.board.device import SimDevice
-from simulated_hw.board.device_rpcs import DeviceRpcs, _unsupported
+from simulated_hw.board.device_rpcs import DeviceRpcs, _unsupported, attribute
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.board.watchdog_rpcs import WatchdogRpcs
@@ -211,15 +211,13 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, pb_grpc.NiDAQmxServicer):
     def GetSystemInfoAttributeUInt32(self, request, context):  # noqa: N802
         versions = dict(zip((ATTR_DRIVER_MAJOR, ATTR_DRIVER_MINOR, ATTR_DRIVER_UPDATE),
                             DRIVER_VERSION, strict=True))
-        if request.attribute_raw not in versions:
-            raise _unsupported("system", request.attribute_raw)
-        return pb.GetSystemInfoAttributeUInt32Response(value=versions[request.attribute_raw])
+        return pb.GetSystemInfoAttributeUInt32Response(
+            value=attribute(versions, "system", request.attribute_raw))
 
     @reports_daq_errors
     def GetSystemInfoAttributeString(self, request, context):  # noqa: N802
-        if request.attribute_raw != ATTR_SYS_DEVICES:
-            raise _unsupported("system", request.attribute_raw)
-        return pb.GetSystemInfoAttributeStringResponse(value=self.device.spec.name)
+        return pb.GetSystemInfoAttributeStringResponse(value=attribute(
+            {ATTR_SYS_DEVICES: self.device.spec.name}, "system", request.attribute_raw))
 
     @reports_daq_errors
     def CreateTask(self, request, context):  # noqa: N802
