@@ -5,7 +5,6 @@ itself turns the pump relay off and holds the drives at 0 V, and says so in its 
 
 from __future__ import annotations
 
-import json
 import queue
 import signal
 import subprocess
