@@ -312,6 +312,7 @@ class NidaqmxBackend:
             if got != m:  # never hand back a short block silently
                 raise error_for_code(f"reading AI: got {got} of {m} samples", -200284)
             ahead = fresh if ahead is None or not have else np.hstack([ahead, fresh])
+        assert ahead is not None  # have >= n > 0, or just read (for mypy)
         out, rest = ahead[:, :n], ahead[:, n:]
         self._ai_ahead = rest if rest.shape[1] else None
         self._ai_taken += n
