@@ -14,7 +14,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from daq.config_files import read_toml, validate
+from daq.config_files import read_toml, to_toml, validate
 from daq.errors import ChannelConfigError
 
 
@@ -40,6 +40,17 @@ UNITS_BY_KIND: dict[ChannelKind, tuple[str, ...]] = {
     ChannelKind.SHAKER_DRIVE: ("V",),
     ChannelKind.RELAY: ("bool",),
 }
+
+class TerminalConfig(StrEnum):
+    """How an analog input is referenced (DAQmx ``TerminalConfiguration``). ``default`` leaves
+    it to the device (differential where the channel can be, on NI's multifunction boards)."""
+
+    DEFAULT = "default"
+    DIFFERENTIAL = "differential"
+    RSE = "rse"
+    NRSE = "nrse"
+    PSEUDO_DIFFERENTIAL = "pseudo_differential"
+
 
 AI_KINDS = {
     ChannelKind.LOAD_CELL,
@@ -101,6 +112,9 @@ class AnalogInput(_Strict):
     gain_v_per_unit: float = Field(gt=0, description="sensitivity [V per engineering unit]")
     offset_v: float = Field(0.0, description="output at zero of the measurand [V]")
     range_v: tuple[float, float] = Field((-10.0, 10.0), description="input range [V]")
+    terminal_config: TerminalConfig = Field(
+        TerminalConfig.DEFAULT, description="input terminal configuration (the device's "
+                                            "default, differential, rse, nrse, ...)")
     sensor: str = Field("", description="make, model or serial number")
 
     @field_validator("kind")
@@ -200,8 +214,9 @@ class ChannelMap(_Strict):
                 f"sample_rate_hz = {self.sample_rate_hz:g} is outside what the {dev.product} "
                 f"can do ({dev.min_rate_hz:g} to {dev.max_rate_hz:g} S/s)"
             )
+        problems: list[str] = []
         names: set[str] = set()
-        physical: set[str] = set()
+        physical: dict[str, str] = {}
         valid = {
             "ai": set(dev.ai_channels()),
             "ao": set(dev.ao_channels()),
@@ -214,27 +229,29 @@ class ChannelMap(_Strict):
             for i, ch in enumerate(chans):
                 where = f"{group}[{i}] ({ch.name})"
                 if ch.name in names:
-                    raise ValueError(f"{where}: duplicate channel name {ch.name!r}")
+                    problems.append(f"{where}: duplicate channel name {ch.name!r}")
                 names.add(ch.name)
                 if ch.physical_channel in physical:
-                    raise ValueError(
-                        f"{where}: duplicate physical_channel {ch.physical_channel!r}"
-                    )
-                physical.add(ch.physical_channel)
+                    problems.append(
+                        f"{where}: duplicate physical_channel {ch.physical_channel!r} "
+                        f"(also {physical[ch.physical_channel]})")
+                physical.setdefault(ch.physical_channel, where)
                 if ch.physical_channel not in valid[group]:
-                    raise ValueError(
+                    problems.append(
                         f"{where}: physical_channel {ch.physical_channel!r} is not a "
                         f"{'digital line' if group == 'estop' else group.upper() + ' channel'} "
                         f"of device {dev.name} ({dev.product})"
                     )
                 rng = dev.ai_range_v if group == "ai" else dev.ao_range_v
                 if group not in ("do", "estop") and (ch.range_v[0] < -rng or ch.range_v[1] > rng):
-                    raise ValueError(
+                    problems.append(
                         f"{where}: range_v {ch.range_v} exceeds the board's +/-{rng:g} V"
                     )
         axes = [ao.axis for ao in self.ao]
         if len(set(axes)) != len(axes):
-            raise ValueError(f"ao: two shaker drives on the same axis {axes}")
+            problems.append(f"ao: two shaker drives on the same axis {axes}")
+        if problems:
+            raise ValueError("\n".join(problems))
         return self
 
     # --- lookups -------------------------------------------------------------------------
@@ -278,6 +295,10 @@ class ChannelMap(_Strict):
 
     def to_json_dict(self) -> dict[str, Any]:
         return self.model_dump(mode="json")
+
+    def to_toml(self) -> str:
+        """The map as TOML; `load_channel_map` reads it back to an equal map."""
+        return to_toml(self.model_dump(mode="json", exclude_none=True))
 
 
 # Probe gains from Table A1 (mV/mil -> V/m): 202, 195, 204 mV/mil; Y2 not given, nominal 200.

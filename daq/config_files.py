@@ -1,35 +1,54 @@
 """Loading validated configuration files (TOML + pydantic) with errors that name the file, the
-field and the value. Shared by the channel map, the rig parameters and the sweep description."""
+field and the value, and writing them back (`to_toml`). Shared by the channel map, the rig
+parameters and the sweep description."""
 
 from __future__ import annotations
 
+import json
 import tomllib
 from pathlib import Path
 from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
+from daq.errors import ConfigFileError
+
 M = TypeVar("M", bound=BaseModel)
+
+
+def validation_problems(err: ValidationError) -> list[str]:
+    """One line per problem: the field path, the value and why. A model-wide check (no field
+    path) names its own places, one problem a line."""
+    lines = []
+    for e in err.errors():
+        msg = e["msg"].removeprefix("Value error, ")
+        if not e["loc"]:
+            lines.extend(msg.splitlines())
+            continue
+        loc = ".".join(str(p) for p in e["loc"])
+        value = e.get("input")
+        shown = repr(value) if not isinstance(value, dict) else "{...}"
+        lines.append(f"{loc} = {shown}: {msg}")
+    return lines
 
 
 def describe_validation_error(err: ValidationError, what: str, source: str) -> str:
     """One line per problem: where (source and field path), what value, and why."""
-    lines = [f"invalid {what} in {source}:"]
-    for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
-        value = e.get("input")
-        shown = repr(value) if not isinstance(value, dict) else "{...}"
-        lines.append(f"  {loc} = {shown}: {e['msg']}")
-    return "\n".join(lines)
+    return "\n".join([f"invalid {what} in {source}:"]
+                     + [f"  {line}" for line in validation_problems(err)])
 
 
 def validate(model: type[M], data: dict[str, Any], what: str, source: str,
              error: type[Exception]) -> M:
-    """``model.model_validate(data)``, raising ``error`` with every problem named."""
+    """``model.model_validate(data)``, raising ``error`` with every problem named (and, for a
+    `ConfigFileError`, itemised in its ``problems``, each line led by ``source``)."""
     try:
         return model.model_validate(data)
     except ValidationError as err:
-        raise error(describe_validation_error(err, what, source)) from None
+        exc = error(describe_validation_error(err, what, source))
+        if isinstance(exc, ConfigFileError):
+            exc.problems = tuple(f"{source}: {line}" for line in validation_problems(err))
+        raise exc from None
 
 
 def read_toml(path: str | Path, error: type[Exception]) -> dict[str, Any]:
@@ -41,3 +60,45 @@ def read_toml(path: str | Path, error: type[Exception]) -> dict[str, Any]:
         raise error(f"{path}: not valid TOML: {err}") from None
     except OSError as err:
         raise error(f"{path}: cannot read: {err.strerror}") from None
+
+
+def to_toml(data: dict[str, Any]) -> str:
+    """A TOML document for ``data`` (a ``model_dump(mode="json")``): scalars, lists of scalars,
+    tables and arrays of tables; None values are left out (a model's default fills them back).
+    ``tomllib.loads(to_toml(d))`` gives ``d`` back without its None values."""
+    return _table(data, "")
+
+
+def _table(data: dict[str, Any], prefix: str) -> str:
+    def is_tables(v: Any) -> bool:
+        return isinstance(v, list | tuple) and bool(v) and all(isinstance(x, dict) for x in v)
+
+    items = {k: v for k, v in data.items() if v is not None}
+    lines = [f"{_key(k)} = {_value(v)}" for k, v in items.items()
+             if not isinstance(v, dict) and not is_tables(v)]
+    text = "\n".join(lines) + ("\n" if lines else "")
+    for k, v in items.items():
+        name = f"{prefix}.{_key(k)}" if prefix else _key(k)
+        if isinstance(v, dict):
+            text += ("\n" if text else "") + f"[{name}]\n" + _table(v, name)
+        elif is_tables(v):
+            for entry in v:
+                text += ("\n" if text else "") + f"[[{name}]]\n" + _table(entry, name)
+    return text
+
+
+def _key(k: str) -> str:
+    return k if k.replace("_", "a").replace("-", "a").isalnum() and k.isascii() else _value(k)
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v) if v == v else "nan"
+    if isinstance(v, str):
+        # JSON's escapes are TOML's (\\, \", \n, \uXXXX); DEL needs one too
+        return json.dumps(v, ensure_ascii=False).replace("\x7f", "\\u007F")
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")

@@ -58,7 +58,19 @@ class DaqConnectionError(DaqError, ConnectionError):
     """The driver or the gRPC device server could not be reached, or it lacks a needed call."""
 
 
-class ChannelConfigError(ValueError):
+class ConfigFileError(ValueError):
+    """A configuration file that cannot be used. ``problems``: one line per problem, each
+    naming the file and the place (field path, or line and column); the message holds them
+    all, under a heading."""
+
+    problems: tuple[str, ...] = ()
+
+    def lines(self) -> list[str]:
+        """One line per problem (the message's first line when none were itemised)."""
+        return list(self.problems) or [str(self).splitlines()[0]]
+
+
+class ChannelConfigError(ConfigFileError):
     """A channel map or device description is invalid; the message names the field and value."""
 
 

@@ -39,29 +39,29 @@ a stale task left on a server by a crashed client is never re-attached. Every ni
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import time
 import uuid
 from collections import deque
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
 from daq.backend import AoCut
-from daq.channels import ChannelMap
+from daq.channels import ChannelMap, TerminalConfig
 from daq.errors import (
     ATTR_NOT_SUPPORTED,
     ATTR_NOT_SUPPORTED_IN_TASK,
     WATCHDOG_TIMER_NOT_SUPPORTED,
     ChannelConfigError,
-    DaqConnectionError,
     DaqError,
     EmergencyStopError,
     error_for_code,
 )
+from daq.nidaqmx_session import NidaqmxSession, _nidaqmx, close_task, translate_errors
+
+__all__ = ["NidaqmxBackend", "terminal_configuration", "translate_errors"]
 
 _log = logging.getLogger(__name__)
 
@@ -80,47 +80,6 @@ AI_CATCH_UP_S = 0.25
 #: the host's drift apart by tens of ppm).
 GEN_QUERY_S = 0.05
 GEN_OFFSET_WINDOW_S = 1.0
-
-#: gRPC message limit: one read of 100,000 samples x 16 channels is 12.8 MB of doubles.
-MAX_MESSAGE_BYTES = 256 * 1024 * 1024
-
-
-def _nidaqmx() -> Any:
-    """Import nidaqmx lazily, so the rest of the project never pays for it."""
-    try:
-        import nidaqmx
-        import nidaqmx.errors
-        import nidaqmx.stream_readers
-        import nidaqmx.stream_writers
-    except ImportError as err:  # pragma: no cover - a pinned dependency
-        raise DaqConnectionError(f"the nidaqmx package is not installed: {err}") from None
-    return nidaqmx
-
-
-@contextlib.contextmanager
-def translate_errors(action: str) -> Iterator[None]:
-    """Re-raise nidaqmx and gRPC errors as our typed errors; ``action`` says what we were doing.
-
-    ``nidaqmx.errors.DaqError`` (and its read/write subclasses) -> `error_for_code` with the
-    DAQmx code; ``RpcError`` (server unreachable or lacking a call) and a missing driver
-    -> `DaqConnectionError`.
-    """
-    nidaqmx = _nidaqmx()
-    errors = nidaqmx.errors
-    try:
-        yield
-    except errors.DaqError as err:
-        message = str(err).split("\n\nStatus Code:")[0].strip()
-        raise error_for_code(f"{action}: {message}", err.error_code) from err
-    except errors.RpcError as err:
-        raise DaqConnectionError(f"{action}: NI gRPC device server error: {err}") from err
-    except (errors.DaqNotFoundError, errors.DaqNotSupportedError) as err:
-        raise DaqConnectionError(f"{action}: NI-DAQmx driver not available: {err}") from err
-    except DaqError:
-        raise
-    except ConnectionError as err:
-        raise DaqConnectionError(f"{action}: {err}") from err
-
 
 class NidaqmxBackend:
     """Hardware-timed AI, streaming AO on the AI clock and relay lines, through nidaqmx.
@@ -182,7 +141,7 @@ class NidaqmxBackend:
         self._ai_ahead: np.ndarray | None = None  # read from the board, not yet handed out
         #: the board's AO counts of the last `GEN_OFFSET_WINDOW_S`: (host time before, count)
         self._gen_answers: deque[tuple[float, int]] = deque()
-        self._channel: Any = None  # grpc.Channel
+        self._session: NidaqmxSession | None = None
         self._ai: Any = None
         self._ao: Any = None
         self._do: Any = None
@@ -353,6 +312,7 @@ class NidaqmxBackend:
             if got != m:  # never hand back a short block silently
                 raise error_for_code(f"reading AI: got {got} of {m} samples", -200284)
             ahead = fresh if ahead is None or not have else np.hstack([ahead, fresh])
+        assert ahead is not None  # have >= n > 0, or just read (for mypy)
         out, rest = ahead[:, :n], ahead[:, n:]
         self._ai_ahead = rest if rest.shape[1] else None
         self._ai_taken += n
@@ -481,20 +441,13 @@ class NidaqmxBackend:
             setattr(self, attr, None)
             if task is None:
                 continue
-            try:
-                with translate_errors("clearing a task"):
-                    task.close()
-            except DaqError as err:
-                _log.warning("close: %s", err)
-                # the task is gone from the driver/server: nothing left to release, so spare
-                # nidaqmx's "not explicitly closed" destructor warning (WatchdogTask has one)
-                task._handle = None
+            close_task(task)
         self._reader = self._writer = self._do_writer = self._estop_reader = None
         self._running = False
         self._ring = None
-        if self._channel is not None:
-            self._channel.close()
-            self._channel = None
+        if self._session is not None:
+            self._session.close()
+            self._session = None
 
     # --- internals ------------------------------------------------------------------------
     def _require_tasks(self) -> None:
@@ -503,40 +456,13 @@ class NidaqmxBackend:
         if self._ai is None:
             raise DaqError("backend is closed (or its configuration failed); configure again")
 
-    def _grpc_options(self, nidaqmx: Any) -> Any:
-        target = self.grpc_target
-        if target is None:
-            return None
-        if self._channel is None:
-            import grpc
-
-            if target.count(":") < 1 or not target.rsplit(":", 1)[1].isdigit():
-                raise ChannelConfigError(f"grpc_target {target!r} must be 'host:port'")
-            self._channel = grpc.insecure_channel(target, options=[
-                ("grpc.max_receive_message_length", MAX_MESSAGE_BYTES),
-                ("grpc.max_send_message_length", MAX_MESSAGE_BYTES),
-            ])
-            try:
-                grpc.channel_ready_future(self._channel).result(timeout=self.connect_timeout_s)
-            except grpc.FutureTimeoutError:
-                raise DaqConnectionError(
-                    f"no NI gRPC device server answers at {target} "
-                    f"(waited {self.connect_timeout_s:g} s)"
-                ) from None
-        return nidaqmx.GrpcSessionOptions(
-            self._channel, "",
-            initialization_behavior=nidaqmx.grpc_session_options.SessionInitializationBehavior
-            .INITIALIZE_SERVER_SESSION,
-        )
+    def _connection(self) -> NidaqmxSession:
+        if self._session is None:
+            self._session = NidaqmxSession(self.grpc_target, self.connect_timeout_s)
+        return self._session
 
     def _new_task(self, nidaqmx: Any, role: str) -> Any:
-        options = self._grpc_options(nidaqmx)
-        name = f"sfdrig-{role}-{uuid.uuid4().hex[:12]}"
-        where = f" on {self.grpc_target}" if self.grpc_target else ""
-        with translate_errors(f"creating the {role.upper()} task {name}{where}"):
-            if options is None:
-                return nidaqmx.Task(name)
-            return nidaqmx.Task(name, grpc_options=options)
+        return self._connection().new_task(role)
 
     def _create_tasks(self, cm: ChannelMap) -> None:
         nidaqmx = _nidaqmx()
@@ -551,7 +477,8 @@ class NidaqmxBackend:
             lo, hi = ch.range_v
             with translate_errors(f"AI channel {ch.name} on {ch.physical_channel}"):
                 self._ai.ai_channels.add_ai_voltage_chan(
-                    ch.physical_channel, name_to_assign_to_channel=ch.name, min_val=lo,
+                    ch.physical_channel, name_to_assign_to_channel=ch.name,
+                    terminal_config=terminal_configuration(ch.terminal_config), min_val=lo,
                     max_val=hi)
         with translate_errors(f"AI sample clock at {fs:g} S/s"):
             self._ai.timing.cfg_samp_clk_timing(
@@ -672,7 +599,7 @@ class NidaqmxBackend:
         from nidaqmx.types import AOExpirationState, DOExpirationState
 
         name = f"sfdrig-watchdog-{uuid.uuid4().hex[:12]}"
-        options = self._grpc_options(nidaqmx)
+        options = self._connection().grpc_options()
         with translate_errors(f"creating the watchdog task {name} on {cm.device.name}"):
             self._watchdog = WatchdogTask(cm.device.name, name, self.watchdog_timeout_s,
                                           grpc_options=options)
@@ -695,3 +622,12 @@ class NidaqmxBackend:
         with translate_errors("starting the watchdog timer"):
             self._watchdog.start()
         self._fed_at = time.monotonic()
+
+
+def terminal_configuration(config: TerminalConfig) -> Any:
+    """nidaqmx's ``TerminalConfiguration`` for a channel map's `TerminalConfig`."""
+    from nidaqmx.constants import TerminalConfiguration as Tc
+
+    return {TerminalConfig.DEFAULT: Tc.DEFAULT, TerminalConfig.DIFFERENTIAL: Tc.DIFF,
+            TerminalConfig.RSE: Tc.RSE, TerminalConfig.NRSE: Tc.NRSE,
+            TerminalConfig.PSEUDO_DIFFERENTIAL: Tc.PSEUDO_DIFF}[config]

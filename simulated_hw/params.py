@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from daq.config_files import read_toml, validate
+from daq.config_files import read_toml, to_toml, validate
 
 VISCOSITY_SLOPE_PER_C = 0.01665  # eq. 1 exponent [1/degC]
 
@@ -260,7 +260,7 @@ class RigParams(_Model):
         return max(1, math.ceil(1.0 / (sample_rate_hz * self.max_step_s) - 1e-9))
 
     def to_toml(self) -> str:
-        return _to_toml(self.model_dump(mode="json", exclude_none=True))
+        return to_toml(self.model_dump(mode="json", exclude_none=True))
 
 
 class RigParamsError(ValueError):
@@ -301,30 +301,3 @@ def rig_params_named_or_file(name_or_path: str | Path) -> RigParams:
                                ) as path:
             return load_rig_params(path)
     return load_rig_params(name_or_path)
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def _to_toml(data: dict[str, Any], prefix: str = "") -> str:
-    """A small TOML writer for nested tables of scalars (enough for RigParams)."""
-    scalars = [f"{k} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
-    out = []
-    if prefix and scalars:
-        out.append(f"[{prefix}]")
-    out.extend(scalars)
-    text = "\n".join(out) + ("\n" if out else "")
-    for k, v in data.items():
-        if isinstance(v, dict):
-            sub = _to_toml(v, f"{prefix}.{k}" if prefix else k)
-            text += ("\n" if text else "") + sub
-    return text

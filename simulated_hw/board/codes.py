@@ -97,6 +97,22 @@ ATTR_AO_IDLE_OUTPUT = 0x2240  # ao_idle_output_behavior (task/channels/_ao_chann
 ATTR_WDT_EXPIRED, ATTR_WDT_TIMEOUT = 0x21A8, 0x21A9  # system/watchdog.py
 ATTR_SAMP_QUANT_MODE, ATTR_SAMP_QUANT_N = 0x1300, 0x1310  # timing: sample mode, samples/chan
 
+# device capabilities (nidaqmx system/device.py, system/physical_channel.py)
+ATTR_DEV_PRODUCT_TYPE = 0x0631
+ATTR_DEV_AI_PHYSICAL_CHANS, ATTR_DEV_AO_PHYSICAL_CHANS = 0x231E, 0x231F
+ATTR_DEV_DI_LINES, ATTR_DEV_DO_LINES = 0x2320, 0x2322
+ATTR_DEV_AI_VOLTAGE_RNGS, ATTR_DEV_AO_VOLTAGE_RNGS = 0x2990, 0x299B  # [lo, hi, lo, hi, ...]
+ATTR_PHYS_AI_TERM_CFGS = 0x2342  # bitfield: RSE 1, NRSE 2, DIFF 4, PSEUDO_DIFF 8
+TERM_DEFAULT, TERM_RSE, TERM_NRSE, TERM_DIFF, TERM_PSEUDO_DIFF = -1, 10083, 10078, 10106, 12529
+TERM_BITS = {TERM_RSE: 1, TERM_NRSE: 2, TERM_DIFF: 4, TERM_PSEUDO_DIFF: 8}
+TERM_NAMES = {TERM_RSE: "RSE", TERM_NRSE: "NRSE", TERM_DIFF: "differential",
+              TERM_PSEUDO_DIFF: "pseudodifferential"}
+#: the PXIe-6358's AI input ranges (bipolar, +/- V), its AO ranges, and its AI terminal
+#: configuration (simultaneous sampling: differential only), as NI's specifications give them
+AI_RANGES_V = (1.0, 2.0, 5.0, 10.0)
+AO_RANGES_V = (5.0, 10.0)
+AI_TERM_CFGS = (TERM_DIFF,)
+
 DRIVER_VERSION = (24, 8, 0)
 SERVICE_NAME = "nidaqmx_grpc.NiDAQmx"
 

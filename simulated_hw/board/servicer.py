@@ -20,10 +20,10 @@ from daq.errors import (
     ATTR_NOT_SUPPORTED_IN_TASK,
     DEVICE_NOT_FOUND,
     INVALID_ATTRIBUTE_VALUE,
-    DaqError,
 )
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
+    AI_TERM_CFGS,
     AO_FIFO_SAMPLES,
     ATTR_AI_MEAS_TYPE,
     ATTR_AO_IDLE_OUTPUT,
@@ -79,12 +79,15 @@ from simulated_hw.board.codes import (
     REGEN_DONT_ALLOW,
     REPEATED_PHYSICAL_CHAN,
     TASK_NOT_RUNNING,
+    TERM_DEFAULT,
+    TERM_NAMES,
     WRITE_NUM_CHANS_MISMATCH,
     WRITE_REL_CURR_POS,
     WRITE_REL_FIRST_SAMPLE,
     daq_error,
 )
 from simulated_hw.board.device import SimDevice
+from simulated_hw.board.device_rpcs import DeviceRpcs, _unsupported, attribute
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.board.watchdog_rpcs import WatchdogRpcs
@@ -134,11 +137,28 @@ def _chan_handler(kind: str, channel_field: str, name_field: str) -> Callable[..
                     f"{where}: range [{lo:g}, {hi:g}] V for {physical} is not within the "
                     f"device's +/-{limit:g} V (or min >= max)",
                 )
+        if kind == "ai":
+            _check_terminal_config(request, physical, where)
         for n, g in zip(names, groups, strict=True):
             task.channels.append(SimChannel(n, kind, g, lo, hi))
         return type(self)._responses[rpc](status=0)
 
     return handler
+
+
+def _check_terminal_config(request: Any, physical: list[str], where: str) -> None:
+    """An AI channel's terminal configuration must be one the device's channels allow (DAQmx
+    -200077 naming the property, as the driver reports it)."""
+    cfg = getattr(request, "terminal_config_raw", TERM_DEFAULT)
+    if cfg in (TERM_DEFAULT, 0) or cfg in AI_TERM_CFGS:  # 0: a request that left it unset
+        return
+    allowed = ", ".join(TERM_NAMES[c] for c in AI_TERM_CFGS)
+    raise daq_error(
+        INVALID_ATTRIBUTE_VALUE,
+        f"{where}: Requested value is not a supported value for this property. Property: "
+        f"AI.TermCfg, requested value: {TERM_NAMES.get(cfg, cfg)}, possible values: {allowed} "
+        f"(physical channel {', '.join(physical)})",
+    )
 
 
 # Which Create*Chan RPCs the simulated device serves: rpc -> (kind, channel field, name field).
@@ -150,7 +170,7 @@ CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
 }
 
 
-class SimulatedDaqmxServicer(WatchdogRpcs, pb_grpc.NiDAQmxServicer):
+class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, pb_grpc.NiDAQmxServicer):
     """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer UNIMPLEMENTED
     (the base class), which the client reports as ``nidaqmx.errors.RpcError``."""
 
@@ -191,15 +211,13 @@ class SimulatedDaqmxServicer(WatchdogRpcs, pb_grpc.NiDAQmxServicer):
     def GetSystemInfoAttributeUInt32(self, request, context):  # noqa: N802
         versions = dict(zip((ATTR_DRIVER_MAJOR, ATTR_DRIVER_MINOR, ATTR_DRIVER_UPDATE),
                             DRIVER_VERSION, strict=True))
-        if request.attribute_raw not in versions:
-            raise _unsupported("system", request.attribute_raw)
-        return pb.GetSystemInfoAttributeUInt32Response(value=versions[request.attribute_raw])
+        return pb.GetSystemInfoAttributeUInt32Response(
+            value=attribute(versions, "system", request.attribute_raw))
 
     @reports_daq_errors
     def GetSystemInfoAttributeString(self, request, context):  # noqa: N802
-        if request.attribute_raw != ATTR_SYS_DEVICES:
-            raise _unsupported("system", request.attribute_raw)
-        return pb.GetSystemInfoAttributeStringResponse(value=self.device.spec.name)
+        return pb.GetSystemInfoAttributeStringResponse(value=attribute(
+            {ATTR_SYS_DEVICES: self.device.spec.name}, "system", request.attribute_raw))
 
     @reports_daq_errors
     def CreateTask(self, request, context):  # noqa: N802
@@ -608,13 +626,6 @@ class SimulatedDaqmxServicer(WatchdogRpcs, pb_grpc.NiDAQmxServicer):
 
 for _rpc, (_kind, _chan_field, _name_field) in CREATE_CHAN_RPCS.items():
     setattr(SimulatedDaqmxServicer, _rpc, _chan_handler(_kind, _chan_field, _name_field))
-
-
-def _unsupported(group: str, attribute: int) -> DaqError:
-    return daq_error(
-        ATTR_NOT_SUPPORTED,
-        f"{group} attribute 0x{attribute:04X} is not supported by the simulated device",
-    )
 
 
 def _channel_list(task: SimTask) -> str:

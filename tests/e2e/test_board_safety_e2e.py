@@ -5,7 +5,6 @@ itself turns the pump relay off and holds the drives at 0 V, and says so in its 
 
 from __future__ import annotations
 
-import json
 import queue
 import signal
 import subprocess
@@ -18,6 +17,7 @@ import pytest
 
 from control.client import CommandClient, CommandRefused, Subscriber
 from daq.channels import default_channel_map, load_channel_map
+from daq.config_files import to_toml
 from storage.reader import open_run
 from tests.e2e.conftest import start_daemon
 from tests.e2e.test_stream_e2e import LONG_X
@@ -115,29 +115,6 @@ def test_the_board_stops_what_a_hung_or_dead_daemon_left_running(sim_server, tmp
         d.proc.communicate(timeout=10)
 
 
-def _toml(value: object, key: str = "") -> str:
-    """A channel map's JSON dump as TOML (scalars, lists, tables, arrays of tables)."""
-    def scalar(v: object) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, list | tuple):
-            return "[" + ", ".join(scalar(x) for x in v) + "]"
-        return json.dumps(v)
-
-    assert isinstance(value, dict)
-    lines = [f"{k} = {scalar(v)}" for k, v in value.items()
-             if v is not None and not isinstance(v, dict)
-             and not (isinstance(v, list) and v and isinstance(v[0], dict))]
-    for k, v in value.items():
-        name = f"{key}.{k}" if key else k
-        if isinstance(v, dict):
-            lines += [f"[{name}]", _toml(v, name)]
-        elif isinstance(v, list) and v and isinstance(v[0], dict):
-            for item in v:
-                lines += [f"[[{name}]]", _toml(item, name)]
-    return "\n".join(lines)
-
-
 def _wait_for_event(sub: Subscriber, containing: str, timeout_s: float = 30.0) -> str:
     while True:
         msg = sub.recv(timeout_s=timeout_s)
@@ -151,7 +128,7 @@ def test_the_emergency_stop_ramps_down_and_latches_a_fault_until_released_and_re
     data = default_channel_map().model_dump(mode="json")
     data["estop"] = {"physical_channel": "Dev1/port0/line1"}
     channels = tmp_path / "channels.toml"
-    channels.write_text(_toml(data))
+    channels.write_text(to_toml(data))
     assert load_channel_map(channels).estop is not None
     server = SimServer("--fast", "--channels", str(channels))
     d = start_daemon(tmp_path / "runs", "--backend", "nidaqmx", "--grpc-target",
