@@ -126,6 +126,8 @@ class Session:
             self.client.reset()
 
     def sweep(self, kind: str, spec: dict[str, Any], on_step: Any = None) -> None:
+        if not spec.get("lubricated"):
+            self.wait_film_drained()
         t0 = time.monotonic()
         try:
             run_id = self.client.start_sweep(spec, operator="bench_lab_day").data["run_id"]
@@ -148,8 +150,13 @@ class Session:
         self.client.request("pump", check=False, on=True)
         self.sweep("lubricated X", LUBRICATED_X)
         self.client.request("pump", check=False, on=False)
-        # dry sweeps are refused while the film drains (--film-drain-s): wait as an operator would
+
+    def wait_film_drained(self) -> None:
+        """Dry sweeps are refused while the film drains after the pump went off (a lubricated
+        sweep's, the flow test's; --film-drain-s): wait as an operator would."""
         t0 = time.monotonic()
+        if self.client.status()["film_drains_for_s"] <= 0:
+            return
         while (left := self.client.status()["film_drains_for_s"]) > 0:
             time.sleep(min(left, 1.0))
         self.record("film drained", t0, "completed", "")
