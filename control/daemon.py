@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import os
 import threading
 import time
@@ -343,7 +344,8 @@ class Daemon:
             # durable in the run file (a reader, or a crash, sees at least these)
             "samples_flushed": job.writer.writer.samples_flushed if job is not None else 0,
             "pump_on": bool(self.pump.is_on),
-            "film_drains_for_s": round(self.pump.drains_for_s(), 1),  # dry sweeps wait [s]
+            # dry sweeps wait [s]; rounded up: 0 only once a dry start is allowed
+            "film_drains_for_s": math.ceil(10 * self.pump.drains_for_s()) / 10,
             # what a display draws the orbit and the step table against
             "safety": {"radial_clearance_m": limits.radial_clearance_m,
                        "displacement_limit_m": limits.displacement_limit_m},

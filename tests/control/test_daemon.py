@@ -286,7 +286,12 @@ def test_a_dry_sweep_waits_for_the_film_to_drain_after_the_pump_goes_off(tmp_pat
             now[0] += 29.75
             with pytest.raises(CommandRefused, match="can start in 1 s"):
                 c.start_sweep({"blocks": 4})
-            now[0] += 0.25
+            assert c.status()["film_drains_for_s"] == 0.3  # 0.25 s, rounded up
+            now[0] += 0.21875
+            # 31 ms left: never "0" while a dry start is still refused (the lab-day bench waited
+            # for a rounded 0.0 and was refused)
+            assert c.status()["film_drains_for_s"] == 0.1
+            now[0] += 0.03125
             assert c.status()["film_drains_for_s"] == 0.0
             assert c.start_sweep({"blocks": 4}).ok
             wait_state(c, sub, "idle")
