@@ -46,6 +46,9 @@ PREDICT_BLOCKS = 8
 #: the ring and a host late past that heard an earlier drive (or the zeros before the step):
 #: 300 ms of the present command at each command keep most late hosts on it (bench_lab_day).
 PREDICT_RESTART_BLOCKS = 30
+#: A cycle reads at most this many blocks more while the backend holds AI read ahead (a host
+#: catching up): 0.25 s of 10 ms blocks.
+CATCH_UP_BLOCKS = 25
 
 
 @dataclass
@@ -197,6 +200,16 @@ class DriveStream:
         self._read_one(check=self.check_limits)
         if self.interrupt is not None:
             self.interrupt()
+        # a host behind the board (it read ahead, `ai_on_host`) takes up to a quarter second
+        # of blocks in this cycle: each block still checked, published and recorded, but the
+        # AO and the caller's per-cycle work once (through gRPC a cycle costs round trips)
+        extra = 0
+        while extra < CATCH_UP_BLOCKS and len(self._fifo) > 1 and \
+                self.backend.ai_on_host() >= self.block:
+            self._read_one(check=self.check_limits)
+            if self.interrupt is not None:
+                self.interrupt()
+            extra += 1
 
     def _predicted(self, n: int) -> bool:
         """Whether the ring already holds the next ``n`` samples as the synthesiser will make

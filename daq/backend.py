@@ -85,6 +85,11 @@ class DaqBackend(Protocol):
     def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
         """The next ``n`` AI samples per channel, volts, shape ``(n_ai, n)``."""
 
+    def ai_on_host(self) -> int:
+        """AI samples a host that fell behind has already taken from the board, which
+        `read_ai` hands out without a call or a wait (0 when on time, or where the backend
+        never reads ahead)."""
+
     def set_do(self, name: str, value: bool) -> None:
         """Set the relay line called ``name`` in the channel map."""
 

@@ -321,6 +321,10 @@ class NidaqmxBackend:
             self.feed_watchdog()
         return out
 
+    def ai_on_host(self) -> int:
+        """AI samples read ahead from the board (a host that was behind), not handed out."""
+        return 0 if self._ai_ahead is None else int(self._ai_ahead.shape[1])
+
     def _gen_paced(self, fs: float) -> bool:
         """Whether the board's answers of the last second count at its sample rate on the
         host's clock (a real board does; the sim-server's fast mode does not: it generates as

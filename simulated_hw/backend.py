@@ -232,6 +232,10 @@ class SimulatedBackend:
         self._read += n
         return rig.process(ao)
 
+    def ai_on_host(self) -> int:
+        """Never reads ahead: in process a read costs no round trip."""
+        return 0
+
     def set_do(self, name: str, value: bool) -> None:
         self.channel_map.relay(name)  # KeyError names the missing relay
         self._rest()  # the oil up to now followed the relay as it was

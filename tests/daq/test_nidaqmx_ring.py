@@ -216,3 +216,43 @@ def test_the_generation_count_is_asked_at_most_every_50_ms_and_never_runs_behind
             be.stop()
         finally:
             be.close()
+
+
+def test_a_stream_behind_the_board_catches_up_in_few_cycles():
+    """Issue 21: a lab-day daemon on the nidaqmx path fell 10 s behind the acquisition and
+    overflowed (-200279): every 10 ms block cost a cycle of round trips. After a 0.6 s stall the
+    stream now takes the blocks the backend read ahead several to a cycle (each one still read,
+    checked and recorded in order): 1.2 s of blocks in well under one cycle a block."""
+    import time
+
+    from daq.channels import default_channel_map
+
+    with SimulatedDeviceServer() as server:  # paced by the wall clock, as a board
+        be = NidaqmxBackend(watchdog_timeout_s=0.8, ao_ring_s=1.0)
+        try:
+            cm = on_server(server, default_channel_map())
+            be.configure(cm)
+            fs = cm.sample_rate_hz
+            block = int(0.01 * fs)
+            synth = SineSynthesizer(len(cm.ao), fs)
+            synth.ramp_to(AMP, FREQ, 0.0)
+            listener = RecordingListener()
+            stream = DriveStream(be, synth, SafetyMonitor(SafetyLimits(), cm), listener,
+                                 block, ahead_blocks=3, keep_samples=4 * block)
+            stream.check_limits = False
+            stream.start()
+            stream.advance_to(int(0.3 * fs))
+            be.feed_watchdog()
+            time.sleep(0.6)  # the host stalls (the condition under test, not a wait)
+            start, cycles = stream.sample, 0
+            while stream.sample < start + int(0.6 * fs):  # the blocks the stall left behind
+                stream.cycle()
+                cycles += 1
+            assert cycles <= 20, cycles  # 60 blocks: 60 cycles before
+            stream.advance_to(stream.sample + int(0.6 * fs))
+            # every block in order, none lost or doubled
+            firsts = [b[0] for b in listener.blocks]
+            assert firsts == list(range(0, stream.sample, block))
+            stream.shutdown(0.04)
+        finally:
+            be.close()
