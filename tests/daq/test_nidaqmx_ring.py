@@ -179,80 +179,79 @@ def test_a_hung_host_is_stopped_by_the_watchdog_not_by_the_ring(clocked_server, 
     assert not np.any(generated[:, expiry + 1:])  # 0 V from the expiry
 
 
-def test_the_generation_count_is_asked_at_most_every_50_ms_and_never_runs_behind(monkeypatch):
+@pytest.fixture
+def paced_ring() -> Iterator[NidaqmxBackend]:
+    """A ring backend configured on a sim-server paced by the wall clock, as a board is."""
+    from daq.channels import default_channel_map
+
+    with SimulatedDeviceServer() as server:
+        be = NidaqmxBackend(watchdog_timeout_s=0.8, ao_ring_s=1.0)
+        try:
+            be.configure(on_server(server, default_channel_map()))
+            yield be
+        finally:
+            be.close()
+
+
+def test_the_generation_count_is_asked_at_most_every_50_ms_and_never_runs_behind(paced_ring,
+                                                                                 monkeypatch):
     """Through gRPC every question is a round trip; asked every 10 ms block it was a sixth of
     a lab-day daemon's time (py-spy). Between answers the count comes from the host's clock
     and the board's answers of the last second: never below the board's own count read just
     before (a write would land too close), at most 5 ms beyond the one read just after."""
-    from daq.channels import default_channel_map
+    be = paced_ring
+    fs = be.channel_map.sample_rate_hz
+    be.write_ao(np.zeros((len(be.channel_map.ao), int(fs))), at=0)
+    be.start()
+    out = be._ao.out_stream
+    real = type(out).total_samp_per_chan_generated.fget
+    asked = [0]
 
-    with SimulatedDeviceServer() as server:  # paced by the wall clock, as a board
-        be = NidaqmxBackend(watchdog_timeout_s=0.8, ao_ring_s=1.0)
-        try:
-            cm = on_server(server, default_channel_map())
-            be.configure(cm)
-            fs = cm.sample_rate_hz
-            be.write_ao(np.zeros((len(cm.ao), int(fs))), at=0)
-            be.start()
-            out = be._ao.out_stream
-            real = type(out).total_samp_per_chan_generated.fget
-            asked = [0]
+    def counted(stream):
+        asked[0] += 1
+        return real(stream)
 
-            def counted(stream):
-                asked[0] += 1
-                return real(stream)
-
-            monkeypatch.setattr(type(out), "total_samp_per_chan_generated", property(counted))
-            for k in range(150):  # 1.5 s of 10 ms blocks, a question each, as a stream asks
-                before = real(out)
-                generated = be.ao_generated()
-                after = real(out)
-                assert before <= generated <= after + int(0.005 * fs), (k, before, generated,
-                                                                       after)
-                be.read_ai(100)
-                be.feed_watchdog()
-            # the first 0.2 s ask every block; then at most every 50 ms: 51 of 150
-            assert asked[0] <= 20 + 30 + 1, asked[0]
-            be.stop()
-        finally:
-            be.close()
+    monkeypatch.setattr(type(out), "total_samp_per_chan_generated", property(counted))
+    for k in range(150):  # 1.5 s of 10 ms blocks, a question each, as a stream asks
+        before = real(out)
+        generated = be.ao_generated()
+        after = real(out)
+        assert before <= generated <= after + int(0.005 * fs), (k, before, generated, after)
+        be.read_ai(100)
+        be.feed_watchdog()
+    # the first 0.2 s ask every block; then at most every 50 ms: 51 of 150
+    assert asked[0] <= 20 + 30 + 1, asked[0]
+    be.stop()
 
 
-def test_a_stream_behind_the_board_catches_up_in_few_cycles():
+def test_a_stream_behind_the_board_catches_up_in_few_cycles(paced_ring):
     """Issue 21: a lab-day daemon on the nidaqmx path fell 10 s behind the acquisition and
     overflowed (-200279): every 10 ms block cost a cycle of round trips. After a 0.6 s stall the
     stream now takes the blocks the backend read ahead several to a cycle (each one still read,
-    checked and recorded in order): 1.2 s of blocks in well under one cycle a block."""
+    checked and recorded in order): the 60 blocks behind in at most 20 cycles."""
     import time
 
-    from daq.channels import default_channel_map
-
-    with SimulatedDeviceServer() as server:  # paced by the wall clock, as a board
-        be = NidaqmxBackend(watchdog_timeout_s=0.8, ao_ring_s=1.0)
-        try:
-            cm = on_server(server, default_channel_map())
-            be.configure(cm)
-            fs = cm.sample_rate_hz
-            block = int(0.01 * fs)
-            synth = SineSynthesizer(len(cm.ao), fs)
-            synth.ramp_to(AMP, FREQ, 0.0)
-            listener = RecordingListener()
-            stream = DriveStream(be, synth, SafetyMonitor(SafetyLimits(), cm), listener,
-                                 block, ahead_blocks=3, keep_samples=4 * block)
-            stream.check_limits = False
-            stream.start()
-            stream.advance_to(int(0.3 * fs))
-            be.feed_watchdog()
-            time.sleep(0.6)  # the host stalls (the condition under test, not a wait)
-            start, cycles = stream.sample, 0
-            while stream.sample < start + int(0.6 * fs):  # the blocks the stall left behind
-                stream.cycle()
-                cycles += 1
-            assert cycles <= 20, cycles  # 60 blocks: 60 cycles before
-            stream.advance_to(stream.sample + int(0.6 * fs))
-            # every block in order, none lost or doubled
-            firsts = [b[0] for b in listener.blocks]
-            assert firsts == list(range(0, stream.sample, block))
-            stream.shutdown(0.04)
-        finally:
-            be.close()
+    be = paced_ring
+    cm = be.channel_map
+    fs = cm.sample_rate_hz
+    block = int(0.01 * fs)
+    synth = SineSynthesizer(len(cm.ao), fs)
+    synth.ramp_to(AMP, FREQ, 0.0)
+    listener = RecordingListener()
+    stream = DriveStream(be, synth, SafetyMonitor(SafetyLimits(), cm), listener,
+                         block, ahead_blocks=3, keep_samples=4 * block)
+    stream.check_limits = False
+    stream.start()
+    stream.advance_to(int(0.3 * fs))
+    be.feed_watchdog()
+    time.sleep(0.6)  # the host stalls (the condition under test, not a wait)
+    start, cycles = stream.sample, 0
+    while stream.sample < start + int(0.6 * fs):  # the blocks the stall left behind
+        stream.cycle()
+        cycles += 1
+    assert cycles <= 20, cycles  # 60 blocks: 60 cycles before
+    stream.advance_to(stream.sample + int(0.6 * fs))
+    # every block in order, none lost or doubled
+    firsts = [b[0] for b in listener.blocks]
+    assert firsts == list(range(0, stream.sample, block))
+    stream.shutdown(0.04)
