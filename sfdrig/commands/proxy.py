@@ -91,17 +91,30 @@ def run(args: argparse.Namespace) -> int:
         stop.set()
 
     old = {sig: signal.signal(sig, terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
-    # zmq.proxy_steerable blocks in C; a watcher thread turns the signal flag into TERMINATE.
-    watcher = threading.Thread(target=lambda: (stop.wait(), ctrl_in.send(b"TERMINATE")),
-                               name="sfdrig-proxy-stop", daemon=True)
-    watcher.start()
+    # zmq.proxy_steerable blocks in C. It runs in a thread of its own: Python runs a signal's
+    # handler only in the main thread, and a SIGTERM the kernel delivered to another thread
+    # never interrupted the main thread's poll (the proxy then ignored it: 1 in a few CI runs).
+    # The main thread waits in Python, wakes for the handler within 0.2 s, and steers the
+    # proxy to TERMINATE.
+    failure: list[BaseException] = []
+
+    def relay() -> None:
+        try:
+            zmq.proxy_steerable(xsub, xpub, None, ctrl_out)
+        except zmq.ContextTerminated:
+            pass
+        except BaseException as err:  # reported by the main thread
+            failure.append(err)
+
+    proxy = threading.Thread(target=relay, name="sfdrig-proxy", daemon=True)
+    proxy.start()
     try:
-        zmq.proxy_steerable(xsub, xpub, None, ctrl_out)
-    except zmq.ContextTerminated:
-        pass
+        while proxy.is_alive() and not stop.wait(0.2):
+            pass
     finally:
-        stop.set()
-        watcher.join(5)
+        if proxy.is_alive():
+            ctrl_in.send(b"TERMINATE")
+            proxy.join(5)
         for sig, handler in old.items():
             signal.signal(sig, handler)
         for s in (xsub, xpub, ctrl_in, ctrl_out):
@@ -109,4 +122,7 @@ def run(args: argparse.Namespace) -> int:
         if auth is not None:
             auth.stop()
         ctx.term()
+    if failure:
+        print(f"proxy: stopped: {failure[0]}", file=sys.stderr)
+        return 1
     return 0
