@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from control.client import CommandClient, CommandRefused, Subscriber
 from daq.channels import default_channel_map, load_channel_map
 from daq.config_files import to_toml
 from storage.reader import open_run
-from tests.e2e.conftest import start_daemon
+from tests.e2e.conftest import DaemonProcess, start_daemon
 from tests.e2e.test_stream_e2e import LONG_X
 
 #: long enough that the press (after the first step) always comes before its end; above the
@@ -123,8 +124,9 @@ def _wait_for_event(sub: Subscriber, containing: str, timeout_s: float = 30.0) -
             return msg.header["message"]
 
 
-@pytest.mark.paced
-def test_the_emergency_stop_ramps_down_and_latches_a_fault_until_released_and_reset(tmp_path):
+def estop_rig(tmp_path: Path) -> tuple[SimServer, DaemonProcess]:
+    """The sim-server with an emergency stop wired to Dev1/port0/line1, and a paced daemon on
+    it through nidaqmx, without a watchdog (a loaded machine must not trip it in these tests)."""
     data = default_channel_map().model_dump(mode="json")
     data["estop"] = {"physical_channel": "Dev1/port0/line1"}
     channels = tmp_path / "channels.toml"
@@ -133,7 +135,13 @@ def test_the_emergency_stop_ramps_down_and_latches_a_fault_until_released_and_re
     server = SimServer("--fast", "--channels", str(channels))
     d = start_daemon(tmp_path / "runs", "--backend", "nidaqmx", "--grpc-target",
                      server.address, "--channels", str(channels), "--watchdog-s", "0",
-                     fast=False)  # no watchdog: a loaded machine must not trip it here
+                     fast=False)
+    return server, d
+
+
+@pytest.mark.paced
+def test_the_emergency_stop_ramps_down_and_latches_a_fault_until_released_and_reset(tmp_path):
+    server, d = estop_rig(tmp_path)
     try:
         with CommandClient(d.command, timeout_s=10) as c, Subscriber(d.data, rcvhwm=0) as sub:
             sub.wait_connected()

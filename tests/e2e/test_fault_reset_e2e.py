@@ -9,26 +9,15 @@ import signal
 import pytest
 
 from control.client import Subscriber
-from daq.channels import default_channel_map, load_channel_map
-from daq.config_files import to_toml
 from storage.reader import open_run
-from tests.e2e.conftest import start_daemon
-from tests.e2e.test_board_safety_e2e import LONGER_X, SimServer, _wait_for_event, sfdrig
+from tests.e2e.test_board_safety_e2e import LONGER_X, _wait_for_event, estop_rig, sfdrig
 
 pytestmark = pytest.mark.e2e
 
 
 def test_status_reset_after_a_fault_and_the_next_sweep_runs(tmp_path, monkeypatch):
     monkeypatch.setenv("SFDRIG_RUNTIME_DIR", str(tmp_path / "locks"))
-    data = default_channel_map().model_dump(mode="json")
-    data["estop"] = {"physical_channel": "Dev1/port0/line1"}
-    channels = tmp_path / "channels.toml"
-    channels.write_text(to_toml(data))
-    assert load_channel_map(channels).estop is not None
-    server = SimServer("--fast", "--channels", str(channels))
-    d = start_daemon(tmp_path / "runs", "--backend", "nidaqmx", "--grpc-target",
-                     server.address, "--channels", str(channels), "--watchdog-s", "0",
-                     fast=False)
+    server, d = estop_rig(tmp_path)
     conn = ["--runs-dir", str(d.runs_dir)]
     try:
         with Subscriber(d.data, rcvhwm=0) as sub:
