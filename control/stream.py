@@ -139,6 +139,14 @@ class DriveStream:
         self._pred: SineSynthesizer | None = None
         self._pred_end = 0
         self._pred_prev: np.ndarray | None = None  # the drive before the next predicted block
+        # ring mode: what the ring may hold beyond the prediction (earlier commands' drives, or
+        # zeros): at most `_ring_amp_v` per channel [V], at `_ring_freq_hz` (NaN: unknown).
+        # A command that this does not stay under is predicted over the whole ring at once
+        self._ring_amp_v = np.zeros(len(self.cm.ao))
+        self._ring_freq_hz = 0.0
+        # ring mode: after a prediction over the whole ring, the slots it could not reach (the
+        # lead playing then, and the margin behind it): zeroed once played (absolute samples)
+        self._wrap_clear: tuple[int, int] | None = None
 
     @property
     def min_ao_backlog(self) -> int | None:
@@ -225,6 +233,7 @@ class DriveStream:
         over a drive limit ends it until the next command."""
         w = self.writer
         assert w.ring is not None
+        self._clear_wrap()
         if self._pred is None or self._pred.revision != self.synth.revision or \
                 self._pred_end < w.pos:
             if self._pred is not None and self._pred.revision == self.synth.revision and \
@@ -234,9 +243,22 @@ class DriveStream:
             _restore(self._pred, _snapshot(self.synth))
             self._pred_end = w.pos
             self._pred_prev = self.monitor.last_ao
-            most = PREDICT_RESTART_BLOCKS
+            target_v = np.abs(self.synth.target_phasors)
+            # a ramp's continuation holds the ramp too: its start, its end, or between
+            amp_v = np.maximum(np.abs(self.synth.phasors), target_v)
+            freq_hz = self.synth.target_freq_hz
+            # what a late host hears past the restart's blocks is an earlier command: safe only
+            # if it is at this frequency and no larger than this one's end (a raise); after a
+            # lower drive or a new frequency the whole ring is the new command's (issue 21:
+            # after a step to 20 Hz a 0.5 s stall played the 60 Hz step's 1.97 V of a ring ago
+            # and the orbit tripped)
+            stale_ok = (not np.any(self._ring_amp_v > 0)) or (
+                freq_hz == self._ring_freq_hz and self.synth.freq_hz == freq_hz
+                and bool(np.all(self._ring_amp_v <= target_v * (1 + 1e-9) + 1e-12)))
+            most = PREDICT_RESTART_BLOCKS if stale_ok else w.ring // self.block
         else:
             most = PREDICT_BLOCKS
+            amp_v, freq_hz, stale_ok = self._ring_amp_v, self._ring_freq_hz, True
         limit = w.generated + w.ring - self.block - w.margin
         if most == PREDICT_BLOCKS and limit - self._pred_end < PREDICT_BLOCKS * self.block:
             return  # extended by whole chunks: one write per chunk, not one per block
@@ -253,6 +275,33 @@ class DriveStream:
             self._pred_end += self.block
         if parts:
             w.write_at(start, np.concatenate(parts, axis=1))
+        whole = self._pred_end >= 0 and self._pred_end + self.block > limit
+        if whole and not stale_ok:
+            # the ring holds this command's continuation all round but for the slots of the
+            # lead now playing and the margin behind it: zeros there once the lead has played
+            self._ring_amp_v, self._ring_freq_hz = amp_v.copy(), freq_hz
+            self._wrap_clear = (self._pred_end, start + w.ring)
+        elif whole:
+            self._ring_amp_v, self._ring_freq_hz = np.maximum(self._ring_amp_v, amp_v), freq_hz
+        else:
+            self._ring_amp_v = np.maximum(self._ring_amp_v, amp_v)
+            self._ring_freq_hz = freq_hz if stale_ok else math.nan
+
+    def _clear_wrap(self) -> None:
+        """Ring mode: zero what a prediction over the whole ring left of the drive before it
+        (`_wrap_clear`) once the generation has passed it, beyond any newer prediction."""
+        if self._wrap_clear is None:
+            return
+        first, last = self._wrap_clear
+        w = self.writer
+        assert w.ring is not None
+        if w.generated + w.ring < last:
+            return  # the lead written before the prediction is still to play
+        if self._pred is not None and self._pred_end >= 0:
+            first = max(first, self._pred_end)
+        if first < last:
+            w.write_at(first, np.zeros((len(self.cm.ao), last - first)))
+        self._wrap_clear = None
 
     def _forget_prediction(self) -> None:
         self._pred = None

@@ -422,3 +422,34 @@ def test_the_stop_writes_its_fade_before_the_ring_of_zeros():
     assert zeros_at == fade_at + fade_n  # then zeros up to a ring from the generation
     assert fade_at + fade_n + zeros_n == generated + stream.writer.ring
     assert not np.any(stream.writer.mirror)
+
+
+@pytest.mark.parametrize("lower", ["new frequency", "lower drive"])
+def test_a_late_host_never_hears_an_earlier_larger_or_other_frequency_drive(lower):
+    """Commands every block (an approach's watched raise) predict only a few hundred ms into
+    the ring each; beyond that the ring holds what was written a ring ago. After a lower drive
+    or a new frequency that must not be the old drive: a stall past the restart's blocks once
+    played the 60 Hz step's 1.97 V at 20 Hz (issue 21, bench_lab_day; the orbit tripped). The
+    old drive here is 1.8 V; after the change a raise goes 0.1 -> 0.6 V a block at a time, then
+    the host stalls 0.8 s: the board plays at most the last command."""
+    clock = Clock()
+    old = np.array([1.8, 1.8j])
+    be, stream, _ = _stream(clock, amp=old, freq_hz=60.0)
+    stream.start()
+    stream.advance_to(int(2.5 * FS))  # the whole ring has held the old drive
+    stream.synth.ramp_to(np.zeros(2), None, 0.05)
+    stream.advance_to(stream.synth.sample + int(0.1 * FS))
+    if lower == "new frequency":
+        stream.synth.ramp_to(None, 20.0, 0.0)
+    for level in np.linspace(0.1, 0.6, 20):  # one command a block, each a raise
+        stream.synth.ramp_to(np.array([level, level * 1j]), None, BLOCK / FS)
+        stream.cycle()
+    last = float(np.max(np.abs(stream.synth.target_phasors)))
+    played_before = sum(b.shape[1] for b in be.generated_ao)
+    clock.now += 0.8
+    stream.advance_to(stream.sample + int(1.0 * FS))
+    generated = np.concatenate(be.generated_ao, axis=1)[:, played_before:]
+    assert stream.writer.repeated >= 0.8 * FS - 4 * BLOCK
+    # what the ring played while the host was away: the last command, not 1.8 V
+    assert float(np.max(np.abs(generated))) <= last + 1e-9
+    stream.shutdown(0.04)
