@@ -7,6 +7,7 @@ error reply and changes nothing.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from typing import TYPE_CHECKING, Any
@@ -224,7 +225,10 @@ class CommandHandler:
         fanout = FanOut([], [d.publisher])
         desk = OperatorDesk(lambda kind, message: fanout.on_event(kind, message,
                                                                   fanout.last_sample))
-        engine = ProgramEngine(req.test, d.backend, spec, fanout, desk, d.hands, d.pump.set)
+        # the flow test switches the pump itself, and only it may while it runs
+        owner = object()
+        engine = ProgramEngine(req.test, d.backend, spec, fanout, desk, d.hands,
+                               functools.partial(d.pump.set, owner=owner))
         run_id = f"{new_run_id()}-{req.test}"
         path = d.cfg.runs_dir / f"{run_id}.h5"
         try:
@@ -239,8 +243,10 @@ class CommandHandler:
         fanout.required.append(background)
         d.job = RunJob(run_id, path, engine, background, fanout)
         d.publisher.set_run(run_id)
-        if req.test in DRY_TESTS:  # the flow test switches the pump itself
+        if req.test in DRY_TESTS:
             d.hold_pump(f"the dry {req.test} test {run_id}")
+        else:
+            d.hold_pump(f"the {req.test} test {run_id}", owner)
         d.sm.fire("start")
         d.loop.submit(d.job)
         return self._ok(req, run_id=run_id, path=str(path))

@@ -274,10 +274,10 @@ class Daemon:
             self._engine_factory = self._engine_factory or SweepEngine
         return self._spec_parser, self._engine_factory
 
-    def hold_pump(self, what: str) -> None:
-        """Hold the pump relay as it is until the run ends (`control.pump.PumpRelay`: the one
-        place that refuses a switch while a run holds it)."""
-        self._pump_hold.enter_context(self.pump.shakers_running(what))
+    def hold_pump(self, what: str, owner: object | None = None) -> None:
+        """Hold the pump relay until the run ends (`control.pump.PumpRelay`: the one place
+        that refuses a switch while a run holds it): as it is, or switched by ``owner`` alone."""
+        self._pump_hold.enter_context(self.pump.shakers_running(what, owner))
 
     # --- called from the acquisition thread ---------------------------------------------------
     def _run_started(self, job: RunJob) -> None:

@@ -10,6 +10,8 @@ interlock (a lubricated sweep waits, with zero drive, for the inlet pressure to 
 the sweep engine, which owns the acquisition. The film does not empty when the pump stops:
 `PumpRelay.drains_for_s` says how long it still drains (``drain_s`` after the switch off), and
 the daemon refuses a dry sweep until then, for the same reason as a pump on during a dry run.
+A run that switches the pump itself (the flow test) holds the relay as its owner: only its own
+switches (``owner=``) go through, every other one is refused until it ends.
 """
 
 from __future__ import annotations
@@ -56,7 +58,8 @@ class PumpRelay:
         self._on_change = on_change
         self._lock = threading.Lock()
         self._on = False
-        self._holds: list[str] = []  # what holds the relay (outermost first)
+        # what holds the relay (outermost first), with its owner (None: nobody may switch it)
+        self._holds: list[tuple[str, object | None]] = []
         self.drain_s = float(drain_s)
         self._clock = clock
         self._off_at: float | None = None  # when it last went from on to off
@@ -78,18 +81,26 @@ class PumpRelay:
         """Whether a sweep engine holds the interlock (its shakers may be moving)."""
         return bool(self._holds)
 
-    def set(self, on: bool) -> None:
-        """Switch the pump on or off (switching it to the state it is in is always allowed).
+    def set(self, on: bool, owner: object | None = None) -> None:
+        """Switch the pump on or off (switching it to the state it is in is allowed unless a
+        run owns the relay). ``owner``: the token of the run that owns the relay, if this is
+        its switch (`shakers_running`).
 
         Raises
         ------
         InterlockError
             On an attempt to switch it while a run holds it: off during a lubricated run, on
-            during a dry one.
+            during a dry one, either way during a run that owns it (the flow test).
         """
         with self._lock:
-            if self._holds and bool(on) != self._on:
-                what = self._holds[0]
+            for what, held_by in self._holds:
+                if held_by is not None and held_by is not owner:
+                    raise InterlockError(
+                        f"pump {self.name!r} cannot be switched by hand during {what}: the test "
+                        "switches it itself; abort the test or let it end first")
+            fixed = [what for what, held_by in self._holds if held_by is None]
+            if fixed and bool(on) != self._on:
+                what = fixed[0]
                 if on:
                     raise InterlockError(
                         f"pump {self.name!r} cannot be switched on during {what}: its dwells "
@@ -121,11 +132,13 @@ class PumpRelay:
             self._on_change(False, f"pump {self.name!r} switched off by the board ({why})")
 
     @contextmanager
-    def shakers_running(self, what: str = "") -> Iterator[None]:
+    def shakers_running(self, what: str = "", owner: object | None = None) -> Iterator[None]:
         """Hold the interlock for the duration of a run: the pump stays as it is now (on for a
-        lubricated run, off for a dry one). ``what`` names the run in refusals."""
+        lubricated run, off for a dry one), or, with an ``owner`` token, only the run's own
+        switches (``set(on, owner=token)``) go through. ``what`` names the run in refusals."""
         with self._lock:
-            entry = what or ("a lubricated run" if self._on else "a dry run")
+            name = what or ("a lubricated run" if self._on else "a dry run")
+            entry = (name, owner)
             self._holds.append(entry)
         try:
             yield

@@ -93,6 +93,32 @@ def test_a_dry_run_refuses_pump_on_and_a_lubricated_one_pump_off():
     assert not pump.shakers_active and not be.rig.pump_on
 
 
+def test_a_run_that_owns_the_relay_alone_switches_it():
+    """The flow test switches the pump itself: while it holds the relay as its owner, its own
+    switches go through and every other one is refused, on or off, even to the same state."""
+    be = make_backend()
+    pump = PumpRelay(be)
+    token = object()
+    refused = pytest.raises(InterlockError, match="cannot be switched by hand during the flow "
+                                                  "test F1: the test switches it itself")
+    with pump.shakers_running("the flow test F1", owner=token):
+        pump.set(True, owner=token)
+        assert pump.is_on and be.rig.pump_on
+        with refused:
+            pump.set(False)
+        with refused:
+            pump.set(True)
+        with refused:
+            pump.set(False, owner=object())  # another run's token is not the owner's
+        assert pump.is_on and be.rig.pump_on
+        pump.set(False, owner=token)
+        with refused:
+            pump.set(True)
+        assert not pump.is_on and not be.rig.pump_on
+    pump.set(True)  # the run is over: the operator's again
+    assert pump.is_on and not pump.shakers_active
+
+
 def test_pressure_lost_while_running_trips():
     """A pump failure mid-run (the relay drops out behind the software's back)."""
     be = make_backend(seed=5)

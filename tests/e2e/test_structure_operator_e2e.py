@@ -13,7 +13,7 @@ import pexpect
 import pytest
 
 from analysis.structure import identify_impact, identify_probe_calibration, identify_static
-from control.client import CommandClient
+from control.client import CommandClient, CommandRefused
 from storage import open_run
 from tests.e2e.conftest import REPO_ROOT
 
@@ -182,6 +182,14 @@ def test_abort_half_way_through_the_flow_test(daemon_factory) -> None:
     t.type("10 kPa")
     where, text = t.next()
     assert "15.5 kPa" in text and where == "flow 15.5 kPa pass 1, point 2/3"
+    # the test owns the pump while it runs: a client's switch, either way, is refused
+    with CommandClient(d.command) as c:
+        for on in (False, True):
+            with pytest.raises(CommandRefused, match=r"pump: pump 'pump' cannot be switched by "
+                                                   r"hand during the flow test .*: the test "
+                                                   "switches it itself"):
+                c.pump(on)
+        assert c.status()["pump_on"] is True
     t.type("a")
     status, reason, path, code, rest = t.finish()
     assert status == "aborted" and code == 1 and "Traceback" not in rest
