@@ -123,6 +123,10 @@ class DriveStream:
         self._hist_len = 0
         self._started = False
         self.zero_sample: int | None = None  # first sample of the final all-zero output
+        #: the end of the last samples a late host's ring played other than the present
+        #: command's drive (an earlier command beyond the prediction): what was read before it
+        #: answered another drive than the synthesiser's (-1: none)
+        self.other_drive_end = -1
         #: the soft limit: called with every engineering block read while limits are checked;
         #: a non-empty answer (why) halves the drive at once and is kept in `guard_event`
         #: (first sample of the block, why) until the caller clears it
@@ -550,8 +554,10 @@ class DriveStream:
         """Move past at least ``n`` samples (whole blocks) the ring plays, as a late host does."""
         for _ in range(math.ceil(n / self.block)):
             self._states.append(_snapshot(self.synth))
-            self.synth.next_block(self.block)
+            meant = self.synth.next_block(self.block)
             played = self.writer.played(self.block)
+            if not np.allclose(played, meant, rtol=0.0, atol=1e-9):
+                self.other_drive_end = self.writer.pos
             self._fifo.append(played)
             # the next block written follows what the ring played, not what was last written
             # (at 150 Hz a 10 ms block is 1.5 cycles: that reference saw a jump of 2x the drive)

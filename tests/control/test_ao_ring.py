@@ -473,18 +473,23 @@ class Stalling(SimulatedBackend):
         return super().read_ai(n, timeout_s)
 
 
-@pytest.mark.parametrize("seed", [20, 24, 31])
-def test_a_lubricated_sweep_on_a_stalling_host_approaches_every_step_without_a_trip(seed):
+@pytest.mark.parametrize(("seed", "p"), [(20, 0.005), (24, 0.005), (31, 0.005), (17, 0.01),
+                                         (97, 0.01)])
+def test_a_lubricated_sweep_on_a_stalling_host_approaches_every_step_without_a_trip(seed, p):
     """bench_lab_day's lubricated X sweep (13-38 um, 20-60 Hz) with the host stalling before
-    one read in 200 (20-500 ms): with these seeds the ring played the 60 Hz step's drive during
-    the 20 Hz approach of the next amplitude and the orbit tripped at 64-65 um (issue 21; 5 of
-    60 seeds failed). Every step converges, the orbit stays under the limit."""
+    one read in 200 or in 100 (20-500 ms). Issue 21, at these seeds: in one in 200, the ring
+    played the 60 Hz step's drive during the 20 Hz approach of the next amplitude and the orbit
+    tripped at 64-65 um (5 of 60 seeds failed); in one in 100, after the whole-ring prediction,
+    the ring played an earlier, smaller command of the raise past the 300 ms a command writes,
+    the seal's friction stuck the housing, and its regrowth at the same drive set off the
+    soft limit's growth check (2 of 100 seeds: the step did not converge). Every step
+    converges, the orbit stays under the limit."""
     from control.pump import PumpRelay
     from control.spec import SweepSpec
     from control.sweep import SweepEngine
 
     clock = Clock()
-    be = Stalling(clock, seed, 0.005)
+    be = Stalling(clock, seed, p)
     be.configure(CM)
     pump = PumpRelay(be)
     pump.set(True)
