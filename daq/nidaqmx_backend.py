@@ -44,6 +44,7 @@ import math
 import time
 import uuid
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -100,12 +101,17 @@ class NidaqmxBackend:
         The regenerating AO ring [s]; None: non-regenerating. Needs the watchdog, at least
         ``RING_OVER_WATCHDOG_S`` shorter than the ring (a hung host is stopped by it before an
         abort's fade could come round again).
+    clock : callable
+        The host's monotonic clock [s] (default `time.monotonic`): the watchdog's feeding, the
+        AI read-ahead and the AO generation estimate count on it (tests pass the fake clock
+        of a sim-server paced on it).
     """
 
     def __init__(self, buffer_s: float = 10.0, connect_timeout_s: float = 5.0,
                  grpc_target: str | None = None,
                  watchdog_timeout_s: float | None = 1.0,
-                 ao_ring_s: float | None = None) -> None:
+                 ao_ring_s: float | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         if buffer_s <= 0:
             raise ValueError(f"buffer_s must be positive, got {buffer_s}")
         if ao_ring_s is not None:
@@ -117,6 +123,7 @@ class NidaqmxBackend:
                     f"ao_ring_s = {ao_ring_s:g} s needs a watchdog_timeout_s of at most "
                     f"{ao_ring_s - RING_OVER_WATCHDOG_S:g} s, got {watchdog_timeout_s}: a ring "
                     "repeats its drive for as long as a hung host leaves it")
+        self._clock = clock
         self.ao_ring_s = ao_ring_s
         self._ring: int | None = None  # the ring in use (samples), once configured
         self._written_end = 0
@@ -199,7 +206,7 @@ class NidaqmxBackend:
         was a sixth of the daemon's time. Cuts (`cut_ao`) always ask the board."""
         if self._ao is None or not self._running:
             return 0
-        now = time.monotonic()
+        now = self._clock()
         fs = self.channel_map.sample_rate_hz
         answers = self._gen_answers
         if answers and now - answers[-1][0] < GEN_QUERY_S and self._gen_paced(fs):
@@ -245,7 +252,7 @@ class NidaqmxBackend:
             self._ai.start()
         self._running = True
         self._gen_answers.clear()
-        self._ai_started_at = time.monotonic()
+        self._ai_started_at = self._clock()
         self._ai_taken = 0
         self._ai_ahead = None
 
@@ -317,7 +324,7 @@ class NidaqmxBackend:
         self._ai_ahead = rest if rest.shape[1] else None
         self._ai_taken += n
         if self._watchdog is not None and self.watchdog_timeout_s is not None and \
-                time.monotonic() - self._fed_at > self.watchdog_timeout_s / 4:
+                self._clock() - self._fed_at > self.watchdog_timeout_s / 4:
             self.feed_watchdog()
         return out
 
@@ -340,7 +347,7 @@ class NidaqmxBackend:
         calls instead of one per block (the e-stop and the gRPC round trip with each). What
         is read ahead is handed out by the next `read_ai` calls without a call."""
         fs = self.channel_map.sample_rate_hz
-        held = int((time.monotonic() - self._ai_started_at) * fs) - self._ai_taken - have
+        held = int((self._clock() - self._ai_started_at) * fs) - self._ai_taken - have
         extra = min(held - 2 * need, int(AI_CATCH_UP_S * fs))
         return need + need * max(extra // need, 0)
 
@@ -364,7 +371,7 @@ class NidaqmxBackend:
             return
         with translate_errors("resetting the watchdog timer"):
             self._watchdog.reset_timer()
-        self._fed_at = time.monotonic()
+        self._fed_at = self._clock()
 
     def _clear_expired_watchdog(self) -> None:
         if self._watchdog is None:
@@ -625,7 +632,7 @@ class NidaqmxBackend:
                              "rely on their idle output and the AO underflow", err)
         with translate_errors("starting the watchdog timer"):
             self._watchdog.start()
-        self._fed_at = time.monotonic()
+        self._fed_at = self._clock()
 
 
 def terminal_configuration(config: TerminalConfig) -> Any:

@@ -10,6 +10,10 @@ Tests against the wall clock, and the pytest-xdist workers (`./dev test` runs on
   one group (one worker, one after the other), so no two of them compete with each other.
 - the tests of a module that use a module-scoped fixture form one group, so that fixture is
   built once (by one worker), not once per worker.
+
+Markers tell the truth: collection fails on a test under tests/e2e without ``e2e`` or on a test
+reading ../shared (``shared_dir``) without ``needs_shared``; ``held_out`` tests run only when the
+``-m`` expression names them.
 """
 
 from __future__ import annotations
@@ -82,10 +86,41 @@ def _run_root(config: pytest.Config) -> Path:
     return base.parent if _xdist_worker() else base
 
 
+def _deselect_held_out(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Drop the ``held_out`` tests (diagnose's held-out seeds) unless the ``-m`` expression names
+    them: they run before a diagnose change lands (``./dev test -m held_out``), never in the
+    default run nor with ``-m slow``, so nobody tunes diagnose against them."""
+    if "held_out" in (config.getoption("markexpr", "") or ""):
+        return
+    held = [item for item in items if item.get_closest_marker("held_out") is not None]
+    if held:
+        config.hook.pytest_deselected(items=held)
+        items[:] = [item for item in items if item.get_closest_marker("held_out") is None]
+
+
+def _untruthful_markers(items: list[pytest.Item]) -> list[str]:
+    """Tests whose markers do not say what they do: one under tests/e2e (real processes and
+    sockets) without ``e2e``, one reading ../shared (``shared_dir``) without ``needs_shared``."""
+    wrong = []
+    for item in items:
+        parts = Path(str(item.path)).parts
+        if "e2e" in parts and "tests" in parts and item.get_closest_marker("e2e") is None:
+            wrong.append(f"{item.nodeid}: under tests/e2e without the e2e marker")
+        uses_shared = "shared_dir" in getattr(item, "fixturenames", ())
+        if uses_shared != (item.get_closest_marker("needs_shared") is not None):
+            wrong.append(f"{item.nodeid}: the shared_dir fixture and the needs_shared marker "
+                         "go together")
+    return wrong
+
+
 @pytest.hookimpl(trylast=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Each worker writes the groups of what it collected (the same for all) for the
-    controller's scheduler (`_GroupScheduling`)."""
+    """Markers checked (`_untruthful_markers`: a collection error); the held-out tests dropped
+    (`_deselect_held_out`); each worker writes the groups of what it collected (the same for
+    all) for the controller's scheduler (`_GroupScheduling`)."""
+    if wrong := _untruthful_markers(items):
+        raise pytest.UsageError("markers that do not tell the truth:\n  " + "\n  ".join(wrong))
+    _deselect_held_out(config, items)
     if not _xdist_worker():
         return
     groups = {item.nodeid: g for item in items if (g := _xdist_group(item)) is not None}

@@ -43,8 +43,9 @@ REFINEMENT_SHARE = 0.005
 #: cause of that remainder, however small a share of the signal it is (held-out gain 2)
 REMAINDER_SHARE = 0.75
 #: residual RMS, in noise-floor RMS, beyond which what a model leaves is a discrepancy however
-#: small a share of the signal it is (a model describing the data leaves the noise: the clean
-#: independent cases leave 1.03-1.04x)
+#: small a share of the signal it is (a model describing the data leaves the noise, about 1x;
+#: 1.5x is a systematic remainder of sqrt(1.5^2 - 1) = 1.1 noise RMS, larger than the noise
+#: itself and far beyond the scatter of an RMS estimated over thousands of samples)
 NOISE_MARGIN = 1.5
 
 
@@ -207,10 +208,11 @@ def refinement_share(before: SignalFit, after: SignalFit) -> tuple[bool, float]:
     ``UNEXPLAINED_SHARE`` of the signal above the noise floor and, where the floor is known,
     within ``NOISE_MARGIN`` of it), that explains less than ``REFINEMENT_SHARE`` of the signal
     and less than ``REMAINDER_SHARE`` of what was left, refines the model: the data support it,
-    but it names no cause (on Silverbox, a circuit, a micro-slip element fits a third of what the
-    polynomial leaves, 0.002 % of the signal). A term that removes most of the remainder is its
-    cause, however small (a hidden cubic spring in a sweep whose linear model explains 99.5 %:
-    0.4 % of the signal, 97 % of the remainder).
+    but it names no cause (a flexible term that fits part of what a good model leaves, a few
+    thousandths of a percent of the signal, describes the residual, not its origin). A term that
+    removes most of the remainder is its cause, however small a share of the signal that
+    remainder is (a weak nonlinearity beside a linear model that explains 99.5 % of the signal:
+    under 0.5 % of the signal, nearly all of what the linear model leaves).
     """
     share = after.explained - before.explained
     beyond_noise = before.noise_rms > 0 and before.residual_rms > NOISE_MARGIN * before.noise_rms

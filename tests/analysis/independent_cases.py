@@ -78,8 +78,8 @@ OUTSIDE_LIBRARY = ("stiffness_drift",)
 
 #: Each library case's main parameter (its name in diagnose's JSON) and the relative tolerance it
 #: is judged on, in brackets the largest error measured (2026-11-25; the library documents
-#: 10-20 %): CI's cases (cross coupling, air, joint) at seeds 1-5 and the day's rotating seed
-#: (945), tolerance 3-5x; the others at seeds 1-3 (second mode, viscosity, sensor gain, delay:
+#: 10-20 %): cross coupling, air and joint at seeds 1-5 and 945 (CI's seed of the day then),
+#: tolerance 3-5x; the others at seeds 1-3 (second mode, viscosity, sensor gain, delay:
 #: 1-2), about 5x
 TOLERANCE: dict[str, tuple[str, float]] = {
     "coulomb_friction": ("friction_force_N", 0.015),  # [0.34 %]
@@ -286,7 +286,7 @@ def coupling_chosen(doc: dict[str, Any]) -> float | None:
 
 
 #: the rods' cross stiffness taken into the fitted baseline, relative: measured within 0.07 % at
-#: seeds 1-5 (README) and 0.13 % at the rotating seed of 2026-11-25 (945); was 10 %
+#: seeds 1-5 (README) and 0.13 % at seed 945; was 10 %
 COUPLING_TOLERANCE = 0.005
 
 

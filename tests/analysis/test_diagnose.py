@@ -17,7 +17,7 @@ from sfdrig.cli import main
 from simulated_hw import load_rig_params
 from simulated_hw.params import RigParams
 from tests.analysis.hidden_effects import make_case
-from tests.analysis.independent_cases import make_independent_case
+from tests.analysis.independent_cases import COUPLING_TOLERANCE, make_independent_case
 
 
 def test_parse_spans():
@@ -167,12 +167,13 @@ def test_cli_json_report_and_extended_model(tmp_path, capsys):
     assert set(f) >= {"parameters", "error_before", "error_after", "gain", "gain_interval",
                       "evidence"}
     k3 = case.effects["cubic_stiffness"]["k3_N_per_m3"]
-    assert f["parameters"]["k3_N_per_m3"] == pytest.approx(k3, rel=0.1)
+    # measured -0.42 % at this seed (5), within 0.05 % at seeds 6-8: held to 2 %
+    assert f["parameters"]["k3_N_per_m3"] == pytest.approx(k3, rel=0.02)
     assert f["gain"] == pytest.approx(f["error_before"] / f["error_after"])
     assert doc["baseline"]["rms_error"] == pytest.approx(f["error_before"])
     ext = load_rig_params(doc["extended_model"])
     assert ext.effects.cubic_stiffness.enabled
-    assert ext.effects.cubic_stiffness.k3_n_per_m3 == pytest.approx(k3, rel=0.1)
+    assert ext.effects.cubic_stiffness.k3_n_per_m3 == pytest.approx(k3, rel=0.02)
     page = (rep / "index.html").read_text()
     assert "cubic_stiffness" in page and "dwells.png" in page
     for png in ("time.png", "dwells.png", "harmonics.png", "segments.png", "errors.png"):
@@ -184,7 +185,8 @@ def test_cli_json_report_and_extended_model(tmp_path, capsys):
                "--max-effects", "1"])
     again = json.loads((tmp_path / "again.json").read_text())
     assert rc == 0 and again["findings"] == []
-    assert again["baseline"]["rms_error"] == pytest.approx(f["error_after"], rel=0.05)
+    # the same replay: measured identical (seeds 5-8)
+    assert again["baseline"]["rms_error"] == pytest.approx(f["error_after"], rel=1e-9)
 
 
 def test_the_start_leaves_out_an_axis_a_dwell_does_not_drive(tmp_path):
@@ -221,11 +223,13 @@ def test_cli_coupled_axes_in_the_order_table_report_and_extended_model(tmp_path,
     base = doc["baseline"]
     want = case.truth["stiffness_xy_N_per_m"]
     assert base["coupled_axes"] is True
-    assert base["parameters"]["stiffness_xy_N_per_m"] == pytest.approx(want, rel=0.1)
+    # within 0.07 % at seeds 1-5 (independent_cases.COUPLING_TOLERANCE)
+    assert base["parameters"]["stiffness_xy_N_per_m"] == pytest.approx(want,
+                                                                      rel=COUPLING_TOLERANCE)
     assert [r["coupled_axes"] for r in base["order_selection"]] == [False, True]
     assert "axes coupled (k_xy" in (rep / "index.html").read_text()
     ext = load_rig_params(doc["extended_model"])
-    assert ext.structure.stiffness_xy_n_per_m == pytest.approx(want, rel=0.1)
+    assert ext.structure.stiffness_xy_n_per_m == pytest.approx(want, rel=COUPLING_TOLERANCE)
 
 
 def test_cli_bad_input_exits_2(tmp_path, capsys):

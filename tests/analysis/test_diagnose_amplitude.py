@@ -62,17 +62,20 @@ def test_softening_joint_pattern_per_run():
     dep = amplitude_dependence(records, _all(records))
     assert [lv.label for lv in dep.levels] == ["L10", "L30", "L90"]
     fn_true = [math.sqrt(400e3 * (1 - 0.06 * i) / M) / (2 * math.pi) for i in range(3)]
+    # measured over the noise of rng seeds 4-9: natural frequency within 3.9e-7, damping ratio
+    # 1.24e-5; the change over the levels +3.2 % at every seed (the bias of the fit over
+    # log(level)); the linear structure's change within 3.7e-7 of zero
     for lv, f in zip(dep.levels, fn_true, strict=True):
-        assert lv.natural_hz == pytest.approx(f, rel=0.002)
+        assert lv.natural_hz == pytest.approx(f, rel=2e-6)
         assert lv.force_n == pytest.approx(float(lv.label[1:]), rel=1e-3)
     zeta_true = [300.0 * (1 + 0.5 * i) / (2 * math.sqrt(400e3 * (1 - 0.06 * i) * M))
                  for i in range(3)]
     for lv, z in zip(dep.levels, zeta_true, strict=True):
-        assert lv.damping_ratio == pytest.approx(z, rel=0.02)
+        assert lv.damping_ratio == pytest.approx(z, rel=5e-5)
     assert dep.frequency["x"].verdict == "softening"
     assert dep.damping["x"].verdict == "rising"
     # fitted over log(level): the change from the lowest to the highest level
-    assert dep.frequency["x"].change == pytest.approx(fn_true[2] / fn_true[0] - 1, rel=0.15)
+    assert dep.frequency["x"].change == pytest.approx(fn_true[2] / fn_true[0] - 1, rel=0.05)
     assert "joint_microslip" in dep.effects["x"]
     assert dep.nonlinear()
     # a level-independent term alone cannot carry the trend; beside a level term it may
@@ -89,7 +92,7 @@ def test_linear_structure_shows_no_trend():
     records = _runs(softening=False)
     dep = amplitude_dependence(records, _all(records))
     assert dep.frequency["x"].verdict == "none" and dep.damping["x"].verdict == "none"
-    assert abs(dep.frequency["x"].change) < 0.002
+    assert abs(dep.frequency["x"].change) < 2e-6  # measured 3.7e-7 (seeds 4-9)
     assert dep.effects["x"] == [] and not dep.nonlinear()
     assert contradictions(dep, [("second_mode", {})]) == {}
 

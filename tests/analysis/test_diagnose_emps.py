@@ -31,9 +31,11 @@ def test_emps_coulomb_friction_is_named_first(shared_dir, tmp_path, name):
     first = doc["findings"][0]
     assert first["effect"] == "coulomb_friction"
     assert first["evidence"]["confidence"] == "high"
-    assert first["parameters"]["friction_force_N"] == pytest.approx(20.4, rel=0.10)
+    # against the reference identification, measured: F_c +0.43 % / +0.98 % (DATA_EMPS /
+    # PULSES), M +0.16 % / -0.91 %, F_v -0.60 % / +4.99 %: held to 3 %, 3 % and 10 %
+    assert first["parameters"]["friction_force_N"] == pytest.approx(20.4, rel=0.03)
     final = doc["final_parameters"]
-    assert final["mass_kg"] == pytest.approx(95.1, rel=0.05)
+    assert final["mass_kg"] == pytest.approx(95.1, rel=0.03)
     assert final["damping_Ns_per_m"] == pytest.approx(203.5, rel=0.10)
     assert [f["effect"] for f in doc["findings"][1:]
             if f["evidence"]["confidence"] == "high"] == []

@@ -42,7 +42,8 @@ def test_sweep_engine_run_with_hidden_cubic_spring(tmp_path):
     assert diag.baseline_kind == "config"
     assert [f.effect for f in diag.findings] == ["cubic_stiffness"]
     k3 = diag.findings[0].parameters["k3_N_per_m3"]
-    assert k3 == pytest.approx(3e13, rel=0.10)
+    # measured +0.073 % (rig seed 3), +0.017 % and +0.022 % (seeds 4, 5): held to 0.3 %
+    assert k3 == pytest.approx(3e13, rel=0.003)
     assert not diag.unexplained
 
 

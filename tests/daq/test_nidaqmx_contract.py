@@ -5,7 +5,6 @@ back from the simulated NI-DAQmx device server the same rig response as the in-p
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ from daq.channels import ChannelMap, default_channel_map
 from daq.nidaqmx_backend import NidaqmxBackend
 from simulated_hw import RigParams, SimulatedBackend
 from simulated_hw.grpc_server import SimulatedDeviceServer
-from tests.daq.conftest import on_server
+from tests.daq.conftest import FakeClock, on_server
 
 FS_HZ = 10_000.0
 DRIVE_HZ = 25.0  # 400 samples per cycle
@@ -66,11 +65,11 @@ def lockin_sigma_v(cm: ChannelMap, name: str, params: RigParams, n: int) -> floa
     return math.sqrt(2 * (sigma_v**2 + lsb**2 / 12) / n)
 
 
-@pytest.mark.paced
 def test_grpc_backend_matches_in_process_simulation_paced() -> None:
-    """Paced server (10 kS/s real time), 14 AI channels, 3 s.
+    """Paced server (10 kS/s on its clock: a fake clock the host counts on too, moved on as
+    the reads wait for their samples), 14 AI channels, 3 s.
 
-    Tolerance: the server's rig runs in chunks set by the wall clock, so its noise draws differ
+    Tolerance: the server's rig runs in chunks set by its clock, so its noise draws differ
     from the in-process run (the physics does not: with the noise switched off the two agree
     sample for sample). Each lock-in estimate then carries independent noise of s per
     component (`lockin_sigma_v`); their difference has sqrt(2) s per component, and we allow
@@ -81,8 +80,10 @@ def test_grpc_backend_matches_in_process_simulation_paced() -> None:
     cm = default_channel_map()
     assert len(cm.ai) >= 13 and cm.sample_rate_hz == FS_HZ
     expected = run_sine(SimulatedBackend(params, seed=SEED), cm, n_blocks)
-    with SimulatedDeviceServer(params=params, seed=SEED) as server:
-        got = run_sine(NidaqmxBackend(), on_server(server, cm), n_blocks)
+    clock = FakeClock()
+    with SimulatedDeviceServer(params=params, seed=SEED, clock=clock.now,
+                               sleep=clock.sleep) as server:
+        got = run_sine(NidaqmxBackend(clock=clock.now), on_server(server, cm), n_blocks)
     assert got.shape == expected.shape == (14, n_blocks * BLOCK)
 
     first, last = int(FS_HZ), n_blocks * BLOCK  # after the first second: 50 whole cycles
@@ -120,13 +121,16 @@ def test_a_host_behind_the_board_catches_up_in_few_reads_and_loses_no_sample() -
     each); beside 3 busy loops it fell 10 s behind and the board overflowed (-200279) in every
     run. A host that is late now takes what the board holds in a few calls: after a 0.6 s
     stall, 60 blocks of 100 are 6 gRPC reads or fewer, and the samples are those a host on time
-    reads (the rig's response matches the in-process rig's on the same drive)."""
+    reads (the rig's response matches the in-process rig's on the same drive). The board and
+    the host count on one fake clock: the stall is the clock moved on, not a sleep."""
     params = RigParams()
     cm = default_channel_map()
     expected = run_sine(SimulatedBackend(params, seed=SEED), cm, 30)
     small, n_small = 100, 300  # 30 blocks of 1000 in blocks of 100
-    with SimulatedDeviceServer(params=params, seed=SEED) as server:
-        be = NidaqmxBackend()
+    clock = FakeClock()
+    with SimulatedDeviceServer(params=params, seed=SEED, clock=clock.now,
+                               sleep=clock.sleep) as server:
+        be = NidaqmxBackend(clock=clock.now)
         be.configure(on_server(server, cm))
         be.set_do("pump", True)
         for k in range(PREFILL_BLOCKS):
@@ -139,7 +143,7 @@ def test_a_host_behind_the_board_catches_up_in_few_reads_and_loses_no_sample() -
         for k in range(n_small):
             if k == 100:
                 be.feed_watchdog()
-                time.sleep(0.6)  # the host stalls (the condition under test, not a wait)
+                clock.advance(0.6)  # the host stalls (the condition under test)
                 after_stall = len(calls)
             blocks.append(be.read_ai(small))
             if k == 159:

@@ -180,26 +180,26 @@ def test_a_hung_host_is_stopped_by_the_watchdog_not_by_the_ring(clocked_server, 
 
 
 @pytest.fixture
-def paced_ring() -> Iterator[NidaqmxBackend]:
-    """A ring backend configured on a sim-server paced by the wall clock, as a board is."""
-    from daq.channels import default_channel_map
+def clocked_ring(clocked_server: SimulatedDeviceServer,
+                 fake_clock: FakeClock) -> Iterator[NidaqmxBackend]:
+    """A ring backend configured on a sim-server paced by the fake clock, as a board is by
+    its own; the host counts on the same clock (its watchdog feeding, read-ahead and
+    generation estimate)."""
+    be = NidaqmxBackend(watchdog_timeout_s=0.8, ao_ring_s=1.0, clock=fake_clock.now)
+    try:
+        be.configure(on_server(clocked_server))
+        yield be
+    finally:
+        be.close()
 
-    with SimulatedDeviceServer() as server:
-        be = NidaqmxBackend(watchdog_timeout_s=0.8, ao_ring_s=1.0)
-        try:
-            be.configure(on_server(server, default_channel_map()))
-            yield be
-        finally:
-            be.close()
 
-
-def test_the_generation_count_is_asked_at_most_every_50_ms_and_never_runs_behind(paced_ring,
+def test_the_generation_count_is_asked_at_most_every_50_ms_and_never_runs_behind(clocked_ring,
                                                                                  monkeypatch):
     """Through gRPC every question is a round trip; asked every 10 ms block it was a sixth of
     a lab-day daemon's time (py-spy). Between answers the count comes from the host's clock
     and the board's answers of the last second: never below the board's own count read just
     before (a write would land too close), at most 5 ms beyond the one read just after."""
-    be = paced_ring
+    be = clocked_ring
     fs = be.channel_map.sample_rate_hz
     be.write_ao(np.zeros((len(be.channel_map.ao), int(fs))), at=0)
     be.start()
@@ -224,14 +224,12 @@ def test_the_generation_count_is_asked_at_most_every_50_ms_and_never_runs_behind
     be.stop()
 
 
-def test_a_stream_behind_the_board_catches_up_in_few_cycles(paced_ring):
+def test_a_stream_behind_the_board_catches_up_in_few_cycles(clocked_ring, fake_clock):
     """Issue 21: a lab-day daemon on the nidaqmx path fell 10 s behind the acquisition and
     overflowed (-200279): every 10 ms block cost a cycle of round trips. After a 0.6 s stall the
     stream now takes the blocks the backend read ahead several to a cycle (each one still read,
     checked and recorded in order): the 60 blocks behind in at most 20 cycles."""
-    import time
-
-    be = paced_ring
+    be = clocked_ring
     cm = be.channel_map
     fs = cm.sample_rate_hz
     block = int(0.01 * fs)
@@ -244,7 +242,7 @@ def test_a_stream_behind_the_board_catches_up_in_few_cycles(paced_ring):
     stream.start()
     stream.advance_to(int(0.3 * fs))
     be.feed_watchdog()
-    time.sleep(0.6)  # the host stalls (the condition under test, not a wait)
+    fake_clock.advance(0.6)  # the host stalls (the condition under test)
     start, cycles = stream.sample, 0
     while stream.sample < start + int(0.6 * fs):  # the blocks the stall left behind
         stream.cycle()

@@ -13,7 +13,7 @@ import pytest
 from daq.errors import WRITE_FAILED_WATCHDOG_EXPIRED, DaqUnderflowError, DaqWatchdogExpiredError
 from daq.nidaqmx_backend import NidaqmxBackend
 from simulated_hw.grpc_server import SimulatedDeviceServer
-from tests.daq.conftest import on_server, with_device
+from tests.daq.conftest import FakeClock, on_server, with_device
 
 FS = 10_000.0
 N_AO = 2
@@ -67,56 +67,58 @@ def test_an_underflow_ends_with_the_drives_at_zero_where_the_board_can(
         backend.close()
 
 
-@pytest.mark.paced
-def test_the_watchdog_is_fed_by_the_acquisition_and_trips_when_it_stops() -> None:
-    # paced: the watchdog runs in real time. The daemon's own timeout (1 s, `--watchdog-s`):
-    # a lab PC must answer within it (README); with 0.2 s a busy CI machine's late host let it
-    # expire while it was being fed (expired 0.031 s ago, in a fresh-clone run at load 7-9)
-    with SimulatedDeviceServer(seed=7) as server:
-        backend = NidaqmxBackend(watchdog_timeout_s=1.0)
-        try:
-            backend.configure(on_server(server))
-            assert backend.watchdog_sets_ao is True
-            (watchdog,) = server.device.watchdogs()
-            assert watchdog.timeout_s == 1.0 and watchdog.do_states == {
-                "Dev1/port0/line0": False}
-            assert watchdog.ao_states == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
-            backend.set_do("pump", True)
-            backend.write_ao(_drive(1.0, 5_000))
-            backend.start()
-            for _ in range(40):  # 2 s of reading, twice the timeout: fed all along
-                fx = _fx_volts(backend, 500)
-                backend.write_ao(_drive(1.0, 500))
-            assert not watchdog.expired and server.device.lines["Dev1/port0/line0"] is True
-            assert np.median(fx) == pytest.approx(1.0, abs=0.02)
-            # the program hangs: nobody reads, so nobody feeds the watchdog
-            assert watchdog.expired_event.wait(timeout=5.0)
-            assert server.device.lines["Dev1/port0/line0"] is False  # pump relay off
-            assert server.device.locked_ao == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
-            with pytest.raises(DaqWatchdogExpiredError) as info:  # the loop learns of it
-                backend.read_ai(15_000)  # 1.5 s from the last read: past the 1 s expiry
-            assert info.value.code == -200644  # the read's feed: "cannot reset, expired"
-            device = server.device  # what the load cell saw over the last 0.1 s of that read
-            late = device.ring.get(device.read_pos - 1_000, 1_000)
-            assert abs(np.median(late[backend.channel_map.ai_index("fx")])) < 0.01  # 0 V
-            with pytest.raises(DaqWatchdogExpiredError) as info:
-                backend.write_ao(_drive(1.0, 500))
-            assert info.value.code == WRITE_FAILED_WATCHDOG_EXPIRED == -200678
-            with pytest.raises(DaqWatchdogExpiredError):
-                backend.set_do("pump", False)  # the line is held; only switching on clears
-            # a new run's prefill (the operator's decision) clears the expiration
-            backend.stop()
-            backend.write_ao(_drive(0.5, 2_000))
-            backend.start()
-            assert not watchdog.expired and server.device.locked_ao == {}
-            fx = np.hstack([_fx_volts(backend, 500) for _ in range(4)])  # fed every 50 ms
-            assert np.median(fx[1_000:]) == pytest.approx(0.5, abs=0.02)
-            backend.set_do("pump", True)
-            assert server.device.lines["Dev1/port0/line0"] is True
-            backend.stop()
-        finally:
-            backend.close()
-        assert server.device.watchdogs() == []  # close clears the watchdog task too
+def test_the_watchdog_is_fed_by_the_acquisition_and_trips_when_it_stops(
+        clocked_server: SimulatedDeviceServer, fake_clock: FakeClock) -> None:
+    # the board and the host count on one fake clock: time passes as the reads wait for their
+    # samples, and the hang is the clock moved on (on the wall clock, a busy CI machine's late
+    # host let a 0.2 s watchdog expire while it was being fed). The daemon's own timeout: 1 s
+    # (`--watchdog-s`).
+    server = clocked_server
+    backend = NidaqmxBackend(watchdog_timeout_s=1.0, clock=fake_clock.now)
+    try:
+        backend.configure(on_server(server))
+        assert backend.watchdog_sets_ao is True
+        (watchdog,) = server.device.watchdogs()
+        assert watchdog.timeout_s == 1.0 and watchdog.do_states == {
+            "Dev1/port0/line0": False}
+        assert watchdog.ao_states == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
+        backend.set_do("pump", True)
+        backend.write_ao(_drive(1.0, 5_000))
+        backend.start()
+        for _ in range(40):  # 2 s of reading, twice the timeout: fed all along
+            fx = _fx_volts(backend, 500)
+            backend.write_ao(_drive(1.0, 500))
+        assert not watchdog.expired and server.device.lines["Dev1/port0/line0"] is True
+        assert np.median(fx) == pytest.approx(1.0, abs=0.02)
+        # the program hangs: nobody reads, so nobody feeds the watchdog
+        fake_clock.advance(1.2)
+        assert watchdog.expired_event.wait(timeout=30.0)  # the board's thread sees it
+        assert server.device.lines["Dev1/port0/line0"] is False  # pump relay off
+        assert server.device.locked_ao == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
+        with pytest.raises(DaqWatchdogExpiredError) as info:  # the loop learns of it
+            backend.read_ai(15_000)  # 1.5 s from the last read: past the 1 s expiry
+        assert info.value.code == -200644  # the read's feed: "cannot reset, expired"
+        device = server.device  # what the load cell saw over the last 0.1 s of that read
+        late = device.ring.get(device.read_pos - 1_000, 1_000)
+        assert abs(np.median(late[backend.channel_map.ai_index("fx")])) < 0.01  # 0 V
+        with pytest.raises(DaqWatchdogExpiredError) as info:
+            backend.write_ao(_drive(1.0, 500))
+        assert info.value.code == WRITE_FAILED_WATCHDOG_EXPIRED == -200678
+        with pytest.raises(DaqWatchdogExpiredError):
+            backend.set_do("pump", False)  # the line is held; only switching on clears
+        # a new run's prefill (the operator's decision) clears the expiration
+        backend.stop()
+        backend.write_ao(_drive(0.5, 2_000))
+        backend.start()
+        assert not watchdog.expired and server.device.locked_ao == {}
+        fx = np.hstack([_fx_volts(backend, 500) for _ in range(4)])  # fed every 50 ms
+        assert np.median(fx[1_000:]) == pytest.approx(0.5, abs=0.02)
+        backend.set_do("pump", True)
+        assert server.device.lines["Dev1/port0/line0"] is True
+        backend.stop()
+    finally:
+        backend.close()
+    assert server.device.watchdogs() == []  # close clears the watchdog task too
 
 
 def test_a_board_without_ao_expiration_states_still_gets_the_relay_watchdog() -> None:

@@ -51,7 +51,7 @@ def _chromium() -> str:
 @pytest.fixture
 def browser() -> Iterator[Any]:
     exe = _chromium()
-    sync_api = pytest.importorskip("playwright.sync_api")
+    from playwright import sync_api  # a test dependency (pyproject): missing is a failure
     with sync_api.sync_playwright() as p:
         # Playwright gives every launch a fresh, empty profile directory of its own
         b = p.chromium.launch(executable_path=exe, args=CHROMIUM_FLAGS)
