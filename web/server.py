@@ -10,6 +10,14 @@ never queue up in its network buffers (seconds of delay), it never makes the oth
 never reaches back to the daemon. Commands
 are POSTs checked against the browser's role (`web.auth`) and sent to the daemon's command
 socket by the `DaemonLink`.
+
+Every request must name an allowed host in its ``Host`` header (`WebConfig.allowed_hosts`: a page
+of another name resolved to this address, DNS rebinding, is refused with 421 before anything
+else), and a POST or WebSocket from a browser must come from this page's own origin. Every answer
+forbids framing (``X-Frame-Options: DENY`` and a content security policy with
+``frame-ancestors 'none'``: no clickjacking). A request's head must arrive within
+``header_timeout_s`` (aiohttp's keep-alive timer, which also closes idle connections) and its body
+within ``body_timeout_s``; a body that is not a JSON object is answered 400 with the reason.
 """
 
 from __future__ import annotations
@@ -36,6 +44,33 @@ STATIC = Path(__file__).parent / "static"
 COMMANDS = ("pause", "resume", "abort", "pump", "reset", "answer")
 MAX_UPLOAD_BYTES = 256 * 1024
 DRAWN = "drawn"  # a browser's answer to each frame: send the next one
+LOOPBACK_NAMES = ("127.0.0.1", "localhost", "::1")
+SECURITY_HEADERS = {
+    "X-Frame-Options": "DENY",
+    "Content-Security-Policy": (
+        "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+        "connect-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; "
+        "frame-ancestors 'none'"),
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+}
+REVOCATION_CHECK_S = 1.0  # open WebSockets of revoked keys are closed within this
+WS_REVOKED = 4001  # the close code a page reads as "log in again"
+
+
+def host_name(host: str) -> str | None:
+    """The name in a ``Host`` header (``name``, ``name:port``, ``[v6]:port``), lower case;
+    None when it is not one."""
+    host = host.strip().lower()
+    if host.startswith("["):
+        end = host.find("]")
+        name, rest = (host[1:end], host[end + 1:]) if end > 0 else ("", "")
+    else:
+        name, sep, port = host.partition(":")
+        rest = sep + port
+    if not name or (rest and not (rest.startswith(":") and rest[1:].isdigit())):
+        return None
+    return name.rstrip(".")
 
 
 @dataclass
@@ -54,6 +89,11 @@ class WebConfig:
         Frames per second sent to each browser.
     secure_cookie : bool
         Mark the session cookie Secure (served over TLS).
+    allowed_hosts : tuple of str
+        The names (or addresses) a request's ``Host`` header may give, any port; the loopback
+        names by default. Anything else is refused (DNS rebinding).
+    header_timeout_s, body_timeout_s : float
+        How long a request's head, and then its body, may take to arrive [s].
     """
 
     key_dir: Path | None = None
@@ -61,6 +101,9 @@ class WebConfig:
     examples_dir: Path | None = None
     fps: float = 10.0
     secure_cookie: bool = False
+    allowed_hosts: tuple[str, ...] = LOOPBACK_NAMES
+    header_timeout_s: float = 10.0
+    body_timeout_s: float = 10.0
 
 
 @dataclass(eq=False)  # hashed by identity: one per connection
@@ -70,6 +113,7 @@ class _Browser:
     drawn: asyncio.Event = field(default_factory=asyncio.Event)  # the last one sent is drawn
     frame: bytes = b""  # the newest frame's JSON text, shared by all browsers
     sent: int = 0
+    token: str | None = None  # its login session (re-checked: a revoked key closes it)
 
 
 def parse_sweep_toml(text: str, source: str) -> dict[str, Any]:
@@ -94,7 +138,10 @@ class WebApp:
         self.browsers: set[_Browser] = set()
         self.frames_made = 0
         self.frame_errors = 0  # frames that could not be made (logged; the ticker goes on)
-        self.app = web.Application(client_max_size=MAX_UPLOAD_BYTES)
+        self._allowed = {h.lower().strip("[]").rstrip(".") for h in config.allowed_hosts}
+        self.app = web.Application(client_max_size=MAX_UPLOAD_BYTES,
+                                   middlewares=[self._check_host])
+        self.app.on_response_prepare.append(self._security_headers)
         self.app.add_routes([
             web.get("/", self.index),
             web.get("/login", self.login_page),
@@ -111,11 +158,63 @@ class WebApp:
         self.app.on_shutdown.append(self._close_browsers)
         self._ticker: asyncio.Task[None] | None = None
 
+    def runner_options(self) -> dict[str, Any]:
+        """The `aiohttp.web.AppRunner` options this app needs: its keep-alive timer is the
+        header timeout (it closes a connection whose request head is not complete by then);
+        after a refused or timed-out body it reads what is left for at most a second."""
+        return {"keepalive_timeout": self.cfg.header_timeout_s, "lingering_time": 1.0,
+                "access_log": None}
+
+    # --- every request and answer --------------------------------------------------------
+    @web.middleware
+    async def _check_host(self, request: web.Request,
+                          handler: Callable[[web.Request], Any]) -> web.StreamResponse:
+        name = host_name(request.headers.get("Host", ""))
+        if name is None or name not in self._allowed:
+            log.warning("refused a request for host %r from %s", request.headers.get("Host"),
+                        request.remote)
+            raise web.HTTPMisdirectedRequest(
+                text=f"this server does not serve the host {request.headers.get('Host', '')!r}"
+                     " (allowed: " + ", ".join(sorted(self._allowed)) + ")")
+        return await handler(request)
+
+    @staticmethod
+    async def _security_headers(request: web.Request, response: web.StreamResponse) -> None:
+        response.headers.update(SECURITY_HEADERS)
+
+    async def _json_object(self, request: web.Request) -> dict[str, Any]:
+        """The request's body as a JSON object, read within the body timeout.
+
+        Raises
+        ------
+        web.HTTPBadRequest
+            for a body that is not UTF-8 JSON, not an object, or nested beyond reason.
+        web.HTTPRequestTimeout
+            when the body does not arrive in time.
+        """
+        try:
+            async with asyncio.timeout(self.cfg.body_timeout_s):
+                raw = await request.read()
+        except TimeoutError:
+            raise _timed_out("the request body did not arrive in time") from None
+        try:
+            body = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, ValueError) as err:
+            raise _bad(f"the body is not JSON: {err}") from None
+        except RecursionError:
+            raise _bad("the body is not JSON: nested too deeply") from None
+        if not isinstance(body, dict):
+            raise _bad(f"the body must be a JSON object, not {type(body).__name__}")
+        return body
+
     # --- who is asking --------------------------------------------------------------------
     def session(self, request: web.Request) -> Session | None:
+        return self._session_of(request.cookies.get(COOKIE))
+
+    def _session_of(self, token: str | None) -> Session | None:
         if self.cfg.key_dir is None:
             return Session("local", self.cfg.anonymous_role, float("inf"))
-        return self.sessions.get(request.cookies.get(COOKIE))
+        return self.sessions.current(token, self.cfg.key_dir)
 
     @staticmethod
     def _same_origin(request: web.Request) -> bool:
@@ -150,18 +249,24 @@ class WebApp:
             raise web.HTTPFound("/")
         if not self._same_origin(request):
             raise web.HTTPForbidden(text="cross-origin request refused")
-        form = await request.post()
+        try:
+            async with asyncio.timeout(self.cfg.body_timeout_s):
+                form = await request.post()
+        except TimeoutError:
+            raise _timed_out("the login form did not arrive in time") from None
+        except ValueError as err:  # a malformed form body
+            raise web.HTTPBadRequest(text=f"login refused: not a login form: {err}") from None
         key = form.get("key")
         raw = key.file.read() if isinstance(key, FileField) else str(key or "").encode()
         text = raw[:MAX_UPLOAD_BYTES].decode("utf-8", "replace")
         try:
-            name, role = role_of_key_file(text, self.cfg.key_dir)
+            name, role, public = role_of_key_file(text, self.cfg.key_dir)
         except LoginRefused as err:
             return web.Response(status=403, text=f"login refused: {err}")
         log.info("login: %s as %s from %s", name, role, request.remote)
         resp = web.HTTPFound("/")
-        resp.set_cookie(COOKIE, self.sessions.new(name, role), httponly=True, samesite="Strict",
-                        secure=self.cfg.secure_cookie)
+        resp.set_cookie(COOKIE, self.sessions.new(name, role, public), httponly=True,
+                        samesite="Strict", secure=self.cfg.secure_cookie)
         raise resp
 
     async def logout(self, request: web.Request) -> web.Response:
@@ -184,7 +289,7 @@ class WebApp:
 
     async def start(self, request: web.Request) -> web.Response:
         s = self._guard(request, need_operator=True)
-        body = await request.json()
+        body = await self._json_object(request)
         try:
             if body.get("example"):
                 path = self._example_files().get(str(body["example"]))
@@ -205,7 +310,7 @@ class WebApp:
         (``spec``, e.g. the static test's ``load_by``; the daemon validates them); its questions
         come back in the status, so this page (or a terminal) is its operator."""
         s = self._guard(request, need_operator=True)
-        body = await request.json()
+        body = await self._json_object(request)
         test = str(body.get("test", ""))
         spec = body.get("spec") or {}
         if not isinstance(spec, dict):
@@ -217,7 +322,7 @@ class WebApp:
 
     async def command(self, request: web.Request) -> web.Response:
         self._guard(request, need_operator=True)
-        body = await request.json()
+        body = await self._json_object(request)
         cmd = body.get("cmd")
         if cmd not in COMMANDS:
             return web.json_response({"ok": False, "error": f"unknown command {cmd!r}; "
@@ -237,7 +342,7 @@ class WebApp:
         s = self._guard(request, need_operator=False)
         ws = web.WebSocketResponse(heartbeat=20.0, compress=False)  # CPU over bytes
         await ws.prepare(request)
-        b = _Browser(ws)
+        b = _Browser(ws, token=request.cookies.get(COOKIE))
         await ws.send_str(json.dumps({"type": "hello", "name": s.name, "role": s.role,
                                       "examples": list(self._example_files()),
                                       "login": self.cfg.key_dir is not None}))
@@ -268,11 +373,25 @@ class WebApp:
                 return
             b.sent += 1
 
+    async def _close_revoked(self) -> None:
+        """Close the WebSockets whose login key was revoked (the page then asks to log in)."""
+        if self.cfg.key_dir is None:
+            return
+        for b in list(self.browsers):
+            if self._session_of(b.token) is None:
+                log.warning("closing a page whose key was revoked")
+                self.browsers.discard(b)
+                await b.ws.close(code=WS_REVOKED, message=b"key revoked: log in again")
+
     async def _tick(self) -> None:
         period = 1.0 / self.cfg.fps
         loop = asyncio.get_running_loop()
+        next_check = loop.time()
         while True:
             t0 = loop.time()
+            if t0 >= next_check:
+                next_check = t0 + REVOCATION_CHECK_S
+                await self._close_revoked()
             if self.browsers:
                 try:
                     data = await loop.run_in_executor(None, self._encoded_frame)
@@ -300,3 +419,16 @@ class WebApp:
         for b in list(self.browsers):
             await b.ws.close()
 
+
+
+def _bad(message: str) -> web.HTTPBadRequest:
+    """A 400 answer in the commands' JSON shape."""
+    return web.HTTPBadRequest(content_type="application/json",
+                              text=json.dumps({"ok": False, "error": message, "data": {}}))
+
+
+def _timed_out(message: str) -> web.HTTPRequestTimeout:
+    """A 408 answer that also closes the connection (the rest of the body may still come)."""
+    resp = web.HTTPRequestTimeout(text=message)
+    resp.force_close()
+    return resp

@@ -11,6 +11,7 @@ import argparse
 import asyncio
 import logging
 import signal
+import socket
 import ssl
 import sys
 from pathlib import Path
@@ -23,7 +24,7 @@ from control.security import KeyFileError, is_loopback
 from sfdrig.commands._client_args import _state, add_connection_arguments, keys
 from web.auth import OPERATOR, VIEWER
 from web.feed import DaemonLink
-from web.server import WebApp, WebConfig
+from web.server import LOOPBACK_NAMES, WebApp, WebConfig
 from web.view import LiveView
 
 NAME = "web"
@@ -43,6 +44,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: %(default)s)")
     parser.add_argument("--fps", type=float, default=10.0,
                         help="frames per second sent to each browser (default: %(default)s)")
+    parser.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                        help="a host name (or address) browsers may use for this server, "
+                             "repeatable; the loopback names, --host and, on a wildcard "
+                             "address, this computer's names are allowed; a request naming any "
+                             "other host is refused (DNS rebinding)")
     parser.add_argument("--tls-cert", type=Path, help="TLS certificate chain (PEM)")
     parser.add_argument("--tls-key", type=Path, help="TLS private key (PEM)")
     add_connection_arguments(parser, data=True)
@@ -91,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
     # for the same product, taken from the paced daemon (README "Measured figures").
     threadpool_limits(limits=1, user_api="blas")
     config = WebConfig(key_dir=args.keys, anonymous_role=args.role, examples_dir=args.examples,
-                       fps=args.fps, secure_cookie=tls is not None)
+                       fps=args.fps, secure_cookie=tls is not None,
+                       allowed_hosts=allowed_hosts(args.host, args.allow_host))
     app = WebApp(link, config)
     try:
         asyncio.run(_serve(app, args.host, args.port, tls))
@@ -102,8 +109,19 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def allowed_hosts(host: str, extra: list[str]) -> tuple[str, ...]:
+    """The names a browser may give in ``Host``: loopback, the bound address, ``extra`` and,
+    bound to every interface, this computer's host name and its fully qualified name."""
+    names = [*LOOPBACK_NAMES, *extra]
+    if host in ("0.0.0.0", "::", ""):
+        names += [socket.gethostname(), socket.getfqdn()]
+    else:
+        names.append(host)
+    return tuple(dict.fromkeys(n.lower() for n in names if n))
+
+
 async def _serve(app: WebApp, host: str, port: int, tls: ssl.SSLContext | None) -> None:
-    runner = aioweb.AppRunner(app.app, access_log=None)
+    runner = aioweb.AppRunner(app.app, **app.runner_options())
     await runner.setup()
     site = aioweb.TCPSite(runner, host, port, ssl_context=tls)
     await site.start()

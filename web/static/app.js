@@ -340,6 +340,10 @@ function connect() {
       }
     }
   };
-  ws.onclose = () => { showMessage("connection to sfdrig web lost; reconnecting", true); setTimeout(connect, 1000); };
+  ws.onclose = (ev) => {
+    if (ev.code === 4001) { location.assign("/login"); return; }  // the key was revoked
+    showMessage("connection to sfdrig web lost; reconnecting", true);
+    setTimeout(connect, 1000);
+  };
 }
 connect();
