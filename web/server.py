@@ -52,7 +52,7 @@ SECURITY_HEADERS = {
         "connect-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; "
         "frame-ancestors 'none'"),
     "X-Content-Type-Options": "nosniff",
-    "Referrer-Policy": "no-referrer",
+    "Referrer-Policy": "same-origin",  # no-referrer would make form POSTs say Origin: null
 }
 REVOCATION_CHECK_S = 1.0  # open WebSockets of revoked keys are closed within this
 WS_REVOKED = 4001  # the close code a page reads as "log in again"
@@ -432,3 +432,4 @@ def _timed_out(message: str) -> web.HTTPRequestTimeout:
     resp = web.HTTPRequestTimeout(text=message)
     resp.force_close()
     return resp
+

@@ -23,6 +23,7 @@ from control.lockin import LockIn
 from control.run_summary import CONTACT, peak_line
 
 UM = 1e-6
+STALE_AFTER_S = 1.0  # traces older than this are drawn grey, with the time of their data
 TWO_AXIS = ("circular_forward", "circular_backward", "elliptical")
 TRACE_UNITS = ("N", "m", "m/s^2")  # drawn as traces; the rest (pressure, flow, oil) as means
 
@@ -146,6 +147,11 @@ class LiveView:
         self._peak_m = 0.0
         self._peak_n = 0.0
         self._contact = ""
+        # the link to the daemon (`web.feed.DaemonLink` says how it is) and the last heartbeat
+        self._link: dict[str, Any] = {"state": "connecting", "message": ""}
+        self._heartbeat_at: float | None = None
+        self._malformed = 0
+        self._malformed_last = ""
 
     # --- fed from the subscriber thread ----------------------------------------------------
     def on_message(self, msg: Message) -> None:
@@ -168,6 +174,30 @@ class LiveView:
                     self._contact = h["message"]
             elif msg.topic == "status":
                 self._on_status(h["status"], msg.received_at)
+                self._heartbeat_at = msg.received_at
+
+    def note_heartbeat(self, now: float | None = None) -> None:
+        """A heartbeat seen elsewhere (the subscription's first, which proves it live)."""
+        with self._lock:
+            self._heartbeat_at = time.time() if now is None else now
+
+    def heartbeat_age(self, now: float | None = None) -> float | None:
+        """Seconds since the daemon's last heartbeat on the stream (None: none yet)."""
+        with self._lock:
+            if self._heartbeat_at is None:
+                return None
+            return (time.time() if now is None else now) - self._heartbeat_at
+
+    def set_link(self, link: dict[str, Any]) -> None:
+        """How the link to the daemon is (`web.feed.DaemonLink`)."""
+        with self._lock:
+            self._link = dict(link)
+
+    def note_malformed(self, count: int, what: str) -> None:
+        """A message the feed could not use (skipped): counted and shown."""
+        with self._lock:
+            self._malformed = count
+            self._malformed_last = what[:300]
 
     def set_status(self, status: dict[str, Any], now: float | None = None) -> None:
         """A status reply (late join) or heartbeat."""
@@ -191,6 +221,8 @@ class LiveView:
         self._contact = ""
 
     def _on_status(self, status: dict[str, Any], now: float) -> None:
+        if not isinstance(status, dict):  # the frame reads it as one
+            raise ValueError(f"a status must be an object, not {type(status).__name__}")
         self.status = status
         tol = status.get("tolerance")
         if tol:
@@ -282,19 +314,34 @@ class LiveView:
         with self._lock:
             traces = self._traces() if self._buf is not None and self._write else None
             status = dict(self.status)
+            link = self._link_now(now)
             return {
                 "type": "frame",
                 "server_time": now,
                 "t_acquired": self._t_acquired,
                 "block_seq": self._block_seq,
+                "link": link,
                 "status": status,
-                "time_left_s": self._time_left(status, now),
+                "time_left_s": self._time_left(status, now)
+                if link["state"] in ("live", "late") else None,
                 "peaks": self._peaks(status),
                 "traces": traces,
                 "steps": list(self.steps),
                 "events": list(self.events)[-50:],
                 "lost": dict(self.lost),
             }
+
+    def _link_now(self, now: float) -> dict[str, Any]:
+        """The link for the page: its state and message, the heartbeat's and the data's age,
+        whether the traces are stale (no block for `STALE_AFTER_S`, or the link not live)."""
+        hb = None if self._heartbeat_at is None else max(0.0, now - self._heartbeat_at)
+        data_at = self._t_acquired if self._t_acquired > 0 else None
+        data_age = None if data_at is None else max(0.0, now - data_at)
+        live = self._link.get("state") in ("live", "late")
+        return {**self._link, "heartbeat_age_s": hb, "data_age_s": data_age,
+                "last_data_time": data_at,
+                "stale": not live or data_age is None or data_age > STALE_AFTER_S,
+                "malformed": self._malformed, "malformed_last": self._malformed_last}
 
     def _time_left(self, status: dict[str, Any], now: float) -> float | None:
         """Remaining steps times the mean duration of the finished ones (None before the first)."""

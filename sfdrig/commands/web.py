@@ -21,7 +21,7 @@ from threadpoolctl import threadpool_limits
 
 from control.client import DaemonUnavailable
 from control.security import KeyFileError, is_loopback
-from sfdrig.commands._client_args import _state, add_connection_arguments, keys
+from sfdrig.commands._client_args import STATE_FILE_NAME, _state, add_connection_arguments, keys
 from web.auth import OPERATOR, VIEWER
 from web.feed import DaemonLink
 from web.server import LOOPBACK_NAMES, WebApp, WebConfig
@@ -84,7 +84,11 @@ def run(args: argparse.Namespace) -> int:
         client_keys = keys(args)
         command = args.command_endpoint or _state(args)["command"]
         data = args.data_endpoint or _state(args)["data"]
-        link = DaemonLink(command, data, LiveView(), keys=client_keys, timeout_s=args.timeout)
+        # found through the state file: read it again while the daemon is gone, to find a
+        # restarted one (on any ports); endpoints given by hand are kept
+        followed = args.command_endpoint is None and args.data_endpoint is None
+        link = DaemonLink(command, data, LiveView(), keys=client_keys, timeout_s=args.timeout,
+                          state_file=args.runs_dir / STATE_FILE_NAME if followed else None)
     except (KeyFileError, SystemExit) as err:
         return _fail(str(err))
     try:

@@ -11,6 +11,8 @@ import os
 import selectors
 import subprocess
 import sys
+import time
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -18,9 +20,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from control.client import CommandClient
 from control.security import make_keys
 from storage.reader import open_run
-from tests.e2e.conftest import REPO_ROOT, DaemonProcess
+from tests.e2e.conftest import REPO_ROOT, DaemonProcess, start_daemon
 
 pytestmark = pytest.mark.e2e
 
@@ -65,12 +68,15 @@ def browser() -> Iterator[Any]:
 def web_factory(tmp_path: Path) -> Iterator[Any]:
     started: list[subprocess.Popen[str]] = []
 
-    def factory(d: DaemonProcess, *extra: str) -> str:
+    def factory(d: DaemonProcess, *extra: str, follow: bool = False) -> str:
+        """``follow``: find the daemon through its runs directory's daemon.json (as the README
+        starts it), not through endpoints given by hand."""
         err = open(tmp_path / f"web{len(started)}.stderr", "w")  # noqa: SIM115
+        where = ["--runs-dir", str(d.runs_dir)] if follow else [
+            "--command-endpoint", d.command, "--data-endpoint", d.data]
         proc = subprocess.Popen(
-            [sys.executable, "-m", "sfdrig", "web", "--port", "0", "--command-endpoint",
-             d.command, "--data-endpoint", d.data, "--examples", str(REPO_ROOT / "examples"),
-             *extra],
+            [sys.executable, "-m", "sfdrig", "web", "--port", "0", *where,
+             "--examples", str(REPO_ROOT / "examples"), *extra],
             cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=err, text=True,
             env={**os.environ, "PYTHONUNBUFFERED": "1"})
         err.close()
@@ -98,9 +104,16 @@ def web_factory(tmp_path: Path) -> Iterator[Any]:
             print(f"--- {f.name} ---\n{f.read_text()}")
 
 
-def _open(browser: Any, url: str) -> Any:
-    """A page of ``url`` in ``browser`` (a Browser: its own context; or a BrowserContext)."""
-    page = browser.new_page()
+def _open(browser: Any, url: str, csp: bool = False) -> Any:
+    """A page of ``url`` in ``browser`` (a Browser: its own context; or a BrowserContext made
+    with ``bypass_csp=True``). The page's content security policy forbids what Playwright's
+    string waits need (eval), so tests bypass it, except with ``csp`` (then only waits on
+    selectors, and the page's CSP violations are collected in ``page.csp``)."""
+    page = browser.new_page(bypass_csp=not csp) if hasattr(browser, "contexts") \
+        else browser.new_page()
+    page.csp = []
+    page.on("console", lambda m: page.csp.append(m.text)
+            if "Content Security Policy" in m.text else None)
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.goto(url)
@@ -113,6 +126,7 @@ def _upload(page: Any, tmp_path: Path, name: str, text: str) -> str:
     f.write_text(text)
     page.set_input_files("#upload", str(f))
     page.click("#start-upload")
+    page.click("#confirm-yes")  # a start is confirmed first
     page.wait_for_function("document.getElementById('message').textContent.length > 0")
     msg = page.inner_text("#message")
     page.evaluate("document.getElementById('message').textContent = ''")
@@ -242,12 +256,15 @@ def test_a_viewer_sees_the_page_and_controls_nothing(daemon_factory, web_factory
     assert frame["state"] == "idle" and frame["pump_on"] is False
     assert not list(d.runs_dir.glob("*.h5"))
 
-    op = _open(browser.new_context(), url)  # a second browser session, with its own cookie
+    # a second browser session, with its own cookie
+    op = _open(browser.new_context(bypass_csp=True), url)
     op.set_input_files("#key", str(keys / "clients" / "operator.key_secret"))
     op.click("#login")
     op.wait_for_function("window.sfdrig && window.sfdrig.role === 'operator'")
     assert op.is_visible("#abort")
     op.click("#pump-on")
+    assert op.inner_text("#confirm-text") == "Switch the oil pump ON?"
+    op.click("#confirm-yes")
     op.wait_for_function("document.getElementById('pump').textContent === 'ON'")
     page.wait_for_function("document.getElementById('pump').textContent === 'ON'")
 
@@ -284,6 +301,7 @@ def test_the_operator_answers_a_structure_test_in_the_page(daemon_factory, web_f
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
     page.select_option("#test-kind", "flow")
     page.click("#start-test")  # the flow test with its defaults: 8-25 kPa, two passes
+    page.click("#confirm-yes")
     page.wait_for_function("document.getElementById('message').textContent.includes('run ')")
     run_id = page.inner_text("#message").removeprefix("start: ok (run ").rstrip(")")
     page.wait_for_selector("#question:not([hidden])", timeout=60_000)
@@ -335,6 +353,7 @@ def test_the_page_starts_the_static_test_by_hand(daemon_factory, web_factory, br
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
     page.select_option("#test-kind", "static:hand")
     page.click("#start-test")
+    page.click("#confirm-yes")
     page.wait_for_function("document.getElementById('message').textContent.includes('run ')")
     run_id = page.inner_text("#message").removeprefix("start: ok (run ").rstrip(")")
     page.wait_for_selector("#question:not([hidden])", timeout=60_000)
@@ -353,3 +372,64 @@ def test_the_page_starts_the_static_test_by_hand(daemon_factory, web_factory, br
         for drive in r.drive_names:
             assert np.all(r.channel(drive) == 0.0), drive  # by hand: the shakers never drive
     assert page.errors == []
+
+
+def test_a_killed_daemon_looks_gone_and_a_restarted_one_is_found(daemon_factory, web_factory,
+                                                                  browser):
+    """Issue 25: kill -9 of the daemon mid-run used to leave "running", a moving sine and a
+    counting "time left" for 30 s; a daemon restarted on new ports was never found. Now the page
+    says LOST within 2 s, greys the plots with the time of the last data, offers no button,
+    and finds the new daemon through runs/daemon.json by itself."""
+    d = daemon_factory()
+    url = web_factory(d, follow=True)
+    page = _open(browser, url)
+    strict = _open(browser, url, csp=True)  # the page under its own CSP: nothing blocked
+    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
+    assert page.inner_text("#link") == "live" and page.inner_text("#state") == "idle"
+    with CommandClient(d.command) as c:
+        run_id = c.start_sweep(tomllib.loads(LONG_SWEEP)).data["run_id"]
+    page.wait_for_function("document.querySelectorAll('#steps tbody tr').length >= 1 && "
+                           "/^\\d+ (s|min)/.test(document.getElementById('time-left')"
+                           ".textContent)", timeout=120_000)
+    assert page.inner_text("#state") == "running" and not page.is_disabled("#abort")
+    assert page.is_disabled("#start-example") and page.inner_text("#data-age").endswith(" s old")
+    assert not page.evaluate("document.body.classList.contains('stale')")
+
+    t0 = time.monotonic()
+    d.proc.kill()  # SIGKILL: no goodbye, daemon.json stays behind
+    d.proc.wait(10)  # reaped, as the shell that started it would (a zombie's pid still answers)
+    page.wait_for_function("document.getElementById('link').textContent === 'LOST'",
+                           timeout=2_000)
+    shown_after_s = time.monotonic() - t0
+    print(f"LOST shown {shown_after_s:.2f} s after the kill")
+    assert shown_after_s < 2.0
+    assert page.inner_text("#state") == "unknown (was running)"
+    assert page.inner_text("#run-id") == f"{run_id} (last known)"
+    assert page.inner_text("#time-left") == "-" and page.inner_text("#step") == "-"
+    banner = page.inner_text("#link-banner")
+    assert banner.startswith("Daemon LOST: ") and "is not running" in banner, banner
+    assert banner.endswith("Nothing below is live.")
+    page.wait_for_function("document.body.classList.contains('stale')")
+    assert page.inner_text("#data-age").startswith("none since ")
+    assert page.is_visible(".panel .stale-note")
+    assert page.inner_text(".panel .stale-note").startswith("not live: last data at ")
+    assert page.inner_text("#harm-info").startswith("NOT live")
+    for button in ("#abort", "#pause", "#resume", "#start-example", "#pump-on", "#pump-off"):
+        assert page.is_disabled(button), button
+
+    d2 = start_daemon(d.runs_dir)  # what `sfdrig daemon` does again: new random ports
+    try:
+        assert (d2.command, d2.data) != (d.command, d.data)
+        page.wait_for_function("document.getElementById('link').textContent === 'live'",
+                               timeout=30_000)
+        page.wait_for_function("document.getElementById('state').textContent === 'idle'")
+        assert not page.is_visible("#link-banner")
+        assert not page.is_disabled("#start-example") and page.is_disabled("#abort")
+        # the new daemon closed the killed run as interrupted
+        with open_run(d.runs_dir / f"{run_id}.h5") as run:
+            assert run.status == "interrupted"
+        strict.wait_for_selector("#link.live")
+        assert strict.csp == [] and page.errors == [] and strict.errors == []
+    finally:
+        assert d2.terminate() == 0
+        d2.proc.communicate(timeout=10)

@@ -133,8 +133,14 @@ def test_steps_and_time_left_from_the_finished_steps():
     fr = view.frame(now=124.0)
     assert [s["index"] for s in fr["steps"]] == [0, 1]
     assert fr["steps"][0]["band_pct"] == 2.0 and fr["steps"][0]["phase_band_deg"] == 3.0
+    # before the link says the daemon is there, no time left is promised
+    assert fr["time_left_s"] is None and fr["link"]["state"] == "connecting"
+    view.set_link({"state": "live", "message": ""})
+    fr = view.frame(now=124.0)
     # 2 steps in 20 s: 3 left take 30 s, 4 s of the next one have passed
     assert fr["time_left_s"] == pytest.approx(26.0)
+    view.set_link({"state": "lost", "message": "no heartbeat for 1.2 s"})
+    assert view.frame(now=125.0)["time_left_s"] is None  # a dead daemon's run counts nothing
     # a new run clears the table
     view.on_message(Message("event", {"run_id": "R2", "seq": 0, "kind": "info",
                                       "message": "x", "time": 1.0}, None, 130.0))

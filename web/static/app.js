@@ -9,13 +9,14 @@ window.sfdrig = { frames: 0, latencies: [], role: null, lastFrame: null, orbitPo
 let role = null;
 const plots = {};
 
-function lineOpts(title, names, width, height, extra) {
-  return Object.assign({
+// every axis says its quantity and unit
+function lineOpts(title, names, width, height, yLabel) {
+  return {
     width, height, legend: { live: false }, cursor: { show: false },
     scales: { x: { time: false } },
     series: [{ label: title }].concat(names.map((n, i) => ({ label: n, stroke: COLORS[i % COLORS.length], width: 1.2 }))),
-    axes: [{}, { size: 55 }],
-  }, extra || {});
+    axes: [{ label: title }, { size: 60, label: yLabel }],
+  };
 }
 
 function ensurePlot(key, el, names, opts) {
@@ -38,21 +39,21 @@ function showMessage(text, error) {
 
 // --- traces --------------------------------------------------------------------------------
 const GROUPS = [
-  ["force", "plot-force", (n, u) => u === "N" && n !== "hammer", 1],
-  ["disp", "plot-disp", (n, u) => u === "m", 1e6],
-  ["acc", "plot-acc", (n, u) => u === "m/s^2", 1],
+  ["force", "plot-force", (n, u) => u === "N" && n !== "hammer", 1, "force [N]"],
+  ["disp", "plot-disp", (n, u) => u === "m", 1e6, "displacement [um]"],
+  ["acc", "plot-acc", (n, u) => u === "m/s^2", 1, "acceleration [m/s²]"],
 ];
 
 function drawTraces(tr, status) {
   const units = status.units || {};
   const w = Math.max(380, $("plot-force").parentElement.clientWidth - 14);
-  for (const [key, el, pick, scale] of GROUPS) {
+  for (const [key, el, pick, scale, yLabel] of GROUPS) {
     const names = Object.keys(tr.channels).filter((n) => pick(n, units[n]));
-    const u = ensurePlot(key, el, names, lineOpts("t [ms]", names, w, 190));
+    const u = ensurePlot(key, el, names, lineOpts("time [ms]", names, w, 190, yLabel));
     u.setData([tr.t_ms].concat(names.map((n) => tr.channels[n].map((v) => v * scale))));
   }
   const drives = tr.drives || [];
-  const ud = ensurePlot("drive", "plot-drive", drives, lineOpts("t [ms]", drives, w, 190));
+  const ud = ensurePlot("drive", "plot-drive", drives, lineOpts("time [ms]", drives, w, 190, "drive [V]"));
   ud.setData([tr.t_ms].concat(drives.map((n) => tr.channels[n])));
 }
 
@@ -104,15 +105,16 @@ function drawHarmonics(tr) {
   const u = ensurePlot("harm", "plot-harm", names, {
     width: w, height: 190, legend: { live: false }, cursor: { show: false },
     scales: { x: { time: false, range: [0.5, 5.5] }, y: { distr: 3, range: [1e-3, 200] } },
-    axes: [{ values: (u, t) => t.map((v) => Number.isInteger(v) ? v + "X" : "") }, { size: 55 }],
+    axes: [{ label: "harmonic", values: (u, t) => t.map((v) => Number.isInteger(v) ? v + "X" : "") }, { size: 60, label: "% of 1X" }],
     series: [{ label: "harmonic" }].concat(names.map((n, i) => ({
       label: n, stroke: COLORS[i], width: 1.2,
       points: { show: true, size: 6, fill: COLORS[i] },
     }))),
   });
   u.setData([[1, 2, 3, 4, 5]].concat(names.map((n) => h[n].map((v) => Math.max(1e-3, 100 * v / h[n][0])))));
+  const stale = document.body.classList.contains("stale");
   $("harm-info").textContent = tr && tr.triggered
-    ? `live, over the cycles shown at ${fmt(tr.freq_hz, 2)} Hz`
+    ? `${stale ? "NOT live: the last cycles received" : "live, over the cycles shown"} at ${fmt(tr.freq_hz, 2)} Hz`
     : "no drive: nothing to analyse";
 }
 
@@ -125,17 +127,19 @@ function drawSteps(steps) {
   const unit = steps.length ? steps[0].unit : "";
   const ua = ensurePlot("amp", "plot-amp", ["achieved", "target"], {
     width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
-    series: [{ label: "f [Hz]" }, pts("achieved", COLORS[0]), pts("target", "#999")], axes: [{}, { size: 55 }],
+    series: [{ label: "f [Hz]" }, pts("achieved", COLORS[0]), pts("target", "#999")],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: `amplitude [${unit || "um or N"}]` }],
   });
   ua.setData([f, sorted.map((s) => s.achieved), sorted.map((s) => s.target)]);
   plots.amp.u.series[1].label = `achieved [${unit}]`;
+  $("amp-unit").textContent = unit || "um or N";
   const band = steps.length ? steps[steps.length - 1].band_pct : 1;
   const ue = ensurePlot("err", "plot-err", ["error", "+band", "-band"], {
     width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
     series: [{ label: "f [Hz]" }, pts("error [%]", COLORS[0]),
       { label: "+tol", stroke: "#c53030", dash: [5, 4] }, { label: "-tol", stroke: "#c53030", dash: [5, 4] }],
     bands: [{ series: [2, 3], fill: "rgba(72,187,120,0.15)" }],
-    axes: [{}, { size: 55 }],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "error [%]" }],
   });
   ue.setData([f, sorted.map((s) => s.error_pct), f.map(() => band), f.map(() => -band)]);
   const withTarget = sorted.filter((s) => s.phase_target_deg !== null);
@@ -144,7 +148,7 @@ function drawSteps(steps) {
     series: [{ label: "f [Hz]" }, pts("phase [deg]", COLORS[1]), { label: "target", stroke: "#999" },
       { label: "+tol", stroke: "#c53030", dash: [5, 4] }, { label: "-tol", stroke: "#c53030", dash: [5, 4] }],
     bands: [{ series: [3, 4], fill: "rgba(72,187,120,0.15)" }],
-    axes: [{}, { size: 55 }],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "phase [deg]" }],
   });
   const tgt = sorted.map((s) => s.phase_target_deg);
   up.setData([f, sorted.map((s) => s.phase_deg), tgt,
@@ -169,25 +173,55 @@ function drawSteps(steps) {
 }
 
 // --- header, events ------------------------------------------------------------------------
+function clock(t) { return t ? new Date(t * 1000).toLocaleTimeString() : "-"; }
+function ago(s) { return s >= 60 ? `${Math.floor(s / 60)} min ${Math.round(s % 60)} s` : `${fmt(s, 1)} s`; }
+
+// The link to the daemon, always in view: a daemon that is gone must look gone. The server
+// judges it (heartbeats, the state file, a status poll); this draws what it says.
+function linkUp(fr) { const l = fr.link || {}; return l.state === "live" || l.state === "late"; }
+function drawLink(fr) {
+  const l = fr.link || {};
+  const up = linkUp(fr);
+  $("link").textContent = { live: "live", late: "late", lost: "LOST", connecting: "connecting", reconnecting: "reconnecting" }[l.state] || String(l.state);
+  $("link").className = "link " + (l.state || "");
+  $("link").title = l.message || `heartbeat ${fmt(l.heartbeat_age_s, 1)} s ago`;
+  $("data-age").textContent = l.last_data_time == null ? "none yet"
+    : l.stale ? `none since ${clock(l.last_data_time)} (${ago(l.data_age_s)} ago)` : `${fmt(l.data_age_s, 1)} s old`;
+  $("link-banner").hidden = up;
+  if (!up) {
+    $("link-banner").textContent = `Daemon ${l.state === "lost" ? "LOST" : l.state}: ${l.message}. `
+      + (l.last_data_time ? `Last data at ${clock(l.last_data_time)}. ` : "") + "Nothing below is live.";
+  }
+  document.body.classList.toggle("stale", !!l.stale);
+  const note = l.last_data_time ? `not live: last data at ${clock(l.last_data_time)} (${ago(l.data_age_s)} ago)` : "not live: no data yet";
+  for (const n of document.querySelectorAll(".stale-note")) n.textContent = note;
+  if (l.malformed) $("lost").title = `${l.malformed} malformed messages skipped; last: ${l.malformed_last}`;
+}
+
 function drawStatus(fr) {
   const st = fr.status || {};
   const p = st.progress || {};
-  $("state").textContent = st.state || "?";
-  $("state").className = "state " + (st.state || "");
-  $("run-id").textContent = st.run_id || (st.last_run && st.last_run.run_id ? `(last: ${st.last_run.run_id} ${st.last_run.status})` : "-");
+  const up = linkUp(fr);
+  drawLink(fr);
+  $("state").textContent = up ? (st.state || "?") : `unknown (was ${st.state || "?"})`;
+  $("state").className = "state " + (up ? (st.state || "") : "lost");
+  const runText = st.run_id || (st.last_run && st.last_run.run_id ? `(last: ${st.last_run.run_id} ${st.last_run.status})` : "-");
+  $("run-id").textContent = up ? runText : `${runText} (last known)`;
   const total = p.steps_total || 0;
   const done = Math.max(p.steps_done || 0, st.run_id ? fr.steps.length : 0);
-  $("step").textContent = st.run_id && p.step_index >= 0
+  $("step").textContent = up && st.run_id && p.step_index >= 0
     ? `${p.step_index + 1}/${total} at ${fmt(p.freq_hz, 1)} Hz, ${p.updates || 0} updates` : "-";
   $("progress").textContent = st.run_id ? `${done}/${total} steps` : "-";
   $("progress-fill").style.width = total && st.run_id ? `${100 * done / total}%` : "0";
   const left = fr.time_left_s;
   $("time-left").textContent = left === null ? "-" : left >= 60 ? `${Math.floor(left / 60)} min ${Math.round(left % 60)} s` : `${Math.round(left)} s`;
-  $("pump").textContent = st.pump_on ? "ON" : "off";
+  $("pump").textContent = up ? (st.pump_on ? "ON" : "off") : "?";
+  followState(st, up);
   const means = (fr.traces && fr.traces.means) || {};
   $("p-in").textContent = means.p_in === undefined || means.p_in === null ? "" : `inlet ${fmt(means.p_in / 1e3, 1)} kPa`;
   const lost = Object.values(fr.lost || {}).reduce((a, b) => a + b, 0);
-  $("lost").textContent = String(lost);
+  const bad = (fr.link || {}).malformed || 0;
+  $("lost").textContent = bad ? `${lost} (+${bad} malformed)` : String(lost);
   // the run's peak orbit and load and any journal-housing contact (the daemon's summary once
   // the run has ended)
   const pk = fr.peaks;
@@ -251,8 +285,12 @@ let drawnSteps = -1;
 function onFrame(fr) {
   window.sfdrig.lastFrame = fr;
   // redraw the plots only when something new came (no new block between runs: the page idles)
-  const fresh = fr.block_seq !== window.sfdrig.lastBlockSeq || window.sfdrig.frames === 0;
+  const stale = !!(fr.link || {}).stale;
+  // also redrawn when the data turns stale: the labels then say it is not live
+  const fresh = fr.block_seq !== window.sfdrig.lastBlockSeq || window.sfdrig.frames === 0
+    || stale !== window.sfdrig.lastStale;
   window.sfdrig.lastBlockSeq = fr.block_seq;
+  window.sfdrig.lastStale = stale;
   drawStatus(fr);
   drawQuestion((fr.status || {}).question);
   if (fresh) {
@@ -264,7 +302,7 @@ function onFrame(fr) {
   window.sfdrig.frames += 1;
   // sample-to-screen latency: from the daemon's acquisition of the newest block to this paint
   // (frames that bring no new block, e.g. between runs, are not counted)
-  if (fr.t_acquired > 0 && fresh) {
+  if (fr.t_acquired > 0 && fresh && !stale) {
     requestAnimationFrame(() => {
       const l = window.sfdrig.latencies;
       l.push(Date.now() / 1000 - fr.t_acquired);
@@ -274,6 +312,27 @@ function onFrame(fr) {
 }
 
 // --- controls ------------------------------------------------------------------------------
+// Buttons follow the daemon's state: only what it takes now (its status's "allowed"), nothing
+// while the link is down; the pump button that would change nothing is off.
+const STARTS = ["start-example", "start-upload", "start-test"];
+function followState(st, up) {
+  const allowed = new Set(up ? (st.allowed || []) : []);
+  for (const id of STARTS) $(id).disabled = !allowed.has("start");
+  for (const id of ["pause", "resume", "abort", "reset"]) $(id).disabled = !allowed.has(id);
+  $("pump-on").disabled = !up || !!st.pump_on;
+  $("pump-off").disabled = !up || !st.pump_on;
+}
+
+// Starting a run and switching the pump are confirmed first (abort never is).
+let pending = null;
+function confirmThen(text, action) {
+  pending = action;
+  $("confirm-text").textContent = text;
+  $("confirm").hidden = false;
+  $("confirm-yes").focus();
+}
+$("confirm-yes").onclick = () => { const a = pending; pending = null; $("confirm").hidden = true; if (a) a(); };
+$("confirm-no").onclick = () => { pending = null; $("confirm").hidden = true; showMessage("cancelled", false); };
 async function post(url, body) {
   let out;
   try {
@@ -299,22 +358,27 @@ function setupControls(hello) {
   for (const n of hello.examples) { const o = document.createElement("option"); o.value = o.textContent = n; sel.appendChild(o); }
 }
 
-$("start-example").onclick = () => post("/api/start", { example: $("example").value });
+function pumpState() { const f = window.sfdrig.lastFrame; return f && f.status && f.status.pump_on ? "ON" : "off"; }
+$("start-example").onclick = () => confirmThen(`Start the sweep ${$("example").value} (pump is ${pumpState()})?`,
+  () => post("/api/start", { example: $("example").value }));
 $("start-upload").onclick = async () => {
   const f = $("upload").files[0];
   if (!f) { showMessage("choose a sweep TOML file first", true); return; }
-  post("/api/start", { toml: await f.text(), filename: f.name });
+  const text = await f.text();
+  confirmThen(`Start the sweep of ${f.name} (pump is ${pumpState()})?`,
+    () => post("/api/start", { toml: text, filename: f.name }));
 };
 // "static:hand": the static test with the operator pushing and reading the force gauge
 $("start-test").onclick = () => {
   const [test, by] = $("test-kind").value.split(":");
-  post("/api/start_test", by ? { test, spec: { load_by: by } } : { test });
+  confirmThen(`Start the ${$("test-kind").selectedOptions[0].textContent} test?`,
+    () => post("/api/start_test", by ? { test, spec: { load_by: by } } : { test }));
 };
 $("pause").onclick = () => post("/api/command", { cmd: "pause" });
 $("resume").onclick = () => post("/api/command", { cmd: "resume" });
 $("abort").onclick = () => post("/api/command", { cmd: "abort" });
-$("pump-on").onclick = () => post("/api/command", { cmd: "pump", on: true });
-$("pump-off").onclick = () => post("/api/command", { cmd: "pump", on: false });
+$("pump-on").onclick = () => confirmThen("Switch the oil pump ON?", () => post("/api/command", { cmd: "pump", on: true }));
+$("pump-off").onclick = () => confirmThen("Switch the oil pump OFF?", () => post("/api/command", { cmd: "pump", on: false }));
 $("reset").onclick = () => post("/api/command", { cmd: "reset" });
 
 const DRAWN_LATEST_MS = 250;  // the next frame is asked for by then even if not painted
@@ -342,6 +406,12 @@ function connect() {
   };
   ws.onclose = (ev) => {
     if (ev.code === 4001) { location.assign("/login"); return; }  // the key was revoked
+    // the web server itself is gone: nothing on the page is live any more
+    document.body.classList.add("stale");
+    $("link").textContent = "?"; $("link").className = "link lost";
+    $("link-banner").hidden = false;
+    $("link-banner").textContent = "The connection to sfdrig web is lost: nothing on this page is live. Reconnecting.";
+    for (const id of STARTS.concat(["pause", "resume", "abort", "reset", "pump-on", "pump-off"])) $(id).disabled = true;
     showMessage("connection to sfdrig web lost; reconnecting", true);
     setTimeout(connect, 1000);
   };
