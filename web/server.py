@@ -25,6 +25,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import tempfile
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -37,6 +38,7 @@ from aiohttp.web_request import FileField
 
 from web.auth import COOKIE, OPERATOR, LoginRefused, Session, Sessions, role_of_key_file
 from web.feed import DaemonLink
+from web.history import HistoryError, RunHistory
 from web.view import LiveView
 
 log = logging.getLogger(__name__)
@@ -94,6 +96,8 @@ class WebConfig:
         names by default. Anything else is refused (DNS rebinding).
     header_timeout_s, body_timeout_s : float
         How long a request's head, and then its body, may take to arrive [s].
+    runs_dir : Path or None
+        The daemon's runs directory: the page's run history (`web.history`).
     """
 
     key_dir: Path | None = None
@@ -104,6 +108,7 @@ class WebConfig:
     allowed_hosts: tuple[str, ...] = LOOPBACK_NAMES
     header_timeout_s: float = 10.0
     body_timeout_s: float = 10.0
+    runs_dir: Path | None = None
 
 
 @dataclass(eq=False)  # hashed by identity: one per connection
@@ -152,11 +157,17 @@ class WebApp:
             web.post("/api/start", self.start),
             web.post("/api/command", self.command),
             web.post("/api/start_test", self.start_test),
+            web.get("/api/runs", self.runs),
+            web.get("/api/runs/{run_id}", self.run_details),
+            web.get("/api/runs/{run_id}/download", self.download),
+            web.post("/api/runs/{run_id}/notes", self.add_note),
             web.static("/static", STATIC),
         ])
         self.app.on_startup.append(self._start_ticker)
         self.app.on_shutdown.append(self._close_browsers)
         self._ticker: asyncio.Task[None] | None = None
+        self.history = RunHistory(config.runs_dir) if config.runs_dir is not None else None
+        self._exporting = asyncio.Lock()  # one export at a time: the daemon needs the CPU
 
     def runner_options(self) -> dict[str, Any]:
         """The `aiohttp.web.AppRunner` options this app needs: its keep-alive timer is the
@@ -337,6 +348,55 @@ class WebApp:
         out = await self._daemon(lambda: self.link.try_command(cmd, **fields))
         return web.json_response(out)
 
+    # --- run history ----------------------------------------------------------------------
+    async def _history(self, request: web.Request, call: Callable[[RunHistory], Any]) -> Any:
+        if self.history is None:
+            raise _refused(404, "no runs directory: start sfdrig web with --runs-dir")
+        history = self.history
+        try:
+            return await asyncio.get_running_loop().run_in_executor(None, call, history)
+        except HistoryError as err:
+            raise _refused(err.status, str(err)) from None
+
+    async def runs(self, request: web.Request) -> web.Response:
+        self._guard(request, need_operator=False)
+        return web.json_response({"ok": True, **await self._history(
+            request, lambda h: h.runs())})
+
+    async def run_details(self, request: web.Request) -> web.Response:
+        self._guard(request, need_operator=False)
+        run_id = request.match_info["run_id"]
+        return web.Response(content_type="application/json", body=orjson.dumps(
+            {"ok": True, **await self._history(request, lambda h: h.details(run_id))}))
+
+    async def download(self, request: web.Request) -> web.StreamResponse:
+        """The run file (``format=h5``) or `sfdrig export`'s files (mat, csv, tdms; a zip when
+        several), made in a temporary folder that goes when the answer has been sent."""
+        self._guard(request, need_operator=False)
+        run_id = request.match_info["run_id"]
+        fmt = request.query.get("format", "h5")
+        if fmt == "h5":  # the run file as it is: nothing to make
+            path, name = await self._history(
+                request, lambda h: h.download(run_id, fmt, Path(tempfile.gettempdir())))
+            return _attachment(path, name)
+        if self._exporting.locked():
+            raise _refused(503, "another export is under way: try again when it is done")
+        async with self._exporting:
+            with tempfile.TemporaryDirectory(prefix="sfdrig-web-") as work:
+                path, name = await self._history(
+                    request, lambda h: h.download(run_id, fmt, Path(work)))
+                resp = _attachment(path, name)
+                await resp.prepare(request)  # sent whole before the folder goes
+                return resp
+
+    async def add_note(self, request: web.Request) -> web.Response:
+        s = self._guard(request, need_operator=True)
+        run_id = request.match_info["run_id"]
+        body = await self._json_object(request)
+        notes = await self._history(request, lambda h: h.add_note(run_id, s.name,
+                                                                   body.get("text")))
+        return web.json_response({"ok": True, "error": "", "notes": notes})
+
     # --- live frames ----------------------------------------------------------------------
     async def websocket(self, request: web.Request) -> web.WebSocketResponse:
         s = self._guard(request, need_operator=False)
@@ -433,3 +493,15 @@ def _timed_out(message: str) -> web.HTTPRequestTimeout:
     resp.force_close()
     return resp
 
+
+def _refused(status: int, message: str) -> web.HTTPException:
+    """An answer of ``status`` in the commands' JSON shape."""
+    cls = {400: web.HTTPBadRequest, 404: web.HTTPNotFound, 409: web.HTTPConflict,
+           503: web.HTTPServiceUnavailable}.get(status, web.HTTPInternalServerError)
+    return cls(content_type="application/json",
+               text=json.dumps({"ok": False, "error": message, "data": {}}))
+
+
+def _attachment(path: Path, name: str) -> web.FileResponse:
+    return web.FileResponse(path, headers={"Content-Disposition": f'attachment; filename="{name}"',
+                                           "Content-Type": "application/octet-stream"})

@@ -102,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
     threadpool_limits(limits=1, user_api="blas")
     config = WebConfig(key_dir=args.keys, anonymous_role=args.role, examples_dir=args.examples,
                        fps=args.fps, secure_cookie=tls is not None,
-                       allowed_hosts=allowed_hosts(args.host, args.allow_host))
+                       allowed_hosts=allowed_hosts(args.host, args.allow_host),
+                       runs_dir=args.runs_dir)
     app = WebApp(link, config)
     try:
         asyncio.run(_serve(app, args.host, args.port, tls))
