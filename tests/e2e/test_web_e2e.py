@@ -425,9 +425,28 @@ def test_a_killed_daemon_looks_gone_and_a_restarted_one_is_found(daemon_factory,
         page.wait_for_function("document.getElementById('state').textContent === 'idle'")
         assert not page.is_visible("#link-banner")
         assert not page.is_disabled("#start-example") and page.is_disabled("#abort")
-        # the new daemon closed the killed run as interrupted
+        # the new daemon closed the killed run as interrupted, and the history lists it so
         with open_run(d.runs_dir / f"{run_id}.h5") as run:
             assert run.status == "interrupted"
+            steps_in_file = len(run.steps)
+        row = f"#runs tbody tr[data-run='{run_id}']"
+        page.wait_for_function(f"(() => {{ const r = document.querySelector(\"{row}\"); "
+                               "return r && r.cells[4].textContent === 'interrupted'; })()")
+        assert page.inner_text(f"{row} td:nth-child(4)") == str(steps_in_file)
+        page.click(f"{row} button")  # open it: its step table and plot from the file
+        page.wait_for_selector("#run:not([hidden])")
+        assert page.inner_text("#run-title") == f"{run_id} (sweep, interrupted)"
+        rows = page.query_selector_all("#run-steps tbody tr")
+        assert len(rows) == steps_in_file >= 1
+        assert rows[0].query_selector_all("td")[1].inner_text() == "70.0"
+        size = page.evaluate("""async () => (await (await fetch(
+            document.getElementById('dl-h5').href)).arrayBuffer()).byteLength""")
+        assert size == (d.runs_dir / f"{run_id}.h5").stat().st_size
+        page.fill("#note-text", "daemon killed on purpose (issue 25 test)")
+        page.click("#note-add")
+        page.wait_for_function("document.getElementById('run-notes').children.length === 1")
+        assert page.inner_text("#run-notes").endswith(
+            "local: daemon killed on purpose (issue 25 test)")
         strict.wait_for_selector("#link.live")
         assert strict.csp == [] and page.errors == [] and strict.errors == []
     finally:

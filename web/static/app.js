@@ -163,10 +163,7 @@ function drawSteps(steps) {
     for (const s of steps) {
       const tr = body.insertRow();
       const bad = !s.converged || (s.error_pct !== null && Math.abs(s.error_pct) > s.band_pct);
-      const cells = [s.index + 1, fmt(s.freq_hz, 1), s.motion, `${fmt(s.target, 2)} ${s.unit}`,
-        `${fmt(s.achieved, 2)} ${s.unit}`, fmt(s.error_pct, 2), fmt(s.phase_deg, 1), s.updates,
-        s.converged ? "yes" : `no: ${s.reason}`];
-      for (const c of cells) tr.insertCell().textContent = String(c);
+      for (const c of stepCells(s)) tr.insertCell().textContent = String(c);
       if (bad) tr.cells[5].className = "bad";
     }
   }
@@ -292,6 +289,7 @@ function onFrame(fr) {
   window.sfdrig.lastBlockSeq = fr.block_seq;
   window.sfdrig.lastStale = stale;
   drawStatus(fr);
+  followRuns(fr);
   drawQuestion((fr.status || {}).question);
   if (fresh) {
     if (fr.traces) drawTraces(fr.traces, fr.status);
@@ -380,6 +378,102 @@ $("abort").onclick = () => post("/api/command", { cmd: "abort" });
 $("pump-on").onclick = () => confirmThen("Switch the oil pump ON?", () => post("/api/command", { cmd: "pump", on: true }));
 $("pump-off").onclick = () => confirmThen("Switch the oil pump OFF?", () => post("/api/command", { cmd: "pump", on: false }));
 $("reset").onclick = () => post("/api/command", { cmd: "reset" });
+
+// --- run history: the runs directory's runs, one opened from its file ---------------------------
+function stepCells(s) {
+  return [s.index + 1, fmt(s.freq_hz, 1), s.motion, `${fmt(s.target, 2)} ${s.unit}`,
+    `${fmt(s.achieved, 2)} ${s.unit}`, fmt(s.error_pct, 2), fmt(s.phase_deg, 1), s.updates,
+    s.converged ? "yes" : `no: ${s.reason}`];
+}
+function duration(sec) { return sec < 60 ? `${fmt(sec, 1)} s` : `${Math.floor(sec / 60)} min ${Math.round(sec % 60)} s`; }
+async function getJson(url) {
+  try {
+    const r = await fetch(url);
+    const text = await r.text();
+    try { return JSON.parse(text); } catch (e) { return { ok: false, error: text || r.statusText }; }
+  } catch (e) { return { ok: false, error: String(e) }; }
+}
+let openRunId = null;
+async function loadRuns() {
+  const out = await getJson("/api/runs");
+  window.sfdrig.runsLoaded = (window.sfdrig.runsLoaded || 0) + 1;
+  const body = $("runs").tBodies[0];
+  body.innerHTML = "";
+  if (!out.ok) { $("runs-info").textContent = out.error; return; }
+  $("runs-info").textContent = `${out.total} in ${out.runs_dir}` + (out.total > out.runs.length ? ` (newest ${out.runs.length} shown)` : "");
+  for (const r of out.runs) {
+    const tr = body.insertRow();
+    tr.dataset.run = r.id;
+    const cells = [r.id || r.file, r.date ? new Date(r.date).toLocaleString() : "-", r.kind || "-", r.steps,
+      r.status + (r.error ? `: ${r.error}` : ""), duration(r.duration_s), r.notes || ""];
+    for (const c of cells) tr.insertCell().textContent = String(c);
+    tr.cells[4].className = "st-" + r.status;
+    const open = document.createElement("button");
+    open.textContent = "Open";
+    open.disabled = !r.id;
+    open.onclick = () => openRun(r.id);
+    tr.insertCell().appendChild(open);
+  }
+}
+async function openRun(id) {
+  const run = await getJson(`/api/runs/${encodeURIComponent(id)}`);
+  if (!run.ok) { showMessage(run.error, true); return; }
+  openRunId = id;
+  $("run").hidden = false;
+  $("run-title").textContent = `${run.run_id} (${run.kind}, ${run.status})`;
+  $("run-summary").textContent = `${run.start_time} to ${run.stop_time || "-"}, ${duration(run.duration_s || 0)}, `
+    + `${run.steps.length} steps, operator ${run.operator || "-"}` + (run.status_reason ? `; ended: ${run.status_reason}` : "");
+  for (const f of run.formats) $(`dl-${f}`).href = `/api/runs/${encodeURIComponent(id)}/download?format=${f}`;
+  $("run-downloads").hidden = run.status === "running";
+  const body = $("run-steps").tBodies[0];
+  body.innerHTML = "";
+  for (const s of run.steps) {
+    const tr = body.insertRow();
+    for (const c of stepCells(s)) tr.insertCell().textContent = String(c);
+    if (!s.converged || (s.error_pct !== null && Math.abs(s.error_pct) > s.band_pct)) tr.cells[5].className = "bad";
+  }
+  const sorted = run.steps.slice().sort((a, b) => a.freq_hz - b.freq_hz);
+  const unit = sorted.length ? sorted[0].unit : "";
+  const w = Math.max(380, $("run").clientWidth - 20);
+  const pts = (label, color) => ({ label, stroke: color, paths: () => null, points: { show: true, size: 7, fill: color } });
+  if (plots.runAmp) plots.runAmp.u.destroy();
+  const u = new uPlot({ width: w, height: 200, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
+    series: [{ label: "f [Hz]" }, pts(`achieved [${unit}]`, COLORS[0]), pts(`target [${unit}]`, "#999")],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: `amplitude [${unit || "um or N"}]` }] },
+  [sorted.map((s) => s.freq_hz), sorted.map((s) => s.achieved), sorted.map((s) => s.target)], $("plot-run-amp"));
+  plots.runAmp = { u, sig: "" };
+  drawNotes(run.notes);
+  const ev = $("run-events");
+  ev.innerHTML = "";
+  for (const e of run.events) { const li = document.createElement("li"); li.textContent = `${e.time} ${e.kind}: ${e.message}`; ev.appendChild(li); }
+  $("note-form").hidden = role !== "operator";
+}
+function drawNotes(notes) {
+  const ol = $("run-notes");
+  ol.innerHTML = "";
+  for (const n of notes) { const li = document.createElement("li"); li.textContent = `${clock(n.time)} ${n.author}: ${n.text}`; ol.appendChild(li); }
+}
+$("runs-refresh").onclick = loadRuns;
+$("run-close").onclick = () => { $("run").hidden = true; openRunId = null; };
+$("note-add").onclick = async () => {
+  if (!openRunId) return;
+  let out;
+  try {
+    const r = await fetch(`/api/runs/${encodeURIComponent(openRunId)}/notes`, { method: "POST",
+      headers: { "Content-Type": "application/json" }, body: JSON.stringify({ text: $("note-text").value }) });
+    const text = await r.text();
+    try { out = JSON.parse(text); } catch (e) { out = { ok: false, error: text || r.statusText }; }
+  } catch (e) { out = { ok: false, error: String(e) }; }
+  showMessage(out.ok ? "note kept" : out.error, !out.ok);
+  if (out.ok) { $("note-text").value = ""; drawNotes(out.notes); loadRuns(); }
+};
+// the list is read again when a run starts or ends and when the daemon comes back
+let runsKey = null;
+function followRuns(fr) {
+  const st = fr.status || {};
+  const key = [(fr.link || {}).state, st.run_id, st.last_run && st.last_run.run_id, st.last_run && st.last_run.status].join("|");
+  if (key !== runsKey) { runsKey = key; loadRuns(); }
+}
 
 const DRAWN_LATEST_MS = 250;  // the next frame is asked for by then even if not painted
 
