@@ -173,6 +173,17 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     # 40 N at 70-80 Hz on the dry rig: tens of um, inside the 63.5 um limit
     rmax = float(page.get_attribute("#orbit", "data-rmax-um"))
     assert 1.0 < rmax < 63.5
+    # zoomed, the orbit fills the plot: its edge at 1.25 x the largest radius, not 140 um
+    page.check("#orbit-zoom")
+    rmax, scale = page.evaluate("[document.getElementById('orbit').dataset.rmaxUm, "
+                                "document.getElementById('orbit').dataset.scaleUm].map(Number)")
+    assert scale == pytest.approx(max(1.0, 1.25 * rmax), rel=1e-3) and scale < 80.0
+    # the trip levels drawn on the forces (448 N) and the drives (9 V), with units on the axes
+    trips = page.evaluate("""() => { const last = (u) => u.data.slice(-2).map((d) => d[0]);
+        return [last(plots.force.u), last(plots.drive.u),
+                plots.force.u.axes.map((a) => a.label), plots.drive.u.axes[1].label]; }""")
+    assert trips[0] == [448.0, -448.0] and trips[1] == [9.0, -9.0]
+    assert trips[2] == ["time [ms]", "force [N]"] and trips[3] == "drive [V]"
     assert page.inner_text("#state") == "running" and page.inner_text("#run-id") == run_id
     rows = page.query_selector_all("#steps tbody tr")
     first_row = [c.inner_text() for c in rows[0].query_selector_all("td")]

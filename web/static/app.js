@@ -14,7 +14,9 @@ function lineOpts(title, names, width, height, yLabel) {
   return {
     width, height, legend: { live: false }, cursor: { show: false },
     scales: { x: { time: false } },
-    series: [{ label: title }].concat(names.map((n, i) => ({ label: n, stroke: COLORS[i % COLORS.length], width: 1.2 }))),
+    series: [{ label: title }].concat(names.map((n, i) => n.endsWith(" trip")
+      ? { label: n, stroke: "#c53030", width: 1, dash: [6, 4] }  // the safety limit: a trip there
+      : { label: n, stroke: COLORS[i % COLORS.length], width: 1.2 })),
     axes: [{ label: title }, { size: 60, label: yLabel }],
   };
 }
@@ -47,14 +49,23 @@ const GROUPS = [
 function drawTraces(tr, status) {
   const units = status.units || {};
   const w = Math.max(380, $("plot-force").parentElement.clientWidth - 14);
+  const safety = status.safety || {};
+  // the trip levels drawn on the traces they apply to: load on the forces, volts on the drives
+  const limits = { force: safety.load_limit_n, drive: safety.drive_limit_v };
+  const withLimit = (key, names, data) => {
+    const lim = limits[key];
+    if (!lim) return [names, data];
+    return [names.concat(["+ trip", "- trip"]), data.concat([tr.t_ms.map(() => lim), tr.t_ms.map(() => -lim)])];
+  };
   for (const [key, el, pick, scale, yLabel] of GROUPS) {
-    const names = Object.keys(tr.channels).filter((n) => pick(n, units[n]));
+    const picked = Object.keys(tr.channels).filter((n) => pick(n, units[n]));
+    const [names, data] = withLimit(key, picked, picked.map((n) => tr.channels[n].map((v) => v * scale)));
     const u = ensurePlot(key, el, names, lineOpts("time [ms]", names, w, 190, yLabel));
-    u.setData([tr.t_ms].concat(names.map((n) => tr.channels[n].map((v) => v * scale))));
+    u.setData([tr.t_ms].concat(data));
   }
-  const drives = tr.drives || [];
+  const [drives, ddata] = withLimit("drive", tr.drives || [], (tr.drives || []).map((n) => tr.channels[n]));
   const ud = ensurePlot("drive", "plot-drive", drives, lineOpts("time [ms]", drives, w, 190, "drive [V]"));
-  ud.setData([tr.t_ms].concat(drives.map((n) => tr.channels[n])));
+  ud.setData([tr.t_ms].concat(ddata));
 }
 
 // --- orbit (canvas: an x-y path with two circles) ------------------------------------------
@@ -64,7 +75,16 @@ function drawOrbit(tr, status) {
   const safety = status.safety || {};
   const clearance = (safety.radial_clearance_m || 127e-6) * 1e6;
   const limit = (safety.displacement_limit_m || clearance * 0.5e-6) * 1e6;
-  const r = clearance * 1.1;
+  const xs = tr ? tr.orbit_x_um : [];
+  const ys = tr ? tr.orbit_y_um : [];
+  // centre the orbit on its mean: the probes' static offset is not motion
+  const mx = xs.length ? xs.reduce((a, b) => a + b, 0) / xs.length : 0;
+  const my = ys.length ? ys.reduce((a, b) => a + b, 0) / ys.length : 0;
+  let rmax = 0;
+  for (let i = 0; i < xs.length; i++) rmax = Math.max(rmax, Math.hypot(xs[i] - mx, ys[i] - my));
+  // zoomed: the orbit fills the plot (an 8.8 um orbit is a dot inside the 127 um circle)
+  const zoom = $("orbit-zoom").checked && rmax > 0;
+  const r = zoom ? Math.max(1.0, rmax * 1.25) : clearance * 1.1;
   const s = c.width / (2 * r);
   const X = (x) => c.width / 2 + x * s;
   const Y = (y) => c.height / 2 - y * s;
@@ -77,11 +97,6 @@ function drawOrbit(tr, status) {
   g.strokeStyle = "#c53030"; g.setLineDash([6, 4]);
   g.beginPath(); g.arc(X(0), Y(0), limit * s, 0, 2 * Math.PI); g.stroke();
   g.setLineDash([]);
-  const xs = tr ? tr.orbit_x_um : [];
-  const ys = tr ? tr.orbit_y_um : [];
-  // centre the orbit on its mean: the probes' static offset is not motion
-  const mx = xs.length ? xs.reduce((a, b) => a + b, 0) / xs.length : 0;
-  const my = ys.length ? ys.reduce((a, b) => a + b, 0) / ys.length : 0;
   g.strokeStyle = "#2b6cb0"; g.lineWidth = 1.5;
   g.beginPath();
   for (let i = 0; i < xs.length; i++) {
@@ -89,12 +104,12 @@ function drawOrbit(tr, status) {
     if (i === 0) g.moveTo(px, py); else g.lineTo(px, py);
   }
   g.stroke();
-  let rmax = 0;
-  for (let i = 0; i < xs.length; i++) rmax = Math.max(rmax, Math.hypot(xs[i] - mx, ys[i] - my));
   window.sfdrig.orbitPoints = xs.length;
   c.dataset.points = String(xs.length);
   c.dataset.rmaxUm = rmax.toFixed(3);
-  $("orbit-info").textContent = `clearance ${fmt(clearance, 1)} um, limit ${fmt(limit, 1)} um, orbit max radius ${fmt(rmax, 2)} um`;
+  c.dataset.scaleUm = r.toFixed(3);
+  $("orbit-info").textContent = `clearance ${fmt(clearance, 1)} um, limit ${fmt(limit, 1)} um, orbit max radius ${fmt(rmax, 2)} um`
+    + (zoom ? `; zoomed: ${fmt(r, 1)} um to the edge` : "");
 }
 
 // --- harmonics -----------------------------------------------------------------------------
@@ -511,3 +526,4 @@ function connect() {
   };
 }
 connect();
+$("orbit-zoom").onchange = () => { const f = window.sfdrig.lastFrame; if (f) drawOrbit(f.traces, f.status); };
