@@ -6,6 +6,10 @@ rows as `sfdrig runs`: a file left "running" by a dead writer reads as interrupt
 names a run by its id only; the file is always the one the catalog found for that id, never a
 path built from the request, so no request reaches a file outside the directory.
 
+Identification reports are made on request by `sfdrig identify --no-store` in a process of its
+own (the web process imports no analysis, and the run file is not written) into
+``RUNS_DIR/reports/RUN/``; a report's files are served by their names in that folder's listing.
+
 Notes never touch the run file (the recorded data is not opened for writing): each run's notes
 are a JSON list beside it, ``RUN.notes.json``, replaced whole by an atomic rename, bounded in
 count and length.
@@ -32,6 +36,8 @@ MAX_RUNS = 300  # newest first, on the page
 MAX_NOTES = 200  # per run
 MAX_NOTE_CHARS = 4000
 NOTES_SUFFIX = ".notes.json"
+REPORTS_DIR = "reports"
+REPORT_PAGE = "index.html"
 
 
 class HistoryError(ValueError):
@@ -114,6 +120,7 @@ class RunHistory:
                     "events": run.events[-200:],
                     "notes": self._read_notes(path),
                     "formats": list(FORMATS),
+                    "report": (self.report_dir(path) / REPORT_PAGE).is_file(),
                 }
         except RunFileError as err:
             raise HistoryError(f"run {run_id} cannot be read: {err}", 409) from None
@@ -150,6 +157,36 @@ class RunHistory:
             for f in files:
                 z.write(f, f.name)
         return bundle, bundle.name
+
+    # --- identification reports -------------------------------------------------------------
+    def report_dir(self, path: Path) -> Path:
+        """Where the report of the run file ``path`` goes."""
+        return self.runs_dir / REPORTS_DIR / path.stem
+
+    def report_job(self, run_id: str) -> tuple[Path, Path]:
+        """(run file, report folder) of a run that may be identified now (not while written)."""
+        from storage.errors import RunFileError
+        from storage.reader import open_run
+
+        path = self.path_of(run_id)
+        try:
+            with open_run(path) as run:
+                status = _status(run.status, run.attrs, path)
+        except RunFileError as err:
+            raise HistoryError(f"run {run_id} cannot be read: {err}", 409) from None
+        if status == "running":
+            raise HistoryError(f"run {run_id} is still being written: identify it once it "
+                               "has ended", 409)
+        return path, self.report_dir(path)
+
+    def report_file(self, run_id: str, name: str) -> Path:
+        """A file of the run's report, by its name in the report folder's listing (404 else)."""
+        folder = self.report_dir(self.path_of(run_id))
+        files = {p.relative_to(folder).as_posix(): p for p in folder.rglob("*")
+                 if p.is_file() and not p.is_symlink()} if folder.is_dir() else {}
+        if name not in files:
+            raise HistoryError(f"run {run_id}'s report has no file {name!r}", 404)
+        return files[name]
 
     # --- notes ----------------------------------------------------------------------------
     @staticmethod

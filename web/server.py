@@ -25,6 +25,9 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import os
+import shutil
+import sys
 import tempfile
 import tomllib
 from collections.abc import Callable
@@ -56,6 +59,10 @@ SECURITY_HEADERS = {
     "X-Content-Type-Options": "nosniff",
     "Referrer-Policy": "same-origin",  # no-referrer would make form POSTs say Origin: null
 }
+# a report page (analysis.report) styles itself inline and runs no script
+REPORT_ROUTE = "report_file"
+REPORT_CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src 'self'; "
+              "frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
 REVOCATION_CHECK_S = 1.0  # open WebSockets of revoked keys are closed within this
 WS_REVOKED = 4001  # the close code a page reads as "log in again"
 
@@ -98,6 +105,9 @@ class WebConfig:
         How long a request's head, and then its body, may take to arrive [s].
     runs_dir : Path or None
         The daemon's runs directory: the page's run history (`web.history`).
+    identify_command, identify_timeout_s
+        The command that makes a run's identification report (given the run file, then
+        ``--no-store --report DIR``) and how long it may take [s].
     """
 
     key_dir: Path | None = None
@@ -109,6 +119,8 @@ class WebConfig:
     header_timeout_s: float = 10.0
     body_timeout_s: float = 10.0
     runs_dir: Path | None = None
+    identify_command: tuple[str, ...] = (sys.executable, "-m", "sfdrig", "identify")
+    identify_timeout_s: float = 600.0
 
 
 @dataclass(eq=False)  # hashed by identity: one per connection
@@ -161,6 +173,9 @@ class WebApp:
             web.get("/api/runs/{run_id}", self.run_details),
             web.get("/api/runs/{run_id}/download", self.download),
             web.post("/api/runs/{run_id}/notes", self.add_note),
+            web.post("/api/runs/{run_id}/report", self.make_report),
+            web.get("/api/runs/{run_id}/report/{name:.+}", self.report_file,
+                    name=REPORT_ROUTE),
             web.static("/static", STATIC),
         ])
         self.app.on_startup.append(self._start_ticker)
@@ -168,6 +183,7 @@ class WebApp:
         self._ticker: asyncio.Task[None] | None = None
         self.history = RunHistory(config.runs_dir) if config.runs_dir is not None else None
         self._exporting = asyncio.Lock()  # one export at a time: the daemon needs the CPU
+        self._identifying = asyncio.Lock()  # and one identification
 
     def runner_options(self) -> dict[str, Any]:
         """The `aiohttp.web.AppRunner` options this app needs: its keep-alive timer is the
@@ -192,6 +208,8 @@ class WebApp:
     @staticmethod
     async def _security_headers(request: web.Request, response: web.StreamResponse) -> None:
         response.headers.update(SECURITY_HEADERS)
+        if request.match_info.route.name == REPORT_ROUTE:  # analysis's page: its own <style>
+            response.headers["Content-Security-Policy"] = REPORT_CSP
 
     async def _json_object(self, request: web.Request) -> dict[str, Any]:
         """The request's body as a JSON object, read within the body timeout.
@@ -389,6 +407,42 @@ class WebApp:
                 await resp.prepare(request)  # sent whole before the folder goes
                 return resp
 
+    async def make_report(self, request: web.Request) -> web.Response:
+        """Identify the run in a process of its own (`sfdrig identify --no-store`: the run file
+        is not written), one at a time, at a lower priority than the daemon."""
+        self._guard(request, need_operator=True)
+        run_id = request.match_info["run_id"]
+        path, folder = await self._history(request, lambda h: h.report_job(run_id))
+        if self._identifying.locked():
+            raise _refused(503, "another identification is under way: try again when it is "
+                                "done")
+        async with self._identifying:
+            nice = [n, "-n", "10"] if (n := shutil.which("nice")) else []
+            proc = await asyncio.create_subprocess_exec(
+                *nice, *self.cfg.identify_command, str(path), "--no-store", "--report",
+                str(folder), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+            try:
+                async with asyncio.timeout(self.cfg.identify_timeout_s):
+                    out, _ = await proc.communicate()
+            except TimeoutError:
+                proc.kill()
+                await proc.wait()
+                raise _refused(504, f"identification of {run_id} took longer than "
+                                    f"{self.cfg.identify_timeout_s:g} s: stopped") from None
+        text = out.decode("utf-8", "replace").strip()
+        made = (folder / "index.html").is_file() and proc.returncode == 0
+        return web.json_response({
+            "ok": made, "data": {"lines": text.splitlines()[-40:]},
+            "error": "" if made else f"identify {run_id}: " + (
+                text.splitlines()[-1] if text else f"exit {proc.returncode}")})
+
+    async def report_file(self, request: web.Request) -> web.StreamResponse:
+        self._guard(request, need_operator=False)
+        run_id, name = request.match_info["run_id"], request.match_info["name"]
+        path = await self._history(request, lambda h: h.report_file(run_id, name))
+        return web.FileResponse(path)
+
     async def add_note(self, request: web.Request) -> web.Response:
         s = self._guard(request, need_operator=True)
         run_id = request.match_info["run_id"]
@@ -497,7 +551,8 @@ def _timed_out(message: str) -> web.HTTPRequestTimeout:
 def _refused(status: int, message: str) -> web.HTTPException:
     """An answer of ``status`` in the commands' JSON shape."""
     cls = {400: web.HTTPBadRequest, 404: web.HTTPNotFound, 409: web.HTTPConflict,
-           503: web.HTTPServiceUnavailable}.get(status, web.HTTPInternalServerError)
+           503: web.HTTPServiceUnavailable, 504: web.HTTPGatewayTimeout}.get(
+        status, web.HTTPInternalServerError)
     return cls(content_type="application/json",
                text=json.dumps({"ok": False, "error": message, "data": {}}))
 

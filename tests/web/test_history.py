@@ -205,3 +205,59 @@ def test_a_run_being_written_is_not_downloaded(tmp_path):
         w.close("completed", "")
     assert s1 == 200 and listing["runs"][0]["status"] == "running"
     assert s2 == 409 and "still being written" in refused["error"]
+
+
+FAKE_IDENTIFY = '''
+import sys
+from pathlib import Path
+run, out = Path(sys.argv[1]), Path(sys.argv[sys.argv.index("--report") + 1])
+assert "--no-store" in sys.argv  # the run file is never written
+if run.stem == "R2":
+    print("error: nothing identified (1 item(s) skipped, reasons above)")
+    sys.exit(1)
+(out / "figures").mkdir(parents=True)
+(out / "index.html").write_text("<html><style>b{}</style><b>K 788 kN/m</b></html>")
+(out / "figures" / "k.png").write_bytes(b"PNG-of-" + run.stem.encode())
+print(f"report: {out / 'index.html'}")
+'''
+
+
+def test_the_identification_report_made_on_request_and_served(runs_dir, tmp_path):
+    fake = tmp_path / "fake_identify.py"
+    fake.write_text(FAKE_IDENTIFY)
+    cfg = {"runs_dir": runs_dir, "identify_command": (sys.executable, str(fake))}
+    app = WebApp(_Daemon(), WebConfig(**cfg))  # type: ignore[arg-type]
+    viewer = WebApp(_Daemon(), WebConfig(anonymous_role="viewer", **cfg))  # type: ignore[arg-type]
+    before = hashlib.sha256((runs_dir / "R1.h5").read_bytes()).hexdigest()
+
+    async def test(port: int) -> dict[str, Any]:
+        host = f"127.0.0.1:{port}"
+        base = "/api/runs/R1/report/"
+        return {"made": _json(await _raw(port, _post("/api/runs/R1/report", b"{}", host))),
+                "failed": _json(await _raw(port, _post("/api/runs/R2/report", b"{}", host))),
+                "page": await _raw(port, _get(base + "index.html", host)),
+                "figure": await _raw(port, _get(base + "figures/k.png", host)),
+                "escape": [(await _raw(port, _get(base + p, host)))[0] for p in (
+                    "../../R1.h5", "..%2F..%2FR1.h5", "%2e%2e/%2e%2e/secret.txt", "figures")],
+                "details": _json(await _raw(port, _get("/api/runs/R1", host)))}
+
+    async def as_viewer(port: int) -> int:
+        return (await _raw(port, _post("/api/runs/R1/report", b"{}", f"127.0.0.1:{port}")))[0]
+
+    assert _serve(viewer, as_viewer) == 403
+    out = _serve(app, test)
+    status, made = out["made"]
+    assert status == 200 and made["ok"] and made["data"]["lines"][-1].endswith("index.html")
+    status, failed = out["failed"]
+    assert not failed["ok"] and failed["error"] == ("identify R2: error: nothing identified "
+                                                    "(1 item(s) skipped, reasons above)")
+    status, headers, body = out["page"]
+    assert status == 200 and b"K 788 kN/m" in body
+    csp = [d.strip() for d in headers["content-security-policy"].split(";")]
+    assert "frame-ancestors 'none'" in csp and "style-src 'unsafe-inline'" in csp
+    assert "default-src 'none'" in csp  # no script of any origin
+    assert out["figure"][0] == 200 and out["figure"][2] == b"PNG-of-R1"
+    assert all(s in (400, 404) for s in out["escape"]), out["escape"]
+    assert out["details"][1]["report"] is True
+    assert (runs_dir / "reports" / "R1" / "index.html").is_file()
+    assert hashlib.sha256((runs_dir / "R1.h5").read_bytes()).hexdigest() == before

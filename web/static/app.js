@@ -462,7 +462,33 @@ async function openRun(id) {
   ev.innerHTML = "";
   for (const e of run.events) { const li = document.createElement("li"); li.textContent = `${e.time} ${e.kind}: ${e.message}`; ev.appendChild(li); }
   $("note-form").hidden = role !== "operator";
+  drawReport(id, run.report, run.status);
 }
+function drawReport(id, made, status) {
+  $("report-open").hidden = !made;
+  $("report-open").href = `/api/runs/${encodeURIComponent(id)}/report/index.html`;
+  $("report-make").hidden = role !== "operator";
+  $("report-make").disabled = status === "running";
+  $("report-make").textContent = made ? "Make it again" : "Make the report";
+  $("report-info").textContent = made ? "" : "none yet";
+}
+$("report-make").onclick = async () => {
+  const id = openRunId;
+  if (!id) return;
+  $("report-make").disabled = true;
+  $("report-info").textContent = "identifying (sfdrig identify) ...";
+  let out;
+  try {
+    const r = await fetch(`/api/runs/${encodeURIComponent(id)}/report`, { method: "POST",
+      headers: { "Content-Type": "application/json" }, body: "{}" });
+    const text = await r.text();
+    try { out = JSON.parse(text); } catch (e) { out = { ok: false, error: text || r.statusText }; }
+  } catch (e) { out = { ok: false, error: String(e) }; }
+  $("report-make").disabled = false;
+  if (openRunId !== id) return;
+  drawReport(id, out.ok, "");
+  $("report-info").textContent = out.ok ? "made" : out.error;
+};
 function drawNotes(notes) {
   const ol = $("run-notes");
   ol.innerHTML = "";
