@@ -372,6 +372,9 @@ class Daemon:
             "units": {**{c.name: c.units for c in self.channel_map.ai},
                       **{c.name: c.units for c in self.channel_map.ao}},
             "drives": self.channel_map.ao_names,
+            # each input's range in its units (a display shows how much of it is used)
+            "input_ranges": {c.name: sorted((v - c.offset_v) / c.gain_v_per_unit
+                                            for v in c.range_v) for c in self.channel_map.ai},
             "endpoints": self.endpoints,
             "pid": os.getpid(),
         }

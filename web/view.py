@@ -384,6 +384,7 @@ class LiveView:
         ai_means = window[: self._n_ai].mean(axis=1) if n else np.full(self._n_ai, math.nan)
         means = {name: finite(float(v)) for name, v in zip(names[: self._n_ai], ai_means,
                                                             strict=True)}
+        levels = self._levels(window[: self._n_ai], ai_means) if n else {}
         x = self._mean_rows(rows, ("x1", "x2"), "x")
         y = self._mean_rows(rows, ("y1", "y2"), "y")
         harmonics: dict[str, list[float]] = {}
@@ -401,8 +402,28 @@ class LiveView:
             "freq_hz": finite(freq),
             "decimation": step,
             "harmonics": harmonics,
+            "levels": levels,
             "last_sample": self._last_sample,
         }
+
+    def _levels(self, ai: np.ndarray, means: np.ndarray) -> dict[str, dict[str, float | None]]:
+        """Per input over the shown window: RMS about the mean, peak |value| and how much of
+        the input range the samples reach [%] (from the range's middle to the nearer end;
+        100 % is the ADC's limit), when the status gives the range."""
+        ranges = self.status.get("input_ranges") or {}
+        rms = np.sqrt(np.mean((ai - means[:, None]) ** 2, axis=1))
+        lo_v, hi_v = ai.min(axis=1), ai.max(axis=1)
+        out: dict[str, dict[str, float | None]] = {}
+        for i, name in enumerate(self._channels[: self._n_ai]):
+            used = None
+            r = ranges.get(name)
+            if isinstance(r, list) and len(r) == 2 and r[1] > r[0]:
+                mid, half = 0.5 * (r[0] + r[1]), 0.5 * (r[1] - r[0])
+                used = 100.0 * max(hi_v[i] - mid, mid - lo_v[i]) / half
+            out[name] = {"rms": finite(float(rms[i])),
+                         "peak": finite(float(max(abs(lo_v[i]), abs(hi_v[i])))),
+                         "range_pct": finite(used) if used is not None else None}
+        return out
 
     @staticmethod
     def _mean_rows(rows: dict[str, np.ndarray], pair: tuple[str, str],

@@ -185,6 +185,10 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     assert trips[0] == [448.0, -448.0] and trips[1] == [9.0, -9.0]
     assert trips[2] == ["time [ms]", "force [N]"] and trips[3] == "drive [V]"
     assert page.inner_text("#state") == "running" and page.inner_text("#run-id") == run_id
+    # each input's RMS, peak and how much of its range it uses: 40 N of the load cell's range
+    fx = [c.inner_text() for c in page.query_selector_all("#levels tr[data-input='fx'] td")]
+    assert fx[1] == "N" and 20.0 < float(fx[3]) < 45.0 and float(fx[3]) < float(fx[4])
+    assert 0.0 < float(fx[5]) < 90.0
     rows = page.query_selector_all("#steps tbody tr")
     first_row = [c.inner_text() for c in rows[0].query_selector_all("td")]
     assert first_row[1] == "70.0" and first_row[3] == "40.00 N"
@@ -203,6 +207,16 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
                            f"'{run_id} aborted')", timeout=60_000)
     assert page.inner_text("#state") == "idle"
     assert "operator abort from sfdrig web" in page.inner_text("#events")
+    # the trips, faults and aborts alone, and those exported as CSV
+    page.select_option("#event-filter", "limit_trip,fault,abort,error")
+    kinds = {li.get_attribute("class") for li in page.query_selector_all("#events li")}
+    assert kinds == {"ev-abort"}, kinds
+    with page.expect_download() as download:
+        page.click("#events-export")
+    lines = Path(download.value.path()).read_text().splitlines()
+    assert lines[0] == "time_utc,kind,message,run_id"
+    assert any('"abort","operator abort from sfdrig web"' in line for line in lines[1:])
+    assert all(',"abort",' in line for line in lines[1:])
     # once it has ended: the daemon's summary of the whole run (every block counted)
     page.wait_for_function("document.getElementById('peaks').textContent.includes('of 448 N')",
                            timeout=10_000)

@@ -199,3 +199,20 @@ def test_the_runs_peak_orbit_load_and_contact_live_then_the_daemons_summary():
     assert pk["final"] and pk["tripped"]
     assert pk["text"] == ("peak orbit 125.0 um of the 63.5 um limit (step 1/1, 150.0 Hz), "
                           f"peak load 119.8 N of 448 N; {contact}")
+
+
+def test_per_input_rms_peak_and_range_used():
+    """fx = 40 cos: RMS 40/sqrt(2) N, peak 40 N; of a +/-100 N range it uses 40 %, of a
+    -20..180 N range (middle 80 N) it reaches 120 N below the middle: 120 %, past the end."""
+    view = LiveView(buffer_s=0.5, cycles=3, points=200)
+    view.set_status({"run_id": "R1", "progress": {"freq_hz": 20.0},
+                     "input_ranges": {"fx": [-100.0, 100.0], "fy": [-20.0, 180.0]}})
+    for m in blocks(20.0, 40):
+        view.on_message(m)
+    levels = view.frame(now=2000.0)["traces"]["levels"]
+    assert levels["fx"]["rms"] == pytest.approx(40 / math.sqrt(2), rel=1e-3)
+    assert levels["fx"]["peak"] == pytest.approx(40.0, rel=1e-3)
+    assert levels["fx"]["range_pct"] == pytest.approx(40.0, rel=1e-3)
+    assert levels["fy"]["range_pct"] == pytest.approx(120.0, rel=1e-3)
+    assert levels["x1"]["range_pct"] is None  # no range given: not guessed
+    assert levels["y1"]["rms"] == pytest.approx(20e-6 / math.sqrt(2), rel=1e-3)

@@ -242,15 +242,55 @@ function drawStatus(fr) {
     $("peaks").textContent = `run ${pk.run_id}${pk.final ? "" : " (so far)"}: ${pk.text}`;
     $("peaks").className = pk.contact || pk.tripped ? "bad" : "";
   }
+  drawEvents(fr.events);
+  drawLevels(fr.traces, st);
+}
+
+// --- inputs: RMS, peak and range used over the shown cycles ----------------------------------
+function drawLevels(tr, st) {
+  const levels = (tr && tr.levels) || {};
+  const units = st.units || {};
+  const body = $("levels").tBodies[0];
+  body.innerHTML = "";
+  for (const [name, l] of Object.entries(levels)) {
+    const um = units[name] === "m";  // displacements in um
+    const k = um ? 1e6 : 1;
+    const mean = ((tr.means || {})[name]);
+    const row = body.insertRow();
+    row.dataset.input = name;
+    for (const c of [name, um ? "um" : (units[name] || ""), fmt(mean === null || mean === undefined ? null : mean * k, 3),
+      fmt(l.rms === null ? null : l.rms * k, 3), fmt(l.peak === null ? null : l.peak * k, 3), fmt(l.range_pct, 1)]) {
+      row.insertCell().textContent = String(c);
+    }
+    if (l.range_pct !== null && l.range_pct > 90) row.cells[5].className = "bad";
+  }
+}
+
+// --- events: filtered by kind, the shown ones exported --------------------------------------
+let shownEvents = [];
+function drawEvents(events) {
+  const kinds = $("event-filter").value ? $("event-filter").value.split(",") : null;
+  shownEvents = events.filter((e) => !kinds || kinds.includes(e.kind));
   const ev = $("events");
   ev.innerHTML = "";
-  for (const e of fr.events.slice().reverse()) {
+  for (const e of shownEvents.slice().reverse()) {
     const li = document.createElement("li");
     li.className = "ev-" + e.kind;
     li.textContent = `${new Date(e.time * 1000).toLocaleTimeString()} ${e.kind}: ${e.message}`;
     ev.appendChild(li);
   }
 }
+$("event-filter").onchange = () => { const f = window.sfdrig.lastFrame; if (f) drawEvents(f.events); };
+$("events-export").onclick = () => {
+  const q = (v) => `"${String(v).replace(/"/g, '""')}"`;
+  const lines = ["time_utc,kind,message,run_id"].concat(shownEvents.map((e) =>
+    [new Date(e.time * 1000).toISOString(), e.kind, e.message, e.run_id || ""].map(q).join(",")));
+  const a = document.createElement("a");
+  a.href = URL.createObjectURL(new Blob([lines.join("\n") + "\n"], { type: "text/csv" }));
+  a.download = "sfdrig-events.csv";
+  a.click();
+  setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+};
 
 // --- the operator's question (the operator protocol; the terminal is the other front end) ----
 const CHOICE_LABELS = { ok: "Accept", repeat: "Repeat point", skip: "Skip point", abort: "Abort test",
