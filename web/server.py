@@ -39,6 +39,7 @@ import orjson
 from aiohttp import WSMsgType, web
 from aiohttp.web_request import FileField
 
+from web import sweep_form
 from web.auth import COOKIE, OPERATOR, LoginRefused, Session, Sessions, role_of_key_file
 from web.feed import DaemonLink
 from web.history import HistoryError, RunHistory
@@ -169,6 +170,8 @@ class WebApp:
             web.post("/api/start", self.start),
             web.post("/api/command", self.command),
             web.post("/api/start_test", self.start_test),
+            web.get("/api/sweep/schema", self.sweep_schema),
+            web.post("/api/sweep/check", self.sweep_check),
             web.get("/api/runs", self.runs),
             web.get("/api/runs/{run_id}", self.run_details),
             web.get("/api/runs/{run_id}/download", self.download),
@@ -320,7 +323,9 @@ class WebApp:
         s = self._guard(request, need_operator=True)
         body = await self._json_object(request)
         try:
-            if body.get("example"):
+            if isinstance(body.get("spec"), dict):  # the page's form (the daemon validates it)
+                spec = body["spec"]
+            elif body.get("example"):
                 path = self._example_files().get(str(body["example"]))
                 if path is None:
                     raise ValueError(f"no example sweep {body['example']!r}")
@@ -333,6 +338,31 @@ class WebApp:
         out = await self._daemon(lambda: self.link.try_command(
             "start", spec=spec, operator=s.name, notes="started from sfdrig web"))
         return web.json_response(out)
+
+    async def sweep_schema(self, request: web.Request) -> web.Response:
+        self._guard(request, need_operator=False)
+        return web.json_response({"ok": True, "schema": sweep_form.schema()})
+
+    async def sweep_check(self, request: web.Request) -> web.Response:
+        """The page's sweep (``spec``, or a TOML file's text ``toml``) checked by `SweepSpec`:
+        the problems by field, or the summary and the TOML; ``spec`` is what was checked."""
+        self._guard(request, need_operator=False)
+        body = await self._json_object(request)
+        spec: Any
+        if "toml" in body:
+            try:
+                spec = parse_sweep_toml(str(body["toml"]),
+                                        str(body.get("filename") or "the uploaded file"))
+            except ValueError as err:
+                return web.json_response({"ok": False, "spec": None, "summary": None,
+                                          "toml": "", "errors": [{"field": "",
+                                                                  "message": str(err)}]})
+        else:
+            spec = body.get("spec")
+        safety = self.view.status.get("safety") or {}
+        out = await asyncio.get_running_loop().run_in_executor(
+            None, sweep_form.check, spec, safety)
+        return web.json_response({**out, "spec": spec})
 
     async def start_test(self, request: web.Request) -> web.Response:
         """Start a structure test, with its default settings or the few the page offers

@@ -477,3 +477,76 @@ def test_a_killed_daemon_looks_gone_and_a_restarted_one_is_found(daemon_factory,
     finally:
         assert d2.terminate() == 0
         d2.proc.communicate(timeout=10)
+
+
+def test_a_sweep_defined_on_the_page(daemon_factory, web_factory, browser, tmp_path):
+    """The form has every field of the sweep model; problems are shown at their field (the
+    model's own messages), a rule between fields above the form; a valid sweep is summarised,
+    saved as the TOML `sfdrig sweep` reads, loaded back, confirmed and started as given."""
+    d = daemon_factory()
+    page = _open(browser, web_factory(d))
+    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.formReady === true")
+    page.click("#editor summary")
+    fields = page.eval_on_selector_all("#sweep-form [data-field]", "els => els.map(e => "
+                                       "e.dataset.field)")
+    assert {"motion", "amplitude_m", "load_n", "freq_hz", "freq_start_hz", "freq_points",
+            "tolerance_amplitude_pct", "on_not_converged", "control.window_cycles",
+            "control.algorithm"} <= set(fields)
+    assert len(fields) == 20 + 20  # SweepSpec's 20 fields and ControlSettings' 20
+
+    def error_at(field: str) -> str:
+        return page.inner_text(f"#sweep-form [data-error-for='{field}']")
+
+    page.fill("[data-field='load_n']", "40")
+    page.fill("[data-field='freq_hz']", "70, -5")
+    page.fill("[data-field='control.window_cycles']", "0")
+    page.click("#sweep-check")
+    page.wait_for_function("document.querySelector(\"[data-error-for='freq_hz']\")"
+                           ".textContent.length > 0")
+    assert error_at("freq_hz") == "Input should be greater than 0 (got -5)"
+    assert error_at("control.window_cycles") == ("Input should be greater than or equal to 1 "
+                                                 "(got 0)")
+    assert page.is_disabled("#sweep-start")
+    page.fill("[data-field='control.window_cycles']", "2")
+    page.fill("[data-field='freq_hz']", "70, 80")
+    page.fill("[data-field='amplitude_m']", "20")  # and load_n: one target kind only
+    page.click("#sweep-check")
+    page.wait_for_function("document.getElementById('sweep-form-error').textContent.length > 0")
+    assert page.inner_text("#sweep-form-error") == ("give exactly one of amplitude_m (hold "
+                                                    "displacement) or load_n (hold load)")
+    page.fill("[data-field='amplitude_m']", "")
+    page.fill("[data-field='settle_cycles']", "20")
+    page.click("#sweep-check")
+    page.wait_for_function("!document.getElementById('sweep-start').disabled")
+    summary = page.inner_text("#sweep-summary").splitlines()
+    assert summary[0] == "(no name): x, hold load at 40.00 N"
+    assert summary[1] == "2 steps: 2 frequencies from 70.00 to 80.00 Hz"
+    # (20 + 40) cycles at 70 and at 80 Hz: 0.857 + 0.75 = 1.6 s
+    assert summary[2].startswith("settling and recording alone: 1.6 s")
+    assert summary[3].startswith("pump: must be OFF")
+    assert summary[5] == "limits: orbit 63.5 um, load 448 N, drive 9.0 V"
+
+    with page.expect_download() as saved:
+        page.click("#sweep-save")
+    toml_text = Path(saved.value.path()).read_text()
+    assert tomllib.loads(toml_text) == {"load_n": [40.0], "freq_hz": [70.0, 80.0],
+                                        "settle_cycles": 20}
+    page.click("#sweep-defaults")
+    assert page.input_value("[data-field='load_n']") == ""
+    (tmp_path / "saved.toml").write_text(toml_text)
+    page.set_input_files("#sweep-load", str(tmp_path / "saved.toml"))
+    page.wait_for_function("!document.getElementById('sweep-start').disabled")
+    assert page.input_value("[data-field='freq_hz']") == "70, 80"
+    assert page.input_value("[data-field='settle_cycles']") == "20"
+
+    page.click("#sweep-start")
+    assert page.inner_text("#confirm-text").startswith("Start: (no name): x, hold load at 40.00 N")
+    page.click("#confirm-yes")
+    page.wait_for_function("document.getElementById('message').textContent.includes('run ')")
+    run_id = page.inner_text("#message").removeprefix("start: ok (run ").rstrip(")")
+    page.wait_for_function(f"document.getElementById('run-id').textContent.includes("
+                           f"'{run_id} completed')", timeout=120_000)
+    with open_run(d.runs_dir / f"{run_id}.h5") as run:
+        assert [s["freq_hz"] for s in run.steps] == [70.0, 80.0]
+        assert run.test_spec["settle_cycles"] == 20 and run.test_spec["load_n"] == [40.0]
+    assert page.errors == []

@@ -371,6 +371,7 @@ const STARTS = ["start-example", "start-upload", "start-test"];
 function followState(st, up) {
   const allowed = new Set(up ? (st.allowed || []) : []);
   for (const id of STARTS) $(id).disabled = !allowed.has("start");
+  $("sweep-start").disabled = !checked || !allowed.has("start");
   for (const id of ["pause", "resume", "abort", "reset"]) $(id).disabled = !allowed.has(id);
   $("pump-on").disabled = !up || !!st.pump_on;
   $("pump-off").disabled = !up || !st.pump_on;
@@ -405,6 +406,8 @@ function setupControls(hello) {
   $("who").textContent = `${hello.name} (${role})`;
   $("logout").hidden = !hello.login;
   $("controls").hidden = role !== "operator";
+  $("editor").hidden = role !== "operator";
+  if (role === "operator" && !sweepSchema) buildForm();
   $("viewer-note").hidden = role === "operator";
   const sel = $("example");
   sel.innerHTML = "";
@@ -433,6 +436,174 @@ $("abort").onclick = () => post("/api/command", { cmd: "abort" });
 $("pump-on").onclick = () => confirmThen("Switch the oil pump ON?", () => post("/api/command", { cmd: "pump", on: true }));
 $("pump-off").onclick = () => confirmThen("Switch the oil pump OFF?", () => post("/api/command", { cmd: "pump", on: false }));
 $("reset").onclick = () => post("/api/command", { cmd: "reset" });
+
+// --- a sweep defined on the page: a form built from the sweep model's schema -----------------
+// Units as the operator thinks: a field in metres is entered in um; the rest as named.
+function unitOf(name) {
+  if (name.endsWith("_m")) return ["um", "e-6"];
+  for (const [suffix, unit] of [["_hz", "Hz"], ["_n_per_m", "N/m"], ["_ns_per_m", "N.s/m"], ["_n", "N"],
+    ["_pct", "%"], ["_deg", "deg"], ["_kg", "kg"], ["_s", "s"], ["_cycles", "cycles"]]) {
+    if (name.endsWith(suffix)) return [unit, ""];
+  }
+  return ["", ""];
+}
+function kindOf(prop, defs) {
+  const alts = prop.anyOf ? prop.anyOf.filter((a) => a.type !== "null") : [prop];
+  const p = alts[0] || {};
+  if (p.$ref) return ["object", defs[p.$ref.split("/").pop()]];
+  if (p.enum) return ["enum", p.enum];
+  if (p.const !== undefined) return ["enum", [p.const]];
+  return [p.type === "array" ? "list" : p.type || "string", p];
+}
+let sweepSchema = null;
+let checked = null;  // the last valid check: its spec, summary and TOML
+function addFields(parent, props, defs, prefix) {
+  for (const [name, prop] of Object.entries(props)) {
+    const path = prefix + name;
+    const [kind, info] = kindOf(prop, defs);
+    if (kind === "object") {
+      const fs = document.createElement("fieldset");
+      const lg = document.createElement("legend");
+      lg.textContent = `${name}: ${info.description || info.title || ""}`;
+      fs.appendChild(lg);
+      addFields(fs, info.properties, defs, path + ".");
+      parent.appendChild(fs);
+      continue;
+    }
+    const row = document.createElement("label");
+    row.className = "row";
+    row.title = prop.description || "";
+    const fname = document.createElement("span");
+    fname.className = "fname";
+    fname.textContent = path;
+    row.appendChild(fname);
+    let input;
+    if (kind === "enum") {
+      input = document.createElement("select");
+      for (const v of info) { const o = document.createElement("option"); o.value = o.textContent = v; input.appendChild(o); }
+    } else {
+      input = document.createElement("input");
+      input.type = kind === "boolean" ? "checkbox" : "text";
+      input.size = kind === "list" ? 28 : 12;
+      if (kind === "list") input.placeholder = "values, comma-separated";
+    }
+    input.dataset.field = path;
+    input.dataset.kind = kind;
+    input.dataset.default = JSON.stringify(prop.default === undefined ? null : prop.default);
+    row.appendChild(input);
+    const [unit] = unitOf(name);
+    const u = document.createElement("span");
+    u.textContent = unit ? `[${unit}]` : "";
+    row.appendChild(u);
+    const err = document.createElement("span");
+    err.className = "field-error";
+    err.dataset.errorFor = path;
+    row.appendChild(err);
+    parent.appendChild(row);
+    input.onchange = () => { checked = null; $("sweep-start").disabled = true; $("sweep-save").disabled = true; };
+  }
+}
+function shown(name, v) {
+  const [, exp] = unitOf(name);
+  return exp ? String(Number((v * 1e6).toPrecision(12))) : String(v);
+}
+function setForm(spec) {
+  for (const input of document.querySelectorAll("#sweep-form [data-field]")) {
+    const path = input.dataset.field;
+    const name = path.split(".").pop();
+    let v = JSON.parse(input.dataset.default);
+    let cur = spec;
+    for (const k of path.split(".")) cur = cur && typeof cur === "object" ? cur[k] : undefined;
+    if (cur !== undefined) v = cur;
+    if (input.dataset.kind === "boolean") input.checked = !!v;
+    else if (v === null || v === undefined) input.value = "";
+    else if (Array.isArray(v)) input.value = v.map((x) => shown(name, x)).join(", ");
+    else input.value = typeof v === "number" ? shown(name, v) : String(v);
+  }
+}
+function readForm() {
+  const spec = {};
+  for (const input of document.querySelectorAll("#sweep-form [data-field]")) {
+    const path = input.dataset.field.split(".");
+    const [, exp] = unitOf(path[path.length - 1]);
+    const kind = input.dataset.kind;
+    const num = (t) => { const x = Number(t.trim() + exp); return t.trim() === "" || Number.isNaN(x) ? t.trim() : x; };
+    let v;
+    if (kind === "boolean") v = input.checked;
+    else if (input.value.trim() === "") continue;  // left empty: the model's default
+    else if (kind === "list") v = input.value.split(/[,\s]+/).filter((t) => t !== "").map(num);
+    else if (kind === "number" || kind === "integer") v = num(input.value);
+    else v = input.value;
+    let target = spec;
+    for (const k of path.slice(0, -1)) target = target[k] = target[k] || {};
+    target[path[path.length - 1]] = v;
+  }
+  return spec;
+}
+function showCheck(out) {
+  for (const e of document.querySelectorAll("#sweep-form .field-error")) e.textContent = "";
+  $("sweep-form-error").textContent = "";
+  for (const e of out.errors || []) {
+    // the nearest field of the error's path (freq_hz.0 -> freq_hz); "" : a rule between fields
+    let path = e.field;
+    let el = null;
+    while (path && !(el = document.querySelector(`#sweep-form [data-error-for="${CSS.escape(path)}"]`))) {
+      path = path.includes(".") ? path.slice(0, path.lastIndexOf(".")) : "";
+    }
+    (el || $("sweep-form-error")).textContent += (el && el.textContent ? "; " : "") + e.message;
+  }
+  checked = out.ok ? out : null;
+  $("sweep-start").disabled = !out.ok;
+  $("sweep-save").disabled = !out.ok;
+  $("sweep-summary").textContent = out.ok ? summaryText(out.summary) : "";
+}
+function summaryText(m) {
+  const lim = m.limits || {};
+  return [`${m.name || "(no name)"}: ${m.motion}, hold ${m.target_kind} at ${m.targets.map((t) => fmt(t, 2)).join(", ")} ${m.target_unit}`,
+    `${m.steps} steps: ${m.frequencies} frequencies from ${fmt(m.freq_first_hz, 2)} to ${fmt(m.freq_last_hz, 2)} Hz`,
+    `settling and recording alone: ${duration(m.settle_record_s)} (each step's approach adds to it)`,
+    `pump: must be ${m.pump.toUpperCase()} (${m.pump === "on" ? "a lubricated sweep needs inlet pressure" : "a dry sweep; refused while the film drains"})`,
+    `tolerance +/-${m.tolerance_amplitude_pct} % amplitude, +/-${m.tolerance_phase_deg} deg phase; not converged: ${m.on_not_converged}`,
+    `limits: orbit ${lim.displacement_limit_m ? fmt(lim.displacement_limit_m * 1e6, 1) + " um" : "?"}, load ${lim.load_limit_n ? fmt(lim.load_limit_n, 0) + " N" : "?"}, drive ${lim.drive_limit_v ? fmt(lim.drive_limit_v, 1) + " V" : "?"}`].join("\n");
+}
+async function postJson(url, body) {
+  try {
+    const r = await fetch(url, { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
+    const text = await r.text();
+    try { return JSON.parse(text); } catch (e) { return { ok: false, error: text || r.statusText, errors: [{ field: "", message: text || r.statusText }] }; }
+  } catch (e) { return { ok: false, error: String(e), errors: [{ field: "", message: String(e) }] }; }
+}
+async function buildForm() {
+  const out = await getJson("/api/sweep/schema");
+  if (!out.ok) return;
+  sweepSchema = out.schema;
+  $("sweep-form").innerHTML = "";
+  addFields($("sweep-form"), sweepSchema.properties, sweepSchema.$defs || {}, "");
+  setForm({});
+  window.sfdrig.formReady = true;
+}
+$("sweep-check").onclick = async () => showCheck(await postJson("/api/sweep/check", { spec: readForm() }));
+$("sweep-defaults").onclick = () => { setForm({}); showCheck({ ok: false, errors: [] }); };
+$("sweep-start").onclick = () => {
+  if (!checked) return;
+  const spec = checked.spec;
+  confirmThen(`Start: ${summaryText(checked.summary).split("\n").join("; ")}?`, () => post("/api/start", { spec }));
+};
+$("sweep-save").onclick = () => {
+  if (!checked) return;
+  const a = document.createElement("a");
+  a.href = URL.createObjectURL(new Blob([checked.toml], { type: "text/plain" }));
+  a.download = (checked.spec.name || "sweep").replace(/[^A-Za-z0-9._-]+/g, "_") + ".toml";
+  a.click();
+  setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+};
+$("sweep-load").onchange = async () => {
+  const f = $("sweep-load").files[0];
+  if (!f) return;
+  const out = await postJson("/api/sweep/check", { toml: await f.text(), filename: f.name });
+  if (out.spec) setForm(out.spec);
+  showCheck(out);
+};
 
 // --- run history: the runs directory's runs, one opened from its file ---------------------------
 function stepCells(s) {
