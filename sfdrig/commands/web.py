@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import signal
 import socket
@@ -116,10 +117,13 @@ def run(args: argparse.Namespace) -> int:
 
 def allowed_hosts(host: str, extra: list[str]) -> tuple[str, ...]:
     """The names a browser may give in ``Host``: loopback, the bound address, ``extra`` and,
-    bound to every interface, this computer's host name and its fully qualified name."""
+    bound to every interface, this computer's host name, its fully qualified name and the
+    addresses that name resolves to."""
     names = [*LOOPBACK_NAMES, *extra]
     if host in ("0.0.0.0", "::", ""):
         names += [socket.gethostname(), socket.getfqdn()]
+        with contextlib.suppress(OSError):  # and the addresses its name resolves to here
+            names += socket.gethostbyname_ex(socket.gethostname())[2]
     else:
         names.append(host)
     return tuple(dict.fromkeys(n.lower() for n in names if n))

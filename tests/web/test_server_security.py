@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import socket
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -269,3 +270,13 @@ def test_a_viewer_is_refused_every_commanding_route():
 
     assert _serve(app, test) == [403, 403, 403]
     assert daemon.sent == []
+
+
+def test_the_allowed_hosts_of_sfdrig_web():
+    from sfdrig.commands.web import allowed_hosts
+
+    assert allowed_hosts("127.0.0.1", []) == ("127.0.0.1", "localhost", "::1")
+    assert allowed_hosts("10.1.2.3", ["Rig-PC.lab"]) == ("127.0.0.1", "localhost", "::1",
+                                                         "rig-pc.lab", "10.1.2.3")
+    wildcard = allowed_hosts("0.0.0.0", [])
+    assert socket.gethostname().lower() in wildcard and "attacker.example" not in wildcard
