@@ -35,12 +35,13 @@ def _mean_z(harmonics: dict[str, list[list[float]]], names: tuple[str, ...]) -> 
 
 def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
                tolerance_phase_deg: float) -> dict[str, Any]:
-    """One row of the step table and one point of the amplitude/phase-vs-frequency plots.
+    """One row of the step table and one point of the plots against frequency.
 
     The amplitude is the 1X of the reference axis (Y for motion "y", else X): the mean of the two
     probes [um] for a displacement target, the load cell [N] for a load target. The phase is Y
     relative to X [deg] for two-axis motions (the controlled quantity, with its target), else the
-    reference displacement relative to its load (not controlled: no target).
+    reference displacement relative to its load (not controlled: no target). Also the largest
+    drive's 1X amplitude [V] and each axis's direct dynamic stiffness F/X [MN/m, re and im].
     """
     h = step.get("harmonics", {})
     axis = "y" if step.get("motion") == "y" else "x"
@@ -62,6 +63,11 @@ def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
         z, f = disp[axis], force[axis]
         phase = math.degrees(np.angle(z / f)) if z and f else math.nan
     achieved = abs(ref) * scale if ref is not None else math.nan
+    drives = [abs(complex(*v)) for v in (step.get("drive_v") or {}).values()
+              if isinstance(v, list | tuple) and len(v) == 2]
+    # the direct dynamic stiffness F/X of each axis [MN/m] (1X; for two-axis orbits it holds
+    # the cross-coupled terms too): what the rig looks like across the sweep
+    k = {a: force[a] / disp[a] / 1e6 if force[a] and disp[a] else None for a in ("x", "y")}
     return {
         "index": int(step.get("index", 0)),
         "freq_hz": float(step.get("freq_hz", math.nan)),
@@ -80,6 +86,11 @@ def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
         "y_um": abs(disp["y"]) / UM if disp["y"] is not None else math.nan,
         "fx_n": abs(force["x"]) if force["x"] is not None else math.nan,
         "fy_n": abs(force["y"]) if force["y"] is not None else math.nan,
+        "drive_v": max(drives) if drives else math.nan,
+        "kx_re_mn_per_m": k["x"].real if k["x"] is not None else math.nan,
+        "kx_im_mn_per_m": k["x"].imag if k["x"] is not None else math.nan,
+        "ky_re_mn_per_m": k["y"].real if k["y"] is not None else math.nan,
+        "ky_im_mn_per_m": k["y"].imag if k["y"] is not None else math.nan,
         "updates": int(step.get("updates", 0)),
         "converged": bool(step.get("converged", False)),
         "reason": str(step.get("reason", "")),

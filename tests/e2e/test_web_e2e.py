@@ -7,6 +7,8 @@ Synchronisation: the web process's first stdout line names its URL; the page's o
 
 from __future__ import annotations
 
+import cmath
+import math
 import os
 import selectors
 import subprocess
@@ -193,6 +195,16 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     first_row = [c.inner_text() for c in rows[0].query_selector_all("td")]
     assert first_row[1] == "70.0" and first_row[3] == "40.00 N"
     assert abs(float(first_row[4].split()[0]) - 40.0) < 0.4  # within the 1 % band
+    # the drive it took against the 9 V limit, and the dynamic stiffness F/X at each step: its
+    # size is the step's load over its orbit, its phase the orbit's lag, and Im K > 0 (the dry
+    # rig dissipates: at 40 N the seal's 26 N of friction rules)
+    drive_info = page.inner_text("#drive-info")
+    assert drive_info.startswith("largest drive ") and " of 9.0 V: headroom " in drive_info
+    st = page.evaluate("window.sfdrig.lastFrame.steps[0]")
+    k = complex(st["kx_re_mn_per_m"], st["kx_im_mn_per_m"])
+    assert abs(k) == pytest.approx(st["fx_n"] / st["x_um"], rel=1e-9)
+    assert math.degrees(cmath.phase(k)) == pytest.approx(-st["phase_deg"], abs=1e-6)
+    assert k.imag > 0 and 0 < st["drive_v"] < 9.0
     page.wait_for_function("/^\\d+ (s|min)/.test(document.getElementById('time-left').textContent)",
                            timeout=10_000)
     # the run's peak orbit and load so far, and no contact (issue 21)

@@ -120,6 +120,21 @@ def test_step_point_of_a_displacement_x_step_has_the_frf_phase_and_no_phase_targ
     assert p["error_pct"] == pytest.approx(1.0) and p["band_pct"] == 2.0
     assert p["phase_deg"] == pytest.approx(-90.0)  # x lags fx by 90 deg
     assert p["phase_target_deg"] is None and p["phase_label"] == "x rel. fx"
+    # F/X = 30j N / 25.25 um: 1.188 MN/m in quadrature (the motion lags by 90 deg)
+    assert p["kx_re_mn_per_m"] == pytest.approx(0.0, abs=1e-12)
+    assert p["kx_im_mn_per_m"] == pytest.approx(30.0 / 25.25e-6 / 1e6)
+    assert math.isnan(p["ky_re_mn_per_m"]) and math.isnan(p["drive_v"])
+
+
+def test_step_point_drive_level_and_stiffness_of_a_circular_step():
+    step = {**circular_step(0, 50.0, 10e-6, -90.0),
+            "drive_v": {"shaker_x": [3.0, 4.0], "shaker_y": [0.0, -2.0]}}
+    p = step_point(step, 1.0, 1.0)
+    assert p["drive_v"] == pytest.approx(5.0)  # |3 + 4j| V, the larger drive
+    assert p["kx_re_mn_per_m"] == pytest.approx(40.2 / 10e-6 / 1e6)  # 4.02 MN/m
+    # fy = -40.2j over y = -10.2j um: 3.94 MN/m in phase
+    assert p["ky_re_mn_per_m"] == pytest.approx(40.2 / 10.2e-6 / 1e6, rel=1e-9)
+    assert p["ky_im_mn_per_m"] == pytest.approx(0.0, abs=1e-9)
 
 
 def test_steps_and_time_left_from_the_finished_steps():

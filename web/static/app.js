@@ -134,10 +134,35 @@ function drawHarmonics(tr) {
 }
 
 // --- steps ---------------------------------------------------------------------------------
-function drawSteps(steps) {
+// the drive each step needed against the drive limit (the headroom), and the rig's dynamic
+// stiffness F/X across the sweep
+function drawDriveAndStiffness(sorted, status, w) {
+  const f = sorted.map((s) => s.freq_hz);
+  const lim = ((status || {}).safety || {}).drive_limit_v || null;
+  const pts = (label, color) => ({ label, stroke: color, paths: () => null, points: { show: true, size: 7, fill: color } });
+  const ud = ensurePlot("drivef", "plot-drive-f", ["drive", "limit"], {
+    width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
+    series: [{ label: "f [Hz]" }, pts("largest drive 1X [V]", COLORS[0]), { label: "drive limit [V]", stroke: "#c53030", dash: [6, 4] }],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "drive [V]" }],
+  });
+  ud.setData([f, sorted.map((s) => s.drive_v), f.map(() => lim)]);
+  const worst = sorted.reduce((m, s) => (s.drive_v !== null && s.drive_v > m ? s.drive_v : m), 0);
+  $("drive-info").textContent = lim && sorted.length
+    ? `largest drive ${fmt(worst, 2)} V of ${fmt(lim, 1)} V: headroom ${fmt(lim - worst, 2)} V (${fmt(100 * (1 - worst / lim), 0)} %)` : "";
+  const uk = ensurePlot("kf", "plot-k", ["kx re", "kx im", "ky re", "ky im"], {
+    width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
+    series: [{ label: "f [Hz]" }, pts("Re Kx", COLORS[0]), pts("Im Kx", COLORS[1]), pts("Re Ky", COLORS[2]), pts("Im Ky", COLORS[3])],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "F/X [MN/m]" }],
+  });
+  uk.setData([f, sorted.map((s) => s.kx_re_mn_per_m), sorted.map((s) => s.kx_im_mn_per_m),
+    sorted.map((s) => s.ky_re_mn_per_m), sorted.map((s) => s.ky_im_mn_per_m)]);
+}
+
+function drawSteps(steps, status) {
   const sorted = steps.slice().sort((a, b) => a.freq_hz - b.freq_hz);
   const f = sorted.map((s) => s.freq_hz);
   const w = Math.max(380, $("plot-amp").parentElement.clientWidth - 14);
+  drawDriveAndStiffness(sorted, status, w);
   const pts = (label, color) => ({ label, stroke: color, paths: () => null, points: { show: true, size: 7, fill: color } });
   const unit = steps.length ? steps[0].unit : "";
   const ua = ensurePlot("amp", "plot-amp", ["achieved", "target"], {
@@ -351,7 +376,7 @@ function onFrame(fr) {
     drawOrbit(fr.traces, fr.status);
     drawHarmonics(fr.traces);
   }
-  if (fresh || fr.steps.length !== drawnSteps) { drawSteps(fr.steps); drawnSteps = fr.steps.length; }
+  if (fresh || fr.steps.length !== drawnSteps) { drawSteps(fr.steps, fr.status); drawnSteps = fr.steps.length; }
   window.sfdrig.frames += 1;
   // sample-to-screen latency: from the daemon's acquisition of the newest block to this paint
   // (frames that bring no new block, e.g. between runs, are not counted)
