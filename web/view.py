@@ -67,7 +67,10 @@ def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
               if isinstance(v, list | tuple) and len(v) == 2]
     # the direct dynamic stiffness F/X of each axis [MN/m] (1X; for two-axis orbits it holds
     # the cross-coupled terms too): what the rig looks like across the sweep
-    k = {a: force[a] / disp[a] / 1e6 if force[a] and disp[a] else None for a in ("x", "y")}
+    k: dict[str, complex | None] = {}
+    for a in ("x", "y"):
+        fa, za = force[a], disp[a]
+        k[a] = fa / za / 1e6 if fa and za else None
     return {
         "index": int(step.get("index", 0)),
         "freq_hz": float(step.get("freq_hz", math.nan)),
