@@ -125,16 +125,11 @@ class RunHistory:
         except RunFileError as err:
             raise HistoryError(f"run {run_id} cannot be read: {err}", 409) from None
 
-    # --- downloads ------------------------------------------------------------------------
-    def download(self, run_id: str, fmt: str, work: Path) -> tuple[Path, str]:
-        """The file to send for ``run_id`` as ``fmt`` and its download name: the run file
-        itself for h5, else `sfdrig export`'s files made in ``work`` (zipped when several)."""
-        from storage.errors import ExportError, RunFileError
-        from storage.exporters import export_run
+    def ended(self, run_id: str, what: str) -> Path:
+        """The file of a run that has ended (409 while it is written, or unreadable)."""
+        from storage.errors import RunFileError
         from storage.reader import open_run
 
-        if fmt not in FORMATS:
-            raise HistoryError(f"format {fmt!r}: one of {', '.join(FORMATS)}")
         path = self.path_of(run_id)
         try:
             with open_run(path) as run:
@@ -142,8 +137,20 @@ class RunHistory:
         except RunFileError as err:
             raise HistoryError(f"run {run_id} cannot be read: {err}", 409) from None
         if status == "running":
-            raise HistoryError(f"run {run_id} is still being written: download it once it "
-                               "has ended", 409)
+            raise HistoryError(f"run {run_id} is still being written: {what} it once it has "
+                               "ended", 409)
+        return path
+
+    # --- downloads ------------------------------------------------------------------------
+    def download(self, run_id: str, fmt: str, work: Path) -> tuple[Path, str]:
+        """The file to send for ``run_id`` as ``fmt`` and its download name: the run file
+        itself for h5, else `sfdrig export`'s files made in ``work`` (zipped when several)."""
+        from storage.errors import ExportError, RunFileError
+        from storage.exporters import export_run
+
+        if fmt not in FORMATS:
+            raise HistoryError(f"format {fmt!r}: one of {', '.join(FORMATS)}")
+        path = self.ended(run_id, "download")
         if fmt == "h5":
             return path, path.name
         try:
@@ -165,18 +172,7 @@ class RunHistory:
 
     def report_job(self, run_id: str) -> tuple[Path, Path]:
         """(run file, report folder) of a run that may be identified now (not while written)."""
-        from storage.errors import RunFileError
-        from storage.reader import open_run
-
-        path = self.path_of(run_id)
-        try:
-            with open_run(path) as run:
-                status = _status(run.status, run.attrs, path)
-        except RunFileError as err:
-            raise HistoryError(f"run {run_id} cannot be read: {err}", 409) from None
-        if status == "running":
-            raise HistoryError(f"run {run_id} is still being written: identify it once it "
-                               "has ended", 409)
+        path = self.ended(run_id, "identify")
         return path, self.report_dir(path)
 
     def report_file(self, run_id: str, name: str) -> Path:
