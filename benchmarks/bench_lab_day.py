@@ -301,7 +301,7 @@ def main() -> int:
         pw = sync_playwright().start()
         browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_FLAGS)
         for _ in range(args.browsers):
-            page = browser.new_context().new_page()
+            page = browser.new_context(bypass_csp=True).new_page()  # Playwright waits use eval
             page.goto(url)
             pages.append(page)
 

@@ -183,7 +183,7 @@ def main() -> int:
         pages = []
         for _ in range(args.browsers):
             assert browser is not None
-            page = browser.new_context().new_page()
+            page = browser.new_context(bypass_csp=True).new_page()  # Playwright waits use eval
             page.goto(url)
             page.wait_for_function("window.sfdrig.frames >= 1", timeout=60_000)
             pages.append(page)

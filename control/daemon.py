@@ -36,7 +36,7 @@ import zmq
 
 from control.acquisition import AcquisitionLoop, RunJob, as_dict
 from control.commands import CommandHandler
-from control.daemon_state import TRANSITIONS, StateMachine, TransitionError
+from control.daemon_state import TRANSITIONS, StateMachine, TransitionError, allowed_commands
 from control.publisher import Publisher
 from control.runs import close_run_file, list_runs, recover_interrupted
 from control.security import (
@@ -342,6 +342,8 @@ class Daemon:
         limits = self.cfg.limits or SafetyLimits()
         return {
             "state": self.sm.state.value,
+            # the requests taken now (a front end's buttons follow them)
+            "allowed": allowed_commands(self.sm.state),
             "run_id": job.run_id if job is not None else "",
             "run_path": str(job.path) if job is not None else "",
             "progress": progress,
@@ -353,7 +355,8 @@ class Daemon:
             "film_drains_for_s": math.ceil(10 * self.pump.drains_for_s()) / 10,
             # what a display draws the orbit and the step table against
             "safety": {"radial_clearance_m": limits.radial_clearance_m,
-                       "displacement_limit_m": limits.displacement_limit_m},
+                       "displacement_limit_m": limits.displacement_limit_m,
+                       "load_limit_n": limits.max_load_n, "drive_limit_v": limits.max_drive_v},
             "tolerance": {"amplitude_pct": getattr(spec, "tolerance_amplitude_pct", None),
                           "phase_deg": getattr(spec, "tolerance_phase_deg", None)}
             if hasattr(spec, "tolerance_amplitude_pct") else None,
@@ -369,6 +372,9 @@ class Daemon:
             "units": {**{c.name: c.units for c in self.channel_map.ai},
                       **{c.name: c.units for c in self.channel_map.ao}},
             "drives": self.channel_map.ao_names,
+            # each input's range in its units (a display shows how much of it is used)
+            "input_ranges": {c.name: sorted((v - c.offset_v) / c.gain_v_per_unit
+                                            for v in c.range_v) for c in self.channel_map.ai},
             "endpoints": self.endpoints,
             "pid": os.getpid(),
         }

@@ -6,8 +6,10 @@ given on the command line (operator by default; ``viewer`` for a display that mu
 With a key directory (``sfdrig keys DIR``, the daemon's) every browser logs in with its client
 key file ``DIR/clients/NAME.key_secret``: the server derives the public key from the secret one
 and looks it up, at every login, in ``DIR/commanders/`` (operator) and ``DIR/readers/`` (viewer),
-exactly as the daemon's authenticator does for ZeroMQ clients. Removing a key file revokes the
-next login. A session is a random token in an HttpOnly, SameSite=Strict cookie.
+exactly as the daemon's authenticator does for ZeroMQ clients. A session is a random token in an
+HttpOnly, SameSite=Strict cookie; it holds the key's public half, and every request of the session
+looks that key up again (`role_of_public_key`): removing a key file ends its sessions at once (the
+server also closes their open WebSockets within a second), moving it changes their role.
 """
 
 from __future__ import annotations
@@ -38,10 +40,11 @@ class Session:
     name: str
     role: str
     expires: float
+    public_key: bytes = b""  # the key the session logged in with ("" without login)
 
 
-def role_of_key_file(text: str, key_dir: Path) -> tuple[str, str]:
-    """(client name, role) of an uploaded ``NAME.key_secret`` file's text.
+def role_of_key_file(text: str, key_dir: Path) -> tuple[str, str, bytes]:
+    """(client name, role, public key) of an uploaded ``NAME.key_secret`` file's text.
 
     Raises
     ------
@@ -56,6 +59,15 @@ def role_of_key_file(text: str, key_dir: Path) -> tuple[str, str]:
         public = zmq.curve_public(m.group(1).encode())
     except (ValueError, zmq.ZMQError):
         raise LoginRefused("not a key file: the secret key is not a CURVE key") from None
+    found = role_of_public_key(public, key_dir)
+    if found is None:
+        raise LoginRefused("this key is not authorised (not in commanders/ or readers/)")
+    return (*found, public)
+
+
+def role_of_public_key(public: bytes, key_dir: Path) -> tuple[str, str] | None:
+    """(client name, role) of a CURVE public key in ``key_dir`` now, None if in neither role
+    directory (never authorised, or revoked since)."""
     for role, sub in ((OPERATOR, "commanders"), (VIEWER, "readers")):
         for f in sorted((key_dir / sub).glob("*.key")):
             try:
@@ -63,7 +75,7 @@ def role_of_key_file(text: str, key_dir: Path) -> tuple[str, str]:
                     return f.stem, role
             except (OSError, ValueError):
                 continue  # an unreadable key authorises nobody
-    raise LoginRefused("this key is not authorised (not in commanders/ or readers/)")
+    return None
 
 
 class Sessions:
@@ -74,10 +86,13 @@ class Sessions:
         self._lock = threading.Lock()
         self._sessions: dict[str, Session] = {}
 
-    def new(self, name: str, role: str) -> str:
+    def new(self, name: str, role: str, public_key: bytes = b"") -> str:
         token = secrets.token_urlsafe(32)
+        now = time.time()
         with self._lock:
-            self._sessions[token] = Session(name, role, time.time() + self.lifetime_s)
+            for t in [t for t, s in self._sessions.items() if s.expires < now]:
+                del self._sessions[t]  # expired sessions never pile up
+            self._sessions[token] = Session(name, role, now + self.lifetime_s, public_key)
         return token
 
     def get(self, token: str | None) -> Session | None:
@@ -93,3 +108,20 @@ class Sessions:
     def end(self, token: str | None) -> None:
         with self._lock:
             self._sessions.pop(token or "", None)
+
+    def current(self, token: str | None, key_dir: Path) -> Session | None:
+        """The session of ``token`` with its key looked up again in ``key_dir``: None (and the
+        session ended) if the key was revoked; the role as the key directory says now."""
+        s = self.get(token)
+        if s is None:
+            return None
+        found = role_of_public_key(s.public_key, key_dir)
+        if found is None:
+            self.end(token)
+            return None
+        if found[1] != s.role:
+            s = Session(s.name, found[1], s.expires, s.public_key)
+            with self._lock:
+                if token in self._sessions:
+                    self._sessions[token or ""] = s
+        return s

@@ -10,6 +10,14 @@ never queue up in its network buffers (seconds of delay), it never makes the oth
 never reaches back to the daemon. Commands
 are POSTs checked against the browser's role (`web.auth`) and sent to the daemon's command
 socket by the `DaemonLink`.
+
+Every request must name an allowed host in its ``Host`` header (`WebConfig.allowed_hosts`: a page
+of another name resolved to this address, DNS rebinding, is refused with 421 before anything
+else), and a POST or WebSocket from a browser must come from this page's own origin. Every answer
+forbids framing (``X-Frame-Options: DENY`` and a content security policy with
+``frame-ancestors 'none'``: no clickjacking). A request's head must arrive within
+``header_timeout_s`` (aiohttp's keep-alive timer, which also closes idle connections) and its body
+within ``body_timeout_s``; a body that is not a JSON object is answered 400 with the reason.
 """
 
 from __future__ import annotations
@@ -17,6 +25,10 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import os
+import shutil
+import sys
+import tempfile
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,8 +39,10 @@ import orjson
 from aiohttp import WSMsgType, web
 from aiohttp.web_request import FileField
 
+from web import sweep_form
 from web.auth import COOKIE, OPERATOR, LoginRefused, Session, Sessions, role_of_key_file
 from web.feed import DaemonLink
+from web.history import HistoryError, RunHistory
 from web.view import LiveView
 
 log = logging.getLogger(__name__)
@@ -36,6 +50,37 @@ STATIC = Path(__file__).parent / "static"
 COMMANDS = ("pause", "resume", "abort", "pump", "reset", "answer")
 MAX_UPLOAD_BYTES = 256 * 1024
 DRAWN = "drawn"  # a browser's answer to each frame: send the next one
+LOOPBACK_NAMES = ("127.0.0.1", "localhost", "::1")
+SECURITY_HEADERS = {
+    "X-Frame-Options": "DENY",
+    "Content-Security-Policy": (
+        "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+        "connect-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; "
+        "frame-ancestors 'none'"),
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "same-origin",  # no-referrer would make form POSTs say Origin: null
+}
+# a report page (analysis.report) styles itself inline and runs no script
+REPORT_ROUTE = "report_file"
+REPORT_CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src 'self'; "
+              "frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
+REVOCATION_CHECK_S = 1.0  # open WebSockets of revoked keys are closed within this
+WS_REVOKED = 4001  # the close code a page reads as "log in again"
+
+
+def host_name(host: str) -> str | None:
+    """The name in a ``Host`` header (``name``, ``name:port``, ``[v6]:port``), lower case;
+    None when it is not one."""
+    host = host.strip().lower()
+    if host.startswith("["):
+        end = host.find("]")
+        name, rest = (host[1:end], host[end + 1:]) if end > 0 else ("", "")
+    else:
+        name, sep, port = host.partition(":")
+        rest = sep + port
+    if not name or (rest and not (rest.startswith(":") and rest[1:].isdigit())):
+        return None
+    return name.rstrip(".")
 
 
 @dataclass
@@ -54,6 +99,16 @@ class WebConfig:
         Frames per second sent to each browser.
     secure_cookie : bool
         Mark the session cookie Secure (served over TLS).
+    allowed_hosts : tuple of str
+        The names (or addresses) a request's ``Host`` header may give, any port; the loopback
+        names by default. Anything else is refused (DNS rebinding).
+    header_timeout_s, body_timeout_s : float
+        How long a request's head, and then its body, may take to arrive [s].
+    runs_dir : Path or None
+        The daemon's runs directory: the page's run history (`web.history`).
+    identify_command, identify_timeout_s
+        The command that makes a run's identification report (given the run file, then
+        ``--no-store --report DIR``) and how long it may take [s].
     """
 
     key_dir: Path | None = None
@@ -61,6 +116,12 @@ class WebConfig:
     examples_dir: Path | None = None
     fps: float = 10.0
     secure_cookie: bool = False
+    allowed_hosts: tuple[str, ...] = LOOPBACK_NAMES
+    header_timeout_s: float = 10.0
+    body_timeout_s: float = 10.0
+    runs_dir: Path | None = None
+    identify_command: tuple[str, ...] = (sys.executable, "-m", "sfdrig", "identify")
+    identify_timeout_s: float = 600.0
 
 
 @dataclass(eq=False)  # hashed by identity: one per connection
@@ -70,6 +131,7 @@ class _Browser:
     drawn: asyncio.Event = field(default_factory=asyncio.Event)  # the last one sent is drawn
     frame: bytes = b""  # the newest frame's JSON text, shared by all browsers
     sent: int = 0
+    token: str | None = None  # its login session (re-checked: a revoked key closes it)
 
 
 def parse_sweep_toml(text: str, source: str) -> dict[str, Any]:
@@ -94,7 +156,10 @@ class WebApp:
         self.browsers: set[_Browser] = set()
         self.frames_made = 0
         self.frame_errors = 0  # frames that could not be made (logged; the ticker goes on)
-        self.app = web.Application(client_max_size=MAX_UPLOAD_BYTES)
+        self._allowed = {h.lower().strip("[]").rstrip(".") for h in config.allowed_hosts}
+        self.app = web.Application(client_max_size=MAX_UPLOAD_BYTES,
+                                   middlewares=[self._check_host])
+        self.app.on_response_prepare.append(self._security_headers)
         self.app.add_routes([
             web.get("/", self.index),
             web.get("/login", self.login_page),
@@ -105,17 +170,83 @@ class WebApp:
             web.post("/api/start", self.start),
             web.post("/api/command", self.command),
             web.post("/api/start_test", self.start_test),
+            web.get("/api/sweep/schema", self.sweep_schema),
+            web.post("/api/sweep/check", self.sweep_check),
+            web.get("/api/runs", self.runs),
+            web.get("/api/runs/{run_id}", self.run_details),
+            web.get("/api/runs/{run_id}/download", self.download),
+            web.post("/api/runs/{run_id}/notes", self.add_note),
+            web.post("/api/runs/{run_id}/report", self.make_report),
+            web.get("/api/runs/{run_id}/report/{name:.+}", self.report_file,
+                    name=REPORT_ROUTE),
             web.static("/static", STATIC),
         ])
         self.app.on_startup.append(self._start_ticker)
         self.app.on_shutdown.append(self._close_browsers)
         self._ticker: asyncio.Task[None] | None = None
+        self.history = RunHistory(config.runs_dir) if config.runs_dir is not None else None
+        self._exporting = asyncio.Lock()  # one export at a time: the daemon needs the CPU
+        self._identifying = asyncio.Lock()  # and one identification
+
+    def runner_options(self) -> dict[str, Any]:
+        """The `aiohttp.web.AppRunner` options this app needs: its keep-alive timer is the
+        header timeout (it closes a connection whose request head is not complete by then);
+        after a refused or timed-out body it reads what is left for at most a second."""
+        return {"keepalive_timeout": self.cfg.header_timeout_s, "lingering_time": 1.0,
+                "access_log": None}
+
+    # --- every request and answer --------------------------------------------------------
+    @web.middleware
+    async def _check_host(self, request: web.Request,
+                          handler: Callable[[web.Request], Any]) -> web.StreamResponse:
+        name = host_name(request.headers.get("Host", ""))
+        if name is None or name not in self._allowed:
+            log.warning("refused a request for host %r from %s", request.headers.get("Host"),
+                        request.remote)
+            raise web.HTTPMisdirectedRequest(
+                text=f"this server does not serve the host {request.headers.get('Host', '')!r}"
+                     " (allowed: " + ", ".join(sorted(self._allowed)) + ")")
+        return await handler(request)
+
+    @staticmethod
+    async def _security_headers(request: web.Request, response: web.StreamResponse) -> None:
+        response.headers.update(SECURITY_HEADERS)
+        if request.match_info.route.name == REPORT_ROUTE:  # analysis's page: its own <style>
+            response.headers["Content-Security-Policy"] = REPORT_CSP
+
+    async def _json_object(self, request: web.Request) -> dict[str, Any]:
+        """The request's body as a JSON object, read within the body timeout.
+
+        Raises
+        ------
+        web.HTTPBadRequest
+            for a body that is not UTF-8 JSON, not an object, or nested beyond reason.
+        web.HTTPRequestTimeout
+            when the body does not arrive in time.
+        """
+        try:
+            async with asyncio.timeout(self.cfg.body_timeout_s):
+                raw = await request.read()
+        except TimeoutError:
+            raise _timed_out("the request body did not arrive in time") from None
+        try:
+            body = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, ValueError) as err:
+            raise _bad(f"the body is not JSON: {err}") from None
+        except RecursionError:
+            raise _bad("the body is not JSON: nested too deeply") from None
+        if not isinstance(body, dict):
+            raise _bad(f"the body must be a JSON object, not {type(body).__name__}")
+        return body
 
     # --- who is asking --------------------------------------------------------------------
     def session(self, request: web.Request) -> Session | None:
+        return self._session_of(request.cookies.get(COOKIE))
+
+    def _session_of(self, token: str | None) -> Session | None:
         if self.cfg.key_dir is None:
             return Session("local", self.cfg.anonymous_role, float("inf"))
-        return self.sessions.get(request.cookies.get(COOKIE))
+        return self.sessions.current(token, self.cfg.key_dir)
 
     @staticmethod
     def _same_origin(request: web.Request) -> bool:
@@ -150,18 +281,24 @@ class WebApp:
             raise web.HTTPFound("/")
         if not self._same_origin(request):
             raise web.HTTPForbidden(text="cross-origin request refused")
-        form = await request.post()
+        try:
+            async with asyncio.timeout(self.cfg.body_timeout_s):
+                form = await request.post()
+        except TimeoutError:
+            raise _timed_out("the login form did not arrive in time") from None
+        except ValueError as err:  # a malformed form body
+            raise web.HTTPBadRequest(text=f"login refused: not a login form: {err}") from None
         key = form.get("key")
         raw = key.file.read() if isinstance(key, FileField) else str(key or "").encode()
         text = raw[:MAX_UPLOAD_BYTES].decode("utf-8", "replace")
         try:
-            name, role = role_of_key_file(text, self.cfg.key_dir)
+            name, role, public = role_of_key_file(text, self.cfg.key_dir)
         except LoginRefused as err:
             return web.Response(status=403, text=f"login refused: {err}")
         log.info("login: %s as %s from %s", name, role, request.remote)
         resp = web.HTTPFound("/")
-        resp.set_cookie(COOKIE, self.sessions.new(name, role), httponly=True, samesite="Strict",
-                        secure=self.cfg.secure_cookie)
+        resp.set_cookie(COOKIE, self.sessions.new(name, role, public), httponly=True,
+                        samesite="Strict", secure=self.cfg.secure_cookie)
         raise resp
 
     async def logout(self, request: web.Request) -> web.Response:
@@ -184,9 +321,11 @@ class WebApp:
 
     async def start(self, request: web.Request) -> web.Response:
         s = self._guard(request, need_operator=True)
-        body = await request.json()
+        body = await self._json_object(request)
         try:
-            if body.get("example"):
+            if isinstance(body.get("spec"), dict):  # the page's form (the daemon validates it)
+                spec = body["spec"]
+            elif body.get("example"):
                 path = self._example_files().get(str(body["example"]))
                 if path is None:
                     raise ValueError(f"no example sweep {body['example']!r}")
@@ -200,12 +339,37 @@ class WebApp:
             "start", spec=spec, operator=s.name, notes="started from sfdrig web"))
         return web.json_response(out)
 
+    async def sweep_schema(self, request: web.Request) -> web.Response:
+        self._guard(request, need_operator=False)
+        return web.json_response({"ok": True, "schema": sweep_form.schema()})
+
+    async def sweep_check(self, request: web.Request) -> web.Response:
+        """The page's sweep (``spec``, or a TOML file's text ``toml``) checked by `SweepSpec`:
+        the problems by field, or the summary and the TOML; ``spec`` is what was checked."""
+        self._guard(request, need_operator=False)
+        body = await self._json_object(request)
+        spec: Any
+        if "toml" in body:
+            try:
+                spec = parse_sweep_toml(str(body["toml"]),
+                                        str(body.get("filename") or "the uploaded file"))
+            except ValueError as err:
+                return web.json_response({"ok": False, "spec": None, "summary": None,
+                                          "toml": "", "errors": [{"field": "",
+                                                                  "message": str(err)}]})
+        else:
+            spec = body.get("spec")
+        safety = self.view.status.get("safety") or {}
+        out = await asyncio.get_running_loop().run_in_executor(
+            None, sweep_form.check, spec, safety)
+        return web.json_response({**out, "spec": spec})
+
     async def start_test(self, request: web.Request) -> web.Response:
         """Start a structure test, with its default settings or the few the page offers
         (``spec``, e.g. the static test's ``load_by``; the daemon validates them); its questions
         come back in the status, so this page (or a terminal) is its operator."""
         s = self._guard(request, need_operator=True)
-        body = await request.json()
+        body = await self._json_object(request)
         test = str(body.get("test", ""))
         spec = body.get("spec") or {}
         if not isinstance(spec, dict):
@@ -217,7 +381,7 @@ class WebApp:
 
     async def command(self, request: web.Request) -> web.Response:
         self._guard(request, need_operator=True)
-        body = await request.json()
+        body = await self._json_object(request)
         cmd = body.get("cmd")
         if cmd not in COMMANDS:
             return web.json_response({"ok": False, "error": f"unknown command {cmd!r}; "
@@ -232,12 +396,97 @@ class WebApp:
         out = await self._daemon(lambda: self.link.try_command(cmd, **fields))
         return web.json_response(out)
 
+    # --- run history ----------------------------------------------------------------------
+    async def _history(self, request: web.Request, call: Callable[[RunHistory], Any]) -> Any:
+        if self.history is None:
+            raise _refused(404, "no runs directory: start sfdrig web with --runs-dir")
+        history = self.history
+        try:
+            return await asyncio.get_running_loop().run_in_executor(None, call, history)
+        except HistoryError as err:
+            raise _refused(err.status, str(err)) from None
+
+    async def runs(self, request: web.Request) -> web.Response:
+        self._guard(request, need_operator=False)
+        return web.json_response({"ok": True, **await self._history(
+            request, lambda h: h.runs())})
+
+    async def run_details(self, request: web.Request) -> web.Response:
+        self._guard(request, need_operator=False)
+        run_id = request.match_info["run_id"]
+        return web.Response(content_type="application/json", body=orjson.dumps(
+            {"ok": True, **await self._history(request, lambda h: h.details(run_id))}))
+
+    async def download(self, request: web.Request) -> web.StreamResponse:
+        """The run file (``format=h5``) or `sfdrig export`'s files (mat, csv, tdms; a zip when
+        several), made in a temporary folder that goes when the answer has been sent."""
+        self._guard(request, need_operator=False)
+        run_id = request.match_info["run_id"]
+        fmt = request.query.get("format", "h5")
+        if fmt == "h5":  # the run file as it is: nothing to make
+            path, name = await self._history(
+                request, lambda h: h.download(run_id, fmt, Path(tempfile.gettempdir())))
+            return _attachment(path, name)
+        if self._exporting.locked():
+            raise _refused(503, "another export is under way: try again when it is done")
+        async with self._exporting:
+            with tempfile.TemporaryDirectory(prefix="sfdrig-web-") as work:
+                path, name = await self._history(
+                    request, lambda h: h.download(run_id, fmt, Path(work)))
+                resp = _attachment(path, name)
+                await resp.prepare(request)  # sent whole before the folder goes
+                return resp
+
+    async def make_report(self, request: web.Request) -> web.Response:
+        """Identify the run in a process of its own (`sfdrig identify --no-store`: the run file
+        is not written), one at a time, at a lower priority than the daemon."""
+        self._guard(request, need_operator=True)
+        run_id = request.match_info["run_id"]
+        path, folder = await self._history(request, lambda h: h.report_job(run_id))
+        if self._identifying.locked():
+            raise _refused(503, "another identification is under way: try again when it is "
+                                "done")
+        async with self._identifying:
+            nice = [n, "-n", "10"] if (n := shutil.which("nice")) else []
+            proc = await asyncio.create_subprocess_exec(
+                *nice, *self.cfg.identify_command, str(path), "--no-store", "--report",
+                str(folder), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+            try:
+                async with asyncio.timeout(self.cfg.identify_timeout_s):
+                    out, _ = await proc.communicate()
+            except TimeoutError:
+                proc.kill()
+                await proc.wait()
+                raise _refused(504, f"identification of {run_id} took longer than "
+                                    f"{self.cfg.identify_timeout_s:g} s: stopped") from None
+        text = out.decode("utf-8", "replace").strip()
+        made = (folder / "index.html").is_file() and proc.returncode == 0
+        return web.json_response({
+            "ok": made, "data": {"lines": text.splitlines()[-40:]},
+            "error": "" if made else f"identify {run_id}: " + (
+                text.splitlines()[-1] if text else f"exit {proc.returncode}")})
+
+    async def report_file(self, request: web.Request) -> web.StreamResponse:
+        self._guard(request, need_operator=False)
+        run_id, name = request.match_info["run_id"], request.match_info["name"]
+        path = await self._history(request, lambda h: h.report_file(run_id, name))
+        return web.FileResponse(path)
+
+    async def add_note(self, request: web.Request) -> web.Response:
+        s = self._guard(request, need_operator=True)
+        run_id = request.match_info["run_id"]
+        body = await self._json_object(request)
+        notes = await self._history(request, lambda h: h.add_note(run_id, s.name,
+                                                                   body.get("text")))
+        return web.json_response({"ok": True, "error": "", "notes": notes})
+
     # --- live frames ----------------------------------------------------------------------
     async def websocket(self, request: web.Request) -> web.WebSocketResponse:
         s = self._guard(request, need_operator=False)
         ws = web.WebSocketResponse(heartbeat=20.0, compress=False)  # CPU over bytes
         await ws.prepare(request)
-        b = _Browser(ws)
+        b = _Browser(ws, token=request.cookies.get(COOKIE))
         await ws.send_str(json.dumps({"type": "hello", "name": s.name, "role": s.role,
                                       "examples": list(self._example_files()),
                                       "login": self.cfg.key_dir is not None}))
@@ -268,11 +517,25 @@ class WebApp:
                 return
             b.sent += 1
 
+    async def _close_revoked(self) -> None:
+        """Close the WebSockets whose login key was revoked (the page then asks to log in)."""
+        if self.cfg.key_dir is None:
+            return
+        for b in list(self.browsers):
+            if self._session_of(b.token) is None:
+                log.warning("closing a page whose key was revoked")
+                self.browsers.discard(b)
+                await b.ws.close(code=WS_REVOKED, message=b"key revoked: log in again")
+
     async def _tick(self) -> None:
         period = 1.0 / self.cfg.fps
         loop = asyncio.get_running_loop()
+        next_check = loop.time()
         while True:
             t0 = loop.time()
+            if t0 >= next_check:
+                next_check = t0 + REVOCATION_CHECK_S
+                await self._close_revoked()
             if self.browsers:
                 try:
                     data = await loop.run_in_executor(None, self._encoded_frame)
@@ -300,3 +563,30 @@ class WebApp:
         for b in list(self.browsers):
             await b.ws.close()
 
+
+
+def _bad(message: str) -> web.HTTPBadRequest:
+    """A 400 answer in the commands' JSON shape."""
+    return web.HTTPBadRequest(content_type="application/json",
+                              text=json.dumps({"ok": False, "error": message, "data": {}}))
+
+
+def _timed_out(message: str) -> web.HTTPRequestTimeout:
+    """A 408 answer that also closes the connection (the rest of the body may still come)."""
+    resp = web.HTTPRequestTimeout(text=message)
+    resp.force_close()
+    return resp
+
+
+def _refused(status: int, message: str) -> web.HTTPException:
+    """An answer of ``status`` in the commands' JSON shape."""
+    cls = {400: web.HTTPBadRequest, 404: web.HTTPNotFound, 409: web.HTTPConflict,
+           503: web.HTTPServiceUnavailable, 504: web.HTTPGatewayTimeout}.get(
+        status, web.HTTPInternalServerError)
+    return cls(content_type="application/json",
+               text=json.dumps({"ok": False, "error": message, "data": {}}))
+
+
+def _attachment(path: Path, name: str) -> web.FileResponse:
+    return web.FileResponse(path, headers={"Content-Disposition": f'attachment; filename="{name}"',
+                                           "Content-Type": "application/octet-stream"})

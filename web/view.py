@@ -23,6 +23,7 @@ from control.lockin import LockIn
 from control.run_summary import CONTACT, peak_line
 
 UM = 1e-6
+STALE_AFTER_S = 1.0  # traces older than this are drawn grey, with the time of their data
 TWO_AXIS = ("circular_forward", "circular_backward", "elliptical")
 TRACE_UNITS = ("N", "m", "m/s^2")  # drawn as traces; the rest (pressure, flow, oil) as means
 
@@ -34,12 +35,13 @@ def _mean_z(harmonics: dict[str, list[list[float]]], names: tuple[str, ...]) -> 
 
 def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
                tolerance_phase_deg: float) -> dict[str, Any]:
-    """One row of the step table and one point of the amplitude/phase-vs-frequency plots.
+    """One row of the step table and one point of the plots against frequency.
 
     The amplitude is the 1X of the reference axis (Y for motion "y", else X): the mean of the two
     probes [um] for a displacement target, the load cell [N] for a load target. The phase is Y
     relative to X [deg] for two-axis motions (the controlled quantity, with its target), else the
-    reference displacement relative to its load (not controlled: no target).
+    reference displacement relative to its load (not controlled: no target). Also the largest
+    drive's 1X amplitude [V] and each axis's direct dynamic stiffness F/X [MN/m, re and im].
     """
     h = step.get("harmonics", {})
     axis = "y" if step.get("motion") == "y" else "x"
@@ -61,6 +63,14 @@ def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
         z, f = disp[axis], force[axis]
         phase = math.degrees(np.angle(z / f)) if z and f else math.nan
     achieved = abs(ref) * scale if ref is not None else math.nan
+    drives = [abs(complex(*v)) for v in (step.get("drive_v") or {}).values()
+              if isinstance(v, list | tuple) and len(v) == 2]
+    # the direct dynamic stiffness F/X of each axis [MN/m] (1X; for two-axis orbits it holds
+    # the cross-coupled terms too): what the rig looks like across the sweep
+    k: dict[str, complex | None] = {}
+    for a in ("x", "y"):
+        fa, za = force[a], disp[a]
+        k[a] = fa / za / 1e6 if fa and za else None
     return {
         "index": int(step.get("index", 0)),
         "freq_hz": float(step.get("freq_hz", math.nan)),
@@ -79,6 +89,11 @@ def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
         "y_um": abs(disp["y"]) / UM if disp["y"] is not None else math.nan,
         "fx_n": abs(force["x"]) if force["x"] is not None else math.nan,
         "fy_n": abs(force["y"]) if force["y"] is not None else math.nan,
+        "drive_v": max(drives) if drives else math.nan,
+        "kx_re_mn_per_m": k["x"].real if k["x"] is not None else math.nan,
+        "kx_im_mn_per_m": k["x"].imag if k["x"] is not None else math.nan,
+        "ky_re_mn_per_m": k["y"].real if k["y"] is not None else math.nan,
+        "ky_im_mn_per_m": k["y"].imag if k["y"] is not None else math.nan,
         "updates": int(step.get("updates", 0)),
         "converged": bool(step.get("converged", False)),
         "reason": str(step.get("reason", "")),
@@ -146,6 +161,11 @@ class LiveView:
         self._peak_m = 0.0
         self._peak_n = 0.0
         self._contact = ""
+        # the link to the daemon (`web.feed.DaemonLink` says how it is) and the last heartbeat
+        self._link: dict[str, Any] = {"state": "connecting", "message": ""}
+        self._heartbeat_at: float | None = None
+        self._malformed = 0
+        self._malformed_last = ""
 
     # --- fed from the subscriber thread ----------------------------------------------------
     def on_message(self, msg: Message) -> None:
@@ -168,6 +188,30 @@ class LiveView:
                     self._contact = h["message"]
             elif msg.topic == "status":
                 self._on_status(h["status"], msg.received_at)
+                self._heartbeat_at = msg.received_at
+
+    def note_heartbeat(self, now: float | None = None) -> None:
+        """A heartbeat seen elsewhere (the subscription's first, which proves it live)."""
+        with self._lock:
+            self._heartbeat_at = time.time() if now is None else now
+
+    def heartbeat_age(self, now: float | None = None) -> float | None:
+        """Seconds since the daemon's last heartbeat on the stream (None: none yet)."""
+        with self._lock:
+            if self._heartbeat_at is None:
+                return None
+            return (time.time() if now is None else now) - self._heartbeat_at
+
+    def set_link(self, link: dict[str, Any]) -> None:
+        """How the link to the daemon is (`web.feed.DaemonLink`)."""
+        with self._lock:
+            self._link = dict(link)
+
+    def note_malformed(self, count: int, what: str) -> None:
+        """A message the feed could not use (skipped): counted and shown."""
+        with self._lock:
+            self._malformed = count
+            self._malformed_last = what[:300]
 
     def set_status(self, status: dict[str, Any], now: float | None = None) -> None:
         """A status reply (late join) or heartbeat."""
@@ -191,6 +235,8 @@ class LiveView:
         self._contact = ""
 
     def _on_status(self, status: dict[str, Any], now: float) -> None:
+        if not isinstance(status, dict):  # the frame reads it as one
+            raise ValueError(f"a status must be an object, not {type(status).__name__}")
         self.status = status
         tol = status.get("tolerance")
         if tol:
@@ -282,19 +328,34 @@ class LiveView:
         with self._lock:
             traces = self._traces() if self._buf is not None and self._write else None
             status = dict(self.status)
+            link = self._link_now(now)
             return {
                 "type": "frame",
                 "server_time": now,
                 "t_acquired": self._t_acquired,
                 "block_seq": self._block_seq,
+                "link": link,
                 "status": status,
-                "time_left_s": self._time_left(status, now),
+                "time_left_s": self._time_left(status, now)
+                if link["state"] in ("live", "late") else None,
                 "peaks": self._peaks(status),
                 "traces": traces,
                 "steps": list(self.steps),
                 "events": list(self.events)[-50:],
                 "lost": dict(self.lost),
             }
+
+    def _link_now(self, now: float) -> dict[str, Any]:
+        """The link for the page: its state and message, the heartbeat's and the data's age,
+        whether the traces are stale (no block for `STALE_AFTER_S`, or the link not live)."""
+        hb = None if self._heartbeat_at is None else max(0.0, now - self._heartbeat_at)
+        data_at = self._t_acquired if self._t_acquired > 0 else None
+        data_age = None if data_at is None else max(0.0, now - data_at)
+        live = self._link.get("state") in ("live", "late")
+        return {**self._link, "heartbeat_age_s": hb, "data_age_s": data_age,
+                "last_data_time": data_at,
+                "stale": not live or data_age is None or data_age > STALE_AFTER_S,
+                "malformed": self._malformed, "malformed_last": self._malformed_last}
 
     def _time_left(self, status: dict[str, Any], now: float) -> float | None:
         """Remaining steps times the mean duration of the finished ones (None before the first)."""
@@ -337,6 +398,7 @@ class LiveView:
         ai_means = window[: self._n_ai].mean(axis=1) if n else np.full(self._n_ai, math.nan)
         means = {name: finite(float(v)) for name, v in zip(names[: self._n_ai], ai_means,
                                                             strict=True)}
+        levels = self._levels(window[: self._n_ai], ai_means) if n else {}
         x = self._mean_rows(rows, ("x1", "x2"), "x")
         y = self._mean_rows(rows, ("y1", "y2"), "y")
         harmonics: dict[str, list[float]] = {}
@@ -354,8 +416,28 @@ class LiveView:
             "freq_hz": finite(freq),
             "decimation": step,
             "harmonics": harmonics,
+            "levels": levels,
             "last_sample": self._last_sample,
         }
+
+    def _levels(self, ai: np.ndarray, means: np.ndarray) -> dict[str, dict[str, float | None]]:
+        """Per input over the shown window: RMS about the mean, peak |value| and how much of
+        the input range the samples reach [%] (from the range's middle to the nearer end;
+        100 % is the ADC's limit), when the status gives the range."""
+        ranges = self.status.get("input_ranges") or {}
+        rms = np.sqrt(np.mean((ai - means[:, None]) ** 2, axis=1))
+        lo_v, hi_v = ai.min(axis=1), ai.max(axis=1)
+        out: dict[str, dict[str, float | None]] = {}
+        for i, name in enumerate(self._channels[: self._n_ai]):
+            used = None
+            r = ranges.get(name)
+            if isinstance(r, list) and len(r) == 2 and r[1] > r[0]:
+                mid, half = 0.5 * (r[0] + r[1]), 0.5 * (r[1] - r[0])
+                used = 100.0 * max(hi_v[i] - mid, mid - lo_v[i]) / half
+            out[name] = {"rms": finite(float(rms[i])),
+                         "peak": finite(float(max(abs(lo_v[i]), abs(hi_v[i])))),
+                         "range_pct": finite(used) if used is not None else None}
+        return out
 
     @staticmethod
     def _mean_rows(rows: dict[str, np.ndarray], pair: tuple[str, str],

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
 from control.client import CommandClient, Subscriber
+from control.instance import process_gone
 from control.security import ClientKeys, load_client_keys
 
 DEFAULT_RUNS_DIR = Path("runs")
@@ -35,7 +35,7 @@ def _state(args: argparse.Namespace) -> dict[str, str]:
     path = Path(args.runs_dir) / STATE_FILE_NAME
     try:
         state = dict(json.loads(path.read_text()))
-        if _gone(state.get("pid")):
+        if process_gone(state.get("pid")):
             raise SystemExit(
                 f"the daemon that wrote {path} (pid {state['pid']}) is not running: start "
                 f"`sfdrig daemon --runs-dir {args.runs_dir}` (it takes the stale file over)")
@@ -47,19 +47,6 @@ def _state(args: argparse.Namespace) -> dict[str, str]:
         ) from None
     except (OSError, ValueError) as err:
         raise SystemExit(f"cannot read {path}: {err}") from None
-
-
-def _gone(pid: object) -> bool:
-    """Whether ``pid`` names no process on this computer (a killed daemon's state file)."""
-    if not isinstance(pid, int) or pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except OSError:  # another user's process: alive
-        return False
-    return False
 
 
 def keys(args: argparse.Namespace) -> ClientKeys | None:

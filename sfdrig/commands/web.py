@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import signal
+import socket
 import ssl
 import sys
 from pathlib import Path
@@ -20,10 +22,10 @@ from threadpoolctl import threadpool_limits
 
 from control.client import DaemonUnavailable
 from control.security import KeyFileError, is_loopback
-from sfdrig.commands._client_args import _state, add_connection_arguments, keys
+from sfdrig.commands._client_args import STATE_FILE_NAME, _state, add_connection_arguments, keys
 from web.auth import OPERATOR, VIEWER
 from web.feed import DaemonLink
-from web.server import WebApp, WebConfig
+from web.server import LOOPBACK_NAMES, WebApp, WebConfig
 from web.view import LiveView
 
 NAME = "web"
@@ -43,6 +45,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: %(default)s)")
     parser.add_argument("--fps", type=float, default=10.0,
                         help="frames per second sent to each browser (default: %(default)s)")
+    parser.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                        help="a host name (or address) browsers may use for this server, "
+                             "repeatable; the loopback names, --host and, on a wildcard "
+                             "address, this computer's names are allowed; a request naming any "
+                             "other host is refused (DNS rebinding)")
     parser.add_argument("--tls-cert", type=Path, help="TLS certificate chain (PEM)")
     parser.add_argument("--tls-key", type=Path, help="TLS private key (PEM)")
     add_connection_arguments(parser, data=True)
@@ -78,7 +85,11 @@ def run(args: argparse.Namespace) -> int:
         client_keys = keys(args)
         command = args.command_endpoint or _state(args)["command"]
         data = args.data_endpoint or _state(args)["data"]
-        link = DaemonLink(command, data, LiveView(), keys=client_keys, timeout_s=args.timeout)
+        # found through the state file: read it again while the daemon is gone, to find a
+        # restarted one (on any ports); endpoints given by hand are kept
+        followed = args.command_endpoint is None and args.data_endpoint is None
+        link = DaemonLink(command, data, LiveView(), keys=client_keys, timeout_s=args.timeout,
+                          state_file=args.runs_dir / STATE_FILE_NAME if followed else None)
     except (KeyFileError, SystemExit) as err:
         return _fail(str(err))
     try:
@@ -91,7 +102,9 @@ def run(args: argparse.Namespace) -> int:
     # for the same product, taken from the paced daemon (README "Measured figures").
     threadpool_limits(limits=1, user_api="blas")
     config = WebConfig(key_dir=args.keys, anonymous_role=args.role, examples_dir=args.examples,
-                       fps=args.fps, secure_cookie=tls is not None)
+                       fps=args.fps, secure_cookie=tls is not None,
+                       allowed_hosts=allowed_hosts(args.host, args.allow_host),
+                       runs_dir=args.runs_dir)
     app = WebApp(link, config)
     try:
         asyncio.run(_serve(app, args.host, args.port, tls))
@@ -102,8 +115,22 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def allowed_hosts(host: str, extra: list[str]) -> tuple[str, ...]:
+    """The names a browser may give in ``Host``: loopback, the bound address, ``extra`` and,
+    bound to every interface, this computer's host name, its fully qualified name and the
+    addresses that name resolves to."""
+    names = [*LOOPBACK_NAMES, *extra]
+    if host in ("0.0.0.0", "::", ""):
+        names += [socket.gethostname(), socket.getfqdn()]
+        with contextlib.suppress(OSError):  # and the addresses its name resolves to here
+            names += socket.gethostbyname_ex(socket.gethostname())[2]
+    else:
+        names.append(host)
+    return tuple(dict.fromkeys(n.lower() for n in names if n))
+
+
 async def _serve(app: WebApp, host: str, port: int, tls: ssl.SSLContext | None) -> None:
-    runner = aioweb.AppRunner(app.app, access_log=None)
+    runner = aioweb.AppRunner(app.app, **app.runner_options())
     await runner.setup()
     site = aioweb.TCPSite(runner, host, port, ssl_context=tls)
     await site.start()

@@ -7,10 +7,14 @@ Synchronisation: the web process's first stdout line names its URL; the page's o
 
 from __future__ import annotations
 
+import cmath
+import math
 import os
 import selectors
 import subprocess
 import sys
+import time
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -18,9 +22,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from control.client import CommandClient
 from control.security import make_keys
 from storage.reader import open_run
-from tests.e2e.conftest import REPO_ROOT, DaemonProcess
+from tests.e2e.conftest import REPO_ROOT, DaemonProcess, start_daemon
 
 pytestmark = pytest.mark.e2e
 
@@ -65,12 +70,15 @@ def browser() -> Iterator[Any]:
 def web_factory(tmp_path: Path) -> Iterator[Any]:
     started: list[subprocess.Popen[str]] = []
 
-    def factory(d: DaemonProcess, *extra: str) -> str:
+    def factory(d: DaemonProcess, *extra: str, follow: bool = False) -> str:
+        """``follow``: find the daemon through its runs directory's daemon.json (as the README
+        starts it), not through endpoints given by hand."""
         err = open(tmp_path / f"web{len(started)}.stderr", "w")  # noqa: SIM115
+        where = ["--runs-dir", str(d.runs_dir)] if follow else [
+            "--command-endpoint", d.command, "--data-endpoint", d.data]
         proc = subprocess.Popen(
-            [sys.executable, "-m", "sfdrig", "web", "--port", "0", "--command-endpoint",
-             d.command, "--data-endpoint", d.data, "--examples", str(REPO_ROOT / "examples"),
-             *extra],
+            [sys.executable, "-m", "sfdrig", "web", "--port", "0", *where,
+             "--examples", str(REPO_ROOT / "examples"), *extra],
             cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=err, text=True,
             env={**os.environ, "PYTHONUNBUFFERED": "1"})
         err.close()
@@ -98,9 +106,16 @@ def web_factory(tmp_path: Path) -> Iterator[Any]:
             print(f"--- {f.name} ---\n{f.read_text()}")
 
 
-def _open(browser: Any, url: str) -> Any:
-    """A page of ``url`` in ``browser`` (a Browser: its own context; or a BrowserContext)."""
-    page = browser.new_page()
+def _open(browser: Any, url: str, csp: bool = False) -> Any:
+    """A page of ``url`` in ``browser`` (a Browser: its own context; or a BrowserContext made
+    with ``bypass_csp=True``). The page's content security policy forbids what Playwright's
+    string waits need (eval), so tests bypass it, except with ``csp`` (then only waits on
+    selectors, and the page's CSP violations are collected in ``page.csp``)."""
+    page = browser.new_page(bypass_csp=not csp) if hasattr(browser, "contexts") \
+        else browser.new_page()
+    page.csp = []
+    page.on("console", lambda m: page.csp.append(m.text)
+            if "Content Security Policy" in m.text else None)
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.goto(url)
@@ -113,6 +128,7 @@ def _upload(page: Any, tmp_path: Path, name: str, text: str) -> str:
     f.write_text(text)
     page.set_input_files("#upload", str(f))
     page.click("#start-upload")
+    page.click("#confirm-yes")  # a start is confirmed first
     page.wait_for_function("document.getElementById('message').textContent.length > 0")
     msg = page.inner_text("#message")
     page.evaluate("document.getElementById('message').textContent = ''")
@@ -159,11 +175,36 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     # 40 N at 70-80 Hz on the dry rig: tens of um, inside the 63.5 um limit
     rmax = float(page.get_attribute("#orbit", "data-rmax-um"))
     assert 1.0 < rmax < 63.5
+    # zoomed, the orbit fills the plot: its edge at 1.25 x the largest radius, not 140 um
+    page.check("#orbit-zoom")
+    rmax, scale = page.evaluate("[document.getElementById('orbit').dataset.rmaxUm, "
+                                "document.getElementById('orbit').dataset.scaleUm].map(Number)")
+    assert scale == pytest.approx(max(1.0, 1.25 * rmax), rel=1e-3) and scale < 80.0
+    # the trip levels drawn on the forces (448 N) and the drives (9 V), with units on the axes
+    trips = page.evaluate("""() => { const last = (u) => u.data.slice(-2).map((d) => d[0]);
+        return [last(plots.force.u), last(plots.drive.u),
+                plots.force.u.axes.map((a) => a.label), plots.drive.u.axes[1].label]; }""")
+    assert trips[0] == [448.0, -448.0] and trips[1] == [9.0, -9.0]
+    assert trips[2] == ["time [ms]", "force [N]"] and trips[3] == "drive [V]"
     assert page.inner_text("#state") == "running" and page.inner_text("#run-id") == run_id
+    # each input's RMS, peak and how much of its range it uses: 40 N of the load cell's range
+    fx = [c.inner_text() for c in page.query_selector_all("#levels tr[data-input='fx'] td")]
+    assert fx[1] == "N" and 20.0 < float(fx[3]) < 45.0 and float(fx[3]) < float(fx[4])
+    assert 0.0 < float(fx[5]) < 90.0
     rows = page.query_selector_all("#steps tbody tr")
     first_row = [c.inner_text() for c in rows[0].query_selector_all("td")]
     assert first_row[1] == "70.0" and first_row[3] == "40.00 N"
     assert abs(float(first_row[4].split()[0]) - 40.0) < 0.4  # within the 1 % band
+    # the drive it took against the 9 V limit, and the dynamic stiffness F/X at each step: its
+    # size is the step's load over its orbit, its phase the orbit's lag, and Im K > 0 (the dry
+    # rig dissipates: at 40 N the seal's 26 N of friction rules)
+    drive_info = page.inner_text("#drive-info")
+    assert drive_info.startswith("largest drive ") and " of 9.0 V: headroom " in drive_info
+    st = page.evaluate("window.sfdrig.lastFrame.steps[0]")
+    k = complex(st["kx_re_mn_per_m"], st["kx_im_mn_per_m"])
+    assert abs(k) == pytest.approx(st["fx_n"] / st["x_um"], rel=1e-9)
+    assert math.degrees(cmath.phase(k)) == pytest.approx(-st["phase_deg"], abs=1e-6)
+    assert k.imag > 0 and 0 < st["drive_v"] < 9.0
     page.wait_for_function("/^\\d+ (s|min)/.test(document.getElementById('time-left').textContent)",
                            timeout=10_000)
     # the run's peak orbit and load so far, and no contact (issue 21)
@@ -178,6 +219,16 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
                            f"'{run_id} aborted')", timeout=60_000)
     assert page.inner_text("#state") == "idle"
     assert "operator abort from sfdrig web" in page.inner_text("#events")
+    # the trips, faults and aborts alone, and those exported as CSV
+    page.select_option("#event-filter", "limit_trip,fault,abort,error")
+    kinds = {li.get_attribute("class") for li in page.query_selector_all("#events li")}
+    assert kinds == {"ev-abort"}, kinds
+    with page.expect_download() as download:
+        page.click("#events-export")
+    lines = Path(download.value.path()).read_text().splitlines()
+    assert lines[0] == "time_utc,kind,message,run_id"
+    assert any('"abort","operator abort from sfdrig web"' in line for line in lines[1:])
+    assert all(',"abort",' in line for line in lines[1:])
     # once it has ended: the daemon's summary of the whole run (every block counted)
     page.wait_for_function("document.getElementById('peaks').textContent.includes('of 448 N')",
                            timeout=10_000)
@@ -242,12 +293,15 @@ def test_a_viewer_sees_the_page_and_controls_nothing(daemon_factory, web_factory
     assert frame["state"] == "idle" and frame["pump_on"] is False
     assert not list(d.runs_dir.glob("*.h5"))
 
-    op = _open(browser.new_context(), url)  # a second browser session, with its own cookie
+    # a second browser session, with its own cookie
+    op = _open(browser.new_context(bypass_csp=True), url)
     op.set_input_files("#key", str(keys / "clients" / "operator.key_secret"))
     op.click("#login")
     op.wait_for_function("window.sfdrig && window.sfdrig.role === 'operator'")
     assert op.is_visible("#abort")
     op.click("#pump-on")
+    assert op.inner_text("#confirm-text") == "Switch the oil pump ON?"
+    op.click("#confirm-yes")
     op.wait_for_function("document.getElementById('pump').textContent === 'ON'")
     page.wait_for_function("document.getElementById('pump').textContent === 'ON'")
 
@@ -284,6 +338,7 @@ def test_the_operator_answers_a_structure_test_in_the_page(daemon_factory, web_f
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
     page.select_option("#test-kind", "flow")
     page.click("#start-test")  # the flow test with its defaults: 8-25 kPa, two passes
+    page.click("#confirm-yes")
     page.wait_for_function("document.getElementById('message').textContent.includes('run ')")
     run_id = page.inner_text("#message").removeprefix("start: ok (run ").rstrip(")")
     page.wait_for_selector("#question:not([hidden])", timeout=60_000)
@@ -335,6 +390,7 @@ def test_the_page_starts_the_static_test_by_hand(daemon_factory, web_factory, br
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
     page.select_option("#test-kind", "static:hand")
     page.click("#start-test")
+    page.click("#confirm-yes")
     page.wait_for_function("document.getElementById('message').textContent.includes('run ')")
     run_id = page.inner_text("#message").removeprefix("start: ok (run ").rstrip(")")
     page.wait_for_selector("#question:not([hidden])", timeout=60_000)
@@ -352,4 +408,157 @@ def test_the_page_starts_the_static_test_by_hand(daemon_factory, web_factory, br
         assert r.attrs["status"] == "aborted" and len(r.steps) == 0
         for drive in r.drive_names:
             assert np.all(r.channel(drive) == 0.0), drive  # by hand: the shakers never drive
+    assert page.errors == []
+
+
+def test_a_killed_daemon_looks_gone_and_a_restarted_one_is_found(daemon_factory, web_factory,
+                                                                  browser):
+    """Issue 25: kill -9 of the daemon mid-run used to leave "running", a moving sine and a
+    counting "time left" for 30 s; a daemon restarted on new ports was never found. Now the page
+    says LOST within 2 s, greys the plots with the time of the last data, offers no button,
+    and finds the new daemon through runs/daemon.json by itself."""
+    d = daemon_factory()
+    url = web_factory(d, follow=True)
+    page = _open(browser, url)
+    strict = _open(browser, url, csp=True)  # the page under its own CSP: nothing blocked
+    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
+    assert page.inner_text("#link") == "live" and page.inner_text("#state") == "idle"
+    with CommandClient(d.command) as c:
+        run_id = c.start_sweep(tomllib.loads(LONG_SWEEP)).data["run_id"]
+    page.wait_for_function("document.querySelectorAll('#steps tbody tr').length >= 1 && "
+                           "/^\\d+ (s|min)/.test(document.getElementById('time-left')"
+                           ".textContent)", timeout=120_000)
+    assert page.inner_text("#state") == "running" and not page.is_disabled("#abort")
+    assert page.is_disabled("#start-example") and page.inner_text("#data-age").endswith(" s old")
+    assert not page.evaluate("document.body.classList.contains('stale')")
+
+    t0 = time.monotonic()
+    d.proc.kill()  # SIGKILL: no goodbye, daemon.json stays behind
+    d.proc.wait(10)  # reaped, as the shell that started it would (a zombie's pid still answers)
+    page.wait_for_function("document.getElementById('link').textContent === 'LOST'",
+                           timeout=2_000)
+    shown_after_s = time.monotonic() - t0
+    print(f"LOST shown {shown_after_s:.2f} s after the kill")
+    assert shown_after_s < 2.0
+    assert page.inner_text("#state") == "unknown (was running)"
+    assert page.inner_text("#run-id") == f"{run_id} (last known)"
+    assert page.inner_text("#time-left") == "-" and page.inner_text("#step") == "-"
+    banner = page.inner_text("#link-banner")
+    assert banner.startswith("Daemon LOST: ") and "is not running" in banner, banner
+    assert banner.endswith("Nothing below is live.")
+    page.wait_for_function("document.body.classList.contains('stale')")
+    assert page.inner_text("#data-age").startswith("none since ")
+    assert page.is_visible(".panel .stale-note")
+    assert page.inner_text(".panel .stale-note").startswith("not live: last data at ")
+    assert page.inner_text("#harm-info").startswith("NOT live")
+    for button in ("#abort", "#pause", "#resume", "#start-example", "#pump-on", "#pump-off"):
+        assert page.is_disabled(button), button
+
+    d2 = start_daemon(d.runs_dir)  # what `sfdrig daemon` does again: new random ports
+    try:
+        assert (d2.command, d2.data) != (d.command, d.data)
+        page.wait_for_function("document.getElementById('link').textContent === 'live'",
+                               timeout=30_000)
+        page.wait_for_function("document.getElementById('state').textContent === 'idle'")
+        assert not page.is_visible("#link-banner")
+        assert not page.is_disabled("#start-example") and page.is_disabled("#abort")
+        # the new daemon closed the killed run as interrupted, and the history lists it so
+        with open_run(d.runs_dir / f"{run_id}.h5") as run:
+            assert run.status == "interrupted"
+            steps_in_file = len(run.steps)
+        row = f"#runs tbody tr[data-run='{run_id}']"
+        page.wait_for_function(f"(() => {{ const r = document.querySelector(\"{row}\"); "
+                               "return r && r.cells[4].textContent === 'interrupted'; })()")
+        assert page.inner_text(f"{row} td:nth-child(4)") == str(steps_in_file)
+        page.click(f"{row} button")  # open it: its step table and plot from the file
+        page.wait_for_selector("#run:not([hidden])")
+        assert page.inner_text("#run-title") == f"{run_id} (sweep, interrupted)"
+        rows = page.query_selector_all("#run-steps tbody tr")
+        assert len(rows) == steps_in_file >= 1
+        assert rows[0].query_selector_all("td")[1].inner_text() == "70.0"
+        size = page.evaluate("""async () => (await (await fetch(
+            document.getElementById('dl-h5').href)).arrayBuffer()).byteLength""")
+        assert size == (d.runs_dir / f"{run_id}.h5").stat().st_size
+        page.fill("#note-text", "daemon killed on purpose (issue 25 test)")
+        page.click("#note-add")
+        page.wait_for_function("document.getElementById('run-notes').children.length === 1")
+        assert page.inner_text("#run-notes").endswith(
+            "local: daemon killed on purpose (issue 25 test)")
+        strict.wait_for_selector("#link.live")
+        assert strict.csp == [] and page.errors == [] and strict.errors == []
+    finally:
+        assert d2.terminate() == 0
+        d2.proc.communicate(timeout=10)
+
+
+def test_a_sweep_defined_on_the_page(daemon_factory, web_factory, browser, tmp_path):
+    """The form has every field of the sweep model; problems are shown at their field (the
+    model's own messages), a rule between fields above the form; a valid sweep is summarised,
+    saved as the TOML `sfdrig sweep` reads, loaded back, confirmed and started as given."""
+    d = daemon_factory()
+    page = _open(browser, web_factory(d))
+    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.formReady === true")
+    page.click("#editor summary")
+    fields = page.eval_on_selector_all("#sweep-form [data-field]", "els => els.map(e => "
+                                       "e.dataset.field)")
+    assert {"motion", "amplitude_m", "load_n", "freq_hz", "freq_start_hz", "freq_points",
+            "tolerance_amplitude_pct", "on_not_converged", "control.window_cycles",
+            "control.algorithm"} <= set(fields)
+    assert len(fields) == 20 + 20  # SweepSpec's 20 fields and ControlSettings' 20
+
+    def error_at(field: str) -> str:
+        return page.inner_text(f"#sweep-form [data-error-for='{field}']")
+
+    page.fill("[data-field='load_n']", "40")
+    page.fill("[data-field='freq_hz']", "70, -5")
+    page.fill("[data-field='control.window_cycles']", "0")
+    page.click("#sweep-check")
+    page.wait_for_function("document.querySelector(\"[data-error-for='freq_hz']\")"
+                           ".textContent.length > 0")
+    assert error_at("freq_hz") == "Input should be greater than 0 (got -5)"
+    assert error_at("control.window_cycles") == ("Input should be greater than or equal to 1 "
+                                                 "(got 0)")
+    assert page.is_disabled("#sweep-start")
+    page.fill("[data-field='control.window_cycles']", "2")
+    page.fill("[data-field='freq_hz']", "70, 80")
+    page.fill("[data-field='amplitude_m']", "20")  # and load_n: one target kind only
+    page.click("#sweep-check")
+    page.wait_for_function("document.getElementById('sweep-form-error').textContent.length > 0")
+    assert page.inner_text("#sweep-form-error") == ("give exactly one of amplitude_m (hold "
+                                                    "displacement) or load_n (hold load)")
+    page.fill("[data-field='amplitude_m']", "")
+    page.fill("[data-field='settle_cycles']", "20")
+    page.click("#sweep-check")
+    page.wait_for_function("!document.getElementById('sweep-start').disabled")
+    summary = page.inner_text("#sweep-summary").splitlines()
+    assert summary[0] == "(no name): x, hold load at 40.00 N"
+    assert summary[1] == "2 steps: 2 frequencies from 70.00 to 80.00 Hz"
+    # (20 + 40) cycles at 70 and at 80 Hz: 0.857 + 0.75 = 1.6 s
+    assert summary[2].startswith("settling and recording alone: 1.6 s")
+    assert summary[3].startswith("pump: must be OFF")
+    assert summary[5] == "limits: orbit 63.5 um, load 448 N, drive 9.0 V"
+
+    with page.expect_download() as saved:
+        page.click("#sweep-save")
+    toml_text = Path(saved.value.path()).read_text()
+    assert tomllib.loads(toml_text) == {"load_n": [40.0], "freq_hz": [70.0, 80.0],
+                                        "settle_cycles": 20}
+    page.click("#sweep-defaults")
+    assert page.input_value("[data-field='load_n']") == ""
+    (tmp_path / "saved.toml").write_text(toml_text)
+    page.set_input_files("#sweep-load", str(tmp_path / "saved.toml"))
+    page.wait_for_function("!document.getElementById('sweep-start').disabled")
+    assert page.input_value("[data-field='freq_hz']") == "70, 80"
+    assert page.input_value("[data-field='settle_cycles']") == "20"
+
+    page.click("#sweep-start")
+    assert page.inner_text("#confirm-text").startswith("Start: (no name): x, hold load at 40.00 N")
+    page.click("#confirm-yes")
+    page.wait_for_function("document.getElementById('message').textContent.includes('run ')")
+    run_id = page.inner_text("#message").removeprefix("start: ok (run ").rstrip(")")
+    page.wait_for_function(f"document.getElementById('run-id').textContent.includes("
+                           f"'{run_id} completed')", timeout=120_000)
+    with open_run(d.runs_dir / f"{run_id}.h5") as run:
+        assert [s["freq_hz"] for s in run.steps] == [70.0, 80.0]
+        assert run.test_spec["settle_cycles"] == 20 and run.test_spec["load_n"] == [40.0]
     assert page.errors == []

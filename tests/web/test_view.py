@@ -120,6 +120,21 @@ def test_step_point_of_a_displacement_x_step_has_the_frf_phase_and_no_phase_targ
     assert p["error_pct"] == pytest.approx(1.0) and p["band_pct"] == 2.0
     assert p["phase_deg"] == pytest.approx(-90.0)  # x lags fx by 90 deg
     assert p["phase_target_deg"] is None and p["phase_label"] == "x rel. fx"
+    # F/X = 30j N / 25.25 um: 1.188 MN/m in quadrature (the motion lags by 90 deg)
+    assert p["kx_re_mn_per_m"] == pytest.approx(0.0, abs=1e-12)
+    assert p["kx_im_mn_per_m"] == pytest.approx(30.0 / 25.25e-6 / 1e6)
+    assert math.isnan(p["ky_re_mn_per_m"]) and math.isnan(p["drive_v"])
+
+
+def test_step_point_drive_level_and_stiffness_of_a_circular_step():
+    step = {**circular_step(0, 50.0, 10e-6, -90.0),
+            "drive_v": {"shaker_x": [3.0, 4.0], "shaker_y": [0.0, -2.0]}}
+    p = step_point(step, 1.0, 1.0)
+    assert p["drive_v"] == pytest.approx(5.0)  # |3 + 4j| V, the larger drive
+    assert p["kx_re_mn_per_m"] == pytest.approx(40.2 / 10e-6 / 1e6)  # 4.02 MN/m
+    # fy = -40.2j over y = -10.2j um: 3.94 MN/m in phase
+    assert p["ky_re_mn_per_m"] == pytest.approx(40.2 / 10.2e-6 / 1e6, rel=1e-9)
+    assert p["ky_im_mn_per_m"] == pytest.approx(0.0, abs=1e-9)
 
 
 def test_steps_and_time_left_from_the_finished_steps():
@@ -133,8 +148,14 @@ def test_steps_and_time_left_from_the_finished_steps():
     fr = view.frame(now=124.0)
     assert [s["index"] for s in fr["steps"]] == [0, 1]
     assert fr["steps"][0]["band_pct"] == 2.0 and fr["steps"][0]["phase_band_deg"] == 3.0
+    # before the link says the daemon is there, no time left is promised
+    assert fr["time_left_s"] is None and fr["link"]["state"] == "connecting"
+    view.set_link({"state": "live", "message": ""})
+    fr = view.frame(now=124.0)
     # 2 steps in 20 s: 3 left take 30 s, 4 s of the next one have passed
     assert fr["time_left_s"] == pytest.approx(26.0)
+    view.set_link({"state": "lost", "message": "no heartbeat for 1.2 s"})
+    assert view.frame(now=125.0)["time_left_s"] is None  # a dead daemon's run counts nothing
     # a new run clears the table
     view.on_message(Message("event", {"run_id": "R2", "seq": 0, "kind": "info",
                                       "message": "x", "time": 1.0}, None, 130.0))
@@ -193,3 +214,20 @@ def test_the_runs_peak_orbit_load_and_contact_live_then_the_daemons_summary():
     assert pk["final"] and pk["tripped"]
     assert pk["text"] == ("peak orbit 125.0 um of the 63.5 um limit (step 1/1, 150.0 Hz), "
                           f"peak load 119.8 N of 448 N; {contact}")
+
+
+def test_per_input_rms_peak_and_range_used():
+    """fx = 40 cos: RMS 40/sqrt(2) N, peak 40 N; of a +/-100 N range it uses 40 %, of a
+    -20..180 N range (middle 80 N) it reaches 120 N below the middle: 120 %, past the end."""
+    view = LiveView(buffer_s=0.5, cycles=3, points=200)
+    view.set_status({"run_id": "R1", "progress": {"freq_hz": 20.0},
+                     "input_ranges": {"fx": [-100.0, 100.0], "fy": [-20.0, 180.0]}})
+    for m in blocks(20.0, 40):
+        view.on_message(m)
+    levels = view.frame(now=2000.0)["traces"]["levels"]
+    assert levels["fx"]["rms"] == pytest.approx(40 / math.sqrt(2), rel=1e-3)
+    assert levels["fx"]["peak"] == pytest.approx(40.0, rel=1e-3)
+    assert levels["fx"]["range_pct"] == pytest.approx(40.0, rel=1e-3)
+    assert levels["fy"]["range_pct"] == pytest.approx(120.0, rel=1e-3)
+    assert levels["x1"]["range_pct"] is None  # no range given: not guessed
+    assert levels["y1"]["rms"] == pytest.approx(20e-6 / math.sqrt(2), rel=1e-3)

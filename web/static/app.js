@@ -9,13 +9,16 @@ window.sfdrig = { frames: 0, latencies: [], role: null, lastFrame: null, orbitPo
 let role = null;
 const plots = {};
 
-function lineOpts(title, names, width, height, extra) {
-  return Object.assign({
+// every axis says its quantity and unit
+function lineOpts(title, names, width, height, yLabel) {
+  return {
     width, height, legend: { live: false }, cursor: { show: false },
     scales: { x: { time: false } },
-    series: [{ label: title }].concat(names.map((n, i) => ({ label: n, stroke: COLORS[i % COLORS.length], width: 1.2 }))),
-    axes: [{}, { size: 55 }],
-  }, extra || {});
+    series: [{ label: title }].concat(names.map((n, i) => n.endsWith(" trip")
+      ? { label: n, stroke: "#c53030", width: 1, dash: [6, 4] }  // the safety limit: a trip there
+      : { label: n, stroke: COLORS[i % COLORS.length], width: 1.2 })),
+    axes: [{ label: title }, { size: 60, label: yLabel }],
+  };
 }
 
 function ensurePlot(key, el, names, opts) {
@@ -38,22 +41,31 @@ function showMessage(text, error) {
 
 // --- traces --------------------------------------------------------------------------------
 const GROUPS = [
-  ["force", "plot-force", (n, u) => u === "N" && n !== "hammer", 1],
-  ["disp", "plot-disp", (n, u) => u === "m", 1e6],
-  ["acc", "plot-acc", (n, u) => u === "m/s^2", 1],
+  ["force", "plot-force", (n, u) => u === "N" && n !== "hammer", 1, "force [N]"],
+  ["disp", "plot-disp", (n, u) => u === "m", 1e6, "displacement [um]"],
+  ["acc", "plot-acc", (n, u) => u === "m/s^2", 1, "acceleration [m/s²]"],
 ];
 
 function drawTraces(tr, status) {
   const units = status.units || {};
   const w = Math.max(380, $("plot-force").parentElement.clientWidth - 14);
-  for (const [key, el, pick, scale] of GROUPS) {
-    const names = Object.keys(tr.channels).filter((n) => pick(n, units[n]));
-    const u = ensurePlot(key, el, names, lineOpts("t [ms]", names, w, 190));
-    u.setData([tr.t_ms].concat(names.map((n) => tr.channels[n].map((v) => v * scale))));
+  const safety = status.safety || {};
+  // the trip levels drawn on the traces they apply to: load on the forces, volts on the drives
+  const limits = { force: safety.load_limit_n, drive: safety.drive_limit_v };
+  const withLimit = (key, names, data) => {
+    const lim = limits[key];
+    if (!lim) return [names, data];
+    return [names.concat(["+ trip", "- trip"]), data.concat([tr.t_ms.map(() => lim), tr.t_ms.map(() => -lim)])];
+  };
+  for (const [key, el, pick, scale, yLabel] of GROUPS) {
+    const picked = Object.keys(tr.channels).filter((n) => pick(n, units[n]));
+    const [names, data] = withLimit(key, picked, picked.map((n) => tr.channels[n].map((v) => v * scale)));
+    const u = ensurePlot(key, el, names, lineOpts("time [ms]", names, w, 190, yLabel));
+    u.setData([tr.t_ms].concat(data));
   }
-  const drives = tr.drives || [];
-  const ud = ensurePlot("drive", "plot-drive", drives, lineOpts("t [ms]", drives, w, 190));
-  ud.setData([tr.t_ms].concat(drives.map((n) => tr.channels[n])));
+  const [drives, ddata] = withLimit("drive", tr.drives || [], (tr.drives || []).map((n) => tr.channels[n]));
+  const ud = ensurePlot("drive", "plot-drive", drives, lineOpts("time [ms]", drives, w, 190, "drive [V]"));
+  ud.setData([tr.t_ms].concat(ddata));
 }
 
 // --- orbit (canvas: an x-y path with two circles) ------------------------------------------
@@ -63,7 +75,16 @@ function drawOrbit(tr, status) {
   const safety = status.safety || {};
   const clearance = (safety.radial_clearance_m || 127e-6) * 1e6;
   const limit = (safety.displacement_limit_m || clearance * 0.5e-6) * 1e6;
-  const r = clearance * 1.1;
+  const xs = tr ? tr.orbit_x_um : [];
+  const ys = tr ? tr.orbit_y_um : [];
+  // centre the orbit on its mean: the probes' static offset is not motion
+  const mx = xs.length ? xs.reduce((a, b) => a + b, 0) / xs.length : 0;
+  const my = ys.length ? ys.reduce((a, b) => a + b, 0) / ys.length : 0;
+  let rmax = 0;
+  for (let i = 0; i < xs.length; i++) rmax = Math.max(rmax, Math.hypot(xs[i] - mx, ys[i] - my));
+  // zoomed: the orbit fills the plot (an 8.8 um orbit is a dot inside the 127 um circle)
+  const zoom = $("orbit-zoom").checked && rmax > 0;
+  const r = zoom ? Math.max(1.0, rmax * 1.25) : clearance * 1.1;
   const s = c.width / (2 * r);
   const X = (x) => c.width / 2 + x * s;
   const Y = (y) => c.height / 2 - y * s;
@@ -76,11 +97,6 @@ function drawOrbit(tr, status) {
   g.strokeStyle = "#c53030"; g.setLineDash([6, 4]);
   g.beginPath(); g.arc(X(0), Y(0), limit * s, 0, 2 * Math.PI); g.stroke();
   g.setLineDash([]);
-  const xs = tr ? tr.orbit_x_um : [];
-  const ys = tr ? tr.orbit_y_um : [];
-  // centre the orbit on its mean: the probes' static offset is not motion
-  const mx = xs.length ? xs.reduce((a, b) => a + b, 0) / xs.length : 0;
-  const my = ys.length ? ys.reduce((a, b) => a + b, 0) / ys.length : 0;
   g.strokeStyle = "#2b6cb0"; g.lineWidth = 1.5;
   g.beginPath();
   for (let i = 0; i < xs.length; i++) {
@@ -88,12 +104,12 @@ function drawOrbit(tr, status) {
     if (i === 0) g.moveTo(px, py); else g.lineTo(px, py);
   }
   g.stroke();
-  let rmax = 0;
-  for (let i = 0; i < xs.length; i++) rmax = Math.max(rmax, Math.hypot(xs[i] - mx, ys[i] - my));
   window.sfdrig.orbitPoints = xs.length;
   c.dataset.points = String(xs.length);
   c.dataset.rmaxUm = rmax.toFixed(3);
-  $("orbit-info").textContent = `clearance ${fmt(clearance, 1)} um, limit ${fmt(limit, 1)} um, orbit max radius ${fmt(rmax, 2)} um`;
+  c.dataset.scaleUm = r.toFixed(3);
+  $("orbit-info").textContent = `clearance ${fmt(clearance, 1)} um, limit ${fmt(limit, 1)} um, orbit max radius ${fmt(rmax, 2)} um`
+    + (zoom ? `; zoomed: ${fmt(r, 1)} um to the edge` : "");
 }
 
 // --- harmonics -----------------------------------------------------------------------------
@@ -104,38 +120,66 @@ function drawHarmonics(tr) {
   const u = ensurePlot("harm", "plot-harm", names, {
     width: w, height: 190, legend: { live: false }, cursor: { show: false },
     scales: { x: { time: false, range: [0.5, 5.5] }, y: { distr: 3, range: [1e-3, 200] } },
-    axes: [{ values: (u, t) => t.map((v) => Number.isInteger(v) ? v + "X" : "") }, { size: 55 }],
+    axes: [{ label: "harmonic", values: (u, t) => t.map((v) => Number.isInteger(v) ? v + "X" : "") }, { size: 60, label: "% of 1X" }],
     series: [{ label: "harmonic" }].concat(names.map((n, i) => ({
       label: n, stroke: COLORS[i], width: 1.2,
       points: { show: true, size: 6, fill: COLORS[i] },
     }))),
   });
   u.setData([[1, 2, 3, 4, 5]].concat(names.map((n) => h[n].map((v) => Math.max(1e-3, 100 * v / h[n][0])))));
+  const stale = document.body.classList.contains("stale");
   $("harm-info").textContent = tr && tr.triggered
-    ? `live, over the cycles shown at ${fmt(tr.freq_hz, 2)} Hz`
+    ? `${stale ? "NOT live: the last cycles received" : "live, over the cycles shown"} at ${fmt(tr.freq_hz, 2)} Hz`
     : "no drive: nothing to analyse";
 }
 
 // --- steps ---------------------------------------------------------------------------------
-function drawSteps(steps) {
+// the drive each step needed against the drive limit (the headroom), and the rig's dynamic
+// stiffness F/X across the sweep
+function drawDriveAndStiffness(sorted, status, w) {
+  const f = sorted.map((s) => s.freq_hz);
+  const lim = ((status || {}).safety || {}).drive_limit_v || null;
+  const pts = (label, color) => ({ label, stroke: color, paths: () => null, points: { show: true, size: 7, fill: color } });
+  const ud = ensurePlot("drivef", "plot-drive-f", ["drive", "limit"], {
+    width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
+    series: [{ label: "f [Hz]" }, pts("largest drive 1X [V]", COLORS[0]), { label: "drive limit [V]", stroke: "#c53030", dash: [6, 4] }],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "drive [V]" }],
+  });
+  ud.setData([f, sorted.map((s) => s.drive_v), f.map(() => lim)]);
+  const worst = sorted.reduce((m, s) => (s.drive_v !== null && s.drive_v > m ? s.drive_v : m), 0);
+  $("drive-info").textContent = lim && sorted.length
+    ? `largest drive ${fmt(worst, 2)} V of ${fmt(lim, 1)} V: headroom ${fmt(lim - worst, 2)} V (${fmt(100 * (1 - worst / lim), 0)} %)` : "";
+  const uk = ensurePlot("kf", "plot-k", ["kx re", "kx im", "ky re", "ky im"], {
+    width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
+    series: [{ label: "f [Hz]" }, pts("Re Kx", COLORS[0]), pts("Im Kx", COLORS[1]), pts("Re Ky", COLORS[2]), pts("Im Ky", COLORS[3])],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "F/X [MN/m]" }],
+  });
+  uk.setData([f, sorted.map((s) => s.kx_re_mn_per_m), sorted.map((s) => s.kx_im_mn_per_m),
+    sorted.map((s) => s.ky_re_mn_per_m), sorted.map((s) => s.ky_im_mn_per_m)]);
+}
+
+function drawSteps(steps, status) {
   const sorted = steps.slice().sort((a, b) => a.freq_hz - b.freq_hz);
   const f = sorted.map((s) => s.freq_hz);
   const w = Math.max(380, $("plot-amp").parentElement.clientWidth - 14);
+  drawDriveAndStiffness(sorted, status, w);
   const pts = (label, color) => ({ label, stroke: color, paths: () => null, points: { show: true, size: 7, fill: color } });
   const unit = steps.length ? steps[0].unit : "";
   const ua = ensurePlot("amp", "plot-amp", ["achieved", "target"], {
     width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
-    series: [{ label: "f [Hz]" }, pts("achieved", COLORS[0]), pts("target", "#999")], axes: [{}, { size: 55 }],
+    series: [{ label: "f [Hz]" }, pts("achieved", COLORS[0]), pts("target", "#999")],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: `amplitude [${unit || "um or N"}]` }],
   });
   ua.setData([f, sorted.map((s) => s.achieved), sorted.map((s) => s.target)]);
   plots.amp.u.series[1].label = `achieved [${unit}]`;
+  $("amp-unit").textContent = unit || "um or N";
   const band = steps.length ? steps[steps.length - 1].band_pct : 1;
   const ue = ensurePlot("err", "plot-err", ["error", "+band", "-band"], {
     width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
     series: [{ label: "f [Hz]" }, pts("error [%]", COLORS[0]),
       { label: "+tol", stroke: "#c53030", dash: [5, 4] }, { label: "-tol", stroke: "#c53030", dash: [5, 4] }],
     bands: [{ series: [2, 3], fill: "rgba(72,187,120,0.15)" }],
-    axes: [{}, { size: 55 }],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "error [%]" }],
   });
   ue.setData([f, sorted.map((s) => s.error_pct), f.map(() => band), f.map(() => -band)]);
   const withTarget = sorted.filter((s) => s.phase_target_deg !== null);
@@ -144,7 +188,7 @@ function drawSteps(steps) {
     series: [{ label: "f [Hz]" }, pts("phase [deg]", COLORS[1]), { label: "target", stroke: "#999" },
       { label: "+tol", stroke: "#c53030", dash: [5, 4] }, { label: "-tol", stroke: "#c53030", dash: [5, 4] }],
     bands: [{ series: [3, 4], fill: "rgba(72,187,120,0.15)" }],
-    axes: [{}, { size: 55 }],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "phase [deg]" }],
   });
   const tgt = sorted.map((s) => s.phase_target_deg);
   up.setData([f, sorted.map((s) => s.phase_deg), tgt,
@@ -159,35 +203,62 @@ function drawSteps(steps) {
     for (const s of steps) {
       const tr = body.insertRow();
       const bad = !s.converged || (s.error_pct !== null && Math.abs(s.error_pct) > s.band_pct);
-      const cells = [s.index + 1, fmt(s.freq_hz, 1), s.motion, `${fmt(s.target, 2)} ${s.unit}`,
-        `${fmt(s.achieved, 2)} ${s.unit}`, fmt(s.error_pct, 2), fmt(s.phase_deg, 1), s.updates,
-        s.converged ? "yes" : `no: ${s.reason}`];
-      for (const c of cells) tr.insertCell().textContent = String(c);
+      for (const c of stepCells(s)) tr.insertCell().textContent = String(c);
       if (bad) tr.cells[5].className = "bad";
     }
   }
 }
 
 // --- header, events ------------------------------------------------------------------------
+function clock(t) { return t ? new Date(t * 1000).toLocaleTimeString() : "-"; }
+function ago(s) { return s >= 60 ? `${Math.floor(s / 60)} min ${Math.round(s % 60)} s` : `${fmt(s, 1)} s`; }
+
+// The link to the daemon, always in view: a daemon that is gone must look gone. The server
+// judges it (heartbeats, the state file, a status poll); this draws what it says.
+function linkUp(fr) { const l = fr.link || {}; return l.state === "live" || l.state === "late"; }
+function drawLink(fr) {
+  const l = fr.link || {};
+  const up = linkUp(fr);
+  $("link").textContent = { live: "live", late: "late", lost: "LOST", connecting: "connecting", reconnecting: "reconnecting" }[l.state] || String(l.state);
+  $("link").className = "link " + (l.state || "");
+  $("link").title = l.message || `heartbeat ${fmt(l.heartbeat_age_s, 1)} s ago`;
+  $("data-age").textContent = l.last_data_time == null ? "none yet"
+    : l.stale ? `none since ${clock(l.last_data_time)} (${ago(l.data_age_s)} ago)` : `${fmt(l.data_age_s, 1)} s old`;
+  $("link-banner").hidden = up;
+  if (!up) {
+    $("link-banner").textContent = `Daemon ${l.state === "lost" ? "LOST" : l.state}: ${l.message}. `
+      + (l.last_data_time ? `Last data at ${clock(l.last_data_time)}. ` : "") + "Nothing below is live.";
+  }
+  document.body.classList.toggle("stale", !!l.stale);
+  const note = l.last_data_time ? `not live: last data at ${clock(l.last_data_time)} (${ago(l.data_age_s)} ago)` : "not live: no data yet";
+  for (const n of document.querySelectorAll(".stale-note")) n.textContent = note;
+  if (l.malformed) $("lost").title = `${l.malformed} malformed messages skipped; last: ${l.malformed_last}`;
+}
+
 function drawStatus(fr) {
   const st = fr.status || {};
   const p = st.progress || {};
-  $("state").textContent = st.state || "?";
-  $("state").className = "state " + (st.state || "");
-  $("run-id").textContent = st.run_id || (st.last_run && st.last_run.run_id ? `(last: ${st.last_run.run_id} ${st.last_run.status})` : "-");
+  const up = linkUp(fr);
+  drawLink(fr);
+  $("state").textContent = up ? (st.state || "?") : `unknown (was ${st.state || "?"})`;
+  $("state").className = "state " + (up ? (st.state || "") : "lost");
+  const runText = st.run_id || (st.last_run && st.last_run.run_id ? `(last: ${st.last_run.run_id} ${st.last_run.status})` : "-");
+  $("run-id").textContent = up ? runText : `${runText} (last known)`;
   const total = p.steps_total || 0;
   const done = Math.max(p.steps_done || 0, st.run_id ? fr.steps.length : 0);
-  $("step").textContent = st.run_id && p.step_index >= 0
+  $("step").textContent = up && st.run_id && p.step_index >= 0
     ? `${p.step_index + 1}/${total} at ${fmt(p.freq_hz, 1)} Hz, ${p.updates || 0} updates` : "-";
   $("progress").textContent = st.run_id ? `${done}/${total} steps` : "-";
   $("progress-fill").style.width = total && st.run_id ? `${100 * done / total}%` : "0";
   const left = fr.time_left_s;
   $("time-left").textContent = left === null ? "-" : left >= 60 ? `${Math.floor(left / 60)} min ${Math.round(left % 60)} s` : `${Math.round(left)} s`;
-  $("pump").textContent = st.pump_on ? "ON" : "off";
+  $("pump").textContent = up ? (st.pump_on ? "ON" : "off") : "?";
+  followState(st, up);
   const means = (fr.traces && fr.traces.means) || {};
   $("p-in").textContent = means.p_in === undefined || means.p_in === null ? "" : `inlet ${fmt(means.p_in / 1e3, 1)} kPa`;
   const lost = Object.values(fr.lost || {}).reduce((a, b) => a + b, 0);
-  $("lost").textContent = String(lost);
+  const bad = (fr.link || {}).malformed || 0;
+  $("lost").textContent = bad ? `${lost} (+${bad} malformed)` : String(lost);
   // the run's peak orbit and load and any journal-housing contact (the daemon's summary once
   // the run has ended)
   const pk = fr.peaks;
@@ -196,15 +267,55 @@ function drawStatus(fr) {
     $("peaks").textContent = `run ${pk.run_id}${pk.final ? "" : " (so far)"}: ${pk.text}`;
     $("peaks").className = pk.contact || pk.tripped ? "bad" : "";
   }
+  drawEvents(fr.events);
+  drawLevels(fr.traces, st);
+}
+
+// --- inputs: RMS, peak and range used over the shown cycles ----------------------------------
+function drawLevels(tr, st) {
+  const levels = (tr && tr.levels) || {};
+  const units = st.units || {};
+  const body = $("levels").tBodies[0];
+  body.innerHTML = "";
+  for (const [name, l] of Object.entries(levels)) {
+    const um = units[name] === "m";  // displacements in um
+    const k = um ? 1e6 : 1;
+    const mean = ((tr.means || {})[name]);
+    const row = body.insertRow();
+    row.dataset.input = name;
+    for (const c of [name, um ? "um" : (units[name] || ""), fmt(mean === null || mean === undefined ? null : mean * k, 3),
+      fmt(l.rms === null ? null : l.rms * k, 3), fmt(l.peak === null ? null : l.peak * k, 3), fmt(l.range_pct, 1)]) {
+      row.insertCell().textContent = String(c);
+    }
+    if (l.range_pct !== null && l.range_pct > 90) row.cells[5].className = "bad";
+  }
+}
+
+// --- events: filtered by kind, the shown ones exported --------------------------------------
+let shownEvents = [];
+function drawEvents(events) {
+  const kinds = $("event-filter").value ? $("event-filter").value.split(",") : null;
+  shownEvents = events.filter((e) => !kinds || kinds.includes(e.kind));
   const ev = $("events");
   ev.innerHTML = "";
-  for (const e of fr.events.slice().reverse()) {
+  for (const e of shownEvents.slice().reverse()) {
     const li = document.createElement("li");
     li.className = "ev-" + e.kind;
     li.textContent = `${new Date(e.time * 1000).toLocaleTimeString()} ${e.kind}: ${e.message}`;
     ev.appendChild(li);
   }
 }
+$("event-filter").onchange = () => { const f = window.sfdrig.lastFrame; if (f) drawEvents(f.events); };
+$("events-export").onclick = () => {
+  const q = (v) => `"${String(v).replace(/"/g, '""')}"`;
+  const lines = ["time_utc,kind,message,run_id"].concat(shownEvents.map((e) =>
+    [new Date(e.time * 1000).toISOString(), e.kind, e.message, e.run_id || ""].map(q).join(",")));
+  const a = document.createElement("a");
+  a.href = URL.createObjectURL(new Blob([lines.join("\n") + "\n"], { type: "text/csv" }));
+  a.download = "sfdrig-events.csv";
+  a.click();
+  setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+};
 
 // --- the operator's question (the operator protocol; the terminal is the other front end) ----
 const CHOICE_LABELS = { ok: "Accept", repeat: "Repeat point", skip: "Skip point", abort: "Abort test",
@@ -251,20 +362,25 @@ let drawnSteps = -1;
 function onFrame(fr) {
   window.sfdrig.lastFrame = fr;
   // redraw the plots only when something new came (no new block between runs: the page idles)
-  const fresh = fr.block_seq !== window.sfdrig.lastBlockSeq || window.sfdrig.frames === 0;
+  const stale = !!(fr.link || {}).stale;
+  // also redrawn when the data turns stale: the labels then say it is not live
+  const fresh = fr.block_seq !== window.sfdrig.lastBlockSeq || window.sfdrig.frames === 0
+    || stale !== window.sfdrig.lastStale;
   window.sfdrig.lastBlockSeq = fr.block_seq;
+  window.sfdrig.lastStale = stale;
   drawStatus(fr);
+  followRuns(fr);
   drawQuestion((fr.status || {}).question);
   if (fresh) {
     if (fr.traces) drawTraces(fr.traces, fr.status);
     drawOrbit(fr.traces, fr.status);
     drawHarmonics(fr.traces);
   }
-  if (fresh || fr.steps.length !== drawnSteps) { drawSteps(fr.steps); drawnSteps = fr.steps.length; }
+  if (fresh || fr.steps.length !== drawnSteps) { drawSteps(fr.steps, fr.status); drawnSteps = fr.steps.length; }
   window.sfdrig.frames += 1;
   // sample-to-screen latency: from the daemon's acquisition of the newest block to this paint
   // (frames that bring no new block, e.g. between runs, are not counted)
-  if (fr.t_acquired > 0 && fresh) {
+  if (fr.t_acquired > 0 && fresh && !stale) {
     requestAnimationFrame(() => {
       const l = window.sfdrig.latencies;
       l.push(Date.now() / 1000 - fr.t_acquired);
@@ -274,6 +390,28 @@ function onFrame(fr) {
 }
 
 // --- controls ------------------------------------------------------------------------------
+// Buttons follow the daemon's state: only what it takes now (its status's "allowed"), nothing
+// while the link is down; the pump button that would change nothing is off.
+const STARTS = ["start-example", "start-upload", "start-test"];
+function followState(st, up) {
+  const allowed = new Set(up ? (st.allowed || []) : []);
+  for (const id of STARTS) $(id).disabled = !allowed.has("start");
+  $("sweep-start").disabled = !checked || !allowed.has("start");
+  for (const id of ["pause", "resume", "abort", "reset"]) $(id).disabled = !allowed.has(id);
+  $("pump-on").disabled = !up || !!st.pump_on;
+  $("pump-off").disabled = !up || !st.pump_on;
+}
+
+// Starting a run and switching the pump are confirmed first (abort never is).
+let pending = null;
+function confirmThen(text, action) {
+  pending = action;
+  $("confirm-text").textContent = text;
+  $("confirm").hidden = false;
+  $("confirm-yes").focus();
+}
+$("confirm-yes").onclick = () => { const a = pending; pending = null; $("confirm").hidden = true; if (a) a(); };
+$("confirm-no").onclick = () => { pending = null; $("confirm").hidden = true; showMessage("cancelled", false); };
 async function post(url, body) {
   let out;
   try {
@@ -293,29 +431,326 @@ function setupControls(hello) {
   $("who").textContent = `${hello.name} (${role})`;
   $("logout").hidden = !hello.login;
   $("controls").hidden = role !== "operator";
+  $("editor").hidden = role !== "operator";
+  if (role === "operator" && !sweepSchema) buildForm();
   $("viewer-note").hidden = role === "operator";
   const sel = $("example");
   sel.innerHTML = "";
   for (const n of hello.examples) { const o = document.createElement("option"); o.value = o.textContent = n; sel.appendChild(o); }
 }
 
-$("start-example").onclick = () => post("/api/start", { example: $("example").value });
+function pumpState() { const f = window.sfdrig.lastFrame; return f && f.status && f.status.pump_on ? "ON" : "off"; }
+$("start-example").onclick = () => confirmThen(`Start the sweep ${$("example").value} (pump is ${pumpState()})?`,
+  () => post("/api/start", { example: $("example").value }));
 $("start-upload").onclick = async () => {
   const f = $("upload").files[0];
   if (!f) { showMessage("choose a sweep TOML file first", true); return; }
-  post("/api/start", { toml: await f.text(), filename: f.name });
+  const text = await f.text();
+  confirmThen(`Start the sweep of ${f.name} (pump is ${pumpState()})?`,
+    () => post("/api/start", { toml: text, filename: f.name }));
 };
 // "static:hand": the static test with the operator pushing and reading the force gauge
 $("start-test").onclick = () => {
   const [test, by] = $("test-kind").value.split(":");
-  post("/api/start_test", by ? { test, spec: { load_by: by } } : { test });
+  confirmThen(`Start the ${$("test-kind").selectedOptions[0].textContent} test?`,
+    () => post("/api/start_test", by ? { test, spec: { load_by: by } } : { test }));
 };
 $("pause").onclick = () => post("/api/command", { cmd: "pause" });
 $("resume").onclick = () => post("/api/command", { cmd: "resume" });
 $("abort").onclick = () => post("/api/command", { cmd: "abort" });
-$("pump-on").onclick = () => post("/api/command", { cmd: "pump", on: true });
-$("pump-off").onclick = () => post("/api/command", { cmd: "pump", on: false });
+$("pump-on").onclick = () => confirmThen("Switch the oil pump ON?", () => post("/api/command", { cmd: "pump", on: true }));
+$("pump-off").onclick = () => confirmThen("Switch the oil pump OFF?", () => post("/api/command", { cmd: "pump", on: false }));
 $("reset").onclick = () => post("/api/command", { cmd: "reset" });
+
+// --- a sweep defined on the page: a form built from the sweep model's schema -----------------
+// Units as the operator thinks: a field in metres is entered in um; the rest as named.
+function unitOf(name) {
+  if (name.endsWith("_m")) return ["um", "e-6"];
+  for (const [suffix, unit] of [["_hz", "Hz"], ["_n_per_m", "N/m"], ["_ns_per_m", "N.s/m"], ["_n", "N"],
+    ["_pct", "%"], ["_deg", "deg"], ["_kg", "kg"], ["_s", "s"], ["_cycles", "cycles"]]) {
+    if (name.endsWith(suffix)) return [unit, ""];
+  }
+  return ["", ""];
+}
+function kindOf(prop, defs) {
+  const alts = prop.anyOf ? prop.anyOf.filter((a) => a.type !== "null") : [prop];
+  const p = alts[0] || {};
+  if (p.$ref) return ["object", defs[p.$ref.split("/").pop()]];
+  if (p.enum) return ["enum", p.enum];
+  if (p.const !== undefined) return ["enum", [p.const]];
+  return [p.type === "array" ? "list" : p.type || "string", p];
+}
+let sweepSchema = null;
+let checked = null;  // the last valid check: its spec, summary and TOML
+function addFields(parent, props, defs, prefix) {
+  for (const [name, prop] of Object.entries(props)) {
+    const path = prefix + name;
+    const [kind, info] = kindOf(prop, defs);
+    if (kind === "object") {
+      const fs = document.createElement("fieldset");
+      const lg = document.createElement("legend");
+      lg.textContent = `${name}: ${info.description || info.title || ""}`;
+      fs.appendChild(lg);
+      addFields(fs, info.properties, defs, path + ".");
+      parent.appendChild(fs);
+      continue;
+    }
+    const row = document.createElement("label");
+    row.className = "row";
+    row.title = prop.description || "";
+    const fname = document.createElement("span");
+    fname.className = "fname";
+    fname.textContent = path;
+    row.appendChild(fname);
+    let input;
+    if (kind === "enum") {
+      input = document.createElement("select");
+      for (const v of info) { const o = document.createElement("option"); o.value = o.textContent = v; input.appendChild(o); }
+    } else {
+      input = document.createElement("input");
+      input.type = kind === "boolean" ? "checkbox" : "text";
+      input.size = kind === "list" ? 28 : 12;
+      if (kind === "list") input.placeholder = "values, comma-separated";
+    }
+    input.dataset.field = path;
+    input.dataset.kind = kind;
+    input.dataset.default = JSON.stringify(prop.default === undefined ? null : prop.default);
+    row.appendChild(input);
+    const [unit] = unitOf(name);
+    const u = document.createElement("span");
+    u.textContent = unit ? `[${unit}]` : "";
+    row.appendChild(u);
+    const err = document.createElement("span");
+    err.className = "field-error";
+    err.dataset.errorFor = path;
+    row.appendChild(err);
+    parent.appendChild(row);
+    input.onchange = () => { checked = null; $("sweep-start").disabled = true; $("sweep-save").disabled = true; };
+  }
+}
+function shown(name, v) {
+  const [, exp] = unitOf(name);
+  return exp ? String(Number((v * 1e6).toPrecision(12))) : String(v);
+}
+function setForm(spec) {
+  for (const input of document.querySelectorAll("#sweep-form [data-field]")) {
+    const path = input.dataset.field;
+    const name = path.split(".").pop();
+    let v = JSON.parse(input.dataset.default);
+    let cur = spec;
+    for (const k of path.split(".")) cur = cur && typeof cur === "object" ? cur[k] : undefined;
+    if (cur !== undefined) v = cur;
+    if (input.dataset.kind === "boolean") input.checked = !!v;
+    else if (v === null || v === undefined) input.value = "";
+    else if (Array.isArray(v)) input.value = v.map((x) => shown(name, x)).join(", ");
+    else input.value = typeof v === "number" ? shown(name, v) : String(v);
+  }
+}
+function readForm() {
+  const spec = {};
+  for (const input of document.querySelectorAll("#sweep-form [data-field]")) {
+    const path = input.dataset.field.split(".");
+    const [, exp] = unitOf(path[path.length - 1]);
+    const kind = input.dataset.kind;
+    const num = (t) => { const x = Number(t.trim() + exp); return t.trim() === "" || Number.isNaN(x) ? t.trim() : x; };
+    let v;
+    if (kind === "boolean") v = input.checked;
+    else if (input.value.trim() === "") continue;  // left empty: the model's default
+    else if (kind === "list") v = input.value.split(/[,\s]+/).filter((t) => t !== "").map(num);
+    else if (kind === "number" || kind === "integer") v = num(input.value);
+    else v = input.value;
+    let target = spec;
+    for (const k of path.slice(0, -1)) target = target[k] = target[k] || {};
+    target[path[path.length - 1]] = v;
+  }
+  return spec;
+}
+function showCheck(out) {
+  for (const e of document.querySelectorAll("#sweep-form .field-error")) e.textContent = "";
+  $("sweep-form-error").textContent = "";
+  for (const e of out.errors || []) {
+    // the nearest field of the error's path (freq_hz.0 -> freq_hz); "" : a rule between fields
+    let path = e.field;
+    let el = null;
+    while (path && !(el = document.querySelector(`#sweep-form [data-error-for="${CSS.escape(path)}"]`))) {
+      path = path.includes(".") ? path.slice(0, path.lastIndexOf(".")) : "";
+    }
+    (el || $("sweep-form-error")).textContent += (el && el.textContent ? "; " : "") + e.message;
+  }
+  checked = out.ok ? out : null;
+  $("sweep-start").disabled = !out.ok;
+  $("sweep-save").disabled = !out.ok;
+  $("sweep-summary").textContent = out.ok ? summaryText(out.summary) : "";
+}
+function summaryText(m) {
+  const lim = m.limits || {};
+  return [`${m.name || "(no name)"}: ${m.motion}, hold ${m.target_kind} at ${m.targets.map((t) => fmt(t, 2)).join(", ")} ${m.target_unit}`,
+    `${m.steps} steps: ${m.frequencies} frequencies from ${fmt(m.freq_first_hz, 2)} to ${fmt(m.freq_last_hz, 2)} Hz`,
+    `settling and recording alone: ${duration(m.settle_record_s)} (each step's approach adds to it)`,
+    `pump: must be ${m.pump.toUpperCase()} (${m.pump === "on" ? "a lubricated sweep needs inlet pressure" : "a dry sweep; refused while the film drains"})`,
+    `tolerance +/-${m.tolerance_amplitude_pct} % amplitude, +/-${m.tolerance_phase_deg} deg phase; not converged: ${m.on_not_converged}`,
+    `limits: orbit ${lim.displacement_limit_m ? fmt(lim.displacement_limit_m * 1e6, 1) + " um" : "?"}, load ${lim.load_limit_n ? fmt(lim.load_limit_n, 0) + " N" : "?"}, drive ${lim.drive_limit_v ? fmt(lim.drive_limit_v, 1) + " V" : "?"}`].join("\n");
+}
+async function postJson(url, body) {
+  try {
+    const r = await fetch(url, { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
+    const text = await r.text();
+    try { return JSON.parse(text); } catch (e) { return { ok: false, error: text || r.statusText, errors: [{ field: "", message: text || r.statusText }] }; }
+  } catch (e) { return { ok: false, error: String(e), errors: [{ field: "", message: String(e) }] }; }
+}
+async function buildForm() {
+  const out = await getJson("/api/sweep/schema");
+  if (!out.ok) return;
+  sweepSchema = out.schema;
+  $("sweep-form").innerHTML = "";
+  addFields($("sweep-form"), sweepSchema.properties, sweepSchema.$defs || {}, "");
+  setForm({});
+  window.sfdrig.formReady = true;
+}
+$("sweep-check").onclick = async () => showCheck(await postJson("/api/sweep/check", { spec: readForm() }));
+$("sweep-defaults").onclick = () => { setForm({}); showCheck({ ok: false, errors: [] }); };
+$("sweep-start").onclick = () => {
+  if (!checked) return;
+  const spec = checked.spec;
+  confirmThen(`Start: ${summaryText(checked.summary).split("\n").join("; ")}?`, () => post("/api/start", { spec }));
+};
+$("sweep-save").onclick = () => {
+  if (!checked) return;
+  const a = document.createElement("a");
+  a.href = URL.createObjectURL(new Blob([checked.toml], { type: "text/plain" }));
+  a.download = (checked.spec.name || "sweep").replace(/[^A-Za-z0-9._-]+/g, "_") + ".toml";
+  a.click();
+  setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+};
+$("sweep-load").onchange = async () => {
+  const f = $("sweep-load").files[0];
+  if (!f) return;
+  const out = await postJson("/api/sweep/check", { toml: await f.text(), filename: f.name });
+  if (out.spec) setForm(out.spec);
+  showCheck(out);
+};
+
+// --- run history: the runs directory's runs, one opened from its file ---------------------------
+function stepCells(s) {
+  return [s.index + 1, fmt(s.freq_hz, 1), s.motion, `${fmt(s.target, 2)} ${s.unit}`,
+    `${fmt(s.achieved, 2)} ${s.unit}`, fmt(s.error_pct, 2), fmt(s.phase_deg, 1), s.updates,
+    s.converged ? "yes" : `no: ${s.reason}`];
+}
+function duration(sec) { return sec < 60 ? `${fmt(sec, 1)} s` : `${Math.floor(sec / 60)} min ${Math.round(sec % 60)} s`; }
+async function getJson(url) {
+  try {
+    const r = await fetch(url);
+    const text = await r.text();
+    try { return JSON.parse(text); } catch (e) { return { ok: false, error: text || r.statusText }; }
+  } catch (e) { return { ok: false, error: String(e) }; }
+}
+let openRunId = null;
+async function loadRuns() {
+  const out = await getJson("/api/runs");
+  window.sfdrig.runsLoaded = (window.sfdrig.runsLoaded || 0) + 1;
+  const body = $("runs").tBodies[0];
+  body.innerHTML = "";
+  if (!out.ok) { $("runs-info").textContent = out.error; return; }
+  $("runs-info").textContent = `${out.total} in ${out.runs_dir}` + (out.total > out.runs.length ? ` (newest ${out.runs.length} shown)` : "");
+  for (const r of out.runs) {
+    const tr = body.insertRow();
+    tr.dataset.run = r.id;
+    const cells = [r.id || r.file, r.date ? new Date(r.date).toLocaleString() : "-", r.kind || "-", r.steps,
+      r.status + (r.error ? `: ${r.error}` : ""), duration(r.duration_s), r.notes || ""];
+    for (const c of cells) tr.insertCell().textContent = String(c);
+    tr.cells[4].className = "st-" + r.status;
+    const open = document.createElement("button");
+    open.textContent = "Open";
+    open.disabled = !r.id;
+    open.onclick = () => openRun(r.id);
+    tr.insertCell().appendChild(open);
+  }
+}
+async function openRun(id) {
+  const run = await getJson(`/api/runs/${encodeURIComponent(id)}`);
+  if (!run.ok) { showMessage(run.error, true); return; }
+  openRunId = id;
+  $("run").hidden = false;
+  $("run-title").textContent = `${run.run_id} (${run.kind}, ${run.status})`;
+  $("run-summary").textContent = `${run.start_time} to ${run.stop_time || "-"}, ${duration(run.duration_s || 0)}, `
+    + `${run.steps.length} steps, operator ${run.operator || "-"}` + (run.status_reason ? `; ended: ${run.status_reason}` : "");
+  for (const f of run.formats) $(`dl-${f}`).href = `/api/runs/${encodeURIComponent(id)}/download?format=${f}`;
+  $("run-downloads").hidden = run.status === "running";
+  const body = $("run-steps").tBodies[0];
+  body.innerHTML = "";
+  for (const s of run.steps) {
+    const tr = body.insertRow();
+    for (const c of stepCells(s)) tr.insertCell().textContent = String(c);
+    if (!s.converged || (s.error_pct !== null && Math.abs(s.error_pct) > s.band_pct)) tr.cells[5].className = "bad";
+  }
+  const sorted = run.steps.slice().sort((a, b) => a.freq_hz - b.freq_hz);
+  const unit = sorted.length ? sorted[0].unit : "";
+  const w = Math.max(380, $("run").clientWidth - 20);
+  const pts = (label, color) => ({ label, stroke: color, paths: () => null, points: { show: true, size: 7, fill: color } });
+  if (plots.runAmp) plots.runAmp.u.destroy();
+  const u = new uPlot({ width: w, height: 200, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
+    series: [{ label: "f [Hz]" }, pts(`achieved [${unit}]`, COLORS[0]), pts(`target [${unit}]`, "#999")],
+    axes: [{ label: "frequency [Hz]" }, { size: 60, label: `amplitude [${unit || "um or N"}]` }] },
+  [sorted.map((s) => s.freq_hz), sorted.map((s) => s.achieved), sorted.map((s) => s.target)], $("plot-run-amp"));
+  plots.runAmp = { u, sig: "" };
+  drawNotes(run.notes);
+  const ev = $("run-events");
+  ev.innerHTML = "";
+  for (const e of run.events) { const li = document.createElement("li"); li.textContent = `${e.time} ${e.kind}: ${e.message}`; ev.appendChild(li); }
+  $("note-form").hidden = role !== "operator";
+  drawReport(id, run.report, run.status);
+}
+function drawReport(id, made, status) {
+  $("report-open").hidden = !made;
+  $("report-open").href = `/api/runs/${encodeURIComponent(id)}/report/index.html`;
+  $("report-make").hidden = role !== "operator";
+  $("report-make").disabled = status === "running";
+  $("report-make").textContent = made ? "Make it again" : "Make the report";
+  $("report-info").textContent = made ? "" : "none yet";
+}
+$("report-make").onclick = async () => {
+  const id = openRunId;
+  if (!id) return;
+  $("report-make").disabled = true;
+  $("report-info").textContent = "identifying (sfdrig identify) ...";
+  let out;
+  try {
+    const r = await fetch(`/api/runs/${encodeURIComponent(id)}/report`, { method: "POST",
+      headers: { "Content-Type": "application/json" }, body: "{}" });
+    const text = await r.text();
+    try { out = JSON.parse(text); } catch (e) { out = { ok: false, error: text || r.statusText }; }
+  } catch (e) { out = { ok: false, error: String(e) }; }
+  $("report-make").disabled = false;
+  if (openRunId !== id) return;
+  drawReport(id, out.ok, "");
+  $("report-info").textContent = out.ok ? "made" : out.error;
+};
+function drawNotes(notes) {
+  const ol = $("run-notes");
+  ol.innerHTML = "";
+  for (const n of notes) { const li = document.createElement("li"); li.textContent = `${clock(n.time)} ${n.author}: ${n.text}`; ol.appendChild(li); }
+}
+$("runs-refresh").onclick = loadRuns;
+$("run-close").onclick = () => { $("run").hidden = true; openRunId = null; };
+$("note-add").onclick = async () => {
+  if (!openRunId) return;
+  let out;
+  try {
+    const r = await fetch(`/api/runs/${encodeURIComponent(openRunId)}/notes`, { method: "POST",
+      headers: { "Content-Type": "application/json" }, body: JSON.stringify({ text: $("note-text").value }) });
+    const text = await r.text();
+    try { out = JSON.parse(text); } catch (e) { out = { ok: false, error: text || r.statusText }; }
+  } catch (e) { out = { ok: false, error: String(e) }; }
+  showMessage(out.ok ? "note kept" : out.error, !out.ok);
+  if (out.ok) { $("note-text").value = ""; drawNotes(out.notes); loadRuns(); }
+};
+// the list is read again when a run starts or ends and when the daemon comes back
+let runsKey = null;
+function followRuns(fr) {
+  const st = fr.status || {};
+  const key = [(fr.link || {}).state, st.run_id, st.last_run && st.last_run.run_id, st.last_run && st.last_run.status].join("|");
+  if (key !== runsKey) { runsKey = key; loadRuns(); }
+}
 
 const DRAWN_LATEST_MS = 250;  // the next frame is asked for by then even if not painted
 
@@ -340,6 +775,17 @@ function connect() {
       }
     }
   };
-  ws.onclose = () => { showMessage("connection to sfdrig web lost; reconnecting", true); setTimeout(connect, 1000); };
+  ws.onclose = (ev) => {
+    if (ev.code === 4001) { location.assign("/login"); return; }  // the key was revoked
+    // the web server itself is gone: nothing on the page is live any more
+    document.body.classList.add("stale");
+    $("link").textContent = "?"; $("link").className = "link lost";
+    $("link-banner").hidden = false;
+    $("link-banner").textContent = "The connection to sfdrig web is lost: nothing on this page is live. Reconnecting.";
+    for (const id of STARTS.concat(["pause", "resume", "abort", "reset", "pump-on", "pump-off"])) $(id).disabled = true;
+    showMessage("connection to sfdrig web lost; reconnecting", true);
+    setTimeout(connect, 1000);
+  };
 }
 connect();
+$("orbit-zoom").onchange = () => { const f = window.sfdrig.lastFrame; if (f) drawOrbit(f.traces, f.status); };

@@ -1,0 +1,245 @@
+"""The run history the page shows: the runs directory's files, one run opened, its downloads and
+the operator's notes.
+
+The runs are the run catalog of the web process's runs directory (`storage.catalog`, the same
+rows as `sfdrig runs`: a file left "running" by a dead writer reads as interrupted). A request
+names a run by its id only; the file is always the one the catalog found for that id, never a
+path built from the request, so no request reaches a file outside the directory.
+
+Identification reports are made on request by `sfdrig identify --no-store` in a process of its
+own (the web process imports no analysis, and the run file is not written) into
+``RUNS_DIR/reports/RUN/``; a report's files are served by their names in that folder's listing.
+
+Notes never touch the run file (the recorded data is not opened for writing): each run's notes
+are a JSON list beside it, ``RUN.notes.json``, replaced whole by an atomic rename, bounded in
+count and length.
+
+`storage` (and h5py with it) is imported on the first use, not when `sfdrig web` starts.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import threading
+import time
+import zipfile
+from pathlib import Path
+from typing import Any
+
+from web.view import finite, step_point
+
+FORMATS = ("h5", "mat", "csv", "tdms")
+MAX_RUNS = 300  # newest first, on the page
+MAX_NOTES = 200  # per run
+MAX_NOTE_CHARS = 4000
+NOTES_SUFFIX = ".notes.json"
+REPORTS_DIR = "reports"
+REPORT_PAGE = "index.html"
+
+
+class HistoryError(ValueError):
+    """A history request that cannot be served; ``status`` is the HTTP answer."""
+
+    def __init__(self, message: str, status: int = 400) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+class RunHistory:
+    """The runs of one directory, for the page.
+
+    Parameters
+    ----------
+    runs_dir : Path
+        The daemon's runs directory (the web process's ``--runs-dir``).
+    """
+
+    def __init__(self, runs_dir: Path) -> None:
+        self.runs_dir = runs_dir
+        self._notes_lock = threading.Lock()
+
+    # --- the list -------------------------------------------------------------------------
+    def _rows(self) -> list[Any]:
+        from storage.catalog import scan_runs
+
+        try:
+            rows = scan_runs(self.runs_dir, recursive=False)
+        except (FileNotFoundError, NotADirectoryError) as err:
+            raise HistoryError(str(err), 404) from None
+        rows.reverse()  # newest first
+        return rows
+
+    def runs(self) -> dict[str, Any]:
+        """Every run (newest first, at most `MAX_RUNS`) with its status and notes count."""
+        rows = self._rows()
+        out = []
+        for r in rows[:MAX_RUNS]:
+            d = r.to_dict()
+            d["file"] = Path(r.file).name  # the page needs no path
+            d["notes"] = len(self._read_notes(Path(r.file))) if r.id else 0
+            out.append(d)
+        return {"runs_dir": str(self.runs_dir), "runs": out, "total": len(rows)}
+
+    def path_of(self, run_id: str) -> Path:
+        """The file the catalog found for ``run_id`` (404 for any other string)."""
+        for r in self._rows():
+            if r.id and r.id == run_id:
+                return Path(r.file)
+        raise HistoryError(f"no run {run_id!r} in {self.runs_dir}", 404)
+
+    # --- one run --------------------------------------------------------------------------
+    def details(self, run_id: str) -> dict[str, Any]:
+        """A run as the page opens it: what it was, how it ended, its step table and events."""
+        from storage.errors import RunFileError
+        from storage.reader import open_run
+
+        path = self.path_of(run_id)
+        try:
+            with open_run(path) as run:
+                spec = run.test_spec or {}
+                tol = (float(spec.get("tolerance_amplitude_pct") or 1.0),
+                       float(spec.get("tolerance_phase_deg") or 1.0))
+                steps = [{k: finite(v) if isinstance(v, float) else v
+                          for k, v in step_point(s, *tol).items()} for s in run.steps]
+                a = run.attrs
+                return {
+                    "run_id": run_id, "file": path.name, "kind": run.kind,
+                    "status": _status(run.status, a, path),
+                    "status_reason": str(a.get("status_reason", "")),
+                    "operator": str(a.get("operator", "")), "notes_at_start": str(
+                        a.get("notes", "")),
+                    "start_time": run.start_time, "stop_time": run.stop_time,
+                    "duration_s": finite(run.duration_s),
+                    "sample_rate_hz": run.sample_rate_hz, "lubricated": _bool(
+                        a.get("lubricated")),
+                    "channels": run.channel_names, "drives": run.drive_names,
+                    "steps": steps,
+                    "events": run.events[-200:],
+                    "notes": self._read_notes(path),
+                    "formats": list(FORMATS),
+                    "report": (self.report_dir(path) / REPORT_PAGE).is_file(),
+                }
+        except RunFileError as err:
+            raise HistoryError(f"run {run_id} cannot be read: {err}", 409) from None
+
+    def ended(self, run_id: str, what: str) -> Path:
+        """The file of a run that has ended (409 while it is written, or unreadable)."""
+        from storage.errors import RunFileError
+        from storage.reader import open_run
+
+        path = self.path_of(run_id)
+        try:
+            with open_run(path) as run:
+                status = _status(run.status, run.attrs, path)
+        except RunFileError as err:
+            raise HistoryError(f"run {run_id} cannot be read: {err}", 409) from None
+        if status == "running":
+            raise HistoryError(f"run {run_id} is still being written: {what} it once it has "
+                               "ended", 409)
+        return path
+
+    # --- downloads ------------------------------------------------------------------------
+    def download(self, run_id: str, fmt: str, work: Path) -> tuple[Path, str]:
+        """The file to send for ``run_id`` as ``fmt`` and its download name: the run file
+        itself for h5, else `sfdrig export`'s files made in ``work`` (zipped when several)."""
+        from storage.errors import ExportError, RunFileError
+        from storage.exporters import export_run
+
+        if fmt not in FORMATS:
+            raise HistoryError(f"format {fmt!r}: one of {', '.join(FORMATS)}")
+        path = self.ended(run_id, "download")
+        if fmt == "h5":
+            return path, path.name
+        try:
+            files = export_run(path, fmt, work / "export")
+        except (ExportError, RunFileError) as err:
+            raise HistoryError(f"export of {run_id} as {fmt} failed: {err}", 500) from None
+        if len(files) == 1:
+            return files[0], files[0].name
+        bundle = work / f"{path.stem}-{fmt}.zip"
+        with zipfile.ZipFile(bundle, "w", zipfile.ZIP_STORED) as z:  # CPU over bytes
+            for f in files:
+                z.write(f, f.name)
+        return bundle, bundle.name
+
+    # --- identification reports -------------------------------------------------------------
+    def report_dir(self, path: Path) -> Path:
+        """Where the report of the run file ``path`` goes."""
+        return self.runs_dir / REPORTS_DIR / path.stem
+
+    def report_job(self, run_id: str) -> tuple[Path, Path]:
+        """(run file, report folder) of a run that may be identified now (not while written)."""
+        path = self.ended(run_id, "identify")
+        return path, self.report_dir(path)
+
+    def report_file(self, run_id: str, name: str) -> Path:
+        """A file of the run's report, by its name in the report folder's listing (404 else)."""
+        folder = self.report_dir(self.path_of(run_id))
+        files = {p.relative_to(folder).as_posix(): p for p in folder.rglob("*")
+                 if p.is_file() and not p.is_symlink()} if folder.is_dir() else {}
+        if name not in files:
+            raise HistoryError(f"run {run_id}'s report has no file {name!r}", 404)
+        return files[name]
+
+    # --- notes ----------------------------------------------------------------------------
+    @staticmethod
+    def _notes_file(path: Path) -> Path:
+        return path.with_name(path.stem + NOTES_SUFFIX)
+
+    def _read_notes(self, path: Path) -> list[dict[str, Any]]:
+        try:
+            notes = json.loads(self._notes_file(path).read_text())
+        except (OSError, ValueError):
+            return []
+        return [n for n in notes if isinstance(n, dict)] if isinstance(notes, list) else []
+
+    def notes(self, run_id: str) -> list[dict[str, Any]]:
+        return self._read_notes(self.path_of(run_id))
+
+    def add_note(self, run_id: str, author: str, text: Any, now: float | None = None
+                 ) -> list[dict[str, Any]]:
+        """Append the operator's note to the run's notes file; the notes as they now are."""
+        if not isinstance(text, str) or not text.strip():
+            raise HistoryError("a note needs some text")
+        if len(text) > MAX_NOTE_CHARS:
+            raise HistoryError(f"a note holds at most {MAX_NOTE_CHARS} characters, not "
+                               f"{len(text)}")
+        path = self.path_of(run_id)
+        with self._notes_lock:
+            notes = self._read_notes(path)
+            if len(notes) >= MAX_NOTES:
+                raise HistoryError(f"run {run_id} has {MAX_NOTES} notes already", 409)
+            notes.append({"time": time.time() if now is None else now, "author": author,
+                          "text": text.strip()})
+            target = self._notes_file(path)
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp",
+                                       dir=target.parent)
+            try:
+                with os.fdopen(fd, "w") as f:
+                    json.dump(notes, f, indent=1)
+                    f.flush()
+                    os.fsync(f.fileno())
+                os.replace(tmp, target)
+            except BaseException:
+                Path(tmp).unlink(missing_ok=True)
+                raise
+        return notes
+
+
+def _status(status: str, attrs: Any, path: Path) -> str:
+    """A file left "running" by a writer that is gone reads as interrupted (as in the catalog)."""
+    from storage.recovery import writer_gone
+
+    return "interrupted" if status == "running" and writer_gone(attrs, path) else status
+
+
+def _bool(value: Any) -> bool | None:
+    if value is None:
+        return None
+    try:
+        return bool(value) if not (isinstance(value, float) and math.isnan(value)) else None
+    except (TypeError, ValueError):
+        return None

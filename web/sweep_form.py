@@ -1,0 +1,77 @@
+"""A sweep defined on the page: checked by the same model as a sweep's TOML (`SweepSpec`), each
+problem named by its field, and summarised before the start.
+
+The page builds its form from `SweepSpec`'s JSON schema (`schema`), so every field of a sweep is
+there and a new field appears by itself. `check` validates what the form (or a loaded TOML file)
+gives and answers the problems by field path (``freq_hz``, ``control.window_cycles``; "" for a
+rule between fields), or a summary: steps, frequencies, targets, the time the sweep settles and
+records (a lower bound: each step's approach adds to it), whether the pump must be on, the
+tolerances, the limits the daemon applies, and the sweep as TOML (what `sfdrig sweep` reads).
+The daemon validates the spec again when it is started.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from control.spec import SweepSpec
+from daq.config_files import to_toml
+
+MAX_ERRORS = 30
+
+
+def schema() -> dict[str, Any]:
+    """`SweepSpec`'s JSON schema (its fields, types, bounds, defaults and descriptions)."""
+    return SweepSpec.model_json_schema()
+
+
+def check(spec: Any, safety: dict[str, Any] | None = None) -> dict[str, Any]:
+    """``{"ok", "errors": [{"field", "message"}], "summary", "toml"}`` for a sweep's fields;
+    ``safety``: the daemon's limits (its status's ``safety``) for the summary."""
+    from pydantic import ValidationError
+
+    if not isinstance(spec, dict):
+        return {"ok": False, "errors": [{"field": "", "message": "a sweep is a table of fields"}],
+                "summary": None, "toml": ""}
+    try:
+        s = SweepSpec.model_validate(spec)
+    except ValidationError as err:
+        errors = []
+        for e in err.errors()[:MAX_ERRORS]:
+            # a rule between fields (no field in its path) shows no input: it is the whole sweep
+            shown = e["type"] != "missing" and e["loc"]
+            got = f" (got {str(e.get('input'))[:60]})" if shown else ""
+            message = str(e["msg"]).removeprefix("Value error, ")
+            errors.append({"field": ".".join(str(p) for p in e["loc"]),
+                           "message": message + got})
+        return {"ok": False, "errors": errors, "summary": None, "toml": ""}
+    return {"ok": True, "errors": [], "summary": summary(s, safety or {}),
+            "toml": to_toml(s.model_dump(mode="json", exclude_defaults=True))}
+
+
+def summary(s: SweepSpec, safety: dict[str, Any]) -> dict[str, Any]:
+    """What the operator confirms before the start."""
+    freqs = s.frequencies()
+    displacement = s.target_kind == "displacement"
+    settle_record_s = len(s.targets) * sum((s.settle_cycles + s.record_cycles) / f
+                                           for f in freqs)
+    return {
+        "name": s.name,
+        "motion": s.motion,
+        "target_kind": s.target_kind,
+        "targets": [t * 1e6 if displacement else t for t in s.targets],
+        "target_unit": "um" if displacement else "N",
+        "frequencies": len(freqs),
+        "freq_first_hz": freqs[0],
+        "freq_last_hz": freqs[-1],
+        "freq_min_hz": min(freqs),
+        "freq_max_hz": max(freqs),
+        "steps": len(freqs) * len(s.targets),
+        "settle_record_s": settle_record_s,
+        "pump": "on" if s.lubricated else "off",
+        "tolerance_amplitude_pct": s.tolerance_amplitude_pct,
+        "tolerance_phase_deg": s.tolerance_phase_deg,
+        "on_not_converged": s.on_not_converged,
+        "limits": {k: safety.get(k) for k in ("displacement_limit_m", "load_limit_n",
+                                              "drive_limit_v", "radial_clearance_m")},
+    }
