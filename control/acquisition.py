@@ -8,53 +8,16 @@ import json
 import logging
 import queue
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from control.errors import InterlockError, TargetError
-from control.listener import SweepListener
+from control.listener import FanOut
 
 log = logging.getLogger("sfdrig.daemon")
-
-
-class FanOut:
-    """One stream, many consumers: the run file must get every call (its errors stop the run);
-    the live consumers are best effort (their errors are counted, never raised)."""
-
-    def __init__(self, required: Sequence[SweepListener], best_effort: Sequence[SweepListener]):
-        self.required = list(required)
-        self.best_effort = list(best_effort)
-        self.errors = 0
-        self.last_sample = 0  # one past the last sample seen
-
-    def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
-        self.last_sample = first_sample + ai.shape[1]
-        for r in self.required:
-            r.on_block(first_sample, ai, ao)
-        for b in self.best_effort:
-            self._try(b.on_block, first_sample, ai, ao)
-
-    def on_step(self, step: dict[str, Any]) -> None:
-        for r in self.required:
-            r.on_step(step)
-        for b in self.best_effort:
-            self._try(b.on_step, step)
-
-    def on_event(self, kind: str, message: str, sample: int) -> None:
-        for r in self.required:
-            r.on_event(kind, message, sample)
-        for b in self.best_effort:
-            self._try(b.on_event, kind, message, sample)
-
-    def _try(self, fn: Callable[..., None], *args: Any) -> None:
-        try:
-            fn(*args)
-        except Exception:  # a live consumer must never stop acquisition
-            self.errors += 1
-            log.exception("live consumer failed")
 
 
 class BackgroundWriter:

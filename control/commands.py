@@ -14,9 +14,10 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
-from control.acquisition import BackgroundWriter, FanOut, RunJob
+from control.acquisition import BackgroundWriter, RunJob
 from control.daemon_state import TransitionError, refusal
 from control.errors import TargetError
+from control.listener import FanOut
 from control.runs import create_sweep_file, new_run_id
 from control.wire import (
     AbortRequest,

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from control.impact import run_impact_test
+from control.listener import Listener
 from control.operator import Entry, OperatorDesk, Question
 from control.program_specs import FlowSpec, ImpactSpec, ProbeCalSpec, StaticSpec
 from control.program_stream import (
@@ -42,8 +43,6 @@ from control.program_stream import (
 from control.static_by_hand import static_levels_by_hand
 from daq.backend import DaqBackend
 from storage import RunWriter
-
-Listener = Any  # control.program_stream.Listener (contract A)
 
 DIAL_GAUGE_RANGE_M = 2.5e-3  # a dial gauge reading beyond +/-0.1 in is a typing error here
 SUPPLY_PRESSURE_RANGE_PA = (0.0, 500e3)  # the regulator's gauge
