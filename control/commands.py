@@ -18,7 +18,7 @@ from control.acquisition import BackgroundWriter, RunJob
 from control.daemon_state import TransitionError, refusal
 from control.errors import TargetError
 from control.listener import FanOut
-from control.runs import create_sweep_file, new_run_id
+from control.runs import create_run_writer, new_run_id
 from control.wire import (
     AbortRequest,
     AnswerRequest,
@@ -188,8 +188,9 @@ class CommandHandler:
         path = d.cfg.runs_dir / f"{run_id}.h5"
         cm = d.channel_map
         try:
-            writer = create_sweep_file(path, run_id, cm, spec, req.operator, req.notes,
-                                       d.cfg.rig_config, pool=d.deflate_pool)
+            writer = create_run_writer(path, "sweep", cm, run_id=run_id, test_spec=spec,
+                                       rig_config=d.cfg.rig_config, operator=req.operator,
+                                       notes=req.notes, pool=d.deflate_pool)
         except Exception as err:  # disk full, permissions: nothing has run
             log.exception("creating %s failed", path)
             return self._error(ErrorKind.FAILED, f"start: cannot create the run file: {err}",
@@ -233,8 +234,9 @@ class CommandHandler:
         run_id = f"{new_run_id()}-{req.test}"
         path = d.cfg.runs_dir / f"{run_id}.h5"
         try:
-            writer = create_sweep_file(path, run_id, d.channel_map, spec, req.operator,
-                                       req.notes, d.cfg.rig_config, kind=req.test,
+            writer = create_run_writer(path, req.test, d.channel_map, run_id=run_id,
+                                       test_spec=spec, rig_config=d.cfg.rig_config,
+                                       operator=req.operator, notes=req.notes,
                                        lubricated=req.test == "flow", pool=d.deflate_pool)
         except Exception as err:  # disk full, permissions: nothing has run
             log.exception("creating %s failed", path)
