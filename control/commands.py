@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
-from control.acquisition import BackgroundWriter, RunJob
+from control.acquisition import RunJob
 from control.daemon_state import TransitionError, refusal
 from control.errors import TargetError
 from control.listener import FanOut
@@ -195,9 +195,8 @@ class CommandHandler:
             log.exception("creating %s failed", path)
             return self._error(ErrorKind.FAILED, f"start: cannot create the run file: {err}",
                                req.cmd, req.request_id)
-        background = BackgroundWriter(writer, int(30 * cm.sample_rate_hz))
-        fanout.required.append(background)
-        d.job = RunJob(run_id, path, engine, background, fanout)
+        fanout.required.append(writer)
+        d.job = RunJob(run_id, path, engine, writer, fanout)
         d.publisher.set_run(run_id)
         lubricated = bool(getattr(spec, "lubricated", False))
         d.hold_pump(f"the {'lubricated' if lubricated else 'dry'} sweep {run_id}")
@@ -242,9 +241,8 @@ class CommandHandler:
             log.exception("creating %s failed", path)
             return self._error(ErrorKind.FAILED, f"start_test: cannot create the run file: "
                                f"{err}", req.cmd, req.request_id)
-        background = BackgroundWriter(writer, int(30 * d.channel_map.sample_rate_hz))
-        fanout.required.append(background)
-        d.job = RunJob(run_id, path, engine, background, fanout)
+        fanout.required.append(writer)
+        d.job = RunJob(run_id, path, engine, writer, fanout)
         d.publisher.set_run(run_id)
         if req.test in DRY_TESTS:
             d.hold_pump(f"the dry {req.test} test {run_id}")

@@ -85,18 +85,12 @@ def list_runs(runs_dir: Path, active: Path | None, limit: int = 500) -> list[dic
 def close_run_file(job: Any, status: str, reason: str) -> str:
     """Write out what is queued for ``job``'s run file and close it with ``status`` and
     ``reason``; never raises. Returns "" or what went wrong (the file keeps what was flushed)."""
-    problems = []
     try:
-        job.writer.drain()
-    except Exception as err:
-        log.exception("writing the end of %s failed", job.path)
-        problems.append(f"run file write failed: {err}")
-    try:
-        job.writer.writer.close(status, reason)
+        job.writer.close(status, reason)
     except Exception as err:
         log.exception("closing %s failed", job.path)
-        problems.append(f"run file close failed: {err}")
-    return "; ".join(problems)
+        return f"run file close failed: {err}"
+    return ""
 
 
 def recover_interrupted(runs_dir: Path) -> list[dict[str, Any]]:
