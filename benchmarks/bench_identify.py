@@ -15,8 +15,8 @@ from pathlib import Path
 
 from analysis.identify import identify, write_results
 from analysis.report import build_report
-from control.programs import create_run_writer
 from control.pump import PumpRelay
+from control.runs import create_run_writer
 from control.safety import SafetyLimits
 from control.sweep import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
@@ -28,8 +28,8 @@ def record(path: Path, spec: SweepSpec, seed: int, limits: SafetyLimits | None =
     params = RigParams()
     b = SimulatedBackend(params, seed=seed)
     b.configure(default_channel_map())
-    w = create_run_writer(path, "sweep", b, run_id=path.stem, rig_config=params, test_spec=spec,
-                          lubricated=spec.lubricated)
+    w = create_run_writer(path, "sweep", b.channel_map, run_id=path.stem, rig_config=params,
+                          test_spec=spec, lubricated=spec.lubricated)
     pump = None
     if spec.lubricated:
         pump = PumpRelay(b)

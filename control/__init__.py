@@ -12,6 +12,6 @@ Modules (each small, one responsibility):
 - `control.dwell`: one step (ramp, converge, settle, record); `control.approach`: the margins
   and the anticipating moves (start, watched raise, break-away); `control.step_result`.
 - `control.spec`, `control.sweep`: `SweepSpec` (TOML) and the `SweepEngine` (contract C).
-- `control.listener`: the `SweepListener` protocol (contract A) and helpers.
+- `control.listener`: the `Listener` protocol (contract A), the one `FanOut`, and helpers.
 - `control.errors`: `TargetError`, `InterlockError`, `LimitTrip`, ...
 """

@@ -1,5 +1,4 @@
-"""The daemon's acquisition side: the one acquisition thread, the fan-out of a sweep's stream to
-the run file and the live consumers, and the background run-file writer."""
+"""The daemon's acquisition side: the one acquisition thread that runs the queued runs."""
 
 from __future__ import annotations
 
@@ -8,113 +7,14 @@ import json
 import logging
 import queue
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from control.errors import InterlockError, TargetError
-from control.listener import SweepListener
+from control.listener import FanOut
 
 log = logging.getLogger("sfdrig.daemon")
-
-
-class FanOut:
-    """One stream, many consumers: the run file must get every call (its errors stop the run);
-    the live consumers are best effort (their errors are counted, never raised)."""
-
-    def __init__(self, required: Sequence[SweepListener], best_effort: Sequence[SweepListener]):
-        self.required = list(required)
-        self.best_effort = list(best_effort)
-        self.errors = 0
-        self.last_sample = 0  # one past the last sample seen
-
-    def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
-        self.last_sample = first_sample + ai.shape[1]
-        for r in self.required:
-            r.on_block(first_sample, ai, ao)
-        for b in self.best_effort:
-            self._try(b.on_block, first_sample, ai, ao)
-
-    def on_step(self, step: dict[str, Any]) -> None:
-        for r in self.required:
-            r.on_step(step)
-        for b in self.best_effort:
-            self._try(b.on_step, step)
-
-    def on_event(self, kind: str, message: str, sample: int) -> None:
-        for r in self.required:
-            r.on_event(kind, message, sample)
-        for b in self.best_effort:
-            self._try(b.on_event, kind, message, sample)
-
-    def _try(self, fn: Callable[..., None], *args: Any) -> None:
-        try:
-            fn(*args)
-        except Exception:  # a live consumer must never stop acquisition
-            self.errors += 1
-            log.exception("live consumer failed")
-
-
-class BackgroundWriter:
-    """Runs a run writer's calls on its own thread, in order, so that disk latency (compression,
-    flushes at steps and events) stays out of the acquisition loop, whose AO lead is only tens of
-    milliseconds.
-
-    A write error, or a backlog beyond ``max_backlog_samples``, makes the next `on_block` raise:
-    the engine then stops the run the safe way and records why.
-    """
-
-    def __init__(self, writer: Any, max_backlog_samples: int) -> None:
-        self.writer = writer
-        self.max_backlog = max_backlog_samples
-        self._queue: queue.Queue[tuple[str, tuple[Any, ...]] | None] = queue.Queue()
-        self._backlog = 0  # samples queued, not yet written
-        self._lock = threading.Lock()
-        self.error: BaseException | None = None
-        self._thread = threading.Thread(target=self._loop, name="sfdrig-run-writer",
-                                        daemon=True)
-        self._thread.start()
-
-    def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
-        if self.error is not None:
-            raise RuntimeError(f"run file write failed: {self.error}")
-        with self._lock:
-            if self._backlog > self.max_backlog:
-                raise RuntimeError(f"run file writer is {self._backlog} samples behind: the "
-                                   "disk cannot keep up")
-            self._backlog += ai.shape[1]
-        self._queue.put(("on_block", (first_sample, ai, ao)))
-
-    def on_step(self, step: dict[str, Any]) -> None:
-        self._queue.put(("on_step", (step,)))
-
-    def on_event(self, kind: str, message: str, sample: int) -> None:
-        self._queue.put(("on_event", (kind, message, sample)))
-
-    def drain(self, timeout_s: float = 60.0) -> None:
-        """Write everything queued and stop the thread; raise the first write error."""
-        self._queue.put(None)
-        self._thread.join(timeout_s)
-        if self._thread.is_alive():
-            raise TimeoutError(f"run writer did not finish within {timeout_s:g} s")
-        if self.error is not None:
-            raise RuntimeError(f"run file write failed: {self.error}")
-
-    def _loop(self) -> None:
-        while (item := self._queue.get()) is not None:
-            if self.error is not None:
-                continue  # keep draining so the acquisition side never blocks
-            name, args = item
-            try:
-                getattr(self.writer, name)(*args)
-            except BaseException as err:
-                log.exception("run writer failed")
-                self.error = err
-            if name == "on_block":
-                with self._lock:
-                    self._backlog -= args[1].shape[1]
 
 
 # --- the acquisition loop -----------------------------------------------------------------------
@@ -125,7 +25,7 @@ class RunJob:
     run_id: str
     path: Path
     engine: Any  # control.sweep.SweepEngine
-    writer: BackgroundWriter  # around a storage.RunWriter
+    writer: Any  # storage.RunWriter: its own I/O thread keeps the disk out of the loop
     fanout: FanOut
     abort_reason: str = ""
 

@@ -14,10 +14,11 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
-from control.acquisition import BackgroundWriter, FanOut, RunJob
+from control.acquisition import RunJob
 from control.daemon_state import TransitionError, refusal
 from control.errors import TargetError
-from control.runs import create_sweep_file, new_run_id
+from control.listener import FanOut
+from control.runs import create_run_writer, new_run_id
 from control.wire import (
     AbortRequest,
     AnswerRequest,
@@ -187,15 +188,15 @@ class CommandHandler:
         path = d.cfg.runs_dir / f"{run_id}.h5"
         cm = d.channel_map
         try:
-            writer = create_sweep_file(path, run_id, cm, spec, req.operator, req.notes,
-                                       d.cfg.rig_config, pool=d.deflate_pool)
+            writer = create_run_writer(path, "sweep", cm, run_id=run_id, test_spec=spec,
+                                       rig_config=d.cfg.rig_config, operator=req.operator,
+                                       notes=req.notes, pool=d.deflate_pool)
         except Exception as err:  # disk full, permissions: nothing has run
             log.exception("creating %s failed", path)
             return self._error(ErrorKind.FAILED, f"start: cannot create the run file: {err}",
                                req.cmd, req.request_id)
-        background = BackgroundWriter(writer, int(30 * cm.sample_rate_hz))
-        fanout.required.append(background)
-        d.job = RunJob(run_id, path, engine, background, fanout)
+        fanout.required.append(writer)
+        d.job = RunJob(run_id, path, engine, writer, fanout)
         d.publisher.set_run(run_id)
         lubricated = bool(getattr(spec, "lubricated", False))
         d.hold_pump(f"the {'lubricated' if lubricated else 'dry'} sweep {run_id}")
@@ -232,16 +233,16 @@ class CommandHandler:
         run_id = f"{new_run_id()}-{req.test}"
         path = d.cfg.runs_dir / f"{run_id}.h5"
         try:
-            writer = create_sweep_file(path, run_id, d.channel_map, spec, req.operator,
-                                       req.notes, d.cfg.rig_config, kind=req.test,
+            writer = create_run_writer(path, req.test, d.channel_map, run_id=run_id,
+                                       test_spec=spec, rig_config=d.cfg.rig_config,
+                                       operator=req.operator, notes=req.notes,
                                        lubricated=req.test == "flow", pool=d.deflate_pool)
         except Exception as err:  # disk full, permissions: nothing has run
             log.exception("creating %s failed", path)
             return self._error(ErrorKind.FAILED, f"start_test: cannot create the run file: "
                                f"{err}", req.cmd, req.request_id)
-        background = BackgroundWriter(writer, int(30 * d.channel_map.sample_rate_hz))
-        fanout.required.append(background)
-        d.job = RunJob(run_id, path, engine, background, fanout)
+        fanout.required.append(writer)
+        d.job = RunJob(run_id, path, engine, writer, fanout)
         d.publisher.set_run(run_id)
         if req.test in DRY_TESTS:
             d.hold_pump(f"the dry {req.test} test {run_id}")

@@ -349,7 +349,7 @@ class Daemon:
             "progress": progress,
             "samples": job.fanout.last_sample if job is not None else 0,
             # durable in the run file (a reader, or a crash, sees at least these)
-            "samples_flushed": job.writer.writer.samples_flushed if job is not None else 0,
+            "samples_flushed": job.writer.samples_flushed if job is not None else 0,
             "pump_on": bool(self.pump.is_on),
             # dry sweeps wait [s]; rounded up: 0 only once a dry start is allowed
             "film_drains_for_s": math.ceil(10 * self.pump.drains_for_s()) / 10,

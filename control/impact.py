@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from control.listener import Listener
 from control.operator import Question
 from control.program_specs import ImpactSpec
 from control.program_stream import (
-    Listener,
     ProgramError,
     ProgramOutcome,
     RigHands,

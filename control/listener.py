@@ -1,8 +1,10 @@
-"""Contract A: the one stream of a sweep, consumed by the run writer, the publisher and others."""
+"""Contract A: the one stream of a run (a sweep or a structure test), consumed by the run writer,
+the publisher and others: the `Listener` protocol and the one fan-out to several of them."""
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -14,7 +16,7 @@ EVENT_KINDS = ("state", "limit_trip", "abort", "fault", "pump", "operator", "war
 
 
 @runtime_checkable
-class SweepListener(Protocol):
+class Listener(Protocol):
     """Receives every block, every step result and every event of a run, in order.
 
     ``on_block(first_sample, ai, ao)``: ``ai`` engineering units, float64 (n_ai, n) in channel-map
@@ -43,23 +45,43 @@ class NullListener:
         return None
 
 
-class Fanout:
-    """Sends the stream to several listeners, in the order given."""
+class FanOut:
+    """One stream, many consumers: the ``required`` ones get every call, in order, and their
+    errors stop the run (the run file); the ``best_effort`` ones (live consumers) never stop it:
+    their errors are counted and logged."""
 
-    def __init__(self, *listeners: SweepListener) -> None:
-        self.listeners = list(listeners)
+    def __init__(self, required: Sequence[Listener],
+                 best_effort: Sequence[Listener] = ()) -> None:
+        self.required = list(required)
+        self.best_effort = list(best_effort)
+        self.errors = 0
+        self.last_sample = 0  # one past the last sample seen
 
     def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
-        for lst in self.listeners:
-            lst.on_block(first_sample, ai, ao)
+        self.last_sample = first_sample + ai.shape[1]
+        for r in self.required:
+            r.on_block(first_sample, ai, ao)
+        for b in self.best_effort:
+            self._try(b.on_block, first_sample, ai, ao)
 
     def on_step(self, step: dict[str, Any]) -> None:
-        for lst in self.listeners:
-            lst.on_step(step)
+        for r in self.required:
+            r.on_step(step)
+        for b in self.best_effort:
+            self._try(b.on_step, step)
 
     def on_event(self, kind: str, message: str, sample: int) -> None:
-        for lst in self.listeners:
-            lst.on_event(kind, message, sample)
+        for r in self.required:
+            r.on_event(kind, message, sample)
+        for b in self.best_effort:
+            self._try(b.on_event, kind, message, sample)
+
+    def _try(self, fn: Callable[..., None], *args: Any) -> None:
+        try:
+            fn(*args)
+        except Exception:  # a live consumer must never stop acquisition
+            self.errors += 1
+            log.exception("live consumer failed")
 
 
 class RecordingListener:

@@ -22,16 +22,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from control.ao_writer import AoWriter
+from control.listener import Listener
 from control.operator import Answer, OperatorDesk, Question
 from daq.backend import DaqBackend
 from daq.errors import EmergencyStopError
-
-
-class Listener(Protocol):
-    def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None: ...
-    def on_step(self, step: dict) -> None: ...
-    def on_event(self, kind: str, message: str, sample: int) -> None: ...
-
 
 FAULT_RAMP_S = 0.04  # drive fade on a fault [s]
 #: ring mode: blocks of the predicted level written per cycle beyond the lead
@@ -498,7 +492,7 @@ def hold_steady(stream: Stream, target_v: np.ndarray, record_s: float, ramp_s: f
 
 
 __all__: Sequence[str] = [
-    "FAULT_RAMP_S", "ForceTrip", "Listener", "ProgramAborted", "ProgramError", "ProgramOutcome",
+    "FAULT_RAMP_S", "ForceTrip", "ProgramAborted", "ProgramError", "ProgramOutcome",
     "RigHands", "Steadiness", "Stream", "ai_row", "ask", "ask_unsteady", "hold_steady",
     "journal_out", "run_program", "signal", "step_dict", "unsteady",
 ]

@@ -15,14 +15,13 @@ Drives always end ramped to zero, whatever happens (`program_stream.run_program`
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from control.impact import run_impact_test
+from control.listener import Listener
 from control.operator import Entry, OperatorDesk, Question
 from control.program_specs import FlowSpec, ImpactSpec, ProbeCalSpec, StaticSpec
 from control.program_stream import (
@@ -41,9 +40,6 @@ from control.program_stream import (
 )
 from control.static_by_hand import static_levels_by_hand
 from daq.backend import DaqBackend
-from storage import RunWriter
-
-Listener = Any  # control.program_stream.Listener (contract A)
 
 DIAL_GAUGE_RANGE_M = 2.5e-3  # a dial gauge reading beyond +/-0.1 in is a typing error here
 SUPPLY_PRESSURE_RANGE_PA = (0.0, 500e3)  # the regulator's gauge
@@ -264,22 +260,8 @@ def run_flow_test(backend: DaqBackend, listener: Listener, operator: OperatorDes
     return run_program("flow", backend, listener, spec, body, operator)
 
 
-def create_run_writer(path: str | Path, kind: str, backend: DaqBackend, *, run_id: str,
-                      rig_config: Any = None, test_spec: Any = None, lubricated: bool = False,
-                      operator: str = "", notes: str = "", overwrite: bool = False) -> RunWriter:
-    """A `RunWriter` for ``backend``'s channel map (AI and AO metadata from the map)."""
-    cm = backend.channel_map
-    cmd = cm.to_json_dict()
-    spec_json = test_spec.model_dump(mode="json") if hasattr(test_spec, "model_dump") else test_spec
-    return RunWriter.create(
-        path, run_id, kind, cmd["ai"], [ao.name for ao in cm.ao], cm.sample_rate_hz,
-        operator=operator, notes=notes, channel_map=json.dumps(cmd), rig_config=rig_config,
-        test_spec=spec_json, lubricated=lubricated, overwrite=overwrite,
-    )
-
-
 __all__: Sequence[str] = [
     "FlowSpec", "ImpactSpec", "ProbeCalSpec", "ProgramError", "ProgramOutcome", "StaticSpec",
-    "create_run_writer", "journal_out", "run_flow_test", "run_impact_test",
+    "journal_out", "run_flow_test", "run_impact_test",
     "run_probe_calibration", "run_static_test",
 ]

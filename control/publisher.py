@@ -78,7 +78,7 @@ class Publisher:
         self._thread = threading.Thread(target=self._loop, name="sfdrig-publisher", daemon=True)
         self._thread.start()
 
-    # --- SweepListener (contract A), called from the acquisition thread --------------------
+    # --- Listener (contract A), called from the acquisition thread --------------------
     def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
         """Queue one block: ``ai`` (n_ai, n) engineering units, ``ao`` (n_ao, n) volts."""
         t_acquired = time.time()

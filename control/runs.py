@@ -7,9 +7,12 @@ import math
 import secrets
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from daq.channels import ChannelMap
+
+if TYPE_CHECKING:
+    from storage.runfile import RunWriter
 
 log = logging.getLogger("sfdrig.daemon")
 
@@ -30,11 +33,15 @@ def writer_chunk_samples(sample_rate_hz: float) -> int:
     return int(max(1024, 2 ** round(math.log2(max(sample_rate_hz, 1.0) / 8))))
 
 
-def create_sweep_file(path: Path, run_id: str, channel_map: ChannelMap, spec: Any,
-                      operator: str, notes: str, rig_config: Any, kind: str = "sweep",
-                      lubricated: bool | None = None, pool: Any = None) -> Any:
-    """A new `storage.RunWriter` for one sweep (or test of ``kind``), its metadata written;
-    ``pool``: the daemon's compression pool, shared by its runs (`storage.runfile.deflate_pool`)."""
+def create_run_writer(path: str | Path, kind: str, channel_map: ChannelMap, *, run_id: str,
+                      test_spec: Any = None, rig_config: Any = None,
+                      lubricated: bool | None = None, operator: str = "", notes: str = "",
+                      overwrite: bool = False, pool: Any = None) -> RunWriter:
+    """A new run file of ``kind`` (a sweep, a structure test) and its `storage.RunWriter`, the
+    metadata written: the AI and AO channels from ``channel_map``, the test's spec (a pydantic
+    model or a dict), the rig. ``lubricated`` None: the spec's own ``lubricated`` (False without
+    one). ``pool``: the daemon's compression pool, shared by its runs
+    (`storage.runfile.deflate_pool`)."""
     from storage.runfile import RunWriter
 
     cm = channel_map
@@ -43,10 +50,11 @@ def create_sweep_file(path: Path, run_id: str, channel_map: ChannelMap, spec: An
         channels=cm.to_json_dict()["ai"], ao_names=cm.ao_names,
         sample_rate_hz=cm.sample_rate_hz, operator=operator, notes=notes,
         channel_map=cm.to_json_dict(), rig_config=rig_config,
-        test_spec=spec.model_dump(mode="json") if hasattr(spec, "model_dump") else spec,
-        lubricated=bool(getattr(spec, "lubricated", False)) if lubricated is None
+        test_spec=(test_spec.model_dump(mode="json") if hasattr(test_spec, "model_dump")
+                   else test_spec),
+        lubricated=bool(getattr(test_spec, "lubricated", False)) if lubricated is None
         else lubricated,
-        chunk_samples=writer_chunk_samples(cm.sample_rate_hz), pool=pool,
+        chunk_samples=writer_chunk_samples(cm.sample_rate_hz), pool=pool, overwrite=overwrite,
     )
 
 
@@ -77,18 +85,12 @@ def list_runs(runs_dir: Path, active: Path | None, limit: int = 500) -> list[dic
 def close_run_file(job: Any, status: str, reason: str) -> str:
     """Write out what is queued for ``job``'s run file and close it with ``status`` and
     ``reason``; never raises. Returns "" or what went wrong (the file keeps what was flushed)."""
-    problems = []
     try:
-        job.writer.drain()
-    except Exception as err:
-        log.exception("writing the end of %s failed", job.path)
-        problems.append(f"run file write failed: {err}")
-    try:
-        job.writer.writer.close(status, reason)
+        job.writer.close(status, reason)
     except Exception as err:
         log.exception("closing %s failed", job.path)
-        problems.append(f"run file close failed: {err}")
-    return "; ".join(problems)
+        return f"run file close failed: {err}"
+    return ""
 
 
 def recover_interrupted(runs_dir: Path) -> list[dict[str, Any]]:

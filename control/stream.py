@@ -26,7 +26,7 @@ import numpy as np
 
 from control.ao_writer import AoWriter
 from control.errors import LimitTrip
-from control.listener import SweepListener
+from control.listener import Listener
 from control.safety import SafetyMonitor
 from control.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
@@ -77,7 +77,7 @@ class DriveStream:
         The drive generator (its sample counter must be 0: it starts with the run).
     monitor : SafetyMonitor
         Checks AO blocks before writing and AI blocks on arrival.
-    listener : SweepListener
+    listener : Listener
         Receives every block.
     block_samples : int
         Samples per read and per write.
@@ -94,7 +94,7 @@ class DriveStream:
         backend: DaqBackend,
         synth: SineSynthesizer,
         monitor: SafetyMonitor,
-        listener: SweepListener,
+        listener: Listener,
         block_samples: int,
         ahead_blocks: int = 1,
         keep_samples: int = 0,

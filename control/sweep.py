@@ -22,7 +22,7 @@ import numpy as np
 
 from control.dwell import StepResult, StepRunner
 from control.errors import InterlockError, LimitTrip, TargetError
-from control.listener import Fanout, NullListener, SweepListener
+from control.listener import FanOut, Listener, NullListener
 from control.plan import StepPlan
 from control.pump import PumpRelay
 from control.run_summary import RunPeaks, peak_line
@@ -111,8 +111,8 @@ class SweepEngine:
     spec : SweepSpec or dict
     limits : SafetyLimits, optional
         Defaults to `SafetyLimits()`.
-    listener : SweepListener, optional
-        Receives the stream (use `control.listener.Fanout` for several).
+    listener : Listener, optional
+        Receives the stream (`control.listener.FanOut` for several).
     pump : PumpRelay, optional
         Required for a lubricated sweep; held on (interlocked) for the whole run.
     """
@@ -122,13 +122,13 @@ class SweepEngine:
         backend: DaqBackend,
         spec: SweepSpec | dict[str, Any],
         limits: SafetyLimits | None = None,
-        listener: SweepListener | None = None,
+        listener: Listener | None = None,
         pump: PumpRelay | None = None,
     ) -> None:
         self.backend = backend
         self.spec = spec if isinstance(spec, SweepSpec) else sweep_spec_from_dict(spec)
         self.limits = limits if limits is not None else SafetyLimits()
-        self.listener: SweepListener = listener if listener is not None else NullListener()
+        self.listener: Listener = listener if listener is not None else NullListener()
         self.pump = pump
         self.plan: list[StepPlan] = self.spec.steps()
         self._lock = threading.Lock()
@@ -285,7 +285,7 @@ class SweepEngine:
         # the run's peak orbit and load and any contact, for the end of run (issue 21)
         self.peaks = RunPeaks(AxisSignals.from_channel_map(cm), self.limits.displacement_limit_m,
                               self.limits.max_load_n)
-        self.listener = Fanout(self.listener, self.peaks)
+        self.listener = FanOut([self.listener, self.peaks])
         synth = SineSynthesizer(len(cm.ao), fs)
         stream = DriveStream(
             self.backend, synth, SafetyMonitor(self.limits, cm), self.listener, block,

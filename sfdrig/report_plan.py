@@ -11,8 +11,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from analysis.calibration.plan import ReportPlan
-from control.programs import create_run_writer
 from control.pump import PumpRelay
+from control.runs import create_run_writer
 from control.safety import SafetyLimits
 from control.sweep import SweepEngine, SweepSpec, sweep_spec_from_dict
 from daq.channels import default_channel_map
@@ -51,8 +51,9 @@ def _sweep(path: Path, params: RigParams, spec: SweepSpec, seed: int, log: bool)
     if spec.lubricated:
         pump = PumpRelay(backend)
         pump.set(True)
-    writer = create_run_writer(path, "sweep", backend, run_id=path.stem, rig_config=params,
-                               test_spec=spec, lubricated=spec.lubricated, overwrite=True)
+    writer = create_run_writer(path, "sweep", backend.channel_map, run_id=path.stem,
+                               rig_config=params, test_spec=spec, lubricated=spec.lubricated,
+                               overwrite=True)
     outcome = SweepEngine(backend, spec, limits=None if spec.lubricated else DRY_LIMITS,
                           listener=writer, pump=pump).run()
     writer.close(outcome.status, outcome.reason)

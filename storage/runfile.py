@@ -7,7 +7,9 @@ the final status and stop time are written after the SWMR session is closed (fil
 `RunWriter` implements the sweep listener (contract A): ``on_block``, ``on_step``, ``on_event``.
 ``on_block`` only copies the block and hands it to a background I/O thread, which appends whole
 chunks (gzip chunks are shuffled and deflated in a small thread pool, then written directly) and
-flushes at least every ``flush_interval_s`` seconds; every step and event also flushes. A writer
+flushes at least every ``flush_interval_s`` seconds; ``on_step`` and ``on_event`` check their
+rows and hand them over too, and the thread writes each after the samples before it and flushes
+(the one I/O thread of a run: the caller, the acquisition loop, never waits on the disk). A writer
 killed mid-run therefore leaves a readable file holding everything up to the last flush (at most
 about one second lost).
 """
@@ -131,9 +133,10 @@ class RunWriter:
             Samples per chunk; defaults to `default_chunk_samples` (about 1/8 s).
         flush_interval_s : float
             Longest time [s] data may stay unflushed. With a positive interval a background
-            I/O thread compresses and writes the blocks, so `on_block` only hands them over;
-            0 makes `on_block` write whole chunks itself and flushes only on steps, events,
-            `flush` and close.
+            I/O thread compresses and writes the blocks, steps and events, so `on_block`,
+            `on_step` and `on_event` only hand them over (a write error is raised by the next
+            call); 0 makes `on_block` write whole chunks itself, and steps and events are
+            written and flushed in the call.
         max_backlog_s : float
             Data [s] the I/O thread may fall behind before `on_block` raises (a disk or CPU
             too slow for the sample rate), rather than filling memory.
@@ -213,6 +216,9 @@ class RunWriter:
         self._tail_start = 0  # sample index of _tail[:, 0], a multiple of chunk_samples
         self._tail_written = 0  # leading samples of _tail already in the datasets (flushes)
         self._next_sample = 0  # expected first_sample of the next block
+        # steps and events handed over, not yet written (with the I/O thread: it writes them,
+        # each after the samples before it, and flushes; the caller never waits on the disk)
+        self._records: list[tuple[str, Any]] = []
         self._written = 0  # samples in the datasets
         self._compression = compression
         # gzip chunks are shuffled and deflated here, in threads (zlib releases the GIL), and
@@ -338,36 +344,60 @@ class RunWriter:
             self._write_pending(whole_chunks_only=True)
 
     def on_step(self, step: Mapping[str, Any]) -> None:
-        """Append one dwell's result (contract A step dict) and flush the file."""
+        """Append one dwell's result (contract A step dict) and flush the file (its rows are
+        checked here; `ValueError` names what is wrong)."""
+        with self._buf_lock:
+            index = self._n_steps + sum(kind == "step" for kind, _ in self._records)
         try:
-            row, harm, drive = step_rows(step, self._n_steps, self.ai_names, self.ao_names)
+            rows = step_rows(step, index, self.ai_names, self.ao_names)
         except ValueError as err:
             raise ValueError(f"{self.path}: {err}") from None
-        with self._io_lock:
-            self._check_open()
-            self._write_pending()  # the dwell's samples reach the file before its row
-            i = self._n_steps
-            self._steps.resize((i + 1,))
-            self._steps[i] = row
-            self._harm.resize((i + 1, *self._harm.shape[1:]))
-            self._harm[i] = harm
-            if self.ao_names:
-                self._drive_v.resize((i + 1, len(self.ao_names)))
-                self._drive_v[i] = drive
-            self._n_steps = i + 1
-            self._flush_locked()
+        self._hand_over("step", rows)
 
     def on_event(self, kind: str, message: str, sample: int) -> None:
         """Log one event (kind from `EVENT_KINDS`; others are kept as given) and flush."""
-        row = event_row(kind, message, sample)
+        self._hand_over("event", event_row(kind, message, sample))
+
+    def _hand_over(self, kind: str, record: Any) -> None:
+        """A step's or an event's rows, checked: to the I/O thread, which writes them after the
+        samples handed over before them and flushes; without one, written and flushed now."""
+        with self._buf_lock:
+            self._check_open()
+            self._records.append((kind, record))
+        if self._io_thread is not None:
+            self._wake.set()
+            return
         with self._io_lock:
             self._check_open()
-            self._write_pending()
-            i = self._n_events
-            self._events.resize((i + 1,))
-            self._events[i] = row
-            self._n_events = i + 1
-            self._flush_locked()
+            self._write_records()
+
+    def _write_records(self) -> None:
+        """Write the steps and events handed over, in order, each after the samples before it
+        (the dwell's samples reach the file before its row), then flush (caller holds
+        _io_lock)."""
+        with self._buf_lock:
+            records, self._records = self._records, []
+        if not records:
+            return
+        self._write_pending()
+        for kind, record in records:
+            if kind == "step":
+                row, harm, drive = record
+                i = self._n_steps
+                self._steps.resize((i + 1,))
+                self._steps[i] = row
+                self._harm.resize((i + 1, *self._harm.shape[1:]))
+                self._harm[i] = harm
+                if self.ao_names:
+                    self._drive_v.resize((i + 1, len(self.ao_names)))
+                    self._drive_v[i] = drive
+                self._n_steps = i + 1
+            else:
+                i = self._n_events
+                self._events.resize((i + 1,))
+                self._events[i] = record
+                self._n_events = i + 1
+        self._flush_locked()
 
     # --- flushing -----------------------------------------------------------------------------
     @property
@@ -381,9 +411,11 @@ class RunWriter:
         return self._samples_flushed
 
     def flush(self) -> None:
-        """Write every buffered sample and flush the file to disk (readers see it all)."""
+        """Write every buffered sample, step and event and flush the file to disk (readers see
+        it all)."""
         with self._io_lock:
             self._check_open()
+            self._write_records()
             self._flush_locked()
 
     def wait_flushed(self, n_samples: int, timeout_s: float) -> bool:
@@ -451,7 +483,7 @@ class RunWriter:
 
     def _unflushed(self) -> bool:
         return bool(self._pending_n or self._tail.shape[1] > self._tail_written
-                    or self._samples_flushed < self._written)
+                    or self._samples_flushed < self._written or self._records)
 
     def _io_loop(self) -> None:
         """Background I/O: write completed chunks as blocks arrive; flush when due."""
@@ -463,6 +495,7 @@ class RunWriter:
                 if self._closed:
                     return
                 try:
+                    self._write_records()
                     self._write_pending(whole_chunks_only=True)
                     if time.monotonic() - self._last_flush >= interval:
                         if self._unflushed():
@@ -503,6 +536,7 @@ class RunWriter:
                 return
             try:
                 if self.flush_error is None:
+                    self._write_records()
                     self._flush_locked()
             except Exception as err:  # e.g. disk full: still end the run as cleanly as possible
                 error = err

@@ -22,12 +22,12 @@ from control.programs import (
     ImpactSpec,
     ProbeCalSpec,
     StaticSpec,
-    create_run_writer,
     run_flow_test,
     run_impact_test,
     run_probe_calibration,
     run_static_test,
 )
+from control.runs import create_run_writer
 from daq.channels import default_channel_map, load_channel_map
 from sfdrig.commands._client_args import add_connection_arguments, command_client
 from sfdrig.commands.sweep import sweep_fields
@@ -89,7 +89,7 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
                 "flow": FlowSpec}[kind]()
         if isinstance(spec, StaticSpec) and load_by:
             spec = spec.model_copy(update={"load_by": load_by})
-        writer = create_run_writer(path, kind, backend, run_id=run_id,
+        writer = create_run_writer(path, kind, backend.channel_map, run_id=run_id,
                                    rig_config=test_params, test_spec=spec, operator=operator,
                                    lubricated=kind == "flow", overwrite=True)
         desk = StandInOperator(_logged_to(writer))

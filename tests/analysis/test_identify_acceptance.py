@@ -19,8 +19,9 @@ import pytest
 
 from analysis.identify import identify, write_results
 from analysis.report import build_report
-from control.programs import StaticSpec, create_run_writer, run_static_test
+from control.programs import StaticSpec, run_static_test
 from control.pump import PumpRelay
+from control.runs import create_run_writer
 from control.safety import SafetyLimits
 from control.sweep import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
@@ -44,8 +45,8 @@ def run_sweep(path: Path, spec: SweepSpec, seed: int, params: RigParams | None =
     """One sweep through `SweepEngine` on the simulated rig, written to ``path``."""
     params = params or RigParams()
     b = _backend(params, seed)
-    w = create_run_writer(path, "sweep", b, run_id=path.stem, rig_config=params, test_spec=spec,
-                          lubricated=spec.lubricated)
+    w = create_run_writer(path, "sweep", b.channel_map, run_id=path.stem, rig_config=params,
+                          test_spec=spec, lubricated=spec.lubricated)
     pump = None
     if spec.lubricated:
         pump = PumpRelay(b)
@@ -84,8 +85,8 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     no_seal.seal.enabled = False
     b = _backend(no_seal, 13)
     spec = StaticSpec(axes=("x",), forces_n=(-80.0, -40.0, 0.0, 40.0, 80.0), repeats=2)
-    w = create_run_writer(d / "static.h5", "static", b, run_id="static", rig_config=no_seal,
-                          test_spec=spec)
+    w = create_run_writer(d / "static.h5", "static", b.channel_map, run_id="static",
+                          rig_config=no_seal, test_spec=spec)
     assert run_static_test(b, w, spec).completed
     w.close()
     out["static"] = d / "static.h5"

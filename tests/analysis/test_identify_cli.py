@@ -8,7 +8,8 @@ from pathlib import Path
 import h5py
 import pytest
 
-from control.programs import FlowSpec, StaticSpec, create_run_writer, run_flow_test, run_static_test
+from control.programs import FlowSpec, StaticSpec, run_flow_test, run_static_test
+from control.runs import create_run_writer
 from daq.channels import default_channel_map
 from sfdrig.cli import main
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
@@ -24,13 +25,13 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     b = SimulatedBackend(params, seed=5)
     b.configure(default_channel_map())
     spec = StaticSpec(axes=("y",), forces_n=(-60.0, 0.0, 60.0), repeats=1, record_s=0.2)
-    w = create_run_writer(d / "static.h5", "static", b, run_id="st1", rig_config=params)
+    w = create_run_writer(d / "static.h5", "static", b.channel_map, run_id="st1", rig_config=params)
     assert run_static_test(b, w, spec).completed
     w.close()
     params = RigParams()
     b = SimulatedBackend(params, seed=6)
     b.configure(default_channel_map())
-    w = create_run_writer(d / "flow.h5", "flow", b, run_id="fl1", rig_config=params,
+    w = create_run_writer(d / "flow.h5", "flow", b.channel_map, run_id="fl1", rig_config=params,
                           lubricated=True)
     fspec = FlowSpec(supply_pressures_pa=(10e3, 15e3, 20e3), repeats=1, settle_s=2.5)
     assert run_flow_test(b, w, StandInOperator(), fspec, hands=SimulatedHands(b)).completed

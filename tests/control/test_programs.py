@@ -21,12 +21,12 @@ from control.programs import (
     ImpactSpec,
     ProbeCalSpec,
     StaticSpec,
-    create_run_writer,
     run_flow_test,
     run_impact_test,
     run_probe_calibration,
     run_static_test,
 )
+from control.runs import create_run_writer
 from daq.channels import default_channel_map
 from simulated_hw.params import RigParams
 from storage import open_run
@@ -105,7 +105,7 @@ def test_static_programme(tmp_path: Path) -> None:
     params = no_seal()
     b = backend(params)
     spec = StaticSpec(forces_n=(-80.0, -40.0, 0.0, 40.0, 80.0), repeats=2, record_s=0.3)
-    w = create_run_writer(tmp_path / "s.h5", "static", b, run_id="s", rig_config=params,
+    w = create_run_writer(tmp_path / "s.h5", "static", b.channel_map, run_id="s", rig_config=params,
                           test_spec=spec)
     out = run_static_test(b, w, spec)
     w.close()
@@ -135,7 +135,7 @@ def test_impact_programme(tmp_path: Path) -> None:
     rig = b.rig
     hands = Hands(rig)
     spec = ImpactSpec(strikes=2, window_s=1.0)
-    w = create_run_writer(tmp_path / "i.h5", "impact", b, run_id="i", rig_config=params)
+    w = create_run_writer(tmp_path / "i.h5", "impact", b.channel_map, run_id="i", rig_config=params)
     out = run_impact_test(b, w, ScriptedDesk(accept_all), spec, hands=hands)
     w.close()
     assert out.completed, out.reason
@@ -162,7 +162,7 @@ def test_impact_programme(tmp_path: Path) -> None:
 
 def test_impact_without_strike_stops_safely(tmp_path: Path) -> None:
     b = backend(no_seal())
-    w = create_run_writer(tmp_path / "i.h5", "impact", b, run_id="i")
+    w = create_run_writer(tmp_path / "i.h5", "impact", b.channel_map, run_id="i")
     no_hit = Hands(b.rig)
     no_hit.strike = lambda axis, peak, kind: None  # type: ignore[method-assign]
     out = run_impact_test(b, w, ScriptedDesk(accept_all), ImpactSpec(wait_s=0.5), hands=no_hit)
@@ -176,7 +176,7 @@ def test_impact_without_strike_stops_safely(tmp_path: Path) -> None:
 
 def test_static_programme_stops_at_the_force_limit(tmp_path: Path) -> None:
     b = backend(no_seal())
-    w = create_run_writer(tmp_path / "s.h5", "static", b, run_id="s")
+    w = create_run_writer(tmp_path / "s.h5", "static", b.channel_map, run_id="s")
     out = run_static_test(b, w, StaticSpec(forces_n=(20.0, 120.0), max_force_n=100.0))
     w.close()
     assert not out.completed
@@ -205,7 +205,7 @@ def test_a_force_trip_on_a_resuming_backend_fades_from_the_first_sample_not_gene
     ``cut_stops=False``): the 40 ms fault ramp starts where the generation was, no step."""
     b = WriteLog(no_seal(), seed=3, cut_stops=False)
     b.configure(default_channel_map())
-    w = create_run_writer(tmp_path / "s.h5", "static", b, run_id="s")
+    w = create_run_writer(tmp_path / "s.h5", "static", b.channel_map, run_id="s")
     out = run_static_test(b, w, StaticSpec(forces_n=(20.0, 120.0), max_force_n=100.0))
     w.close()
     assert not out.completed and "over the 100 N limit" in out.reason
@@ -226,7 +226,7 @@ def test_probe_calibration_programme(tmp_path: Path) -> None:
     params.effects.probe_gain_error.channel = "x1"
     params.effects.probe_gain_error.gain_ratio = 1.03
     b = backend(params)
-    w = create_run_writer(tmp_path / "c.h5", "probe_calibration", b, run_id="c",
+    w = create_run_writer(tmp_path / "c.h5", "probe_calibration", b.channel_map, run_id="c",
                           rig_config=params)
     out = run_probe_calibration(b, w, ScriptedDesk(accept_all), ProbeCalSpec(),
                                 hands=Hands(b.rig))
@@ -250,7 +250,7 @@ def test_flow_programme(tmp_path: Path) -> None:
     rig = b.rig
     hands = Hands(rig)
     spec = FlowSpec(supply_pressures_pa=(10e3, 15.5e3, 20e3, 25e3), repeats=2, settle_s=2.5)
-    w = create_run_writer(tmp_path / "f.h5", "flow", b, run_id="f", rig_config=params,
+    w = create_run_writer(tmp_path / "f.h5", "flow", b.channel_map, run_id="f", rig_config=params,
                           lubricated=True)
     out = run_flow_test(b, w, ScriptedDesk(accept_all), spec, hands=hands)
     w.close()
@@ -286,7 +286,7 @@ def test_impact_rejects_double_hits_and_overloads_and_the_operators_reject(tmp_p
         return "ok", ""
 
     desk = ScriptedDesk(script)
-    w = create_run_writer(tmp_path / "i.h5", "impact", b, run_id="i")
+    w = create_run_writer(tmp_path / "i.h5", "impact", b.channel_map, run_id="i")
     out = run_impact_test(b, w, desk, ImpactSpec(axes=("x",), strikes=2), hands=hands)
     w.close()
     assert out.completed, out.reason
@@ -318,7 +318,7 @@ def test_abort_half_way_keeps_the_points_and_fades_the_drives(tmp_path: Path) ->
     b = backend(no_seal())
     answers = iter(["ok"] * 4 + ["abort"])
     desk = ScriptedDesk(lambda q: (next(answers), ""))
-    w = create_run_writer(tmp_path / "s.h5", "static", b, run_id="s")
+    w = create_run_writer(tmp_path / "s.h5", "static", b.channel_map, run_id="s")
     out = run_static_test(b, w, StaticSpec(axes=("x",), repeats=1), operator=desk,
                           hands=Hands(b.rig))
     w.close("aborted", out.reason)
@@ -337,7 +337,7 @@ def test_an_unsteady_point_is_not_recorded(tmp_path: Path) -> None:
     no point is recorded."""
     b = backend(no_seal())
     desk = ScriptedDesk(lambda q: ("skip", "") if "Not steady" in q.prompt else ("ok", ""))
-    w = create_run_writer(tmp_path / "s.h5", "static", b, run_id="s")
+    w = create_run_writer(tmp_path / "s.h5", "static", b.channel_map, run_id="s")
     spec = StaticSpec(axes=("x",), forces_n=(0.0,), repeats=1, steady_displacement_m=1e-12,
                       steady_timeout_s=0.5)
     out = run_static_test(b, w, spec, operator=desk)
@@ -356,7 +356,7 @@ def test_static_programme_by_hand(tmp_path: Path) -> None:
     params = no_seal()
     b = backend(params)
     spec = StaticSpec(load_by="hand", repeats=2, record_s=0.3)
-    w = create_run_writer(tmp_path / "h.h5", "static", b, run_id="h", rig_config=params,
+    w = create_run_writer(tmp_path / "h.h5", "static", b.channel_map, run_id="h", rig_config=params,
                           test_spec=spec)
     desk = ScriptedDesk(accept_all)
     out = run_static_test(b, w, spec, operator=desk, hands=SimulatedHands(b, seed=4))
@@ -387,7 +387,7 @@ def test_static_programme_by_hand(tmp_path: Path) -> None:
 
 def test_static_by_hand_needs_an_operator(tmp_path: Path) -> None:
     b = backend(no_seal())
-    w = create_run_writer(tmp_path / "h.h5", "static", b, run_id="h")
+    w = create_run_writer(tmp_path / "h.h5", "static", b.channel_map, run_id="h")
     out = run_static_test(b, w, StaticSpec(load_by="hand"))
     w.close()
     assert not out.completed and out.steps == 0

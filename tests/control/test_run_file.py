@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.listener import Fanout, RecordingListener
+from control.listener import FanOut, RecordingListener
 from control.pump import PumpRelay
 from control.sweep import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
@@ -27,7 +27,7 @@ def test_sweep_into_a_run_file(tmp_path):
         test_spec=spec.model_dump(mode="json"), lubricated=True,
     )
     rec = RecordingListener(keep_blocks=False)
-    out = SweepEngine(be, spec, listener=Fanout(writer, rec), pump=pump).run()
+    out = SweepEngine(be, spec, listener=FanOut([writer, rec]), pump=pump).run()
     writer.close(out.status, out.reason)
     assert out.status == "completed"
     run = reader.open_run(path)

@@ -42,6 +42,10 @@ def run_writer(path: str) -> None:
         if first % (20 * BLOCK) == 0:
             w.on_step({"index": first // (20 * BLOCK) - 1, "freq_hz": 10.0,
                        "first_sample": first - 20 * BLOCK, "last_sample": first})
+            # the I/O thread would write and flush the step soon; this unpaced writer flushes it
+            # now, so that a flush report implies the steps before it and it cannot outrun the
+            # disk (a paced acquisition never needs to)
+            w.flush()
         if w.samples_flushed != reported:
             reported = w.samples_flushed
             print(f"flushed {reported}", flush=True)

@@ -19,8 +19,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 from nptdms import TdmsFile
 
-from control.programs import StaticSpec, create_run_writer, run_static_test
+from control.programs import StaticSpec, run_static_test
 from control.pump import PumpRelay
+from control.runs import create_run_writer
 from control.sweep import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
 from sfdrig.cli import main
@@ -50,8 +51,8 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     b = _backend(seed=3)
     spec = SweepSpec(motion="x", lubricated=True, amplitude_m=[25e-6], freq_hz=[30.0, 50.0],
                      settle_cycles=10, record_cycles=10)
-    w = create_run_writer(d / "lub.h5", "sweep", b, run_id="lub-1", rig_config=RigParams(),
-                          test_spec=spec, lubricated=True)
+    w = create_run_writer(d / "lub.h5", "sweep", b.channel_map, run_id="lub-1",
+                          rig_config=RigParams(), test_spec=spec, lubricated=True)
     pump = PumpRelay(b)
     pump.set(True)
     out = SweepEngine(b, spec, listener=w, pump=pump).run()
@@ -59,7 +60,8 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     w.close(out.status, out.reason)
     assert out.status == "completed", out.reason
     b = _backend(seed=4)
-    w = create_run_writer(d / "static.h5", "static", b, run_id="st-1", rig_config=RigParams())
+    w = create_run_writer(d / "static.h5", "static", b.channel_map, run_id="st-1",
+                          rig_config=RigParams())
     assert run_static_test(b, w, StaticSpec(axes=("x",), forces_n=(-40.0, 40.0), repeats=1,
                                             record_s=0.2)).completed
     w.close()
