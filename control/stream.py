@@ -84,7 +84,8 @@ class DriveStream:
     ahead_blocks : int
         Blocks written ahead of the generation (the prefill).
     keep_samples : int
-        How many past samples `window` can reach.
+        How many past samples `window` can reach, ending at the sample advanced to (a cycle
+        that catches up may read `CATCH_UP_BLOCKS` beyond it: those are kept too).
     interrupt : callable, optional
         Called after every block (outside shutdown); may raise to stop the caller.
     """
@@ -111,7 +112,9 @@ class DriveStream:
         self.listener = listener
         self.block = block_samples
         self.ahead_blocks = ahead_blocks
-        self.keep = max(keep_samples, block_samples)
+        # one cycle may read `CATCH_UP_BLOCKS` past the sample its caller advanced to: what
+        # the caller keeps, ending there, must still be here
+        self.keep = max(keep_samples, block_samples) + CATCH_UP_BLOCKS * block_samples
         self.interrupt = interrupt
         self.sample = 0  # next AI sample to be read (= samples read so far)
         self.check_limits = True

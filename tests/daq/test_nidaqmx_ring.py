@@ -253,3 +253,31 @@ def test_a_stream_behind_the_board_catches_up_in_few_cycles(clocked_ring, fake_c
     firsts = [b[0] for b in listener.blocks]
     assert firsts == list(range(0, stream.sample, block))
     stream.shutdown(0.04)
+
+
+def test_a_window_of_what_was_asked_for_is_kept_however_far_a_catch_up_reads(clocked_ring,
+                                                                             fake_clock):
+    """Issue 21: on a loaded PC a cycle that catches up reads up to `CATCH_UP_BLOCKS` blocks at
+    once, past the sample the caller advanced to; the dwell's lock-in then asked for a window
+    ending there and got "window start ... no longer kept" (bench_lab_day, nidaqmx path at load
+    12-15: the run failed). What the caller keeps (``keep_samples``) ending at the sample it
+    advanced to stays readable."""
+    be = clocked_ring
+    cm = be.channel_map
+    fs = cm.sample_rate_hz
+    block = int(0.01 * fs)
+    synth = SineSynthesizer(len(cm.ao), fs)
+    synth.ramp_to(AMP, FREQ, 0.0)
+    stream = DriveStream(be, synth, SafetyMonitor(SafetyLimits(), cm), RecordingListener(),
+                         block, ahead_blocks=3, keep_samples=4 * block)
+    stream.check_limits = False
+    stream.start()
+    stream.advance_to(int(0.3 * fs))
+    be.feed_watchdog()
+    fake_clock.advance(0.6)  # the host stalls: the next cycles read many blocks each
+    target = stream.sample + block
+    stream.advance_to(target)
+    assert stream.sample - target >= 10 * block  # one cycle read well past the target
+    ai, _ = stream.window(target - 4 * block, target)
+    assert ai.shape[1] == 4 * block
+    stream.shutdown(0.04)
