@@ -224,12 +224,10 @@ def test_the_generation_count_is_asked_at_most_every_50_ms_and_never_runs_behind
     be.stop()
 
 
-def test_a_stream_behind_the_board_catches_up_in_few_cycles(clocked_ring, fake_clock):
-    """Issue 21: a lab-day daemon on the nidaqmx path fell 10 s behind the acquisition and
-    overflowed (-200279): every 10 ms block cost a cycle of round trips. After a 0.6 s stall the
-    stream now takes the blocks the backend read ahead several to a cycle (each one still read,
-    checked and recorded in order): the 60 blocks behind in at most 20 cycles."""
-    be = clocked_ring
+def _stalled_stream(be: NidaqmxBackend, fake_clock: FakeClock
+                    ) -> tuple[DriveStream, RecordingListener, int, float]:
+    """A sine stream on ``be`` (keeping 4 blocks), run 0.3 s, then the host stalls 0.6 s (the
+    backend's reads run ahead of the stream): (stream, listener, block, sample rate)."""
     cm = be.channel_map
     fs = cm.sample_rate_hz
     block = int(0.01 * fs)
@@ -243,6 +241,15 @@ def test_a_stream_behind_the_board_catches_up_in_few_cycles(clocked_ring, fake_c
     stream.advance_to(int(0.3 * fs))
     be.feed_watchdog()
     fake_clock.advance(0.6)  # the host stalls (the condition under test)
+    return stream, listener, block, fs
+
+
+def test_a_stream_behind_the_board_catches_up_in_few_cycles(clocked_ring, fake_clock):
+    """Issue 21: a lab-day daemon on the nidaqmx path fell 10 s behind the acquisition and
+    overflowed (-200279): every 10 ms block cost a cycle of round trips. After a 0.6 s stall the
+    stream now takes the blocks the backend read ahead several to a cycle (each one still read,
+    checked and recorded in order): the 60 blocks behind in at most 20 cycles."""
+    stream, listener, block, fs = _stalled_stream(clocked_ring, fake_clock)
     start, cycles = stream.sample, 0
     while stream.sample < start + int(0.6 * fs):  # the blocks the stall left behind
         stream.cycle()
@@ -262,19 +269,7 @@ def test_a_window_of_what_was_asked_for_is_kept_however_far_a_catch_up_reads(clo
     ending there and got "window start ... no longer kept" (bench_lab_day, nidaqmx path at load
     12-15: the run failed). What the caller keeps (``keep_samples``) ending at the sample it
     advanced to stays readable."""
-    be = clocked_ring
-    cm = be.channel_map
-    fs = cm.sample_rate_hz
-    block = int(0.01 * fs)
-    synth = SineSynthesizer(len(cm.ao), fs)
-    synth.ramp_to(AMP, FREQ, 0.0)
-    stream = DriveStream(be, synth, SafetyMonitor(SafetyLimits(), cm), RecordingListener(),
-                         block, ahead_blocks=3, keep_samples=4 * block)
-    stream.check_limits = False
-    stream.start()
-    stream.advance_to(int(0.3 * fs))
-    be.feed_watchdog()
-    fake_clock.advance(0.6)  # the host stalls: the next cycles read many blocks each
+    stream, _, block, _ = _stalled_stream(clocked_ring, fake_clock)  # cycles read many blocks
     target = stream.sample + block
     stream.advance_to(target)
     assert stream.sample - target >= 10 * block  # one cycle read well past the target
