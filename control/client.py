@@ -268,6 +268,7 @@ class Subscriber:
 
     def wait_connected(self, timeout_s: float = 10.0) -> dict[str, Any]:
         """Wait for the first status heartbeat (the subscription is then live); return it.
+        Messages that cannot be decoded are passed over on the way.
 
         Raises
         ------
@@ -277,7 +278,10 @@ class Subscriber:
         deadline = time.monotonic() + timeout_s
         while True:
             left = deadline - time.monotonic()
-            msg = self._recv_any(max(left, 0.0)) if left > 0 else None
+            try:
+                msg = self._recv_any(max(left, 0.0)) if left > 0 else None
+            except (ValueError, KeyError, TypeError):
+                continue  # not a message of ours: waited past, as any other topic is
             if msg is None:
                 raise DaemonUnavailable(
                     f"no status heartbeat from {self.endpoint} within {timeout_s:g} s"

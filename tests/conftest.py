@@ -35,6 +35,9 @@ from threadpoolctl import threadpool_limits
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 threadpool_limits(limits=1, user_api="blas")
 
+# fixtures shared across folders: the stand-in daemon for clients' tests (`fakes`)
+pytest_plugins = ["tests.fake_daemon"]
+
 settings.register_profile(
     "ci", derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
 )

@@ -61,30 +61,46 @@ def _watch_stream(args: argparse.Namespace) -> int:
         names: list[str] = []
         fs = float(st.get("sample_rate_hz", 1.0))
         progress: dict[str, Any] = {}
-        shown, next_table = 0, time.monotonic() + args.interval
+        shown, next_table, malformed = 0, time.monotonic() + args.interval, 0
         while args.count == 0 or shown < args.count:
-            msg = sub.recv(timeout_s=args.interval)
-            if msg is not None:
-                if msg.topic == "block" and msg.array is not None:
-                    names = msg.header["channels"]
-                    blocks.append(msg.array)
-                    while sum(b.shape[1] for b in blocks) - blocks[0].shape[1] >= \
-                            args.window * fs:
-                        blocks.popleft()
-                elif msg.topic == "status":
-                    st = msg.header["status"]
-                    progress = st.get("progress", {})
-                    units = st.get("units", units)
-                elif msg.topic == "step":
-                    print(step_line(msg.header["step"]), flush=True)
+            try:
+                msg = sub.recv(timeout_s=args.interval)
+                if msg is not None:
+                    if msg.topic == "block" and msg.array is not None:
+                        new_names = list(msg.header["channels"])
+                        if len(new_names) != msg.array.shape[0]:
+                            raise ValueError(f"{len(new_names)} channel names for "
+                                             f"{msg.array.shape[0]} rows")
+                        if new_names != names:
+                            blocks.clear()
+                        names = new_names
+                        blocks.append(msg.array)
+                        while sum(b.shape[1] for b in blocks) - blocks[0].shape[1] >= \
+                                args.window * fs:
+                            blocks.popleft()
+                    elif msg.topic == "status":
+                        new_st = dict(msg.header["status"])
+                        progress = dict(new_st.get("progress", {}))
+                        units = dict(new_st.get("units", units))
+                        st = new_st
+                    elif msg.topic == "step":
+                        print(step_line(msg.header["step"]), flush=True)
+            except (ValueError, KeyError, TypeError, AttributeError) as err:
+                # a message this watch cannot use (another sender, a damaged frame): skipped
+                # and counted, never the end of the watch
+                malformed += 1
+                if malformed == 1 or malformed % 1000 == 0:
+                    print(f"watch: skipped a malformed message ({type(err).__name__}: {err}); "
+                          f"{malformed} so far", file=sys.stderr, flush=True)
             if time.monotonic() < next_table:
                 continue
             next_table += args.interval
             shown += 1
             lost = sum(sub.lost.values())
-            head = (f"state {st['state']}  run {st['run_id'] or '-'}  "
+            head = (f"state {st.get('state', '?')}  run {st.get('run_id') or '-'}  "
                     + "  ".join(f"{k}={v}" for k, v in progress.items())
-                    + (f"  lost {lost} messages" if lost else ""))
+                    + (f"  lost {lost} messages" if lost else "")
+                    + (f"  skipped {malformed} malformed" if malformed else ""))
             if blocks:
                 print(table(names, np.concatenate(list(blocks), axis=1), units, head), flush=True)
             else:
