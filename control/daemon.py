@@ -19,6 +19,7 @@ and the reason), then closes the sockets.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import gc
 import json
@@ -175,6 +176,14 @@ class Daemon:
     def serve(self) -> None:
         """Answer commands and send heartbeats until `stop` (or a signal) asks to shut down."""
         next_beat = 0.0
+        # what the first run would otherwise load (the sweep engine and what it imports) is
+        # loaded now: the first sweep of a day takes as long as the fifteenth (on a loaded PC
+        # the first took 1.3x the others). Then start-up's objects (modules, the backend) are
+        # frozen: no collection walks them again with the GIL held (the daemon's 130,000
+        # objects took about 100 ms a full collection, seconds on a loaded PC)
+        self.sweep_factories()
+        gc.collect()
+        gc.freeze()
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
@@ -209,6 +218,12 @@ class Daemon:
             self.pump.set(False)
         except Exception:
             log.exception("could not switch the pump off after the emergency stop")
+
+    def _feed_watchdog_between(self) -> None:
+        """Feed the board's watchdog from the end of a run (`_run_done`); an expired one is
+        left to the command loop to report."""
+        with contextlib.suppress(Exception):  # reported by `_feed_watchdog_while_idle`
+            self.backend.feed_watchdog()
 
     def _feed_watchdog_while_idle(self) -> None:
         """Between runs the command loop feeds the board's watchdog (during a run the
@@ -291,6 +306,10 @@ class Daemon:
         reason), but it does not fault the daemon: the drives are at zero already."""
         if status == "aborted" and not reason:
             reason = job.abort_reason or self._stop_reason or "aborted"
+        # the engine fed the board's watchdog while it ran, the command loop feeds it once the
+        # job is gone: in between (closing the file, the collection below) this thread does,
+        # or a loaded PC lets the watchdog expire (issue 21: 1 s, bench_lab_day at load 12)
+        self._feed_watchdog_between()
         problem = close_run_file(job, status, reason)
         if problem:
             status, reason = "failed", f"{reason}; {problem}".lstrip("; ")
@@ -319,7 +338,11 @@ class Daemon:
             self.publisher.set_run("")
         # a run's arrays caught in reference cycles (listeners, file objects) are freed now, not
         # whenever Python's oldest generation is next collected: the daemon's resident size
-        # then follows what it holds, run after run (between runs: nothing is acquiring)
+        # then follows what it holds, run after run (between runs: nothing is acquiring). It
+        # walks only what came after start-up (`serve` froze that). Not frozen here: this run's
+        # objects are still referenced (the acquisition thread's frame), and frozen cycles are
+        # never collected (the lab-day test's RSS then grew 1.17 MB a run)
+        self._feed_watchdog_between()
         gc.collect()
 
     def _state_changed(self, old: DaemonState, new: DaemonState, event: str) -> None:
