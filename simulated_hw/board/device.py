@@ -23,6 +23,7 @@ from daq.errors import (
     WRITE_FAILED_WATCHDOG_EXPIRED,
 )
 from simulated_hw.board import ao_stream
+from simulated_hw.board import digital as digital_io
 from simulated_hw.board.codes import (
     INVALID_AO_DATA_WRITE,
     MAX_CHUNK,
@@ -100,6 +101,9 @@ class SimDevice(SafeStates, OnDemandAi):
                             ("do", self.spec.do_lines())):
             for c in chans:
                 names[c.lower()] = (c, kind)
+        for port in range(self.spec.do_ports):  # a port: all its lines
+            c = f"{self.spec.name}/port{port}"
+            names[c.lower()] = (c, "port")
         for i in range(self.spec.ao_count):  # internal channels: AI reads an AO terminal back
             c = f"{self.spec.name}/_ao{i}_vs_aognd"
             names[c.lower()] = (c, "ai")
@@ -142,6 +146,7 @@ class SimDevice(SafeStates, OnDemandAi):
             raise daq_error(PHYSICAL_CHAN_DOES_NOT_EXIST, f"{where}: no physical channel given")
         out = []
         for part in parts:
+            part = part.removeprefix("/")  # "/Dev1/ai0" names the same terminal
             dev = part.split("/", 1)[0]
             if dev.lower() != self.spec.name.lower():
                 raise daq_error(
@@ -150,6 +155,10 @@ class SimDevice(SafeStates, OnDemandAi):
                     f"(this server has {self.spec.name})",
                 )
             found = self._physical.get(part.lower())
+            if found is not None and found[1] == "port" and kind in ("do", "di"):
+                out.extend(p for p in self.spec.do_lines()
+                           if p.lower().startswith(found[0].lower() + "/"))
+                continue
             if found is None or found[1] != kind.replace("di", "do"):  # port lines are both
                 have = {"ai": "ai0..ai", "ao": "ao0..ao", "do": "port0/line0..",
                         "di": "port0/line0.."}[kind]
@@ -203,20 +212,26 @@ class SimDevice(SafeStates, OnDemandAi):
                 task.running = True
                 return
             if task.kind == "ai" and task.rate_hz is not None:
-                self._start_ai(task)
+                self._start_ai(task, others)
             elif task.kind == "ai" and self.ai_task is not None:
                 raise daq_error(
                     RESOURCE_RESERVED,
                     f"start {task.name!r}: the AI converter is in use by task "
                     f"{self.ai_task.name!r}",
                 )
-            elif task.kind == "ao" and task.rate_hz is not None:
+            elif task.kind in ("ao", "do") and task.rate_hz is not None:
                 self._arm_ao(task)
+            elif task.kind == "di" and task.rate_hz is not None:
+                task.di_read = 0
+                linked = task.clock_source.lower() == self.terminal("SampleClock").lower()
+                task.t_start = (self.t0 if self.ai_task is not None else None) if linked \
+                    else self.now()
             elif task.kind is None:
                 raise daq_error(NO_CHANS_IN_TASK, f"start {task.name!r}: the task has no channels")
             task.error = None
             task.done = False
             task.running = True
+            task.run_id += 1
 
     def _arm_ao(self, task: SimTask) -> None:
         if task.ao_written == 0 and (task.regenerating or task.finite):
@@ -233,7 +248,7 @@ class SimDevice(SafeStates, OnDemandAi):
                 f"start {task.name!r}: AI task {self.ai_task.name!r} is already running, so "
                 "its start trigger has passed; start AO first",
             )
-        for ch in task.channels:
+        for ch in task.channels if task.kind == "ao" else []:
             if ch.physical[0] in self.locked_ao:
                 raise daq_error(
                     WRITE_FAILED_WATCHDOG_EXPIRED,
@@ -241,16 +256,19 @@ class SimDevice(SafeStates, OnDemandAi):
                     "state; clear the expiration first",
                 )
         ao_all = self.spec.ao_channels()
-        task.wired_rows = [(row, ao_all.index(ch.physical[0]))
-                           for row, ch in enumerate(task.channels)]
+        digital = task.kind == "do"
+        task.wired_rows = [] if digital else [(row, ao_all.index(ch.physical[0]))
+                                               for row, ch in enumerate(task.channels)]
         task.ao_generated = 0
-        task.ao_hold = np.array([self.terminal_value(ch.physical[0]) for ch in task.channels])
+        task.ao_hold = np.array([
+            digital_io.channel_value(self, task, ch) if digital
+            else self.terminal_value(ch.physical[0]) for ch in task.channels], dtype=float)
         ao_stream.freeze_regeneration(task)
         task.first_sample = self.generated if (linked and self.ai_task is not None) else 0
         task.t_start = None if (linked or (triggered and self.ai_task is None)) else self.now()
         self.ao_tasks.append(task)
 
-    def _start_ai(self, task: SimTask) -> None:
+    def _start_ai(self, task: SimTask, others: list[SimTask]) -> None:
         assert task.rate_hz is not None
         if self.ai_task is not None:
             raise daq_error(
@@ -275,6 +293,10 @@ class SimDevice(SafeStates, OnDemandAi):
             if ao_task.t_start is None and ao_task.clock_source.lower() != \
                     self.terminal("SampleClock").lower():
                 ao_task.t_start = t0
+        for other in others:  # DI on the AI sample clock starts with it
+            if other.kind == "di" and other.running and other.rate_hz is not None \
+                    and other.t_start is None:
+                other.t_start = t0
 
     def _ai_rows(self, task: SimTask) -> tuple[list[AnalogInput], list[tuple[str, int] | None]]:
         """The wired inputs a rig must produce for ``task``, and where each task channel reads
@@ -368,7 +390,45 @@ class SimDevice(SafeStates, OnDemandAi):
                     if task.t_start is not None and task.rate_hz is not None:
                         count = math.floor((now - task.t_start) * task.rate_hz + 1e-9) + 1
                         ao_stream.skip(task, count - task.ao_generated)
+            for task in self.ao_tasks:
+                if task.kind == "do" and task.ao_hold is not None:
+                    self._drive_do(task)
             self.watchdog_timer.check()
+
+    def _drive_do(self, task: SimTask) -> None:
+        """A sample-clocked DO task's lines show its last sample generated."""
+        levels: dict[str, bool] = {}
+        assert task.ao_hold is not None
+        for ch, value in zip(task.channels, task.ao_hold, strict=True):
+            levels.update(digital_io.lines_of(ch, int(value)))
+        if any(self.lines.get(p) != v for p, v in levels.items()):
+            self._set_lines(levels)
+
+    def line_level_for(self, task: SimTask, line: str) -> bool:
+        """What a line reads in ``task``: a DI task, what drives it from outside (else the
+        pull-down: low); a DO task, what it drives."""
+        with self.lock:
+            if task.kind == "di":
+                return self.inputs.get(line, False)
+            return self.lines.get(line, False)
+
+    def di_acquired(self, task: SimTask) -> int:
+        """Samples a sample-clocked DI task has taken by now."""
+        assert task.rate_hz is not None
+        due = digital_io.di_due_at(task.t_start, task.rate_hz, 0)
+        if not math.isfinite(due):
+            return 0
+        taken = math.floor((self.now() - due) * task.rate_hz) + 1
+        return min(taken, task.samps_per_chan) if task.finite else taken
+
+    def di_due_at(self, task: SimTask, k: int) -> float:
+        assert task.rate_hz is not None
+        if task.t_start is None and self.ai_task is not None:
+            task.t_start = self.t0
+        return digital_io.di_due_at(task.t_start, task.rate_hz, k)
+
+    def stopping(self) -> bool:
+        return self._stopping.is_set()
 
     def _advance(self, target: int) -> None:
         """Take samples ``generated..target``: run the AO, the rig, fill the AI buffer."""
@@ -528,7 +588,7 @@ class SimDevice(SafeStates, OnDemandAi):
     # --- writing --------------------------------------------------------------------------
     def write_ao(self, task: SimTask, block: np.ndarray, auto_start: bool, timeout_s: float,
                  others: list[SimTask]) -> int:
-        for row, ch in enumerate(task.channels):
+        for row, ch in enumerate(task.channels if task.kind == "ao" else []):
             if block.size and (block[row].min() < ch.min_v or block[row].max() > ch.max_v):
                 raise daq_error(
                     INVALID_AO_DATA_WRITE,
@@ -538,7 +598,7 @@ class SimDevice(SafeStates, OnDemandAi):
                 )
         with self.lock:
             self.catch_up()
-            self._refuse_locked(task, [ch.physical[0] for ch in task.channels])
+            self._refuse_locked(task, [p for ch in task.channels for p in ch.physical])
         if task.rate_hz is None:  # on-demand: the outputs take the last value at once
             if not task.running and not auto_start:
                 raise daq_error(TASK_NOT_RUNNING, f"write to {task.name!r}: task not running")
@@ -557,6 +617,8 @@ class SimDevice(SafeStates, OnDemandAi):
                     ao_stream.queue(task, block)  # overwrites the loop being played
                     break
                 space = task.output_buffer() - task.ao_queued
+                if task.running and not task.regenerating:
+                    space += ao_stream.fifo_samples(task)  # the board drains into its FIFO
                 if not task.running and task.ao_written == 0:
                     space = max(space, n)  # the first write sizes the buffer (NI behaviour)
                 if n <= space:
@@ -609,6 +671,8 @@ class SimDevice(SafeStates, OnDemandAi):
                 raise task.error
             if task is self.ai_task and task.finite:
                 return self.generated >= task.samps_per_chan
+            if task.running and task.kind == "di" and task.finite:
+                return self.di_acquired(task) >= task.samps_per_chan
             return task.done or not task.running
 
     def wait_until_done(self, task: SimTask, timeout_s: float) -> None:
@@ -636,6 +700,20 @@ class SimDevice(SafeStates, OnDemandAi):
                 + ("" if task.finite else " (a continuous task is never done until stopped)"),
             )
 
+    def advance_to(self, target: int) -> None:
+        """Take the AI samples up to ``target`` now (fast mode: an event stream paces it)."""
+        with self.lock:
+            if self.ai_task is not None and target > self.generated:
+                self._advance(target)
+
+    def pause(self, seconds: float) -> None:
+        """Wait ``seconds`` of wall time (or until the device shuts down)."""
+        self._stopping.wait(max(seconds, 0.0))
+
+    def end_time(self, task: SimTask) -> float | None:
+        with self.lock:
+            return self._end_time(task)
+
     def _end_time(self, task: SimTask) -> float | None:
         """Device time at which a running finite task ends; None if it never ends by itself."""
         if not task.running or not task.finite or task.rate_hz is None:
@@ -644,6 +722,8 @@ class SimDevice(SafeStates, OnDemandAi):
             return self.t0 + task.samps_per_chan / task.rate_hz
         if task.t_start is not None:
             return task.t_start + task.samps_per_chan / task.rate_hz
+        if task.kind == "di" and self.ai_task is None:
+            return None
         if self.ai_task is not None:  # on the AI clock
             return self.t0 + (task.first_sample + task.samps_per_chan) / self.ai_rate
         return None

@@ -20,7 +20,9 @@ from daq.errors import (
     ATTR_NOT_SUPPORTED_IN_TASK,
     DEVICE_NOT_FOUND,
     INVALID_ATTRIBUTE_VALUE,
+    DaqError,
 )
+from simulated_hw.board import events
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
     AI_TERM_CFGS,
@@ -78,7 +80,6 @@ from simulated_hw.board.codes import (
     REGEN_ALLOW,
     REGEN_DONT_ALLOW,
     REPEATED_PHYSICAL_CHAN,
-    TASK_NOT_RUNNING,
     TERM_DEFAULT,
     TERM_NAMES,
     WRITE_NUM_CHANS_MISMATCH,
@@ -88,10 +89,12 @@ from simulated_hw.board.codes import (
 )
 from simulated_hw.board.device import SimDevice
 from simulated_hw.board.device_rpcs import DeviceRpcs, _unsupported, attribute
+from simulated_hw.board.digital import DigitalRpcs
+from simulated_hw.board.refusals import install_refusals
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.board.watchdog_rpcs import WatchdogRpcs
-from simulated_hw.board.wire import read_reply, reports_daq_errors
+from simulated_hw.board.wire import abort_with, read_reply, reports_daq_errors
 
 
 # --- the servicer ---------------------------------------------------------------------------
@@ -125,8 +128,10 @@ def _chan_handler(kind: str, channel_field: str, name_field: str) -> Callable[..
             names = [f"{name}{i}" for i in range(len(groups))]
         elif name:
             names = [name]
+        elif len(groups) == 1 and len(groups[0]) > 1:  # DAQmx names it as it was given
+            names = [getattr(request, channel_field).strip().removeprefix("/")]
         else:
-            names = [g[0] if len(g) == 1 else ",".join(g) for g in groups]
+            names = [g[0] for g in groups]
         digital = kind in ("do", "di")
         lo, hi = (request.min_val, request.max_val) if not digital else (0.0, 1.0)
         if not digital:
@@ -170,9 +175,9 @@ CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
 }
 
 
-class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, pb_grpc.NiDAQmxServicer):
-    """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer UNIMPLEMENTED
-    (the base class), which the client reports as ``nidaqmx.errors.RpcError``."""
+class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, pb_grpc.NiDAQmxServicer):
+    """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer the DAQmx
+    error the board gives for them (`simulated_hw.board.refusals`), never UNIMPLEMENTED."""
 
     _responses = {rpc: getattr(pb, f"{rpc}Response") for rpc in CREATE_CHAN_RPCS}
 
@@ -570,62 +575,33 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, pb_grpc.NiDAQmxServicer):
                                        self._others())
         return pb.WriteAnalogF64Response(samps_per_chan_written=written)
 
-    @reports_daq_errors
-    def WriteDigitalLines(self, request, context):  # noqa: N802
-        task = self._task(request.task)
-        task.kind_or_raise("do")
-        if not task.running:
-            if not request.auto_start:
-                raise daq_error(TASK_NOT_RUNNING, f"write to {task.name!r}: task not running")
-            self.device.start(task, self._others())
-        n = request.num_samps_per_chan
-        raw = np.frombuffer(request.write_array, dtype=np.uint8)
-        lines = [p for c in task.channels for p in c.physical]
-        if n <= 0 or raw.size != n * len(lines):
-            raise daq_error(
-                WRITE_NUM_CHANS_MISMATCH,
-                f"write to {task.name!r}: {raw.size} line values for {n} samples x "
-                f"{len(lines)} lines",
-            )
-        # software-timed: only the last sample stays on the lines
-        if request.data_layout_raw == FILL_GROUP_BY_CHANNEL:
-            last: list[int] = []
-            pos = 0
-            for c in task.channels:
-                k = len(c.physical)
-                last.extend(raw[pos + (n - 1) * k: pos + n * k])
-                pos += n * k
-        else:
-            last = list(raw[(n - 1) * len(lines):])
-        self.device.write_lines(lines, [bool(v) for v in last])
-        return pb.WriteDigitalLinesResponse(samps_per_chan_written=n)
+    # --- events ---------------------------------------------------------------------------
+    def RegisterEveryNSamplesEvent(self, request, context):  # noqa: N802
+        """A server stream: one message every N samples (`simulated_hw.board.events`)."""
+        try:
+            task = self._task(request.task)
+            events.check_every_n(task, request.every_n_samples_event_type_raw,
+                                 request.n_samples)
+        except DaqError as err:
+            abort_with(context, err)
+        context.send_initial_metadata(())
+        yield from events.every_n_samples(
+            self.device, task, request.every_n_samples_event_type_raw, request.n_samples,
+            lambda: context.is_active() and self.tasks.get(task.name) is task)
 
-    @reports_daq_errors
-    def ReadDigitalLines(self, request, context):  # noqa: N802
-        """Software-timed: every sample is the lines' present level (a DO task reads back what
-        it drives; a DI line reads what drives it, see `SimDevice.line_level`)."""
-        task = self._task(request.task)
-        if task.kind not in ("di", "do"):
-            task.kind_or_raise("di")
-        if not task.running:
-            self.device.start(task, self._others())
-        n = 1 if request.num_samps_per_chan < 0 else request.num_samps_per_chan
-        per_sample = max(len(c.physical) for c in task.channels)
-        if request.array_size_in_bytes < n * per_sample * len(task.channels):
-            raise daq_error(READ_BUFFER_TOO_SMALL,
-                            f"read of {n} samples from {task.name!r}: the client buffer holds "
-                            f"only {request.array_size_in_bytes} bytes", samps_per_chan_read=0)
-        out = bytearray()
-        for ch in task.channels:
-            levels = [int(self.device.line_level(p)) for p in ch.physical]
-            levels += [0] * (per_sample - len(levels))
-            out += bytes(levels) * n
-        return pb.ReadDigitalLinesResponse(read_array=bytes(out), samps_per_chan_read=n,
-                                           num_bytes_per_samp=per_sample)
+    def RegisterDoneEvent(self, request, context):  # noqa: N802
+        try:
+            task = self._task(request.task)
+        except DaqError as err:
+            abort_with(context, err)
+        context.send_initial_metadata(())
+        yield from events.done(self.device, task,
+                               lambda: context.is_active() and self.tasks.get(task.name) is task)
 
 
 for _rpc, (_kind, _chan_field, _name_field) in CREATE_CHAN_RPCS.items():
     setattr(SimulatedDaqmxServicer, _rpc, _chan_handler(_kind, _chan_field, _name_field))
+install_refusals(SimulatedDaqmxServicer)
 
 
 def _channel_list(task: SimTask) -> str:

@@ -73,6 +73,8 @@ class SimTask:
     wired_rows: list[tuple[int, int]] = field(default_factory=list)  # (task row, rig drive row)
     auto_started: bool = False  # started implicitly by a read (stops at the end of a finite one)
     watchdog: Any = None  # a `simulated_hw.board.watchdog.Watchdog` for a watchdog task
+    run_id: int = 0  # counts the task's starts (event streams restart their counts with it)
+    di_read: int = 0  # hardware-timed DI: samples read since the start
 
     @property
     def kind(self) -> str | None:
