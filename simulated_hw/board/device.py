@@ -46,6 +46,10 @@ from simulated_hw.rig import RigModel
 
 _log = logging.getLogger(__name__)
 
+#: how much of the time between acquisitions the rig's motion is simulated [s] (a held drive
+#: settles well within it; the oil and film follow the whole gap, `RigModel.rest`)
+GAP_DYNAMIC_S = 1.0
+
 #: the internal channel through which AI reads AO terminal N back (X-series ``_aoN_vs_aognd``)
 INTERNAL_AO = re.compile(r"_ao(\d+)_vs_aognd", re.IGNORECASE)
 
@@ -89,6 +93,9 @@ class SimDevice(SafeStates, OnDemandAi):
         self._watchdogs: list[Watchdog] = []
         self.watchdog_timer = WatchdogTimer(clock, self.lock, self.watchdogs, self._expire)
         self._physical = self._physical_names()
+        #: the rig as last simulated, and the device time up to which it was: the next
+        #: acquisition's rig continues from it (the rig keeps moving between tasks)
+        self.carried: tuple[RigModel, float] | None = None
         self._reset_acquisition()
         self.press_estop(False)  # the emergency-stop loop is closed: released
         # load the compiled physics now, not during the first paced read (it takes ~0.5 s)
@@ -110,6 +117,8 @@ class SimDevice(SafeStates, OnDemandAi):
         return names
 
     def _reset_acquisition(self) -> None:
+        if getattr(self, "rig", None) is not None and getattr(self, "ai_task", None) is not None:
+            self.carried = (self.rig, self.now())  # the rig goes on moving after the task
         if self.fast and getattr(self, "ai_task", None) is not None:
             self._vtime = self.now()  # fast mode: the clock stays where the AI left it
         self.rig: RigModel | None = None
@@ -318,7 +327,24 @@ class SimDevice(SafeStates, OnDemandAi):
         return ai, rows
 
     def _new_rig(self, rig_map: ChannelMap) -> RigModel:
+        """The rig behind a new acquisition, continuing the rig as it was last simulated: run
+        on from then to now with the AO terminals as they are (at most `GAP_DYNAMIC_S` of
+        motion; the oil and film follow the rest of the gap), so a drive held between tasks
+        is read at its steady response in the next acquisition's first sample."""
         rig = RigModel(self.params, rig_map, self.seed)
+        if self.carried is not None:
+            old, since = self.carried
+            gap = max(self.now() - since, 0.0)
+            n = int(round(min(gap, GAP_DYNAMIC_S) * old.fs))
+            wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
+            drive = self._present_terminals()[wired]
+            while n > 0:
+                k = min(n, MAX_CHUNK)
+                old.process(np.repeat(drive[:, None], k, axis=1))
+                n -= k
+            old.rest(gap - GAP_DYNAMIC_S)
+            rig.continue_from(old)
+            self.carried = (rig, self.now())
         for d in self.wiring.do:
             if self.lines.get(d.physical_channel):
                 rig.set_relay(d.name, True)

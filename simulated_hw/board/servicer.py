@@ -4,6 +4,7 @@ for errors and fast reads."""
 from __future__ import annotations
 
 import itertools
+import math
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -23,6 +24,7 @@ from daq.errors import (
     DaqError,
 )
 from simulated_hw.board import events
+from simulated_hw.board.chan_attrs import ATTR_TASK_DEVICES, ChannelAttrRpcs, task_devices
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
     AI_TERM_CFGS,
@@ -175,7 +177,8 @@ CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
 }
 
 
-class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, pb_grpc.NiDAQmxServicer):
+class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrRpcs,
+                             pb_grpc.NiDAQmxServicer):
     """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer the DAQmx
     error the board gives for them (`simulated_hw.board.refusals`), never UNIMPLEMENTED."""
 
@@ -186,6 +189,10 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, pb_grpc.NiDA
         self.tasks: dict[str, SimTask] = {}
         self._unnamed = itertools.count()
         self._tasks_lock = threading.Lock()
+        self.ref_clock: dict[str, tuple[str, float]] = {}  # task -> reference clock, rate
+
+    def _channels(self, task: SimTask, names: str) -> list[SimChannel]:
+        return _find_channels(task, names)
 
     # --- helpers --------------------------------------------------------------------------
     def _task(self, session: Session) -> SimTask:
@@ -297,7 +304,7 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, pb_grpc.NiDA
         if request.sample_mode_raw not in (MODE_CONTINUOUS, MODE_FINITE):
             raise daq_error(INVALID_ATTRIBUTE_VALUE,
                             f"{where}: sample mode {request.sample_mode_raw} not supported")
-        task.rate_hz = request.rate
+        task.rate_hz = coerced_rate(request.rate)
         task.clock_source = "" if source.lower() == "onboardclock" else source
         task.sample_mode = request.sample_mode_raw
         task.samps_per_chan = int(request.samps_per_chan)
@@ -334,6 +341,8 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, pb_grpc.NiDA
             return pb.GetTaskAttributeStringResponse(value=task.name)
         if request.attribute_raw == ATTR_TASK_CHANNELS:
             return pb.GetTaskAttributeStringResponse(value=_channel_list(task))
+        if request.attribute_raw == ATTR_TASK_DEVICES:
+            return pb.GetTaskAttributeStringResponse(value=task_devices(self.device, task))
         raise _unsupported("task", request.attribute_raw)
 
     @reports_daq_errors
@@ -604,6 +613,18 @@ for _rpc, (_kind, _chan_field, _name_field) in CREATE_CHAN_RPCS.items():
 install_refusals(SimulatedDaqmxServicer)
 
 
+#: the PXIe-6358's sample clock timebase [Hz]: a rate is this divided by a whole number
+TIMEBASE_HZ = 100e6
+
+
+def coerced_rate(rate_hz: float) -> float:
+    """The sample rate the board runs at for ``rate_hz``: the timebase over the largest whole
+    divisor that is not slower than the request (96,000 S/s -> 100 MHz / 1,041 =
+    96,061.48 S/s); rates that divide it evenly stay as asked."""
+    divisor = max(math.floor(TIMEBASE_HZ / rate_hz * (1 + 1e-12)), 1)
+    return TIMEBASE_HZ / divisor
+
+
 def _channel_list(task: SimTask) -> str:
     return ", ".join(c.name for c in task.channels)
 
@@ -612,6 +633,9 @@ def _find_channels(task: SimTask, names: str) -> list[SimChannel]:
     """The task's channels named in a channel string ("a, b", "probe0:2"; "" is all)."""
     if not names:
         return list(task.channels)
+    whole = [ch for ch in task.channels if ch.name == names.strip()]
+    if whole:  # a channel of several lines is named as given ("Dev1/port0/line0:3")
+        return whole
     found = []
     for name in unflatten_channel_string(names):
         for ch in task.channels:
