@@ -10,8 +10,11 @@ raw (int16) reads and writes; mixed into the servicer (needs ``device``, ``_task
 - task: ``devices`` (the devices of its channels);
 - timing: the reference clock (``ref_clk_src`` PXIe_Clk100, PXI_Clk10 or OnboardClock,
   ``ref_clk_rate`` its rate), which does not change the simulated clock;
-- raw reads: the 16-bit ADC code of each sample over the channel's range
-  (``code = round(v / (range / 32768))``), as ``ai_raw`` on a 6358 gives it.
+- raw reads and writes: the 16-bit code of each sample over the device range the channel
+  uses (``ai_rng_high``: the smallest of +/-1, 2, 5, 10 V that holds [min, max];
+  ``code = round(v / (range / 32768))``);
+- ``is_simulated``: True (nidaqmx's gRPC client drops a StopTask status, so the driver's
+  warnings, e.g. stopped before done, never reach it, as with NI's simulated devices).
 """
 
 from __future__ import annotations
@@ -35,6 +38,8 @@ from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.wire import reports_daq_errors
 
 ATTR_AI_MAX, ATTR_AI_MIN, ATTR_AO_MAX, ATTR_AO_MIN = 0x17DD, 0x17DE, 0x1186, 0x1187
+ATTR_AI_RNG_HIGH, ATTR_AI_RNG_LOW = 0x1815, 0x1816  # the device range the channel uses
+ATTR_DEV_IS_SIMULATED = 0x22CA
 ATTR_PHYSICAL_CHAN_NAME = 0x18F5
 ATTR_AI_RAW_SAMP_SIZE = 0x22DA
 ATTR_DO_NUM_LINES, ATTR_DI_NUM_LINES = 0x2179, 0x2178
@@ -45,6 +50,19 @@ PRODUCT_CATEGORY_X_SERIES = 15858
 PRODUCT_NUM_PXIE_6358 = 0x7429  # as MAX reports it for a PXIe-6358
 REF_CLOCKS = {"pxie_clk100": 100e6, "pxi_clk10": 10e6, "onboardclock": 100e6}
 RAW_BITS = 16
+
+
+def device_range_v(ch: SimChannel) -> float:
+    """The smallest of the device's bipolar ranges that holds the channel's [min, max]."""
+    ranges = AI_RANGES_V if ch.kind == "ai" else AO_RANGES_V
+    need = max(abs(ch.min_v), abs(ch.max_v))
+    return next((r for r in ranges if r >= need), ranges[-1])
+
+
+def raw_codes(task: SimTask, data: np.ndarray) -> np.ndarray:
+    """The 16-bit ADC codes of AI samples (n_ch, n), over each channel's device range."""
+    lsb = np.array([[device_range_v(c) / 2 ** (RAW_BITS - 1)] for c in task.channels])
+    return np.clip(np.round(data / lsb), -(2 ** 15), 2 ** 15 - 1).astype(np.int16)
 
 
 def _range_for(ch: SimChannel, lo: float, hi: float) -> tuple[float, float]:
@@ -83,6 +101,9 @@ class ChannelAttrRpcs:
             elif request.attribute_raw in (ATTR_AI_MIN, ATTR_AO_MIN) and \
                     ch.kind == ("ai" if request.attribute_raw == ATTR_AI_MIN else "ao"):
                 values.add(ch.min_v)
+            elif request.attribute_raw in (ATTR_AI_RNG_HIGH, ATTR_AI_RNG_LOW) and ch.kind == "ai":
+                r = device_range_v(ch)
+                values.add(r if request.attribute_raw == ATTR_AI_RNG_HIGH else -r)
             else:
                 raise _unsupported_chan(request.attribute_raw)
         return pb.GetChanAttributeDoubleResponse(value=_one(values, request))
@@ -194,14 +215,36 @@ class ChannelAttrRpcs:
                             f"the client buffer holds only {request.array_size_in_samps}",
                             samps_per_chan_read=0)
         data = self.device.read(task, n, request.timeout, self._others())
-        lsb = np.array([[max(abs(c.min_v), abs(c.max_v)) / 2 ** (RAW_BITS - 1)]
-                        for c in task.channels])
-        codes = np.clip(np.round(data / lsb), -(2 ** 15), 2 ** 15 - 1).astype(np.int64)
+        codes = raw_codes(task, data).astype(np.int64)
         samps = codes.shape[1]
         if request.fill_mode_raw != FILL_GROUP_BY_CHANNEL:
             codes = codes.T
         return pb.ReadBinaryI16Response(read_array=codes.ravel().tolist(),
                                         samps_per_chan_read=samps)
+
+    @reports_daq_errors
+    def ReadRaw(self, request, context):  # noqa: N802
+        """Raw samples as the board stores them: int16, interleaved by sample."""
+        task = self._task(request.task)
+        task.kind_or_raise("ai")
+        n = request.num_samps_per_chan
+        n_ch = len(task.channels)
+        if n >= 0 and request.array_size_in_bytes < n * n_ch * 2:
+            raise daq_error(READ_BUFFER_TOO_SMALL, f"read of {n} raw samples from "
+                            f"{task.name!r}: the client buffer holds only "
+                            f"{request.array_size_in_bytes} bytes", samps_per_chan_read=0)
+        data = self.device.read(task, n, request.timeout, self._others())
+        codes = raw_codes(task, data)
+        return pb.ReadRawResponse(read_array=codes.T.astype("<i2").tobytes(),
+                                  samps_read=codes.shape[1], num_bytes_per_samp=2)
+
+    @reports_daq_errors
+    def GetDeviceAttributeBool(self, request, context):  # noqa: N802
+        self._check_device(request.device_name)
+        if request.attribute_raw != ATTR_DEV_IS_SIMULATED:
+            raise daq_error(ATTR_NOT_SUPPORTED, f"device attribute 0x{request.attribute_raw:04X}"
+                            " is not supported by the simulated device")
+        return pb.GetDeviceAttributeBoolResponse(value=True)
 
     @reports_daq_errors
     def WriteBinaryI16(self, request, context):  # noqa: N802
@@ -214,8 +257,7 @@ class ChannelAttrRpcs:
                             f"values for {n} samples x {n_ch} channels")
         block = (flat.reshape(n_ch, n) if request.data_layout_raw == FILL_GROUP_BY_CHANNEL
                  else flat.reshape(n, n_ch).T)
-        lsb = np.array([[max(abs(c.min_v), abs(c.max_v)) / 2 ** (RAW_BITS - 1)]
-                        for c in task.channels])
+        lsb = np.array([[device_range_v(c) / 2 ** (RAW_BITS - 1)] for c in task.channels])
         written = self.device.write_ao(task, np.clip(block * lsb, [[c.min_v] for c in
                                                                    task.channels],
                                                      [[c.max_v] for c in task.channels]),

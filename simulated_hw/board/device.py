@@ -22,7 +22,7 @@ from daq.errors import (
     SAMPLE_RATE_TOO_HIGH,
     WRITE_FAILED_WATCHDOG_EXPIRED,
 )
-from simulated_hw.board import ao_stream
+from simulated_hw.board import ao_stream, thermocouple
 from simulated_hw.board import digital as digital_io
 from simulated_hw.board.codes import (
     INVALID_AO_DATA_WRITE,
@@ -98,8 +98,11 @@ class SimDevice(SafeStates, OnDemandAi):
         self.carried: tuple[RigModel, float] | None = None
         self._reset_acquisition()
         self.press_estop(False)  # the emergency-stop loop is closed: released
-        # load the compiled physics now, not during the first paced read (it takes ~0.5 s)
-        RigModel(params, wiring, seed).process(np.zeros((len(wiring.ao), 16)))
+        # load the compiled physics now, not during the first paced read (it takes ~0.5 s);
+        # this is the rig from the server's start on (see `carried`)
+        rig = RigModel(params, wiring, seed)
+        rig.process(np.zeros((len(wiring.ao), 16)))
+        self.carried = (rig, self.now())
 
     def _physical_names(self) -> dict[str, tuple[str, str]]:
         """lower-case physical name -> (canonical name, kind)."""
@@ -537,6 +540,12 @@ class SimDevice(SafeStates, OnDemandAi):
 
     # --- reading --------------------------------------------------------------------------
     def read(self, task: SimTask, n: int, timeout_s: float, others: list[SimTask]) -> np.ndarray:
+        """`_read_volts`, with thermocouple channels in their temperature units."""
+        return thermocouple.scale(self.wiring, task.channels,
+                                  self._read_volts(task, n, timeout_s, others))
+
+    def _read_volts(self, task: SimTask, n: int, timeout_s: float, others: list[SimTask]
+                    ) -> np.ndarray:
         """The next ``n`` samples of an AI task, shape (n_ch, n); ``n < 0``: all available (a
         finite task: the rest of it). A read starts a task that is not running, as DAQmx
         does; a finite task started that way stops when its last sample is read."""
@@ -546,8 +555,11 @@ class SimDevice(SafeStates, OnDemandAi):
             if not task.running:
                 self.start(task, others)
                 task.auto_started = True
-            if task.rate_hz is None:
-                return self._read_on_demand(task, 1 if n < 0 else n)
+            if task.rate_hz is None:  # an implicitly started on-demand task ends with the read
+                data = self._read_on_demand(task, 1 if n < 0 else n)
+                if task.auto_started:
+                    self.stop(task)
+                return data
             if task is not self.ai_task:
                 raise daq_error(TASK_NOT_RUNNING, f"read from {task.name!r}: the task is not "
                                 "running; start it first", samps_per_chan_read=0)
@@ -731,6 +743,10 @@ class SimDevice(SafeStates, OnDemandAi):
         with self.lock:
             if self.ai_task is not None and target > self.generated:
                 self._advance(target)
+
+    def sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` of device time (the injected sleep of a paced board)."""
+        self._sleep(max(seconds, 0.0))
 
     def pause(self, seconds: float) -> None:
         """Wait ``seconds`` of wall time (or until the device shuts down)."""

@@ -76,11 +76,11 @@ def read(device: Any, task: SimTask, n: int, timeout_s: float, others: list[SimT
     if timed and not device.fast:
         now = device.now()
         if timeout_s >= 0 and ready_at > now + timeout_s:
-            device.pause(timeout_s)
+            device.sleep(timeout_s)
             raise daq_error(READ_TIMEOUT, f"read of {n} samples from {task.name!r} timed out "
                             f"after {timeout_s:g} s", samps_per_chan_read=0)
         while now < ready_at and not device.stopping():
-            device.pause(ready_at - now)
+            device.sleep(ready_at - now)
             now = device.now()
     with device.lock:
         device.catch_up()
@@ -92,6 +92,8 @@ def read(device: Any, task: SimTask, n: int, timeout_s: float, others: list[SimT
                 task.done = True
                 if task.auto_started:
                     device.stop(task)
+        elif task.auto_started:  # an implicitly started on-demand task ends with the read
+            device.stop(task)
     return np.repeat(values, n, axis=1)
 
 

@@ -23,7 +23,7 @@ from daq.errors import (
     INVALID_ATTRIBUTE_VALUE,
     DaqError,
 )
-from simulated_hw.board import events
+from simulated_hw.board import events, thermocouple
 from simulated_hw.board.chan_attrs import ATTR_TASK_DEVICES, ChannelAttrRpcs, task_devices
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
@@ -130,12 +130,17 @@ def _chan_handler(kind: str, channel_field: str, name_field: str) -> Callable[..
             names = [f"{name}{i}" for i in range(len(groups))]
         elif name:
             names = [name]
-        elif len(groups) == 1 and len(groups[0]) > 1:  # DAQmx names it as it was given
-            names = [getattr(request, channel_field).strip().removeprefix("/")]
+        elif len(groups) == 1 and len(groups[0]) > 1:  # DAQmx's name for a group of lines
+            given = unflatten_channel_string(getattr(request, channel_field))
+            names = [given[0] + "..." if len(given) > 1 else given[0]]
         else:
             names = [g[0] for g in groups]
         digital = kind in ("do", "di")
         lo, hi = (request.min_val, request.max_val) if not digital else (0.0, 1.0)
+        units = None
+        if rpc == "CreateAIThrmcplChan":  # measured on the +/-1 V range, read in temperature
+            units = thermocouple.units(request, where)
+            lo, hi = -1.0, 1.0
         if not digital:
             limit = self.device.spec.ai_range_v if kind == "ai" else self.device.spec.ao_range_v
             if not (-limit <= lo < hi <= limit):
@@ -147,7 +152,7 @@ def _chan_handler(kind: str, channel_field: str, name_field: str) -> Callable[..
         if kind == "ai":
             _check_terminal_config(request, physical, where)
         for n, g in zip(names, groups, strict=True):
-            task.channels.append(SimChannel(n, kind, g, lo, hi))
+            task.channels.append(SimChannel(n, kind, g, lo, hi, temperature_units=units))
         return type(self)._responses[rpc](status=0)
 
     return handler
@@ -171,6 +176,7 @@ def _check_terminal_config(request: Any, physical: list[str], where: str) -> Non
 # Which Create*Chan RPCs the simulated device serves: rpc -> (kind, channel field, name field).
 CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
     "CreateAIVoltageChan": ("ai", "physical_channel", "name_to_assign_to_channel"),
+    "CreateAIThrmcplChan": ("ai", "physical_channel", "name_to_assign_to_channel"),
     "CreateAOVoltageChan": ("ao", "physical_channel", "name_to_assign_to_channel"),
     "CreateDOChan": ("do", "lines", "name_to_assign_to_lines"),
     "CreateDIChan": ("di", "lines", "name_to_assign_to_lines"),
@@ -640,7 +646,7 @@ def _find_channels(task: SimTask, names: str) -> list[SimChannel]:
     for name in unflatten_channel_string(names):
         for ch in task.channels:
             physical = ch.physical[0].lower() if len(ch.physical) == 1 else None
-            if name in (ch.name, physical) or physical == name.lower():
+            if name in (ch.name, physical) or physical == name.lower().removeprefix("/"):
                 found.append(ch)
                 break
         else:

@@ -40,6 +40,7 @@ class SimChannel:
     min_v: float = -10.0
     max_v: float = 10.0
     idle_behavior: int = IDLE_MAINTAIN  # AO: what the terminal does when no generation runs
+    temperature_units: int | None = None  # AI thermocouple: read in these (TemperatureUnits)
 
 
 @dataclass

@@ -7,7 +7,7 @@ Only what a lab engineer changes to move a program onto the server is supplied: 
 ``grpc_options``) and the device names (requests naming another board's device are renamed to
 the server's ``Dev1`` on the wire, by a client interceptor; ``Dev2`` stays: there is one board).
 The user's hand is simulated too: ``input()`` ("press Enter to stop") returns once the example's
-events have been called ``N`` times (or its loop has read/written ``N`` times), and the
+events have been called ``N`` times (at once if it registered none), and the
 ``N + 1``-th read or write of a ``while True`` loop raises ``KeyboardInterrupt`` (Ctrl+C), which
 the examples catch. Plots are drawn off screen.
 
@@ -73,13 +73,15 @@ class _Hand:
         self.calls = 0
         self.events = 0
         self.enough = threading.Event()
+        self.ctrl_c = True
+        self.registered = 0  # event callbacks registered
 
     def call(self) -> None:
         self.calls += 1
         if self.calls >= self.loops and self.events == 0:
             self.enough.set()
-        if self.calls > self.loops and threading.current_thread() is threading.main_thread() \
-                and self.events == 0:
+        if self.ctrl_c and self.calls > self.loops and self.events == 0 \
+                and threading.current_thread() is threading.main_thread():
             raise KeyboardInterrupt
 
     def event(self) -> None:
@@ -88,8 +90,10 @@ class _Hand:
             self.enough.set()
 
     def input(self, prompt: str = "") -> str:
+        """Enter: after ``loops`` events, or at once when nothing will call back."""
         print(prompt, end="")
-        self.enough.wait(30.0)
+        if self.registered:
+            self.enough.wait(30.0)
         return ""
 
 
@@ -99,6 +103,8 @@ def main(argv: list[str]) -> int:
     channel = grpc.intercept_channel(grpc.insecure_channel(address), _Renamer())
     options = nidaqmx.GrpcSessionOptions(channel, "")
     hand = _Hand(loops)
+    with open(path) as source:  # only a program that waits for Ctrl+C gets one
+        hand.ctrl_c = "KeyboardInterrupt" in source.read()
 
     task_init = nidaqmx.Task.__init__
 
@@ -132,6 +138,7 @@ def main(argv: list[str]) -> int:
             args = list(a)
             fn_index = next((i for i, v in enumerate(args) if callable(v)), None)
             if fn_index is not None:
+                hand.registered += 1
                 user = args[fn_index]
 
                 def callback(*c):  # type: ignore[no-untyped-def]
