@@ -61,7 +61,8 @@ class SimDevice(SafeStates, OnDemandAi):
 
     Hardware-timed AI runs the rig; AO generates on the AI sample clock (sample-aligned with
     AI) or on its own clock (sampled at the AI sample instants while AI runs, advanced with
-    the device clock otherwise); on-demand AI runs a rig of its own (`_read_on_demand`)."""
+    the device clock otherwise); on-demand AI runs a rig of its own (`_read_on_demand`). Every
+    new rig continues the one simulated last (`carried`): the rig keeps moving between tasks."""
 
     def __init__(
         self,
@@ -120,8 +121,9 @@ class SimDevice(SafeStates, OnDemandAi):
         return names
 
     def _reset_acquisition(self) -> None:
-        if getattr(self, "rig", None) is not None and getattr(self, "ai_task", None) is not None:
-            self.carried = (self.rig, self.now())  # the rig goes on moving after the task
+        rig: RigModel | None = getattr(self, "rig", None)
+        if rig is not None and getattr(self, "ai_task", None) is not None:
+            self.carried = (rig, self.now())  # the rig goes on moving after the task
         if self.fast and getattr(self, "ai_task", None) is not None:
             self._vtime = self.now()  # fast mode: the clock stays where the AI left it
         self.rig: RigModel | None = None
@@ -156,7 +158,7 @@ class SimDevice(SafeStates, OnDemandAi):
             raise daq_error(PHYSICAL_CHAN_DOES_NOT_EXIST, f"{where}: {err}") from None
         if not parts:
             raise daq_error(PHYSICAL_CHAN_DOES_NOT_EXIST, f"{where}: no physical channel given")
-        out = []
+        out: list[str] = []
         for part in parts:
             part = part.removeprefix("/")  # "/Dev1/ai0" names the same terminal
             dev = part.split("/", 1)[0]

@@ -1,5 +1,5 @@
 """Software-timed (on-demand) AI, as a mixin of `simulated_hw.board.device.SimDevice`: a read
-takes its samples now, from a rig of its own."""
+takes its samples now, from a rig of its own that continues the one simulated last."""
 
 from __future__ import annotations
 

@@ -89,7 +89,7 @@ class _Hand:
         if self.events >= self.loops:
             self.enough.set()
 
-    def input(self, prompt: str = "") -> str:
+    def input(self, prompt: object = "") -> str:
         """Enter: after ``loops`` events, or at once when nothing will call back."""
         print(prompt, end="")
         if self.registered:
