@@ -34,6 +34,7 @@ from simulated_hw.board.codes import (
     WRITE_NUM_CHANS_MISMATCH,
     daq_error,
 )
+from simulated_hw.board.device_rpcs import attribute
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.wire import reports_daq_errors
 
@@ -150,19 +151,16 @@ class ChannelAttrRpcs:
     @reports_daq_errors
     def GetDeviceAttributeInt32(self, request, context):  # noqa: N802
         self._check_device(request.device_name)
-        if request.attribute_raw != ATTR_DEV_PRODUCT_CATEGORY:
-            raise daq_error(ATTR_NOT_SUPPORTED, f"device attribute 0x{request.attribute_raw:04X}"
-                            " is not supported by the simulated device")
-        return pb.GetDeviceAttributeInt32Response(value_raw=PRODUCT_CATEGORY_X_SERIES)
+        return pb.GetDeviceAttributeInt32Response(value_raw=attribute(
+            {ATTR_DEV_PRODUCT_CATEGORY: PRODUCT_CATEGORY_X_SERIES}, "device",
+            request.attribute_raw))
 
     @reports_daq_errors
     def GetDeviceAttributeUInt32(self, request, context):  # noqa: N802
         self._check_device(request.device_name)
-        values = {ATTR_DEV_PRODUCT_NUM: PRODUCT_NUM_PXIE_6358, ATTR_DEV_SERIAL_NUM: 0}
-        if request.attribute_raw not in values:
-            raise daq_error(ATTR_NOT_SUPPORTED, f"device attribute 0x{request.attribute_raw:04X}"
-                            " is not supported by the simulated device")
-        return pb.GetDeviceAttributeUInt32Response(value=values[request.attribute_raw])
+        return pb.GetDeviceAttributeUInt32Response(value=attribute(
+            {ATTR_DEV_PRODUCT_NUM: PRODUCT_NUM_PXIE_6358, ATTR_DEV_SERIAL_NUM: 0}, "device",
+            request.attribute_raw))
 
     @reports_daq_errors
     def SetTimingAttributeString(self, request, context):  # noqa: N802
@@ -241,10 +239,8 @@ class ChannelAttrRpcs:
     @reports_daq_errors
     def GetDeviceAttributeBool(self, request, context):  # noqa: N802
         self._check_device(request.device_name)
-        if request.attribute_raw != ATTR_DEV_IS_SIMULATED:
-            raise daq_error(ATTR_NOT_SUPPORTED, f"device attribute 0x{request.attribute_raw:04X}"
-                            " is not supported by the simulated device")
-        return pb.GetDeviceAttributeBoolResponse(value=True)
+        return pb.GetDeviceAttributeBoolResponse(value=attribute(
+            {ATTR_DEV_IS_SIMULATED: True}, "device", request.attribute_raw))
 
     @reports_daq_errors
     def WriteBinaryI16(self, request, context):  # noqa: N802

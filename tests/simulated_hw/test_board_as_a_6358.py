@@ -15,17 +15,7 @@ from nidaqmx.constants import AcquisitionType, LineGrouping, RegenerationMode
 from nidaqmx.errors import DaqError
 
 from simulated_hw.grpc_server import SimulatedDeviceServer
-
-
-class _Clock:
-    def __init__(self) -> None:
-        self.t = 50.0
-
-    def now(self) -> float:
-        return self.t
-
-    def sleep(self, dt: float) -> None:
-        self.t += max(dt, 0.0)
+from tests.simulated_hw.fake_clock import FakeClock as _Clock
 
 
 @pytest.fixture
