@@ -16,7 +16,12 @@ internal channels ``Dev1/_aoN_vs_aognd``; IsTaskDone / WaitUntilTaskDone; the wa
 task with DO and AO expiration states, expired by the board's own timer thread. What a board
 refuses gets its DAQmx code (-200462 empty output buffer, -50103 a second AI task, -200560 a
 continuous task never done, -200278 past the end of a finite acquisition, -200644 / -200678
-after a watchdog expiry, ...); an RPC it does not serve answers UNIMPLEMENTED.
+after a watchdog expiry, ...); an RPC it does not serve answers the DAQmx error the board or
+the driver gives for it (`simulated_hw.board.refusals`: -201380 counters and waveforms, -200431 a
+measurement the inputs lack, -200197 an attribute, ...), never UNIMPLEMENTED. Also served: port
+and line DIO (hardware-timed too), the every-N-samples and done events, thermocouple channels,
+the attributes generic programs ask for (README, "Against the real rig"). The rig is never reset:
+each acquisition continues it (`SimDevice.carried`).
 
 Time: paced (default), samples become available as the wall clock advances (a read waits;
 too long -> DAQmx -200284; a reader more than the input buffer behind -> -200279; an AO writer

@@ -180,6 +180,16 @@ class RigModel:
             self._oil_block(n)
             left -= n
 
+    def continue_from(self, other: RigModel) -> None:
+        """Take over ``other``'s physical state (the housing's motion, the shakers' forces, the
+        oil and the film, the pump relay): the same rig, observed from now on through this
+        model's channels and sample rate."""
+        self._state = other._state.copy()
+        self._shaker_state = other._shaker_state.copy()
+        self._p_in, self._p_rec, self._fill = other._p_in, other._p_rec, other._fill
+        self._temp_c = other._temp_c
+        self.pump_on = other.pump_on
+
     @property
     def temperature_c(self) -> float:
         return self._temp_c

@@ -4,13 +4,16 @@ once the generation stops.
 Three ways a DAQmx AO buffer plays (the same rules as NI-DAQmx):
 
 - non-regenerating: every sample written is generated once, in order; running out of samples
-  stops the generation with -200290 (underflow);
+  stops the generation with -200290 (underflow). Once the task runs, the board moves samples
+  from the buffer into its on-board FIFO (`fifo_samples`, 8,191 on a PXIe-6358) as soon as
+  there is room, so the buffer holds its size plus the FIFO: a write returns while that much is
+  still queued, as NI's continuous non-regenerating example relies on;
 - regenerating (nidaqmx's default): the buffer written before the start plays in a loop; writes
   while running overwrite it from the write position onwards: the current write position
   (after the last sample written) plus ``out_stream.offset``, or with ``out_stream.relative_to``
   FIRST_SAMPLE the buffer's sample ``offset`` (0 <= offset < the buffer). What is overwritten
-  ahead of the generation plays when the generation gets there; the on-board FIFO is not
-  modelled (a write lands at once);
+  ahead of the generation plays when the generation gets there (a write lands at once: the
+  FIFO's copy of those samples is not modelled);
 - finite: ``samps_per_chan`` samples are generated (looping a shorter regenerating buffer), then
   the task is done.
 
@@ -25,11 +28,27 @@ import numpy as np
 
 from daq.errors import INVALID_ATTRIBUTE_VALUE, OUTPUT_UNDERFLOW
 from simulated_hw.board.codes import (
+    AO_FIFO_SAMPLES,
     IDLE_ZERO_VOLTS,
     WRITE_REL_FIRST_SAMPLE,
     daq_error,
 )
 from simulated_hw.board.tasks import SimTask
+
+
+def fifo_samples(task: SimTask) -> int:
+    """The on-board FIFO in use by the task, per channel (the PXIe-6358's 8,191 samples are
+    shared by the task's channels; ``out_stream.output_onbrd_buf_size`` may shrink it)."""
+    return task.onboard_samples or AO_FIFO_SAMPLES // max(len(task.channels), 1)
+
+
+def fifo_ahead(task: SimTask) -> int:
+    """Samples the board has moved from the buffer into its FIFO, ahead of the generation."""
+    if not generating(task):
+        return 0
+    if task.regen_data is not None:
+        return fifo_samples(task)
+    return min(task.ao_queued, fifo_samples(task))
 
 
 def idle_values(task: SimTask) -> np.ndarray:

@@ -37,6 +37,11 @@ SAMPLES_WILL_NEVER_BE_AVAILABLE = -200278
 WAIT_UNTIL_DONE_NOT_DONE = -200560  # WAIT_UNTIL_DONE_DOES_NOT_INDICATE_DONE
 WATCHDOG_TIMEOUT_OUT_OF_RANGE = -200668  # WATCHDOG_TIMEOUT_OUT_OF_RANGE_AND_NOT_SPECIAL_VAL
 ACTION_NOT_SUPPORTED_TASK_NOT_WATCHDOG = -200635
+DEVICE_DOES_NOT_SUPPORT_THIS_OPERATION = -201380
+PHYS_CHAN_MEAS_TYPE = -200431  # the physical channel does not support the measurement type
+SIGNAL_EVENTS_NOT_SUPPORTED = -200982
+EVERY_N_ACQ_NOT_SUPPORTED = -200981  # EVERY_N_SAMPLES_ACQ_INTO_BUFFER_EVENT_NOT_SUPPORTED...
+EVERY_N_XFER_NOT_SUPPORTED = -200980  # EVERY_N_SAMPS_TRANSFERRED_FROM_BUFFER_EVENT_NOT_...
 
 _ERROR_TEXT = {
     READ_TIMEOUT: "Wait Until Done did not indicate all samples were acquired/generated in the "
@@ -60,6 +65,9 @@ _ERROR_TEXT = {
     CANT_RESET_EXPIRED_WATCHDOG: "Watchdog timer cannot be reset because it has expired; "
     "clear the expiration first",
     WRITE_FAILED_WATCHDOG_EXPIRED: "Write failed because the watchdog timer expired",
+    DEVICE_DOES_NOT_SUPPORT_THIS_OPERATION: "The device does not support this operation",
+    PHYS_CHAN_MEAS_TYPE: "Measurement type not supported by the physical channel",
+    SIGNAL_EVENTS_NOT_SUPPORTED: "Signal events are not supported by the device",
 }
 
 # channel types, measurement/output types, enums

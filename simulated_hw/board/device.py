@@ -22,7 +22,8 @@ from daq.errors import (
     SAMPLE_RATE_TOO_HIGH,
     WRITE_FAILED_WATCHDOG_EXPIRED,
 )
-from simulated_hw.board import ao_stream
+from simulated_hw.board import ao_stream, thermocouple
+from simulated_hw.board import digital as digital_io
 from simulated_hw.board.codes import (
     INVALID_AO_DATA_WRITE,
     MAX_CHUNK,
@@ -45,6 +46,10 @@ from simulated_hw.rig import RigModel
 
 _log = logging.getLogger(__name__)
 
+#: how much of the time between acquisitions the rig's motion is simulated [s] (a held drive
+#: settles well within it; the oil and film follow the whole gap, `RigModel.rest`)
+GAP_DYNAMIC_S = 1.0
+
 #: the internal channel through which AI reads AO terminal N back (X-series ``_aoN_vs_aognd``)
 INTERNAL_AO = re.compile(r"_ao(\d+)_vs_aognd", re.IGNORECASE)
 
@@ -56,7 +61,8 @@ class SimDevice(SafeStates, OnDemandAi):
 
     Hardware-timed AI runs the rig; AO generates on the AI sample clock (sample-aligned with
     AI) or on its own clock (sampled at the AI sample instants while AI runs, advanced with
-    the device clock otherwise); on-demand AI runs a rig of its own (`_read_on_demand`)."""
+    the device clock otherwise); on-demand AI runs a rig of its own (`_read_on_demand`). Every
+    new rig continues the one simulated last (`carried`): the rig keeps moving between tasks."""
 
     def __init__(
         self,
@@ -88,10 +94,16 @@ class SimDevice(SafeStates, OnDemandAi):
         self._watchdogs: list[Watchdog] = []
         self.watchdog_timer = WatchdogTimer(clock, self.lock, self.watchdogs, self._expire)
         self._physical = self._physical_names()
+        #: the rig as last simulated, and the device time up to which it was: the next
+        #: acquisition's rig continues from it (the rig keeps moving between tasks)
+        self.carried: tuple[RigModel, float] | None = None
         self._reset_acquisition()
         self.press_estop(False)  # the emergency-stop loop is closed: released
-        # load the compiled physics now, not during the first paced read (it takes ~0.5 s)
-        RigModel(params, wiring, seed).process(np.zeros((len(wiring.ao), 16)))
+        # load the compiled physics now, not during the first paced read (it takes ~0.5 s);
+        # this is the rig from the server's start on (see `carried`)
+        rig = RigModel(params, wiring, seed)
+        rig.process(np.zeros((len(wiring.ao), 16)))
+        self.carried = (rig, self.now())
 
     def _physical_names(self) -> dict[str, tuple[str, str]]:
         """lower-case physical name -> (canonical name, kind)."""
@@ -100,12 +112,18 @@ class SimDevice(SafeStates, OnDemandAi):
                             ("do", self.spec.do_lines())):
             for c in chans:
                 names[c.lower()] = (c, kind)
+        for port in range(self.spec.do_ports):  # a port: all its lines
+            c = f"{self.spec.name}/port{port}"
+            names[c.lower()] = (c, "port")
         for i in range(self.spec.ao_count):  # internal channels: AI reads an AO terminal back
             c = f"{self.spec.name}/_ao{i}_vs_aognd"
             names[c.lower()] = (c, "ai")
         return names
 
     def _reset_acquisition(self) -> None:
+        rig: RigModel | None = getattr(self, "rig", None)
+        if rig is not None and getattr(self, "ai_task", None) is not None:
+            self.carried = (rig, self.now())  # the rig goes on moving after the task
         if self.fast and getattr(self, "ai_task", None) is not None:
             self._vtime = self.now()  # fast mode: the clock stays where the AI left it
         self.rig: RigModel | None = None
@@ -140,8 +158,9 @@ class SimDevice(SafeStates, OnDemandAi):
             raise daq_error(PHYSICAL_CHAN_DOES_NOT_EXIST, f"{where}: {err}") from None
         if not parts:
             raise daq_error(PHYSICAL_CHAN_DOES_NOT_EXIST, f"{where}: no physical channel given")
-        out = []
+        out: list[str] = []
         for part in parts:
+            part = part.removeprefix("/")  # "/Dev1/ai0" names the same terminal
             dev = part.split("/", 1)[0]
             if dev.lower() != self.spec.name.lower():
                 raise daq_error(
@@ -150,6 +169,10 @@ class SimDevice(SafeStates, OnDemandAi):
                     f"(this server has {self.spec.name})",
                 )
             found = self._physical.get(part.lower())
+            if found is not None and found[1] == "port" and kind in ("do", "di"):
+                out.extend(p for p in self.spec.do_lines()
+                           if p.lower().startswith(found[0].lower() + "/"))
+                continue
             if found is None or found[1] != kind.replace("di", "do"):  # port lines are both
                 have = {"ai": "ai0..ai", "ao": "ao0..ao", "do": "port0/line0..",
                         "di": "port0/line0.."}[kind]
@@ -203,20 +226,26 @@ class SimDevice(SafeStates, OnDemandAi):
                 task.running = True
                 return
             if task.kind == "ai" and task.rate_hz is not None:
-                self._start_ai(task)
+                self._start_ai(task, others)
             elif task.kind == "ai" and self.ai_task is not None:
                 raise daq_error(
                     RESOURCE_RESERVED,
                     f"start {task.name!r}: the AI converter is in use by task "
                     f"{self.ai_task.name!r}",
                 )
-            elif task.kind == "ao" and task.rate_hz is not None:
+            elif task.kind in ("ao", "do") and task.rate_hz is not None:
                 self._arm_ao(task)
+            elif task.kind == "di" and task.rate_hz is not None:
+                task.di_read = 0
+                linked = task.clock_source.lower() == self.terminal("SampleClock").lower()
+                task.t_start = (self.t0 if self.ai_task is not None else None) if linked \
+                    else self.now()
             elif task.kind is None:
                 raise daq_error(NO_CHANS_IN_TASK, f"start {task.name!r}: the task has no channels")
             task.error = None
             task.done = False
             task.running = True
+            task.run_id += 1
 
     def _arm_ao(self, task: SimTask) -> None:
         if task.ao_written == 0 and (task.regenerating or task.finite):
@@ -233,7 +262,7 @@ class SimDevice(SafeStates, OnDemandAi):
                 f"start {task.name!r}: AI task {self.ai_task.name!r} is already running, so "
                 "its start trigger has passed; start AO first",
             )
-        for ch in task.channels:
+        for ch in task.channels if task.kind == "ao" else []:
             if ch.physical[0] in self.locked_ao:
                 raise daq_error(
                     WRITE_FAILED_WATCHDOG_EXPIRED,
@@ -241,16 +270,19 @@ class SimDevice(SafeStates, OnDemandAi):
                     "state; clear the expiration first",
                 )
         ao_all = self.spec.ao_channels()
-        task.wired_rows = [(row, ao_all.index(ch.physical[0]))
-                           for row, ch in enumerate(task.channels)]
+        digital = task.kind == "do"
+        task.wired_rows = [] if digital else [(row, ao_all.index(ch.physical[0]))
+                                               for row, ch in enumerate(task.channels)]
         task.ao_generated = 0
-        task.ao_hold = np.array([self.terminal_value(ch.physical[0]) for ch in task.channels])
+        task.ao_hold = np.array([
+            digital_io.channel_value(self, task, ch) if digital
+            else self.terminal_value(ch.physical[0]) for ch in task.channels], dtype=float)
         ao_stream.freeze_regeneration(task)
         task.first_sample = self.generated if (linked and self.ai_task is not None) else 0
         task.t_start = None if (linked or (triggered and self.ai_task is None)) else self.now()
         self.ao_tasks.append(task)
 
-    def _start_ai(self, task: SimTask) -> None:
+    def _start_ai(self, task: SimTask, others: list[SimTask]) -> None:
         assert task.rate_hz is not None
         if self.ai_task is not None:
             raise daq_error(
@@ -275,6 +307,10 @@ class SimDevice(SafeStates, OnDemandAi):
             if ao_task.t_start is None and ao_task.clock_source.lower() != \
                     self.terminal("SampleClock").lower():
                 ao_task.t_start = t0
+        for other in others:  # DI on the AI sample clock starts with it
+            if other.kind == "di" and other.running and other.rate_hz is not None \
+                    and other.t_start is None:
+                other.t_start = t0
 
     def _ai_rows(self, task: SimTask) -> tuple[list[AnalogInput], list[tuple[str, int] | None]]:
         """The wired inputs a rig must produce for ``task``, and where each task channel reads
@@ -296,7 +332,24 @@ class SimDevice(SafeStates, OnDemandAi):
         return ai, rows
 
     def _new_rig(self, rig_map: ChannelMap) -> RigModel:
+        """The rig behind a new acquisition, continuing the rig as it was last simulated: run
+        on from then to now with the AO terminals as they are (at most `GAP_DYNAMIC_S` of
+        motion; the oil and film follow the rest of the gap), so a drive held between tasks
+        is read at its steady response in the next acquisition's first sample."""
         rig = RigModel(self.params, rig_map, self.seed)
+        if self.carried is not None:
+            old, since = self.carried
+            gap = max(self.now() - since, 0.0)
+            n = int(round(min(gap, GAP_DYNAMIC_S) * old.fs))
+            wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
+            drive = self._present_terminals()[wired]
+            while n > 0:
+                k = min(n, MAX_CHUNK)
+                old.process(np.repeat(drive[:, None], k, axis=1))
+                n -= k
+            old.rest(gap - GAP_DYNAMIC_S)
+            rig.continue_from(old)
+            self.carried = (rig, self.now())
         for d in self.wiring.do:
             if self.lines.get(d.physical_channel):
                 rig.set_relay(d.name, True)
@@ -368,7 +421,45 @@ class SimDevice(SafeStates, OnDemandAi):
                     if task.t_start is not None and task.rate_hz is not None:
                         count = math.floor((now - task.t_start) * task.rate_hz + 1e-9) + 1
                         ao_stream.skip(task, count - task.ao_generated)
+            for task in self.ao_tasks:
+                if task.kind == "do" and task.ao_hold is not None:
+                    self._drive_do(task)
             self.watchdog_timer.check()
+
+    def _drive_do(self, task: SimTask) -> None:
+        """A sample-clocked DO task's lines show its last sample generated."""
+        levels: dict[str, bool] = {}
+        assert task.ao_hold is not None
+        for ch, value in zip(task.channels, task.ao_hold, strict=True):
+            levels.update(digital_io.lines_of(ch, int(value)))
+        if any(self.lines.get(p) != v for p, v in levels.items()):
+            self._set_lines(levels)
+
+    def line_level_for(self, task: SimTask, line: str) -> bool:
+        """What a line reads in ``task``: a DI task, what drives it from outside (else the
+        pull-down: low); a DO task, what it drives."""
+        with self.lock:
+            if task.kind == "di":
+                return self.inputs.get(line, False)
+            return self.lines.get(line, False)
+
+    def di_acquired(self, task: SimTask) -> int:
+        """Samples a sample-clocked DI task has taken by now."""
+        assert task.rate_hz is not None
+        due = digital_io.di_due_at(task.t_start, task.rate_hz, 0)
+        if not math.isfinite(due):
+            return 0
+        taken = math.floor((self.now() - due) * task.rate_hz) + 1
+        return min(taken, task.samps_per_chan) if task.finite else taken
+
+    def di_due_at(self, task: SimTask, k: int) -> float:
+        assert task.rate_hz is not None
+        if task.t_start is None and self.ai_task is not None:
+            task.t_start = self.t0
+        return digital_io.di_due_at(task.t_start, task.rate_hz, k)
+
+    def stopping(self) -> bool:
+        return self._stopping.is_set()
 
     def _advance(self, target: int) -> None:
         """Take samples ``generated..target``: run the AO, the rig, fill the AI buffer."""
@@ -451,6 +542,12 @@ class SimDevice(SafeStates, OnDemandAi):
 
     # --- reading --------------------------------------------------------------------------
     def read(self, task: SimTask, n: int, timeout_s: float, others: list[SimTask]) -> np.ndarray:
+        """`_read_volts`, with thermocouple channels in their temperature units."""
+        return thermocouple.scale(self.wiring, task.channels,
+                                  self._read_volts(task, n, timeout_s, others))
+
+    def _read_volts(self, task: SimTask, n: int, timeout_s: float, others: list[SimTask]
+                    ) -> np.ndarray:
         """The next ``n`` samples of an AI task, shape (n_ch, n); ``n < 0``: all available (a
         finite task: the rest of it). A read starts a task that is not running, as DAQmx
         does; a finite task started that way stops when its last sample is read."""
@@ -460,8 +557,11 @@ class SimDevice(SafeStates, OnDemandAi):
             if not task.running:
                 self.start(task, others)
                 task.auto_started = True
-            if task.rate_hz is None:
-                return self._read_on_demand(task, 1 if n < 0 else n)
+            if task.rate_hz is None:  # an implicitly started on-demand task ends with the read
+                data = self._read_on_demand(task, 1 if n < 0 else n)
+                if task.auto_started:
+                    self.stop(task)
+                return data
             if task is not self.ai_task:
                 raise daq_error(TASK_NOT_RUNNING, f"read from {task.name!r}: the task is not "
                                 "running; start it first", samps_per_chan_read=0)
@@ -528,7 +628,7 @@ class SimDevice(SafeStates, OnDemandAi):
     # --- writing --------------------------------------------------------------------------
     def write_ao(self, task: SimTask, block: np.ndarray, auto_start: bool, timeout_s: float,
                  others: list[SimTask]) -> int:
-        for row, ch in enumerate(task.channels):
+        for row, ch in enumerate(task.channels if task.kind == "ao" else []):
             if block.size and (block[row].min() < ch.min_v or block[row].max() > ch.max_v):
                 raise daq_error(
                     INVALID_AO_DATA_WRITE,
@@ -538,7 +638,7 @@ class SimDevice(SafeStates, OnDemandAi):
                 )
         with self.lock:
             self.catch_up()
-            self._refuse_locked(task, [ch.physical[0] for ch in task.channels])
+            self._refuse_locked(task, [p for ch in task.channels for p in ch.physical])
         if task.rate_hz is None:  # on-demand: the outputs take the last value at once
             if not task.running and not auto_start:
                 raise daq_error(TASK_NOT_RUNNING, f"write to {task.name!r}: task not running")
@@ -557,6 +657,8 @@ class SimDevice(SafeStates, OnDemandAi):
                     ao_stream.queue(task, block)  # overwrites the loop being played
                     break
                 space = task.output_buffer() - task.ao_queued
+                if task.running and not task.regenerating:
+                    space += ao_stream.fifo_samples(task)  # the board drains into its FIFO
                 if not task.running and task.ao_written == 0:
                     space = max(space, n)  # the first write sizes the buffer (NI behaviour)
                 if n <= space:
@@ -609,6 +711,8 @@ class SimDevice(SafeStates, OnDemandAi):
                 raise task.error
             if task is self.ai_task and task.finite:
                 return self.generated >= task.samps_per_chan
+            if task.running and task.kind == "di" and task.finite:
+                return self.di_acquired(task) >= task.samps_per_chan
             return task.done or not task.running
 
     def wait_until_done(self, task: SimTask, timeout_s: float) -> None:
@@ -636,6 +740,24 @@ class SimDevice(SafeStates, OnDemandAi):
                 + ("" if task.finite else " (a continuous task is never done until stopped)"),
             )
 
+    def advance_to(self, target: int) -> None:
+        """Take the AI samples up to ``target`` now (fast mode: an event stream paces it)."""
+        with self.lock:
+            if self.ai_task is not None and target > self.generated:
+                self._advance(target)
+
+    def sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` of device time (the injected sleep of a paced board)."""
+        self._sleep(max(seconds, 0.0))
+
+    def pause(self, seconds: float) -> None:
+        """Wait ``seconds`` of wall time (or until the device shuts down)."""
+        self._stopping.wait(max(seconds, 0.0))
+
+    def end_time(self, task: SimTask) -> float | None:
+        with self.lock:
+            return self._end_time(task)
+
     def _end_time(self, task: SimTask) -> float | None:
         """Device time at which a running finite task ends; None if it never ends by itself."""
         if not task.running or not task.finite or task.rate_hz is None:
@@ -644,6 +766,8 @@ class SimDevice(SafeStates, OnDemandAi):
             return self.t0 + task.samps_per_chan / task.rate_hz
         if task.t_start is not None:
             return task.t_start + task.samps_per_chan / task.rate_hz
+        if task.kind == "di" and self.ai_task is None:
+            return None
         if self.ai_task is not None:  # on the AI clock
             return self.t0 + (task.first_sample + task.samps_per_chan) / self.ai_rate
         return None

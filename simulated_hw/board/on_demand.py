@@ -1,5 +1,5 @@
 """Software-timed (on-demand) AI, as a mixin of `simulated_hw.board.device.SimDevice`: a read
-takes its samples now, from a rig of its own."""
+takes its samples now, from a rig of its own that continues the one simulated last."""
 
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ class OnDemandAi:
     _ai_rows: Callable[[SimTask], tuple[list[AnalogInput], list[tuple[str, int] | None]]]
     _new_rig: Callable[[ChannelMap], RigModel]
     _present_terminals: Callable[[], Any]
+    carried: tuple[RigModel, float] | None
 
     def _read_on_demand(self, task: SimTask, n: int) -> np.ndarray:
         """A software-timed read: ``n`` samples taken now, one sample period apart.
@@ -55,6 +56,8 @@ class OnDemandAi:
         wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
         rig_out = rig.process(drive[wired])[:, -n:] if rig is not None else None
         self._idle = (task, rig, rows, now)
+        if rig is not None:
+            self.carried = (rig, now)
         out = np.empty((len(rows), n))
         lsb = 2 * self.spec.ai_range_v / 2**self.spec.ai_bits
         for i, source in enumerate(rows):

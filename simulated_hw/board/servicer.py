@@ -4,6 +4,7 @@ for errors and fast reads."""
 from __future__ import annotations
 
 import itertools
+import math
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -20,7 +21,10 @@ from daq.errors import (
     ATTR_NOT_SUPPORTED_IN_TASK,
     DEVICE_NOT_FOUND,
     INVALID_ATTRIBUTE_VALUE,
+    DaqError,
 )
+from simulated_hw.board import events, thermocouple
+from simulated_hw.board.chan_attrs import ATTR_TASK_DEVICES, ChannelAttrRpcs, task_devices
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
     AI_TERM_CFGS,
@@ -78,7 +82,6 @@ from simulated_hw.board.codes import (
     REGEN_ALLOW,
     REGEN_DONT_ALLOW,
     REPEATED_PHYSICAL_CHAN,
-    TASK_NOT_RUNNING,
     TERM_DEFAULT,
     TERM_NAMES,
     WRITE_NUM_CHANS_MISMATCH,
@@ -88,10 +91,12 @@ from simulated_hw.board.codes import (
 )
 from simulated_hw.board.device import SimDevice
 from simulated_hw.board.device_rpcs import DeviceRpcs, _unsupported, attribute
+from simulated_hw.board.digital import DigitalRpcs
+from simulated_hw.board.refusals import install_refusals
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.board.watchdog_rpcs import WatchdogRpcs
-from simulated_hw.board.wire import read_reply, reports_daq_errors
+from simulated_hw.board.wire import abort_with, read_reply, reports_daq_errors
 
 
 # --- the servicer ---------------------------------------------------------------------------
@@ -125,10 +130,17 @@ def _chan_handler(kind: str, channel_field: str, name_field: str) -> Callable[..
             names = [f"{name}{i}" for i in range(len(groups))]
         elif name:
             names = [name]
+        elif len(groups) == 1 and len(groups[0]) > 1:  # DAQmx's name for a group of lines
+            given = unflatten_channel_string(getattr(request, channel_field))
+            names = [given[0] + "..." if len(given) > 1 else given[0]]
         else:
-            names = [g[0] if len(g) == 1 else ",".join(g) for g in groups]
+            names = [g[0] for g in groups]
         digital = kind in ("do", "di")
         lo, hi = (request.min_val, request.max_val) if not digital else (0.0, 1.0)
+        units = None
+        if rpc == "CreateAIThrmcplChan":  # measured on the +/-1 V range, read in temperature
+            units = thermocouple.units(request, where)
+            lo, hi = -1.0, 1.0
         if not digital:
             limit = self.device.spec.ai_range_v if kind == "ai" else self.device.spec.ao_range_v
             if not (-limit <= lo < hi <= limit):
@@ -140,7 +152,7 @@ def _chan_handler(kind: str, channel_field: str, name_field: str) -> Callable[..
         if kind == "ai":
             _check_terminal_config(request, physical, where)
         for n, g in zip(names, groups, strict=True):
-            task.channels.append(SimChannel(n, kind, g, lo, hi))
+            task.channels.append(SimChannel(n, kind, g, lo, hi, temperature_units=units))
         return type(self)._responses[rpc](status=0)
 
     return handler
@@ -164,15 +176,17 @@ def _check_terminal_config(request: Any, physical: list[str], where: str) -> Non
 # Which Create*Chan RPCs the simulated device serves: rpc -> (kind, channel field, name field).
 CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
     "CreateAIVoltageChan": ("ai", "physical_channel", "name_to_assign_to_channel"),
+    "CreateAIThrmcplChan": ("ai", "physical_channel", "name_to_assign_to_channel"),
     "CreateAOVoltageChan": ("ao", "physical_channel", "name_to_assign_to_channel"),
     "CreateDOChan": ("do", "lines", "name_to_assign_to_lines"),
     "CreateDIChan": ("di", "lines", "name_to_assign_to_lines"),
 }
 
 
-class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, pb_grpc.NiDAQmxServicer):
-    """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer UNIMPLEMENTED
-    (the base class), which the client reports as ``nidaqmx.errors.RpcError``."""
+class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrRpcs,
+                             pb_grpc.NiDAQmxServicer):
+    """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer the DAQmx
+    error the board gives for them (`simulated_hw.board.refusals`), never UNIMPLEMENTED."""
 
     _responses = {rpc: getattr(pb, f"{rpc}Response") for rpc in CREATE_CHAN_RPCS}
 
@@ -181,6 +195,10 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, pb_grpc.NiDAQmxServicer):
         self.tasks: dict[str, SimTask] = {}
         self._unnamed = itertools.count()
         self._tasks_lock = threading.Lock()
+        self.ref_clock: dict[str, tuple[str, float]] = {}  # task -> reference clock, rate
+
+    def _channels(self, task: SimTask, names: str) -> list[SimChannel]:
+        return _find_channels(task, names)
 
     # --- helpers --------------------------------------------------------------------------
     def _task(self, session: Session) -> SimTask:
@@ -292,7 +310,7 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, pb_grpc.NiDAQmxServicer):
         if request.sample_mode_raw not in (MODE_CONTINUOUS, MODE_FINITE):
             raise daq_error(INVALID_ATTRIBUTE_VALUE,
                             f"{where}: sample mode {request.sample_mode_raw} not supported")
-        task.rate_hz = request.rate
+        task.rate_hz = coerced_rate(request.rate)
         task.clock_source = "" if source.lower() == "onboardclock" else source
         task.sample_mode = request.sample_mode_raw
         task.samps_per_chan = int(request.samps_per_chan)
@@ -329,6 +347,8 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, pb_grpc.NiDAQmxServicer):
             return pb.GetTaskAttributeStringResponse(value=task.name)
         if request.attribute_raw == ATTR_TASK_CHANNELS:
             return pb.GetTaskAttributeStringResponse(value=_channel_list(task))
+        if request.attribute_raw == ATTR_TASK_DEVICES:
+            return pb.GetTaskAttributeStringResponse(value=task_devices(self.device, task))
         raise _unsupported("task", request.attribute_raw)
 
     @reports_daq_errors
@@ -570,62 +590,45 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, pb_grpc.NiDAQmxServicer):
                                        self._others())
         return pb.WriteAnalogF64Response(samps_per_chan_written=written)
 
-    @reports_daq_errors
-    def WriteDigitalLines(self, request, context):  # noqa: N802
-        task = self._task(request.task)
-        task.kind_or_raise("do")
-        if not task.running:
-            if not request.auto_start:
-                raise daq_error(TASK_NOT_RUNNING, f"write to {task.name!r}: task not running")
-            self.device.start(task, self._others())
-        n = request.num_samps_per_chan
-        raw = np.frombuffer(request.write_array, dtype=np.uint8)
-        lines = [p for c in task.channels for p in c.physical]
-        if n <= 0 or raw.size != n * len(lines):
-            raise daq_error(
-                WRITE_NUM_CHANS_MISMATCH,
-                f"write to {task.name!r}: {raw.size} line values for {n} samples x "
-                f"{len(lines)} lines",
-            )
-        # software-timed: only the last sample stays on the lines
-        if request.data_layout_raw == FILL_GROUP_BY_CHANNEL:
-            last: list[int] = []
-            pos = 0
-            for c in task.channels:
-                k = len(c.physical)
-                last.extend(raw[pos + (n - 1) * k: pos + n * k])
-                pos += n * k
-        else:
-            last = list(raw[(n - 1) * len(lines):])
-        self.device.write_lines(lines, [bool(v) for v in last])
-        return pb.WriteDigitalLinesResponse(samps_per_chan_written=n)
+    # --- events ---------------------------------------------------------------------------
+    def RegisterEveryNSamplesEvent(self, request, context):  # noqa: N802
+        """A server stream: one message every N samples (`simulated_hw.board.events`)."""
+        try:
+            task = self._task(request.task)
+            events.check_every_n(task, request.every_n_samples_event_type_raw,
+                                 request.n_samples)
+        except DaqError as err:
+            abort_with(context, err)
+        context.send_initial_metadata(())
+        yield from events.every_n_samples(
+            self.device, task, request.every_n_samples_event_type_raw, request.n_samples,
+            lambda: context.is_active() and self.tasks.get(task.name) is task)
 
-    @reports_daq_errors
-    def ReadDigitalLines(self, request, context):  # noqa: N802
-        """Software-timed: every sample is the lines' present level (a DO task reads back what
-        it drives; a DI line reads what drives it, see `SimDevice.line_level`)."""
-        task = self._task(request.task)
-        if task.kind not in ("di", "do"):
-            task.kind_or_raise("di")
-        if not task.running:
-            self.device.start(task, self._others())
-        n = 1 if request.num_samps_per_chan < 0 else request.num_samps_per_chan
-        per_sample = max(len(c.physical) for c in task.channels)
-        if request.array_size_in_bytes < n * per_sample * len(task.channels):
-            raise daq_error(READ_BUFFER_TOO_SMALL,
-                            f"read of {n} samples from {task.name!r}: the client buffer holds "
-                            f"only {request.array_size_in_bytes} bytes", samps_per_chan_read=0)
-        out = bytearray()
-        for ch in task.channels:
-            levels = [int(self.device.line_level(p)) for p in ch.physical]
-            levels += [0] * (per_sample - len(levels))
-            out += bytes(levels) * n
-        return pb.ReadDigitalLinesResponse(read_array=bytes(out), samps_per_chan_read=n,
-                                           num_bytes_per_samp=per_sample)
+    def RegisterDoneEvent(self, request, context):  # noqa: N802
+        try:
+            task = self._task(request.task)
+        except DaqError as err:
+            abort_with(context, err)
+        context.send_initial_metadata(())
+        yield from events.done(self.device, task,
+                               lambda: context.is_active() and self.tasks.get(task.name) is task)
 
 
 for _rpc, (_kind, _chan_field, _name_field) in CREATE_CHAN_RPCS.items():
     setattr(SimulatedDaqmxServicer, _rpc, _chan_handler(_kind, _chan_field, _name_field))
+install_refusals(SimulatedDaqmxServicer)
+
+
+#: the PXIe-6358's sample clock timebase [Hz]: a rate is this divided by a whole number
+TIMEBASE_HZ = 100e6
+
+
+def coerced_rate(rate_hz: float) -> float:
+    """The sample rate the board runs at for ``rate_hz``: the timebase over the largest whole
+    divisor that is not slower than the request (96,000 S/s -> 100 MHz / 1,041 =
+    96,061.48 S/s); rates that divide it evenly stay as asked."""
+    divisor = max(math.floor(TIMEBASE_HZ / rate_hz * (1 + 1e-12)), 1)
+    return TIMEBASE_HZ / divisor
 
 
 def _channel_list(task: SimTask) -> str:
@@ -636,11 +639,14 @@ def _find_channels(task: SimTask, names: str) -> list[SimChannel]:
     """The task's channels named in a channel string ("a, b", "probe0:2"; "" is all)."""
     if not names:
         return list(task.channels)
+    whole = [ch for ch in task.channels if ch.name == names.strip()]
+    if whole:  # a channel of several lines is named as given ("Dev1/port0/line0:3")
+        return whole
     found = []
     for name in unflatten_channel_string(names):
         for ch in task.channels:
             physical = ch.physical[0].lower() if len(ch.physical) == 1 else None
-            if name in (ch.name, physical) or physical == name.lower():
+            if name in (ch.name, physical) or physical == name.lower().removeprefix("/"):
                 found.append(ch)
                 break
         else:

@@ -40,6 +40,7 @@ class SimChannel:
     min_v: float = -10.0
     max_v: float = 10.0
     idle_behavior: int = IDLE_MAINTAIN  # AO: what the terminal does when no generation runs
+    temperature_units: int | None = None  # AI thermocouple: read in these (TemperatureUnits)
 
 
 @dataclass
@@ -73,6 +74,8 @@ class SimTask:
     wired_rows: list[tuple[int, int]] = field(default_factory=list)  # (task row, rig drive row)
     auto_started: bool = False  # started implicitly by a read (stops at the end of a finite one)
     watchdog: Any = None  # a `simulated_hw.board.watchdog.Watchdog` for a watchdog task
+    run_id: int = 0  # counts the task's starts (event streams restart their counts with it)
+    di_read: int = 0  # hardware-timed DI: samples read since the start
 
     @property
     def kind(self) -> str | None:

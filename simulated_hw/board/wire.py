@@ -28,14 +28,19 @@ def reports_daq_errors(method: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return method(self, request, context)
         except DaqError as err:
-            metadata = [("ni-error", str(err.code or UNKNOWN_ERROR))]
-            samps = getattr(err, "samps_per_chan_read", None)
-            if samps is not None:
-                metadata.append(("ni-samps-per-chan-read", str(samps)))
-            context.set_trailing_metadata(metadata)
-            context.abort(grpc.StatusCode.UNKNOWN, _bare_message(err))
+            abort_with(context, err)
 
     return wrapper
+
+
+def abort_with(context: grpc.ServicerContext, err: DaqError) -> None:
+    """End the RPC with ``err`` in NI's wire format (raises, as ``context.abort`` does)."""
+    metadata = [("ni-error", str(err.code or UNKNOWN_ERROR))]
+    samps = getattr(err, "samps_per_chan_read", None)
+    if samps is not None:
+        metadata.append(("ni-samps-per-chan-read", str(samps)))
+    context.set_trailing_metadata(metadata)
+    context.abort(grpc.StatusCode.UNKNOWN, _bare_message(err))
 
 
 _READ_ARRAY_TAG = b"\x12"  # field 2 (read_array), wire type 2 (packed)

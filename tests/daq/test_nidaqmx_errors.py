@@ -177,19 +177,25 @@ def test_no_server_is_a_connection_error() -> None:
     backend.close()
 
 
-def test_call_the_server_lacks_is_a_connection_error(fast_server: SimulatedDeviceServer) -> None:
-    """An RPC the server does not implement surfaces in nidaqmx as RpcError, not DaqError."""
+def test_call_the_server_lacks_is_a_connection_error() -> None:
+    """An RPC a server does not implement surfaces in nidaqmx as RpcError, not DaqError. The
+    simulated board answers every RPC (with the board's DAQmx error where it refuses), so the
+    server here is a gRPC server without the NI-DAQmx service: everything is UNIMPLEMENTED."""
+    from concurrent import futures
+
     import grpc
 
-    channel = grpc.insecure_channel(fast_server.address)
+    server = grpc.server(futures.ThreadPoolExecutor(max_workers=1))
+    port = server.add_insecure_port("127.0.0.1:0")
+    server.start()
+    channel = grpc.insecure_channel(f"127.0.0.1:{port}")
     try:
-        task = nidaqmx.Task("probe", grpc_options=nidaqmx.GrpcSessionOptions(channel, ""))
         unsupported = "not supported by the NI gRPC Device Server"
-        with pytest.raises(DaqConnectionError, match=unsupported), translate_errors("adding"):
-            task.ai_channels.add_ai_thrmcpl_chan("Dev1/ai0")
-        task.close()
+        with pytest.raises(DaqConnectionError, match=unsupported), translate_errors("creating"):
+            nidaqmx.Task("probe", grpc_options=nidaqmx.GrpcSessionOptions(channel, ""))
     finally:
         channel.close()
+        server.stop(0).wait()
 
 
 def test_server_gone_mid_run_is_a_connection_error(backend: NidaqmxBackend) -> None:

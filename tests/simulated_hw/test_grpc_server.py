@@ -20,17 +20,7 @@ from session_pb2 import Session
 from daq.channels import default_channel_map
 from simulated_hw import SimulatedBackend
 from simulated_hw.grpc_server import SimulatedDeviceServer
-
-
-class _Clock:
-    def __init__(self) -> None:
-        self.t = 50.0
-
-    def now(self) -> float:
-        return self.t
-
-    def sleep(self, dt: float) -> None:
-        self.t += max(dt, 0.0)
+from tests.simulated_hw.fake_clock import FakeClock as _Clock
 
 
 @pytest.fixture
