@@ -31,17 +31,14 @@ from typing import Any, Protocol
 import numpy as np
 
 from control.commissioning_checks import (
-    Correction,
     Finding,
     Plant,
     Response,
     RestStats,
-    apply_corrections,
     axis_of,
     expected_response,
     judge_drives,
     judge_rest,
-    map_diff,
     where,
 )
 from control.lockin import LockIn, cycles_to_samples
@@ -49,6 +46,7 @@ from control.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
 from daq.channels import ChannelKind, ChannelMap
 from daq.errors import DaqError, DaqWatchdogExpiredError, EmergencyStopError
+from daq.map_edits import Correction, apply_corrections
 
 MAX_DRIVE_N = 2.0
 LEAD_BLOCKS = 4  # AO written this many blocks ahead of the reads
@@ -56,7 +54,7 @@ AWAY_FROM_RESONANCE = 0.3  # the test frequency at least this fraction off the n
 
 
 __all__ = ["CommissionError", "CommissionInterrupted", "CommissionResult", "CommissionSpec",
-           "Commissioning", "Operator", "map_diff", "report_markdown"]
+           "Commissioning", "Operator", "report_markdown"]
 
 
 class CommissionError(ValueError):
@@ -469,8 +467,7 @@ def report_markdown(result: CommissionResult, map_name: str, record: str, diff: 
     lines += [f"| {f.level} | {f.where} | {f.text} |" for f in result.findings]
     lines += ["", "## Proposed corrections", ""]
     if result.corrections:
-        lines += [f"- `{c.group}` {c.name}: `{c.field} = {c.value!r}` ({c.why})"
-                  for c in result.corrections]
+        lines += [f"- {c.line()}" for c in result.corrections]
         lines += ["", "```diff", diff.rstrip("\n"), "```"]
     else:
         lines.append("none")

@@ -22,14 +22,14 @@ tens of percent, so the bands are wide: they catch a gain off by 10x, not by 10 
 from __future__ import annotations
 
 import cmath
-import difflib
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from daq.channels import AnalogInput, ChannelKind, ChannelMap, channel_map_from_dict
+from daq.channels import AnalogInput, ChannelKind, ChannelMap
+from daq.map_edits import Correction
 
 K = ChannelKind
 #: the sensors a drive must move, by kind
@@ -53,18 +53,6 @@ class Finding:
 
     def line(self) -> str:
         return f"{self.level.upper():4} {self.where}: {self.text}"
-
-
-@dataclass(frozen=True)
-class Correction:
-    """A proposed change of the channel map: ``group`` "ai" or "ao", the channel ``name``, the
-    ``field`` and its new ``value``, and why."""
-
-    group: str
-    name: str
-    field: str
-    value: Any
-    why: str
 
 
 @dataclass
@@ -379,22 +367,3 @@ def _corrected_gain(gain: float, q: float) -> float:
     if decade != 1 and 0.8 <= q / decade <= 1.25:
         return float(f"{gain * decade:.12g}")
     return float(f"{gain * q:.3g}")
-
-
-# --- the proposed map ------------------------------------------------------------------------
-def apply_corrections(cm: ChannelMap, corrections: list[Correction],
-                      source: str = "<proposed>") -> ChannelMap:
-    """``cm`` with ``corrections`` applied (validated as any map)."""
-    data = cm.model_dump(mode="json", exclude_none=True)
-    for c in corrections:
-        for entry in data[c.group]:
-            if entry["name"] == c.name:
-                entry[c.field] = c.value
-    return channel_map_from_dict(data, source)
-
-
-def map_diff(old: ChannelMap, new: ChannelMap, old_name: str, new_name: str) -> str:
-    """A unified diff of the two maps as TOML (`ChannelMap.to_toml`); empty when equal."""
-    return "".join(difflib.unified_diff(old.to_toml().splitlines(keepends=True),
-                                        new.to_toml().splitlines(keepends=True),
-                                        old_name, new_name, n=6))

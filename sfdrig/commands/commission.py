@@ -129,12 +129,7 @@ def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
 
 def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, operator: Any,
                 rig: Any) -> int:
-    from control.commissioning import (
-        Commissioning,
-        CommissionInterrupted,
-        map_diff,
-        report_markdown,
-    )
+    from control.commissioning import Commissioning, CommissionInterrupted, report_markdown
     from control.programs import create_run_writer
 
     out = Path(args.out)
@@ -169,13 +164,16 @@ def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, oper
                + (" (stopped early)" if result.stopped else ""))
     writer.close("completed", f"commissioning {verdict}")
     diff = ""
-    proposed_path = out / f"commission-{stamp}-proposed.toml"
     if result.proposed is not None:
-        diff = map_diff(cm, result.proposed, str(args.map), str(proposed_path))
-        proposed_path.write_text("# proposed by sfdrig commission: review, then replace the "
-                                 "map with it\n" + result.proposed.to_toml())
+        from daq.map_edits import edit_map_text, text_diff
+
+        proposed_path = out / f"commission-{stamp}-proposed.toml"
+        original = Path(args.map).read_text()
+        proposed = edit_map_text(original, cm, result.corrections)
+        diff = text_diff(original, proposed, str(args.map), str(proposed_path))
+        proposed_path.write_text(proposed)
         (out / f"commission-{stamp}.diff").write_text(diff)
-        print(f"proposed corrections ({proposed_path}):")
+        print(f"proposed corrections ({proposed_path}; review, then replace the map with it):")
         sys.stdout.write(diff)
     report = out / f"commission-{stamp}.md"
     report.write_text(report_markdown(result, str(args.map), str(record), diff, spec))
