@@ -5,7 +5,8 @@
   than the calibration's uncertainty (and 0.1 %) and the fit is good (R^2 >= 0.99). Before
   fitting, every dial-gauge entry is held against what the probes read at that point (with the
   gain in use): an entry whose sign, or whose size beyond a factor of 2, disagrees
-  (`0.0010 in` typed while the probes read -76 um) is questioned and left out of the fit unless kept (``keep_steps``).
+  (`0.0010 in` typed while the probes read -76 um) is questioned and left out of the fit
+  unless kept (``keep_steps``).
 - A **static** run loaded by the shakers: the load cell's force against the drive's volts, per
   axis, is the amplifier and shaker's gain, the drive's ``nominal_force_n_per_v``. Loaded by
   hand, each force-gauge entry is held against the probes' displacement times the rods'
