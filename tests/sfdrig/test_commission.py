@@ -272,3 +272,48 @@ def test_the_record_holds_the_stages_and_the_findings(tmp_path: Path) -> None:
         y1 = run.channel("y1", drive_x["first_sample"], drive_x["last_sample"])
         assert float(np.std(y1)) * math.sqrt(2) == pytest.approx(3.15e-6, rel=0.03)  # x moves
         assert any(e["kind"] == "error" and "swapped" in e["message"] for e in run.events)
+
+
+def test_the_command_writes_the_record_the_report_and_the_proposed_map(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from sfdrig.cli import main
+
+    wiring = tmp_path / "wiring.toml"
+    wiring.write_text(changed(_swap_x1_y1).to_toml())
+    out = tmp_path / "out"
+    example = REPO_ROOT / "examples" / "channels_report_rig.toml"
+    code = main(["commission", str(example), "--wiring", str(wiring), "--watchdog-s", "0.2",
+                 "--out", str(out)])
+    text = capsys.readouterr().out
+    assert code == 1
+    assert text.rstrip().endswith(f"commissioning 1 problem: {example}")
+    (record,) = out.glob("commission-*.h5")
+    with open_run(record) as run:
+        assert run.status == "completed"
+        assert run.attrs["status_reason"] == "commissioning 1 problem"
+    (proposed,) = out.glob("commission-*-proposed.toml")
+    assert load_channel_map(proposed).ai_channel("x1").physical_channel == "Dev1/ai4"
+    assert proposed.read_text().count("\n#") == example.read_text().count("\n#")
+    (report,) = out.glob("commission-*.md")
+    assert report.read_text().startswith(f"# Commissioning of {example}: FAILED")
+    assert '-physical_channel = "Dev1/ai2"\n+physical_channel = "Dev1/ai4"' in text
+
+
+@pytest.mark.parametrize("args,line", [
+    (["missing.toml"], r"commission: missing\.toml: cannot read: No such file or directory$"),
+    (["EXAMPLE", "--drive-n", "5"], r"commission: the drive must be in \(0, 2\] N, got 5 N$"),
+    (["EXAMPLE", "--freq-hz", "45"], r"commission: the test frequency 45 Hz must be in 5-200 "
+                                     r"Hz and at least 30% away from the rig's resonance"),
+    (["EXAMPLE", "--wiring", "missing.toml"], r"commission: missing\.toml: cannot read"),
+    (["EXAMPLE", "--rig", "missing.toml"], r"commission: missing\.toml: cannot read"),
+    (["EXAMPLE", "--grpc-target", "x:1"], r"commission: --grpc-target needs --backend nidaqmx"),
+    (["EXAMPLE", "--watchdog-s", "-1"], r"commission: --watchdog-s must be in \[0, 60\] s"),
+])
+def test_bad_input_is_one_line_exit_2(args: list[str], line: str,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    from sfdrig.cli import main
+
+    example = str(REPO_ROOT / "examples" / "channels_report_rig.toml")
+    assert main(["commission", *[example if a == "EXAMPLE" else a for a in args]]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and re.match(line, err.strip()), err
