@@ -243,8 +243,9 @@ class Commissioning:
             return True
         relay = self.cm.do[0].name if self.cm.do else None
         self.operator.instruct("watch_relay", (
-            f"Watchdog test: the tool switches the {relay} relay on and stops feeding the "
-            f"board's watchdog; within {timeout:g} s the board must switch it off by itself."
+            f"Watchdog test: the tool switches the {relay} relay on (isolate what it powers, "
+            f"or watch its indicator) and stops feeding the board's watchdog; within "
+            f"{timeout:g} s the board must switch it off by itself."
             if relay else "Watchdog test: the tool stops feeding the board's watchdog."))
         self.backend.feed_watchdog()
         if relay is not None:
@@ -400,6 +401,9 @@ class Commissioning:
                             be.cut_ao()
                             break
                     be.write_ao(block(k + LEAD_BLOCKS))
+            except EmergencyStopError:
+                be.cut_ao()  # pressed during a drive: its queued AO does not play
+                raise
             except KeyboardInterrupt:
                 if synth is not None:
                     self._ramp_down(synth)
