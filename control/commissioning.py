@@ -34,7 +34,6 @@ from control.commissioning_checks import (
     Finding,
     Plant,
     Response,
-    RestStats,
     axis_of,
     expected_response,
     judge_drives,
@@ -45,6 +44,7 @@ from control.lockin import LockIn, cycles_to_samples
 from control.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
 from daq.channels import ChannelKind, ChannelMap
+from daq.device_check import LiveValues
 from daq.errors import DaqError, DaqWatchdogExpiredError, EmergencyStopError
 from daq.map_edits import Correction, apply_corrections
 
@@ -169,6 +169,12 @@ class Commissioning:
             kind = {"fail": "error", "warn": "warning"}.get(finding.level, "info")
             self.listener.on_event(kind, finding.line(), self.sample)
 
+    def _failed(self, where_: str, text: str, stage: str) -> bool:
+        """A failed safety test: its finding, and the end of the commissioning (False)."""
+        self._say(Finding("fail", where_, text))
+        self._stop(f"{stage} failed")
+        return False
+
     def _stop(self, why: str) -> None:
         self.result.stopped = why
         self.log(f"stopped: {why}")
@@ -189,7 +195,7 @@ class Commissioning:
         n = max(int(round(spec.rest_s * self.fs / self.block)), 1)
         first = self.sample
         volts, _ = self._acquire(lambda k: None, n, "rest")
-        rest = RestStats.of(cm, volts)
+        rest = LiveValues.of(cm, volts)
         self._rest_mean = rest.mean[:, None]  # the watch measures from where each input rests
         self.result.measured["rest"] = {
             ch.name: {"mean": float(rest.mean[i]), "std": float(rest.std[i]),
@@ -223,12 +229,10 @@ class Commissioning:
             while self.backend.estop_pressed() != want:
                 self.backend.feed_watchdog()
                 if self._clock() - t0 > self.spec.estop_timeout_s:
-                    self._say(Finding("fail", where(estop), (
+                    return self._failed(where(estop), (
                         f"did not read {'pressed' if want else 'released'} within "
                         f"{self.spec.estop_timeout_s:g} s of being asked: check its wiring "
-                        f"and pressed_level ({estop.pressed_level})")))
-                    self._stop("the emergency-stop test failed")
-                    return False
+                        f"and pressed_level ({estop.pressed_level})"), "the emergency-stop test")
                 self._sleep(0.05)
         self._say(Finding("ok", where(estop), "read pressed when pressed and released when "
                           "released"))
@@ -263,22 +267,18 @@ class Commissioning:
         if not expired:
             if relay is not None:
                 self.backend.set_do(relay, False)
-            self._say(Finding("fail", "watchdog", (
+            return self._failed("watchdog", (
                 f"still running after {quiet:g} s without being fed (timeout {timeout:g} s): "
-                "the board would keep a hung PC's drives and pump going")))
-            self._stop("the watchdog test failed")
-            return False
+                "the board would keep a hung PC's drives and pump going"), "the watchdog test")
         seen = True
         if relay is not None:
             seen = self.operator.confirm("relay_off", f"Did the {relay} relay switch off by "
                                                       "itself?")
         if not seen:
-            self._say(Finding("fail", "watchdog", (
+            return self._failed("watchdog", (
                 f"the board reports its watchdog expired, but the operator saw the {relay} "
                 "relay stay on: check the relay's wiring and the watchdog's expiration "
-                "states")))
-            self._stop("the watchdog test failed")
-            return False
+                "states"), "the watchdog test")
         self._say(Finding("ok", "watchdog", (
             f"expired after {quiet:g} s unfed (timeout {timeout:g} s): "
             f"{f'the {relay} relay off, ' if relay else ''}drives at 0 V, by the board")))

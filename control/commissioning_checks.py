@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from daq.channels import AnalogInput, ChannelKind, ChannelMap
+from daq.device_check import LiveValues
 from daq.map_edits import Correction
 
 K = ChannelKind
@@ -53,24 +54,6 @@ class Finding:
 
     def line(self) -> str:
         return f"{self.level.upper():4} {self.where}: {self.text}"
-
-
-@dataclass
-class RestStats:
-    """Each input at rest: means and standard deviations in engineering units and volts."""
-
-    mean: np.ndarray
-    std: np.ndarray
-    mean_v: np.ndarray
-    min_v: np.ndarray
-    max_v: np.ndarray
-    samples: int
-
-    @classmethod
-    def of(cls, cm: ChannelMap, volts: np.ndarray) -> RestStats:
-        eng = cm.to_engineering(volts)
-        return cls(eng.mean(axis=1), eng.std(axis=1), volts.mean(axis=1), volts.min(axis=1),
-                   volts.max(axis=1), volts.shape[1])
 
 
 @dataclass
@@ -135,7 +118,7 @@ GAP_MATCH_V = 0.1  # a probe's gap voltage this far from offset_v (~12 um): corr
 DEAD_V = 0.3  # an input this close to 0 V where its sensor's output cannot be
 
 
-def judge_rest(cm: ChannelMap, rest: RestStats, clearance_m: float) -> Verdict:
+def judge_rest(cm: ChannelMap, rest: LiveValues, clearance_m: float) -> Verdict:
     """Each input at rest against its sensor's expectations: at most one finding per input
     (the worst), and the ``offset_v`` corrections of probes whose gap voltage moved."""
     v = Verdict()

@@ -120,12 +120,17 @@ def _write(args: argparse.Namespace) -> int:
     if out.exists() and not args.force:
         print(f"channels write: {out} exists; give --force to overwrite it", file=sys.stderr)
         return 2
+    return _write_file("write", out, text, _counts(cm))
+
+
+def _write_file(action: str, path: Path, text: str, what: str) -> int:
+    """Write ``text`` to ``path``: 0 and a line saying so, or 2 and one line why not."""
     try:
-        out.write_text(text)
+        path.write_text(text)
     except OSError as err:
-        print(f"channels write: {out}: cannot write: {err.strerror}", file=sys.stderr)
+        print(f"channels {action}: {path}: cannot write: {err.strerror}", file=sys.stderr)
         return 2
-    print(f"wrote {out}: {_counts(cm)}")
+    print(f"wrote {path}: {what}")
     return 0
 
 
@@ -167,13 +172,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         if sys.stdin.readline().strip().lower() not in ("y", "yes"):
             print(f"{target}: not written")
             return 1
-    try:
-        target.write_text(new)
-    except OSError as err:
-        print(f"channels calibrate: {target}: cannot write: {err.strerror}", file=sys.stderr)
-        return 2
-    print(f"wrote {target}: {len(corrections)} change{'s' * (len(corrections) != 1)}")
-    return 0
+    return _write_file("calibrate", target, new,
+                       f"{len(corrections)} change{'s' * (len(corrections) != 1)}")
 
 
 def _session(args: argparse.Namespace, cm: ChannelMap) -> NidaqmxSession:
