@@ -317,3 +317,15 @@ def test_bad_input_is_one_line_exit_2(args: list[str], line: str,
     assert main(["commission", *[example if a == "EXAMPLE" else a for a in args]]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and re.match(line, err.strip()), err
+
+
+def test_an_amplifier_gain_off_the_map_is_named_and_corrected() -> None:
+    params = RigParams()
+    params.shaker.force_per_volt_n = 200.0  # the knob turned up: the map says 50 N/V
+    result, lines, _ = commission(params=params)
+    assert [line.split(":")[0] for line in fails(lines)] == \
+        ["FAIL shaker_x (Dev1/ao0)", "FAIL shaker_y (Dev1/ao1)"]
+    assert "the rig answers 4x what 2 N from nominal_force_n_per_v 50 N/V should give: the " \
+           "amplifier's gain is 200 N/V" in fails(lines)[0]
+    assert result.proposed is not None
+    assert [ao.nominal_force_n_per_v for ao in result.proposed.ao] == [200.0, 200.0]
