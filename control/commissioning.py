@@ -49,7 +49,7 @@ from daq.errors import DaqError, DaqWatchdogExpiredError, EmergencyStopError
 from daq.map_edits import Correction, apply_corrections
 
 MAX_DRIVE_N = 2.0
-LEAD_BLOCKS = 4  # AO written this many blocks ahead of the reads
+LEAD_BLOCKS = 6  # AO written this many blocks ahead of the reads (0.3 s: a busy host, gRPC)
 AWAY_FROM_RESONANCE = 0.3  # the test frequency at least this fraction off the natural one
 
 
@@ -73,7 +73,7 @@ class CommissionSpec:
     ramp_s: float = 0.3
     settle_s: float = 0.5
     record_s: float = 1.0
-    block_s: float = 0.02
+    block_s: float = 0.05
     clearance_m: float = 127e-6
     estop_timeout_s: float = 30.0
     watchdog_s: float | None = None  # the board's watchdog timeout; None: not tested
@@ -328,6 +328,9 @@ class Commissioning:
         def program(k: int) -> np.ndarray | None:
             if k == 0:
                 synth.ramp_to(target, None, spec.ramp_s)
+            elif k == ramp_blocks:  # written a lead ahead of playing
+                self.log(f"drive {axis}: at {spec.drive_n:g} N, settling {spec.settle_s:g} s, "
+                         f"recording {record / self.fs:.3g} s")
             elif k == down_at:
                 synth.fade_out(spec.ramp_s)
             return synth.next_block(self.block)
@@ -382,12 +385,14 @@ class Commissioning:
             written.append(b)
             return b
 
-        be.write_ao(np.hstack([block(k) for k in range(LEAD_BLOCKS)]))
-        be.start()
         reads: list[np.ndarray] = []
         stopped = ""
+        started = False
         try:
             try:
+                be.write_ao(np.hstack([block(k) for k in range(LEAD_BLOCKS)]))
+                be.start()
+                started = True
                 for k in range(n_blocks):
                     ai = be.read_ai(self.block)
                     reads.append(ai)
@@ -405,8 +410,10 @@ class Commissioning:
                 be.cut_ao()  # pressed during a drive: its queued AO does not play
                 raise
             except KeyboardInterrupt:
-                if synth is not None:
-                    self._ramp_down(synth)
+                if synth is None or not started:
+                    raise CommissionInterrupted(f"{what}: interrupted; nothing was driven") \
+                        from None
+                self._ramp_down(synth, written, len(reads))
                 raise CommissionInterrupted(f"{what}: interrupted; the drive ramped down to "
                                             "0 V") from None
         finally:
@@ -417,13 +424,22 @@ class Commissioning:
             return None, None
         return np.hstack(reads), np.hstack(written[:n_blocks])
 
-    def _ramp_down(self, synth: SineSynthesizer) -> None:
-        be = self.backend
-        fade = synth.fade_out(min(self.spec.ramp_s, 0.2))
+    def _ramp_down(self, synth: SineSynthesizer, written: list[np.ndarray], read: int) -> None:
+        """Fade the drive from where the synthesiser is (the blocks already queued play
+        first), a block written for each read, until the fade and a block of 0 V have been
+        read (and recorded); a second Ctrl-C or an error cuts the drive instead."""
+        be, cm = self.backend, self.cm
+        fade = int(math.ceil(synth.fade_out(min(self.spec.ramp_s, 0.2)) / self.block)) + 1
         try:
-            for _ in range(int(math.ceil(fade / self.block)) + LEAD_BLOCKS + 1):
-                be.read_ai(self.block)
-                be.write_ao(synth.next_block(self.block))
+            for _ in range(fade):
+                written.append(synth.next_block(self.block))
+                be.write_ao(written[-1])
+            while read < len(written):
+                ai = be.read_ai(self.block)
+                if self.listener is not None:
+                    self.listener.on_block(self.sample, cm.to_engineering(ai), written[read])
+                self.sample += self.block
+                read += 1
         except (KeyboardInterrupt, DaqError):
             be.cut_ao()
 

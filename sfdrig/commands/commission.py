@@ -152,16 +152,17 @@ def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, oper
                         log=lambda line: print(line, flush=True))
     try:
         result = job.run()
-    except CommissionInterrupted as err:
-        writer.close("aborted", f"operator pressed Ctrl-C: {err}")
-        print(f"commission: {err}; record {record}", file=sys.stderr)
+    except KeyboardInterrupt as err:  # CommissionInterrupted: a drive ramped down first
+        why = str(err) if isinstance(err, CommissionInterrupted) else "interrupted"
+        writer.close("aborted", f"operator pressed Ctrl-C: {why}")
+        print(f"commission: {why}; record {record}", file=sys.stderr)
         return 130
     except BaseException:
         writer.close("failed", "the commissioning tool failed")
         raise
-    verdict = ("passed" if result.passed else
-               f"{len(result.failed)} problem{'s' * (len(result.failed) != 1)}"
-               + (" (stopped early)" if result.stopped else ""))
+    n = len(result.failed)
+    verdict = ("passed" if result.passed else "stopped early" if not n else
+               f"{n} problem{'s' * (n != 1)}" + (" (stopped early)" if result.stopped else ""))
     writer.close("completed", f"commissioning {verdict}")
     diff = ""
     if result.proposed is not None:

@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from daq.channels import load_channel_map
@@ -133,3 +134,54 @@ def test_a_miswired_rig_is_named_through_nidaqmx(server: Any, tmp_path: Path, fa
     assert len(fails(lines)) == 1, "\n".join(lines)
     assert re.match(pattern, fails(lines)[0]), fails(lines)[0]
     assert lines[-1].startswith("commissioning 1 problem")
+
+
+def test_ctrl_c_during_a_drive_ramps_it_down_and_keeps_the_record(tmp_path: Path) -> None:
+    """A paced sim-server (the drive takes 2.1 s of wall time); SIGINT once the X drive is at
+    its level: the drive fades to 0 V (recorded), the record closes aborted, exit 130."""
+    from storage import open_run
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(JOURNAL_OUT)
+    server = subprocess.Popen(
+        [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "5",
+         "--channels", str(EXAMPLE), "--rig", str(rig)],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO_ROOT)
+    try:
+        first = server.stdout.readline().strip()  # type: ignore[union-attr]
+        assert first.startswith("listening on "), first
+        out = tmp_path / "out"
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sfdrig", "commission", str(EXAMPLE), "--backend",
+             "nidaqmx", "--grpc-target", first.removeprefix("listening on "), "--watchdog-s",
+             "0", "--yes", "--out", str(out)],
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True, cwd=REPO_ROOT)
+        assert proc.stdout is not None
+        lines = []
+        for line in proc.stdout:
+            lines.append(line.rstrip("\n"))
+            if line.startswith("OPERATOR: Press the emergency stop"):
+                os.kill(server.pid, signal.SIGUSR1)
+            elif line.startswith("OPERATOR: Release the emergency stop"):
+                os.kill(server.pid, signal.SIGUSR2)
+            elif line.startswith("drive x: at 2 N"):  # 1.8 s of drive left
+                proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        server.terminate()
+        server.communicate(timeout=10)
+    assert proc.returncode == 130, "\n".join(lines) + err
+    assert "Traceback" not in err
+    assert re.search(r"commission: drive x: interrupted; the drive ramped down to 0 V; record ",
+                     err), err
+    (record,) = out.glob("commission-*.h5")
+    with open_run(record) as run:
+        assert run.status == "aborted"
+        drive = run.channel("shaker_x")
+        fx = run.channel("fx")
+    assert float(np.max(np.abs(drive))) > 0.03  # the drive had begun (0.04 V for 2 N)
+    tail = int(0.02 * 10_000)  # the last block recorded: the fade is over
+    assert float(np.max(np.abs(drive[-tail:]))) == 0.0
+    assert float(np.max(np.abs(np.diff(drive)))) < 0.04 * 2 * np.pi * 20 / 10_000 * 1.5 + 1e-4
+    assert float(np.max(np.abs(fx[-tail:]))) < 0.3  # the load cell: noise, no drive
