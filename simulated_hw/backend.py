@@ -160,6 +160,8 @@ class SimulatedBackend:
 
     def _wired(self, ao: np.ndarray) -> np.ndarray:
         """The configured map's AO rows as the rig's drives (a terminal not driven: 0 V)."""
+        if self.wiring is None:
+            return ao
         out = np.zeros((len(self._ao_rows), ao.shape[1]))
         for i, row in enumerate(self._ao_rows):
             if row is not None:
