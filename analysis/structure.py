@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import re
 from collections import defaultdict
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -267,18 +268,22 @@ class ProbeCal:
         return dict(self.__dict__)
 
 
-def identify_probe_calibration(run: RunData, skipped: list[Skipped]) -> list[ProbeCal]:
+def identify_probe_calibration(run: RunData, skipped: list[Skipped],
+                               skip_steps: Collection[int] = ()) -> list[ProbeCal]:
     """Probe output volts against the reference displacement, per probe (eq. B.1-B.5).
 
     Each step holds a displacement along ``motion``; its reference reading [m] is the step's
     ``reference_m`` (or ``target_value``). Volts are rebuilt from the recorded engineering units
-    with the gain and offset in use: ``V = gain * value + offset``.
+    with the gain and offset in use: ``V = gain * value + offset``. Steps whose index is in
+    ``skip_steps`` are left out (entries questioned: `analysis.channel_calibration`).
     """
     label = run_label(run)
     pts: dict[str, list[tuple[float, float]]] = defaultdict(list)
     for st in run.steps:
         axis = str(st.get("motion", ""))
         idx = int(st["index"])
+        if idx in skip_steps:
+            continue
         if axis not in ("x", "y"):
             skipped.append(Skipped(label, "probe_calibration", f"motion {axis!r} is not x or y",
                                    idx))

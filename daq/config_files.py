@@ -91,6 +91,11 @@ def _key(k: str) -> str:
     return k if k.replace("_", "a").replace("-", "a").isalnum() and k.isascii() else _value(k)
 
 
+def toml_value(v: Any) -> str:
+    """One TOML value (a scalar or a list of scalars), as `to_toml` writes it."""
+    return _value(v)
+
+
 def _value(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"

@@ -212,6 +212,13 @@ class LiveValues:
     max_v: np.ndarray
     samples: int
 
+    @classmethod
+    def of(cls, cm: ChannelMap, volts: np.ndarray) -> LiveValues:
+        """The values of an acquisition of ``cm``'s inputs, volts of shape (n_ai, n)."""
+        eng = cm.to_engineering(volts)
+        return cls(eng.mean(axis=1), eng.std(axis=1), volts.mean(axis=1), volts.min(axis=1),
+                   volts.max(axis=1), volts.shape[1])
+
 
 class LiveReader:
     """The map's analog inputs as one finite AI task (its ranges and terminal
@@ -252,9 +259,7 @@ class LiveReader:
                                         timeout=duration_s + 10.0)
             finally:
                 self._task.stop()
-        eng = self.cm.to_engineering(out)
-        return LiveValues(eng.mean(axis=1), eng.std(axis=1), out.mean(axis=1),
-                          out.min(axis=1), out.max(axis=1), n)
+        return LiveValues.of(self.cm, out)
 
     def close(self) -> None:
         """Clear the task; safe to call twice. A failure (the server gone) is logged: there is

@@ -4,13 +4,15 @@ On the real rig a person strikes the housing with the impact hammer, reads the d
 the pump's pressure regulator, pushes the housing with a force gauge and takes the journal out. On
 the simulated rig `SimulatedHands` does these to the rig model when the operator's answer asks for
 them (`control.program_stream.RigHands`). `StandInOperator` answers every question at once the
-way a careful technician would (the demo, `sfdrig structure --unattended`). This wiring lives in
-the composition root, so `control` never imports `simulated_hw`.
+way a careful technician would (the demo, `sfdrig structure --unattended`);
+`SimulatedCommissioner` is the person at the rig for `sfdrig commission --backend sim`. This
+wiring lives in the composition root, so `control` never imports `simulated_hw`.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -97,3 +99,32 @@ class StandInOperator(OperatorDesk):
         else:
             self.submit(q.id, "repeat" if "repeat" in q.choices else q.choices[0])
         return q
+
+
+@dataclass
+class SimulatedCommissioner:
+    """The person at the simulated rig during `sfdrig commission` (a
+    `control.commissioning.Operator`): presses and releases the emergency stop when asked,
+    takes the journal out before the drives, and reports the pump relay as the rig has it.
+    ``say`` shows what the hands do."""
+
+    backend: SimulatedBackend
+    say: Callable[[str], None] = print
+
+    def instruct(self, action: str, text: str) -> None:
+        self.say(f"operator: {text}")
+        if action in ("press_estop", "release_estop"):
+            self.backend.press_estop(action == "press_estop")
+            done = "pressed" if action == "press_estop" else "released"
+            self.say(f"  (simulated hands: the button {done})")
+
+    def confirm(self, action: str, question: str) -> bool:
+        rig = self.backend.rig
+        assert rig is not None
+        if action == "drive":
+            rig.set_journal(False)
+            self.say(f"operator: {question} yes (simulated hands: journal out)")
+            return True
+        answer = not rig.pump_on if action == "relay_off" else True
+        self.say(f"operator: {question} {'yes' if answer else 'no'}")
+        return answer

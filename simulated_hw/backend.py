@@ -12,6 +12,17 @@ with the drives at 0 V, as a board's AO task stopped with idle output 0 V does;
 ``cut_stops=False``: the stream goes on with the next write (the caller's fade) from the first
 sample dropped, which a board cannot do (`benchmarks/bench_trip.py` compares the two).
 
+``wiring`` (None: the map the backend is configured with) is the simulated rig's own channel
+map: which sensor is on which terminal, with its true gain and gap voltage, and the drives and
+lines by terminal, as the sim-server's ``--channels``. The map given to `configure` is then only
+what the software believes: a terminal the wiring leaves empty reads the board's noise about
+0 V, and a sensor on another terminal than the map says reads there. It rehearses mis-wiring
+(`sfdrig commission`); `press_estop` presses the wiring's emergency stop (a map's ``[estop]``
+line the wiring leaves open reads low, as a board's pulled-down line does). ``watchdog_s``: a
+watchdog timer as a board's (relays off, drives to 0 V and `feed_watchdog` raising -200644 once
+not fed for that long, on the backend's clock, cleared by the next run's first write or a relay
+switched on); None (default): none, the in-process rig stops with the process that runs it.
+
 ``ao_ring_s`` (None: non-regenerating) makes the AO a regenerating ring of that many seconds, as
 `NidaqmxBackend` with ``ao_ring_s`` makes the board's: position ``k mod B`` plays at sample ``k``.
 Paced, what plays is fixed when the wall clock generates it (a write changes only what has not
@@ -28,12 +39,14 @@ from collections.abc import Callable
 import numpy as np
 
 from daq.backend import AoCut
-from daq.channels import ChannelMap
+from daq.channels import AnalogInput, ChannelMap
 from daq.errors import (
+    CANT_RESET_EXPIRED_WATCHDOG,
     INPUT_BUFFER_OVERWRITTEN,
     OUTPUT_UNDERFLOW,
     READ_TIMEOUT,
     DaqError,
+    EmergencyStopError,
     error_for_code,
 )
 from simulated_hw import physics
@@ -58,7 +71,21 @@ class SimulatedBackend:
         sleep: Callable[[float], None] = time.sleep,
         cut_stops: bool = True,
         ao_ring_s: float | None = None,
+        wiring: ChannelMap | None = None,
+        watchdog_s: float | None = None,
     ) -> None:
+        if watchdog_s is not None and not watchdog_s > 0:
+            raise ValueError(f"watchdog_s must be positive or None, got {watchdog_s}")
+        self.wiring = wiring
+        self.watchdog_s = watchdog_s
+        self._fed_at = 0.0
+        self._watchdog_expired = False
+        self._estop_down = False  # the wiring's button is pressed
+        self._estop_latched = False  # read_ai raised for this press already
+        #: per configured AI row: the rig's row, or None (a terminal the wiring leaves empty)
+        self._ai_rows: list[int | None] = []
+        #: per rig AO row (the wiring's drives): the configured map's AO row, or None
+        self._ao_rows: list[int | None] = []
         if ao_ring_s is not None and not ao_ring_s > 0:
             raise ValueError(f"ao_ring_s must be positive or None, got {ao_ring_s}")
         self.ao_ring_s = ao_ring_s
@@ -103,10 +130,56 @@ class SimulatedBackend:
             raise DaqError("cannot reconfigure while running; stop first")
         self._map = channel_map
         physics.warm_up()  # before start: a paced first read must not wait for the compiler
-        self.rig = RigModel(self.params, channel_map, self.seed)
+        self.rig = RigModel(self.params, self._rig_map(channel_map), self.seed)
+        self._fed_at = self._clock()
         self._rest_since = self._clock()
         self._ao_chunks, self._ao_queued, self._read = [], 0, 0
         self._reset_ring()
+
+    def _rig_map(self, cm: ChannelMap) -> ChannelMap:
+        """The map the rig converts with: ``cm`` itself, or the wiring's sensors at the
+        terminals ``cm`` reads (with ``cm``'s ranges) and the wiring's drives and lines."""
+        wiring = self.wiring
+        if wiring is None:
+            self._ai_rows = list(range(len(cm.ai)))
+            self._ao_rows = list(range(len(cm.ao)))
+            return cm
+        wired = {c.physical_channel: c for c in wiring.ai}
+        ai: list[AnalogInput] = []
+        self._ai_rows = []
+        for ch in cm.ai:
+            w = wired.get(ch.physical_channel)
+            self._ai_rows.append(None if w is None else len(ai))
+            if w is not None:
+                ai.append(w.model_copy(update={"range_v": ch.range_v}))
+        terminals = [c.physical_channel for c in cm.ao]
+        self._ao_rows = [terminals.index(c.physical_channel) if c.physical_channel in terminals
+                         else None for c in wiring.ao]
+        return ChannelMap(device=cm.device, sample_rate_hz=cm.sample_rate_hz, ai=tuple(ai),
+                          ao=wiring.ao, do=wiring.do)
+
+    def _wired(self, ao: np.ndarray) -> np.ndarray:
+        """The configured map's AO rows as the rig's drives (a terminal not driven: 0 V)."""
+        if self.wiring is None:
+            return ao
+        out = np.zeros((len(self._ao_rows), ao.shape[1]))
+        for i, row in enumerate(self._ao_rows):
+            if row is not None:
+                out[i] = ao[row]
+        return out
+
+    def _as_read(self, rig_out: np.ndarray) -> np.ndarray:
+        """The rig's inputs in the configured map's rows; an empty terminal floats at 0 V."""
+        if self.wiring is None:
+            return rig_out
+        cm = self.channel_map
+        lsb = 2 * cm.device.ai_range_v / 2**cm.device.ai_bits
+        rng = np.random.default_rng(self.seed + 1 + self._read)
+        out = np.empty((len(self._ai_rows), rig_out.shape[1]))
+        for i, row in enumerate(self._ai_rows):
+            out[i] = rig_out[row] if row is not None else \
+                np.round(rng.normal(0.0, lsb, rig_out.shape[1]) / lsb) * lsb
+        return out
 
     @property
     def ao_ring_samples(self) -> int | None:
@@ -173,6 +246,11 @@ class SimulatedBackend:
         arr = np.asarray(block, dtype=np.float64)
         if arr.ndim != 2 or arr.shape[0] != len(cm.ao):
             raise ValueError(f"AO block must have shape ({len(cm.ao)}, n), got {arr.shape}")
+        if not self._running:  # a run's first write: the operator's decision to drive
+            if self.estop_pressed():
+                raise EmergencyStopError("the emergency stop is pressed: nothing is driven")
+            self._estop_latched = False
+            self._clear_watchdog()
         for row, ch in enumerate(cm.ao):
             lo, hi = ch.range_v
             if arr.size and (arr[row].min() < lo or arr[row].max() > hi):
@@ -213,6 +291,10 @@ class SimulatedBackend:
             raise DaqError("read_ai before start()")
         if n <= 0:
             raise ValueError(f"read_ai: n must be positive, got {n}")
+        if not self._estop_latched and self.estop_pressed():
+            self._estop_latched = True  # once: the reads of the ramp-down go on
+            raise EmergencyStopError(f"emergency stop pressed ({self._estop_where()})")
+        self._check_watchdog()
         if self.realtime:
             self._wait_for(self._read + n, timeout_s)
         if self._ring is not None:
@@ -229,17 +311,32 @@ class SimulatedBackend:
             )
         else:
             ao = self._take_ao(n)
+        if self._watchdog_expired:  # the board holds the drives at 0 V
+            ao = np.zeros_like(ao)
+        out = self._as_read(rig.process(self._wired(ao)))
         self._read += n
-        return rig.process(ao)
+        if self.watchdog_s is not None and not self._watchdog_expired:
+            self._fed_at = self._clock()  # a read feeds the watchdog, as the board backend's
+        return out
 
     def ai_on_host(self) -> int:
         """Never reads ahead: in process a read costs no round trip."""
         return 0
 
     def set_do(self, name: str, value: bool) -> None:
-        self.channel_map.relay(name)  # KeyError names the missing relay
+        relay = self.channel_map.relay(name)  # KeyError names the missing relay
         self._rest()  # the oil up to now followed the relay as it was
-        self._require_rig().set_relay(name, value)
+        if value:
+            self._clear_watchdog()  # switching a relay on: the operator's decision
+        elif self._check_watchdog():
+            return
+        rig = self._require_rig()
+        if self.wiring is None:
+            rig.set_relay(name, value)
+        else:  # the relay on that line, if the wiring has one there
+            for d in self.wiring.do:
+                if d.physical_channel == relay.physical_channel:
+                    rig.set_relay(d.name, value)
 
     def _rest(self) -> None:
         """Between runs the rig rests in real time: its oil goes on filling or draining. In
@@ -300,11 +397,60 @@ class SimulatedBackend:
         return AoCut(at, not self._ao_stopped)
 
     def feed_watchdog(self) -> None:
-        """No watchdog: the in-process rig stops with the process that runs it."""
+        """Reset the watchdog timer (``watchdog_s``; no-op without one); raises
+        `daq.errors.DaqWatchdogExpiredError` (-200644) once it has expired."""
+        if self.watchdog_s is None:
+            return
+        if self._check_watchdog():
+            raise error_for_code(
+                f"the watchdog timer expired (not reset for {self.watchdog_s:g} s): relays off, "
+                "drives at 0 V", CANT_RESET_EXPIRED_WATCHDOG)
+        self._fed_at = self._clock()
+
+    def _check_watchdog(self) -> bool:
+        """Expire the watchdog if it has not been fed for ``watchdog_s``: the relays off and
+        the drives at 0 V from then on, as a board does on its own. Whether it has expired."""
+        if self.watchdog_s is None or self._watchdog_expired:
+            return self._watchdog_expired
+        if self._clock() - self._fed_at < self.watchdog_s:
+            return False
+        self._watchdog_expired = True
+        if self.rig is not None:
+            for d in self.rig.channel_map.do:
+                self.rig.set_relay(d.name, False)
+        return True
+
+    def _clear_watchdog(self) -> None:
+        self._check_watchdog()
+        self._watchdog_expired = False
+        self._fed_at = self._clock()
+
+    @property
+    def watchdog_expired(self) -> bool:
+        """Whether the watchdog has expired (what the board's own state says)."""
+        return self._check_watchdog()
+
+    def press_estop(self, pressed: bool) -> None:
+        """A hand on the wiring's emergency-stop button (simulation only)."""
+        self._estop_down = bool(pressed)
 
     def estop_pressed(self) -> bool:
-        """No emergency-stop input on the in-process rig (the sim-server has one)."""
-        return False
+        """Whether the map's emergency-stop line reads pressed: the wiring's button (the map's
+        own without a wiring) sets its level; a line the wiring leaves open reads low."""
+        cm = self._map
+        if cm is None or cm.estop is None:
+            return False
+        wiring = self.wiring or cm
+        button = wiring.estop
+        if button is not None and button.physical_channel == cm.estop.physical_channel:
+            level = button.pressed_level if self._estop_down else not button.pressed_level
+        else:
+            level = False
+        return level == cm.estop.pressed_level
+
+    def _estop_where(self) -> str:
+        estop = self.channel_map.estop
+        return f"input {estop.name} on {estop.physical_channel}" if estop else "none"
 
     def stop(self) -> None:
         """Stop both tasks: what was written and not generated is dropped (a board's buffer

@@ -214,6 +214,15 @@ class ChannelDelay(_Model):
     delay_s: float = Field(0.0, ge=0, le=0.01)
 
 
+class ReversedPolarity(_Model):
+    """Sensors wired with AI+ and AI- swapped (or an inverting conditioner): the board reads
+    minus their output, the gap voltage too. A wiring mistake to rehearse `sfdrig commission`
+    on; the map cannot say it (its gains are positive)."""
+
+    enabled: bool = False
+    channels: list[str] = Field(default_factory=list, description="AI channel names")
+
+
 class Effects(_Model):
     cubic_stiffness: CubicStiffness = CubicStiffness()
     quadratic_stiffness: QuadraticStiffness = QuadraticStiffness()
@@ -224,6 +233,7 @@ class Effects(_Model):
     viscosity_drift: ViscosityDrift = ViscosityDrift()
     probe_gain_error: ProbeGainError = ProbeGainError()
     channel_delay: ChannelDelay = ChannelDelay()
+    reversed_polarity: ReversedPolarity = ReversedPolarity()
 
 
 class RigParams(_Model):

@@ -302,8 +302,10 @@ class RigModel:
             g = ch.gain_v_per_unit
             if eff.probe_gain_error.enabled and eff.probe_gain_error.channel == ch.name:
                 g *= eff.probe_gain_error.gain_ratio
-            gains.append(g)
-            offsets.append(ch.offset_v)
+            sign = -1.0 if eff.reversed_polarity.enabled and \
+                ch.name in eff.reversed_polarity.channels else 1.0
+            gains.append(sign * g)
+            offsets.append(sign * ch.offset_v)
             sigmas.append(getattr(noise, ch.kind.value) * ch.gain_v_per_unit)
             lo.append(ch.range_v[0])
             hi.append(ch.range_v[1])

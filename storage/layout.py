@@ -45,7 +45,7 @@ FORMAT = "sfdrig-run"
 LIBVER = ("v110", "v110")
 #: 2: descriptions added (layout, time-axis recipe, column units and conventions); data as in 1.
 FORMAT_VERSION = 2
-KINDS = ("sweep", "static", "impact", "probe_calibration", "flow", "imported")
+KINDS = ("sweep", "static", "impact", "probe_calibration", "flow", "imported", "commissioning")
 STATUSES = ("running", "completed", "aborted", "failed")
 EVENT_KINDS = ("state", "limit_trip", "abort", "fault", "pump", "operator", "warning", "error",
                "info")
@@ -120,6 +120,10 @@ STEP_FIELDS_BY_KIND = {
                          "the dial-gauge reading typed [m], motion the axis",
     "flow": "one supply pressure: freq_hz 0, target_kind pressure, target_value the supply "
             "pressure set [Pa], no motion",
+    "commissioning": "one stage of `sfdrig commission` (extra: stage): the rest (freq_hz 0, "
+                     "no target) and each shaker's small drive (freq_hz the test frequency, "
+                     "target_kind load, target_value the force asked [N], motion the axis, "
+                     "harmonics the 1X over the record); the findings are events",
     "imported": "one dwell found in imported data: freq_hz the dwell's frequency, target_kind "
                 "empty and target_value NaN (nothing was asked), motion given or inferred "
                 "(test_spec.conditions.motion_per_step says which)",

@@ -100,7 +100,7 @@ class RunWriter:
             Unique run identifier.
         kind : str
             One of ``KINDS`` ("sweep", "static", "impact", "probe_calibration", "flow",
-            "imported").
+            "imported", "commissioning").
         channels : sequence of dict
             Analog inputs in channel-map order (the row order of ``ai`` in `on_block`). Each dict
             has ``name`` and optionally ``units``, ``kind``, ``sensor``, ``gain_v_per_unit`` [V per

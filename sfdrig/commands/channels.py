@@ -1,5 +1,6 @@
-"""`sfdrig channels write|check|live`: a channel map as TOML, checked against the connected
-device, and its inputs read live (nothing is driven)."""
+"""`sfdrig channels write|check|live|calibrate`: a channel map as TOML, checked against the
+connected device, its inputs read live (nothing is driven), and calibration results written
+back into it (a diff, then the operator's confirmation)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,8 @@ if TYPE_CHECKING:
 
 NAME = "channels"
 HELP = ("the channel map: write the default as TOML, check a map against the connected device "
-        "(channels, ranges, terminal configurations, nothing wired twice), show live values")
+        "(channels, ranges, terminal configurations, nothing wired twice), show live values, "
+        "write calibration results into it")
 
 #: how an engineering unit is shown: (shown unit, factor from the map's unit)
 _SHOWN = {"m": ("um", 1e6), "Pa": ("kPa", 1e-3)}
@@ -46,6 +48,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "map's grpc_target, else the local NI-DAQmx driver")
         p.add_argument("--connect-timeout-s", type=float, default=5.0,
                        help="how long to wait for a gRPC server [s] (default: %(default)s)")
+    cal = sub.add_parser(
+        "calibrate", help="write probe-calibration and static-test results into a map",
+        description="Propose the corrections RUN.h5 (a probe_calibration or static run) gives "
+                    "MAP.toml: probe gains (Table A1), the drives' N/V from a static test by "
+                    "the shakers; dial- and force-gauge entries inconsistent with what the "
+                    "probes read are questioned and left out. Shows the diff, then asks before "
+                    "writing (exit 0: written or nothing to change, 1: not written, 2: bad "
+                    "input).")
+    cal.add_argument("runs", nargs="+", metavar="RUN.h5", help="calibration run file(s)")
+    cal.add_argument("--map", required=True, metavar="MAP.toml", help="the channel map")
+    cal.add_argument("--yes", action="store_true", help="write without asking")
+    cal.add_argument("--out", metavar="NEW.toml",
+                     help="write the corrected map here instead of over MAP.toml")
+    cal.add_argument("--keep-step", type=int, action="append", default=[], metavar="N",
+                     help="keep a questioned gauge entry (step N) in the fit")
     live = sub.choices["live"]
     live.add_argument("--once", action="store_true", help="one table, then exit")
     live.add_argument("--record-s", type=float, default=0.1,
@@ -61,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.action == "write":
             return _write(args)
+        if args.action == "calibrate":
+            return _calibrate(args)
         cm = _load(args.map, args.grpc_target)
         local = cm.grpc_target is None
         if args.action == "check":
@@ -101,13 +120,60 @@ def _write(args: argparse.Namespace) -> int:
     if out.exists() and not args.force:
         print(f"channels write: {out} exists; give --force to overwrite it", file=sys.stderr)
         return 2
+    return _write_file("write", out, text, _counts(cm))
+
+
+def _write_file(action: str, path: Path, text: str, what: str) -> int:
+    """Write ``text`` to ``path``: 0 and a line saying so, or 2 and one line why not."""
     try:
-        out.write_text(text)
+        path.write_text(text)
     except OSError as err:
-        print(f"channels write: {out}: cannot write: {err.strerror}", file=sys.stderr)
+        print(f"channels {action}: {path}: cannot write: {err.strerror}", file=sys.stderr)
         return 2
-    print(f"wrote {out}: {_counts(cm)}")
+    print(f"wrote {path}: {what}")
     return 0
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from analysis.channel_calibration import calibration_flow_back
+    from daq.channels import load_channel_map
+    from daq.map_edits import apply_corrections, edit_map_text, text_diff
+    from storage import RunFileError, open_run
+
+    cm = load_channel_map(args.map)
+    corrections, questions, notes = [], [], []
+    for path in args.runs:
+        try:
+            with open_run(path) as run:
+                fb = calibration_flow_back(run, cm, args.keep_step)
+        except (RunFileError, OSError, ValueError) as err:
+            print(f"channels calibrate: {' '.join(str(err).split())}", file=sys.stderr)
+            return 2
+        corrections += fb.corrections
+        questions += fb.questions
+        notes += fb.notes
+    for line in questions:
+        print(f"QUESTION {line}")
+    for line in notes:
+        print(f"note {line}")
+    if not corrections:
+        print(f"{args.map}: nothing to change")
+        return 0
+    for c in corrections:
+        print(f"change {c.line()}")
+    apply_corrections(cm, corrections, args.map)  # a correction the map refuses: exit 2
+    original = Path(args.map).read_text()
+    new = edit_map_text(original, cm, corrections)
+    target = Path(args.out or args.map)
+    sys.stdout.write(text_diff(original, new, args.map, str(target)))
+    if not args.yes:
+        print(f"write {len(corrections)} change{'s' * (len(corrections) != 1)} to {target}? "
+              "[y/N]", flush=True)
+        if sys.stdin.readline().strip().lower() not in ("y", "yes"):
+            print(f"{target}: not written")
+            return 1
+    return _write_file("calibrate", target, new,
+                       f"{len(corrections)} change{'s' * (len(corrections) != 1)}")
 
 
 def _session(args: argparse.Namespace, cm: ChannelMap) -> NidaqmxSession:

@@ -1,0 +1,187 @@
+"""`sfdrig commission --backend nidaqmx` end to end: a real `sfdrig sim-server` process (fast),
+wired by its own channel map and rig file (the journal out), behind the real nidaqmx package; the
+tool is given the shipped example map. The test is the operator: it presses and releases the
+emergency stop (SIGUSR1 / SIGUSR2 to the server, the button's wires) when the tool asks, and
+answers the tool's questions on its stdin. The correct wiring passes; swapped probes, an inverted
+load cell and an e-stop wired open are each one FAIL line, exit 1."""
+
+from __future__ import annotations
+
+import copy
+import os
+import re
+import signal
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from daq.channels import load_channel_map
+from daq.config_files import to_toml
+from tests.e2e.conftest import REPO_ROOT
+
+pytestmark = pytest.mark.e2e
+
+EXAMPLE = REPO_ROOT / "examples" / "channels_report_rig.toml"
+JOURNAL_OUT = "[seal]\nenabled = false\n\n[contact]\nenabled = false\n"
+
+
+def _wiring(tmp_path: Path, change: Callable[[dict[str, Any]], None] | None) -> Path:
+    data = copy.deepcopy(load_channel_map(EXAMPLE).model_dump(mode="json", exclude_none=True))
+    if change is not None:
+        change(data)
+    path = tmp_path / "wiring.toml"
+    path.write_text(to_toml(data))
+    return path
+
+
+def _swap_x1_y1(data: dict[str, Any]) -> None:
+    data["ai"][2]["physical_channel"], data["ai"][4]["physical_channel"] = \
+        data["ai"][4]["physical_channel"], data["ai"][2]["physical_channel"]
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[Callable[..., tuple[str, int]]]:
+    procs: list[subprocess.Popen[str]] = []
+
+    def start(change: Callable[[dict[str, Any]], None] | None = None,
+              rig_extra: str = "") -> tuple[str, int]:
+        rig = tmp_path / "rig.toml"
+        rig.write_text(JOURNAL_OUT + rig_extra)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "5",
+             "--fast", "--channels", str(_wiring(tmp_path, change)), "--rig", str(rig)],
+            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO_ROOT)
+        procs.append(proc)
+        first = proc.stdout.readline().strip()  # type: ignore[union-attr]
+        assert first.startswith("listening on "), first
+        return first.removeprefix("listening on "), proc.pid
+
+    yield start
+    for proc in procs:
+        proc.terminate()
+        proc.communicate(timeout=10)
+
+
+def commission(address: str, server_pid: int, out: Path) -> tuple[int, list[str]]:
+    """Run the tool as the operator would: the e-stop pressed and released when asked, every
+    question answered yes. Its exit code and stdout lines."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sfdrig", "commission", str(EXAMPLE), "--backend", "nidaqmx",
+         "--grpc-target", address, "--out", str(out)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=REPO_ROOT)
+    assert proc.stdin is not None and proc.stdout is not None
+    lines = []
+    try:
+        for line in proc.stdout:
+            lines.append(line.rstrip("\n"))
+            if line.startswith("OPERATOR: Press the emergency stop"):
+                os.kill(server_pid, signal.SIGUSR1)
+            elif line.startswith("OPERATOR: Release the emergency stop"):
+                os.kill(server_pid, signal.SIGUSR2)
+            elif line.rstrip().endswith("[y/n]"):
+                proc.stdin.write("y\n")
+                proc.stdin.flush()
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert "Traceback" not in err, err
+    return proc.returncode, lines
+
+
+def fails(lines: list[str]) -> list[str]:
+    return [line for line in lines if line.startswith("FAIL")]
+
+
+def test_the_correct_wiring_passes_through_nidaqmx(server: Any, tmp_path: Path) -> None:
+    code, lines = commission(*server(), tmp_path / "out")
+    assert code == 0, "\n".join(lines)
+    assert lines[-1] == f"commissioning passed: {EXAMPLE}"
+    assert "OK   estop (Dev1/port0/line1): read pressed when pressed and released when " \
+           "released" in lines
+    assert any(line.startswith("OK   watchdog: expired after 1.5 s unfed (timeout 1 s): the "
+                               "pump relay off") for line in lines)
+    for name, pattern in (("fx", r"2 N at [+-][0-3] deg"), ("x1", r"3\.1\d um at [+-][0-3] deg"),
+                          ("fy", r"2 N at [+-][0-3] deg"), ("y2", r"2\.9\d um at [+-][0-3] deg")):
+        (line,) = [s for s in lines if s.startswith(f"OK   {name} (") and "drive" in s]
+        assert re.search(pattern, line), line
+    assert len(list((tmp_path / "out").glob("commission-*.h5"))) == 1
+    assert not list((tmp_path / "out").glob("*-proposed.toml"))
+
+
+@pytest.mark.parametrize("fault,change,rig_extra,pattern", [
+    ("swapped x1/y1", _swap_x1_y1, "",
+     r"FAIL x1 \(Dev1/ai2\) and y1 \(Dev1/ai4\): swapped: driving x, y1 moved 3\.\d+ um and "
+     r"x1 0\.00\d+ um"),
+    ("inverted fx", None, "\n[effects.reversed_polarity]\nenabled = true\nchannels = [\"fx\"]\n",
+     r"FAIL fx \(Dev1/ai0\): inverted: [+-]1[78]\d deg from the x drive"),
+    ("e-stop wired open", lambda d: d.pop("estop"), "",
+     r"FAIL estop \(Dev1/port0/line1\): reads pressed \(low\) before anyone pressed it"),
+])
+def test_a_miswired_rig_is_named_through_nidaqmx(server: Any, tmp_path: Path, fault: str,
+                                                  change: Any, rig_extra: str,
+                                                  pattern: str) -> None:
+    code, lines = commission(*server(change, rig_extra), tmp_path / "out")
+    print(f"{fault}: {fails(lines)}")
+    assert code == 1, "\n".join(lines)
+    assert len(fails(lines)) == 1, "\n".join(lines)
+    assert re.match(pattern, fails(lines)[0]), fails(lines)[0]
+    assert lines[-1].startswith("commissioning 1 problem")
+
+
+def test_ctrl_c_during_a_drive_ramps_it_down_and_keeps_the_record(tmp_path: Path) -> None:
+    """A paced sim-server (the drive takes 2.1 s of wall time); SIGINT once the X drive is at
+    its level: the drive fades to 0 V (recorded), the record closes aborted, exit 130."""
+    from storage import open_run
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(JOURNAL_OUT)
+    server = subprocess.Popen(
+        [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "5",
+         "--channels", str(EXAMPLE), "--rig", str(rig)],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO_ROOT)
+    try:
+        first = server.stdout.readline().strip()  # type: ignore[union-attr]
+        assert first.startswith("listening on "), first
+        out = tmp_path / "out"
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sfdrig", "commission", str(EXAMPLE), "--backend",
+             "nidaqmx", "--grpc-target", first.removeprefix("listening on "), "--watchdog-s",
+             "0", "--yes", "--out", str(out)],
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True, cwd=REPO_ROOT)
+        assert proc.stdout is not None
+        lines = []
+        for line in proc.stdout:
+            lines.append(line.rstrip("\n"))
+            if line.startswith("OPERATOR: Press the emergency stop"):
+                os.kill(server.pid, signal.SIGUSR1)
+            elif line.startswith("OPERATOR: Release the emergency stop"):
+                os.kill(server.pid, signal.SIGUSR2)
+            elif line.startswith("drive x: at 2 N"):  # 1.8 s of drive left
+                proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        server.terminate()
+        server.communicate(timeout=10)
+    assert proc.returncode == 130, "\n".join(lines) + err
+    assert "Traceback" not in err
+    assert re.search(r"commission: drive x: interrupted; the drive ramped down to 0 V; record ",
+                     err), err
+    (record,) = out.glob("commission-*.h5")
+    with open_run(record) as run:
+        assert run.status == "aborted"
+        drive = run.channel("shaker_x")
+        fx = run.channel("fx")
+    assert float(np.max(np.abs(drive))) > 0.03  # the drive had begun (0.04 V for 2 N)
+    tail = int(0.02 * 10_000)  # the last block recorded: the fade is over
+    assert float(np.max(np.abs(drive[-tail:]))) == 0.0
+    assert float(np.max(np.abs(np.diff(drive)))) < 0.04 * 2 * np.pi * 20 / 10_000 * 1.5 + 1e-4
+    assert float(np.max(np.abs(fx[-tail:]))) < 0.3  # the load cell: noise, no drive
