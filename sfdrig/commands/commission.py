@@ -130,7 +130,7 @@ def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
 def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, operator: Any,
                 rig: Any) -> int:
     from control.commissioning import Commissioning, CommissionInterrupted, report_markdown
-    from control.programs import create_run_writer
+    from control.runs import create_run_writer
 
     out = Path(args.out)
     stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -138,7 +138,8 @@ def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, oper
         out.mkdir(parents=True, exist_ok=True)
         record = out / f"commission-{stamp}.h5"
         writer = create_run_writer(
-            record, "commissioning", backend, run_id=f"commission-{stamp}", rig_config=rig,
+            record, "commissioning", backend.channel_map, run_id=f"commission-{stamp}",
+            rig_config=rig,
             test_spec={"map": str(args.map), "drive_n": spec.drive_n, "freq_hz": spec.freq_hz,
                        "rest_s": spec.rest_s, "watchdog_s": spec.watchdog_s},
             notes="sfdrig commission: rest, e-stop, watchdog and drives back to back; the "

@@ -12,7 +12,8 @@ import pytest
 
 from control.operator import Question
 from control.program_specs import ProbeCalSpec, StaticSpec
-from control.programs import create_run_writer, run_probe_calibration, run_static_test
+from control.programs import run_probe_calibration, run_static_test
+from control.runs import create_run_writer
 from daq.channels import load_channel_map
 from sfdrig.cli import main
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
@@ -50,7 +51,8 @@ def probe_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     params.effects.probe_gain_error.gain_ratio = 1.10
     be = SimulatedBackend(params, seed=7)
     be.configure(load_channel_map(EXAMPLE))
-    writer = create_run_writer(path, "probe_calibration", be, run_id="cal", rig_config=params)
+    writer = create_run_writer(path, "probe_calibration", be.channel_map, run_id="cal",
+                               rig_config=params)
     out = run_probe_calibration(be, writer, Mistyping(), ProbeCalSpec(),
                                 hands=SimulatedHands(be, seed=7))
     writer.close()
@@ -122,7 +124,7 @@ def test_a_static_test_by_the_shakers_gives_the_drives_gain(
     be = SimulatedBackend(params, seed=2)
     be.configure(load_channel_map(EXAMPLE))
     run = tmp_path / "static.h5"
-    writer = create_run_writer(run, "static", be, run_id="st", rig_config=params)
+    writer = create_run_writer(run, "static", be.channel_map, run_id="st", rig_config=params)
     spec = StaticSpec(forces_n=(-60.0, -30.0, 30.0, 60.0), repeats=1, record_s=0.3)
     assert run_static_test(be, writer, spec).completed
     writer.close()
@@ -147,7 +149,7 @@ def test_bad_inputs_are_one_line_exit_2(tmp_path: Path, capsys: pytest.CaptureFi
     if args == ["SWEEP"]:
         be = SimulatedBackend(RigParams())
         be.configure(load_channel_map(EXAMPLE))
-        create_run_writer(tmp_path / "sweep.h5", "sweep", be, run_id="s").close()
+        create_run_writer(tmp_path / "sweep.h5", "sweep", be.channel_map, run_id="s").close()
         args = [str(tmp_path / "sweep.h5")]
     assert main(["channels", "calibrate", *args, "--map", str(EXAMPLE)]) == 2
     err = capsys.readouterr().err

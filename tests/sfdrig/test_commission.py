@@ -249,14 +249,14 @@ def test_a_drive_over_2_n_or_near_the_resonance_is_refused() -> None:
 
 
 def test_the_record_holds_the_stages_and_the_findings(tmp_path: Path) -> None:
-    from control.programs import create_run_writer
+    from control.runs import create_run_writer
 
     clock = Clock()
     wiring = changed(_swap_x1_y1)
     backend = SimulatedBackend(RigParams(), seed=4, wiring=wiring, watchdog_s=WATCHDOG_S,
                                clock=clock, sleep=clock.sleep)
     backend.configure(EXAMPLE)
-    writer = create_run_writer(tmp_path / "c.h5", "commissioning", backend, run_id="c1")
+    writer = create_run_writer(tmp_path / "c.h5", "commissioning", backend.channel_map, run_id="c1")
     job = Commissioning(backend, SimulatedCommissioner(backend, say=lambda s: None),
                         CommissionSpec(watchdog_s=WATCHDOG_S), listener=writer,
                         log=lambda s: None, clock=clock, sleep=clock.sleep)
