@@ -13,6 +13,7 @@ from control.stream import DriveStream
 from control.synthesis import SineSynthesizer
 from daq.channels import default_channel_map
 from simulated_hw.backend import SimulatedBackend
+from tests.simulated_hw.fake_clock import FakeClock
 
 CM = default_channel_map()
 FS = CM.sample_rate_hz
@@ -21,23 +22,10 @@ AMP = np.array([0.6, 0.6j])  # circular, both drives 0.6 V
 FREQ = 20.0  # whole cycles in the 1 s ring
 
 
-class Clock:
-    """The wall clock the paced backend reads; its sleep advances it."""
-
-    def __init__(self) -> None:
-        self.now = 50.0
-
-    def __call__(self) -> float:
-        return self.now
-
-    def sleep(self, s: float) -> None:
-        self.now += max(s, 0.0)
-
-
 class Played(SimulatedBackend):
     """The paced backend, keeping what its AO actually generated (what the rig received)."""
 
-    def __init__(self, clock: Clock, **kw) -> None:
+    def __init__(self, clock: FakeClock, **kw) -> None:
         super().__init__(seed=3, realtime=True, clock=clock, sleep=clock.sleep, ao_ring_s=1.0,
                          **kw)
         self.generated_ao: list[np.ndarray] = []
@@ -52,16 +40,16 @@ class Stall:
     """A listener tap: the host stalls ``seconds`` once, when the block at ``at_sample`` has
     been read (the clock jumps, as a busy PC's would)."""
 
-    def __init__(self, clock: Clock, at_sample: int, seconds: float) -> None:
+    def __init__(self, clock: FakeClock, at_sample: int, seconds: float) -> None:
         self.clock, self.at, self.seconds, self.done = clock, at_sample, seconds, False
 
     def __call__(self, first: int, ai: np.ndarray, ao: np.ndarray) -> None:
         if not self.done and first >= self.at:
             self.done = True
-            self.clock.now += self.seconds
+            self.clock.t += self.seconds
 
 
-def _stream(clock: Clock, limits: SafetyLimits | None = None, amp: np.ndarray = AMP,
+def _stream(clock: FakeClock, limits: SafetyLimits | None = None, amp: np.ndarray = AMP,
             freq_hz: float = FREQ, **kw) -> tuple[Played, DriveStream, RecordingListener]:
     be = Played(clock, **kw)
     be.configure(CM)
@@ -86,7 +74,7 @@ def _recorded_ao(listener: RecordingListener) -> np.ndarray:
 
 @pytest.mark.parametrize("stall_s", [0.05, 0.3, 2.0])
 def test_a_stalled_host_hears_the_same_sine_and_records_it(stall_s):
-    clock = Clock()
+    clock = FakeClock()
     be, stream, listener = _stream(clock)
     stream.taps.append(Stall(clock, int(1.5 * FS), stall_s))  # mid-step, a ring after start
     stream.start()
@@ -108,7 +96,7 @@ def test_a_stalled_host_hears_the_same_sine_and_records_it(stall_s):
 
 
 def test_late_host_report_is_zero_when_on_time():
-    clock = Clock()
+    clock = FakeClock()
     _, stream, _ = _stream(clock)
     stream.start()
     stream.advance_to(int(0.5 * FS))
@@ -124,13 +112,13 @@ def _steps(x: np.ndarray) -> float:
 
 @pytest.mark.parametrize("stall_s", [0.0, 0.3, 0.8])
 def test_abort_ramps_both_drives_to_zero_within_100_ms(stall_s):
-    clock = Clock()
+    clock = FakeClock()
     be, stream, listener = _stream(clock)
     stream.start()
     stream.advance_to(int(1.2 * FS))
     if stall_s:  # the host is late while it ramps down: the fade is in the ring already
         stream.taps.append(Stall(clock, stream.sample, stall_s))
-    abort_at = int(round((clock.now - 50.0) * FS))  # the generation when the abort is seen
+    abort_at = int(round((clock.t - 50.0) * FS))  # the generation when the abort is seen
     stream.shutdown(0.04)
     generated = np.concatenate(be.generated_ao, axis=1)
     live = np.flatnonzero(np.any(generated != 0.0, axis=0))
@@ -147,7 +135,7 @@ def test_abort_ramps_both_drives_to_zero_within_100_ms(stall_s):
 
 
 def test_ramp_down_with_a_late_host_does_not_replay_the_drive():
-    clock = Clock()
+    clock = FakeClock()
     be, stream, listener = _stream(clock)
     stream.start()
     stream.advance_to(int(1.2 * FS))
@@ -161,7 +149,7 @@ def test_ramp_down_with_a_late_host_does_not_replay_the_drive():
 
 
 def test_a_trip_still_cuts_to_zero_at_the_end_of_its_block():
-    clock = Clock()
+    clock = FakeClock()
     be, stream, listener = _stream(clock)
     stream.start()
     stream.advance_to(int(1.2 * FS))
@@ -175,12 +163,12 @@ def test_a_trip_still_cuts_to_zero_at_the_end_of_its_block():
 
 
 def test_a_trip_while_the_host_is_late_cuts_where_the_generation_is():
-    clock = Clock()
+    clock = FakeClock()
     be, stream, listener = _stream(clock)
     stream.start()
     stream.advance_to(int(1.2 * FS))
-    clock.now += 0.3  # the host stalled before it handled the trip
-    cut_at = int(round((clock.now - 50.0) * FS))
+    clock.t += 0.3  # the host stalled before it handled the trip
+    cut_at = int(round((clock.t - 50.0) * FS))
     stream.shutdown(0.04, cut=True)
     generated = np.concatenate(be.generated_ao, axis=1)
     assert stream.zero_sample == cut_at
@@ -190,7 +178,7 @@ def test_a_trip_while_the_host_is_late_cuts_where_the_generation_is():
 
 
 def test_a_drive_over_the_limit_trips_before_it_is_written():
-    clock = Clock()
+    clock = FakeClock()
     be, stream, _ = _stream(clock, limits=SafetyLimits(max_drive_v=0.5))
     with pytest.raises(LimitTrip):
         stream.start()
@@ -202,7 +190,7 @@ def test_the_structure_tests_dc_stream_rides_a_stall_on_the_ring():
     finish ramps to 0 V and leaves only zeros in the ring."""
     from control.program_stream import Stream
 
-    clock = Clock()
+    clock = FakeClock()
     be = Played(clock)
     be.configure(CM)
     listener = RecordingListener()
@@ -210,7 +198,7 @@ def test_the_structure_tests_dc_stream_rides_a_stall_on_the_ring():
     stream.start()
     level = np.array([1.5, -0.8])
     stream.hold(level, 1.2, 0.1)  # more than a ring at the level: the ring holds it all
-    clock.now += 0.4
+    clock.t += 0.4
     first, ai = stream.hold(level, 0.3, 0.1)
     stream.finish(0.05)
     generated = np.concatenate(be.generated_ao, axis=1)
@@ -228,7 +216,7 @@ def test_a_stall_just_after_a_new_command_plays_the_new_command_not_the_old_ring
     """The ring holds the current command's continuation (the prediction), not the drive of a
     ring ago: a step to 70 Hz at a third of the amplitude, then a 0.5 s stall 0.3 s later,
     plays exactly what the host would have written."""
-    clock = Clock()
+    clock = FakeClock()
     be, stream, listener = _stream(clock)
     stream.taps.append(Stall(clock, int(1.5 * FS), 0.5))
     stream.start()
@@ -254,7 +242,7 @@ def test_the_dc_stream_ring_holds_the_level_it_is_moving_to():
     and level, not the old level the ring held a ring ago."""
     from control.program_stream import Stream
 
-    clock = Clock()
+    clock = FakeClock()
     be = Played(clock)
     be.configure(CM)
     listener = RecordingListener()
@@ -265,7 +253,7 @@ def test_the_dc_stream_ring_holds_the_level_it_is_moving_to():
     at = stream.sample
     for _ in range(30):
         stream.step(np.array([2.0, -1.0]), 0.1)
-    clock.now += 0.5
+    clock.t += 0.5
     stream.hold(np.array([2.0, -1.0]), 0.3, 0.1)
     stream.finish(0.05)
     generated = np.concatenate(be.generated_ao, axis=1)
@@ -279,7 +267,7 @@ def test_the_prediction_leaves_the_slew_check_of_the_written_blocks_alone():
     """The slew limit compares each written block with the one before it; the prediction
     written ahead is checked on its own. (Checked with the written ones, a 5 V sine tripped at
     once: the block after a predicted one 'jumped' from a sample far ahead.)"""
-    clock = Clock()
+    clock = FakeClock()
     be = Played(clock)
     be.configure(CM)
     synth = SineSynthesizer(len(CM.ao), FS)
@@ -300,7 +288,7 @@ def test_a_late_host_at_a_fast_large_drive_does_not_trip_the_slew_limit():
     against the last sample *written* before it, not the last one the ring *played*; at 150 Hz a
     10 ms block is 1.5 cycles, so the check saw a jump of up to twice the amplitude (5 V: up to
     1e5 V/s against the 3.5e4 V/s limit) and tripped a drive that was perfectly smooth."""
-    clock = Clock()
+    clock = FakeClock()
     amp = np.array([5.0, 5.0j])
     be, stream, _ = _stream(clock, amp=amp, freq_hz=150.0)
     for k, stall_s in enumerate((0.035, 0.05, 0.3)):
@@ -335,7 +323,7 @@ def test_a_host_late_past_the_prediction_of_a_raise_goes_on_from_what_played(sta
     prediction reaches 8 blocks into the ring, so a host late past it heard an earlier command
     (3.5 V) and then wrote the present one (8 V) at once: 'would slew at 4.5e4 V/s', the run
     aborted every time. Now the drive goes on from what played and ramps up again."""
-    clock = Clock()
+    clock = FakeClock()
     limits = SafetyLimits()
     be, stream, _ = _stream(clock, limits, amp=np.array([0.5, 0.0]), freq_hz=150.0)
     synth = stream.synth
@@ -364,14 +352,14 @@ class StallingBackend(Played):
     a backlog is read slowly, the drive written on meanwhile) and the host stalls ``stall_s`` at
     each of the reads listed (the clock jumps)."""
 
-    def __init__(self, clock: Clock, stall_at_reads: set[int], stall_s: float,
+    def __init__(self, clock: FakeClock, stall_at_reads: set[int], stall_s: float,
                  busy_s: float) -> None:
         super().__init__(clock)
         self.stall_at, self.stall_s, self.busy_s, self.reads = stall_at_reads, stall_s, busy_s, 0
 
     def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
         self.reads += 1
-        self._clock.now += self.busy_s + (self.stall_s if self.reads in self.stall_at else 0.0)
+        self._clock.t += self.busy_s + (self.stall_s if self.reads in self.stall_at else 0.0)
         return super().read_ai(n, timeout_s)
 
 
@@ -384,7 +372,7 @@ def test_a_late_host_does_not_raise_a_stuck_housing_past_what_it_has_seen():
 
     peaks = []
     for stall_s in (0.0, 0.12, 0.25):
-        clock = Clock()
+        clock = FakeClock()
         # stalls every 15 reads through the approach (the first 1.5 s of the step)
         be = StallingBackend(clock, set(range(20, 160, 15)) if stall_s else set(), stall_s,
                              busy_s=0.008 if stall_s else 0.0)
@@ -401,7 +389,7 @@ def test_a_late_host_does_not_raise_a_stuck_housing_past_what_it_has_seen():
 def test_the_stop_writes_its_fade_before_the_ring_of_zeros():
     """Through gRPC a ring of zeros (2 s, 2 channels) takes a busy host tens of milliseconds to
     send; the fade, written alone first, lands sooner (abort 124.7 ms at worst before)."""
-    clock = Clock()
+    clock = FakeClock()
     be, stream, _ = _stream(clock)
     writes: list[tuple[int | None, int]] = []
     write_ao = be.write_ao
@@ -432,7 +420,7 @@ def test_a_late_host_never_hears_an_earlier_larger_or_other_frequency_drive(lowe
     played the 60 Hz step's 1.97 V at 20 Hz (issue 21, bench_lab_day; the orbit tripped). The
     old drive here is 1.8 V; after the change a raise goes 0.1 -> 0.6 V a block at a time, then
     the host stalls 0.8 s: the board plays at most the last command."""
-    clock = Clock()
+    clock = FakeClock()
     old = np.array([1.8, 1.8j])
     be, stream, _ = _stream(clock, amp=old, freq_hz=60.0)
     stream.start()
@@ -446,7 +434,7 @@ def test_a_late_host_never_hears_an_earlier_larger_or_other_frequency_drive(lowe
         stream.cycle()
     last = float(np.max(np.abs(stream.synth.target_phasors)))
     played_before = sum(b.shape[1] for b in be.generated_ao)
-    clock.now += 0.8
+    clock.t += 0.8
     stream.advance_to(stream.sample + int(1.0 * FS))
     generated = np.concatenate(be.generated_ao, axis=1)[:, played_before:]
     assert stream.writer.repeated >= 0.8 * FS - 4 * BLOCK
@@ -459,7 +447,7 @@ class Stalling(SimulatedBackend):
     """The paced backend on a busy PC: before a read, with probability ``p``, the host stalls
     20-500 ms (seeded)."""
 
-    def __init__(self, clock: Clock, seed: int, p: float) -> None:
+    def __init__(self, clock: FakeClock, seed: int, p: float) -> None:
         from simulated_hw.params import RigParams
 
         super().__init__(RigParams(), seed=5, realtime=True, clock=clock, sleep=clock.sleep,
@@ -469,7 +457,7 @@ class Stalling(SimulatedBackend):
 
     def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
         if self.rng.random() < self.p:
-            self.clock.now += float(self.rng.choice([0.02, 0.05, 0.1, 0.2, 0.36, 0.5]))
+            self.clock.t += float(self.rng.choice([0.02, 0.05, 0.1, 0.2, 0.36, 0.5]))
         return super().read_ai(n, timeout_s)
 
 
@@ -488,7 +476,7 @@ def test_a_lubricated_sweep_on_a_stalling_host_approaches_every_step_without_a_t
     from control.spec import SweepSpec
     from control.sweep import SweepEngine
 
-    clock = Clock()
+    clock = FakeClock()
     be = Stalling(clock, seed, p)
     be.configure(CM)
     pump = PumpRelay(be)

@@ -29,22 +29,10 @@ from simulated_hw.backend import SimulatedBackend
 from simulated_hw.params import RigParams
 from storage import open_run
 from tests.conftest import REPO_ROOT
+from tests.simulated_hw.fake_clock import FakeClock
 
 EXAMPLE = load_channel_map(REPO_ROOT / "examples" / "channels_report_rig.toml")
 WATCHDOG_S = 1.0
-
-
-class Clock:
-    """Simulated time for the backend's watchdog and the tool's waits."""
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
-
-    def sleep(self, s: float) -> None:
-        self.t += s
 
 
 def changed(change: Callable[[dict[str, Any]], None], cm: ChannelMap = EXAMPLE) -> ChannelMap:
@@ -71,7 +59,7 @@ def commission(tool_map: ChannelMap = EXAMPLE, wiring: ChannelMap | None = None,
                params: RigParams | None = None, watchdog: float | None = WATCHDOG_S,
                spec_watchdog: float | None = WATCHDOG_S, listener: Any = None,
                operator: Any = None) -> tuple[CommissionResult, list[str], SimulatedBackend]:
-    clock = Clock()
+    clock = FakeClock(0.0)
     backend = SimulatedBackend(params or RigParams(), seed=4, wiring=wiring, watchdog_s=watchdog,
                                clock=clock, sleep=clock.sleep)
     backend.configure(tool_map)
@@ -224,7 +212,7 @@ class CtrlC:
 
 def test_ctrl_c_ramps_the_drive_down() -> None:
     listener = CtrlC(at_sample=10_000 + 6_000)  # rest 1 s, watchdog's clearing, then 0.6 s in
-    clock = Clock()
+    clock = FakeClock(0.0)
     backend = SimulatedBackend(RigParams(), seed=4, watchdog_s=WATCHDOG_S, clock=clock,
                                sleep=clock.sleep)
     backend.configure(EXAMPLE)
@@ -251,7 +239,7 @@ def test_a_drive_over_2_n_or_near_the_resonance_is_refused() -> None:
 def test_the_record_holds_the_stages_and_the_findings(tmp_path: Path) -> None:
     from control.runs import create_run_writer
 
-    clock = Clock()
+    clock = FakeClock(0.0)
     wiring = changed(_swap_x1_y1)
     backend = SimulatedBackend(RigParams(), seed=4, wiring=wiring, watchdog_s=WATCHDOG_S,
                                clock=clock, sleep=clock.sleep)

@@ -4,8 +4,14 @@ from __future__ import annotations
 
 
 class FakeClock:
-    def __init__(self) -> None:
-        self.t = 50.0
+    """Time ``t`` [s] that passes only when a test (or a paced backend's ``sleep``) moves it;
+    calling it, or ``now()``, reads it."""
+
+    def __init__(self, t: float = 50.0) -> None:
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
 
     def now(self) -> float:
         return self.t
