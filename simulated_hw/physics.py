@@ -43,7 +43,7 @@ N_PARAMS = 42
 
 # Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|;
 # the previous sample's force (the force is interpolated linearly between samples); the compliant
-# seal's slider position; the micro-slipping joint's force x, y; the relaxing stiffness's force x, y.
+# seal's slider position; the micro-slipping joint's force x, y; the relaxing stiffness's x, y.
 (S_X, S_Y, S_VX, S_VY, S_XF, S_YF, S_VXF, S_VYF, S_VBAR, S_FPX, S_FPY, S_WX, S_WY, S_JX,
  S_JY, S_RX, S_RY) = range(17)
 N_STATE = 17

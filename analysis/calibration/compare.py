@@ -5,8 +5,8 @@ identified, with the report's own procedure, from the simulated test plan. Each 
 fixed band (issue 28, `FIXED_BANDS`): the report's stated uncertainty where it states one (Tables
 2 and 3), otherwise a number written here with its reason. Not the identification's own 95 %
 uncertainty, as before: a noisier simulated fit then passed more easily, and the band moved with
-every change of the rig. The identification's uncertainty is still reported beside (``u_identified``).
-The basis is named in every row.
+every change of the rig. The identification's own uncertainty is still named in the basis, which
+every row carries.
 """
 
 from __future__ import annotations

@@ -97,22 +97,28 @@ def test_seal_friction_rises_with_the_film_full(fill: float):
     assert np.median(mag) == pytest.approx(26.0 + 3.0 * fill, rel=1e-3)
 
 
+def _held_force(p: RigParams, axis: int, force_n: float, seconds: float) -> tuple[float, float]:
+    """A force on one axis, raised over 50 ms and held, dry: the mean displacement [m] and seal
+    force [N] along that axis over the last fifth of the record."""
+    t = np.arange(int(seconds * FS)) / FS
+    force = np.zeros((2, t.size))
+    force[axis] = force_n * np.minimum(t / 0.05, 1.0)
+    tr, _ = simulate_response(force, p, FS, fill=0.0)
+    last = slice(-t.size // 5, None)
+    return (float(np.mean((tr.x_m, tr.y_m)[axis][last])),
+            float(np.mean((tr.friction_x_n, tr.friction_y_n)[axis][last])))
+
+
 def test_seal_contact_stiffness_per_axis_while_stuck():
     """A small static force on each axis in turn (5 N, below F_mu = 26 N, so the seal holds):
     the housing moves on the contact, F = (K + k_t) z, with k_t 35 MN/m on X and 22 MN/m on Y."""
     p = RigParams(contact=Contact(enabled=False))
     p.seal.contact_stiffness_n_per_m = 35e6
     p.seal.contact_stiffness_y_n_per_m = 22e6
-    t = np.arange(int(0.5 * FS)) / FS
-    ramp = 5.0 * np.minimum(t / 0.05, 1.0)
     for axis, k_s, k_t in ((0, 788e3, 35e6), (1, 823e3, 22e6)):
-        force = np.zeros((2, t.size))
-        force[axis] = ramp
-        tr, _ = simulate_response(force, p, FS, fill=0.0)
-        z = (tr.x_m, tr.y_m)[axis][-1000:]
-        seal = (tr.friction_x_n, tr.friction_y_n)[axis][-1000:]
-        assert 5.0 / np.mean(z) == pytest.approx(k_s + k_t, rel=2e-3)
-        assert -np.mean(seal) / np.mean(z) == pytest.approx(k_t, rel=1e-3)
+        z, seal = _held_force(p, axis, 5.0, 0.5)
+        assert 5.0 / z == pytest.approx(k_s + k_t, rel=2e-3)
+        assert -seal / z == pytest.approx(k_t, rel=1e-3)
 
 
 def test_joint_per_axis_stuck_stiffness():
@@ -122,11 +128,6 @@ def test_joint_per_axis_stuck_stiffness():
     j = p.effects.joint_microslip
     j.enabled, j.stiffness_n_per_m, j.slip_force_n = True, 100e3, 50.0
     j.stiffness_y_n_per_m, j.slip_force_y_n = 400e3, 50.0
-    t = np.arange(int(1.0 * FS)) / FS
-    ramp = 0.5 * np.minimum(t / 0.05, 1.0)
     for axis, k_s, k_j in ((0, 788e3, 100e3), (1, 823e3, 400e3)):
-        force = np.zeros((2, t.size))
-        force[axis] = ramp
-        tr, _ = simulate_response(force, p, FS, fill=0.0)
-        z = (tr.x_m, tr.y_m)[axis][-2000:]
-        assert 0.5 / np.mean(z) == pytest.approx(k_s + k_j, rel=1e-2)
+        z, _ = _held_force(p, axis, 0.5, 1.0)
+        assert 0.5 / z == pytest.approx(k_s + k_j, rel=1e-2)
