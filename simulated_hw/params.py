@@ -55,6 +55,15 @@ class Seal(_Model):
         None, gt=0, le=1e10,
         description="tangential stiffness of the seal contact, in series with the slider (an "
         "Iwan element: below F_mu the housing moves on it); None: rigid sticking [N/m]")
+    wet_friction_increase_n: float = Field(
+        0.0, ge=-100, le=100,
+        description="added to F_mu while the film is full, in proportion to the fill (issue 28: "
+        "the oil's pressure in the recirculation annulus loads the ring beside the wave spring, "
+        "or the wetted faces rub otherwise); 0: the dry friction throughout [N]")
+    contact_stiffness_y_n_per_m: float | None = Field(
+        None, gt=0, le=1e10,
+        description="the contact's tangential stiffness along Y where it differs (issue 28: the "
+        "ring carrier held differently by axis); None: contact_stiffness_n_per_m [N/m]")
 
 
 class Contact(_Model):
@@ -182,8 +191,37 @@ class JointMicroslip(_Model):
 
     enabled: bool = False
     mode: Literal["housing", "frame"] = "housing"
-    stiffness_n_per_m: float = Field(0.0, ge=0, description="k_j, the joint stuck [N/m]")
-    slip_force_n: float = Field(1.0, gt=0, description="F_s, the force of full slip [N]")
+    stiffness_n_per_m: float = Field(0.0, ge=0, description="k_j, the joint stuck (X; Y too "
+                                     "where stiffness_y_n_per_m is None) [N/m]")
+    slip_force_n: float = Field(1.0, gt=0, description="F_s, the force of full slip (X; Y too "
+                                "where slip_force_y_n is None) [N]")
+    stiffness_y_n_per_m: float | None = Field(
+        None, ge=0, description="k_j along Y where it differs (issue 28: the rods' clamps "
+        "need not hold alike in X and Y); None: stiffness_n_per_m [N/m]")
+    slip_force_y_n: float | None = Field(
+        None, gt=0, description="F_s along Y where it differs; None: slip_force_n [N]")
+
+    def stiffness_y(self) -> float:
+        return self.stiffness_n_per_m if self.stiffness_y_n_per_m is None \
+            else self.stiffness_y_n_per_m
+
+    def slip_force_y(self) -> float:
+        return self.slip_force_n if self.slip_force_y_n is None else self.slip_force_y_n
+
+
+class RelaxingStiffness(_Model):
+    """A stiffness the structure has in motion but not under a held load (issue 28): a Maxwell
+    element beside the rods, spring k_r in series with a dashpot k_r tau, per axis. Its dynamic
+    stiffness is k_r (w tau)^2 / (1 + (w tau)^2) and its damping k_r tau / (1 + (w tau)^2): at
+    0 Hz nothing (a static test held for several tau reads the rods alone), above 1/(2 pi tau)
+    nearly k_r (an impact or a dwell reads K + k_r). A one-time-constant stand-in for whatever
+    relaxes (the acrylic bearing's bolted stack, the O-rings, the feed hose): an approximation,
+    the report has no data between 0 Hz and its 20 Hz."""
+
+    enabled: bool = False
+    stiffness_x_n_per_m: float = Field(0.0, ge=0, description="k_r along X [N/m]")
+    stiffness_y_n_per_m: float = Field(0.0, ge=0, description="k_r along Y [N/m]")
+    relaxation_time_s: float = Field(0.1, gt=0, le=100, description="tau [s]")
 
 
 class AirEntrainment(_Model):
@@ -229,6 +267,7 @@ class Effects(_Model):
     cross_coupling: CrossCoupling = CrossCoupling()
     second_mode: SecondMode = SecondMode()
     joint_microslip: JointMicroslip = JointMicroslip()
+    relaxing_stiffness: RelaxingStiffness = RelaxingStiffness()
     air_entrainment: AirEntrainment = AirEntrainment()
     viscosity_drift: ViscosityDrift = ViscosityDrift()
     probe_gain_error: ProbeGainError = ProbeGainError()

@@ -37,15 +37,16 @@ import numpy as np
 (P_M, P_MF, P_D, P_DXY, P_DYX, P_KX, P_KY, P_CRV, P_C0, P_CXY, P_CYX, P_FMU, P_CLEAR, P_ECC,
  P_K3, P_K2, P_AIR_K, P_AIR_MAX, P_AIR_TAU, P_FRAME_ON, P_FRAME_M, P_FRAME_K, P_FRAME_C,
  P_DT, P_NSUB, P_SEAL_KT, P_DM_Y, P_DC_Y, P_CONTACT_ON, P_RESTITUTION,
- P_CONTACT_MU, P_JOINT_ON, P_JOINT_K, P_JOINT_FS, P_KXY) = range(35)
-N_PARAMS = 35
+ P_CONTACT_MU, P_JOINT_ON, P_JOINT_K, P_JOINT_FS, P_KXY, P_JOINT_KY, P_JOINT_FSY, P_SEAL_KTY,
+ P_RELAX_KX, P_RELAX_KY, P_RELAX_TAU, P_FMU_WET) = range(42)
+N_PARAMS = 42
 
 # Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|;
 # the previous sample's force (the force is interpolated linearly between samples); the compliant
-# seal's slider position; the micro-slipping joint's force x, y.
+# seal's slider position; the micro-slipping joint's force x, y; the relaxing stiffness's x, y.
 (S_X, S_Y, S_VX, S_VY, S_XF, S_YF, S_VXF, S_VYF, S_VBAR, S_FPX, S_FPY, S_WX, S_WY, S_JX,
- S_JY) = range(15)
-N_STATE = 15
+ S_JY, S_RX, S_RY) = range(17)
+N_STATE = 17
 
 # Rows of the output array.
 (O_X, O_Y, O_VX, O_VY, O_AX, O_AY, O_FRICX, O_FRICY, O_FILMX, O_FILMY, O_CFILM,
@@ -111,19 +112,19 @@ def _elastic(x, y, fx_in, fy_in, p):  # noqa: ANN001, ANN202
 
 
 @numba.njit(cache=True, inline="always")
-def _compliant_seal(x, y, wx, wy, kt, fmu):  # noqa: ANN001, ANN202
-    """Seal force on the housing from a contact of tangential stiffness kt in series with a
-    Coulomb slider at (wx, wy): -kt (r - w), the slider moving (plastic slip) so that the force
-    never exceeds F_mu. Returns (fx, fy, wx, wy)."""
+def _compliant_seal(x, y, wx, wy, kt, kty, fmu):  # noqa: ANN001, ANN202
+    """Seal force on the housing from a contact of tangential stiffness kt (kty along Y) in
+    series with a Coulomb slider at (wx, wy): -kt (r - w), the slider moving (plastic slip) so
+    that the force never exceeds F_mu. Returns (fx, fy, wx, wy)."""
     fx = kt * (x - wx)
-    fy = kt * (y - wy)
+    fy = kty * (y - wy)
     mag = np.sqrt(fx * fx + fy * fy)
     if mag > fmu:
         scale = fmu / mag
         fx *= scale
         fy *= scale
         wx = x - fx / kt
-        wy = y - fy / kt
+        wy = y - fy / kty
     return -fx, -fy, wx, wy
 
 
@@ -157,9 +158,12 @@ def integrate(
     frame_on = p[P_FRAME_ON] > 0.5
     x, y, vx, vy = s[S_X], s[S_Y], s[S_VX], s[S_VY]
     xf, yf, vxf, vyf, vbar = s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR]
-    fmu = p[P_FMU]
+    fmu0 = p[P_FMU]
+    fmu_wet = p[P_FMU_WET]  # the seal's added friction with the film full (oil pressure on it)
+    fmu = fmu0
     kt = p[P_SEAL_KT]
-    compliant = kt > 0.0 and fmu > 0.0
+    kty = p[P_SEAL_KTY] if p[P_SEAL_KTY] > 0.0 else kt
+    compliant = kt > 0.0 and fmu0 > 0.0
     wx, wy = s[S_WX], s[S_WY]
     contact_on = p[P_CONTACT_ON] > 0.5
     clear = p[P_CLEAR]
@@ -169,12 +173,21 @@ def integrate(
     fpx, fpy = s[S_FPX], s[S_FPY]
     joint = int(p[P_JOINT_ON])  # 0: none, 1: on the housing's spring, 2: on the frame's
     kj, fsj = p[P_JOINT_K], p[P_JOINT_FS]
+    kjy, fsjy = p[P_JOINT_KY], p[P_JOINT_FSY]  # the joint along Y (the rig sets X's by default)
     gjx, gjy = s[S_JX], s[S_JY]  # the joint's force (it resists the motion of its mode)
+    # the relaxing stiffness (a Maxwell element beside the rods: spring k_r in series with a
+    # dashpot k_r tau): its force, integrated exactly over a step at constant velocity
+    relax = p[P_RELAX_KX] > 0.0 or p[P_RELAX_KY] > 0.0
+    grx, gry = s[S_RX], s[S_RY]
+    relax_a = np.exp(-h / p[P_RELAX_TAU]) if relax else 1.0
+    relax_bx = p[P_RELAX_KX] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
+    relax_by = p[P_RELAX_KY] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
     for i in range(n):
         # sample i is taken at the end of the interval; the force ramps from the previous sample
         dfx = (force[0, i] - fpx) / nsub
         dfy = (force[1, i] - fpy) / nsub
         fi = fill[i]
+        fmu = max(0.0, fmu0 + fi * fmu_wet) if fmu0 > 0.0 else 0.0
         frx = fry = 0.0
         rax = ray = 0.0
         rafx = rafy = 0.0
@@ -187,12 +200,15 @@ def integrate(
                                                                            vbar, p)
             ex, ey = _elastic(x, y, fpx + k * dfx, fpy + k * dfy, p)
             if compliant:
-                frx, fry, wx, wy = _compliant_seal(x, y, wx, wy, kt, fmu)
+                frx, fry, wx, wy = _compliant_seal(x, y, wx, wy, kt, kty, fmu)
                 ex += frx
                 ey += fry
             if joint == 1:
                 ex -= gjx
                 ey -= gjy
+            if relax:
+                ex -= grx
+                ey -= gry
             # Kick with the damping implicit (trapezoidal) between housing and frame; the film's
             # added mass Da acts on the relative acceleration (its reaction on the frame):
             #   M (vh' - vh) + Da (v_rel' - v_rel) = h E  - h/2 C (v_rel + v_rel')
@@ -364,10 +380,13 @@ def integrate(
             yf += h * vyf
             if joint == 1:
                 gjx = _dahl(gjx, h * vx, kj, fsj)
-                gjy = _dahl(gjy, h * vy, kj, fsj)
+                gjy = _dahl(gjy, h * vy, kjy, fsjy)
             elif joint == 2:
                 gjx = _dahl(gjx, h * vxf, kj, fsj)
-                gjy = _dahl(gjy, h * vyf, kj, fsj)
+                gjy = _dahl(gjy, h * vyf, kjy, fsjy)
+            if relax:
+                grx = relax_a * grx + relax_bx * vx
+                gry = relax_a * gry + relax_by * vy
             vbar += air_alpha_k * (np.sqrt(vx * vx + vy * vy) - vbar)
         fpx = force[0, i]
         fpy = force[1, i]
@@ -378,10 +397,13 @@ def integrate(
                                                                           vbar, p)
         ex, ey = _elastic(x, y, fpx, fpy, p)
         if compliant:
-            frx, fry, _, _ = _compliant_seal(x, y, wx, wy, kt, fmu)
+            frx, fry, _, _ = _compliant_seal(x, y, wx, wy, kt, kty, fmu)
         if joint == 1:
             ex -= gjx
             ey -= gjy
+        if relax:
+            ex -= grx
+            ey -= gry
         gx = ex - (c11 * vox + c12 * voy) + frx  # the force on the housing
         gy = ey - (c21 * vox + c22 * voy) + fry
         s11, s12, s21, s22 = m11, m12, m21, m22
@@ -420,6 +442,7 @@ def integrate(
     s[S_FPX], s[S_FPY] = fpx, fpy
     s[S_WX], s[S_WY] = wx, wy
     s[S_JX], s[S_JY] = gjx, gjy
+    s[S_RX], s[S_RY] = grx, gry
 
 
 @numba.njit(cache=True)

@@ -32,6 +32,8 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
     p[physics.P_C0] = film.eq16_damping_centred(mu0)
     p[physics.P_FMU] = params.seal.friction_force_n if params.seal.enabled else 0.0
     p[physics.P_SEAL_KT] = params.seal.contact_stiffness_n_per_m or 0.0
+    p[physics.P_SEAL_KTY] = params.seal.contact_stiffness_y_n_per_m or 0.0
+    p[physics.P_FMU_WET] = params.seal.wet_friction_increase_n if params.seal.enabled else 0.0
     p[physics.P_CLEAR] = film.clearance_m
     p[physics.P_ECC] = 1.0 if film.eccentricity_law else 0.0
     if eff.cross_coupling.enabled:
@@ -58,10 +60,17 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
     p[physics.P_RESTITUTION] = params.contact.restitution
     p[physics.P_CONTACT_MU] = params.contact.friction_coefficient
     jm = eff.joint_microslip
-    if jm.enabled and jm.stiffness_n_per_m > 0:
+    if jm.enabled and max(jm.stiffness_n_per_m, jm.stiffness_y()) > 0:
         p[physics.P_JOINT_ON] = 1.0 if jm.mode == "housing" else 2.0
         p[physics.P_JOINT_K] = jm.stiffness_n_per_m
+        p[physics.P_JOINT_KY] = jm.stiffness_y()
     p[physics.P_JOINT_FS] = jm.slip_force_n
+    p[physics.P_JOINT_FSY] = jm.slip_force_y()
+    rs = eff.relaxing_stiffness
+    p[physics.P_RELAX_TAU] = rs.relaxation_time_s
+    if rs.enabled:
+        p[physics.P_RELAX_KX] = rs.stiffness_x_n_per_m
+        p[physics.P_RELAX_KY] = rs.stiffness_y_n_per_m
     p[physics.P_DT] = 1.0 / sample_rate_hz
     p[physics.P_NSUB] = params.steps_per_sample(sample_rate_hz)
     return p

@@ -149,16 +149,18 @@ def _get(rows: dict[str, Comparison], table: str, quantity: str, axis: str) -> C
 
 
 #: The calibrated rig on the reduced plan (CI), seed 3, against the fixed bands: the rows that
-#: hold (measured 2026-11-25: 24 of 29) ...
+#: hold (measured 2026-11-26 after issue 28's terms: 28 of 29; before them 24) ...
 REDUCED_HOLD = (
-    "Table 2|K_s|x",
+    "Table 2|K_s|x", "Table 2|K_s|y",
     "Table 3|K_s|x", "Table 3|M|x", "Table 3|C_s|x", "Table 3|f_n|x",
     "Table 3|K_s|y", "Table 3|M|y", "Table 3|C_s|y", "Table 3|f_n|y",
     "Table 4|F_mu|xy", "Table 4|C_rv|xy",
     "Table 6|M_t|x", "Table 6|D|x", "Table F1|D at 13 um|x", "Table F1|D at 25 um|x",
     "Table F1|D at 38 um|x",
-    "Table 6|M_t|y", "Table 6|D|y", "Table F1|D at 38 um|y",
+    "Table 6|M_t|y", "Table 6|D|y", "Table F1|D at 13 um|y", "Table F1|D at 38 um|y",
     "Film (section VI.3)|C_sfd average|xy",
+    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|x",
+    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|y",
     "Film (Figs. 33-34)|C_sfd (38 um - 13 um) / mean|x",
     "Film (Figs. 33-34)|C_sfd (38 um - 13 um) / mean|y",
     "Film (section VI.3)|C_sfd (38 um - 13 um) / mean at 60 Hz|x",
@@ -166,11 +168,8 @@ REDUCED_HOLD = (
 )
 #: ... and the known misses (issue 28), with what was measured
 REDUCED_MISS = {
-    "Table 2|K_s|y": "one spring per axis: 922 kN/m (Table 3's 923) against 786 +/- 31.5 kN/m",
-    "Table F1|D at 13 um|y": "6.06 kg against 3.2 kg (+2.86 kg; band 2 kg)",
-    "Table F1|D at 25 um|y": "8.42 kg against 6.2 kg (+2.22 kg; band 1 kg)",
-    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|x": "+0.147 of the mean (band 0.10)",
-    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|y": "+0.150 of the mean (band 0.10)",
+    "Table F1|D at 25 um|y": "7.50 kg against 6.2 kg (+1.30 kg; band 1 kg; before the issue's "
+                             "terms 8.42 kg): a held-out row, see docs/report-discrepancies.md",
 }
 
 
@@ -199,35 +198,33 @@ def test_nominal_rig_misses_table3_where_calibration_was_needed(side_by_side):
     assert missed == {("f_n", "x"), ("f_n", "y"), ("K_s", "y"), ("M", "x"), ("C_s", "y")}
 
 
-#: The full plan (`sfdrig calibrate`'s, slow), seed 3: 25 of its 33 rows hold on the fixed bands
-#: (measured 2026-11-25; issue 28 names the other eight: Table 2 K_s y at 922 kN/m; Table F1 D in
-#: Y at 13, 19, 25, 32 um (6.26, 7.69, 8.40, 8.87 kg against 3.2, 5.2, 6.2, 7.7) and in X at
-#: 19 um (7.00 against 8.4 kg); C_sfd rising 0.103 (X) and 0.104 (Y) of the mean from 20 to
-#: 60 Hz at 13 um against 0.10). Exactly these rows: a regression and an improvement both show.
+#: The full plan (`sfdrig calibrate`'s, slow), seed 3: 32 of its 33 rows hold on the fixed bands
+#: (measured 2026-11-26 after issue 28's terms; before them 25: Table 2 K_s y, Table F1 D in Y at
+#: 13-32 um and in X at 19 um, the 13 um frequency trend in X and Y were out). The one left:
+#: Table F1 D at 25 um in Y, 7.25 kg against 6.2 +/- 1.0 (before 8.40). Exactly these rows: a
+#: regression and an improvement both show.
 FULL_HOLD = (
-    "Table 2|K_s|x",
+    "Table 2|K_s|x", "Table 2|K_s|y",
     "Table 3|K_s|x", "Table 3|M|x", "Table 3|C_s|x", "Table 3|f_n|x",
     "Table 3|K_s|y", "Table 3|M|y", "Table 3|C_s|y", "Table 3|f_n|y",
     "Table 4|F_mu|xy", "Table 4|C_rv|xy",
-    "Table 6|M_t|x", "Table 6|D|x", "Table F1|D at 13 um|x", "Table F1|D at 25 um|x",
-    "Table F1|D at 32 um|x", "Table F1|D at 38 um|x",
-    "Table 6|M_t|y", "Table 6|D|y", "Table F1|D at 38 um|y",
+    "Table 6|M_t|x", "Table 6|D|x", "Table F1|D at 13 um|x", "Table F1|D at 19 um|x",
+    "Table F1|D at 25 um|x", "Table F1|D at 32 um|x", "Table F1|D at 38 um|x",
+    "Table 6|M_t|y", "Table 6|D|y", "Table F1|D at 13 um|y", "Table F1|D at 19 um|y",
+    "Table F1|D at 32 um|y", "Table F1|D at 38 um|y",
     "Film (section VI.3)|C_sfd average|xy",
+    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|x",
+    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|y",
     "Film (Figs. 33-34)|C_sfd (38 um - 13 um) / mean|x",
     "Film (Figs. 33-34)|C_sfd (38 um - 13 um) / mean|y",
     "Film (section VI.3)|C_sfd (38 um - 13 um) / mean at 60 Hz|x",
     "Film (section VI.3)|C_sfd (38 um - 13 um) / mean at 60 Hz|y",
 )
-FULL_MISS = (
-    "Table 2|K_s|y", "Table F1|D at 13 um|y", "Table F1|D at 19 um|x", "Table F1|D at 19 um|y",
-    "Table F1|D at 25 um|y", "Table F1|D at 32 um|y",
-    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|x",
-    "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|y",
-)
+FULL_MISS = ("Table F1|D at 25 um|y",)
 
 
 @pytest.mark.slow
-def test_calibrated_rig_holds_25_of_33_rows_of_the_full_plan():
+def test_calibrated_rig_holds_32_of_33_rows_of_the_full_plan():
     with tempfile.TemporaryDirectory() as tmp:
         paths = run_report_plan(Path(tmp), rig_params_named_or_file("report"), ReportPlan(),
                                 seed=3)
@@ -242,24 +239,35 @@ def test_calibrated_rig_holds_25_of_33_rows_of_the_full_plan():
         f"no longer holding: {[(k, shown[k]) for k in sorted(set(FULL_HOLD) - held)]}")
 
 
-def test_table2_in_y_is_out_of_reach_beside_table3(side_by_side):
-    # measured, not hidden: the impact test's Y spring (923 kN/m) is far above the static one
-    # (Table 2: 786 +/- 31.5 kN/m; the text: 823 kN/m); one spring per axis cannot give both
+def test_table2_and_table3_in_y_with_the_relaxing_stiffness(side_by_side):
+    # one spring per axis could not give both the static 786 kN/m (Table 2) and the impact's
+    # 923 kN/m in Y (issue 28); the rods at the static value with a relaxing stiffness beside
+    # them (137 kN/m, tau 0.1 s: relaxed under the static test's held loads, nearly all there at
+    # the impact's 49 Hz) give both: measured 786.4 and 922.4 kN/m (within 0.1 %)
     report = side_by_side["report"]
-    k2y = _get(report, "Table 2", "K_s", "y")
-    assert k2y.error > 3 * fixed_band(k2y)  # 135.6 kN/m measured
-    assert holds(_get(report, "Table 2", "K_s", "x"))  # 789 against 765 +/- 30.6 kN/m
+    for axis, k2, k3 in (("x", 765e3, 800e3), ("y", 786e3, 923e3)):
+        static, impact = (_get(report, "Table 2", "K_s", axis),
+                          _get(report, "Table 3", "K_s", axis))
+        assert static.simulated == pytest.approx(k2, rel=3e-3)
+        assert impact.simulated == pytest.approx(k3, rel=3e-3)
+    # the nominal rig, one spring at the text's 823 kN/m, misses Table 3 in Y (above)
 
 
 def test_both_rigs_identify_table4_friction_and_residual_damping(side_by_side):
-    # the friction and the residual damping the rigs are built with (26 N, 370 N.s/m) come back
-    # within 0.3 % (F_mu, report rig: 25.92 N) and 0.2 % (C_rv, nominal: 370.8 N.s/m) on the
-    # reduced plan: held here to 1.5 % (a few times that), far inside the fixed bands (10 %, 20 %)
-    for name, rows in side_by_side.items():
-        for q in ("F_mu", "C_rv"):
-            row = _get(rows, "Table 4", q, "xy")
-            assert holds(row), (name, q, row.simulated)
-            assert abs(row.rel_error) < 0.015, (name, q, row.simulated)
+    # the nominal rig's friction and residual damping (26 N, 370 N.s/m) come back within 0.1 %
+    # and 0.3 % on the reduced plan (25.99 N, 370.98 N.s/m): held here to 1.5 %
+    for q in ("F_mu", "C_rv"):
+        row = _get(side_by_side["nominal"], "Table 4", q, "xy")
+        assert holds(row) and abs(row.rel_error) < 0.015, (q, row.simulated)
+    # the report rig's seal contact (35 MN/m in X, 22 in Y, issue 28) stores and returns part of
+    # the orbit's energy, which the report's energy balance (eq. 2-4) does not model: its
+    # friction comes back (26.23 N against 26.01 N built in) and its C_rv reads low, 312.9
+    # N.s/m against the 358 built in (the mean of 391 and 326): within the fixed band, and
+    # pinned here to the measured value within 3 %
+    f_mu = _get(side_by_side["report"], "Table 4", "F_mu", "xy")
+    c_rv = _get(side_by_side["report"], "Table 4", "C_rv", "xy")
+    assert holds(f_mu) and abs(f_mu.rel_error) < 0.015, f_mu.simulated
+    assert holds(c_rv) and c_rv.simulated == pytest.approx(312.9, rel=0.03)
 
 
 def test_calibrated_film_damping_average_and_trends(side_by_side):
@@ -267,20 +275,22 @@ def test_calibrated_film_damping_average_and_trends(side_by_side):
     avg_n = _get(nominal, "Film (section VI.3)", "C_sfd average", "xy")
     avg_r = _get(report, "Film (section VI.3)", "C_sfd average", "xy")
     assert avg_n.error < -800  # eq. 16 with 3.17 cP, identified with eq. 9: ~4,900 N.s/m
-    # measured: 5,965 N.s/m against 6,000 (-35); fixed band 600
+    # measured: 5,939 N.s/m against 6,000 (-61); fixed band 600
     assert abs(avg_r.error) < 150 and holds(avg_r)
     for axis in ("x", "y"):
         q = "C_sfd change 20-60 Hz / mean, 13 um"
         f_n = _get(nominal, "Film (Fig. 33)", q, axis).simulated
         f_r = _get(report, "Film (Fig. 33)", q, axis).simulated
         assert f_n > 0.25  # rigid sticking: C_sfd rises with frequency at 13 um
-        assert abs(f_r) < 0.6 * f_n  # flatter; still not flat (see the README)
+        # the seal's friction 1.35 N higher with the film full (issue 28) flattens it: measured
+        # +0.080 (X) and +0.032 (Y) on the reduced plan (+0.147 / +0.150 before)
+        assert abs(f_r) < 0.09
         q = "C_sfd (38 um - 13 um) / mean"
         a_n = _get(nominal, "Film (Figs. 33-34)", q, axis).simulated
         a_r = _get(report, "Film (Figs. 33-34)", q, axis).simulated
-        assert 0 < a_r < a_n  # "rising slightly with amplitude"
+        assert a_n > 0.2 and abs(a_r) < 0.05  # "nearly constant": +0.014 / +0.040 measured
         # section VI.3, "invariant at 60 Hz": eq. 16's eccentricity law alone gives +0.082 (see
-        # below); the calibrated rig has it off (measured +0.030 / +0.032)
+        # below); the calibrated rig has it off (measured -0.004 / +0.031)
         r60_n = _get(nominal, "Film (section VI.3)", AMPLITUDE_INVARIANCE_60HZ, axis)
         r60_r = _get(report, "Film (section VI.3)", AMPLITUDE_INVARIANCE_60HZ, axis)
         assert r60_n.simulated > 0.08
@@ -295,9 +305,16 @@ def test_calibrated_added_mass_rises_with_amplitude_as_table_f1(side_by_side):
     d38_r = _get(report, "Table F1", "D at 38 um", "x")
     assert d13_n > d38_n + 2.0  # rigid sticking: the opposite of the report's trend
     assert d13_r.simulated < d38_r.simulated  # the report: 6.8 kg at 13 um rising to 9.4 kg
-    # measured: 5.41 kg (band 2 kg) and 8.42 kg (band 1.41 kg)
+    # measured: 6.62 kg (band 2 kg) and 9.20 kg (band 1.41 kg)
     assert holds(d13_r) and holds(d38_r)
-    for axis in ("x", "y"):  # measured: D 8.42 / 9.17 kg, M_t 18.7 / 19.5 kg
+    # by axis (issue 28): the report's Y values start 3.6 kg below X's at 13 um and meet them
+    # at 38 um (3.2 / 6.8 kg rising to 8.1 / 9.4); the softer seal contact in Y and the relaxing
+    # stiffness give 3.74 / 6.62 kg at 13 um (before: 6.06 / 5.41, the wrong way round)
+    d13_y = _get(report, "Table F1", "D at 13 um", "y")
+    d38_y = _get(report, "Table F1", "D at 38 um", "y")
+    assert holds(d13_y) and d13_y.simulated < d13_r.simulated - 2.0
+    assert d38_y.simulated - d13_y.simulated > 1.5 * (d38_r.simulated - d13_r.simulated)
+    for axis in ("x", "y"):  # measured: D 9.20 / 8.59 kg, M_t 19.5 / 18.9 kg
         assert holds(_get(report, "Table 6", "D", axis))
         assert holds(_get(report, "Table 6", "M_t", axis))
 

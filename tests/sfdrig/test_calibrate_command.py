@@ -65,4 +65,6 @@ def test_structure_on_the_named_report_rig_identifies_its_springs(tmp_path: Path
     k = {f.axis: f.k_n_per_m for f in ident.static}
     assert k["x"] == pytest.approx(report.stiffness_x_n_per_m, rel=0.01)
     assert k["y"] == pytest.approx(report.stiffness_y_n_per_m, rel=0.01)
-    assert k["y"] > 1.05 * RigParams().structure.stiffness_y_n_per_m  # not the nominal rig
+    # not the nominal rig: the report rig's rods are Table 2's 786 kN/m in Y (the nominal 823),
+    # its relaxing stiffness (issue 28) relaxed under the held loads
+    assert k["y"] < 0.97 * RigParams().structure.stiffness_y_n_per_m
