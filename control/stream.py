@@ -287,7 +287,11 @@ class DriveStream:
             # the ring holds this command's continuation all round but for the slots of the
             # lead now playing and the margin behind it: zeros there once the lead has played
             self._ring_amp_v, self._ring_freq_hz = amp_v.copy(), freq_hz
-            self._wrap_clear = (self._pred_end, start + w.ring)
+            first, last = self._pred_end, start + w.ring
+            if self._wrap_clear is not None:  # one still pending: both are zeroed (what a
+                # newer prediction reached is skipped, `_clear_wrap`)
+                first, last = min(first, self._wrap_clear[0]), max(last, self._wrap_clear[1])
+            self._wrap_clear = (first, last)
         elif whole:
             self._ring_amp_v, self._ring_freq_hz = np.maximum(self._ring_amp_v, amp_v), freq_hz
         else:
