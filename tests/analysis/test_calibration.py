@@ -16,10 +16,15 @@ import pytest
 from analysis.calibration.compare import Comparison, compare, table_errors
 from analysis.calibration.fit import (
     AMPLITUDE_INVARIANCE_60HZ,
+    TREND_13UM,
     FittedTerm,
+    dynamic_stiffness,
     fit_eccentricity_law,
     fit_residual_damping,
+    fit_static_dynamic_split,
     fit_structure,
+    fit_wet_friction,
+    relaxed_share,
 )
 from analysis.calibration.plan import ReportPlan
 from analysis.identify import identify
@@ -107,6 +112,65 @@ def test_structure_fit_removes_the_identification_offset():
         _, k0 = fit_structure(_table3_rows(p), p, axis)
         _, k1 = fit_structure(_table3_rows(p, offset_k=10e3), p, axis)
         assert k1 == pytest.approx(k0 - 10e3, abs=300)
+
+
+def _table2_rows(k_x: float, k_y: float) -> list[Comparison]:
+    """Table 2 as `compare` makes it, for a static test that reads ``k_x``, ``k_y``."""
+    t2 = load_table("table2_static_stiffness")
+    return [Comparison("Table 2", "K_s", a, "N/m", find(t2, "K_s", a, "N/m").value, k,
+                       find(t2, "K_s", a, "N/m").u_abs or 0.04 * k, "")
+            for a, k in (("x", k_x), ("y", k_y))]
+
+
+def test_static_and_dynamic_stiffness_split_into_rods_and_relaxing_stiffness():
+    # the nominal rig (one spring, 823 kN/m, no relaxing term): its static test reads the
+    # springs; Table 2 says 765 / 786 kN/m, the impacts' fit 800 / 923 kN/m (known: Table 3).
+    # The rods go to Table 2; the rest, over the share of k_r acting at f_n, is k_r:
+    # (w tau)^2 / (1 + (w tau)^2) at 47 / 49 Hz, tau 0.1 s: 0.99885 / 0.99895
+    p = RigParams()
+    rows = _table2_rows(p.structure.stiffness_x_n_per_m, p.structure.stiffness_y_n_per_m)
+    for axis, k_dyn, m, k2 in (("x", 800e3, 8.8, 765e3), ("y", 923e3, 9.7, 786e3)):
+        k_rods, k_r = fit_static_dynamic_split(rows, p, axis, m, k_dyn)
+        share = relaxed_share(p, math.sqrt(k_dyn / m) / (2 * math.pi))
+        assert 0.9988 < share < 0.9990
+        assert k_rods == pytest.approx(k2, rel=1e-12)
+        assert k_r == pytest.approx((k_dyn - k2) / share, rel=1e-12)
+    # an identification that reads the static K 5 kN/m high: the rods 5 kN/m softer
+    high = _table2_rows(p.structure.stiffness_x_n_per_m + 5e3, p.structure.stiffness_y_n_per_m)
+    assert fit_static_dynamic_split(high, p, "x", 8.8, 800e3)[0] == pytest.approx(760e3)
+    # where the dynamic K is within Table 2's band (30.6 kN/m in X) one spring does
+    assert fit_static_dynamic_split(rows, p, "x", 8.8, 790e3) == (790e3, 0.0)
+
+
+def test_dynamic_stiffness_of_the_shipped_rig_is_what_its_impacts_read():
+    # the report rig: rods 765 / 786 kN/m and k_r 35 / 137 kN/m; its impacts identify 800 / 922
+    # kN/m (the side-by-side test below, measured): the model of the identification agrees
+    p = rig_params_named_or_file("report")
+    assert dynamic_stiffness(p, "x") == pytest.approx(800e3, rel=2e-3)
+    assert dynamic_stiffness(p, "y") == pytest.approx(922.4e3, rel=2e-3)
+    p.effects.relaxing_stiffness.enabled = False
+    assert dynamic_stiffness(p, "y") == p.structure.stiffness_y_n_per_m
+
+
+def test_wet_friction_fit_brings_the_13um_trend_in_x_to_the_reports():
+    # the report rig without its wet friction: the film damping at 13 um rises 18 % of the mean
+    # from 20 to 60 Hz in X (reduced plan, seed 3; the report: nearly constant). The fit, from
+    # two runs, gives the rise that cancels it; run again there the trend is within 0.02 of 0
+    # (the band is 0.10). The trend is not exactly linear in dF (slope -0.093 per newton from
+    # 0 to 1 N, -0.059 from 3 to 4 N, measured): one secant step from 0 N lands within 0.02.
+    p = rig_params_named_or_file("report")
+    p.seal.wet_friction_increase_n = 0.0
+    logged: list[str] = []
+    sim, plan = simulator(3), ReportPlan.reduced()
+    fitted = fit_wet_friction(sim, plan, p, logged.append)
+    assert fitted is not None
+    df, key = fitted
+    assert key == f"Film (Fig. 33)|{TREND_13UM}|x"
+    assert 1.0 < df < 3.0 and len(logged) == 1
+    p.seal.wet_friction_increase_n = df
+    (row,) = [r for r in compare(sim(p, plan.only_lubricated((13e-6,), ("x",))))
+              if r.key == key]
+    assert abs(row.simulated) < 0.02, row.simulated
 
 
 def test_residual_damping_per_axis_by_weighted_least_squares():
