@@ -16,10 +16,15 @@ import pytest
 from analysis.calibration.compare import Comparison, compare, table_errors
 from analysis.calibration.fit import (
     AMPLITUDE_INVARIANCE_60HZ,
+    TREND_13UM,
     FittedTerm,
+    dynamic_stiffness,
     fit_eccentricity_law,
     fit_residual_damping,
+    fit_static_dynamic_split,
     fit_structure,
+    fit_wet_friction,
+    relaxed_share,
 )
 from analysis.calibration.plan import ReportPlan
 from analysis.identify import identify
@@ -109,6 +114,66 @@ def test_structure_fit_removes_the_identification_offset():
         assert k1 == pytest.approx(k0 - 10e3, abs=300)
 
 
+def _table2_rows(k_x: float, k_y: float) -> list[Comparison]:
+    """Table 2 as `compare` makes it, for a static test that reads ``k_x``, ``k_y``."""
+    t2 = load_table("table2_static_stiffness")
+    return [Comparison("Table 2", "K_s", a, "N/m", find(t2, "K_s", a, "N/m").value, k,
+                       find(t2, "K_s", a, "N/m").u_abs or 0.04 * k, "")
+            for a, k in (("x", k_x), ("y", k_y))]
+
+
+def test_static_and_dynamic_stiffness_split_into_rods_and_relaxing_stiffness():
+    # the nominal rig (one spring, 823 kN/m, no relaxing term): its static test reads the
+    # springs; Table 2 says 765 / 786 kN/m, the impacts' fit 800 / 923 kN/m (known: Table 3).
+    # The rods go to Table 2; the rest, over the share of k_r acting at f_n, is k_r:
+    # (w tau)^2 / (1 + (w tau)^2) at 47 / 49 Hz, tau 0.1 s: 0.99885 / 0.99895
+    p = RigParams()
+    rows = _table2_rows(p.structure.stiffness_x_n_per_m, p.structure.stiffness_y_n_per_m)
+    for axis, k_dyn, m, k2 in (("x", 800e3, 8.8, 765e3), ("y", 923e3, 9.7, 786e3)):
+        k_rods, k_r = fit_static_dynamic_split(rows, p, axis, m, k_dyn)
+        share = relaxed_share(p, math.sqrt(k_dyn / m) / (2 * math.pi))
+        assert 0.9988 < share < 0.9990
+        assert k_rods == pytest.approx(k2, rel=1e-12)
+        assert k_r == pytest.approx((k_dyn - k2) / share, rel=1e-12)
+    # an identification that reads the static K 5 kN/m high: the rods 5 kN/m softer
+    high = _table2_rows(p.structure.stiffness_x_n_per_m + 5e3, p.structure.stiffness_y_n_per_m)
+    assert fit_static_dynamic_split(high, p, "x", 8.8, 800e3)[0] == pytest.approx(760e3)
+    # where the dynamic K is within Table 2's band (30.6 kN/m in X) one spring does
+    assert fit_static_dynamic_split(rows, p, "x", 8.8, 790e3) == (790e3, 0.0)
+
+
+def test_dynamic_stiffness_of_the_shipped_rig_is_what_its_impacts_read():
+    # the report rig (`sfdrig calibrate`'s output): one spring of 788.6 kN/m in X; in Y the rods
+    # at 786 kN/m and k_r 135.8 kN/m. Its impacts identify 788.7 / 921.2 kN/m (the reduced
+    # plan, seed 3, measured): the model of the identification agrees within 0.1 %
+    p = rig_params_named_or_file("report")
+    assert dynamic_stiffness(p, "x") == pytest.approx(788.7e3, rel=1e-3)
+    assert dynamic_stiffness(p, "y") == pytest.approx(921.2e3, rel=1e-3)
+    p.effects.relaxing_stiffness.enabled = False
+    assert dynamic_stiffness(p, "y") == p.structure.stiffness_y_n_per_m
+
+
+def test_wet_friction_fit_brings_the_13um_trend_in_x_to_the_reports():
+    # the report rig without its wet friction: the film damping at 13 um rises 18 % of the mean
+    # from 20 to 60 Hz in X (reduced plan, seed 3; the report: nearly constant). The fit, from
+    # two runs, gives the rise that cancels it; run again there the trend is within 0.02 of 0
+    # (the band is 0.10). The trend is not exactly linear in dF (slope -0.093 per newton from
+    # 0 to 1 N, -0.059 from 3 to 4 N, measured): one secant step from 0 N lands within 0.02.
+    p = rig_params_named_or_file("report")
+    p.seal.wet_friction_increase_n = 0.0
+    logged: list[str] = []
+    sim, plan = simulator(3), ReportPlan.reduced()
+    fitted = fit_wet_friction(sim, plan, p, logged.append)
+    assert fitted is not None
+    df, key = fitted
+    assert key == f"Film (Fig. 33)|{TREND_13UM}|x"
+    assert 1.0 < df < 3.0 and len(logged) == 1
+    p.seal.wet_friction_increase_n = df
+    (row,) = [r for r in compare(sim(p, plan.only_lubricated((13e-6,), ("x",))))
+              if r.key == key]
+    assert abs(row.simulated) < 0.02, row.simulated
+
+
 def test_residual_damping_per_axis_by_weighted_least_squares():
     cx, cy = fit_residual_damping(_table3_rows(RigParams()), RigParams())
     # the normal equations of the three rows (C_x = 367, C_y = 315, (C_x + C_y)/2 = 370),
@@ -149,7 +214,8 @@ def _get(rows: dict[str, Comparison], table: str, quantity: str, axis: str) -> C
 
 
 #: The calibrated rig on the reduced plan (CI), seed 3, against the fixed bands: the rows that
-#: hold (measured 2026-11-26 after issue 28's terms: 28 of 29; before them 24) ...
+#: hold (measured 2026-11-26 on the rig `sfdrig calibrate` now writes, with issue 28's terms:
+#: 28 of 29, as with the hand-fitted rig before it; before the terms 24) ...
 REDUCED_HOLD = (
     "Table 2|K_s|x", "Table 2|K_s|y",
     "Table 3|K_s|x", "Table 3|M|x", "Table 3|C_s|x", "Table 3|f_n|x",
@@ -168,8 +234,9 @@ REDUCED_HOLD = (
 )
 #: ... and the known misses (issue 28), with what was measured
 REDUCED_MISS = {
-    "Table F1|D at 25 um|y": "7.50 kg against 6.2 kg (+1.30 kg; band 1 kg; before the issue's "
-                             "terms 8.42 kg): a held-out row, see docs/report-discrepancies.md",
+    "Table F1|D at 25 um|y": "7.31 kg against 6.2 kg (+1.11 kg; band 1 kg; the hand-fitted rig "
+                             "7.50 kg, before the issue's terms 8.42 kg): a held-out row; on the "
+                             "full plan it holds (7.03 kg), see docs/report-discrepancies.md",
 }
 
 
@@ -198,11 +265,11 @@ def test_nominal_rig_misses_table3_where_calibration_was_needed(side_by_side):
     assert missed == {("f_n", "x"), ("f_n", "y"), ("K_s", "y"), ("M", "x"), ("C_s", "y")}
 
 
-#: The full plan (`sfdrig calibrate`'s, slow), seed 3: 32 of its 33 rows hold on the fixed bands
-#: (measured 2026-11-26 after issue 28's terms; before them 25: Table 2 K_s y, Table F1 D in Y at
-#: 13-32 um and in X at 19 um, the 13 um frequency trend in X and Y were out). The one left:
-#: Table F1 D at 25 um in Y, 7.25 kg against 6.2 +/- 1.0 (before 8.40). Exactly these rows: a
-#: regression and an improvement both show.
+#: The full plan (`sfdrig calibrate`'s, slow), seed 3: all 33 rows hold on the fixed bands
+#: (measured 2026-11-26 on the rig `sfdrig calibrate` writes from the nominal one; the hand-fitted
+#: rig before it held 32, without Table F1 D at 25 um in Y, 7.25 kg, now 7.03 against 6.2 +/- 1.0;
+#: before issue 28's terms 25: Table 2 K_s y, Table F1 D in Y at 13-32 um and in X at 19 um, the
+#: 13 um frequency trend in X and Y were out). Exactly these rows: a regression shows.
 FULL_HOLD = (
     "Table 2|K_s|x", "Table 2|K_s|y",
     "Table 3|K_s|x", "Table 3|M|x", "Table 3|C_s|x", "Table 3|f_n|x",
@@ -211,7 +278,7 @@ FULL_HOLD = (
     "Table 6|M_t|x", "Table 6|D|x", "Table F1|D at 13 um|x", "Table F1|D at 19 um|x",
     "Table F1|D at 25 um|x", "Table F1|D at 32 um|x", "Table F1|D at 38 um|x",
     "Table 6|M_t|y", "Table 6|D|y", "Table F1|D at 13 um|y", "Table F1|D at 19 um|y",
-    "Table F1|D at 32 um|y", "Table F1|D at 38 um|y",
+    "Table F1|D at 25 um|y", "Table F1|D at 32 um|y", "Table F1|D at 38 um|y",
     "Film (section VI.3)|C_sfd average|xy",
     "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|x",
     "Film (Fig. 33)|C_sfd change 20-60 Hz / mean, 13 um|y",
@@ -220,11 +287,11 @@ FULL_HOLD = (
     "Film (section VI.3)|C_sfd (38 um - 13 um) / mean at 60 Hz|x",
     "Film (section VI.3)|C_sfd (38 um - 13 um) / mean at 60 Hz|y",
 )
-FULL_MISS = ("Table F1|D at 25 um|y",)
+FULL_MISS: tuple[str, ...] = ()
 
 
 @pytest.mark.slow
-def test_calibrated_rig_holds_32_of_33_rows_of_the_full_plan():
+def test_calibrated_rig_holds_33_of_33_rows_of_the_full_plan():
     with tempfile.TemporaryDirectory() as tmp:
         paths = run_report_plan(Path(tmp), rig_params_named_or_file("report"), ReportPlan(),
                                 seed=3)
@@ -242,14 +309,16 @@ def test_calibrated_rig_holds_32_of_33_rows_of_the_full_plan():
 def test_table2_and_table3_in_y_with_the_relaxing_stiffness(side_by_side):
     # one spring per axis could not give both the static 786 kN/m (Table 2) and the impact's
     # 923 kN/m in Y (issue 28); the rods at the static value with a relaxing stiffness beside
-    # them (137 kN/m, tau 0.1 s: relaxed under the static test's held loads, nearly all there at
-    # the impact's 49 Hz) give both: measured 786.4 and 922.4 kN/m (within 0.1 %)
+    # them (135.8 kN/m, tau 0.1 s: relaxed under the static test's held loads, nearly all there
+    # at the impact's 49 Hz) give both: measured 786.4 and 921.2 kN/m (within 0.3 %). In X the
+    # report's 765 and 800 kN/m are within Table 2's band of one spring: 788.6 kN/m, both tests
     report = side_by_side["report"]
-    for axis, k2, k3 in (("x", 765e3, 800e3), ("y", 786e3, 923e3)):
-        static, impact = (_get(report, "Table 2", "K_s", axis),
-                          _get(report, "Table 3", "K_s", axis))
-        assert static.simulated == pytest.approx(k2, rel=3e-3)
-        assert impact.simulated == pytest.approx(k3, rel=3e-3)
+    static, impact = (_get(report, "Table 2", "K_s", "y"), _get(report, "Table 3", "K_s", "y"))
+    assert static.simulated == pytest.approx(786e3, rel=3e-3)
+    assert impact.simulated == pytest.approx(923e3, rel=3e-3)
+    static, impact = (_get(report, "Table 2", "K_s", "x"), _get(report, "Table 3", "K_s", "x"))
+    assert static.simulated == pytest.approx(impact.simulated, rel=1e-3)
+    assert holds(static) and holds(impact)
     # the nominal rig, one spring at the text's 823 kN/m, misses Table 3 in Y (above)
 
 
