@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -136,6 +136,69 @@ def _select(available: list[str], mapping: Mapping[str, str], where: str,
             f"{what} {available}; map them with --map fx_N=NAME --map x_m=NAME"
         )
     return chosen
+
+
+# --- the skeleton every format's reader ends in --------------------------------------------------
+@dataclass
+class ReadColumns:
+    """What a format's reader found: the chosen columns before any check, and what the file says
+    about its own timing. Each reader (CSV, MAT, TDMS) only opens its format and fills this;
+    `measured_from` does the rest the same way for all of them.
+
+    Attributes
+    ----------
+    columns : dict of str to ndarray
+        Canonical name -> the raw vector as read (unscaled, not yet checked).
+    sources : dict of str to str
+        Canonical name -> how the file names it ("column 'x'", "variable 'x'", ...), for errors.
+    source_format : str
+        "csv", "mat", "mat-v7.3" or "tdms".
+    line_of : callable or None
+        Sample index -> its line in a text file, for errors ("line 12"); None for arrays, whose
+        errors name "sample i" (of the vector, for the time vector).
+    time_quantum_s : float or None
+        The rounding of a printed time column [s]; None: the float's own resolution.
+    stated_rate : (str, float) or None
+        A sample rate the file states apart from a time column [Hz], and what states it
+        ("variable 'Fs'", "wf_increment of channel 'g/x'").
+    start_time : str
+        ISO 8601 UTC of the first sample when the file says so, else "".
+    """
+
+    columns: dict[str, np.ndarray]
+    sources: dict[str, str]
+    source_format: str
+    line_of: Callable[[int], str] | None = None
+    time_quantum_s: float | None = None
+    stated_rate: tuple[str, float] | None = None
+    start_time: str = ""
+
+
+def measured_from(read: ReadColumns, where: str, fs_hz: float | None,
+                  scale: Mapping[str, float] | None) -> MeasuredData:
+    """Check the columns (finite, equal lengths, plausible), find the sample rate (a time
+    column, a rate the file states and ``fs_hz`` must agree), scale: the measured data."""
+    name_of = read.sources.__getitem__
+    place_of = read.line_of or (lambda i: f"sample {i}")
+    _check_finite(read.columns, where, name_of, place_of)
+    fs_found, offset, what = None, 0.0, ""
+    if "time_s" in read.columns:
+        t = read.columns["time_s"]
+        quantum = 4 * np.finfo(float).eps * float(np.max(np.abs(t))) if len(t) else 0.0
+        if read.time_quantum_s is not None:
+            quantum = max(quantum, read.time_quantum_s)
+        time_place = read.line_of or (lambda i: f"{read.sources['time_s']} sample {i}")
+        fs_found = _rate_from_time(t, quantum, time_place, where)
+        offset, what = float(t[0]), f"the time {read.sources['time_s']}"
+    if read.stated_rate is not None:
+        stated, rate = read.stated_rate
+        if fs_found is not None and abs(rate - fs_found) > FS_TOLERANCE * fs_found:
+            raise ImportDataError(f"{where}: {stated} says {rate:.9g} Hz, {what} says "
+                                  f"{fs_found:.9g} Hz")
+        fs_found, what = rate, stated
+    fs = _resolve_fs(fs_hz, fs_found, what, where)
+    return _finish(read.columns, fs, scale or {}, read.sources, read.source_format, where,
+                   name_of, offset, read.start_time)
 
 
 # --- sample rate -------------------------------------------------------------------------------

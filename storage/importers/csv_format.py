@@ -12,11 +12,9 @@ import numpy as np
 from storage.errors import ImportDataError
 from storage.importers.common import (
     MeasuredData,
-    _check_finite,
-    _finish,
-    _rate_from_time,
-    _resolve_fs,
+    ReadColumns,
     _select,
+    measured_from,
 )
 
 
@@ -112,25 +110,14 @@ def read_csv(path: str | Path, mapping: Mapping[str, str] | None = None,
     data = _parse_columns(path, body, line_no, header, delim, cols)
     columns = {canon: data[cols.index(j)] for canon, j in idx.items()}
 
-    def name_of(canon: str) -> str:
-        return f"column {chosen[canon]!r}"
-
-    def line_of(i: int) -> str:
-        return f"line {int(line_no[i])}"
-
-    where = str(path)
-    _check_finite(columns, where, name_of, line_of)
-    fs_found, offset = None, 0.0
-    if "time_s" in columns:
-        t_col = idx["time_s"]
-        quantum = _decimals_quantum([_cell(s, delim, t_col) for s in body[:: max(1, len(body)
-                                                                                // 1000)]])
-        quantum = max(quantum, 4 * np.finfo(float).eps * float(np.max(np.abs(columns["time_s"]))))
-        fs_found = _rate_from_time(columns["time_s"], quantum, line_of, where)
-        offset = float(columns["time_s"][0])
-    fs = _resolve_fs(fs_hz, fs_found, f"the time column {chosen.get('time_s')!r}", where)
-    sources = {c: f"column {col!r}" for c, col in chosen.items()}
-    return _finish(columns, fs, scale or {}, sources, "csv", where, name_of, offset)
+    quantum = None
+    if "time_s" in idx:  # the printed decimals: a time rounded to them is still uniform
+        quantum = _decimals_quantum([_cell(s, delim, idx["time_s"])
+                                     for s in body[:: max(1, len(body) // 1000)]])
+    return measured_from(ReadColumns(
+        columns, {c: f"column {col!r}" for c, col in chosen.items()}, "csv",
+        line_of=lambda i: f"line {int(line_no[i])}", time_quantum_s=quantum), str(path), fs_hz,
+        scale)
 
 
 def _widths_ok(text: str, delim: str, n_cols: int) -> bool:

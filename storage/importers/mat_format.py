@@ -12,13 +12,10 @@ import numpy as np
 
 from storage.errors import ImportDataError
 from storage.importers.common import (
-    FS_TOLERANCE,
     MeasuredData,
-    _check_finite,
-    _finish,
-    _rate_from_time,
-    _resolve_fs,
+    ReadColumns,
     _select,
+    measured_from,
 )
 
 _MAT_REF = re.compile(
@@ -140,25 +137,9 @@ def read_mat(path: str | Path, mapping: Mapping[str, str] | None = None,
         columns, sources = _read_mat_vars(fetch, available, mapping, where)
         stored_rate = _stored_rate(fetch, available, where)
 
-    def name_of(canon: str) -> str:
-        return sources[canon]
-
-    _check_finite(columns, where, name_of, lambda i: f"sample {i}")
-    fs_found, offset = None, 0.0
-    if "time_s" in columns:
-        t = columns["time_s"]
-        fs_found = _rate_from_time(t, 4 * np.finfo(float).eps * float(np.max(np.abs(t))),
-                                   lambda i: f"{sources['time_s']} sample {i}", where)
-        offset = float(t[0])
-    what = f"the time vector {sources.get('time_s')}"
-    if stored_rate is not None:
-        rate_name, rate = stored_rate
-        if fs_found is not None and abs(rate - fs_found) > FS_TOLERANCE * fs_found:
-            raise ImportDataError(f"{where}: variable {rate_name!r} says {rate:.9g} Hz, {what} "
-                                  f"says {fs_found:.9g} Hz")
-        fs_found, what = rate, f"variable {rate_name!r}"
-    fs = _resolve_fs(fs_hz, fs_found, what, where)
-    return _finish(columns, fs, scale or {}, sources, fmt, where, name_of, offset)
+    stated = None if stored_rate is None else (f"variable {stored_rate[0]!r}", stored_rate[1])
+    return measured_from(ReadColumns(columns, sources, fmt, stated_rate=stated), where, fs_hz,
+                         scale)
 
 
 def _read_mat_vars(fetch: Any, available: list[str], mapping: dict[str, str],
@@ -195,3 +176,4 @@ def _stored_rate(fetch: Any, available: list[str], where: str) -> tuple[str, flo
                                   "positive scalar sample rate [Hz]")
         return name, float(value.flat[0])
     return None
+

@@ -13,11 +13,9 @@ from storage.errors import ImportDataError
 from storage.importers.common import (
     FS_TOLERANCE,
     MeasuredData,
-    _check_finite,
-    _finish,
-    _rate_from_time,
-    _resolve_fs,
+    ReadColumns,
     _select,
+    measured_from,
 )
 
 
@@ -80,28 +78,15 @@ def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
         t0 = ch.properties.get("wf_start_time")
         if t0 is not None and not start_time:
             start_time = _tdms_time(t0)
-    _check_finite(columns, where, sources.__getitem__, lambda i: f"sample {i}")
-    fs_found = None
-    what = ""
-    if "time_s" in columns:
-        t = columns["time_s"]
-        fs_found = _rate_from_time(t, 4 * np.finfo(float).eps * float(np.max(np.abs(t))),
-                                   lambda i: f"{sources['time_s']} sample {i}", where)
-        what = f"the time channel {sources['time_s']}"
+    stated = None
     if increments:
         vals = list(increments.values())
         if max(vals) - min(vals) > FS_TOLERANCE * min(vals):
             desc = ", ".join(f"{k}: {v:g} s" for k, v in increments.items())
             raise ImportDataError(f"{where}: channels have different wf_increment ({desc})")
-        fs_inc = 1.0 / vals[0]
-        if fs_found is not None and abs(fs_found - fs_inc) > FS_TOLERANCE * fs_inc:
-            raise ImportDataError(f"{where}: wf_increment says {fs_inc:.9g} Hz, {what} says "
-                                  f"{fs_found:.9g} Hz")
-        fs_found, what = fs_inc, f"wf_increment of {next(iter(increments))}"
-    fs = _resolve_fs(fs_hz, fs_found, what, where)
-    offset = float(columns["time_s"][0]) if "time_s" in columns else 0.0
-    return _finish(columns, fs, scale or {}, sources, "tdms", where, sources.__getitem__, offset,
-                   start_time)
+        stated = (f"wf_increment of {next(iter(increments))}", 1.0 / vals[0])
+    return measured_from(ReadColumns(columns, sources, "tdms", stated_rate=stated,
+                                     start_time=start_time), where, fs_hz, scale)
 
 
 def _tdms_time(value: Any) -> str:
@@ -111,5 +96,6 @@ def _tdms_time(value: Any) -> str:
             timespec="milliseconds")
     except (ValueError, TypeError):
         return ""
+
 
 
