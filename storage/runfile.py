@@ -6,7 +6,8 @@ the final status and stop time are written after the SWMR session is closed (fil
 
 `RunWriter` implements the sweep listener (contract A): ``on_block``, ``on_step``, ``on_event``.
 ``on_block`` only copies the block and hands it to a background I/O thread, which appends whole
-chunks (gzip chunks are shuffled and deflated in a small thread pool, then written directly) and
+chunks (`storage.chunks.ChunkWriter`: gzip chunks are shuffled and deflated in a small thread
+pool, then written directly) and
 flushes at least every ``flush_interval_s`` seconds; ``on_step`` and ``on_event`` check their
 rows and hand them over too, and the thread writes each after the samples before it and flushes
 (the one I/O thread of a run: the caller, the acquisition loop, never waits on the disk). A writer
@@ -20,7 +21,6 @@ import math
 import os
 import threading
 import time
-import zlib
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -29,6 +29,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from storage.chunks import ChunkWriter, deflate_pool
 from storage.layout import (
     EVENT_KINDS,
     FORMAT,
@@ -152,38 +153,10 @@ class RunWriter:
             daemon's resident memory grew with every run (`control.native_memory`).
         """
         path = Path(path)
-        if kind not in KINDS:
-            raise ValueError(f"kind {kind!r} is not one of {KINDS}")
-        if not isinstance(run_id, str) or not run_id:
-            raise ValueError(f"run_id must be a non-empty string, got {run_id!r}")
-        try:
-            rate_ok = math.isfinite(float(sample_rate_hz)) and float(sample_rate_hz) > 0
-        except (TypeError, ValueError):
-            rate_ok = False
-        if not rate_ok:
-            raise ValueError(f"sample_rate_hz must be a positive number, got {sample_rate_hz!r}")
-        if not flush_interval_s >= 0 or not max_backlog_s > 0:
-            raise ValueError(f"flush_interval_s ({flush_interval_s}) must be >= 0 and "
-                             f"max_backlog_s ({max_backlog_s}) > 0")
-        if compression not in ("lzf", "gzip"):
-            raise ValueError(f"compression {compression!r} is not 'lzf' or 'gzip'")
-        chans: list[dict[str, Any]] = []
-        for i, ch in enumerate(channels):
-            meta = {"name": ch} if isinstance(ch, str) else dict(ch)
-            check_name(meta.get("name"), f"channels[{i}]")
-            chans.append(meta)
-        if not chans:
-            raise ValueError("a run needs at least one analog-input channel")
+        chans, ao_list, chunk_samples = _checked_arguments(
+            run_id, kind, channels, ao_names, sample_rate_hz, compression, chunk_samples,
+            flush_interval_s, max_backlog_s)
         ai_names = [c["name"] for c in chans]
-        ao_list = [check_name(n, f"ao_names[{i}]") for i, n in enumerate(ao_names)]
-        for label, names in (("channels", ai_names), ("ao_names", ao_list)):
-            dup = {n for n in names if names.count(n) > 1}
-            if dup:
-                raise ValueError(f"{label}: duplicate names {sorted(dup)}")
-        if chunk_samples is None:
-            chunk_samples = default_chunk_samples(float(sample_rate_hz))
-        if chunk_samples < 1:
-            raise ValueError(f"chunk_samples must be >= 1, got {chunk_samples}")
         if channel_map is None:
             channel_map = {
                 "sample_rate_hz": float(sample_rate_hz),
@@ -207,22 +180,16 @@ class RunWriter:
         self._io_lock = threading.RLock()
         self._flushed = threading.Condition()
         self._wake = threading.Event()
-        n_ds = len(ai_names) + len(ao_list)
-        # Samples flow: on_block -> _pending (list of blocks) -> _tail (samples after the last
-        # chunk boundary; whole chunks leave it compressed and written directly) -> file.
-        self._pending: list[np.ndarray] = []  # (n_ds, n) blocks not yet merged into _tail
+        # Samples flow: on_block -> _pending (list of blocks, the hand-over) -> the chunk
+        # writer (whole chunks, and at a flush the partly filled last one) -> file.
+        self._pending: list[np.ndarray] = []  # (n_ds, n) blocks not yet given to _chunks
         self._pending_n = 0
-        self._tail = np.empty((n_ds, 0))
-        self._tail_start = 0  # sample index of _tail[:, 0], a multiple of chunk_samples
-        self._tail_written = 0  # leading samples of _tail already in the datasets (flushes)
         self._next_sample = 0  # expected first_sample of the next block
         # steps and events handed over, not yet written (with the I/O thread: it writes them,
         # each after the samples before it, and flushes; the caller never waits on the disk)
         self._records: list[tuple[str, Any]] = []
-        self._written = 0  # samples in the datasets
-        self._compression = compression
-        # gzip chunks are shuffled and deflated here, in threads (zlib releases the GIL), and
-        # handed to HDF5 ready-made; HDF5's own filter pipeline would run them one by one.
+        # gzip chunks are shuffled and deflated in threads (zlib releases the GIL) and handed
+        # to HDF5 ready-made; HDF5's own filter pipeline would run them one by one.
         self._pool: ThreadPoolExecutor | None = None
         self._own_pool = False
         if compression == "gzip":
@@ -272,7 +239,8 @@ class RunWriter:
                     **writer_identity(),
                 },
             )
-            self._dsets = layout.samples
+            self._chunks = ChunkWriter(layout.samples, self.chunk_samples, compression,
+                                       self._pool)
             self._steps, self._harm = layout.steps, layout.harmonics
             self._drive_v, self._events = layout.drive_v, layout.events
             f.flush()
@@ -330,7 +298,7 @@ class RunWriter:
                 raise OSError(
                     f"{self.path}: the run writer is {backlog_s:.1f} s behind the acquisition "
                     f"(limit {self.max_backlog_s:g} s): disk or CPU too slow for "
-                    f"{len(self._dsets)} channels at {self.sample_rate_hz:g} S/s"
+                    f"{n_ai + n_ao} channels at {self.sample_rate_hz:g} S/s"
                 )
             # Copy: the caller may reuse its buffers.
             self._pending.append(np.concatenate((ai, ao)) if n_ao else ai.copy())
@@ -429,48 +397,11 @@ class RunWriter:
             return self._samples_flushed >= n_samples
 
     def _write_pending(self, whole_chunks_only: bool = False) -> None:
-        """Move buffered samples into the datasets: every completed chunk, and with
+        """Move the blocks handed over into the datasets: every completed chunk, and with
         ``whole_chunks_only=False`` also the partly filled last chunk (for a flush)."""
         with self._buf_lock:
             blocks, self._pending, self._pending_n = self._pending, [], 0
-        if blocks:
-            self._tail = np.concatenate([self._tail, *blocks], axis=1)
-        chunk = self.chunk_samples
-        n_full = (self._tail.shape[1] // chunk) * chunk
-        if n_full:
-            self._write_chunks(self._tail_start, self._tail[:, :n_full])
-            self._tail = self._tail[:, n_full:].copy()
-            self._tail_start += n_full
-            self._tail_written = 0
-        n_tail = self._tail.shape[1]
-        if not whole_chunks_only and n_tail > self._tail_written:
-            a, b = self._tail_start + self._tail_written, self._tail_start + n_tail
-            for row, ds in enumerate(self._dsets):
-                ds.resize((b,))
-                ds[a:b] = self._tail[row, self._tail_written:]
-            self._tail_written = n_tail
-        self._written = self._tail_start + self._tail_written
-
-    def _write_chunks(self, start: int, data: np.ndarray) -> None:
-        """Write whole chunks ``data`` (n_ds, k * chunk_samples) at sample ``start``."""
-        stop = start + data.shape[1]
-        if self._compression != "gzip":
-            for row, ds in enumerate(self._dsets):
-                ds.resize((stop,))
-                ds[start:stop] = data[row]
-            return
-        chunk = self.chunk_samples
-        jobs = [(row, k) for row in range(data.shape[0]) for k in range(0, data.shape[1], chunk)]
-
-        def compress(job: tuple[int, int]) -> bytes:
-            row, k = job
-            return _shuffle_deflate(data[row, k:k + chunk])
-
-        blobs = list(self._pool.map(compress, jobs) if self._pool else map(compress, jobs))
-        for ds in self._dsets:
-            ds.resize((stop,))
-        for (row, k), blob in zip(jobs, blobs, strict=True):
-            self._dsets[row].id.write_direct_chunk((start + k,), blob, 0)
+        self._chunks.write(blocks, whole_chunks_only)
 
     def _flush_locked(self) -> None:
         """Everything into the file, then flush (caller holds _io_lock)."""
@@ -478,12 +409,12 @@ class RunWriter:
         self._file.flush()
         self._last_flush = time.monotonic()
         with self._flushed:
-            self._samples_flushed = self._written
+            self._samples_flushed = self._chunks.written
             self._flushed.notify_all()
 
     def _unflushed(self) -> bool:
-        return bool(self._pending_n or self._tail.shape[1] > self._tail_written
-                    or self._samples_flushed < self._written or self._records)
+        return bool(self._pending_n or self._chunks.holds_unwritten
+                    or self._samples_flushed < self._chunks.written or self._records)
 
     def _io_loop(self) -> None:
         """Background I/O: write completed chunks as blocks arrive; flush when due."""
@@ -601,19 +532,45 @@ class RunWriter:
         return f"<RunWriter {self.run_id!r} {self.path} {state}, {self._next_sample} samples>"
 
 
-def deflate_pool(name: str = "RunWriter-deflate") -> ThreadPoolExecutor | None:
-    """A thread pool for `RunWriter`'s gzip chunks (zlib releases the GIL), or None on one
-    core (then each writer compresses on its I/O thread)."""
-    n = min(4, os.cpu_count() or 1)
-    return ThreadPoolExecutor(max_workers=n, thread_name_prefix=name) if n > 1 else None
-
-
-def _shuffle_deflate(x: np.ndarray) -> bytes:
-    """One chunk as HDF5's filter pipeline (shuffle, then deflate level 1) would store it."""
-    shuffled = np.ascontiguousarray(
-        np.ascontiguousarray(x, dtype="<f8").view(np.uint8).reshape(-1, 8).T
-    )
-    return zlib.compress(shuffled.data, 1)
+def _checked_arguments(run_id: str, kind: str, channels: Sequence[Mapping[str, Any] | str],
+                       ao_names: Sequence[str], sample_rate_hz: float, compression: str,
+                       chunk_samples: int | None, flush_interval_s: float,
+                       max_backlog_s: float) -> tuple[list[dict[str, Any]], list[str], int]:
+    """`RunWriter`'s arguments checked (`ValueError` naming the one at fault): the channels'
+    metadata, the drive names and the chunk length."""
+    if kind not in KINDS:
+        raise ValueError(f"kind {kind!r} is not one of {KINDS}")
+    if not isinstance(run_id, str) or not run_id:
+        raise ValueError(f"run_id must be a non-empty string, got {run_id!r}")
+    try:
+        rate_ok = math.isfinite(float(sample_rate_hz)) and float(sample_rate_hz) > 0
+    except (TypeError, ValueError):
+        rate_ok = False
+    if not rate_ok:
+        raise ValueError(f"sample_rate_hz must be a positive number, got {sample_rate_hz!r}")
+    if not flush_interval_s >= 0 or not max_backlog_s > 0:
+        raise ValueError(f"flush_interval_s ({flush_interval_s}) must be >= 0 and "
+                         f"max_backlog_s ({max_backlog_s}) > 0")
+    if compression not in ("lzf", "gzip"):
+        raise ValueError(f"compression {compression!r} is not 'lzf' or 'gzip'")
+    chans: list[dict[str, Any]] = []
+    for i, ch in enumerate(channels):
+        meta = {"name": ch} if isinstance(ch, str) else dict(ch)
+        check_name(meta.get("name"), f"channels[{i}]")
+        chans.append(meta)
+    if not chans:
+        raise ValueError("a run needs at least one analog-input channel")
+    ai_names = [c["name"] for c in chans]
+    ao_list = [check_name(n, f"ao_names[{i}]") for i, n in enumerate(ao_names)]
+    for label, names in (("channels", ai_names), ("ao_names", ao_list)):
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise ValueError(f"{label}: duplicate names {sorted(dup)}")
+    if chunk_samples is None:
+        chunk_samples = default_chunk_samples(float(sample_rate_hz))
+    if chunk_samples < 1:
+        raise ValueError(f"chunk_samples must be >= 1, got {chunk_samples}")
+    return chans, ao_list, int(chunk_samples)
 
 
 __all__ = [
