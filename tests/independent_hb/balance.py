@@ -60,7 +60,7 @@ class Balance:
     amplitude: float
     controlled: int = 0
     forces: NonlinearForces | None = None
-    n_harmonics: int = 7
+    n_harmonics: int = 21
     n_time: int = 512
 
     @property

@@ -138,7 +138,7 @@ class Rig:
         return m_, c_, k_
 
     def balance(self, freq_hz: float, amplitude_m: float, fraction: float,
-                n_harmonics: int = 7, n_time: int = 512) -> Balance:
+                n_harmonics: int = 21, n_time: int = 512) -> Balance:
         """The balance of a dwell holding the x motion's fundamental at ``amplitude_m``."""
         m_, c_, k_ = self.matrices(fraction)
         omega = 2 * math.pi * freq_hz
