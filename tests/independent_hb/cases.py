@@ -129,15 +129,15 @@ def signature_of(solved: list[DwellRecord], s: SensorModel) -> Signature:
         sig_h = abs(h) * math.hypot(sf / abs(f), sx / abs(x))
         sig_r = abs(ratio) * math.hypot(sa / abs(a), sx / abs(x))
         rows.append((w, h, ratio, y, sig_h, sig_r, sy))
-    w = np.array([r[0] for r in rows])
-    h = np.array([r[1] for r in rows])
-    sig_h = np.array([r[4] for r in rows])
+    omega = np.array([r[0] for r in rows])
+    stiff = np.array([r[1] for r in rows])
+    sig_stiff = np.array([r[4] for r in rows])
     # K, M from Re H = K - w^2 M; C from Im H = w C; weighted by each dwell's sigma
-    a_re = np.column_stack([np.ones_like(w), -(w**2)]) / sig_h[:, None]
-    km = np.linalg.lstsq(a_re, h.real / sig_h, rcond=None)[0]
-    c = np.sum(w * h.imag / sig_h**2) / np.sum(w**2 / sig_h**2)
-    fit = km[0] - w**2 * km[1] + 1j * w * c
-    res_h = np.abs(h - fit) / sig_h
+    a_re = np.column_stack([np.ones_like(omega), -(omega**2)]) / sig_stiff[:, None]
+    km = np.linalg.lstsq(a_re, stiff.real / sig_stiff, rcond=None)[0]
+    damping = np.sum(omega * stiff.imag / sig_stiff**2) / np.sum(omega**2 / sig_stiff**2)
+    fit = km[0] - omega**2 * km[1] + 1j * omega * damping
+    res_h = np.abs(stiff - fit) / sig_stiff
     res_r = np.array([abs(r[2] + r[0] ** 2) / r[5] for r in rows])
     res_y = np.array([abs(r[3]) / r[6] for r in rows])
     return Signature(np.sqrt(res_h**2 + res_r**2 + res_y**2))
@@ -176,7 +176,8 @@ def judge(case: Case, doc: dict[str, Any], total_sigmas: float) -> tuple[bool, s
     if not case.expected and not case.outside_library:
         return (not found and not doc["unexplained"]), said
     if case.outside_library:
-        return (not confident and verdict in ("unexplained discrepancy", "baseline inadequate")), said
+        honest = verdict in ("unexplained discrepancy", "baseline inadequate")
+        return (not confident and honest), said
     want = {e.effect for e in case.expected}
     if confident != want:
         return False, said
