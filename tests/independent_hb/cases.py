@@ -172,7 +172,9 @@ def judge(case: Case, doc: dict[str, Any], total_sigmas: float) -> tuple[bool, s
     found = [(f["effect"], f["evidence"].get("confidence")) for f in doc["findings"]]
     confident = {e for e, c in found if c == "high"}
     verdict = doc.get("verdict", {}).get("verdict", "")
-    said = f"found {found}, verdict {verdict!r}"
+    best: dict[str, Any] = next((c for group in doc.get("candidates", []) for c in group[:1]), {})
+    said = (f"found {found}, verdict {verdict!r}; best candidate {best.get('effect')} "
+            f"{best.get('parameters')}")
     if not case.expected and not case.outside_library:
         return (not found and not doc["unexplained"]), said
     if case.outside_library:
