@@ -84,8 +84,9 @@ def cases(seed: int = 1) -> dict[str, Case]:
         # on it, hence 3 %
         Case("frame_mode", Hidden(frame=Frame(mass_kg=100.0, frequency_hz=47.0)),
              (Expected("second_mode", "frequency_hz", 47.0, model_allowance=0.03),)),
+        # x dwells identify C_yx, the y force from the x velocity (eq. 7: F_y = C_yx x' + ...)
         Case("film_cross_coupling", Hidden(film_cross_damping_ns_per_m=300.0),
-             (Expected("cross_coupling", "c_xy_Ns_per_m", 300.0),)),
+             (Expected("cross_coupling", "c_yx_Ns_per_m", 300.0),)),
         # Bouc-Wen saturates towards F_s where a Dahl/Iwan joint's slip force is reached: the
         # two laws' slip forces agree to about 15 % over 13-38 um
         Case("bouc_wen_seal", Hidden(bouc_wen=bw),
