@@ -1,0 +1,1 @@
+"""A second independent generator of measured SFD-rig data: frequency-domain harmonic balance."""
