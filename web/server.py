@@ -175,6 +175,7 @@ class WebApp:
             web.get("/api/runs", self.runs),
             web.get("/api/runs/{run_id}", self.run_details),
             web.get("/api/runs/{run_id}/download", self.download),
+            web.get("/api/runs/{run_id}/transfer", self.transfer),
             web.post("/api/runs/{run_id}/notes", self.add_note),
             web.post("/api/runs/{run_id}/report", self.make_report),
             web.get("/api/runs/{run_id}/report/{name:.+}", self.report_file,
@@ -416,6 +417,14 @@ class WebApp:
         run_id = request.match_info["run_id"]
         return web.Response(content_type="application/json", body=orjson.dumps(
             {"ok": True, **await self._history(request, lambda h: h.details(run_id))}))
+
+    async def transfer(self, request: web.Request) -> web.Response:
+        """The run's X/F, F/X and coherence per step from its file (`web.transfer`): the page
+        asks again at each new step of a running sweep."""
+        self._guard(request, need_operator=False)
+        run_id = request.match_info["run_id"]
+        return web.Response(content_type="application/json", body=orjson.dumps(
+            {"ok": True, **await self._history(request, lambda h: h.transfer(run_id))}))
 
     async def download(self, request: web.Request) -> web.StreamResponse:
         """The run file (``format=h5``) or `sfdrig export`'s files (mat, csv, tdms; a zip when

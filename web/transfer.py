@@ -1,0 +1,103 @@
+"""The rig's transfer function across a sweep, from the recorded samples of each step.
+
+For one step, its recorded span (``first_sample`` to ``last_sample``, whole cycles at the
+step's frequency) is split into `MAX_SEGMENTS` (or fewer) segments of whole cycles; each
+segment's displacement X_k and force F_k at the drive frequency come from a one-bin Fourier sum
+(the segment's mean removed). The averages give
+
+* the receptance H = X/F by the H1 estimator: H = sum(X_k F_k*) / sum(|F_k|^2) [m/N],
+* the dynamic stiffness K = 1/H [N/m] (k - m w^2 + j c w for a linear rig), and
+* the magnitude-squared coherence g2 = |sum X_k F_k*|^2 / (sum |X_k|^2 sum |F_k|^2): 1 when
+  every segment shows the same ratio, lower when noise or a drifting, non-linear response
+  (stick-slip, contact) spoils it. One segment has no coherence (it would be 1 by definition).
+
+This is computed from the samples themselves, never from the controller's own lock-in result,
+so it checks what the controller reports. No I/O here (`web.history` reads the samples).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+MAX_SEGMENTS = 8
+#: below this coherence the page greys the step's points and shows the value
+COHERENCE_LOW = 0.9
+#: the direct axes of each motion: a single-axis motion drives its axis only
+AXES_OF_MOTION = {"x": ("x",), "y": ("y",)}
+TWO_AXES = ("x", "y")
+
+
+def one_bin(segment: np.ndarray, freq_hz: float, fs: float) -> complex:
+    """The complex amplitude of ``segment`` at ``freq_hz`` (2/N times the Fourier sum, the
+    segment's mean removed so an offset that is not whole cycles long does not leak in)."""
+    n = segment.shape[-1]
+    phasor = np.exp(-2j * np.pi * freq_hz * np.arange(n) / fs)
+    return complex(2.0 / n * np.dot(segment - segment.mean(), phasor))
+
+
+def segments_of(n_samples: int, freq_hz: float, fs: float) -> list[tuple[int, int]]:
+    """Up to `MAX_SEGMENTS` spans (start, stop) of whole cycles each within ``n_samples``."""
+    # a recorded span is whole cycles rounded to a sample: half a sample short is still whole
+    cycles = int(math.floor((n_samples + 0.5) * freq_hz / fs))
+    if cycles < 1:
+        return []
+    count = min(MAX_SEGMENTS, cycles)
+    per = cycles // count
+    out = []
+    for k in range(count):
+        start = round(k * per * fs / freq_hz)
+        stop = round((k + 1) * per * fs / freq_hz)
+        out.append((start, min(stop, n_samples)))
+    return out
+
+
+def transfer(force: np.ndarray, disp: np.ndarray, freq_hz: float, fs: float
+             ) -> dict[str, Any] | None:
+    """The receptance X/F, the dynamic stiffness F/X and the coherence of one step's record.
+
+    Parameters
+    ----------
+    force, disp : ndarray, shape (n,)
+        The step's recorded force [N] and displacement [m], the same samples.
+    freq_hz, fs : float
+        The step's drive frequency and the sample rate [Hz].
+
+    Returns
+    -------
+    dict or None
+        ``h_um_per_kn`` (|X/F|), ``phase_deg`` (of X/F), ``k_re_mn_per_m``, ``k_im_mn_per_m``
+        (K = F/X), ``coherence`` (None for one segment) and ``segments``; None when the record
+        holds no whole cycle or no force at the frequency.
+    """
+    if not (freq_hz > 0 and fs > 0) or force.shape != disp.shape:
+        return None
+    spans = segments_of(force.shape[-1], freq_hz, fs)
+    if not spans:
+        return None
+    fk = np.array([one_bin(force[a:b], freq_hz, fs) for a, b in spans])
+    xk = np.array([one_bin(disp[a:b], freq_hz, fs) for a, b in spans])
+    sff = float(np.sum(np.abs(fk) ** 2))
+    sxx = float(np.sum(np.abs(xk) ** 2))
+    sxf = complex(np.sum(xk * np.conj(fk)))
+    if sff <= 0.0 or sxf == 0:
+        return None
+    h = sxf / sff  # m/N
+    k = 1.0 / h  # N/m
+    coherence = abs(sxf) ** 2 / (sxx * sff) if len(spans) > 1 else None
+    return {
+        "h_um_per_kn": abs(h) * 1e9,
+        "phase_deg": math.degrees(np.angle(h)),
+        "k_re_mn_per_m": k.real / 1e6,
+        "k_im_mn_per_m": k.imag / 1e6,
+        "coherence": coherence,
+        "segments": len(spans),
+    }
+
+
+def axes_of(motion: str) -> tuple[str, ...]:
+    """The axes whose direct X/F a step of ``motion`` shows (two-axis orbits: both, with the
+    cross-coupled terms inside each, as the step table's F/X)."""
+    return AXES_OF_MOTION.get(motion, TWO_AXES)
