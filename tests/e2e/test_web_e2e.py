@@ -562,3 +562,77 @@ def test_a_sweep_defined_on_the_page(daemon_factory, web_factory, browser, tmp_p
         assert [s["freq_hz"] for s in run.steps] == [70.0, 80.0]
         assert run.test_spec["settle_cycles"] == 20 and run.test_spec["load_n"] == [40.0]
     assert page.errors == []
+
+
+def test_the_transfer_and_its_coherence_live_and_from_history(daemon_factory, web_factory,
+                                                              browser):
+    """Issue 25 (deliverable 4): each step's X/F, F/X and coherence from the recorded samples,
+    drawn against frequency while a sweep runs (the daemon's own run file, read again at each
+    step) and for a run opened from the history, with a step of low coherence greyed and its
+    value shown."""
+    from tests.web.test_transfer import FREQS, NOISY_STEP, rig_k, write_rig_run
+
+    d = daemon_factory()
+    write_rig_run(d.runs_dir / "RIG.h5", "RIG")  # a linear rig's sweep, one noisy step
+    page = _open(browser, web_factory(d, follow=True))
+    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
+
+    # live: the simulated rig's sweep; every step's point is computed from the samples
+    with CommandClient(d.command) as c:
+        run_id = c.start_sweep(tomllib.loads(LONG_SWEEP)).data["run_id"]
+    page.wait_for_function(
+        f"(() => {{ const p = document.getElementById('transfer-live'); "
+        f"return p.dataset.run === '{run_id}' && Number(p.dataset.points) >= 3; }})()",
+        timeout=120_000)
+    # one snapshot (the table is redrawn at each step)
+    steps, live = page.evaluate("""() => [window.sfdrig.lastFrame.steps,
+        [...document.querySelectorAll('#transfer-live .transfer-table tbody tr')].map((tr) =>
+            [tr.className, [...tr.cells].map((c) => c.textContent)])]""")
+    assert page.inner_text("#state") == "running"
+    print("live transfer rows:", live[:3], "controller's F/X:",
+          [(s["kx_re_mn_per_m"], s["kx_im_mn_per_m"]) for s in steps[:3]])
+    for cls, cells in live[:3]:
+        i = int(cells[0]) - 1
+        assert cells[2] == "x" and float(cells[1]) == steps[i]["freq_hz"]
+        # the controller's own lock-in over the same record, the step table's F/X: the same
+        # stiffness within 1 % (the page's is from the raw samples, segment by segment)
+        k_page = complex(float(cells[5]), float(cells[6]))
+        k_ctl = complex(steps[i]["kx_re_mn_per_m"], steps[i]["kx_im_mn_per_m"])
+        assert abs(k_page - k_ctl) < 0.01 * abs(k_ctl), (cells, k_ctl)
+        assert float(cells[7]) > 0.99 and cls != "low-coh"  # the simulated rig is clean
+    page.click("#abort")
+    page.wait_for_function("document.getElementById('state').textContent === 'idle'",
+                           timeout=60_000)
+
+    # from history: the linear rig's run, k - m w^2 + j c w, the noisy step greyed
+    row = "#runs tbody tr[data-run='RIG']"
+    page.wait_for_selector(row)
+    page.click(f"{row} button")
+    page.wait_for_function("document.getElementById('transfer-run').dataset.run === 'RIG'")
+    rows = page.query_selector_all("#transfer-run .transfer-table tbody tr")
+    assert len(rows) == len(FREQS)
+    for i, tr in enumerate(rows):
+        cells = [c.inner_text() for c in tr.query_selector_all("td")]
+        k = complex(float(cells[5]), float(cells[6])) * 1e6
+        if i == NOISY_STEP:
+            assert tr.get_attribute("class") == "low-coh"
+            assert 0.2 < float(cells[7]) < 0.8
+        else:
+            assert tr.get_attribute("class") != "low-coh" and float(cells[7]) > 0.999
+            assert abs(k - rig_k(FREQS[i])) < 2e-3 * abs(rig_k(FREQS[i]))  # 4 digits shown
+    info = page.inner_text("#transfer-run .transfer-info")
+    coh = page.inner_text(f"#transfer-run .transfer-table tbody tr:nth-child({NOISY_STEP + 1})"
+                          " td.coh")
+    assert info == f"low coherence: {FREQS[NOISY_STEP]:.1f} Hz x: {float(coh):.2f}", info
+    # the plots: the trusted points coloured, the low-coherence one only in the grey series
+    grey = page.evaluate("""() => { const u = plots['transfer-run-coh'].u;
+        return [u.series.map((s) => s.label), u.data]; }""")
+    labels, data = grey
+    assert labels[1:] == ["coherence x", "low coherence", "threshold"]
+    assert [v is None for v in data[1]] == [i == NOISY_STEP for i in range(len(FREQS))]
+    assert [v is not None for v in data[2]] == [i == NOISY_STEP for i in range(len(FREQS))]
+    assert data[3] == [0.9] * len(FREQS)
+    k_plot = page.evaluate("plots['transfer-run-k'].u.data")
+    assert k_plot[0] == FREQS and k_plot[1][0] == pytest.approx(rig_k(FREQS[0]).real / 1e6,
+                                                                 rel=1e-3)
+    assert page.errors == []
