@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from web.transfer import COHERENCE_LOW, axes_of, transfer
+from web.trips import incidents_of_run, select
 from web.view import finite, step_point
 
 FORMATS = ("h5", "mat", "csv", "tdms")
@@ -64,6 +65,8 @@ class RunHistory:
         self._notes_lock = threading.Lock()
         self._paths: dict[str, Path] = {}  # run id -> the file the catalog found for it
         self._transfers: dict[tuple[str, int], list[dict[str, Any]]] = {}
+        # a run file's incidents, by (file, its change time and size): read again once changed
+        self._incidents: dict[str, tuple[tuple[int, int], list[dict[str, Any]]]] = {}
 
     # --- the list -------------------------------------------------------------------------
     def _rows(self) -> list[Any]:
@@ -179,6 +182,42 @@ class RunHistory:
             raise HistoryError(f"run {run_id} cannot be read: {err}", 409) from None
         return {"run_id": run_id, "status": status, "points": points, "pending": pending,
                 "steps": len(steps), "coherence_low": COHERENCE_LOW}
+
+    # --- trips, e-stops, watchdogs and interrupted runs across runs ---------------------------
+    def trips(self, incidents: set[str] | None = None, since: Any = None) -> dict[str, Any]:
+        """Every incident (`web.trips`) of the runs that did not complete, newest first, read
+        from their files (a file is read again only when it has changed)."""
+        from storage.errors import RunFileError
+        from storage.reader import open_run
+
+        rows: list[dict[str, Any]] = []
+        unreadable = 0
+        seen = set()
+        for r in self._rows():
+            if r.status not in ("aborted", "failed", "interrupted"):
+                continue
+            seen.add(r.file)
+            try:
+                st = os.stat(r.file)
+            except OSError:
+                continue
+            stamp = (st.st_mtime_ns, st.st_size)
+            cached = self._incidents.get(r.file)
+            if cached is None or cached[0] != stamp:
+                try:
+                    with open_run(r.file) as run:
+                        found = incidents_of_run(run, r.status, Path(r.file).name)
+                except RunFileError:
+                    unreadable += 1
+                    continue
+                self._incidents[r.file] = (stamp, found)
+                cached = self._incidents[r.file]
+            rows.extend(cached[1])
+        for gone in set(self._incidents) - seen:
+            del self._incidents[gone]
+        shown = select(rows, incidents, since)
+        return {"runs_dir": str(self.runs_dir), "incidents": shown, "total": len(rows),
+                "unreadable": unreadable}
 
     # --- downloads ------------------------------------------------------------------------
     def download(self, run_id: str, fmt: str, work: Path) -> tuple[Path, str]:

@@ -43,6 +43,7 @@ from web import sweep_form
 from web.auth import COOKIE, OPERATOR, LoginRefused, Session, Sessions, role_of_key_file
 from web.feed import DaemonLink
 from web.history import HistoryError, RunHistory
+from web.trips import parse_incidents, parse_since, to_csv
 from web.view import LiveView
 
 log = logging.getLogger(__name__)
@@ -173,6 +174,7 @@ class WebApp:
             web.get("/api/sweep/schema", self.sweep_schema),
             web.post("/api/sweep/check", self.sweep_check),
             web.get("/api/runs", self.runs),
+            web.get("/api/trips", self.trips),
             web.get("/api/runs/{run_id}", self.run_details),
             web.get("/api/runs/{run_id}/download", self.download),
             web.get("/api/runs/{run_id}/transfer", self.transfer),
@@ -411,6 +413,30 @@ class WebApp:
         self._guard(request, need_operator=False)
         return web.json_response({"ok": True, **await self._history(
             request, lambda h: h.runs())})
+
+    async def trips(self, request: web.Request) -> web.Response:
+        """The trips, e-stops, watchdogs and interrupted runs of the runs directory
+        (`web.trips`): ``incident=trip,e-stop`` (or all), ``since=`` an ISO date or time,
+        ``format=json`` or ``csv`` (a download)."""
+        self._guard(request, need_operator=False)
+        q = request.query
+        unknown = sorted(set(q) - {"incident", "since", "format"})
+        if unknown:
+            raise _refused(400, f"unknown parameter {unknown[0]!r}: incident, since, format")
+        fmt = q.get("format", "json")
+        if fmt not in ("json", "csv"):
+            raise _refused(400, f"format={fmt!r}: json or csv")
+        try:
+            incidents = parse_incidents(q.get("incident", ""))
+            since = parse_since(q["since"]) if q.get("since") else None
+        except ValueError as err:
+            raise _refused(400, str(err)) from None
+        out = await self._history(request, lambda h: h.trips(incidents, since))
+        if fmt == "csv":
+            return web.Response(text=to_csv(out["incidents"]), content_type="text/csv",
+                                headers={"Content-Disposition":
+                                         'attachment; filename="sfdrig-incidents.csv"'})
+        return web.json_response({"ok": True, **out})
 
     async def run_details(self, request: web.Request) -> web.Response:
         self._guard(request, need_operator=False)
