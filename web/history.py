@@ -206,7 +206,8 @@ class RunHistory:
             if cached is None or cached[0] != stamp:
                 try:
                     with open_run(r.file) as run:
-                        found = incidents_of_run(run, r.status, Path(r.file).name)
+                        found = incidents_of_run(run, r.status, Path(r.file).name,
+                                                 st.st_mtime)
                 except RunFileError:
                     unreadable += 1
                     continue

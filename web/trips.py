@@ -131,8 +131,11 @@ def peaks_around(run: Any, sample: int) -> tuple[float | None, float | None]:
     return orbit, load
 
 
-def incidents_of_run(run: Any, status: str, file: str) -> list[dict[str, Any]]:
-    """Every incident of one open run (`storage.reader.RunData`) whose status is ``status``."""
+def incidents_of_run(run: Any, status: str, file: str, changed_at: float
+                     ) -> list[dict[str, Any]]:
+    """Every incident of one open run (`storage.reader.RunData`) whose status is ``status``;
+    ``changed_at`` is the file's last change [s since the epoch], the time of an interruption
+    not yet closed by a daemon (as `storage.recovery.close_interrupted` will record it)."""
     fs = run.sample_rate_hz
     steps = run.steps
     planned = _planned(run.test_spec) if run.kind == "sweep" else []
@@ -143,11 +146,12 @@ def incidents_of_run(run: Any, status: str, file: str) -> list[dict[str, Any]]:
             found.append((what, e["time"], e["message"], int(e["sample"])))
     reason = str(run.attrs.get("status_reason", ""))
     last = max(0, run.n_samples - 1)
+    changed = datetime.fromtimestamp(changed_at, UTC).isoformat(timespec="milliseconds")
     if status == "interrupted":
-        found.append(("interrupted", run.stop_time or "", reason or "the run was interrupted",
-                      last))
+        found.append(("interrupted", run.stop_time or changed,
+                      reason or "the run was interrupted (its writer is gone)", last))
     elif status == "failed" and not found:
-        found.append(("failed", run.stop_time or "", reason or "the run failed", last))
+        found.append(("failed", run.stop_time or changed, reason or "the run failed", last))
     rows = []
     for what, time, message, sample in found:
         sample = last if sample < 0 else sample
@@ -168,7 +172,8 @@ def select(rows: list[dict[str, Any]], incidents: set[str] | None,
     """The rows of those incidents (all for None), from ``since`` on, newest first."""
     out = [r for r in rows if (incidents is None or r["incident"] in incidents)
            and (since is None or ((w := _when(r["time_utc"])) is not None and w >= since))]
-    out.sort(key=lambda r: r["time_utc"], reverse=True)
+    oldest = datetime.min.replace(tzinfo=UTC)
+    out.sort(key=lambda r: _when(r["time_utc"]) or oldest, reverse=True)
     return out
 
 

@@ -78,10 +78,9 @@ ESTOP = "EmergencyStopError: the emergency stop input reads pressed"
 WATCHDOG = "DaqWatchdogExpiredError: the board's watchdog expired (-200678)"
 
 
-@pytest.fixture
-def runs_dir(tmp_path: Path) -> Path:
-    d = tmp_path / "runs"
-    d.mkdir()
+def write_incident_runs(d: Path) -> None:
+    """A test day's runs in ``d``: a trip, an e-stop, a watchdog, an operator abort, a completed
+    run, a killed one (interrupted) and a file that is not a run."""
     # tripped during the third step (70 Hz), after two were recorded: 70 um and 310 N there
     _run(d / "T1.h5", "T1", "09:00:00", 2, [("limit_trip", TRIP, 1200)], "aborted",
          spike=(1150, 70e-6, 310.0))
@@ -93,6 +92,13 @@ def runs_dir(tmp_path: Path) -> Path:
     _run(d / "C1.h5", "C1", "13:00:00", 2, [], "completed")
     _run(d / "I1.h5", "I1", "14:00:00", 1, [("info", "=cmd|' /C calc'!A0", 100)], None)
     (d / "junk.h5").write_text("not hdf5")
+
+
+@pytest.fixture
+def runs_dir(tmp_path: Path) -> Path:
+    d = tmp_path / "runs"
+    d.mkdir()
+    write_incident_runs(d)
     return d
 
 

@@ -821,7 +821,38 @@ function drawNotes(notes) {
   ol.innerHTML = "";
   for (const n of notes) { const li = document.createElement("li"); li.textContent = `${clock(n.time)} ${n.author}: ${n.text}`; ol.appendChild(li); }
 }
-$("runs-refresh").onclick = loadRuns;
+// trips, e-stops, watchdogs, contacts and interrupted runs across the runs directory's runs
+function incidentQuery(format) {
+  const q = new URLSearchParams();
+  if ($("incident-filter").value) q.set("incident", $("incident-filter").value);
+  if ($("incident-since").value) q.set("since", $("incident-since").value);
+  if (format) q.set("format", format);
+  return `/api/trips?${q}`;
+}
+async function loadIncidents() {
+  $("incidents-export").href = incidentQuery("csv");
+  const out = await getJson(incidentQuery(""));
+  const body = $("incident-table").tBodies[0];
+  body.innerHTML = "";
+  window.sfdrig.incidentsLoaded = (window.sfdrig.incidentsLoaded || 0) + 1;
+  if (!out.ok) { $("incidents-info").textContent = out.error; return; }
+  $("incidents-info").textContent = `${out.incidents.length} shown of ${out.total}`
+    + (out.unreadable ? `; ${out.unreadable} run file(s) unreadable` : "");
+  for (const r of out.incidents) {
+    const tr = body.insertRow();
+    tr.className = `inc-${r.incident}`;
+    tr.dataset.run = r.run_id;
+    for (const c of [r.time_utc.replace("T", " ").slice(0, 23), r.run_id, r.incident, r.what, r.where,
+      fmt(r.peak_orbit_um, 1), fmt(r.peak_load_n, 1)]) tr.insertCell().textContent = String(c);
+    const open = document.createElement("button");
+    open.textContent = "Open";
+    open.onclick = () => openRun(r.run_id);
+    tr.insertCell().appendChild(open);
+  }
+}
+$("incident-filter").onchange = loadIncidents;
+$("incident-since").onchange = loadIncidents;
+$("runs-refresh").onclick = () => { loadRuns(); loadIncidents(); };
 $("run-close").onclick = () => { $("run").hidden = true; openRunId = null; };
 $("note-add").onclick = async () => {
   if (!openRunId) return;
@@ -840,7 +871,7 @@ let runsKey = null;
 function followRuns(fr) {
   const st = fr.status || {};
   const key = [(fr.link || {}).state, st.run_id, st.last_run && st.last_run.run_id, st.last_run && st.last_run.status].join("|");
-  if (key !== runsKey) { runsKey = key; loadRuns(); }
+  if (key !== runsKey) { runsKey = key; loadRuns(); loadIncidents(); }
 }
 
 const DRAWN_LATEST_MS = 250;  // the next frame is asked for by then even if not painted
