@@ -29,7 +29,7 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
-from web.transfer import COHERENCE_LOW, axes_of, transfer
+from web.transfer import COHERENCE_LOW, axes_of, from_segments, segments_of
 from web.trips import incidents_of_run, select
 from web.view import finite, step_point
 
@@ -311,12 +311,16 @@ class RunHistory:
 def _step_transfer(run: Any, step: dict[str, Any], fs: float) -> list[dict[str, Any]]:
     """One step's points, one per driven axis that has a force and a displacement signal."""
     first, last = int(step["first_sample"]), int(step["last_sample"])
+    freq = float(step["freq_hz"])
+    spans = segments_of(last - first, freq, fs) if freq > 0 and fs > 0 else []
     out = []
     for axis in axes_of(str(step.get("motion", ""))):
         if not (run.has_signal(f"f{axis}") and run.has_signal(axis)):
             continue
-        t = transfer(run.signal(f"f{axis}", first, last), run.signal(axis, first, last),
-                     float(step["freq_hz"]), fs)
+        # read segment by segment: a long record is never in memory whole
+        t = from_segments(((run.signal(f"f{axis}", first + a, first + b),
+                            run.signal(axis, first + a, first + b)) for a, b in spans),
+                          freq, fs)
         if t is None:
             continue
         coh = t["coherence"]

@@ -18,7 +18,7 @@ from aiohttp.test_utils import TestServer
 from storage import RunWriter
 from tests.web.test_server_security import _Daemon, _get, _raw
 from web.server import WebApp, WebConfig
-from web.transfer import MAX_SEGMENTS, segments_of, transfer
+from web.transfer import MAX_SEGMENT_SAMPLES, MAX_SEGMENTS, segments_of, transfer
 
 FS = 10_000.0
 # a linear rig: 0.79 MN/m, 10 kg (its resonance at 44.7 Hz), 2 kN.s/m
@@ -165,3 +165,20 @@ def test_the_transfer_route_refuses_what_is_not_a_run(tmp_path):
     [(status, body)] = _serve(none, ["/api/runs/S1/transfer"])
     assert status == 404 and body["error"] == ("no runs directory: start sfdrig web with "
                                                "--runs-dir")
+
+
+def test_a_long_record_is_judged_on_bounded_segments_spread_over_it():
+    # 2,000 cycles at 20 Hz and 10 kS/s: 8 parts of 250 cycles (125,000 samples), each read
+    # for its first 200 cycles (100,000 samples at most)
+    spans = segments_of(1_000_000, 20.0, FS, max_samples=100_000)
+    assert spans == [(k * 125_000, k * 125_000 + 100_000) for k in range(8)]
+    # the linear rig's record of 2,000 cycles, cut so (the default bound is 100,000 samples):
+    # the same stiffness and coherence
+    f, x = record(20.0)
+    f, x = np.tile(f, 50), np.tile(x, 50)
+    assert len(f) == 1_000_000 and MAX_SEGMENT_SAMPLES == 100_000
+    t = transfer(f, x, 20.0, FS)
+    assert t is not None and t["segments"] == 8
+    assert abs(complex(t["k_re_mn_per_m"], t["k_im_mn_per_m"]) * 1e6 - rig_k(20.0)) < (
+        1e-3 * abs(rig_k(20.0)))
+    assert t["coherence"] > 0.9999
