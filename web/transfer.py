@@ -36,12 +36,22 @@ AXES_OF_MOTION = {"x": ("x",), "y": ("y",)}
 TWO_AXES = ("x", "y")
 
 
-def one_bin(segment: np.ndarray, freq_hz: float, fs: float) -> complex:
+def one_bin(segment: np.ndarray, freq_hz: float, fs: float,
+            basis: tuple[np.ndarray, np.ndarray] | None = None) -> complex:
     """The complex amplitude of ``segment`` at ``freq_hz`` (2/N times the Fourier sum, the
-    segment's mean removed so an offset that is not whole cycles long does not leak in)."""
+    segment's mean removed so an offset that is not whole cycles long does not leak in).
+    ``basis``: `cos_sin` of the segment's length, when several segments share it."""
     n = segment.shape[-1]
-    phasor = np.exp(-2j * np.pi * freq_hz * np.arange(n) / fs)
-    return complex(2.0 / n * np.dot(segment - segment.mean(), phasor))
+    cos, sin = basis if basis is not None else cos_sin(n, freq_hz, fs)
+    centred = segment - segment.mean()
+    return complex(2.0 / n * float(centred @ cos), -2.0 / n * float(centred @ sin))
+
+
+def cos_sin(n: int, freq_hz: float, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """cos and sin of the drive's phase over ``n`` samples (two real dot products are a
+    quarter of the cost of a complex exponential and a mixed-type dot)."""
+    phase = 2 * np.pi * freq_hz / fs * np.arange(n)
+    return np.cos(phase), np.sin(phase)
 
 
 def segments_of(n_samples: int, freq_hz: float, fs: float,
@@ -91,7 +101,14 @@ def from_segments(segments: Iterable[tuple[np.ndarray, np.ndarray]], freq_hz: fl
                   fs: float) -> dict[str, Any] | None:
     """`transfer` over (force, displacement) segments given one at a time (a long record is
     read segment by segment, never whole)."""
-    pairs = [(one_bin(f, freq_hz, fs), one_bin(x, freq_hz, fs)) for f, x in segments]
+    bases: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # by length: segments share one
+    pairs = []
+    for f, x in segments:
+        n = f.shape[-1]
+        if n not in bases:
+            bases.clear()  # lengths differ by a sample at most: keep one
+            bases[n] = cos_sin(n, freq_hz, fs)
+        pairs.append((one_bin(f, freq_hz, fs, bases[n]), one_bin(x, freq_hz, fs, bases[n])))
     if not pairs:
         return None
     fk = np.array([p[0] for p in pairs])
