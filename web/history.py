@@ -208,8 +208,13 @@ class RunHistory:
                     with open_run(r.file) as run:
                         found = incidents_of_run(run, r.status, Path(r.file).name,
                                                  st.st_mtime)
-                except RunFileError:
+                        closed = run.status != "running"
+                except (RunFileError, OSError, KeyError, ValueError, RuntimeError):
+                    # (h5py's errors on a file a daemon is closing right now: asked again)
                     unreadable += 1
+                    continue
+                if not closed:  # a dead writer's file, still to be closed by a daemon: its
+                    rows.extend(found)  # change may share the file's time stamp; read again
                     continue
                 self._incidents[r.file] = (stamp, found)
                 cached = self._incidents[r.file]

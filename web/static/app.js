@@ -733,8 +733,11 @@ async function getJson(url) {
   } catch (e) { return { ok: false, error: String(e) }; }
 }
 let openRunId = null;
+let runsAsked = 0;
 async function loadRuns() {
+  const mine = ++runsAsked;
   const out = await getJson("/api/runs");
+  if (mine !== runsAsked) return;  // a newer reload was asked meanwhile: its answer is drawn
   window.sfdrig.runsLoaded = (window.sfdrig.runsLoaded || 0) + 1;
   const body = $("runs").tBodies[0];
   body.innerHTML = "";
@@ -829,9 +832,16 @@ function incidentQuery(format) {
   if (format) q.set("format", format);
   return `/api/trips?${q}`;
 }
+// reloads overlap (the link's state changes fast while a daemon restarts): only the newest
+// request's answer is drawn, never an older one that took longer
+let incidentsAsked = 0;
 async function loadIncidents() {
   $("incidents-export").href = incidentQuery("csv");
+  const mine = ++incidentsAsked;
   const out = await getJson(incidentQuery(""));
+  if (mine !== incidentsAsked) return;
+  // a file being closed by a daemon right now may not read: asked again shortly
+  if (!out.ok || out.unreadable) setTimeout(() => { if (mine === incidentsAsked) loadIncidents(); }, 2000);
   const body = $("incident-table").tBodies[0];
   body.innerHTML = "";
   window.sfdrig.incidentsLoaded = (window.sfdrig.incidentsLoaded || 0) + 1;
