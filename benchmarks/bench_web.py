@@ -74,9 +74,14 @@ class SocketClients:
     """N WebSocket clients of the page's /ws in a thread: frames received and the latency from
     the daemon's ``t_acquired`` to receipt (what a browser gets before it draws)."""
 
-    def __init__(self, url: str, n: int) -> None:
+    def __init__(self, url: str, n: int, transfer: bool = False) -> None:
+        self.url = url
         self.ws_url = url.replace("http://", "ws://") + "ws"
         self.n = n
+        # the first client also asks for the running run's transfer at each new step, as the
+        # page does (`--transfer`): (request time [s], points, pending) per request
+        self.transfer = transfer
+        self.transfers: list[tuple[float, int, int]] = []
         self.latencies: list[float] = []
         self.frames = [0] * n
         self.last: dict[str, Any] = {}
@@ -89,8 +94,23 @@ class SocketClients:
     def reset(self) -> None:
         self.latencies = []
 
+    async def _ask_transfer(self, session: Any, fr: dict[str, Any], asked: dict[str, Any]
+                            ) -> None:
+        run = (fr.get("status") or {}).get("run_id")
+        key = (run, len(fr.get("steps") or []))
+        again = asked.get("pending") and time.monotonic() - asked.get("at", 0.0) > 1.0
+        if not run or (key == asked.get("key") and not again):
+            return
+        t = time.monotonic()
+        async with session.get(f"{self.url}api/runs/{run}/transfer") as r:
+            out = await r.json()
+        asked.update(key=key, at=time.monotonic(), pending=out.get("pending", 0))
+        self.transfers.append((time.monotonic() - t, len(out.get("points", [])),
+                               int(out.get("pending", 0))))
+
     async def _client(self, session: Any, i: int) -> None:
         last_seq = None
+        asked: dict[str, Any] = {}
         async with session.ws_connect(self.ws_url, max_msg_size=0) as ws:
             while not self._stop.is_set():
                 try:
@@ -103,6 +123,8 @@ class SocketClients:
                 await ws.send_str("drawn")  # as the page does: the server sends the next frame
                 self.frames[i] += 1
                 self.last = fr
+                if self.transfer and i == 0:
+                    await self._ask_transfer(session, fr, asked)
                 if fr["t_acquired"] > 0 and fr["block_seq"] != last_seq:
                     self.latencies.append(time.time() - fr["t_acquired"])
                 last_seq = fr["block_seq"]
@@ -122,6 +144,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=300.0, help="sweep time measured [s]")
     ap.add_argument("--browsers", type=int, default=8, help="Chromium pages")
+    ap.add_argument("--transfer", action="store_true",
+                    help="sfdrig web reads the runs directory and the first WebSocket client "
+                         "asks for the run's transfer function at each new step, as the page")
     ap.add_argument("--ws-clients", type=int, default=0,
                     help="plain WebSocket clients of the page's frame stream (no drawing)")
     ap.add_argument("--browser-nice", type=int, default=10,
@@ -154,14 +179,15 @@ def main() -> int:
                               text=True)
     eps = dict(p.split("=", 1) for p in first_line(daemon, "daemon").split())
     web = subprocess.Popen([sys.executable, "-m", "sfdrig", "web", "--port", "0",
-                            "--command-endpoint", eps["command"], "--data-endpoint", eps["data"]],
+                            "--command-endpoint", eps["command"], "--data-endpoint", eps["data"],
+                            *(["--runs-dir", str(runs)] if args.transfer else [])],
                            cwd=REPO, stdout=subprocess.PIPE, text=True)
     # a refused spec or a browser failure ends this script: never leave the two servers behind
     atexit.register(lambda: [q.kill() for q in (daemon, web) if q.poll() is None])
     url = first_line(web, "sfdrig web").removeprefix("url=")
     print(f"daemon {eps}; web {url}; {args.browsers} browsers, {args.ws_clients} WebSocket "
           f"clients; {args.seconds:g} s")
-    sockets = SocketClients(url, args.ws_clients)
+    sockets = SocketClients(url, args.ws_clients, args.transfer)
     if args.ws_clients:
         sockets.start()
     freqs = [20.0, 30.0, 40.0, 50.0, 60.0]
@@ -253,6 +279,10 @@ def main() -> int:
               f"{max(fr) / elapsed:.1f} /s); sample-to-{what.split()[0]} latency over {len(ms)} "
               f"frames: p50 {pct(list(ms), 50):.0f} ms, p99 {pct(list(ms), 99):.0f} ms, "
               f"max {ms.max() if ms.size else float('nan'):.0f} ms")
+    if sockets.transfers:
+        tt = np.asarray(sockets.transfers)
+        print(f"transfer requests: {len(tt)}, points at the end {int(tt[-1, 1])}, time p50 "
+              f"{np.median(tt[:, 0]) * 1e3:.0f} ms, max {tt[:, 0].max() * 1e3:.0f} ms")
     print(f"web RSS: start {mem[0, 1]:.0f} MB, after 30 s {warm[0, 1]:.0f} MB, end "
           f"{mem[-1, 1]:.0f} MB, max {mem[:, 1].max():.0f} MB; slope after 30 s "
           f"{slope:+.2f} MB/min over {mem[-1, 0] / 60:.1f} min")

@@ -29,6 +29,8 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+from web.transfer import COHERENCE_LOW, axes_of, from_segments, segments_of
+from web.trips import incidents_of_run, select
 from web.view import finite, step_point
 
 FORMATS = ("h5", "mat", "csv", "tdms")
@@ -38,6 +40,7 @@ MAX_NOTE_CHARS = 4000
 NOTES_SUFFIX = ".notes.json"
 REPORTS_DIR = "reports"
 REPORT_PAGE = "index.html"
+MAX_CACHED_STEPS = 20_000  # transfer results kept (a recorded step never changes)
 
 
 class HistoryError(ValueError):
@@ -60,6 +63,10 @@ class RunHistory:
     def __init__(self, runs_dir: Path) -> None:
         self.runs_dir = runs_dir
         self._notes_lock = threading.Lock()
+        self._paths: dict[str, Path] = {}  # run id -> the file the catalog found for it
+        self._transfers: dict[tuple[str, int], list[dict[str, Any]]] = {}
+        # a run file's incidents, by (file, its change time and size): read again once changed
+        self._incidents: dict[str, tuple[tuple[int, int], list[dict[str, Any]]]] = {}
 
     # --- the list -------------------------------------------------------------------------
     def _rows(self) -> list[Any]:
@@ -84,9 +91,14 @@ class RunHistory:
         return {"runs_dir": str(self.runs_dir), "runs": out, "total": len(rows)}
 
     def path_of(self, run_id: str) -> Path:
-        """The file the catalog found for ``run_id`` (404 for any other string)."""
+        """The file the catalog found for ``run_id`` (404 for any other string); remembered
+        while the file is there (the page asks for a running run's transfer at every step)."""
+        known = self._paths.get(run_id)
+        if known is not None and known.is_file():
+            return known
         for r in self._rows():
             if r.id and r.id == run_id:
+                self._paths[run_id] = Path(r.file)
                 return Path(r.file)
         raise HistoryError(f"no run {run_id!r} in {self.runs_dir}", 404)
 
@@ -140,6 +152,78 @@ class RunHistory:
             raise HistoryError(f"run {run_id} is still being written: {what} it once it has "
                                "ended", 409)
         return path
+
+    # --- the transfer function across the sweep ----------------------------------------------
+    def transfer(self, run_id: str) -> dict[str, Any]:
+        """Each recorded step's X/F, F/X and coherence per driven axis, from the file's samples
+        (`web.transfer`); a step whose samples are not yet flushed by a live writer is counted
+        in ``pending`` and computed when asked again."""
+        from storage.errors import RunFileError
+        from storage.reader import open_run
+
+        path = self.path_of(run_id)
+        points: list[dict[str, Any]] = []
+        pending = 0
+        try:
+            with open_run(path) as run:
+                steps, n, fs = run.steps, run.n_samples, run.sample_rate_hz
+                for step in steps:
+                    key = (str(path), int(step["index"]))
+                    if key not in self._transfers:
+                        if int(step["last_sample"]) > n:
+                            pending += 1
+                            continue
+                        if len(self._transfers) >= MAX_CACHED_STEPS:
+                            self._transfers.clear()
+                        self._transfers[key] = _step_transfer(run, step, fs)
+                    points.extend(self._transfers[key])
+                status = _status(run.status, run.attrs, path)
+        except RunFileError as err:
+            raise HistoryError(f"run {run_id} cannot be read: {err}", 409) from None
+        return {"run_id": run_id, "status": status, "points": points, "pending": pending,
+                "steps": len(steps), "coherence_low": COHERENCE_LOW}
+
+    # --- trips, e-stops, watchdogs and interrupted runs across runs ---------------------------
+    def trips(self, incidents: set[str] | None = None, since: Any = None) -> dict[str, Any]:
+        """Every incident (`web.trips`) of the runs that did not complete, newest first, read
+        from their files (a file is read again only when it has changed)."""
+        from storage.errors import RunFileError
+        from storage.reader import open_run
+
+        rows: list[dict[str, Any]] = []
+        unreadable = 0
+        seen = set()
+        for r in self._rows():
+            if r.status not in ("aborted", "failed", "interrupted"):
+                continue
+            seen.add(r.file)
+            try:
+                st = os.stat(r.file)
+            except OSError:
+                continue
+            stamp = (st.st_mtime_ns, st.st_size)
+            cached = self._incidents.get(r.file)
+            if cached is None or cached[0] != stamp:
+                try:
+                    with open_run(r.file) as run:
+                        found = incidents_of_run(run, r.status, Path(r.file).name,
+                                                 st.st_mtime)
+                        closed = run.status != "running"
+                except (RunFileError, OSError, KeyError, ValueError, RuntimeError):
+                    # (h5py's errors on a file a daemon is closing right now: asked again)
+                    unreadable += 1
+                    continue
+                if not closed:  # a dead writer's file, still to be closed by a daemon: its
+                    rows.extend(found)  # change may share the file's time stamp; read again
+                    continue
+                self._incidents[r.file] = (stamp, found)
+                cached = self._incidents[r.file]
+            rows.extend(cached[1])
+        for gone in set(self._incidents) - seen:
+            del self._incidents[gone]
+        shown = select(rows, incidents, since)
+        return {"runs_dir": str(self.runs_dir), "incidents": shown, "total": len(rows),
+                "unreadable": unreadable}
 
     # --- downloads ------------------------------------------------------------------------
     def download(self, run_id: str, fmt: str, work: Path) -> tuple[Path, str]:
@@ -227,6 +311,29 @@ class RunHistory:
                 Path(tmp).unlink(missing_ok=True)
                 raise
         return notes
+
+
+def _step_transfer(run: Any, step: dict[str, Any], fs: float) -> list[dict[str, Any]]:
+    """One step's points, one per driven axis that has a force and a displacement signal."""
+    first, last = int(step["first_sample"]), int(step["last_sample"])
+    freq = float(step["freq_hz"])
+    spans = segments_of(last - first, freq, fs) if freq > 0 and fs > 0 else []
+    out = []
+    for axis in axes_of(str(step.get("motion", ""))):
+        if not (run.has_signal(f"f{axis}") and run.has_signal(axis)):
+            continue
+        # read segment by segment: a long record is never in memory whole
+        t = from_segments(((run.signal(f"f{axis}", first + a, first + b),
+                            run.signal(axis, first + a, first + b)) for a, b in spans),
+                          freq, fs)
+        if t is None:
+            continue
+        coh = t["coherence"]
+        out.append({"index": int(step["index"]), "freq_hz": float(step["freq_hz"]),
+                    "axis": axis, **{k: finite(v) if isinstance(v, float) else v
+                                     for k, v in t.items()},
+                    "low_coherence": coh is not None and coh < COHERENCE_LOW})
+    return out
 
 
 def _status(status: str, attrs: Any, path: Path) -> str:

@@ -43,6 +43,7 @@ from web import sweep_form
 from web.auth import COOKIE, OPERATOR, LoginRefused, Session, Sessions, role_of_key_file
 from web.feed import DaemonLink
 from web.history import HistoryError, RunHistory
+from web.trips import parse_incidents, parse_since, to_csv
 from web.view import LiveView
 
 log = logging.getLogger(__name__)
@@ -173,8 +174,10 @@ class WebApp:
             web.get("/api/sweep/schema", self.sweep_schema),
             web.post("/api/sweep/check", self.sweep_check),
             web.get("/api/runs", self.runs),
+            web.get("/api/trips", self.trips),
             web.get("/api/runs/{run_id}", self.run_details),
             web.get("/api/runs/{run_id}/download", self.download),
+            web.get("/api/runs/{run_id}/transfer", self.transfer),
             web.post("/api/runs/{run_id}/notes", self.add_note),
             web.post("/api/runs/{run_id}/report", self.make_report),
             web.get("/api/runs/{run_id}/report/{name:.+}", self.report_file,
@@ -411,11 +414,43 @@ class WebApp:
         return web.json_response({"ok": True, **await self._history(
             request, lambda h: h.runs())})
 
+    async def trips(self, request: web.Request) -> web.Response:
+        """The trips, e-stops, watchdogs and interrupted runs of the runs directory
+        (`web.trips`): ``incident=trip,e-stop`` (or all), ``since=`` an ISO date or time,
+        ``format=json`` or ``csv`` (a download)."""
+        self._guard(request, need_operator=False)
+        q = request.query
+        unknown = sorted(set(q) - {"incident", "since", "format"})
+        if unknown:
+            raise _refused(400, f"unknown parameter {unknown[0]!r}: incident, since, format")
+        fmt = q.get("format", "json")
+        if fmt not in ("json", "csv"):
+            raise _refused(400, f"format={fmt!r}: json or csv")
+        try:
+            incidents = parse_incidents(q.get("incident", ""))
+            since = parse_since(q["since"]) if q.get("since") else None
+        except ValueError as err:
+            raise _refused(400, str(err)) from None
+        out = await self._history(request, lambda h: h.trips(incidents, since))
+        if fmt == "csv":
+            return web.Response(text=to_csv(out["incidents"]), content_type="text/csv",
+                                headers={"Content-Disposition":
+                                         'attachment; filename="sfdrig-incidents.csv"'})
+        return web.json_response({"ok": True, **out})
+
     async def run_details(self, request: web.Request) -> web.Response:
         self._guard(request, need_operator=False)
         run_id = request.match_info["run_id"]
         return web.Response(content_type="application/json", body=orjson.dumps(
             {"ok": True, **await self._history(request, lambda h: h.details(run_id))}))
+
+    async def transfer(self, request: web.Request) -> web.Response:
+        """The run's X/F, F/X and coherence per step from its file (`web.transfer`): the page
+        asks again at each new step of a running sweep."""
+        self._guard(request, need_operator=False)
+        run_id = request.match_info["run_id"]
+        return web.Response(content_type="application/json", body=orjson.dumps(
+            {"ok": True, **await self._history(request, lambda h: h.transfer(run_id))}))
 
     async def download(self, request: web.Request) -> web.StreamResponse:
         """The run file (``format=h5``) or `sfdrig export`'s files (mat, csv, tdms; a zip when

@@ -562,3 +562,154 @@ def test_a_sweep_defined_on_the_page(daemon_factory, web_factory, browser, tmp_p
         assert [s["freq_hz"] for s in run.steps] == [70.0, 80.0]
         assert run.test_spec["settle_cycles"] == 20 and run.test_spec["load_n"] == [40.0]
     assert page.errors == []
+
+
+def test_the_transfer_and_its_coherence_live_and_from_history(daemon_factory, web_factory,
+                                                              browser):
+    """Issue 25 (deliverable 4): each step's X/F, F/X and coherence from the recorded samples,
+    drawn against frequency while a sweep runs (the daemon's own run file, read again at each
+    step) and for a run opened from the history, with a step of low coherence greyed and its
+    value shown."""
+    from tests.web.test_transfer import FREQS, NOISY_STEP, rig_k, write_rig_run
+
+    d = daemon_factory()
+    write_rig_run(d.runs_dir / "RIG.h5", "RIG")  # a linear rig's sweep, one noisy step
+    page = _open(browser, web_factory(d, follow=True))
+    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
+
+    # live: the simulated rig's sweep; every step's point is computed from the samples
+    with CommandClient(d.command) as c:
+        run_id = c.start_sweep(tomllib.loads(LONG_SWEEP)).data["run_id"]
+    page.wait_for_function(
+        f"(() => {{ const p = document.getElementById('transfer-live'); "
+        f"return p.dataset.run === '{run_id}' && Number(p.dataset.points) >= 3; }})()",
+        timeout=120_000)
+    # one snapshot (the table is redrawn at each step)
+    steps, live = page.evaluate("""() => [window.sfdrig.lastFrame.steps,
+        [...document.querySelectorAll('#transfer-live .transfer-table tbody tr')].map((tr) =>
+            [tr.className, [...tr.cells].map((c) => c.textContent)])]""")
+    assert page.inner_text("#state") == "running"
+    print("live transfer rows:", live[:3], "controller's F/X:",
+          [(s["kx_re_mn_per_m"], s["kx_im_mn_per_m"]) for s in steps[:3]])
+    for cls, cells in live[:3]:
+        i = int(cells[0]) - 1
+        assert cells[2] == "x" and float(cells[1]) == steps[i]["freq_hz"]
+        # the controller's own lock-in over the same record, the step table's F/X: the same
+        # stiffness within 1 % (the page's is from the raw samples, segment by segment)
+        k_page = complex(float(cells[5]), float(cells[6]))
+        k_ctl = complex(steps[i]["kx_re_mn_per_m"], steps[i]["kx_im_mn_per_m"])
+        assert abs(k_page - k_ctl) < 0.01 * abs(k_ctl), (cells, k_ctl)
+        assert float(cells[7]) > 0.99 and cls != "low-coh"  # the simulated rig is clean
+    page.click("#abort")
+    page.wait_for_function("document.getElementById('state').textContent === 'idle'",
+                           timeout=60_000)
+
+    # from history: the linear rig's run, k - m w^2 + j c w, the noisy step greyed
+    row = "#runs tbody tr[data-run='RIG']"
+    page.wait_for_selector(row)
+    page.click(f"{row} button")
+    page.wait_for_function("document.getElementById('transfer-run').dataset.run === 'RIG'")
+    rows = page.query_selector_all("#transfer-run .transfer-table tbody tr")
+    assert len(rows) == len(FREQS)
+    for i, tr in enumerate(rows):
+        cells = [c.inner_text() for c in tr.query_selector_all("td")]
+        k = complex(float(cells[5]), float(cells[6])) * 1e6
+        if i == NOISY_STEP:
+            assert tr.get_attribute("class") == "low-coh"
+            assert 0.2 < float(cells[7]) < 0.8
+        else:
+            assert tr.get_attribute("class") != "low-coh" and float(cells[7]) > 0.999
+            assert abs(k - rig_k(FREQS[i])) < 2e-3 * abs(rig_k(FREQS[i]))  # 4 digits shown
+    info = page.inner_text("#transfer-run .transfer-info")
+    coh = page.inner_text(f"#transfer-run .transfer-table tbody tr:nth-child({NOISY_STEP + 1})"
+                          " td.coh")
+    assert info == f"low coherence: {FREQS[NOISY_STEP]:.1f} Hz x: {float(coh):.2f}", info
+    # the plots: the trusted points coloured, the low-coherence one only in the grey series
+    grey = page.evaluate("""() => { const u = plots['transfer-run-coh'].u;
+        return [u.series.map((s) => s.label), u.data]; }""")
+    labels, data = grey
+    assert labels[1:] == ["coherence x", "low coherence", "threshold"]
+    assert [v is None for v in data[1]] == [i == NOISY_STEP for i in range(len(FREQS))]
+    assert [v is not None for v in data[2]] == [i == NOISY_STEP for i in range(len(FREQS))]
+    assert data[3] == [0.9] * len(FREQS)
+    k_plot = page.evaluate("plots['transfer-run-k'].u.data")
+    assert k_plot[0] == FREQS and k_plot[1][0] == pytest.approx(rig_k(FREQS[0]).real / 1e6,
+                                                                 rel=1e-3)
+    assert page.errors == []
+
+
+def test_trips_and_e_stops_across_runs(daemon_factory, web_factory, browser):
+    """Issue 25 (deliverable 4): the trips, e-stops, watchdogs and interrupted runs of the runs
+    directory in one table, read from the run files (a killed daemon's run included), filtered
+    by incident and date, exported as CSV, each run opened from its row."""
+    from tests.web.test_trips import TRIP, write_incident_runs
+
+    d = daemon_factory()
+    write_incident_runs(d.runs_dir)  # a test day's earlier runs (25 Nov)
+    page = _open(browser, web_factory(d, follow=True))
+    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.incidentsLoaded >= 1")
+    page.wait_for_function("document.querySelectorAll('#incident-table tbody tr').length === 4")
+
+    # a run of the daemon's own, killed with it (kill -9) and closed as interrupted by the
+    # daemon started again
+    with CommandClient(d.command) as c:
+        run_id = c.start_sweep(tomllib.loads(LONG_SWEEP)).data["run_id"]
+    page.wait_for_function("document.querySelectorAll('#steps tbody tr').length >= 2",
+                           timeout=120_000)
+    d.proc.kill()
+    d.proc.wait(10)
+    d2 = start_daemon(d.runs_dir)
+    try:
+        # (closed by the new daemon: its reason recorded)
+        page.wait_for_function(f"(() => {{ const r = document.querySelector(\"#incident-table "
+                               f"tbody tr[data-run='{run_id}']\"); return r !== null && r.cells[3]"
+                               ".textContent.endsWith('recovered at the next daemon start'); })()",
+                               timeout=60_000)
+    finally:
+        assert d2.terminate() == 0
+        d2.proc.communicate(timeout=10)
+
+    def rows() -> list[tuple[str, list[str]]]:
+        return page.evaluate("""() => [...document.querySelectorAll('#incident-table tbody tr')]
+            .map((tr) => [tr.className, [...tr.cells].map((c) => c.textContent)])""")
+
+    table = rows()
+    print("the incidents as the page shows them:", table)
+    assert [r[1][1] for r in table] == [run_id, "I1", "W1", "E1", "T1"]  # newest first
+    cls, mine = table[0]
+    with open_run(d.runs_dir / f"{run_id}.h5") as run:
+        assert run.status == "interrupted"
+        reason, fs, n = run.attrs["status_reason"], run.sample_rate_hz, run.n_samples
+        # the step whose record holds the last sample on disk, else the one after the last
+        step = next((s["index"] for s in run.steps
+                     if s["first_sample"] <= n - 1 < s["last_sample"]), len(run.steps))
+        x = run.signal("x", max(0, n - int(fs)), n)
+    assert cls == "inc-interrupted" and mine[2] == "interrupted" and mine[3] == reason
+    # where: that step at its planned frequency (70, 80, ... Hz)
+    planned = tomllib.loads(LONG_SWEEP)["freq_hz"]
+    assert mine[4] == (f"step {step + 1}/{len(planned)} at {planned[step]:.1f} Hz, "
+                       f"{(n - 1) / fs:.3f} s into the run")
+    # the peak orbit of its last second (X only: y stays near 0 on this rig)
+    assert abs(float(mine[5]) - np.abs(x).max() * 1e6) < 0.1 * np.abs(x).max() * 1e6 + 1.0
+    assert [r[1][2] for r in table[1:]] == ["interrupted", "watchdog", "e-stop", "trip"]
+    assert table[-1][1][3:7] == [TRIP, "step 3/3 at 70.0 Hz, 1.200 s into the run", "70.0",
+                                 "310.0"]
+
+    page.select_option("#incident-filter", "e-stop")
+    page.wait_for_function("document.querySelectorAll('#incident-table tbody tr').length === 1")
+    assert rows()[0][1][1:3] == ["E1", "e-stop"]
+    page.select_option("#incident-filter", "trip,e-stop,watchdog")
+    page.fill("#incident-since", "2026-11-25")
+    page.dispatch_event("#incident-since", "change")
+    page.wait_for_function("document.querySelectorAll('#incident-table tbody tr').length === 3")
+    assert [r[1][1] for r in rows()] == ["W1", "E1", "T1"]
+    with page.expect_download() as download:
+        page.click("#incidents-export")
+    lines = Path(download.value.path()).read_text().splitlines()
+    assert lines[0].startswith('"time_utc","run_id","incident","what","where"')
+    assert [line.split(",")[1] for line in lines[1:]] == ['"W1"', '"E1"', '"T1"']
+
+    page.click("#incident-table tbody tr[data-run='T1'] button")
+    page.wait_for_function("document.getElementById('run-title').textContent.startsWith('T1 ')")
+    assert page.inner_text("#run-title") == "T1 (sweep, aborted)"
+    assert page.errors == []

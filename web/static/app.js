@@ -158,6 +158,93 @@ function drawDriveAndStiffness(sorted, status, w) {
     sorted.map((s) => s.ky_re_mn_per_m), sorted.map((s) => s.ky_im_mn_per_m)]);
 }
 
+// --- the transfer function across the sweep, from the recorded samples (server: web.transfer) ---
+// Each step's X/F, F/X and coherence per driven axis; a step of low coherence is drawn grey
+// and its value shown: its ratio is not to be trusted (noise, stick-slip, contact).
+const LOW_GREY = "#a0aec0";
+function transferSeries(points, axes, value) {
+  // one column per axis for the trusted points, one grey column for the low-coherence ones
+  const cols = axes.map((a) => points.map((p) => (p.axis === a && !p.low_coherence ? value(p) : null)));
+  cols.push(points.map((p) => (p.low_coherence ? value(p) : null)));
+  return cols;
+}
+function drawTransfer(panelId, out) {
+  const panel = $(panelId);
+  const points = out.points.slice().sort((a, b) => a.freq_hz - b.freq_hz || (a.axis < b.axis ? -1 : 1));
+  const axes = [...new Set(points.map((p) => p.axis))].sort();
+  const f = points.map((p) => p.freq_hz);
+  const holder = panel.querySelector(".transfer-plots");
+  const w = Math.max(300, Math.floor((panel.clientWidth - 40) / 2));
+  const pts = (label, color, size) => ({ label, stroke: color, paths: () => null, points: { show: true, size: size || 7, fill: color } });
+  const low = out.coherence_low;
+  panel.querySelector(".coh-low").textContent = String(low);
+  const plot = (key, yLabel, series, columns, extra) => {
+    const id = `${panelId}-${key}`;
+    if (!$(id)) { const d = document.createElement("div"); d.id = id; holder.appendChild(d); }
+    const u = ensurePlot(id, id, series.map((s) => s.label), {
+      width: w, height: 190, legend: { show: true, live: false }, cursor: { show: false }, scales: { x: { time: false }, ...(extra || {}) },
+      series: [{ label: "f [Hz]" }].concat(series), axes: [{ label: "frequency [Hz]" }, { size: 60, label: yLabel }] });
+    u.setData([f].concat(columns));
+  };
+  const greyed = pts("low coherence", LOW_GREY, 9);
+  const k = [];
+  for (const [i, a] of axes.entries()) k.push(pts(`Re K${a}`, COLORS[2 * i]), pts(`Im K${a}`, COLORS[2 * i + 1]));
+  const kCols = [];
+  for (const a of axes) kCols.push(...transferSeries(points, [a], (p) => p.k_re_mn_per_m).slice(0, 1),
+    ...transferSeries(points, [a], (p) => p.k_im_mn_per_m).slice(0, 1));
+  plot("k", "F/X [MN/m]", k.concat([pts("low coh. Re", LOW_GREY, 9), pts("low coh. Im", LOW_GREY, 9)]),
+    kCols.concat([points.map((p) => (p.low_coherence ? p.k_re_mn_per_m : null)), points.map((p) => (p.low_coherence ? p.k_im_mn_per_m : null))]));
+  plot("h", "|X/F| [um/kN]", axes.map((a, i) => pts(`|${a.toUpperCase()}/F${a}|`, COLORS[i])).concat([greyed]),
+    transferSeries(points, axes, (p) => p.h_um_per_kn));
+  plot("phase", "phase X/F [deg]", axes.map((a, i) => pts(`${a} rel. f${a}`, COLORS[i])).concat([greyed]),
+    transferSeries(points, axes, (p) => p.phase_deg));
+  plot("coh", "coherence [-]", axes.map((a, i) => pts(`coherence ${a}`, COLORS[i])).concat([greyed, { label: "threshold", stroke: "#c53030", dash: [5, 4] }]),
+    transferSeries(points, axes, (p) => p.coherence).concat([f.map(() => low)]), { y: { range: [0, 1.02] } });
+  const lows = points.filter((p) => p.low_coherence);
+  panel.querySelector(".transfer-info").textContent = (lows.length
+    ? `low coherence: ${lows.map((p) => `${fmt(p.freq_hz, 1)} Hz ${p.axis}: ${fmt(p.coherence, 2)}`).join(", ")}`
+    : (points.length ? `coherence ${low} or more at every step` : "no step recorded yet"))
+    + (out.pending ? `; ${out.pending} step(s) not yet in the file` : "");
+  const body = panel.querySelector(".transfer-table").tBodies[0];
+  body.innerHTML = "";
+  for (const p of out.points) {
+    const tr = body.insertRow();
+    tr.dataset.index = p.index; tr.dataset.axis = p.axis;
+    if (p.low_coherence) tr.className = "low-coh";
+    for (const c of [p.index + 1, fmt(p.freq_hz, 1), p.axis, fmt(p.h_um_per_kn, 3), fmt(p.phase_deg, 1),
+      fmt(p.k_re_mn_per_m, 4), fmt(p.k_im_mn_per_m, 4), p.coherence === null ? "-" : fmt(p.coherence, 3), p.segments]) {
+      tr.insertCell().textContent = String(c);
+    }
+    tr.cells[7].className = "coh";
+  }
+  panel.dataset.points = String(out.points.length);
+  panel.dataset.run = out.run_id;
+}
+// live: the running (or last) run's file is read again at each new step, and while the
+// writer has not flushed a step's samples yet (at most once a second)
+let transferKey = null; let transferBusy = false; let transferAt = 0;
+async function followTransfer(fr) {
+  const st = fr.status || {};
+  const run = st.run_id || (st.last_run && st.last_run.run_id) || "";
+  if (!run || transferBusy) return;
+  const key = `${run}|${fr.steps.length}`;
+  const again = window.sfdrig.transferPending && Date.now() - transferAt > 1000;
+  if (key === transferKey && !again) return;
+  transferBusy = true; transferAt = Date.now();
+  try {
+    const out = await getJson(`/api/runs/${encodeURIComponent(run)}/transfer`);
+    if (out.ok) {
+      drawTransfer("transfer-live", out);
+      window.sfdrig.transferPending = out.pending > 0 || out.status === "running" && out.steps < fr.steps.length;
+      window.sfdrig.transferLoaded = (window.sfdrig.transferLoaded || 0) + 1;
+      transferKey = key;
+    } else {
+      $("transfer-live").querySelector(".transfer-info").textContent = out.error;
+      transferKey = key;
+    }
+  } finally { transferBusy = false; }
+}
+
 function drawSteps(steps, status) {
   const sorted = steps.slice().sort((a, b) => a.freq_hz - b.freq_hz);
   const f = sorted.map((s) => s.freq_hz);
@@ -370,6 +457,7 @@ function onFrame(fr) {
   window.sfdrig.lastStale = stale;
   drawStatus(fr);
   followRuns(fr);
+  followTransfer(fr);
   drawQuestion((fr.status || {}).question);
   if (fresh) {
     if (fr.traces) drawTraces(fr.traces, fr.status);
@@ -645,8 +733,11 @@ async function getJson(url) {
   } catch (e) { return { ok: false, error: String(e) }; }
 }
 let openRunId = null;
+let runsAsked = 0;
 async function loadRuns() {
+  const mine = ++runsAsked;
   const out = await getJson("/api/runs");
+  if (mine !== runsAsked) return;  // a newer reload was asked meanwhile: its answer is drawn
   window.sfdrig.runsLoaded = (window.sfdrig.runsLoaded || 0) + 1;
   const body = $("runs").tBodies[0];
   body.innerHTML = "";
@@ -694,6 +785,9 @@ async function openRun(id) {
   [sorted.map((s) => s.freq_hz), sorted.map((s) => s.achieved), sorted.map((s) => s.target)], $("plot-run-amp"));
   plots.runAmp = { u, sig: "" };
   drawNotes(run.notes);
+  const tf = await getJson(`/api/runs/${encodeURIComponent(id)}/transfer`);
+  if (tf.ok) drawTransfer("transfer-run", tf);
+  else $("transfer-run").querySelector(".transfer-info").textContent = tf.error;
   const ev = $("run-events");
   ev.innerHTML = "";
   for (const e of run.events) { const li = document.createElement("li"); li.textContent = `${e.time} ${e.kind}: ${e.message}`; ev.appendChild(li); }
@@ -730,7 +824,45 @@ function drawNotes(notes) {
   ol.innerHTML = "";
   for (const n of notes) { const li = document.createElement("li"); li.textContent = `${clock(n.time)} ${n.author}: ${n.text}`; ol.appendChild(li); }
 }
-$("runs-refresh").onclick = loadRuns;
+// trips, e-stops, watchdogs, contacts and interrupted runs across the runs directory's runs
+function incidentQuery(format) {
+  const q = new URLSearchParams();
+  if ($("incident-filter").value) q.set("incident", $("incident-filter").value);
+  if ($("incident-since").value) q.set("since", $("incident-since").value);
+  if (format) q.set("format", format);
+  return `/api/trips?${q}`;
+}
+// reloads overlap (the link's state changes fast while a daemon restarts): only the newest
+// request's answer is drawn, never an older one that took longer
+let incidentsAsked = 0;
+async function loadIncidents() {
+  $("incidents-export").href = incidentQuery("csv");
+  const mine = ++incidentsAsked;
+  const out = await getJson(incidentQuery(""));
+  if (mine !== incidentsAsked) return;
+  // a file being closed by a daemon right now may not read: asked again shortly
+  if (!out.ok || out.unreadable) setTimeout(() => { if (mine === incidentsAsked) loadIncidents(); }, 2000);
+  const body = $("incident-table").tBodies[0];
+  body.innerHTML = "";
+  window.sfdrig.incidentsLoaded = (window.sfdrig.incidentsLoaded || 0) + 1;
+  if (!out.ok) { $("incidents-info").textContent = out.error; return; }
+  $("incidents-info").textContent = `${out.incidents.length} shown of ${out.total}`
+    + (out.unreadable ? `; ${out.unreadable} run file(s) unreadable` : "");
+  for (const r of out.incidents) {
+    const tr = body.insertRow();
+    tr.className = `inc-${r.incident}`;
+    tr.dataset.run = r.run_id;
+    for (const c of [r.time_utc.replace("T", " ").slice(0, 23), r.run_id, r.incident, r.what, r.where,
+      fmt(r.peak_orbit_um, 1), fmt(r.peak_load_n, 1)]) tr.insertCell().textContent = String(c);
+    const open = document.createElement("button");
+    open.textContent = "Open";
+    open.onclick = () => openRun(r.run_id);
+    tr.insertCell().appendChild(open);
+  }
+}
+$("incident-filter").onchange = loadIncidents;
+$("incident-since").onchange = loadIncidents;
+$("runs-refresh").onclick = () => { loadRuns(); loadIncidents(); };
 $("run-close").onclick = () => { $("run").hidden = true; openRunId = null; };
 $("note-add").onclick = async () => {
   if (!openRunId) return;
@@ -749,7 +881,7 @@ let runsKey = null;
 function followRuns(fr) {
   const st = fr.status || {};
   const key = [(fr.link || {}).state, st.run_id, st.last_run && st.last_run.run_id, st.last_run && st.last_run.status].join("|");
-  if (key !== runsKey) { runsKey = key; loadRuns(); }
+  if (key !== runsKey) { runsKey = key; loadRuns(); loadIncidents(); }
 }
 
 const DRAWN_LATEST_MS = 250;  // the next frame is asked for by then even if not painted
