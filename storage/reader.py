@@ -118,6 +118,9 @@ class RunData:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self._steps_cache: list[dict[str, Any]] | None = None
+        # the datasets' lengths change only at a refresh (SWMR): asked once per channel read,
+        # they were a sixth of a transfer-function request's time in `sfdrig web` (issue 25)
+        self._n_samples_cache: int | None = None
         self._file = _open_h5(self.path)
         try:
             self._load()
@@ -214,6 +217,7 @@ class RunData:
     def refresh(self) -> None:
         """See what a live SWMR writer has flushed since opening (no-op on closed files)."""
         self._steps_cache = None
+        self._n_samples_cache = None
         if not self._file.swmr_mode:
             return
         keys = [f"channels/{n}" for n in self.channel_names]
@@ -229,9 +233,11 @@ class RunData:
     def n_samples(self) -> int:
         """Samples present in every channel and drive (a live or killed writer may have
         flushed some datasets further than others)."""
-        lengths = [self._file[f"channels/{n}"].shape[0] for n in self.channel_names]
-        lengths += [self._file[f"drive/{n}"].shape[0] for n in self.drive_names]
-        return min(lengths) if lengths else 0
+        if self._n_samples_cache is None:
+            lengths = [self._file[f"channels/{n}"].shape[0] for n in self.channel_names]
+            lengths += [self._file[f"drive/{n}"].shape[0] for n in self.drive_names]
+            self._n_samples_cache = min(lengths) if lengths else 0
+        return self._n_samples_cache
 
     @property
     def duration_s(self) -> float:
