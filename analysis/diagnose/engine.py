@@ -78,7 +78,14 @@ from analysis.diagnose.data import (
 )
 from analysis.diagnose.effects import LIBRARY, Context, Effect, Variant, extended_rig, parameters_of
 from analysis.diagnose.evidence import effect_evidence, sensor_pair_check, swap_check
-from analysis.diagnose.fitting import FitResult, Following, fit, following, train_sse
+from analysis.diagnose.fitting import (
+    FitResult,
+    Following,
+    fit,
+    fit_failure,
+    following,
+    train_sse,
+)
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals
 from analysis.diagnose.verdict import Verdict, excited_band, judge, refinement_share, signal_fit
 from simulated_hw.params import RigParams
@@ -439,25 +446,37 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
         # a fitted baseline follows each screened term (its parameters to first order): it
         # absorbed part of every term when it was fitted alone (``fitting.Following``)
         follow = following(pb.ev, current, base.free, pb.fit_train, pb.scale_m, pb.step)
-        cands = _screen(pb, ctx, lib, findings, current, len(free), follow, say)
+        cands, unfitted = _screen(pb, ctx, lib, findings, current, len(free), follow, say)
         cur_train = train_sse(pb.ev, current, pb.fit_train)[0]
         cands, rejected = _drop_non_findings(cands, cur_train, band, "")
+        rejected += unfitted
         for r in rejected:
             say(f"  {r['effect']:28s} not a finding: {r['not_a_finding']}")
         if not cands:
             rounds.append(rejected)
             break
         cands.sort(key=lambda c: c.criterion)
+        refit_failed: dict[str, str] = {}
         if free:
             # the two best are refitted jointly with the baseline's and earlier findings'
             # parameters, and re-ranked
             for i in range(min(2, len(cands))):
                 cand = cands[i]
                 k_joint = len(free) + len(cand.variant.params)
-                res = fit(pb.ev, [cand.fit.model], free + cand.variant.params, pb.fit_train,
-                          pb.scale_m, max_nfev=20 * (k_joint + 1), step=pb.step)
-                if res.train_sse <= cand.fit.train_sse:
-                    cands[i] = judge_candidate(pb, cand.effect, cand.variant, res, len(free))
+                try:
+                    res = fit(pb.ev, [cand.fit.model], free + cand.variant.params,
+                              pb.fit_train, pb.scale_m, max_nfev=20 * (k_joint + 1),
+                              step=pb.step)
+                    if res.train_sse <= cand.fit.train_sse:
+                        cands[i] = judge_candidate(pb, cand.effect, cand.variant, res,
+                                                   len(free))
+                except Exception as err:
+                    why = fit_failure(err)
+                    if why is None:
+                        raise
+                    # the screened fit stands; the joint refit's failure is on record
+                    refit_failed[cand.effect] = f"joint refit {why}"
+                    say(f"  joint refit {cand.effect:16s} {why}")
                 say(f"  joint refit {cand.effect:16s} held-out {cands[i].test_rms:.4g}")
             # a joint refit may move a parameter onto its bound or raise the training error
             cands, more = _drop_non_findings(cands, cur_train, band, "joint refit: ")
@@ -471,6 +490,7 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
             "effect": c.effect, "parameters": parameters_of(c.variant, c.fit.model),
             "held_out_error": c.test_rms, "gain": before / c.test_rms, "criterion": c.criterion,
             "train_error": math.sqrt(c.fit.train_sse / c.fit.train_n), "n_params": c.k,
+            **({"joint_refit": refit_failed[c.effect]} if c.effect in refit_failed else {}),
         } for c in cands] + rejected)
         top = cands[0]
         gain = before / top.test_rms
@@ -506,27 +526,37 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
 
 def _screen(pb: Problem, ctx: Context, lib: list[Effect], findings: list[Finding],
             current: Model, n_free: int, follow: Following | None,
-            say: Any) -> list[Candidate]:
+            say: Any) -> tuple[list[Candidate], list[dict[str, Any]]]:
     """Every effect not yet found, its own parameters fitted (the rest held, or following to
-    first order: ``follow``), judged."""
+    first order: ``follow``), judged; and a row for each that could not be fitted (why)."""
     cands: list[Candidate] = []
+    unfitted: list[dict[str, Any]] = []
     for eff in lib:
         if any(f.effect == eff.id for f in findings):
             continue
         t0 = time.process_time()
         best: tuple[FitResult, Variant] | None = None
-        for var in eff.variants(ctx, current):
-            res = fit(pb.ev, var.starts, var.params, pb.fit_train, pb.scale_m, step=pb.step,
-                      keep=var.keep, follow=follow)
-            if best is None or res.train_sse < best[0].train_sse:
-                best = (res, var)
-        if best is None:
+        try:
+            for var in eff.variants(ctx, current):
+                res = fit(pb.ev, var.starts, var.params, pb.fit_train, pb.scale_m,
+                          step=pb.step, keep=var.keep, follow=follow)
+                if best is None or res.train_sse < best[0].train_sse:
+                    best = (res, var)
+            if best is None:
+                continue
+            res, var = best
+            cand = judge_candidate(pb, eff.id, var, res, n_free)
+        except Exception as err:
+            why = fit_failure(err)
+            if why is None:
+                raise
+            unfitted.append({"effect": eff.id, "not_a_finding": why})
+            say(f"  {eff.id:28s} {why}")
             continue
-        res, var = best
-        cands.append(judge_candidate(pb, eff.id, var, res, n_free))
+        cands.append(cand)
         say(f"  {eff.id:28s} held-out {cands[-1].test_rms:.4g}  "
             f"({time.process_time() - t0:.1f} s CPU, {res.nfev} evaluations)")
-    return cands
+    return cands, unfitted
 
 
 def _drop_non_findings(cands: list[Candidate], cur_train: float, band: tuple[float, float],
