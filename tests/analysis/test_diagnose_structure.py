@@ -2,7 +2,8 @@
 ``analysis.diagnose.residual_structure`` on dwells whose "model error" is known exactly.
 
 Each case is a record of X dwells (5 frequencies x 3 amplitudes in shuffled order, the first
-dwell repeated at the end, 0.5 s at 5 kHz, probe noise 0.1 um on x and y) and a residual built
+dwell repeated at the end, 0.5 s at 5 kHz, probe noise 2 um on x and y: a noisy record, so the
+noise, not the replay's resolution, sets the floor) and a residual built
 as the measured response times a known relative error of the dynamic stiffness (plus the noise
 the model cannot predict). Pure noise must show no structure; an error varying with amplitude,
 with time, a response of the undriven axis, or a harmonic, each sized at about ten noise
@@ -30,7 +31,7 @@ FS = 5000.0
 FREQS = (20.0, 30.0, 40.0, 50.0, 60.0)
 AMPS = (13e-6, 25e-6, 38e-6)
 DWELL_S = 0.5
-NOISE_M = 1e-7
+NOISE_M = 2e-6
 
 
 def _plan(seed: int) -> list[tuple[float, float]]:
@@ -91,12 +92,14 @@ def test_noise_alone_shows_no_structure(seed):
     # the statistics are of noise: the largest of ~40 tests stays within a few sd
     assert max(r["z"] for r in rows) < 4.0, rows[0]
     fundamental = next(r for r in rows if r["test"] == "fundamental" and r["channel"] == "x")
-    assert abs(fundamental["z"]) < 3.5, fundamental
+    # the replay's resolution is added to the noise: the chi-square falls a little below its
+    # degrees of freedom, never far above
+    assert -3.5 < fundamental["z"] < 3.0, fundamental
 
 
 def test_a_stiffness_changing_with_amplitude_is_named_with_its_size():
-    # +0.1 % in |K| from 13 to 38 um, log-linear, centred: about 10 sd of the slope
-    change = 0.001
+    # +2 % in |K| from 13 to 38 um, log-linear, centred: about 10 sd of the slope
+    change = 0.02
     rows = _rows(*_case(3, error=lambda f, a, t: change * (math.log(a / AMPS[0])
                                                            / math.log(AMPS[-1] / AMPS[0]) - 0.5)))
     found = [r for r in rows if r["structure"]]
@@ -111,19 +114,20 @@ def test_a_stiffness_changing_with_amplitude_is_named_with_its_size():
 
 def test_a_drift_over_the_run_shows_in_time_and_the_repeated_dwell():
     duration = DWELL_S * 16
-    # the damping (quadrature) drifting by 0.002 rad over the run
-    rows = _rows(*_case(5, error=lambda f, a, t: 0.002j * (t / duration - 0.5)))
+    # the damping (quadrature) drifting by 0.04 rad over the run
+    rows = _rows(*_case(5, error=lambda f, a, t: 0.04j * (t / duration - 0.5)))
     found = {(r["test"], r["part"]) for r in rows if r["structure"] and r["channel"] == "x"}
     assert ("time", "im") in found and ("repeated_dwell", "im") in found, found
     time_row = next(r for r in rows if (r["test"], r["part"], r["channel"]) == ("time", "im", "x"))
     # the dwells' centres span 0.25..7.75 s of the 8 s run: 15/16 of the drift
-    assert time_row["size"] == pytest.approx(0.002 * 15 / 16, rel=0.15)
+    assert time_row["size"] == pytest.approx(0.04 * 15 / 16, rel=0.15)
     # the oil temperature here is a constant with noise: no structure against it
     assert ("oil_temperature", "im") not in found
 
 
 def test_the_undriven_axis_responding_is_named():
-    # y moving 2 % of x at 1X: ~0.5 um against 0.1 um noise over 2500 samples per dwell
+    # y moving 2 % of x at 1X: 0.26-0.76 um against 2 um noise over 2500 samples per dwell
+    # (a 1X estimate's sd 0.06 um)
     rows = _rows(*_case(7, y_share=0.02))
     other = next(r for r in rows if r["test"] == "other_axis")
     assert other["channel"] == "y" and other["structure"], other
@@ -131,27 +135,26 @@ def test_the_undriven_axis_responding_is_named():
 
 
 def test_harmonics_the_model_does_not_predict_are_named():
-    rows = _rows(*_case(9, third=2e-3))
+    rows = _rows(*_case(9, third=2e-2))
     harm = next(r for r in rows if r["test"] == "harmonics" and r["channel"] == "x")
     assert harm["structure"], harm
-    assert harm["size"] == pytest.approx(2e-3, rel=0.1)
+    assert harm["size"] == pytest.approx(2e-2, rel=0.1)
 
 
 def test_the_noise_scale_is_the_datas_own():
-    # the same error, ten times the noise: the significance falls tenfold (about)
-    err = lambda f, a, t: 0.006 * (math.log(a / AMPS[0]) / math.log(3) - 0.5)  # noqa: E731
-    loud_rec, loud_res, segs = _case(3, error=err)
-    quiet = next(r for r in _rows(loud_rec, loud_res, segs) if r["test"] == "amplitude"
-                 and r["part"] == "re" and r["channel"] == "x")
+    # the same error, three times the noise: the significance falls about threefold
+    err = lambda f, a, t: 0.02 * (math.log(a / AMPS[0]) / math.log(3) - 0.5)  # noqa: E731
     rec, res, segs = _case(3, error=err)
+    quiet = next(r for r in _rows(rec, res, segs) if r["test"] == "amplitude"
+                 and r["part"] == "re" and r["channel"] == "x")
     rng = np.random.default_rng(99)
     for s in segs:
-        extra = rng.normal(0, 9 * NOISE_M, s.n)
+        extra = rng.normal(0, math.sqrt(8) * NOISE_M, s.n)
         rec.responses["x"][s.start:s.stop] += extra
         res.per_segment[s]["x"] = res.per_segment[s]["x"] + extra
     noisy = next(r for r in _rows(rec, res, segs) if r["test"] == "amplitude"
                  and r["part"] == "re" and r["channel"] == "x")
-    assert 6.0 < quiet["z"] / noisy["z"] < 16.0, (quiet["z"], noisy["z"])
+    assert 2.2 < quiet["z"] / noisy["z"] < 3.8, (quiet["z"], noisy["z"])
 
 
 def test_wilson_hilferty_matches_the_chi_square():
@@ -164,8 +167,8 @@ def test_wilson_hilferty_matches_the_chi_square():
 
 
 def test_structure_makes_the_verdict_unexplained():
-    rec, res, segs = _case(3, error=lambda f, a, t: 0.001 * (math.log(a / AMPS[0])
-                                                           / math.log(3) - 0.5))
+    rec, res, segs = _case(3, error=lambda f, a, t: 0.02 * (math.log(a / AMPS[0])
+                                                          / math.log(3) - 0.5))
     rows = _rows(rec, res, segs)
     clean_rec, clean_res, clean_segs = _case(3)
     # measured signals minus residuals: the fits' explained fractions are near 1 in both
@@ -179,7 +182,7 @@ def test_structure_makes_the_verdict_unexplained():
 
 
 def test_a_terms_signature_is_the_structure_it_removes_in_noise_sd():
-    err = lambda f, a, t: 0.001 * (math.log(a / AMPS[0]) / math.log(3) - 0.5)  # noqa: E731
+    err = lambda f, a, t: 0.02 * (math.log(a / AMPS[0]) / math.log(3) - 0.5)  # noqa: E731
     rec, before, segs = _case(3, error=err)
     # the same record with the error modelled: what is left is the noise alone
     after = Residuals({s: {ch: v.copy() for ch, v in before.per_segment[s].items()}
