@@ -29,7 +29,7 @@ from analysis.diagnose.candidates import (
 )
 from analysis.diagnose.data import DiagnoseError, RunRecord, Segment
 from analysis.diagnose.effects import LIBRARY, Context, Variant, parameters_of
-from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit, train_sse
+from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit, fit_failure, train_sse
 from analysis.diagnose.model import Evaluator, Model, Param, Residuals, residuals, rig_param
 from analysis.diagnose.start import OneMode, one_mode_estimate
 from simulated_hw.params import RigParams
@@ -225,18 +225,25 @@ def _two_modes(pb: Problem, ctx: Context, one: Baseline, rules: _Rules,
                say: Any) -> tuple[Baseline | None, dict[str, Any] | None]:
     """The two-mode baseline if chosen (None: one mode), and its row (None: not fitted)."""
     best: tuple[FitResult, Variant] | None = None
-    for var in LIBRARY["second_mode"].variants(ctx, one.model):
-        # the best starts (the second mode added to the one-mode fit) refined with every
-        # parameter: the first mode moves once the second takes its share of the response
-        k = len(one.free) + len(var.params)
-        res = fit(pb.ev, var.starts, one.free + var.params, pb.fit_train, pb.scale_m,
-                  step=pb.step, keep=var.keep, max_nfev=30 * (k + 1))
-        if best is None or res.train_sse < best[0].train_sse:
-            best = (res, var)
-    if best is None:
-        return None, None
-    res, var = best
-    two = judge_candidate(pb, "second_mode", var, res, len(one.free))
+    try:
+        for var in LIBRARY["second_mode"].variants(ctx, one.model):
+            # the best starts (the second mode added to the one-mode fit) refined with every
+            # parameter: the first mode moves once the second takes its share of the response
+            k = len(one.free) + len(var.params)
+            res = fit(pb.ev, var.starts, one.free + var.params, pb.fit_train, pb.scale_m,
+                      step=pb.step, keep=var.keep, max_nfev=30 * (k + 1))
+            if best is None or res.train_sse < best[0].train_sse:
+                best = (res, var)
+        if best is None:
+            return None, None
+        res, var = best
+        two = judge_candidate(pb, "second_mode", var, res, len(one.free))
+    except Exception as err:
+        failed = fit_failure(err)
+        if failed is None:
+            raise
+        say(f"baseline order: one mode per axis (two modes {failed})")
+        return None, {"modes_per_axis": 2, "coupled_axes": False, "not_chosen": failed}
     row, why = _judged(pb, one, two, rules)
     say(f"baseline order: {'two modes' if why is None else 'one mode'} per axis (two modes: "
         f"held-out {two.test_rms:.4g}, gain {row['gain']:.3g} [{row['gain_interval'][0]:.3g}, "
@@ -272,9 +279,16 @@ def _coupled_axes(pb: Problem, base: Baseline, rules: _Rules,
     var = Variant({}, [k_xy], [k_xy.set(base.model, r * k_mean) for r in (0.0, 0.05, -0.05)])
     k = len(base.free) + 1
     t0 = time.process_time()
-    res = fit(pb.ev, var.starts, base.free + var.params, pb.fit_train, pb.scale_m,
-              step=pb.step, max_nfev=20 * (k + 1))
-    cand = judge_candidate(pb, "coupled_axes", var, res, len(base.free))
+    try:
+        res = fit(pb.ev, var.starts, base.free + var.params, pb.fit_train, pb.scale_m,
+                  step=pb.step, max_nfev=20 * (k + 1))
+        cand = judge_candidate(pb, "coupled_axes", var, res, len(base.free))
+    except Exception as err:
+        failed = fit_failure(err)
+        if failed is None:
+            raise
+        say(f"baseline order: axes uncoupled (coupled {failed})")
+        return None, {**row, "not_chosen": failed}
     judged, why = _judged(pb, base, cand, rules)
     lo, hi = judged["gain_interval"]
     say(f"baseline order: axes {'coupled' if why is None else 'uncoupled'} (coupled: k_xy "

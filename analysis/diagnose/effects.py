@@ -18,8 +18,10 @@ cross_coupling              c_xy_Ns_per_m, c_yx_Ns_per_m, d_xy_kg, d_yx_kg (film
 second_mode                 frequency_hz, modal_mass_kg (the frame as a second mass-spring)
 joint_microslip             mode, slip_force_N, stiffness_N_per_m (a Dahl micro-slip element
                             beside the spring of a mode: the housing's, or the frame's once a
-                            second mode is in the model; the stuck stiffness is taken from
-                            that spring, so at small motion the model is unchanged)
+                            second mode is in the model; the spring gives up the joint's
+                            stiffness up to half of it, so at small motion the model is
+                            unchanged, and stays positive however stiff the joint: a seal
+                            stiffer than the rods is in the family)
 viscosity_drift             relative_change (film damping, end of data / start - 1)
 sensor_gain                 channel, gain_ratio (recorded / true)
 channel_delay               channel, delay_s
@@ -238,12 +240,28 @@ def _second_mode(ctx: Context, m: Model) -> list[Variant]:
     return [Variant({}, [pf, pm], starts, keep=3)]
 
 
+def _spring_beside_joint(spring: float, k_old: float, k_new: float) -> float:
+    """A mode's spring once the joint beside it goes from stiffness ``k_old`` to ``k_new``.
+
+    Of the spring ``R`` the mode has without the joint, the joint takes its own stiffness,
+    ``R - k_j``, up to half of it (the stuck joint leaves the model as it was, so only the slip
+    is new); beyond, ``R^2 / (4 k_j)`` (the same value and slope at ``k_j = R / 2``), which stays
+    positive for any ``k_j``: a joint or seal stiffer than the spring itself has a stuck
+    stiffness above ``R``, and a refit that moves the spring and the joint together keeps the
+    model valid.
+    """
+    r = spring + k_old if spring >= k_old else 2.0 * math.sqrt(k_old * spring)
+    return r - k_new if k_new <= 0.5 * r else r * r / (4.0 * k_new)
+
+
 def _joint(ctx: Context, m: Model) -> list[Variant]:
     """A micro-slipping joint beside the spring of each mode the model has.
 
-    Setting its stiffness k_j moves that much from the mode's spring into the joint (the
-    structure's stiffness per axis, or the frame's through its frequency), so the stuck joint
-    leaves the model as it was and only the slip (softening, dissipation) is new."""
+    Setting its stiffness k_j takes that much from the mode's spring (the structure's
+    stiffness per axis, or the frame's through its frequency), up to half of it
+    (`_spring_beside_joint`), so the stuck joint leaves the model as it was and only the slip
+    (softening, dissipation) is new; its stiffness may exceed the spring's (a seal stiffer
+    than the rods)."""
     k_struct = _stiffness(ctx)
     out = []
     modes = ["housing"] + (["frame"] if m.rig.effects.second_mode.enabled else [])
@@ -256,16 +274,17 @@ def _joint(ctx: Context, m: Model) -> list[Variant]:
             data = mm.rig.model_dump(mode="python")
             j = data["effects"]["joint_microslip"]
             old = j["stiffness_n_per_m"] if j["enabled"] else 0.0
-            j.update(enabled=True, mode=_mode, stiffness_n_per_m=float(v))
+            new = max(float(v), 0.0)
+            j.update(enabled=True, mode=_mode, stiffness_n_per_m=new)
             if _mode == "housing":
-                data["structure"]["stiffness_x_n_per_m"] += old - float(v)
-                data["structure"]["stiffness_y_n_per_m"] += old - float(v)
+                st = data["structure"]
+                for key in ("stiffness_x_n_per_m", "stiffness_y_n_per_m"):
+                    st[key] = _spring_beside_joint(st[key], old, new)
             else:
                 sm = data["effects"]["second_mode"]
                 k_fr = sm["modal_mass_kg"] * (2 * math.pi * sm["frequency_hz"]) ** 2
-                k_fr += old - float(v)
-                sm["frequency_hz"] = math.sqrt(max(k_fr, 1e-9) / sm["modal_mass_kg"]) / (
-                    2 * math.pi)
+                k_fr = _spring_beside_joint(k_fr, old, new)
+                sm["frequency_hz"] = math.sqrt(k_fr / sm["modal_mass_kg"]) / (2 * math.pi)
             return replace(mm, rig=RigParams.model_validate(data))
 
         def get_f(mm: Model) -> float:
@@ -279,12 +298,15 @@ def _joint(ctx: Context, m: Model) -> list[Variant]:
         else:
             sm = m.rig.effects.second_mode
             k_mode = sm.modal_mass_kg * (2 * math.pi * sm.frequency_hz) ** 2
-        k0 = 0.3 * k_mode
-        f0 = k0 * ctx.x_rms_m
-        pk = Param("stiffness_N_per_m", get_k, put_k, 0.1 * k_struct, 0.0, 0.9 * k_mode)
+        f0 = 0.3 * k_mode * ctx.x_rms_m
+        # the upper bound only keeps the search finite: a joint 30x stiffer than the mode's
+        # spring is stuck rigid over any motion the data show
+        pk = Param("stiffness_N_per_m", get_k, put_k, 0.1 * k_struct, 0.0, 30.0 * k_mode)
         pf = Param("slip_force_N", get_f, put_f, 0.3 * f0, 1e-3 * f0)
-        starts = [put_f(put_k(m, k0), f0 * r) for r in (0.5, 1.0, 2.0)]
-        out.append(Variant({"mode": mode}, [pf, pk], starts))
+        # stuck stiffness below and above the spring's (a seal stiffer than the rods)
+        starts = [put_f(put_k(m, k0), k0 * ctx.x_rms_m * r)
+                  for k0 in (0.3 * k_mode, 2.0 * k_mode) for r in (0.5, 1.0, 2.0)]
+        out.append(Variant({"mode": mode}, [pf, pk], starts, keep=2))
     return out
 
 

@@ -18,11 +18,13 @@ Procedure
    spring beside a cubic one, so every round tries every effect.) The best is a finding only if
    it is significant:
    its criterion beats the current model's, its held-out gain (RMS before / after) is at least
-   ``min_gain``, and the lower end of the bootstrap interval of the gain (held-out segments
-   resampled with replacement, seeded) is at least ``min_gain_lo`` (0.999: in 97.5 % of the
-   resamples the effect does not raise the held-out error; resamples holding only segments the
-   effect leaves untouched, e.g. dwells that do not move the faulty probe's axis, give 1; an
-   overfitted effect makes some held-out segments worse).
+   ``min_gain`` or its signature on the held-out dwells stands ``Z_STRUCTURE`` noise sd above
+   the noise (``residual_structure.signature_sd``), and the lower end of the bootstrap
+   interval of the gain (held-out segments resampled with replacement, seeded) is at least
+   ``min_gain_lo`` (0.999: in 97.5 % of the resamples the effect does not raise the held-out
+   error; resamples holding only segments the effect leaves untouched, e.g. dwells that do not
+   move the faulty probe's axis, give 1; an overfitted effect makes some held-out segments
+   worse).
    Samples of one segment are correlated, so the criterion alone would be lax: the bootstrap
    over whole segments is the significance check.
    Not a finding, whatever its held-out gain: a term that raises the training error, one
@@ -31,11 +33,15 @@ Procedure
    noise floor that the baseline and the final model explain. Below 90 % (and not brought there
    by the first finding alone) the verdict is "baseline inadequate" (with the residual's
    spectral peaks and the channels explained worst); above it, a share of more than 2 % left is
-   "unexplained". Under either, and when a baseline parameter sits on a bound, every finding is
-   low-confidence; so is a finding whose runner-up (not found itself in a later round) explains
-   the held-out data nearly as well (held-out MSE within 25 %), and a refinement: a term found
-   once the model already left nothing unexplained, explaining less than 0.5 % of the signal and
-   less than 3/4 of what was left (``verdict.refinement_share``).
+   "unexplained", and so is any structure the final model leaves above the residual's own
+   noise (``residual_structure``: against amplitude, time, frequency, oil temperature, a
+   repeated dwell, harmonics, the other axis). Under either, and when a baseline parameter sits
+   on a bound, every finding is low-confidence, except beside structure alone when the findings
+   removed nearly all of the baseline's (``verdict.STRUCTURE_LEFT``); so is a finding whose
+   runner-up (not found itself in a later round) explains the held-out data nearly as well
+   (held-out MSE within 25 %), and a refinement: a term found once the model already left
+   nothing unexplained (no structure above the noise either), explaining less than 0.5 % of the
+   signal and less than 3/4 of what was left (``verdict.refinement_share``).
 """
 
 from __future__ import annotations
@@ -78,8 +84,22 @@ from analysis.diagnose.data import (
 )
 from analysis.diagnose.effects import LIBRARY, Context, Effect, Variant, extended_rig, parameters_of
 from analysis.diagnose.evidence import effect_evidence, sensor_pair_check, swap_check
-from analysis.diagnose.fitting import FitResult, Following, fit, following, train_sse
+from analysis.diagnose.fitting import (
+    FitResult,
+    Following,
+    fit,
+    fit_failure,
+    following,
+    train_sse,
+)
+from analysis.diagnose.hysteresis import amplitude_levels, joint_table
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals
+from analysis.diagnose.residual_structure import (
+    Z_STRUCTURE,
+    excess_chi2,
+    find_structure,
+    signature_sd,
+)
 from analysis.diagnose.verdict import Verdict, excited_band, judge, refinement_share, signal_fit
 from simulated_hw.params import RigParams
 
@@ -236,8 +256,20 @@ def diagnose(
     # 3. verdict against the signal: what the baseline and the final model explain of it,
     # and the evidence that decides each finding's confidence
     noise = ra.noise_floor(ra.dwell_table(records, base.test, test))
+    # structure left by the final model, over every dwell (training ones too: the repeated
+    # dwell, the whole range of amplitude, time and temperature), against its own noise
+    every = sorted(train + test, key=lambda s: (s.run, s.start))
+    final_all = residuals(pb.ev, search.model, pb.fit_train, every)
+    n_fitted = len(base.free) + sum(len(f.variant.params) for f in findings)
+    structure = find_structure(records, final_all, every, n_fitted)
+    # the baseline's structure: how much of it the findings explain
+    base_structure = (find_structure(records, residuals(pb.ev, base.model, pb.fit_train, every),
+                                     every, len(base.free)) if findings else structure)
     verdict = judge(records, base.test, search.test, test, ra.channel_noise(records, test),
-                    findings[0].test_residuals if findings else None)
+                    findings[0].test_residuals if findings else None, structure,
+                    excess_chi2(base_structure))
+    for row in verdict.structure:
+        say(f"structure: {row['text']}")
     on_bound = _what_the_baseline_misses(verdict, base, findings, notes)
     for f in findings:
         if LIBRARY[f.effect].kind == "measurement":
@@ -439,25 +471,37 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
         # a fitted baseline follows each screened term (its parameters to first order): it
         # absorbed part of every term when it was fitted alone (``fitting.Following``)
         follow = following(pb.ev, current, base.free, pb.fit_train, pb.scale_m, pb.step)
-        cands = _screen(pb, ctx, lib, findings, current, len(free), follow, say)
+        cands, unfitted = _screen(pb, ctx, lib, findings, current, len(free), follow, say)
         cur_train = train_sse(pb.ev, current, pb.fit_train)[0]
         cands, rejected = _drop_non_findings(cands, cur_train, band, "")
+        rejected += unfitted
         for r in rejected:
             say(f"  {r['effect']:28s} not a finding: {r['not_a_finding']}")
         if not cands:
             rounds.append(rejected)
             break
         cands.sort(key=lambda c: c.criterion)
+        refit_failed: dict[str, str] = {}
         if free:
             # the two best are refitted jointly with the baseline's and earlier findings'
             # parameters, and re-ranked
             for i in range(min(2, len(cands))):
                 cand = cands[i]
                 k_joint = len(free) + len(cand.variant.params)
-                res = fit(pb.ev, [cand.fit.model], free + cand.variant.params, pb.fit_train,
-                          pb.scale_m, max_nfev=20 * (k_joint + 1), step=pb.step)
-                if res.train_sse <= cand.fit.train_sse:
-                    cands[i] = judge_candidate(pb, cand.effect, cand.variant, res, len(free))
+                try:
+                    res = fit(pb.ev, [cand.fit.model], free + cand.variant.params,
+                              pb.fit_train, pb.scale_m, max_nfev=20 * (k_joint + 1),
+                              step=pb.step)
+                    if res.train_sse <= cand.fit.train_sse:
+                        cands[i] = judge_candidate(pb, cand.effect, cand.variant, res,
+                                                   len(free))
+                except Exception as err:
+                    why = fit_failure(err)
+                    if why is None:
+                        raise
+                    # the screened fit stands; the joint refit's failure is on record
+                    refit_failed[cand.effect] = f"joint refit {why}"
+                    say(f"  joint refit {cand.effect:16s} {why}")
                 say(f"  joint refit {cand.effect:16s} held-out {cands[i].test_rms:.4g}")
             # a joint refit may move a parameter onto its bound or raise the training error
             cands, more = _drop_non_findings(cands, cur_train, band, "joint refit: ")
@@ -471,13 +515,18 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
             "effect": c.effect, "parameters": parameters_of(c.variant, c.fit.model),
             "held_out_error": c.test_rms, "gain": before / c.test_rms, "criterion": c.criterion,
             "train_error": math.sqrt(c.fit.train_sse / c.fit.train_n), "n_params": c.k,
+            **({"joint_refit": refit_failed[c.effect]} if c.effect in refit_failed else {}),
         } for c in cands] + rejected)
         top = cands[0]
         gain = before / top.test_rms
         lo, hi = bootstrap_gain(cur_test, top.test, pb.test, seed + len(findings))
-        significant = top.criterion < cur_crit and gain >= min_gain and lo >= min_gain_lo
-        say(f"round {len(rounds)}: best {top.effect} gain {gain:.3g} [{lo:.3g}, {hi:.3g}]"
-            f"{'' if significant else ' (not significant)'}")
+        # the term's signature on the held-out dwells in noise sd: a small effect on a
+        # low-noise record gains little RMS yet stands far above the noise
+        signature = signature_sd(ctx.records, cur_test, top.test, pb.test, top.k)
+        strong = gain >= min_gain or signature >= Z_STRUCTURE
+        significant = top.criterion < cur_crit and strong and lo >= min_gain_lo
+        say(f"round {len(rounds)}: best {top.effect} gain {gain:.3g} [{lo:.3g}, {hi:.3g}], "
+            f"signature {signature:.3g} sd{'' if significant else ' (not significant)'}")
         if not significant:
             break
         runner = cands[1] if len(cands) > 1 else None
@@ -488,6 +537,7 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
             "criterion_before": cur_crit, "criterion_after": top.criterion,
             "n_params": len(top.variant.params),
             "held_out_segments": len(pb.test),
+            "signature_sd": signature,
         }
         if runner is not None:
             evidence["runner_up"] = {"effect": runner.effect,
@@ -496,6 +546,9 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
                                                                  runner.fit.model)}
             evidence["ambiguous"] = bool(top.test_rms**2 > runner.test_rms**2 / 1.25)
         evidence.update(effect_evidence(top.effect, ctx.records, pb.test, cur_test, top.test))
+        if top.effect == "joint_microslip":
+            evidence["describing_function"] = _joint_describing_function(
+                ctx, top.fit.model, pb.fit_train + pb.test)
         findings.append(Finding(top.effect, parameters_of(top.variant, top.fit.model), before,
                                 top.test_rms, gain, (lo, hi), evidence, top.fit.model,
                                 top.variant, runner, top.test))
@@ -504,29 +557,57 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
     return _Search(findings, rounds, current, cur_test)
 
 
+def _joint_describing_function(ctx: Context, model: Model,
+                               segs: list[Segment]) -> list[dict[str, Any]]:
+    """The fitted joint's equivalent stiffness and loss stiffness at each amplitude level of
+    the dwells (the 1X of the x displacement), at the data's typical frequency."""
+    j = model.rig.effects.joint_microslip
+    amps = []
+    for seg in segs:
+        rec = ctx.records[seg.run]
+        chans = [c for c, a in rec.response_axis.items() if a == 0]
+        if not seg.freq_hz or not chans:
+            continue
+        z, _, _ = ra.harmonics(rec.responses[chans[0]][seg.start:seg.stop], seg.start,
+                               rec.sample_rate_hz, seg.freq_hz, 1)
+        amps.append(abs(complex(z[0])))
+    return joint_table(j.stiffness_n_per_m, j.slip_force_n, amplitude_levels(amps),
+                       ctx.f_typ_hz)
+
+
 def _screen(pb: Problem, ctx: Context, lib: list[Effect], findings: list[Finding],
             current: Model, n_free: int, follow: Following | None,
-            say: Any) -> list[Candidate]:
+            say: Any) -> tuple[list[Candidate], list[dict[str, Any]]]:
     """Every effect not yet found, its own parameters fitted (the rest held, or following to
-    first order: ``follow``), judged."""
+    first order: ``follow``), judged; and a row for each that could not be fitted (why)."""
     cands: list[Candidate] = []
+    unfitted: list[dict[str, Any]] = []
     for eff in lib:
         if any(f.effect == eff.id for f in findings):
             continue
         t0 = time.process_time()
         best: tuple[FitResult, Variant] | None = None
-        for var in eff.variants(ctx, current):
-            res = fit(pb.ev, var.starts, var.params, pb.fit_train, pb.scale_m, step=pb.step,
-                      keep=var.keep, follow=follow)
-            if best is None or res.train_sse < best[0].train_sse:
-                best = (res, var)
-        if best is None:
+        try:
+            for var in eff.variants(ctx, current):
+                res = fit(pb.ev, var.starts, var.params, pb.fit_train, pb.scale_m,
+                          step=pb.step, keep=var.keep, follow=follow)
+                if best is None or res.train_sse < best[0].train_sse:
+                    best = (res, var)
+            if best is None:
+                continue
+            res, var = best
+            cand = judge_candidate(pb, eff.id, var, res, n_free)
+        except Exception as err:
+            why = fit_failure(err)
+            if why is None:
+                raise
+            unfitted.append({"effect": eff.id, "not_a_finding": why})
+            say(f"  {eff.id:28s} {why}")
             continue
-        res, var = best
-        cands.append(judge_candidate(pb, eff.id, var, res, n_free))
+        cands.append(cand)
         say(f"  {eff.id:28s} held-out {cands[-1].test_rms:.4g}  "
             f"({time.process_time() - t0:.1f} s CPU, {res.nfev} evaluations)")
-    return cands
+    return cands, unfitted
 
 
 def _drop_non_findings(cands: list[Candidate], cur_train: float, band: tuple[float, float],
@@ -574,14 +655,18 @@ def _share_of_signal(records: list[RunRecord], test: list[Segment], base_test: R
                                              signal_fit(records, f.test_residuals, test,
                                                         noise_of))
         f.evidence["share_of_signal_explained"] = share
-        if refinement:
+        # a model that left structure above the noise (held-out dwells) did not leave
+        # "nothing unexplained": a term removing it is a cause, not a refinement
+        if refinement and not any(r["structure"] for r in find_structure(
+                records, before_res, test, 0)):
             f.evidence["refinement"] = True
         before_res = f.test_residuals
 
 
 def _confidence(pb: Problem, base: Baseline, findings: list[Finding], search: _Search,
                 verdict: Verdict, base_on_bound: bool) -> None:
-    """High confidence only on an adequate baseline that leaves nothing unexplained, for a
+    """High confidence only on an adequate baseline, a final model that leaves nothing of the
+    signal unexplained and no structure beyond a small remainder of the baseline's, for a
     finding that is no refinement and whose cause is not ambiguous."""
     for f in findings:
         # a runner-up as good as the finding leaves the cause ambiguous, unless it was found
@@ -596,6 +681,9 @@ def _confidence(pb: Problem, base: Baseline, findings: list[Finding], search: _S
                 f.evidence["runner_up"]["held_out_error_swapped"] = swap_rms
                 if swap_rms**2 > 1.25 * search.test.rms() ** 2:
                     f.evidence["ambiguous"] = False
-        weak = (verdict.unexplained or not verdict.adequate or base_on_bound
-                or f.evidence.get("refinement", False))
+        # structure left in the residual weakens every finding unless the findings explain
+        # nearly all of the baseline's (``verdict.STRUCTURE_LEFT``)
+        weak = (verdict.signal_unexplained or not verdict.adequate or base_on_bound
+                or f.evidence.get("refinement", False)
+                or (bool(verdict.structure) and not verdict.structure_mostly_explained))
         f.evidence["confidence"] = "low" if (weak or f.evidence.get("ambiguous")) else "high"

@@ -20,7 +20,7 @@ from analysis.diagnose import residual_analysis as ra
 from analysis.diagnose.candidates import Finding, Problem
 from analysis.diagnose.data import RunRecord, Segment
 from analysis.diagnose.effects import LIBRARY, Context, parameters_of
-from analysis.diagnose.fitting import fit
+from analysis.diagnose.fitting import fit, fit_failure
 from analysis.diagnose.model import Model, Param, Residuals, residuals
 
 
@@ -52,9 +52,19 @@ def sensor_pair_check(pb: Problem, ctx: Context, free_base: list[Param],
         partner = var.labels.get("channel")
         if partner not in partners:
             continue
-        res = fit(pb.ev, var.starts, free_base + others + var.params, pb.fit_train, pb.scale_m,
-                  max_nfev=20 * (len(free_base) + len(others) + 2), step=pb.step)
-        ms = residuals(pb.ev, res.model, pb.fit_train, pb.test).rms() ** 2
+        try:
+            res = fit(pb.ev, var.starts, free_base + others + var.params, pb.fit_train,
+                      pb.scale_m, max_nfev=20 * (len(free_base) + len(others) + 2),
+                      step=pb.step)
+            ms = residuals(pb.ev, res.model, pb.fit_train, pb.test).rms() ** 2
+        except Exception as err:
+            why = fit_failure(err)
+            if why is None:
+                raise
+            # the partner cannot be ruled out: the pair stays undecided
+            out["pair_check"][partner] = {"not_fitted": why}
+            alike.append(partner)
+            continue
         out["pair_check"][partner] = {
             **parameters_of(var, res.model),
             "held_out_error": math.sqrt(ms)}
@@ -71,7 +81,8 @@ def sensor_pair_check(pb: Problem, ctx: Context, free_base: list[Param],
 
 def swap_check(pb: Problem, base: Model, free_base: list[Param], findings: list[Finding],
                f: Finding, final: Model) -> float:
-    """Held-out RMS of the final model with finding ``f`` replaced by its runner-up."""
+    """Held-out RMS of the final model with finding ``f`` replaced by its runner-up (NaN: that
+    model could not be fitted)."""
     assert f.runner_up is not None
     m = base
     params = list(free_base)
@@ -87,9 +98,14 @@ def swap_check(pb: Problem, base: Model, free_base: list[Param], findings: list[
     for p in runner.variant.params:
         m = p.set(m, p.get(runner.fit.model))
     params += runner.variant.params
-    res = fit(pb.ev, [m], params, pb.fit_train, pb.scale_m, max_nfev=20 * (len(params) + 1),
-              step=pb.step)
-    return residuals(pb.ev, res.model, pb.fit_train, pb.test).rms()
+    try:
+        res = fit(pb.ev, [m], params, pb.fit_train, pb.scale_m,
+                  max_nfev=20 * (len(params) + 1), step=pb.step)
+        return residuals(pb.ev, res.model, pb.fit_train, pb.test).rms()
+    except Exception as err:
+        if fit_failure(err) is None:
+            raise
+        return math.nan  # not fitted: the runner-up is not ruled out, the cause stays ambiguous
 
 
 def effect_evidence(effect: str, records: list[RunRecord], test: list[Segment],

@@ -15,9 +15,24 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from pydantic import ValidationError
 
-from analysis.diagnose.data import RunRecord, Segment
+from analysis.diagnose.data import DiagnoseError, RunRecord, Segment
 from analysis.diagnose.model import Evaluator, Model, Param, residuals
+
+#: what a fit on data can raise: a trial model the rig refuses (a parameter out of its range),
+#: arithmetic out of range, a singular system (``fit_failure``)
+_FIT_ERRORS = (ValidationError, ValueError, ArithmeticError, np.linalg.LinAlgError)
+
+
+def fit_failure(err: BaseException) -> str | None:
+    """Why a fit could not be made, for the report (None: ``err`` is no fit failure but a bad
+    request, ``DiagnoseError``, or a bug, and must propagate). A candidate that cannot be
+    fitted is reported as such, never a crash: the data are the user's, not ours to refuse."""
+    if isinstance(err, DiagnoseError) or not isinstance(err, _FIT_ERRORS):
+        return None
+    first = str(err).strip().splitlines()
+    return f"could not be fitted: {type(err).__name__}: {' '.join(first[:3])[:300]}"
 
 
 @dataclass

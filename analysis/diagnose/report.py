@@ -14,6 +14,7 @@ import numpy as np
 from analysis.diagnose import residual_analysis as ra
 from analysis.diagnose.engine import Diagnosis
 from analysis.diagnose.model import Residuals
+from analysis.diagnose.residual_structure import Z_STRUCTURE
 
 
 def jsonable(v: Any) -> Any:
@@ -281,10 +282,27 @@ def _verdict_html(diag: Diagnosis) -> list[str]:
         if "baseline_parameters_on_bound" in v.missing:
             out.append("<p>Baseline parameters on a bound of the fit: "
                        f"{html.escape(str(v.missing['baseline_parameters_on_bound']))}.</p>")
+    out += _structure_html(v.structure_tests)
     if not v.adequate:
         out.append("<p><b>The baseline does not describe the data; no cause is named with "
                    "confidence on top of it.</b></p>")
     return out
+
+
+def _structure_html(tests: list[dict[str, Any]]) -> list[str]:
+    """The final residual's tests for structure above its own noise (``residual_structure``)."""
+    if not tests:
+        return []
+    found = [t for t in tests if t["structure"]]
+    if not found:
+        top = tests[0]
+        return [f"<p>No structure above the noise in the final model's residual (largest: "
+                f"{html.escape(top['text'])}; structure from {Z_STRUCTURE:g} sd).</p>"]
+    rows = [{"test": t["test"], "channel": t["channel"], "part": t["part"],
+             "size": t["size"], "sd": t["z"], "what": t["text"]} for t in found]
+    return [f"<p><b>Structure above the noise in the final model's residual</b> ({len(found)} "
+            f"tests at {Z_STRUCTURE:g} sd or more: the verdict cannot be \"explained\"):</p>",
+            _table(rows, ["test", "channel", "part", "size", "sd", "what"])]
 
 
 def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None) -> Path:

@@ -32,6 +32,7 @@ from scipy.signal import find_peaks, welch
 
 from analysis.diagnose.data import RunRecord, Segment
 from analysis.diagnose.model import Residuals
+from analysis.diagnose.residual_structure import Z_STRUCTURE, excess_chi2
 
 #: explained fraction below which the model family is inadequate
 ADEQUATE = 0.90
@@ -47,6 +48,12 @@ REMAINDER_SHARE = 0.75
 #: 1.5x is a systematic remainder of sqrt(1.5^2 - 1) = 1.1 noise RMS, larger than the noise
 #: itself and far beyond the scatter of an RMS estimated over thousands of samples)
 NOISE_MARGIN = 1.5
+#: structure (excess chi-square over the noise) the findings may leave, as a share of the
+#: baseline's, and still be named with confidence: they explain at least nine tenths of what
+#: the baseline left beyond the noise, so they are its main cause; the rest is named as
+#: structure (the verdict stays "unexplained"). A larger remainder may be another cause that
+#: the findings partly stand in for: every finding is then low confidence.
+STRUCTURE_LEFT = 0.1
 
 
 @dataclass
@@ -187,6 +194,27 @@ class Verdict:
     unexplained: bool
     missing: dict[str, Any]
     threshold: float = ADEQUATE
+    #: the tests of the final model's residual for structure above its noise
+    #: (``residual_structure.find_structure``), largest first
+    structure_tests: list[dict[str, Any]] = field(default_factory=list)
+
+    #: the final model's residual leaves too much of the signal (share or noise margin)
+    signal_unexplained: bool = False
+    #: the structure the final model leaves over the baseline's (excess chi-square over the
+    #: noise, ``residual_structure.excess_chi2``); NaN where the baseline had none
+    structure_left_share: float = math.nan
+
+    @property
+    def structure_mostly_explained(self) -> bool:
+        """The findings explain nearly all the structure of the baseline's residual: what they
+        leave (named as structure all the same) is at most ``STRUCTURE_LEFT`` of it."""
+        return bool(self.structure_left_share <= STRUCTURE_LEFT)
+
+    @property
+    def structure(self) -> list[dict[str, Any]]:
+        """The tests that found structure above the noise (each makes the verdict at least
+        "unexplained")."""
+        return [t for t in self.structure_tests if t["structure"]]
 
     @property
     def text(self) -> str:
@@ -198,7 +226,10 @@ class Verdict:
         return {"verdict": self.text, "threshold": self.threshold,
                 "baseline": self.baseline.to_dict(), "final": self.final.to_dict(),
                 "unexplained_share": UNEXPLAINED_SHARE, "noise_margin": NOISE_MARGIN,
-                "missing": self.missing}
+                "missing": self.missing, "structure": self.structure,
+                "structure_tests": self.structure_tests,
+                "structure_threshold_sd": Z_STRUCTURE,
+                "structure_left_share": self.structure_left_share}
 
 
 def refinement_share(before: SignalFit, after: SignalFit) -> tuple[bool, float]:
@@ -224,7 +255,9 @@ def refinement_share(before: SignalFit, after: SignalFit) -> tuple[bool, float]:
 
 
 def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: list[Segment],
-          noise_ms_of: dict[str, float], first: Residuals | None = None) -> Verdict:
+          noise_ms_of: dict[str, float], first: Residuals | None = None,
+          structure_tests: list[dict[str, Any]] | None = None,
+          baseline_excess: float | None = None) -> Verdict:
     """Judge the baseline and the final model against the held-out signal.
 
     The baseline is adequate when it explains at least ``ADEQUATE`` of the signal above the
@@ -235,7 +268,11 @@ def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: lis
     like an explanation). What the final model leaves is unexplained when it is more than
     ``UNEXPLAINED_SHARE`` of that signal, or, where the noise floor is known (dwells), when its
     RMS exceeds ``NOISE_MARGIN`` times the noise floor's: a slow drift of the structure may leave
-    0.1 % of a strong signal and still six times the noise.
+    0.1 % of a strong signal and still six times the noise. Structure in the final model's
+    residual above its own noise (``structure_tests``, ``residual_structure``: the dynamic
+    stiffness's error varying with amplitude, time, frequency or temperature, a repeated dwell
+    that changed, harmonics or the other axis's response) is unexplained however small a
+    share of the signal it is.
     """
     fb = signal_fit(records, base, segs, noise_ms_of)
     ff = signal_fit(records, final, segs, noise_ms_of)
@@ -246,7 +283,13 @@ def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: lis
         one = signal_fit(records, first, segs, noise_ms_of).explained
         adequate = math.isfinite(one) and one >= ADEQUATE
     beyond_noise = bool(ff.noise_rms > 0 and ff.residual_rms > NOISE_MARGIN * ff.noise_rms)
-    unexplained = final_x < 1.0 - UNEXPLAINED_SHARE or beyond_noise
+    tests = list(structure_tests or [])
+    structured = any(t["structure"] for t in tests)
+    signal_left = final_x < 1.0 - UNEXPLAINED_SHARE or beyond_noise
+    unexplained = signal_left or structured
+    left = math.nan
+    if baseline_excess is not None and baseline_excess > 0:
+        left = excess_chi2(tests) / baseline_excess
     missing: dict[str, Any] = {}
     for name, fit_, res, show in (("baseline", fb, base, not adequate),
                                   ("final", ff, final, unexplained)):
@@ -259,4 +302,5 @@ def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: lis
                     key=lambda d: d["explained_fraction"]
                     if math.isfinite(d["explained_fraction"]) else 2.0),
             }
-    return Verdict(fb, ff, adequate, unexplained, missing)
+    return Verdict(fb, ff, adequate, unexplained, missing, structure_tests=tests,
+                   signal_unexplained=signal_left, structure_left_share=left)

@@ -169,6 +169,12 @@ def _run(args: argparse.Namespace) -> int:
         print("unexplained: a structured discrepancy remains that the library does not explain")
     if diag.verdict is not None:
         print(f"verdict: {diag.verdict.text}")
+        structure = diag.verdict.structure
+        for row in structure[:_STRUCTURE_SHOWN]:
+            print(f"  structure above the noise: {row['text']}")
+        if len(structure) > _STRUCTURE_SHOWN:
+            print(f"  ... and {len(structure) - _STRUCTURE_SHOWN} more tests above the noise "
+                  "(JSON verdict.structure)")
     if diag.amplitude is not None:
         print(f"amplitude dependence: {diag.amplitude.text}")
         for lv in diag.amplitude.levels:
@@ -178,6 +184,10 @@ def _run(args: argparse.Namespace) -> int:
             print(f"  {eff}: contradicted by the levels: {why}")
     print(f"extended model: {model_path}")
     return 0
+
+
+#: structure rows printed (largest first; the JSON and the report hold them all)
+_STRUCTURE_SHOWN = 6
 
 
 def _run_inverse(args: argparse.Namespace) -> int:
