@@ -50,6 +50,7 @@ from daq.errors import (
     error_for_code,
 )
 from simulated_hw import physics
+from simulated_hw.board.ao_generation import AoStream
 from simulated_hw.params import RigParams
 from simulated_hw.rig import RigModel
 
@@ -98,21 +99,18 @@ class SimulatedBackend:
         self._sleep = sleep
         self._map: ChannelMap | None = None
         self.rig: RigModel | None = None
-        self._ao_chunks: list[np.ndarray] = []
-        self._ao_queued = 0
+        self._ao = AoStream()  # the generation's samples, as the sim-server's board plays them
         self._running = False
         self._t0 = 0.0
         self._read = 0  # samples handed to the reader
         self._closed = False
         self.cut_stops = cut_stops
         self._ao_stopped = False  # a stopping cut: the drives are at 0 V until the run stops
-        # the regenerating ring (ao_ring_s): its content, the end of the samples written, and
-        # what the generation has fixed already (samples _played_from.. not yet read)
-        self._ring: np.ndarray | None = None
+        # the regenerating ring (ao_ring_s, the stream's loop): the end of the samples written,
+        # and what the generation has played already and the rig not yet simulated (the
+        # samples from _read on; a stopping cut is the stream's end: 0 V from there on)
         self._written_end = 0
         self._played: list[np.ndarray] = []
-        self._played_to = 0  # AO fixed for every sample before this (from the ring)
-        self._stopped_at: int | None = None  # a stopping cut: 0 V from this sample on
 
     # --- protocol -------------------------------------------------------------------------
     @property
@@ -133,8 +131,8 @@ class SimulatedBackend:
         self.rig = RigModel(self.params, self._rig_map(channel_map), self.seed)
         self._fed_at = self._clock()
         self._rest_since = self._clock()
-        self._ao_chunks, self._ao_queued, self._read = [], 0, 0
-        self._reset_ring()
+        self._read = 0
+        self._new_stream()
 
     def _rig_map(self, cm: ChannelMap) -> ChannelMap:
         """The map the rig converts with: ``cm`` itself, or the wiring's sensors at the
@@ -197,25 +195,20 @@ class SimulatedBackend:
             return 0
         return self._generated() if self.realtime else self._read
 
-    def _reset_ring(self) -> None:
+    def _new_stream(self) -> None:
+        """An empty generation: a queue, or (``ao_ring_s``) a ring of 0 V."""
         ring = self.ao_ring_samples if self._map is not None else None
-        self._ring = None if ring is None else np.zeros((len(self.channel_map.ao), ring))
-        self._written_end, self._played, self._played_to = 0, [], 0
-        self._stopped_at = None
+        self._ao = AoStream(None if ring is None else np.zeros((len(self.channel_map.ao), ring)))
+        self._written_end, self._played = 0, []
 
     def _fix_played(self, upto: int) -> None:
-        """The ring's content for samples ``_played_to..upto`` is what plays there: fix it now,
-        before a write changes the ring (a board has generated them already)."""
-        ring = self._ring
-        assert ring is not None
-        if upto <= self._played_to:
-            return
-        k = np.arange(self._played_to, upto)
-        block = ring[:, k % ring.shape[1]]
-        if self._stopped_at is not None:
-            block[:, k >= self._stopped_at] = 0.0
-        self._played.append(block)
-        self._played_to = upto
+        """Generate the ring up to sample ``upto`` now, before a write changes the ring (a
+        board has generated them already); past a stopping cut the drives are at 0 V."""
+        k = upto - self._ao.generated
+        if k > 0:
+            block = np.zeros((len(self.channel_map.ao), k))
+            self._ao.take_into(block)
+            self._played.append(block)
 
     def _take_played(self, n: int) -> np.ndarray:
         self._fix_played(self._read + n)
@@ -238,7 +231,8 @@ class SimulatedBackend:
         self._rest_since = None
         self._running = True
         self._read = 0
-        self._played, self._played_to, self._stopped_at = [], 0, None
+        self._played = []
+        self._ao.restart()
         self._t0 = self._clock()
 
     def write_ao(self, block: np.ndarray, at: int | None = None) -> None:
@@ -259,30 +253,26 @@ class SimulatedBackend:
                 )
         if self._ao_stopped:
             return  # the generation has stopped: nothing written now plays
-        if self._ring is not None:
+        if self._ao.loop is not None:
             self._write_ring(arr, self._written_end if at is None else int(at))
             return
-        if at is not None and at != self._read + self._ao_queued:
-            raise ValueError(f"a non-regenerating AO stream writes at sample "
-                             f"{self._read + self._ao_queued}, not {at}")
-        if self.realtime and self._running:
-            generated = self._generated()
-            if generated > self._read + self._ao_queued:
-                raise error_for_code("AO generation ran past the samples written", OUTPUT_UNDERFLOW)
-        self._ao_chunks.append(arr.copy())
-        self._ao_queued += arr.shape[1]
+        end = self._read + self._ao.queued
+        if at is not None and at != end:
+            raise ValueError(f"a non-regenerating AO stream writes at sample {end}, not {at}")
+        if self.realtime and self._running and self._generated() > end:
+            raise error_for_code("AO generation ran past the samples written", OUTPUT_UNDERFLOW)
+        self._ao.queue(arr)
 
     def _write_ring(self, arr: np.ndarray, at: int) -> None:
-        ring = self._ring
-        assert ring is not None
-        n, size = arr.shape[1], ring.shape[1]
+        assert self._ao.loop is not None
+        n, size = arr.shape[1], self._ao.loop.shape[1]
         if n > size:
             raise ValueError(f"AO write of {n} samples is longer than the {size}-sample ring")
         if at < 0:
             raise ValueError(f"AO write position must be >= 0, got {at}")
         if self._running:  # what the clock has generated already keeps what it played
             self._fix_played(self.ao_generated())
-        ring[:, (at + np.arange(n)) % size] = arr
+        self._ao.overwrite(arr, at)
         self._written_end = max(self._written_end, at + n)
 
     def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
@@ -297,20 +287,16 @@ class SimulatedBackend:
         self._check_watchdog()
         if self.realtime:
             self._wait_for(self._read + n, timeout_s)
-        if self._ring is not None:
+        if self._ao.loop is not None:
             ao = self._take_played(n)
-        elif self._ao_stopped:  # what is left of the queue, then the drives at 0 V
-            take = min(n, self._ao_queued)
-            ao = np.zeros((len(self.channel_map.ao), n))
-            if take:
-                ao[:, :take] = self._take_ao(take)
-        elif self._ao_queued < n:
+        elif not self._ao_stopped and self._ao.queued < n:
             raise error_for_code(
-                f"AO buffer ran dry: {self._ao_queued} samples queued, {n} needed",
+                f"AO buffer ran dry: {self._ao.queued} samples queued, {n} needed",
                 OUTPUT_UNDERFLOW,
             )
-        else:
-            ao = self._take_ao(n)
+        else:  # stopped: what is left of the queue, then the drives at 0 V
+            ao = np.zeros((len(self.channel_map.ao), n))
+            self._ao.take_into(ao)
         if self._watchdog_expired:  # the board holds the drives at 0 V
             ao = np.zeros_like(ao)
         out = self._as_read(rig.process(self._wired(ao)))
@@ -353,46 +339,36 @@ class SimulatedBackend:
     def ao_backlog(self) -> int:
         """Samples written and not yet generated: paced, the wall clock generates them
         (regenerating: negative once the generation has passed the last sample written)."""
-        if self._ring is not None:
+        if self._ao.loop is not None:
             return self._written_end - self.ao_generated()
         if self.realtime and self._running:
-            return self._read + self._ao_queued - self._generated()
-        return self._ao_queued
+            return self._read + self._ao.queued - self._generated()
+        return self._ao.queued
 
     def cut_ao(self) -> AoCut:
         """Drop the AO queued beyond the generation (see the module doc)."""
-        if self._ring is not None:
+        if self._ao.loop is not None:
             return self._cut_ring()
-        keep = self._ao_queued
+        keep = self._ao.queued
         if self._running and not self._ao_stopped:
             keep = 0
             if self.realtime:
                 margin = 0 if self.cut_stops else int(CUT_MARGIN_S * self.sample_rate_hz)
-                keep = min(max(self._generated() + margin - self._read, 0), self._ao_queued)
-            dropped = self._ao_queued - keep
-            while dropped:
-                last = self._ao_chunks[-1]
-                if last.shape[1] <= dropped:
-                    self._ao_chunks.pop()
-                    dropped -= last.shape[1]
-                    self._ao_queued -= last.shape[1]
-                else:
-                    self._ao_chunks[-1] = last[:, :last.shape[1] - dropped]
-                    self._ao_queued -= dropped
-                    dropped = 0
+                keep = min(max(self._generated() + margin - self._read, 0), self._ao.queued)
+            self._ao.keep_queued(keep)
             self._ao_stopped = self.cut_stops
         return AoCut(self._read + keep, not self._ao_stopped)
 
     def _cut_ring(self) -> AoCut:
         if not self._running or self._ao_stopped:
-            at = self._stopped_at if self._stopped_at is not None else self._written_end
+            at = self._ao.end if self._ao.end is not None else self._written_end
             return AoCut(at, not self._ao_stopped)
         margin = 0 if self.cut_stops or not self.realtime else \
             int(CUT_MARGIN_S * self.sample_rate_hz)
         at = self.ao_generated() + margin
         self._fix_played(at)
         if self.cut_stops:
-            self._stopped_at = at
+            self._ao.end = at
             self._ao_stopped = True
         return AoCut(at, not self._ao_stopped)
 
@@ -457,8 +433,7 @@ class SimulatedBackend:
         is), and the next run primes the AO again and counts from sample 0."""
         self._running = False
         self._ao_stopped = False
-        self._ao_chunks, self._ao_queued = [], 0
-        self._reset_ring()
+        self._new_stream()
         self._rest_since = self._clock()
 
     def close(self) -> None:
@@ -505,17 +480,3 @@ class SimulatedBackend:
                     READ_TIMEOUT,
                 )
             self._sleep(ready_at - now)
-
-    def _take_ao(self, n: int) -> np.ndarray:
-        parts, got = [], 0
-        while got < n:
-            chunk = self._ao_chunks[0]
-            take = min(n - got, chunk.shape[1])
-            parts.append(chunk[:, :take])
-            if take == chunk.shape[1]:
-                self._ao_chunks.pop(0)
-            else:
-                self._ao_chunks[0] = chunk[:, take:]
-            got += take
-        self._ao_queued -= n
-        return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]

@@ -248,7 +248,7 @@ class SimDevice(SafeStates, OnDemandAi):
             task.run_id += 1
 
     def _arm_ao(self, task: SimTask) -> None:
-        if task.ao_written == 0 and (task.regenerating or task.finite):
+        if task.ao.written == 0 and (task.regenerating or task.finite):
             raise daq_error(
                 OUTPUT_BUFFER_EMPTY,
                 f"start {task.name!r}: nothing was written to the output buffer (write the "
@@ -273,8 +273,8 @@ class SimDevice(SafeStates, OnDemandAi):
         digital = task.kind == "do"
         task.wired_rows = [] if digital else [(row, ao_all.index(ch.physical[0]))
                                                for row, ch in enumerate(task.channels)]
-        task.ao_generated = 0
-        task.ao_hold = np.array([
+        task.ao.generated = 0
+        task.ao.last = np.array([
             digital_io.channel_value(self, task, ch) if digital
             else self.terminal_value(ch.physical[0]) for ch in task.channels], dtype=float)
         ao_stream.freeze_regeneration(task)
@@ -374,8 +374,7 @@ class SimDevice(SafeStates, OnDemandAi):
                 self._reset_acquisition()
             elif task in self.ao_tasks:
                 self._end_generation(task)
-            task.ao_chunks, task.ao_queued = [], 0
-            task.regen_data = None
+            task.ao.discard()
 
     def _end_generation(self, task: SimTask) -> None:
         idle = ao_stream.idle_values(task)
@@ -420,17 +419,17 @@ class SimDevice(SafeStates, OnDemandAi):
                 for task in self.ao_tasks:
                     if task.t_start is not None and task.rate_hz is not None:
                         count = math.floor((now - task.t_start) * task.rate_hz + 1e-9) + 1
-                        ao_stream.skip(task, count - task.ao_generated)
+                        ao_stream.skip(task, count - task.ao.generated)
             for task in self.ao_tasks:
-                if task.kind == "do" and task.ao_hold is not None:
+                if task.kind == "do" and task.ao.last is not None:
                     self._drive_do(task)
             self.watchdog_timer.check()
 
     def _drive_do(self, task: SimTask) -> None:
         """A sample-clocked DO task's lines show its last sample generated."""
         levels: dict[str, bool] = {}
-        assert task.ao_hold is not None
-        for ch, value in zip(task.channels, task.ao_hold, strict=True):
+        assert task.ao.last is not None
+        for ch, value in zip(task.channels, task.ao.last, strict=True):
             levels.update(digital_io.lines_of(ch, int(value)))
         if any(self.lines.get(p) != v for p, v in levels.items()):
             self._set_lines(levels)
@@ -503,10 +502,10 @@ class SimDevice(SafeStates, OnDemandAi):
         ao_all = self.spec.ao_channels()
         out = np.array([self.terminal_value(p) for p in ao_all])
         for task in self.ao_tasks:
-            now = (task.ao_hold if ao_stream.generating(task) and task.ao_hold is not None
+            now = (task.ao.last if ao_stream.generating(task) and task.ao.last is not None
                    else ao_stream.idle_values(task))
             for row, term in task.wired_rows:
-                if ao_all[term] not in self.locked_ao and task.ao_generated > 0:
+                if ao_all[term] not in self.locked_ao and task.ao.generated > 0:
                     out[term] = now[row]
         return out
 
@@ -526,8 +525,8 @@ class SimDevice(SafeStates, OnDemandAi):
             assert task.rate_hz is not None  # on its own clock: sample the AO at AI times
             t = self.t0 + (first + np.arange(n)) / self.ai_rate
             index = np.floor((t - task.t_start) * task.rate_hz + 1e-9).astype(np.int64)
-            before = task.ao_generated
-            prev = task.ao_hold.copy() if task.ao_hold is not None else None
+            before = task.ao.generated
+            prev = task.ao.last.copy() if task.ao.last is not None else None
             block = ao_stream.take(task, max(int(index[-1]) + 1 - before, 0))
             for row, term in task.wired_rows:
                 value = np.full(n, out[term, 0] if prev is None else prev[row])
@@ -653,18 +652,18 @@ class SimDevice(SafeStates, OnDemandAi):
                 self.catch_up()
                 if task.error is not None:
                     raise task.error
-                if task.running and task.regen_data is not None:
+                if task.running and task.ao.loop is not None:
                     ao_stream.queue(task, block)  # overwrites the loop being played
                     break
-                space = task.output_buffer() - task.ao_queued
+                space = task.output_buffer() - task.ao.queued
                 if task.running and not task.regenerating:
                     space += ao_stream.fifo_samples(task)  # the board drains into its FIFO
-                if not task.running and task.ao_written == 0:
+                if not task.running and task.ao.written == 0:
                     space = max(space, n)  # the first write sizes the buffer (NI behaviour)
                 if n <= space:
                     ao_stream.queue(task, block)
                     if task.buffer_samples is None and not task.running:
-                        task.buffer_samples = max(task.output_buffer(), task.ao_queued)
+                        task.buffer_samples = max(task.output_buffer(), task.ao.queued)
                     break
                 moving = task in self.ao_tasks and not self.fast and (
                     task.t_start is not None or self.ai_task is not None)
@@ -700,7 +699,7 @@ class SimDevice(SafeStates, OnDemandAi):
     def generated_by(self, task: SimTask) -> int:
         with self.lock:
             self.catch_up()
-            return task.ao_generated
+            return task.ao.generated
 
     def is_done(self, task: SimTask) -> bool:
         """DAQmx IsTaskDone: a finite task that has ended, or any task not running; a task
