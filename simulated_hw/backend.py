@@ -33,6 +33,7 @@ generation is the samples read.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable
 
@@ -51,6 +52,8 @@ from daq.errors import (
 )
 from simulated_hw import physics
 from simulated_hw.board.ao_generation import AoStream
+from simulated_hw.board.safe_states import EmergencyStop, SafeStates
+from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.params import RigParams
 from simulated_hw.rig import RigModel
 
@@ -79,9 +82,13 @@ class SimulatedBackend:
             raise ValueError(f"watchdog_s must be positive or None, got {watchdog_s}")
         self.wiring = wiring
         self.watchdog_s = watchdog_s
-        self._fed_at = 0.0
-        self._watchdog_expired = False
-        self._estop_down = False  # the wiring's button is pressed
+        # the board's safe states, in the parts the sim-server's board keeps them in: the
+        # watchdog expires when next looked at (nothing outlives this process to need a thread)
+        self._safe = SafeStates(clock, threading.RLock(), self._expire, live=False)
+        self._watchdog = None if watchdog_s is None else Watchdog("sim", watchdog_s)
+        if self._watchdog is not None:
+            self._safe.add(self._watchdog)
+        self._estop = EmergencyStop(wiring.estop if wiring is not None else None)
         self._estop_latched = False  # read_ai raised for this press already
         #: per configured AI row: the rig's row, or None (a terminal the wiring leaves empty)
         self._ai_rows: list[int | None] = []
@@ -129,7 +136,10 @@ class SimulatedBackend:
         self._map = channel_map
         physics.warm_up()  # before start: a paced first read must not wait for the compiler
         self.rig = RigModel(self.params, self._rig_map(channel_map), self.seed)
-        self._fed_at = self._clock()
+        if self.wiring is None:  # the map's own button
+            self._estop.button = channel_map.estop
+        if self._watchdog is not None:
+            self._safe.start(self._watchdog)
         self._rest_since = self._clock()
         self._read = 0
         self._new_stream()
@@ -297,12 +307,13 @@ class SimulatedBackend:
         else:  # stopped: what is left of the queue, then the drives at 0 V
             ao = np.zeros((len(self.channel_map.ao), n))
             self._ao.take_into(ao)
-        if self._watchdog_expired:  # the board holds the drives at 0 V
+        w = self._watchdog
+        if w is not None and w.expired:  # the board holds the drives at 0 V
             ao = np.zeros_like(ao)
         out = self._as_read(rig.process(self._wired(ao)))
         self._read += n
-        if self.watchdog_s is not None and not self._watchdog_expired:
-            self._fed_at = self._clock()  # a read feeds the watchdog, as the board backend's
+        if w is not None and not w.expired:
+            w.fed_at = self._clock()  # a read feeds the watchdog, as the board backend's
         return out
 
     def ai_on_host(self) -> int:
@@ -375,31 +386,33 @@ class SimulatedBackend:
     def feed_watchdog(self) -> None:
         """Reset the watchdog timer (``watchdog_s``; no-op without one); raises
         `daq.errors.DaqWatchdogExpiredError` (-200644) once it has expired."""
-        if self.watchdog_s is None:
+        if self._watchdog is None:
             return
         if self._check_watchdog():
             raise error_for_code(
-                f"the watchdog timer expired (not reset for {self.watchdog_s:g} s): relays off, "
-                "drives at 0 V", CANT_RESET_EXPIRED_WATCHDOG)
-        self._fed_at = self._clock()
+                f"the watchdog timer expired (not reset for {self._watchdog.timeout_s:g} s): "
+                "relays off, drives at 0 V", CANT_RESET_EXPIRED_WATCHDOG)
+        self._safe.feed(self._watchdog, "watchdog")
 
     def _check_watchdog(self) -> bool:
-        """Expire the watchdog if it has not been fed for ``watchdog_s``: the relays off and
-        the drives at 0 V from then on, as a board does on its own. Whether it has expired."""
-        if self.watchdog_s is None or self._watchdog_expired:
-            return self._watchdog_expired
-        if self._clock() - self._fed_at < self.watchdog_s:
+        """Expire the watchdog if it has not been fed for ``watchdog_s``. Whether it has
+        expired."""
+        if self._watchdog is None:
             return False
-        self._watchdog_expired = True
+        self._safe.check()
+        return self._watchdog.expired
+
+    def _expire(self, w: Watchdog) -> None:
+        """The relays off and the drives at 0 V from then on, as a board does on its own."""
+        self._safe.hold(w)
         if self.rig is not None:
             for d in self.rig.channel_map.do:
                 self.rig.set_relay(d.name, False)
-        return True
 
     def _clear_watchdog(self) -> None:
-        self._check_watchdog()
-        self._watchdog_expired = False
-        self._fed_at = self._clock()
+        if self._watchdog is not None:
+            self._check_watchdog()
+            self._safe.clear_expiration(self._watchdog)
 
     @property
     def watchdog_expired(self) -> bool:
@@ -408,7 +421,7 @@ class SimulatedBackend:
 
     def press_estop(self, pressed: bool) -> None:
         """A hand on the wiring's emergency-stop button (simulation only)."""
-        self._estop_down = bool(pressed)
+        self._estop.press(pressed)
 
     def estop_pressed(self) -> bool:
         """Whether the map's emergency-stop line reads pressed: the wiring's button (the map's
@@ -416,13 +429,7 @@ class SimulatedBackend:
         cm = self._map
         if cm is None or cm.estop is None:
             return False
-        wiring = self.wiring or cm
-        button = wiring.estop
-        if button is not None and button.physical_channel == cm.estop.physical_channel:
-            level = button.pressed_level if self._estop_down else not button.pressed_level
-        else:
-            level = False
-        return level == cm.estop.pressed_level
+        return self._estop.level_on(cm.estop.physical_channel) == cm.estop.pressed_level
 
     def _estop_where(self) -> str:
         estop = self.channel_map.estop

@@ -38,9 +38,9 @@ from simulated_hw.board.codes import (
     daq_error,
 )
 from simulated_hw.board.on_demand import OnDemandAi
-from simulated_hw.board.safe_states import SafeStates
+from simulated_hw.board.safe_states import EmergencyStop, SafeStates
 from simulated_hw.board.tasks import AiRing, SimTask
-from simulated_hw.board.watchdog import Watchdog, WatchdogTimer
+from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.params import RigParams
 from simulated_hw.rig import RigModel
 
@@ -55,7 +55,7 @@ INTERNAL_AO = re.compile(r"_ao(\d+)_vs_aognd", re.IGNORECASE)
 
 
 # --- the device -----------------------------------------------------------------------------
-class SimDevice(SafeStates, OnDemandAi):
+class SimDevice(OnDemandAi):
     """One simulated board and the rig wired to it. All methods hold the device lock briefly;
     waits for the clock happen outside it, so a relay can switch during a blocking read.
 
@@ -85,14 +85,15 @@ class SimDevice(SafeStates, OnDemandAi):
         self.lines: dict[str, bool] = {}  # DO line states, by canonical physical name
         self.inputs: dict[str, bool] = {}  # levels applied to input lines from outside
         self.ao_hold: dict[str, float] = {}  # AO terminal values when no generation drives them
-        self.locked_ao: dict[str, float] = {}  # AO terminals an expired watchdog holds [V]
-        self.locked_do: set[str] = set()  # lines an expired watchdog holds
+        self.safe = SafeStates(clock, self.lock, self._expire)  # watchdogs, what they hold
+        self.locked_ao = self.safe.locked_ao  # AO terminals an expired watchdog holds [V]
+        self.locked_do = self.safe.locked_do  # lines an expired watchdog holds
+        self.estop = EmergencyStop(wiring.estop)
         self.ao_tasks: list[SimTask] = []  # running hardware-timed AO tasks
         self._vtime = 0.0  # fast mode: the device clock while no AI runs [s]
         self._idle: tuple[SimTask, RigModel | None, list[tuple[str, int] | None], float] | None \
             = None  # the rig behind on-demand AI reads: (task, rig, rows, last read time)
-        self._watchdogs: list[Watchdog] = []
-        self.watchdog_timer = WatchdogTimer(clock, self.lock, self.watchdogs, self._expire)
+        self.watchdog_timer = self.safe.timer
         self._physical = self._physical_names()
         #: the rig as last simulated, and the device time up to which it was: the next
         #: acquisition's rig continues from it (the rig keeps moving between tasks)
@@ -137,7 +138,64 @@ class SimDevice(SafeStates, OnDemandAi):
 
     def shutdown(self) -> None:
         self._stopping.set()
-        self.watchdog_timer.close()
+        self.safe.close()
+
+    # --- safe states ----------------------------------------------------------------------
+    def feed_watchdog(self, task: SimTask) -> None:
+        """Reset a watchdog task's timer; -200644 once it has expired."""
+        self.safe.feed(task.watchdog, task.name)
+
+    def clear_expiration(self, task: SimTask) -> None:
+        """Unlock the lines and outputs an expired watchdog holds (they keep their values)."""
+        with self.lock:
+            self.ao_hold.update(self.safe.clear_expiration(task.watchdog))
+
+    def _expire(self, w: Watchdog) -> None:
+        """The board's own action on expiry: outputs and lines to their expiration states,
+        the generations on them stopped, both held there until the expiration is cleared."""
+        deadline = w.deadline()
+        if self.ai_task is not None and not self.fast:
+            due = self._due()  # everything before the expiry happened first, nothing after
+            if deadline is not None:
+                due = min(due, self._sample_at(deadline))
+            self._advance(due)
+        self.safe.hold(w)
+        _log.warning("watchdog on %s expired: AO %s, lines %s", w.device_name, w.ao_states,
+                     w.do_states)
+        for task in list(self.ao_tasks):
+            if any(ch.physical[0] in w.ao_states for ch in task.channels):
+                task.error = task.error or daq_error(
+                    WRITE_FAILED_WATCHDOG_EXPIRED,
+                    f"task {task.name!r}: the watchdog timer expired (not reset for "
+                    f"{w.timeout_s:g} s); its outputs are held in the expiration states",
+                )
+        self._set_lines(w.do_states)
+        w.expired_event.set()
+
+    def watchdogs(self) -> list[Watchdog]:
+        return self.safe.watchdogs()
+
+    def add_watchdog(self, w: Watchdog) -> None:
+        self.safe.add(w)
+
+    def remove_watchdog(self, w: Watchdog) -> None:
+        self.safe.remove(w)
+
+    def press_estop(self, pressed: bool) -> None:
+        """Press or release the emergency-stop button the wiring map puts on an input line
+        (no-op without one): the line then reads its ``pressed_level``."""
+        with self.lock:
+            applied = self.estop.press(pressed)
+            if applied is not None:
+                line, level = applied
+                self.inputs[line] = level
+                _log.warning("emergency stop %s (%s reads %s)", "pressed" if pressed else
+                             "released", line, "high" if level else "low")
+
+    def line_level(self, line: str) -> bool:
+        """What a digital line reads: an input's external level, else what the port drives."""
+        with self.lock:
+            return self.inputs.get(line, self.lines.get(line, False))
 
     # --- the device clock -----------------------------------------------------------------
     def now(self) -> float:
@@ -222,7 +280,7 @@ class SimDevice(SafeStates, OnDemandAi):
                         f"{other.name!r}",
                     )
             if task.kind == "watchdog":
-                self._start_watchdog(task)
+                self.safe.start(task.watchdog)
                 task.running = True
                 return
             if task.kind == "ai" and task.rate_hz is not None:
@@ -361,8 +419,7 @@ class SimDevice(SafeStates, OnDemandAi):
         with self.lock:
             self.catch_up()
             if task.watchdog is not None:
-                task.watchdog.running = False
-                self.watchdog_timer.changed()
+                self.safe.stop(task.watchdog)
             task.running = False
             task.error = None
             task.auto_started = False
@@ -637,7 +694,8 @@ class SimDevice(SafeStates, OnDemandAi):
                 )
         with self.lock:
             self.catch_up()
-            self._refuse_locked(task, [p for ch in task.channels for p in ch.physical])
+            self.safe.refuse_locked(f"write to {task.name!r}",
+                                    [p for ch in task.channels for p in ch.physical])
         if task.rate_hz is None:  # on-demand: the outputs take the last value at once
             if not task.running and not auto_start:
                 raise daq_error(TASK_NOT_RUNNING, f"write to {task.name!r}: task not running")
@@ -683,7 +741,7 @@ class SimDevice(SafeStates, OnDemandAi):
     def write_lines(self, lines: list[str], values: list[bool]) -> None:
         with self.lock:
             self.catch_up()  # the relay switches at this instant of the acquisition
-            self._refuse_locked(None, lines)
+            self.safe.refuse_locked("write", lines)
             self._set_lines(dict(zip(lines, values, strict=True)))
 
     def _set_lines(self, values: dict[str, bool]) -> None:
