@@ -40,7 +40,7 @@ from collections.abc import Callable
 import numpy as np
 
 from daq.backend import AoCut
-from daq.channels import AnalogInput, ChannelMap
+from daq.channels import ChannelMap
 from daq.errors import (
     CANT_RESET_EXPIRED_WATCHDOG,
     INPUT_BUFFER_OVERWRITTEN,
@@ -53,6 +53,7 @@ from daq.errors import (
 from simulated_hw import physics
 from simulated_hw.board.ao_generation import AoStream
 from simulated_hw.board.safe_states import EmergencyStop, SafeStates
+from simulated_hw.board.sensor_wiring import floating, sensors_on
 from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.params import RigParams
 from simulated_hw.rig import RigModel
@@ -152,14 +153,7 @@ class SimulatedBackend:
             self._ai_rows = list(range(len(cm.ai)))
             self._ao_rows = list(range(len(cm.ao)))
             return cm
-        wired = {c.physical_channel: c for c in wiring.ai}
-        ai: list[AnalogInput] = []
-        self._ai_rows = []
-        for ch in cm.ai:
-            w = wired.get(ch.physical_channel)
-            self._ai_rows.append(None if w is None else len(ai))
-            if w is not None:
-                ai.append(w.model_copy(update={"range_v": ch.range_v}))
+        ai, self._ai_rows = sensors_on(wiring, [(c.physical_channel, c.range_v) for c in cm.ai])
         terminals = [c.physical_channel for c in cm.ao]
         self._ao_rows = [terminals.index(c.physical_channel) if c.physical_channel in terminals
                          else None for c in wiring.ao]
@@ -180,13 +174,11 @@ class SimulatedBackend:
         """The rig's inputs in the configured map's rows; an empty terminal floats at 0 V."""
         if self.wiring is None:
             return rig_out
-        cm = self.channel_map
-        lsb = 2 * cm.device.ai_range_v / 2**cm.device.ai_bits
+        spec = self.channel_map.device
         rng = np.random.default_rng(self.seed + 1 + self._read)
         out = np.empty((len(self._ai_rows), rig_out.shape[1]))
         for i, row in enumerate(self._ai_rows):
-            out[i] = rig_out[row] if row is not None else \
-                np.round(rng.normal(0.0, lsb, rig_out.shape[1]) / lsb) * lsb
+            out[i] = rig_out[row] if row is not None else floating(spec, rng, rig_out.shape[1])
         return out
 
     @property

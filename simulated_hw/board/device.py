@@ -39,6 +39,7 @@ from simulated_hw.board.codes import (
 )
 from simulated_hw.board.on_demand import OnDemandAi
 from simulated_hw.board.safe_states import EmergencyStop, SafeStates
+from simulated_hw.board.sensor_wiring import floating, sensors_on
 from simulated_hw.board.tasks import AiRing, SimTask
 from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.params import RigParams
@@ -55,13 +56,13 @@ INTERNAL_AO = re.compile(r"_ao(\d+)_vs_aognd", re.IGNORECASE)
 
 
 # --- the device -----------------------------------------------------------------------------
-class SimDevice(OnDemandAi):
+class SimDevice:
     """One simulated board and the rig wired to it. All methods hold the device lock briefly;
     waits for the clock happen outside it, so a relay can switch during a blocking read.
 
     Hardware-timed AI runs the rig; AO generates on the AI sample clock (sample-aligned with
     AI) or on its own clock (sampled at the AI sample instants while AI runs, advanced with
-    the device clock otherwise); on-demand AI runs a rig of its own (`_read_on_demand`). Every
+    the device clock otherwise); on-demand AI runs a rig of its own (`on_demand`). Every
     new rig continues the one simulated last (`carried`): the rig keeps moving between tasks."""
 
     def __init__(
@@ -91,8 +92,7 @@ class SimDevice(OnDemandAi):
         self.estop = EmergencyStop(wiring.estop)
         self.ao_tasks: list[SimTask] = []  # running hardware-timed AO tasks
         self._vtime = 0.0  # fast mode: the device clock while no AI runs [s]
-        self._idle: tuple[SimTask, RigModel | None, list[tuple[str, int] | None], float] | None \
-            = None  # the rig behind on-demand AI reads: (task, rig, rows, last read time)
+        self.on_demand = OnDemandAi(self)  # software-timed AI reads, with their own rig
         self.watchdog_timer = self.safe.timer
         self._physical = self._physical_names()
         #: the rig as last simulated, and the device time up to which it was: the next
@@ -134,7 +134,7 @@ class SimDevice(OnDemandAi):
         self.read_pos = 0
         self.ring: AiRing | None = None
         self._rows: list[tuple[str, int] | None] = []  # per AI channel: ("rig"|"ao", row)
-        self._floating_rng = np.random.default_rng(self.seed + 1)
+        self.floating_rng = np.random.default_rng(self.seed + 1)
 
     def shutdown(self) -> None:
         self._stopping.set()
@@ -198,6 +198,10 @@ class SimDevice(OnDemandAi):
             return self.inputs.get(line, self.lines.get(line, False))
 
     # --- the device clock -----------------------------------------------------------------
+    def move_idle_clock(self, seconds: float) -> None:
+        """Fast mode, no AI running: move the device clock on (an on-demand read's time)."""
+        self._vtime += seconds
+
     def now(self) -> float:
         """Device time [s]: the wall clock when paced; in fast mode the time of the last AI
         sample taken (it moves only when someone reads, waits or reads on demand)."""
@@ -348,14 +352,14 @@ class SimDevice(OnDemandAi):
                 f"start {task.name!r}: the AI timing engine is in use by task "
                 f"{self.ai_task.name!r}",
             )
-        self._idle = None  # the on-demand rig gives way to the hardware-timed one
-        ai, self._rows = self._ai_rows(task)
+        self.on_demand.release()  # the on-demand rig gives way to the hardware-timed one
+        ai, self._rows = self.ai_sources(task)
         try:
             rig_map = ChannelMap(device=self.spec, sample_rate_hz=task.rate_hz, ai=tuple(ai),
                                  ao=self.wiring.ao, do=self.wiring.do)
         except ValueError as err:
             raise daq_error(INVALID_ATTRIBUTE_VALUE, f"start {task.name!r}: {err}") from None
-        self.rig = self._new_rig(rig_map)  # before the clock starts: building it takes time
+        self.rig = self.new_rig(rig_map)  # before the clock starts: building it takes time
         t0 = self.now()
         self.ai_task = task
         self.ring = AiRing(len(task.channels), task.input_buffer())
@@ -370,26 +374,22 @@ class SimDevice(OnDemandAi):
                     and other.t_start is None:
                 other.t_start = t0
 
-    def _ai_rows(self, task: SimTask) -> tuple[list[AnalogInput], list[tuple[str, int] | None]]:
+    def ai_sources(self, task: SimTask) -> tuple[list[AnalogInput], list[tuple[str, int] | None]]:
         """The wired inputs a rig must produce for ``task``, and where each task channel reads
         from: ("rig", row), ("ao", terminal index) for an internal AO channel, None: floating."""
-        wired_ai = {c.physical_channel: c for c in self.wiring.ai}
         ao_all = [c.lower() for c in self.spec.ao_channels()]
-        ai: list[AnalogInput] = []
+        ai, wired = sensors_on(self.wiring, [(ch.physical[0], (ch.min_v, ch.max_v))
+                                                    for ch in task.channels])
         rows: list[tuple[str, int] | None] = []
-        for ch in task.channels:
+        for ch, row in zip(task.channels, wired, strict=True):
             internal = INTERNAL_AO.fullmatch(ch.physical[0].split("/", 1)[1])
-            w = wired_ai.get(ch.physical[0])
-            if internal is not None:
+            if internal is not None:  # never wired: the board reads its own AO terminal
                 rows.append(("ao", ao_all.index(f"{self.spec.name}/ao{internal[1]}".lower())))
-            elif w is None:
-                rows.append(None)
             else:
-                rows.append(("rig", len(ai)))
-                ai.append(w.model_copy(update={"range_v": (ch.min_v, ch.max_v)}))
+                rows.append(None if row is None else ("rig", row))
         return ai, rows
 
-    def _new_rig(self, rig_map: ChannelMap) -> RigModel:
+    def new_rig(self, rig_map: ChannelMap) -> RigModel:
         """The rig behind a new acquisition, continuing the rig as it was last simulated: run
         on from then to now with the AO terminals as they are (at most `GAP_DYNAMIC_S` of
         motion; the oil and film follow the rest of the gap), so a drive held between tasks
@@ -400,7 +400,7 @@ class SimDevice(OnDemandAi):
             gap = max(self.now() - since, 0.0)
             n = int(round(min(gap, GAP_DYNAMIC_S) * old.fs))
             wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
-            drive = self._present_terminals()[wired]
+            drive = self.present_terminals()[wired]
             while n > 0:
                 k = min(n, MAX_CHUNK)
                 old.process(np.repeat(drive[:, None], k, axis=1))
@@ -532,10 +532,9 @@ class SimDevice(OnDemandAi):
             terminals = self._terminals(self.generated, n)
             rig_out = rig.process(terminals[wired])
             out = np.empty((len(self._rows), n))
-            lsb = 2 * self.spec.ai_range_v / 2**self.spec.ai_bits
             for i, source in enumerate(self._rows):
                 if source is None:  # an unwired terminal: floating input
-                    out[i] = np.round(self._floating_rng.normal(0.0, lsb, n) / lsb) * lsb
+                    out[i] = floating(self.spec, self.floating_rng, n)
                 else:
                     out[i] = (rig_out if source[0] == "rig" else terminals)[source[1]]
             self.generated += n
@@ -554,7 +553,7 @@ class SimDevice(OnDemandAi):
         """What an AO terminal shows when no generation drives it [V]."""
         return self.locked_ao.get(physical, self.ao_hold.get(physical, 0.0))
 
-    def _present_terminals(self) -> np.ndarray:
+    def present_terminals(self) -> np.ndarray:
         """Every AO terminal's voltage now (after `catch_up`), shape (ao_count,)."""
         ao_all = self.spec.ao_channels()
         out = np.array([self.terminal_value(p) for p in ao_all])
@@ -614,7 +613,7 @@ class SimDevice(OnDemandAi):
                 self.start(task, others)
                 task.auto_started = True
             if task.rate_hz is None:  # an implicitly started on-demand task ends with the read
-                data = self._read_on_demand(task, 1 if n < 0 else n)
+                data = self.on_demand.read(task, 1 if n < 0 else n)
                 if task.auto_started:
                     self.stop(task)
                 return data
@@ -750,7 +749,7 @@ class SimDevice(OnDemandAi):
             for d in self.wiring.do:
                 if d.physical_channel != line:
                     continue
-                for rig in (self.rig, self._idle[1] if self._idle else None):
+                for rig in (self.rig, self.on_demand.rig):
                     if rig is not None:
                         rig.set_relay(d.name, value)
 
