@@ -28,6 +28,10 @@ switched on); None (default): none, the in-process rig stops with the process th
 Paced, what plays is fixed when the wall clock generates it (a write changes only what has not
 been generated yet), so a late writer hears the ring repeat, exactly as on a board; fast, the
 generation is the samples read.
+
+The board's parts it shares with the sim-server's `simulated_hw.board.device.SimDevice`: the AO
+generation (`board.ao_generation.AoStream`), the watchdog and e-stop (`board.safe_states`), the
+wiring's sensors and an unwired terminal's noise (`board.sensor_wiring`).
 """
 
 from __future__ import annotations
@@ -330,8 +334,8 @@ class SimulatedBackend:
     def _rest(self) -> None:
         """Between runs the rig rests in real time: its oil goes on filling or draining. In
         whole seconds (the fraction carries over): a program's own set-up between a relay
-        switch and its start (milliseconds) leaves the rig as the sim-server's board, which
-        starts every acquisition from rest (issue 22), has it, so both give the same samples."""
+        switch and its start (milliseconds) leaves the rig as it was. (The sim-server's board
+        instead runs its rig on over the whole gap, `SimDevice.new_rig`: not yet shared.)"""
         rig = self._require_rig()
         if self._rest_since is not None and not self._running:
             whole = math.floor(self._clock() - self._rest_since)
