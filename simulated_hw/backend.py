@@ -28,18 +28,23 @@ switched on); None (default): none, the in-process rig stops with the process th
 Paced, what plays is fixed when the wall clock generates it (a write changes only what has not
 been generated yet), so a late writer hears the ring repeat, exactly as on a board; fast, the
 generation is the samples read.
+
+The board's parts it shares with the sim-server's `simulated_hw.board.device.SimDevice`: the AO
+generation (`board.ao_generation.AoStream`), the watchdog and e-stop (`board.safe_states`), the
+wiring's sensors and an unwired terminal's noise (`board.sensor_wiring`).
 """
 
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable
 
 import numpy as np
 
 from daq.backend import AoCut
-from daq.channels import AnalogInput, ChannelMap
+from daq.channels import ChannelMap
 from daq.errors import (
     CANT_RESET_EXPIRED_WATCHDOG,
     INPUT_BUFFER_OVERWRITTEN,
@@ -50,6 +55,10 @@ from daq.errors import (
     error_for_code,
 )
 from simulated_hw import physics
+from simulated_hw.board.ao_generation import AoStream
+from simulated_hw.board.safe_states import EmergencyStop, SafeStates
+from simulated_hw.board.sensor_wiring import floating, sensors_on
+from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.params import RigParams
 from simulated_hw.rig import RigModel
 
@@ -78,9 +87,13 @@ class SimulatedBackend:
             raise ValueError(f"watchdog_s must be positive or None, got {watchdog_s}")
         self.wiring = wiring
         self.watchdog_s = watchdog_s
-        self._fed_at = 0.0
-        self._watchdog_expired = False
-        self._estop_down = False  # the wiring's button is pressed
+        # the board's safe states, in the parts the sim-server's board keeps them in: the
+        # watchdog expires when next looked at (nothing outlives this process to need a thread)
+        self._safe = SafeStates(clock, threading.RLock(), self._expire, live=False)
+        self._watchdog = None if watchdog_s is None else Watchdog("sim", watchdog_s)
+        if self._watchdog is not None:
+            self._safe.add(self._watchdog)
+        self._estop = EmergencyStop(wiring.estop if wiring is not None else None)
         self._estop_latched = False  # read_ai raised for this press already
         #: per configured AI row: the rig's row, or None (a terminal the wiring leaves empty)
         self._ai_rows: list[int | None] = []
@@ -98,21 +111,18 @@ class SimulatedBackend:
         self._sleep = sleep
         self._map: ChannelMap | None = None
         self.rig: RigModel | None = None
-        self._ao_chunks: list[np.ndarray] = []
-        self._ao_queued = 0
+        self._ao = AoStream()  # the generation's samples, as the sim-server's board plays them
         self._running = False
         self._t0 = 0.0
         self._read = 0  # samples handed to the reader
         self._closed = False
         self.cut_stops = cut_stops
         self._ao_stopped = False  # a stopping cut: the drives are at 0 V until the run stops
-        # the regenerating ring (ao_ring_s): its content, the end of the samples written, and
-        # what the generation has fixed already (samples _played_from.. not yet read)
-        self._ring: np.ndarray | None = None
+        # the regenerating ring (ao_ring_s, the stream's loop): the end of the samples written,
+        # and what the generation has played already and the rig not yet simulated (the
+        # samples from _read on; a stopping cut is the stream's end: 0 V from there on)
         self._written_end = 0
         self._played: list[np.ndarray] = []
-        self._played_to = 0  # AO fixed for every sample before this (from the ring)
-        self._stopped_at: int | None = None  # a stopping cut: 0 V from this sample on
 
     # --- protocol -------------------------------------------------------------------------
     @property
@@ -131,10 +141,13 @@ class SimulatedBackend:
         self._map = channel_map
         physics.warm_up()  # before start: a paced first read must not wait for the compiler
         self.rig = RigModel(self.params, self._rig_map(channel_map), self.seed)
-        self._fed_at = self._clock()
+        if self.wiring is None:  # the map's own button
+            self._estop.button = channel_map.estop
+        if self._watchdog is not None:
+            self._safe.start(self._watchdog)
         self._rest_since = self._clock()
-        self._ao_chunks, self._ao_queued, self._read = [], 0, 0
-        self._reset_ring()
+        self._read = 0
+        self._new_stream()
 
     def _rig_map(self, cm: ChannelMap) -> ChannelMap:
         """The map the rig converts with: ``cm`` itself, or the wiring's sensors at the
@@ -144,14 +157,7 @@ class SimulatedBackend:
             self._ai_rows = list(range(len(cm.ai)))
             self._ao_rows = list(range(len(cm.ao)))
             return cm
-        wired = {c.physical_channel: c for c in wiring.ai}
-        ai: list[AnalogInput] = []
-        self._ai_rows = []
-        for ch in cm.ai:
-            w = wired.get(ch.physical_channel)
-            self._ai_rows.append(None if w is None else len(ai))
-            if w is not None:
-                ai.append(w.model_copy(update={"range_v": ch.range_v}))
+        ai, self._ai_rows = sensors_on(wiring, [(c.physical_channel, c.range_v) for c in cm.ai])
         terminals = [c.physical_channel for c in cm.ao]
         self._ao_rows = [terminals.index(c.physical_channel) if c.physical_channel in terminals
                          else None for c in wiring.ao]
@@ -172,13 +178,11 @@ class SimulatedBackend:
         """The rig's inputs in the configured map's rows; an empty terminal floats at 0 V."""
         if self.wiring is None:
             return rig_out
-        cm = self.channel_map
-        lsb = 2 * cm.device.ai_range_v / 2**cm.device.ai_bits
+        spec = self.channel_map.device
         rng = np.random.default_rng(self.seed + 1 + self._read)
         out = np.empty((len(self._ai_rows), rig_out.shape[1]))
         for i, row in enumerate(self._ai_rows):
-            out[i] = rig_out[row] if row is not None else \
-                np.round(rng.normal(0.0, lsb, rig_out.shape[1]) / lsb) * lsb
+            out[i] = rig_out[row] if row is not None else floating(spec, rng, rig_out.shape[1])
         return out
 
     @property
@@ -197,25 +201,20 @@ class SimulatedBackend:
             return 0
         return self._generated() if self.realtime else self._read
 
-    def _reset_ring(self) -> None:
+    def _new_stream(self) -> None:
+        """An empty generation: a queue, or (``ao_ring_s``) a ring of 0 V."""
         ring = self.ao_ring_samples if self._map is not None else None
-        self._ring = None if ring is None else np.zeros((len(self.channel_map.ao), ring))
-        self._written_end, self._played, self._played_to = 0, [], 0
-        self._stopped_at = None
+        self._ao = AoStream(None if ring is None else np.zeros((len(self.channel_map.ao), ring)))
+        self._written_end, self._played = 0, []
 
     def _fix_played(self, upto: int) -> None:
-        """The ring's content for samples ``_played_to..upto`` is what plays there: fix it now,
-        before a write changes the ring (a board has generated them already)."""
-        ring = self._ring
-        assert ring is not None
-        if upto <= self._played_to:
-            return
-        k = np.arange(self._played_to, upto)
-        block = ring[:, k % ring.shape[1]]
-        if self._stopped_at is not None:
-            block[:, k >= self._stopped_at] = 0.0
-        self._played.append(block)
-        self._played_to = upto
+        """Generate the ring up to sample ``upto`` now, before a write changes the ring (a
+        board has generated them already); past a stopping cut the drives are at 0 V."""
+        k = upto - self._ao.generated
+        if k > 0:
+            block = np.zeros((len(self.channel_map.ao), k))
+            self._ao.take_into(block)
+            self._played.append(block)
 
     def _take_played(self, n: int) -> np.ndarray:
         self._fix_played(self._read + n)
@@ -238,7 +237,8 @@ class SimulatedBackend:
         self._rest_since = None
         self._running = True
         self._read = 0
-        self._played, self._played_to, self._stopped_at = [], 0, None
+        self._played = []
+        self._ao.restart()
         self._t0 = self._clock()
 
     def write_ao(self, block: np.ndarray, at: int | None = None) -> None:
@@ -259,30 +259,26 @@ class SimulatedBackend:
                 )
         if self._ao_stopped:
             return  # the generation has stopped: nothing written now plays
-        if self._ring is not None:
+        if self._ao.loop is not None:
             self._write_ring(arr, self._written_end if at is None else int(at))
             return
-        if at is not None and at != self._read + self._ao_queued:
-            raise ValueError(f"a non-regenerating AO stream writes at sample "
-                             f"{self._read + self._ao_queued}, not {at}")
-        if self.realtime and self._running:
-            generated = self._generated()
-            if generated > self._read + self._ao_queued:
-                raise error_for_code("AO generation ran past the samples written", OUTPUT_UNDERFLOW)
-        self._ao_chunks.append(arr.copy())
-        self._ao_queued += arr.shape[1]
+        end = self._read + self._ao.queued
+        if at is not None and at != end:
+            raise ValueError(f"a non-regenerating AO stream writes at sample {end}, not {at}")
+        if self.realtime and self._running and self._generated() > end:
+            raise error_for_code("AO generation ran past the samples written", OUTPUT_UNDERFLOW)
+        self._ao.queue(arr)
 
     def _write_ring(self, arr: np.ndarray, at: int) -> None:
-        ring = self._ring
-        assert ring is not None
-        n, size = arr.shape[1], ring.shape[1]
+        assert self._ao.loop is not None
+        n, size = arr.shape[1], self._ao.loop.shape[1]
         if n > size:
             raise ValueError(f"AO write of {n} samples is longer than the {size}-sample ring")
         if at < 0:
             raise ValueError(f"AO write position must be >= 0, got {at}")
         if self._running:  # what the clock has generated already keeps what it played
             self._fix_played(self.ao_generated())
-        ring[:, (at + np.arange(n)) % size] = arr
+        self._ao.overwrite(arr, at)
         self._written_end = max(self._written_end, at + n)
 
     def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
@@ -297,26 +293,23 @@ class SimulatedBackend:
         self._check_watchdog()
         if self.realtime:
             self._wait_for(self._read + n, timeout_s)
-        if self._ring is not None:
+        if self._ao.loop is not None:
             ao = self._take_played(n)
-        elif self._ao_stopped:  # what is left of the queue, then the drives at 0 V
-            take = min(n, self._ao_queued)
-            ao = np.zeros((len(self.channel_map.ao), n))
-            if take:
-                ao[:, :take] = self._take_ao(take)
-        elif self._ao_queued < n:
+        elif not self._ao_stopped and self._ao.queued < n:
             raise error_for_code(
-                f"AO buffer ran dry: {self._ao_queued} samples queued, {n} needed",
+                f"AO buffer ran dry: {self._ao.queued} samples queued, {n} needed",
                 OUTPUT_UNDERFLOW,
             )
-        else:
-            ao = self._take_ao(n)
-        if self._watchdog_expired:  # the board holds the drives at 0 V
+        else:  # stopped: what is left of the queue, then the drives at 0 V
+            ao = np.zeros((len(self.channel_map.ao), n))
+            self._ao.take_into(ao)
+        w = self._watchdog
+        if w is not None and w.expired:  # the board holds the drives at 0 V
             ao = np.zeros_like(ao)
         out = self._as_read(rig.process(self._wired(ao)))
         self._read += n
-        if self.watchdog_s is not None and not self._watchdog_expired:
-            self._fed_at = self._clock()  # a read feeds the watchdog, as the board backend's
+        if w is not None and not w.expired:
+            w.fed_at = self._clock()  # a read feeds the watchdog, as the board backend's
         return out
 
     def ai_on_host(self) -> int:
@@ -341,8 +334,8 @@ class SimulatedBackend:
     def _rest(self) -> None:
         """Between runs the rig rests in real time: its oil goes on filling or draining. In
         whole seconds (the fraction carries over): a program's own set-up between a relay
-        switch and its start (milliseconds) leaves the rig as the sim-server's board, which
-        starts every acquisition from rest (issue 22), has it, so both give the same samples."""
+        switch and its start (milliseconds) leaves the rig as it was. (The sim-server's board
+        instead runs its rig on over the whole gap, `SimDevice.new_rig`: not yet shared.)"""
         rig = self._require_rig()
         if self._rest_since is not None and not self._running:
             whole = math.floor(self._clock() - self._rest_since)
@@ -353,77 +346,69 @@ class SimulatedBackend:
     def ao_backlog(self) -> int:
         """Samples written and not yet generated: paced, the wall clock generates them
         (regenerating: negative once the generation has passed the last sample written)."""
-        if self._ring is not None:
+        if self._ao.loop is not None:
             return self._written_end - self.ao_generated()
         if self.realtime and self._running:
-            return self._read + self._ao_queued - self._generated()
-        return self._ao_queued
+            return self._read + self._ao.queued - self._generated()
+        return self._ao.queued
 
     def cut_ao(self) -> AoCut:
         """Drop the AO queued beyond the generation (see the module doc)."""
-        if self._ring is not None:
+        if self._ao.loop is not None:
             return self._cut_ring()
-        keep = self._ao_queued
+        keep = self._ao.queued
         if self._running and not self._ao_stopped:
             keep = 0
             if self.realtime:
                 margin = 0 if self.cut_stops else int(CUT_MARGIN_S * self.sample_rate_hz)
-                keep = min(max(self._generated() + margin - self._read, 0), self._ao_queued)
-            dropped = self._ao_queued - keep
-            while dropped:
-                last = self._ao_chunks[-1]
-                if last.shape[1] <= dropped:
-                    self._ao_chunks.pop()
-                    dropped -= last.shape[1]
-                    self._ao_queued -= last.shape[1]
-                else:
-                    self._ao_chunks[-1] = last[:, :last.shape[1] - dropped]
-                    self._ao_queued -= dropped
-                    dropped = 0
+                keep = min(max(self._generated() + margin - self._read, 0), self._ao.queued)
+            self._ao.keep_queued(keep)
             self._ao_stopped = self.cut_stops
         return AoCut(self._read + keep, not self._ao_stopped)
 
     def _cut_ring(self) -> AoCut:
         if not self._running or self._ao_stopped:
-            at = self._stopped_at if self._stopped_at is not None else self._written_end
+            at = self._ao.end if self._ao.end is not None else self._written_end
             return AoCut(at, not self._ao_stopped)
         margin = 0 if self.cut_stops or not self.realtime else \
             int(CUT_MARGIN_S * self.sample_rate_hz)
         at = self.ao_generated() + margin
         self._fix_played(at)
         if self.cut_stops:
-            self._stopped_at = at
+            self._ao.end = at
             self._ao_stopped = True
         return AoCut(at, not self._ao_stopped)
 
     def feed_watchdog(self) -> None:
         """Reset the watchdog timer (``watchdog_s``; no-op without one); raises
         `daq.errors.DaqWatchdogExpiredError` (-200644) once it has expired."""
-        if self.watchdog_s is None:
+        if self._watchdog is None:
             return
         if self._check_watchdog():
             raise error_for_code(
-                f"the watchdog timer expired (not reset for {self.watchdog_s:g} s): relays off, "
-                "drives at 0 V", CANT_RESET_EXPIRED_WATCHDOG)
-        self._fed_at = self._clock()
+                f"the watchdog timer expired (not reset for {self._watchdog.timeout_s:g} s): "
+                "relays off, drives at 0 V", CANT_RESET_EXPIRED_WATCHDOG)
+        self._safe.feed(self._watchdog, "watchdog")
 
     def _check_watchdog(self) -> bool:
-        """Expire the watchdog if it has not been fed for ``watchdog_s``: the relays off and
-        the drives at 0 V from then on, as a board does on its own. Whether it has expired."""
-        if self.watchdog_s is None or self._watchdog_expired:
-            return self._watchdog_expired
-        if self._clock() - self._fed_at < self.watchdog_s:
+        """Expire the watchdog if it has not been fed for ``watchdog_s``. Whether it has
+        expired."""
+        if self._watchdog is None:
             return False
-        self._watchdog_expired = True
+        self._safe.check()
+        return self._watchdog.expired
+
+    def _expire(self, w: Watchdog) -> None:
+        """The relays off and the drives at 0 V from then on, as a board does on its own."""
+        self._safe.hold(w)
         if self.rig is not None:
             for d in self.rig.channel_map.do:
                 self.rig.set_relay(d.name, False)
-        return True
 
     def _clear_watchdog(self) -> None:
-        self._check_watchdog()
-        self._watchdog_expired = False
-        self._fed_at = self._clock()
+        if self._watchdog is not None:
+            self._check_watchdog()
+            self._safe.clear_expiration(self._watchdog)
 
     @property
     def watchdog_expired(self) -> bool:
@@ -432,7 +417,7 @@ class SimulatedBackend:
 
     def press_estop(self, pressed: bool) -> None:
         """A hand on the wiring's emergency-stop button (simulation only)."""
-        self._estop_down = bool(pressed)
+        self._estop.press(pressed)
 
     def estop_pressed(self) -> bool:
         """Whether the map's emergency-stop line reads pressed: the wiring's button (the map's
@@ -440,13 +425,7 @@ class SimulatedBackend:
         cm = self._map
         if cm is None or cm.estop is None:
             return False
-        wiring = self.wiring or cm
-        button = wiring.estop
-        if button is not None and button.physical_channel == cm.estop.physical_channel:
-            level = button.pressed_level if self._estop_down else not button.pressed_level
-        else:
-            level = False
-        return level == cm.estop.pressed_level
+        return self._estop.level_on(cm.estop.physical_channel) == cm.estop.pressed_level
 
     def _estop_where(self) -> str:
         estop = self.channel_map.estop
@@ -457,8 +436,7 @@ class SimulatedBackend:
         is), and the next run primes the AO again and counts from sample 0."""
         self._running = False
         self._ao_stopped = False
-        self._ao_chunks, self._ao_queued = [], 0
-        self._reset_ring()
+        self._new_stream()
         self._rest_since = self._clock()
 
     def close(self) -> None:
@@ -505,17 +483,3 @@ class SimulatedBackend:
                     READ_TIMEOUT,
                 )
             self._sleep(ready_at - now)
-
-    def _take_ao(self, n: int) -> np.ndarray:
-        parts, got = [], 0
-        while got < n:
-            chunk = self._ao_chunks[0]
-            take = min(n - got, chunk.shape[1])
-            parts.append(chunk[:, :take])
-            if take == chunk.shape[1]:
-                self._ao_chunks.pop(0)
-            else:
-                self._ao_chunks[0] = chunk[:, take:]
-            got += take
-        self._ao_queued -= n
-        return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]

@@ -46,14 +46,14 @@ def fifo_ahead(task: SimTask) -> int:
     """Samples the board has moved from the buffer into its FIFO, ahead of the generation."""
     if not generating(task):
         return 0
-    if task.regen_data is not None:
+    if task.ao.loop is not None:
         return fifo_samples(task)
-    return min(task.ao_queued, fifo_samples(task))
+    return min(task.ao.queued, fifo_samples(task))
 
 
 def idle_values(task: SimTask) -> np.ndarray:
     """What each channel's terminal shows when the task generates nothing [V]."""
-    last = task.ao_hold if task.ao_hold is not None else np.zeros(len(task.channels))
+    last = task.ao.last if task.ao.last is not None else np.zeros(len(task.channels))
     zero = np.array([c.idle_behavior == IDLE_ZERO_VOLTS for c in task.channels])
     return np.where(zero, 0.0, last)
 
@@ -64,72 +64,49 @@ def generating(task: SimTask) -> bool:
 
 def queue(task: SimTask, block: np.ndarray) -> None:
     """Put ``block`` (n_ch, n) in the task's buffer (see the module doc for the modes)."""
-    n = block.shape[1]
+    stream = task.ao
     first = task.write_relative_to == WRITE_REL_FIRST_SAMPLE
-    if task.regenerating and task.running and task.regen_data is not None:
-        data = task.regen_data
-        size = data.shape[1]
+    if task.regenerating and task.running and stream.loop is not None:
+        size = stream.loop.shape[1]
         if first and not 0 <= task.write_offset < size:
             raise daq_error(INVALID_ATTRIBUTE_VALUE,
                             f"task {task.name!r}: write offset {task.write_offset} relative to "
                             f"the first sample is outside the {size}-sample buffer")
-        pos = task.write_offset if first else (task.ao_written + task.write_offset) % size
-        idx = (pos + np.arange(n)) % size
-        data[:, idx[-size:]] = block[:, -size:]
-    else:
-        if task.regenerating and first and task.write_offset != task.ao_queued:
-            raise daq_error(INVALID_ATTRIBUTE_VALUE,
-                            f"task {task.name!r}: before the start the simulated device writes "
-                            f"a regenerating buffer in order (offset {task.ao_queued}), not at "
-                            f"offset {task.write_offset}")
-        task.ao_chunks.append(block.copy())
-        task.ao_queued += n
-    task.ao_written += n
+        pos = task.write_offset if first else (stream.written + task.write_offset) % size
+        stream.overwrite(block, pos)
+        return
+    if task.regenerating and first and task.write_offset != stream.queued:
+        raise daq_error(INVALID_ATTRIBUTE_VALUE,
+                        f"task {task.name!r}: before the start the simulated device writes "
+                        f"a regenerating buffer in order (offset {stream.queued}), not at "
+                        f"offset {task.write_offset}")
+    stream.queue(block)
 
 
 def freeze_regeneration(task: SimTask) -> None:
     """At the start of a regenerating task: the buffer written so far becomes the loop."""
-    if task.regenerating and task.ao_chunks:
-        task.regen_data = np.concatenate(task.ao_chunks, axis=1)
-        task.ao_chunks, task.ao_queued = [], 0
+    if task.regenerating:
+        task.ao.freeze()
 
 
 def take(task: SimTask, n: int) -> np.ndarray:
     """The next ``n`` samples the task's terminals show, shape (n_ch, n). Past the end of the
     generation (underflow: the error is set on the task; end of a finite task: ``done``) the
     terminals show their idle values."""
-    n_ch = len(task.channels)
-    out = np.empty((n_ch, n))
+    stream = task.ao
+    out = np.empty((len(task.channels), n))
     limit = n if generating(task) else 0
     if task.finite:
-        limit = min(limit, max(task.samps_per_chan - task.ao_generated, 0))
-    got = 0
-    if task.regen_data is not None:
-        data = task.regen_data
-        out[:, :limit] = data[:, (task.ao_generated + np.arange(limit)) % data.shape[1]]
-        got = limit
-    else:
-        while got < limit and task.ao_chunks:
-            chunk = task.ao_chunks[0]
-            k = min(limit - got, chunk.shape[1])
-            out[:, got:got + k] = chunk[:, :k]
-            if k == chunk.shape[1]:
-                task.ao_chunks.pop(0)
-            else:
-                task.ao_chunks[0] = chunk[:, k:]
-            got += k
-        task.ao_queued -= got
-    task.ao_generated += got
-    if got:
-        task.ao_hold = out[:, got - 1].copy()
-    if task.finite and task.ao_generated >= task.samps_per_chan:
+        limit = min(limit, max(task.samps_per_chan - stream.generated, 0))
+    got = stream.take_into(out[:, :limit])
+    if task.finite and stream.generated >= task.samps_per_chan:
         task.done = True  # its last sample is out
     if got < n:
         if generating(task):
             task.error = daq_error(
                 OUTPUT_UNDERFLOW,
-                f"task {task.name!r}: the AO generation reached sample {task.ao_generated} "
-                f"but only {task.ao_written} samples were written; the outputs went to their "
+                f"task {task.name!r}: the AO generation reached sample {stream.generated} "
+                f"but only {stream.written} samples were written; the outputs went to their "
                 "idle state",
             )
         out[:, got:] = idle_values(task)[:, None]
@@ -141,10 +118,11 @@ def skip(task: SimTask, n: int) -> None:
     generation and the last value matter, so a long regenerating stretch costs nothing."""
     if n <= 0:
         return
-    if task.regen_data is not None:
-        room = n if not task.finite else min(n, max(task.samps_per_chan - task.ao_generated, 0))
+    stream = task.ao
+    if stream.loop is not None:
+        room = n if not task.finite else min(n, max(task.samps_per_chan - stream.generated, 0))
         jump = max(room - 1, 0)
-        task.ao_generated += jump
+        stream.generated += jump
         take(task, min(n - jump, room - jump + 1))
     else:
-        take(task, min(n, task.ao_queued + 1))
+        take(task, min(n, stream.queued + 1))

@@ -38,9 +38,10 @@ from simulated_hw.board.codes import (
     daq_error,
 )
 from simulated_hw.board.on_demand import OnDemandAi
-from simulated_hw.board.safe_states import SafeStates
+from simulated_hw.board.safe_states import EmergencyStop, SafeStates
+from simulated_hw.board.sensor_wiring import floating, sensors_on
 from simulated_hw.board.tasks import AiRing, SimTask
-from simulated_hw.board.watchdog import Watchdog, WatchdogTimer
+from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.params import RigParams
 from simulated_hw.rig import RigModel
 
@@ -55,13 +56,13 @@ INTERNAL_AO = re.compile(r"_ao(\d+)_vs_aognd", re.IGNORECASE)
 
 
 # --- the device -----------------------------------------------------------------------------
-class SimDevice(SafeStates, OnDemandAi):
+class SimDevice:
     """One simulated board and the rig wired to it. All methods hold the device lock briefly;
     waits for the clock happen outside it, so a relay can switch during a blocking read.
 
     Hardware-timed AI runs the rig; AO generates on the AI sample clock (sample-aligned with
     AI) or on its own clock (sampled at the AI sample instants while AI runs, advanced with
-    the device clock otherwise); on-demand AI runs a rig of its own (`_read_on_demand`). Every
+    the device clock otherwise); on-demand AI runs a rig of its own (`on_demand`). Every
     new rig continues the one simulated last (`carried`): the rig keeps moving between tasks."""
 
     def __init__(
@@ -85,14 +86,14 @@ class SimDevice(SafeStates, OnDemandAi):
         self.lines: dict[str, bool] = {}  # DO line states, by canonical physical name
         self.inputs: dict[str, bool] = {}  # levels applied to input lines from outside
         self.ao_hold: dict[str, float] = {}  # AO terminal values when no generation drives them
-        self.locked_ao: dict[str, float] = {}  # AO terminals an expired watchdog holds [V]
-        self.locked_do: set[str] = set()  # lines an expired watchdog holds
+        self.safe = SafeStates(clock, self.lock, self._expire)  # watchdogs, what they hold
+        self.locked_ao = self.safe.locked_ao  # AO terminals an expired watchdog holds [V]
+        self.locked_do = self.safe.locked_do  # lines an expired watchdog holds
+        self.estop = EmergencyStop(wiring.estop)
         self.ao_tasks: list[SimTask] = []  # running hardware-timed AO tasks
         self._vtime = 0.0  # fast mode: the device clock while no AI runs [s]
-        self._idle: tuple[SimTask, RigModel | None, list[tuple[str, int] | None], float] | None \
-            = None  # the rig behind on-demand AI reads: (task, rig, rows, last read time)
-        self._watchdogs: list[Watchdog] = []
-        self.watchdog_timer = WatchdogTimer(clock, self.lock, self.watchdogs, self._expire)
+        self.on_demand = OnDemandAi(self)  # software-timed AI reads, with their own rig
+        self.watchdog_timer = self.safe.timer
         self._physical = self._physical_names()
         #: the rig as last simulated, and the device time up to which it was: the next
         #: acquisition's rig continues from it (the rig keeps moving between tasks)
@@ -133,13 +134,74 @@ class SimDevice(SafeStates, OnDemandAi):
         self.read_pos = 0
         self.ring: AiRing | None = None
         self._rows: list[tuple[str, int] | None] = []  # per AI channel: ("rig"|"ao", row)
-        self._floating_rng = np.random.default_rng(self.seed + 1)
+        self.floating_rng = np.random.default_rng(self.seed + 1)
 
     def shutdown(self) -> None:
         self._stopping.set()
-        self.watchdog_timer.close()
+        self.safe.close()
+
+    # --- safe states ----------------------------------------------------------------------
+    def feed_watchdog(self, task: SimTask) -> None:
+        """Reset a watchdog task's timer; -200644 once it has expired."""
+        self.safe.feed(task.watchdog, task.name)
+
+    def clear_expiration(self, task: SimTask) -> None:
+        """Unlock the lines and outputs an expired watchdog holds (they keep their values)."""
+        with self.lock:
+            self.ao_hold.update(self.safe.clear_expiration(task.watchdog))
+
+    def _expire(self, w: Watchdog) -> None:
+        """The board's own action on expiry: outputs and lines to their expiration states,
+        the generations on them stopped, both held there until the expiration is cleared."""
+        deadline = w.deadline()
+        if self.ai_task is not None and not self.fast:
+            due = self._due()  # everything before the expiry happened first, nothing after
+            if deadline is not None:
+                due = min(due, self._sample_at(deadline))
+            self._advance(due)
+        self.safe.hold(w)
+        _log.warning("watchdog on %s expired: AO %s, lines %s", w.device_name, w.ao_states,
+                     w.do_states)
+        for task in list(self.ao_tasks):
+            if any(ch.physical[0] in w.ao_states for ch in task.channels):
+                task.error = task.error or daq_error(
+                    WRITE_FAILED_WATCHDOG_EXPIRED,
+                    f"task {task.name!r}: the watchdog timer expired (not reset for "
+                    f"{w.timeout_s:g} s); its outputs are held in the expiration states",
+                )
+        self._set_lines(w.do_states)
+        w.expired_event.set()
+
+    def watchdogs(self) -> list[Watchdog]:
+        return self.safe.watchdogs()
+
+    def add_watchdog(self, w: Watchdog) -> None:
+        self.safe.add(w)
+
+    def remove_watchdog(self, w: Watchdog) -> None:
+        self.safe.remove(w)
+
+    def press_estop(self, pressed: bool) -> None:
+        """Press or release the emergency-stop button the wiring map puts on an input line
+        (no-op without one): the line then reads its ``pressed_level``."""
+        with self.lock:
+            applied = self.estop.press(pressed)
+            if applied is not None:
+                line, level = applied
+                self.inputs[line] = level
+                _log.warning("emergency stop %s (%s reads %s)", "pressed" if pressed else
+                             "released", line, "high" if level else "low")
+
+    def line_level(self, line: str) -> bool:
+        """What a digital line reads: an input's external level, else what the port drives."""
+        with self.lock:
+            return self.inputs.get(line, self.lines.get(line, False))
 
     # --- the device clock -----------------------------------------------------------------
+    def move_idle_clock(self, seconds: float) -> None:
+        """Fast mode, no AI running: move the device clock on (an on-demand read's time)."""
+        self._vtime += seconds
+
     def now(self) -> float:
         """Device time [s]: the wall clock when paced; in fast mode the time of the last AI
         sample taken (it moves only when someone reads, waits or reads on demand)."""
@@ -222,7 +284,7 @@ class SimDevice(SafeStates, OnDemandAi):
                         f"{other.name!r}",
                     )
             if task.kind == "watchdog":
-                self._start_watchdog(task)
+                self.safe.start(task.watchdog)
                 task.running = True
                 return
             if task.kind == "ai" and task.rate_hz is not None:
@@ -248,7 +310,7 @@ class SimDevice(SafeStates, OnDemandAi):
             task.run_id += 1
 
     def _arm_ao(self, task: SimTask) -> None:
-        if task.ao_written == 0 and (task.regenerating or task.finite):
+        if task.ao.written == 0 and (task.regenerating or task.finite):
             raise daq_error(
                 OUTPUT_BUFFER_EMPTY,
                 f"start {task.name!r}: nothing was written to the output buffer (write the "
@@ -273,8 +335,8 @@ class SimDevice(SafeStates, OnDemandAi):
         digital = task.kind == "do"
         task.wired_rows = [] if digital else [(row, ao_all.index(ch.physical[0]))
                                                for row, ch in enumerate(task.channels)]
-        task.ao_generated = 0
-        task.ao_hold = np.array([
+        task.ao.generated = 0
+        task.ao.last = np.array([
             digital_io.channel_value(self, task, ch) if digital
             else self.terminal_value(ch.physical[0]) for ch in task.channels], dtype=float)
         ao_stream.freeze_regeneration(task)
@@ -290,14 +352,14 @@ class SimDevice(SafeStates, OnDemandAi):
                 f"start {task.name!r}: the AI timing engine is in use by task "
                 f"{self.ai_task.name!r}",
             )
-        self._idle = None  # the on-demand rig gives way to the hardware-timed one
-        ai, self._rows = self._ai_rows(task)
+        self.on_demand.release()  # the on-demand rig gives way to the hardware-timed one
+        ai, self._rows = self.ai_sources(task)
         try:
             rig_map = ChannelMap(device=self.spec, sample_rate_hz=task.rate_hz, ai=tuple(ai),
                                  ao=self.wiring.ao, do=self.wiring.do)
         except ValueError as err:
             raise daq_error(INVALID_ATTRIBUTE_VALUE, f"start {task.name!r}: {err}") from None
-        self.rig = self._new_rig(rig_map)  # before the clock starts: building it takes time
+        self.rig = self.new_rig(rig_map)  # before the clock starts: building it takes time
         t0 = self.now()
         self.ai_task = task
         self.ring = AiRing(len(task.channels), task.input_buffer())
@@ -312,26 +374,22 @@ class SimDevice(SafeStates, OnDemandAi):
                     and other.t_start is None:
                 other.t_start = t0
 
-    def _ai_rows(self, task: SimTask) -> tuple[list[AnalogInput], list[tuple[str, int] | None]]:
+    def ai_sources(self, task: SimTask) -> tuple[list[AnalogInput], list[tuple[str, int] | None]]:
         """The wired inputs a rig must produce for ``task``, and where each task channel reads
         from: ("rig", row), ("ao", terminal index) for an internal AO channel, None: floating."""
-        wired_ai = {c.physical_channel: c for c in self.wiring.ai}
         ao_all = [c.lower() for c in self.spec.ao_channels()]
-        ai: list[AnalogInput] = []
+        ai, wired = sensors_on(self.wiring, [(ch.physical[0], (ch.min_v, ch.max_v))
+                                                    for ch in task.channels])
         rows: list[tuple[str, int] | None] = []
-        for ch in task.channels:
+        for ch, row in zip(task.channels, wired, strict=True):
             internal = INTERNAL_AO.fullmatch(ch.physical[0].split("/", 1)[1])
-            w = wired_ai.get(ch.physical[0])
-            if internal is not None:
+            if internal is not None:  # never wired: the board reads its own AO terminal
                 rows.append(("ao", ao_all.index(f"{self.spec.name}/ao{internal[1]}".lower())))
-            elif w is None:
-                rows.append(None)
             else:
-                rows.append(("rig", len(ai)))
-                ai.append(w.model_copy(update={"range_v": (ch.min_v, ch.max_v)}))
+                rows.append(None if row is None else ("rig", row))
         return ai, rows
 
-    def _new_rig(self, rig_map: ChannelMap) -> RigModel:
+    def new_rig(self, rig_map: ChannelMap) -> RigModel:
         """The rig behind a new acquisition, continuing the rig as it was last simulated: run
         on from then to now with the AO terminals as they are (at most `GAP_DYNAMIC_S` of
         motion; the oil and film follow the rest of the gap), so a drive held between tasks
@@ -342,7 +400,7 @@ class SimDevice(SafeStates, OnDemandAi):
             gap = max(self.now() - since, 0.0)
             n = int(round(min(gap, GAP_DYNAMIC_S) * old.fs))
             wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
-            drive = self._present_terminals()[wired]
+            drive = self.present_terminals()[wired]
             while n > 0:
                 k = min(n, MAX_CHUNK)
                 old.process(np.repeat(drive[:, None], k, axis=1))
@@ -361,8 +419,7 @@ class SimDevice(SafeStates, OnDemandAi):
         with self.lock:
             self.catch_up()
             if task.watchdog is not None:
-                task.watchdog.running = False
-                self.watchdog_timer.changed()
+                self.safe.stop(task.watchdog)
             task.running = False
             task.error = None
             task.auto_started = False
@@ -374,8 +431,7 @@ class SimDevice(SafeStates, OnDemandAi):
                 self._reset_acquisition()
             elif task in self.ao_tasks:
                 self._end_generation(task)
-            task.ao_chunks, task.ao_queued = [], 0
-            task.regen_data = None
+            task.ao.discard()
 
     def _end_generation(self, task: SimTask) -> None:
         idle = ao_stream.idle_values(task)
@@ -420,17 +476,17 @@ class SimDevice(SafeStates, OnDemandAi):
                 for task in self.ao_tasks:
                     if task.t_start is not None and task.rate_hz is not None:
                         count = math.floor((now - task.t_start) * task.rate_hz + 1e-9) + 1
-                        ao_stream.skip(task, count - task.ao_generated)
+                        ao_stream.skip(task, count - task.ao.generated)
             for task in self.ao_tasks:
-                if task.kind == "do" and task.ao_hold is not None:
+                if task.kind == "do" and task.ao.last is not None:
                     self._drive_do(task)
             self.watchdog_timer.check()
 
     def _drive_do(self, task: SimTask) -> None:
         """A sample-clocked DO task's lines show its last sample generated."""
         levels: dict[str, bool] = {}
-        assert task.ao_hold is not None
-        for ch, value in zip(task.channels, task.ao_hold, strict=True):
+        assert task.ao.last is not None
+        for ch, value in zip(task.channels, task.ao.last, strict=True):
             levels.update(digital_io.lines_of(ch, int(value)))
         if any(self.lines.get(p) != v for p, v in levels.items()):
             self._set_lines(levels)
@@ -476,10 +532,9 @@ class SimDevice(SafeStates, OnDemandAi):
             terminals = self._terminals(self.generated, n)
             rig_out = rig.process(terminals[wired])
             out = np.empty((len(self._rows), n))
-            lsb = 2 * self.spec.ai_range_v / 2**self.spec.ai_bits
             for i, source in enumerate(self._rows):
                 if source is None:  # an unwired terminal: floating input
-                    out[i] = np.round(self._floating_rng.normal(0.0, lsb, n) / lsb) * lsb
+                    out[i] = floating(self.spec, self.floating_rng, n)
                 else:
                     out[i] = (rig_out if source[0] == "rig" else terminals)[source[1]]
             self.generated += n
@@ -498,15 +553,15 @@ class SimDevice(SafeStates, OnDemandAi):
         """What an AO terminal shows when no generation drives it [V]."""
         return self.locked_ao.get(physical, self.ao_hold.get(physical, 0.0))
 
-    def _present_terminals(self) -> np.ndarray:
+    def present_terminals(self) -> np.ndarray:
         """Every AO terminal's voltage now (after `catch_up`), shape (ao_count,)."""
         ao_all = self.spec.ao_channels()
         out = np.array([self.terminal_value(p) for p in ao_all])
         for task in self.ao_tasks:
-            now = (task.ao_hold if ao_stream.generating(task) and task.ao_hold is not None
+            now = (task.ao.last if ao_stream.generating(task) and task.ao.last is not None
                    else ao_stream.idle_values(task))
             for row, term in task.wired_rows:
-                if ao_all[term] not in self.locked_ao and task.ao_generated > 0:
+                if ao_all[term] not in self.locked_ao and task.ao.generated > 0:
                     out[term] = now[row]
         return out
 
@@ -526,8 +581,8 @@ class SimDevice(SafeStates, OnDemandAi):
             assert task.rate_hz is not None  # on its own clock: sample the AO at AI times
             t = self.t0 + (first + np.arange(n)) / self.ai_rate
             index = np.floor((t - task.t_start) * task.rate_hz + 1e-9).astype(np.int64)
-            before = task.ao_generated
-            prev = task.ao_hold.copy() if task.ao_hold is not None else None
+            before = task.ao.generated
+            prev = task.ao.last.copy() if task.ao.last is not None else None
             block = ao_stream.take(task, max(int(index[-1]) + 1 - before, 0))
             for row, term in task.wired_rows:
                 value = np.full(n, out[term, 0] if prev is None else prev[row])
@@ -558,7 +613,7 @@ class SimDevice(SafeStates, OnDemandAi):
                 self.start(task, others)
                 task.auto_started = True
             if task.rate_hz is None:  # an implicitly started on-demand task ends with the read
-                data = self._read_on_demand(task, 1 if n < 0 else n)
+                data = self.on_demand.read(task, 1 if n < 0 else n)
                 if task.auto_started:
                     self.stop(task)
                 return data
@@ -638,7 +693,8 @@ class SimDevice(SafeStates, OnDemandAi):
                 )
         with self.lock:
             self.catch_up()
-            self._refuse_locked(task, [p for ch in task.channels for p in ch.physical])
+            self.safe.refuse_locked(f"write to {task.name!r}",
+                                    [p for ch in task.channels for p in ch.physical])
         if task.rate_hz is None:  # on-demand: the outputs take the last value at once
             if not task.running and not auto_start:
                 raise daq_error(TASK_NOT_RUNNING, f"write to {task.name!r}: task not running")
@@ -653,18 +709,18 @@ class SimDevice(SafeStates, OnDemandAi):
                 self.catch_up()
                 if task.error is not None:
                     raise task.error
-                if task.running and task.regen_data is not None:
+                if task.running and task.ao.loop is not None:
                     ao_stream.queue(task, block)  # overwrites the loop being played
                     break
-                space = task.output_buffer() - task.ao_queued
+                space = task.output_buffer() - task.ao.queued
                 if task.running and not task.regenerating:
                     space += ao_stream.fifo_samples(task)  # the board drains into its FIFO
-                if not task.running and task.ao_written == 0:
+                if not task.running and task.ao.written == 0:
                     space = max(space, n)  # the first write sizes the buffer (NI behaviour)
                 if n <= space:
                     ao_stream.queue(task, block)
                     if task.buffer_samples is None and not task.running:
-                        task.buffer_samples = max(task.output_buffer(), task.ao_queued)
+                        task.buffer_samples = max(task.output_buffer(), task.ao.queued)
                     break
                 moving = task in self.ao_tasks and not self.fast and (
                     task.t_start is not None or self.ai_task is not None)
@@ -684,7 +740,7 @@ class SimDevice(SafeStates, OnDemandAi):
     def write_lines(self, lines: list[str], values: list[bool]) -> None:
         with self.lock:
             self.catch_up()  # the relay switches at this instant of the acquisition
-            self._refuse_locked(None, lines)
+            self.safe.refuse_locked("write", lines)
             self._set_lines(dict(zip(lines, values, strict=True)))
 
     def _set_lines(self, values: dict[str, bool]) -> None:
@@ -693,14 +749,14 @@ class SimDevice(SafeStates, OnDemandAi):
             for d in self.wiring.do:
                 if d.physical_channel != line:
                     continue
-                for rig in (self.rig, self._idle[1] if self._idle else None):
+                for rig in (self.rig, self.on_demand.rig):
                     if rig is not None:
                         rig.set_relay(d.name, value)
 
     def generated_by(self, task: SimTask) -> int:
         with self.lock:
             self.catch_up()
-            return task.ao_generated
+            return task.ao.generated
 
     def is_done(self, task: SimTask) -> bool:
         """DAQmx IsTaskDone: a finite task that has ended, or any task not running; a task

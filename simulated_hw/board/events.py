@@ -87,7 +87,7 @@ def _progress(device: Any, task: SimTask, event_type: int, want: int) -> tuple[i
             return device.generated, math.inf
         return device.generated, device.t0 + want / device.ai_rate
     ahead = ao_stream.fifo_ahead(task)
-    count = task.ao_generated + ahead
+    count = task.ao.generated + ahead
     rate = task.rate_hz or 1.0
     if task.t_start is not None:
         return count, task.t_start + (want - ahead) / rate

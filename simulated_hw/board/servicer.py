@@ -448,7 +448,7 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
             value = max((len(c.physical) for c in task.channels), default=0)
         elif attr == ATTR_WRITE_SPACE:
             self.device.catch_up()
-            value = max(task.output_buffer() - task.ao_queued, 0)
+            value = max(task.output_buffer() - task.ao.queued, 0)
         else:
             raise _unsupported("write", attr)
         return pb.GetWriteAttributeUInt32Response(value=value)

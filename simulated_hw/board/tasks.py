@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from daq.errors import DaqError
+from simulated_hw.board.ao_generation import AoStream
 from simulated_hw.board.codes import (
     IDLE_MAINTAIN,
     MODE_CONTINUOUS,
@@ -61,13 +62,7 @@ class SimTask:
     onboard_samples: int | None = None  # AO: the on-board FIFO in use (None: the whole FIFO)
     running: bool = False
     error: DaqError | None = None  # sticky asynchronous error (overflow, underflow)
-    # AO: samples written and not yet generated, as (n_ch, k) chunks
-    ao_chunks: list[np.ndarray] = field(default_factory=list)
-    ao_queued: int = 0
-    ao_written: int = 0
-    ao_generated: int = 0
-    ao_hold: np.ndarray | None = None  # last value generated, per channel (volts)
-    regen_data: np.ndarray | None = None  # regenerating AO: the buffer played in a loop
+    ao: AoStream = field(default_factory=AoStream)  # AO/DO: the generation's samples
     done: bool = False  # a finite generation/acquisition has ended
     t_start: float | None = None  # AO on its own clock: device time of sample 0
     first_sample: int = 0  # AO on the AI clock: the AI sample its sample 0 is generated at
@@ -82,6 +77,11 @@ class SimTask:
         if self.watchdog is not None:
             return "watchdog"
         return self.channels[0].kind if self.channels else None
+
+    @property
+    def ao_generated(self) -> int:
+        """AO/DO: samples generated since the start (DAQmx TotalSampPerChanGenerated)."""
+        return self.ao.generated
 
     @property
     def finite(self) -> bool:
