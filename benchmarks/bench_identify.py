@@ -20,8 +20,8 @@ from control.runs import create_run_writer
 from control.safety import SafetyLimits
 from control.sweep import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 
 
 def record(path: Path, spec: SweepSpec, seed: int, limits: SafetyLimits | None = None) -> float:

@@ -49,9 +49,9 @@ from daq.errors import (
     EmergencyStopError,
     error_for_code,
 )
-from simulated_hw import physics
-from simulated_hw.params import RigParams
-from simulated_hw.rig import RigModel
+from rig_model import physics
+from rig_model.params import RigParams
+from rig_model.rig import RigModel
 
 #: Paced: what a resuming cut leaves queued past the generation, so that the fade written next
 #: arrives before the generation does [s].

@@ -81,7 +81,7 @@ from analysis.diagnose.evidence import effect_evidence, sensor_pair_check, swap_
 from analysis.diagnose.fitting import FitResult, Following, fit, following, train_sse
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals
 from analysis.diagnose.verdict import Verdict, excited_band, judge, refinement_share, signal_fit
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 
 __all__ = ["Diagnosis", "Finding", "diagnose"]
 

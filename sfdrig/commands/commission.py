@@ -113,9 +113,9 @@ def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
                                watchdog_timeout_s=args.watchdog_s or None),
                 TerminalOperator(args.yes), None)
     from daq.channels import load_channel_map
+    from rig_model.params import RigParamsError, rig_params_named_or_file
     from sfdrig.simulated_operator import SimulatedCommissioner
     from simulated_hw.backend import SimulatedBackend
-    from simulated_hw.params import RigParamsError, rig_params_named_or_file
 
     try:
         params = rig_params_named_or_file(args.rig)

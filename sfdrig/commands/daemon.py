@@ -114,8 +114,8 @@ def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[An
         watchdog = args.watchdog_s if args.watchdog_s > 0 else None
         return (NidaqmxBackend(grpc_target=args.grpc_target, watchdog_timeout_s=watchdog,
                                ao_ring_s=ring), channel_map, None)
+    from rig_model.params import RigParams, rig_params_named_or_file
     from simulated_hw.backend import SimulatedBackend
-    from simulated_hw.params import RigParams, rig_params_named_or_file
 
     params = rig_params_named_or_file(args.rig) if args.rig else RigParams()
     backend = SimulatedBackend(params, seed=args.seed, realtime=not args.fast, ao_ring_s=ring)

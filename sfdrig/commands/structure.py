@@ -29,12 +29,12 @@ from control.programs import (
 )
 from control.runs import create_run_writer
 from daq.channels import default_channel_map, load_channel_map
+from rig_model.params import RigParams, rig_params_named_or_file
 from sfdrig.commands._client_args import add_connection_arguments, command_client
 from sfdrig.commands.sweep import sweep_fields
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
 from sfdrig.terminal_operator import run_test
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams, rig_params_named_or_file
 
 NAME = "structure"
 HELP = ("run the static, impact, probe-calibration and flow tests on the daemon's rig with this "

@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 
 from daq.channels import AnalogInput, ChannelMap, DeviceSpec
+from rig_model.rig import RigModel
 from simulated_hw.board.tasks import SimTask
-from simulated_hw.rig import RigModel
 
 
 class OnDemandAi:

@@ -11,10 +11,10 @@ import pytest
 from control.programs import FlowSpec, StaticSpec, run_flow_test, run_static_test
 from control.runs import create_run_writer
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
 from sfdrig.cli import main
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ from control.safety import AxisSignals, SafetyLimits
 from control.sweep import SweepEngine, SweepSpec
 from control.synthesis import SineSynthesizer
 from daq.channels import default_channel_map
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 from tests.control.conftest import make_backend
 
 LIMIT_M = SafetyLimits().displacement_limit_m  # 63.5 um

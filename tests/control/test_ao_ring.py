@@ -448,7 +448,7 @@ class Stalling(SimulatedBackend):
     20-500 ms (seeded)."""
 
     def __init__(self, clock: FakeClock, seed: int, p: float) -> None:
-        from simulated_hw.params import RigParams
+        from rig_model.params import RigParams
 
         super().__init__(RigParams(), seed=5, realtime=True, clock=clock, sleep=clock.sleep,
                          ao_ring_s=2.0)

@@ -28,7 +28,7 @@ from control.programs import (
 )
 from control.runs import create_run_writer
 from daq.channels import default_channel_map
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 from storage import open_run
 from tests.control.conftest import WriteLog
 

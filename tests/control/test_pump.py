@@ -10,8 +10,8 @@ from control.listener import RecordingListener
 from control.pump import PumpRelay
 from control.sweep import SweepEngine
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 from tests.control.conftest import make_backend
 
 LUB = {"motion": "x", "lubricated": True, "amplitude_m": [13e-6], "freq_hz": [30.0]}

@@ -11,7 +11,7 @@ from control.safety import SafetyLimits, SafetyMonitor
 from control.sweep import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
 from daq.errors import DaqTimeoutError
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 from tests.control.conftest import TRIP_AT_S, GainJump, GainKnob, WriteLog, make_backend
 
 FS = 10_000

@@ -24,9 +24,9 @@ from control.commissioning import (
     CommissionSpec,
 )
 from daq.channels import ChannelMap, channel_map_from_dict, load_channel_map
+from rig_model.params import RigParams
 from sfdrig.simulated_operator import SimulatedCommissioner
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 from storage import open_run
 from tests.conftest import REPO_ROOT
 from tests.simulated_hw.fake_clock import FakeClock

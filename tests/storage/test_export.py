@@ -24,9 +24,9 @@ from control.pump import PumpRelay
 from control.runs import create_run_writer
 from control.sweep import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
 from sfdrig.cli import main
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 from storage import RunWriter, open_run
 from storage.errors import ExportError
 from storage.exporters import column_name, export_run

@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from simulated_hw import RigParams, simulate_response
-from simulated_hw.params import Contact, Film, Seal
+from rig_model import RigParams, simulate_response
+from rig_model.params import Contact, Film, Seal
 
 FS = 10_000.0
 

@@ -11,8 +11,8 @@ import math
 import numpy as np
 
 from daq.channels import ChannelKind, ChannelMap
-from simulated_hw import physics
-from simulated_hw.params import VISCOSITY_SLOPE_PER_C, RigParams
+from rig_model import physics
+from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
 
 
 def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:

@@ -337,7 +337,7 @@ def load_rig_params(path: str | Path) -> RigParams:
 
 
 # Rigs shipped with the package: "nominal" is RigParams() (the report's stated values); "report"
-# is calibrated against the report's measured tables (`sfdrig calibrate`, simulated_hw/rigs/).
+# is calibrated against the report's measured tables (`sfdrig calibrate`, rig_model/rigs/).
 NAMED_RIGS = ("nominal", "report")
 
 
@@ -346,7 +346,7 @@ def rig_params_named_or_file(name_or_path: str | Path) -> RigParams:
     if str(name_or_path) == "nominal":
         return RigParams()
     if str(name_or_path) in NAMED_RIGS:
-        with resources.as_file(resources.files("simulated_hw") / "rigs" / f"{name_or_path}.toml"
+        with resources.as_file(resources.files("rig_model") / "rigs" / f"{name_or_path}.toml"
                                ) as path:
             return load_rig_params(path)
     return load_rig_params(name_or_path)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simulated_hw import RigParams, simulate_response
-from simulated_hw.params import Seal
+from rig_model import RigParams, simulate_response
+from rig_model.params import Seal
 
 FS = 10_000.0
 K_X = 788e3
@@ -63,7 +63,7 @@ def test_loop_dissipates_four_f_mu_times_amplitude_less_the_elastic_travel(kt: f
 def test_per_axis_mass_and_damping_give_each_axis_its_own_receptance():
     # Table 3's per-axis structure (8.8 kg / 367 N.s/m in X, 9.7 kg / 315 N.s/m in Y), seal off,
     # dry: the steady receptance of each axis is 1 / (K - w^2 M + i w C) of its own axis
-    from simulated_hw.params import Structure
+    from rig_model.params import Structure
 
     st = Structure(mass_kg=8.8, mass_y_kg=9.7, residual_damping_ns_per_m=367.0,
                    residual_damping_y_ns_per_m=315.0)

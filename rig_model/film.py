@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 
 ECC_CAP = 0.95  # the kernel's cap on eps (eq. 16 diverges at contact)
 
