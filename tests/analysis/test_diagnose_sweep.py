@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from analysis.diagnose import diagnose, load_run
-from control.pump import PumpRelay
-from control.sweep import SweepEngine
+from control.run.pump import PumpRelay
+from control.run.sweep.engine import SweepEngine
 from daq.channels import default_channel_map
 from rig_model import RigParams
 from sfdrig.cli import main

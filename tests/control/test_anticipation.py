@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.listener import RecordingListener
-from control.pump import PumpRelay
-from control.safety import AxisSignals, SafetyLimits
-from control.sweep import SweepEngine, SweepSpec
-from control.synthesis import SineSynthesizer
+from control.run.listener import RecordingListener
+from control.run.pump import PumpRelay
+from control.run.safety import AxisSignals, SafetyLimits
+from control.run.sweep.engine import SweepEngine, SweepSpec
+from control.signal.synthesis import SineSynthesizer
 from daq.channels import default_channel_map
 from rig_model.params import RigParams
 from tests.control.conftest import make_backend
@@ -226,7 +226,7 @@ class FrequencyWatch(SineSynthesizer):
 @pytest.fixture
 def watched_frequency(monkeypatch):
     FrequencyWatch.changes_under_drive = []
-    monkeypatch.setattr("control.sweep.SineSynthesizer", FrequencyWatch)
+    monkeypatch.setattr("control.run.sweep.engine.SineSynthesizer", FrequencyWatch)
     return FrequencyWatch
 
 

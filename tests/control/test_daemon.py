@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from pydantic import BaseModel, ConfigDict
 
-from control.client import CommandClient, CommandRefused, Subscriber
-from control.daemon import TRANSITIONS, Daemon, DaemonConfig, StateMachine, TransitionError
-from control.pump import PumpRelay
-from control.wire import DaemonState
+from control.daemon.daemon import TRANSITIONS, Daemon, DaemonConfig, StateMachine, TransitionError
+from control.run.pump import PumpRelay
+from control.wire.client import CommandClient, CommandRefused, Subscriber
+from control.wire.protocol import DaemonState
 from daq.channels import default_channel_map
 from simulated_hw.backend import SimulatedBackend
 from storage.reader import open_run

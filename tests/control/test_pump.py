@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.errors import InterlockError, TargetError
-from control.listener import RecordingListener
-from control.pump import PumpRelay
-from control.sweep import SweepEngine
+from control.run.errors import InterlockError, TargetError
+from control.run.listener import RecordingListener
+from control.run.pump import PumpRelay
+from control.run.sweep.engine import SweepEngine
 from daq.channels import default_channel_map
 from rig_model.params import RigParams
 from simulated_hw.backend import SimulatedBackend

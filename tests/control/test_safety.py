@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.errors import LimitTrip, SpecError, TargetError
-from control.listener import RecordingListener
-from control.safety import SafetyLimits, SafetyMonitor
-from control.sweep import SweepEngine, SweepSpec
+from control.run.errors import LimitTrip, SpecError, TargetError
+from control.run.listener import RecordingListener
+from control.run.safety import SafetyLimits, SafetyMonitor
+from control.run.sweep.engine import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
 from daq.errors import DaqTimeoutError
 from rig_model.params import RigParams

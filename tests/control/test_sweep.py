@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from control.listener import RecordingListener
-from control.pump import PumpRelay
-from control.safety import SafetyLimits
-from control.stream import CATCH_UP_BLOCKS
-from control.sweep import SweepEngine, SweepSpec
+from control.run.listener import RecordingListener
+from control.run.pump import PumpRelay
+from control.run.safety import SafetyLimits
+from control.run.stream import CATCH_UP_BLOCKS
+from control.run.sweep.engine import SweepEngine, SweepSpec
 from rig_model.params import RigParams
 from tests.control.conftest import make_backend
 

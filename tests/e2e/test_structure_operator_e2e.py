@@ -13,7 +13,7 @@ import pexpect
 import pytest
 
 from analysis.structure import identify_impact, identify_probe_calibration, identify_static
-from control.client import CommandClient, CommandRefused
+from control.wire.client import CommandClient, CommandRefused
 from storage import open_run
 from tests.e2e.conftest import REPO_ROOT
 

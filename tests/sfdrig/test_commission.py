@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from control.commissioning import (
+from control.commissioning.procedure import (
     CommissionError,
     Commissioning,
     CommissionInterrupted,
@@ -237,7 +237,7 @@ def test_a_drive_over_2_n_or_near_the_resonance_is_refused() -> None:
 
 
 def test_the_record_holds_the_stages_and_the_findings(tmp_path: Path) -> None:
-    from control.runs import create_run_writer
+    from control.run.files import create_run_writer
 
     clock = FakeClock(0.0)
     wiring = changed(_swap_x1_y1)

@@ -11,8 +11,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from control.errors import InterlockError, TargetError
-from control.listener import FanOut
+from control.run.errors import InterlockError, TargetError
+from control.run.listener import FanOut
 
 log = logging.getLogger("sfdrig.daemon")
 
@@ -24,7 +24,7 @@ class RunJob:
 
     run_id: str
     path: Path
-    engine: Any  # control.sweep.SweepEngine
+    engine: Any  # control.run.sweep.engine.SweepEngine
     writer: Any  # storage.RunWriter: its own I/O thread keeps the disk out of the loop
     fanout: FanOut
     abort_reason: str = ""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
-from control.wire import DaemonState
+from control.wire.protocol import DaemonState
 
 S = DaemonState
 
@@ -36,7 +36,7 @@ TRANSITIONS: dict[tuple[DaemonState, str], DaemonState] = {
 #: armed, finished, fault); `start_test` fires "start" as `start` does.
 COMMAND_EVENTS = {"start": ("start", "start_test"), "pause": ("pause",), "resume": ("resume",),
                   "abort": ("abort",), "reset": ("reset",)}
-#: Requests no state refuses (the pump interlock may refuse a switch; see `control.pump`).
+#: Requests no state refuses (the pump interlock may refuse a switch; see `control.run.pump`).
 ALWAYS_ALLOWED = ("pump", "status", "list_runs")
 #: How an operator acknowledges a fault, named in every refusal while in fault.
 RESET_HINT = ("reset the fault with `sfdrig status --reset` (or Reset fault on the web page) "
@@ -47,7 +47,7 @@ def allowed_commands(state: DaemonState) -> list[str]:
     """The requests the daemon takes in ``state``, in the order of `COMMAND_EVENTS`."""
     fired = {e for (s, e) in TRANSITIONS if s is state}
     if state is S.ABORTING:
-        fired.add("abort")  # answered ok (under way), not refused: `control.commands`
+        fired.add("abort")  # answered ok (under way), not refused: `control.daemon.commands`
     return [c for e, cmds in COMMAND_EVENTS.items() if e in fired for c in cmds] \
         + list(ALWAYS_ALLOWED)
 

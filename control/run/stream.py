@@ -1,8 +1,9 @@
 """The acquisition loop's I/O: synthesise a drive block, check it, write it, read the next AI
 block, convert, check, publish. Where a sweep writes AO (the structure tests write theirs in
-`control.program_stream`).
+`control.run.programs.stream`).
 
-AO streams ahead of the generation by ``ahead_blocks`` blocks, through `control.ao_writer.AoWriter`.
+AO streams ahead of the generation by ``ahead_blocks`` blocks, through
+`control.run.ao_writer.AoWriter`.
 On a regenerating backend (`DaqBackend.ao_ring_samples`) the blocks go into the ring at their
 absolute sample and a late host makes the board repeat the ring instead of underflowing: the
 stream then skips forward (the synthesiser is phase-continuous by absolute sample) and records
@@ -24,11 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from control.ao_writer import AoWriter
-from control.errors import LimitTrip
-from control.listener import Listener
-from control.safety import SafetyMonitor
-from control.synthesis import SineSynthesizer
+from control.run.ao_writer import AoWriter
+from control.run.errors import LimitTrip
+from control.run.listener import Listener
+from control.run.safety import SafetyMonitor
+from control.signal.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
 
 log = logging.getLogger(__name__)

@@ -3,7 +3,7 @@ operator in the loop. Nothing is driven before the sensors are known to tell the
 
 1. **At rest** (nothing driven): the emergency stop must read released, and every input is read
    for ``rest_s``: its offset and noise against its sensor, the probes' gap voltages in range
-   (`control.commissioning_checks.judge_rest`). Any failure ends here.
+   (`control.commissioning.checks.judge_rest`). Any failure ends here.
 2. **Emergency stop** (with an ``[estop]`` in the map): the operator presses the button; the
    tool must see it pressed within ``estop_timeout_s``, then released.
 3. **Watchdog** (``watchdog_s``): the pump relay on, the tool stops feeding the board's watchdog
@@ -12,7 +12,7 @@ operator in the loop. Nothing is driven before the sensors are known to tell the
 4. **A small drive per shaker** (``drive_n`` <= 2 N at ``freq_hz``, away from the ~45 Hz
    resonance; ramped up, held, ramped down; stopped at once if a probe passes a quarter of the
    clearance or a load cell 25x the drive): each input's 1X against physics
-   (`control.commissioning_checks.judge_drives`).
+   (`control.commissioning.checks.judge_drives`).
 
 Everything recorded (``listener``: a `storage.RunWriter` of kind ``commissioning``; the rest,
 each drive and the checks as steps and events) goes in one record with the findings; the
@@ -30,7 +30,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from control.commissioning_checks import (
+from control.commissioning.checks import (
     Finding,
     Plant,
     Response,
@@ -40,8 +40,8 @@ from control.commissioning_checks import (
     judge_rest,
     where,
 )
-from control.lockin import LockIn, cycles_to_samples
-from control.synthesis import SineSynthesizer
+from control.signal.lockin import LockIn, cycles_to_samples
+from control.signal.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
 from daq.channels import ChannelKind, ChannelMap
 from daq.device_check import LiveValues

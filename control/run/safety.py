@@ -19,9 +19,9 @@ from typing import Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from control.controller import orbit_peak_radius
-from control.errors import LimitTrip, TargetError
-from control.plan import StepPlan
+from control.run.errors import LimitTrip, TargetError
+from control.run.plan import StepPlan
+from control.signal.controller import orbit_peak_radius
 from daq.channels import ChannelKind, ChannelMap
 
 #: Time from a trip to zero drive that the engine guarantees [s].

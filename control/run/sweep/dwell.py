@@ -7,7 +7,8 @@
     record    ``record_cycles`` whole cycles; the step result is their lock-in
 
 A correction is an *update*; a step that needs more than ``max_updates`` fails with a reason.
-The ramp (and every raise) is `control.approach`; the result is `control.step_result`.
+The ramp (and every raise) is `control.run.sweep.approach`; the result is
+`control.run.sweep.step_result`.
 """
 
 from __future__ import annotations
@@ -17,26 +18,26 @@ from collections.abc import Callable
 
 import numpy as np
 
-from control.approach import (
+from control.run.errors import OpenLoopError
+from control.run.plan import StepPlan
+from control.run.safety import AxisSignals, SafetyLimits
+from control.run.stream import DriveStream
+from control.run.sweep.approach import (
     GUARD_FRACTION,
     LOAD_GUARD_FRACTION,
     LOAD_MARGIN,
     RAISE_STOP,
     Approach,
 )
-from control.controller import (
+from control.run.sweep.spec import SweepSpec
+from control.run.sweep.step_result import StepResult
+from control.signal.controller import (
     AmplitudeController,
     Assessment,
     DrivePredictor,
     orbit_peak_radius,
 )
-from control.errors import OpenLoopError
-from control.lockin import LockIn, LockInAccumulator, cycles_to_samples
-from control.plan import StepPlan
-from control.safety import AxisSignals, SafetyLimits
-from control.spec import SweepSpec
-from control.step_result import StepResult
-from control.stream import DriveStream
+from control.signal.lockin import LockIn, LockInAccumulator, cycles_to_samples
 
 __all__ = ["StepResult", "StepRunner"]
 

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from control.safety import AxisSignals
+from control.run.safety import AxisSignals
 
 #: the safety monitor's and the engine's words for a contact
 CONTACT = "journal-housing contact"

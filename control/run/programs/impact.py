@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from control.listener import Listener
-from control.operator import Question
-from control.program_specs import ImpactSpec
-from control.program_stream import (
+from control.run.listener import Listener
+from control.run.programs.operator import Question
+from control.run.programs.specs import ImpactSpec
+from control.run.programs.stream import (
     ProgramError,
     ProgramOutcome,
     RigHands,

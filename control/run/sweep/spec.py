@@ -1,4 +1,4 @@
-"""The sweep description (pydantic, loadable from TOML). Re-exported by `control.sweep`.
+"""The sweep description (pydantic, loadable from TOML). Re-exported by `control.run.sweep.engine`.
 
 Example (the report's lubricated tests, section VI.1)::
 
@@ -33,10 +33,10 @@ from typing import Annotated, Any, Literal, Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from control.controller import Tolerance, motion_shape
-from control.errors import SpecError
-from control.plan import StepPlan
-from control.text import Text
+from control.run.errors import SpecError
+from control.run.plan import StepPlan
+from control.signal.controller import Tolerance, motion_shape
+from control.wire.text import Text
 from daq.config_files import read_toml, validate
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]

@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-from control.errors import InterlockError
+from control.run.errors import InterlockError
 from daq.backend import DaqBackend
 
 

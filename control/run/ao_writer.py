@@ -9,7 +9,8 @@ than ``margin`` (or behind it), skips forward by whole blocks. The caller advanc
 synthesiser over the skipped samples (phase-continuous by absolute sample) and records what
 `played` returns for them: the recorded drive is what was generated, and the AI stays gapless.
 
-Both streams (`control.stream.DriveStream`, `control.program_stream.Stream`) write through one.
+Both streams (`control.run.stream.DriveStream`, `control.run.programs.stream.Stream`) write through
+one.
 """
 
 from __future__ import annotations

@@ -5,7 +5,8 @@ start of a step (a guess predicted from the steps already run, held inside the m
 frequency is set at zero drive, never glided to under one, and the first drive there is what a
 plant estimate at that frequency allows, raised from there), the watched raise
 (block by block, at most a given growth per latency, stopped by the orbit, the margins or the soft
-limit) and the break-away of a stuck housing. `Approach` is the base of `control.dwell.StepRunner`,
+limit) and the break-away of a stuck housing. `Approach` is the base of
+`control.run.sweep.dwell.StepRunner`,
 which provides the attributes declared below and runs the converge-settle-record loop.
 """
 
@@ -13,17 +14,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from control.controller import (
+from control.run.plan import StepPlan
+from control.run.safety import AxisSignals, SafetyLimits
+from control.run.stream import DriveStream
+from control.run.sweep.spec import ControlSettings, SweepSpec
+from control.signal.controller import (
     AmplitudeController,
     DrivePredictor,
     ProportionalController,
     orbit_peak_radius,
 )
-from control.lockin import cycles_to_samples
-from control.plan import StepPlan
-from control.safety import AxisSignals, SafetyLimits
-from control.spec import ControlSettings, SweepSpec
-from control.stream import DriveStream
+from control.signal.lockin import cycles_to_samples
 from daq.channels import ChannelMap
 
 #: A correction never asks for more than this fraction of the load limit (predicted from the

@@ -2,7 +2,7 @@
 
 Example::
 
-    from control.client import CommandClient, Subscriber
+    from control.wire.client import CommandClient, Subscriber
 
     with Subscriber("tcp://127.0.0.1:5556", topics=["block", "step"]) as sub, \\
             CommandClient("tcp://127.0.0.1:5555") as cmd:
@@ -27,8 +27,8 @@ import numpy as np
 import zmq
 from zmq.utils.monitor import recv_monitor_message
 
-from control.security import ClientKeys, secure_client_socket
-from control.wire import TOPICS, Reply, decode_block
+from control.wire.protocol import TOPICS, Reply, decode_block
+from control.wire.security import ClientKeys, secure_client_socket
 
 
 class DaemonUnavailable(TimeoutError):

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import zmq
 
-from control.wire import (
+from control.wire.protocol import (
     PAYLOAD_DTYPE,
     TOPIC_BLOCK,
     TOPIC_EVENT,

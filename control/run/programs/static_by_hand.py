@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from control.operator import UNITS, Entry, Question
-from control.program_specs import StaticSpec
-from control.program_stream import (
+from control.run.programs.operator import UNITS, Entry, Question
+from control.run.programs.specs import StaticSpec
+from control.run.programs.stream import (
     ProgramError,
     RigHands,
     Steadiness,

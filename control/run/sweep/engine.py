@@ -20,22 +20,22 @@ from typing import Any
 
 import numpy as np
 
-from control.dwell import StepResult, StepRunner
-from control.errors import InterlockError, LimitTrip, TargetError
-from control.listener import FanOut, Listener, NullListener
-from control.plan import StepPlan
-from control.pump import PumpRelay
-from control.run_summary import RunPeaks, peak_line
-from control.safety import AxisSignals, SafetyLimits, SafetyMonitor, validate_targets
-from control.spec import (
+from control.run.errors import InterlockError, LimitTrip, TargetError
+from control.run.listener import FanOut, Listener, NullListener
+from control.run.plan import StepPlan
+from control.run.pump import PumpRelay
+from control.run.safety import AxisSignals, SafetyLimits, SafetyMonitor, validate_targets
+from control.run.stream import DriveStream
+from control.run.summary import RunPeaks, peak_line
+from control.run.sweep.dwell import StepResult, StepRunner
+from control.run.sweep.spec import (
     ControlSettings,
     SweepSpec,
     load_sweep_spec,
     sweep_spec_from_dict,
 )
-from control.states import FINAL, State, StateMachine
-from control.stream import DriveStream
-from control.synthesis import SineSynthesizer
+from control.run.sweep.states import FINAL, State, StateMachine
+from control.signal.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
 from daq.channels import ChannelMap
 from daq.errors import DaqError, EmergencyStopError
@@ -86,7 +86,7 @@ class SweepOutcome:
         Samples acquired in the run.
     sample_rate_hz : float
     summary : dict
-        `control.run_summary.RunPeaks.summary`: peak orbit and load, contact, where a trip came.
+        `control.run.summary.RunPeaks.summary`: peak orbit and load, contact, where a trip came.
     """
 
     status: str
@@ -112,7 +112,7 @@ class SweepEngine:
     limits : SafetyLimits, optional
         Defaults to `SafetyLimits()`.
     listener : Listener, optional
-        Receives the stream (`control.listener.FanOut` for several).
+        Receives the stream (`control.run.listener.FanOut` for several).
     pump : PumpRelay, optional
         Required for a lubricated sweep; held on (interlocked) for the whole run.
     """

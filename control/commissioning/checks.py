@@ -1,4 +1,5 @@
-"""What `control.commissioning` concludes from what it measured: each input at rest against its
+"""What `control.commissioning.procedure` concludes from what it measured: each input at rest
+against its
 sensor's expectations, and each sensor's response to a small drive against physics, as one-line
 findings and proposed corrections to the channel map.
 

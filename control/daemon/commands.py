@@ -1,6 +1,7 @@
 """The daemon's command handling: one request frame in, one reply out, whatever the frame holds.
 
-`CommandHandler` parses a request (`control.wire`), checks it against the daemon's state machine,
+`CommandHandler` parses a request (`control.wire.protocol`), checks it against the daemon's state
+machine,
 carries it out on the daemon and answers; a request the state does not allow is refused with an
 error reply and changes nothing.
 """
@@ -14,12 +15,12 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
-from control.acquisition import RunJob
-from control.daemon_state import TransitionError, refusal
-from control.errors import TargetError
-from control.listener import FanOut
-from control.runs import create_run_writer, new_run_id
-from control.wire import (
+from control.daemon.acquisition import RunJob
+from control.daemon.state import TransitionError, refusal
+from control.run.errors import TargetError
+from control.run.files import create_run_writer, new_run_id
+from control.run.listener import FanOut
+from control.wire.protocol import (
     AbortRequest,
     AnswerRequest,
     DaemonState,
@@ -39,7 +40,7 @@ from control.wire import (
 )
 
 if TYPE_CHECKING:
-    from control.daemon import Daemon
+    from control.daemon.daemon import Daemon
 
 log = logging.getLogger("sfdrig.daemon")
 S = DaemonState
@@ -141,7 +142,7 @@ class CommandHandler:
             job.fanout.on_event("operator", message, job.fanout.last_sample)
 
     def _pump(self, req: PumpRequest) -> Reply:
-        """Switch the pump. Whether it may be switched now is `control.pump.PumpRelay`'s
+        """Switch the pump. Whether it may be switched now is `control.run.pump.PumpRelay`'s
         decision alone: from a run's start to its end the daemon holds the relay
         (`Daemon.hold_pump`), so a dry run refuses on and a lubricated run refuses off."""
         d = self.d
@@ -208,8 +209,8 @@ class CommandHandler:
 
     def _start_test(self, req: StartTestRequest) -> Reply:
         """Start a structure or instrument test with the operator in the loop."""
-        from control.operator import OperatorDesk
-        from control.program_engine import DRY_TESTS, SPECS, ProgramEngine
+        from control.run.programs.engine import DRY_TESTS, SPECS, ProgramEngine
+        from control.run.programs.operator import OperatorDesk
 
         d = self.d
         if not d.sm.allowed("start"):
@@ -253,7 +254,7 @@ class CommandHandler:
         return self._ok(req, run_id=run_id, path=str(path))
 
     def _answer(self, req: AnswerRequest) -> Reply:
-        from control.operator import EntryError
+        from control.run.programs.operator import EntryError
 
         desk = getattr(self.d.job.engine, "desk", None) if self.d.job is not None else None
         if desk is None:
@@ -281,10 +282,10 @@ class CommandHandler:
             return ErrorKind.FORBIDDEN, f"start: the film is still draining after the pump " \
                 f"went off: a dry sweep can start in {math.ceil(wait):.0f} s (its dwells are " \
                 f"recorded as dry; the daemon waits {d.pump.drain_s:g} s, --film-drain-s)"
-        from control.sweep import SweepSpec, check_sweep
+        from control.run.sweep.engine import SweepSpec, check_sweep
 
         if isinstance(spec, SweepSpec):
-            from control.safety import SafetyLimits
+            from control.run.safety import SafetyLimits
 
             try:
                 check_sweep(spec, d.cfg.limits or SafetyLimits(), d.channel_map)

@@ -1,9 +1,11 @@
 """Test programmes other than the sine sweep: static load steps, eddy-current probe calibration and
-a pump pressure ramp (the impact test is `control.impact`). Each streams every block to a listener
+a pump pressure ramp (the impact test is `control.run.programs.impact`). Each streams every block
+to a listener
 (contract A), usually a `storage.RunWriter` of the matching kind, so every analysis runs on real
 run files.
 
-A person is in the loop through an `control.operator.OperatorDesk`: the programme asks (take the
+A person is in the loop through an `control.run.programs.operator.OperatorDesk`: the programme asks
+(take the
 journal out, accept this steady point, read the dial gauge, set this pressure) and keeps the DAQ
 streaming while it waits; the answer may repeat or skip a point or abort the programme (the drives
 fade, the run keeps the points so far). What the person's hands do that the simulated rig must do
@@ -20,11 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from control.impact import run_impact_test
-from control.listener import Listener
-from control.operator import Entry, OperatorDesk, Question
-from control.program_specs import FlowSpec, ImpactSpec, ProbeCalSpec, StaticSpec
-from control.program_stream import (
+from control.run.listener import Listener
+from control.run.programs.impact import run_impact_test
+from control.run.programs.operator import Entry, OperatorDesk, Question
+from control.run.programs.specs import FlowSpec, ImpactSpec, ProbeCalSpec, StaticSpec
+from control.run.programs.static_by_hand import static_levels_by_hand
+from control.run.programs.stream import (
     ProgramError,
     ProgramOutcome,
     RigHands,
@@ -38,7 +41,6 @@ from control.program_stream import (
     signal,
     step_dict,
 )
-from control.static_by_hand import static_levels_by_hand
 from daq.backend import DaqBackend
 
 DIAL_GAUGE_RANGE_M = 2.5e-3  # a dial gauge reading beyond +/-0.1 in is a typing error here
@@ -136,7 +138,7 @@ def run_static_test(backend: DaqBackend, listener: Listener, spec: StaticSpec | 
     """Static load steps per axis: DC force levels, each held and recorded once steady,
     ``repeats`` passes. Without an operator every steady point is kept (unattended).
     ``spec.load_by="hand"``: the operator pushes with a force gauge instead of the shakers
-    (`control.static_by_hand`; an operator is needed).
+    (`control.run.programs.static_by_hand`; an operator is needed).
 
     Each step: ``target_kind="load"``, ``target_value`` the force asked [N], ``motion`` the axis,
     ``freq_hz=0``; the analysis uses the measured means over the span.

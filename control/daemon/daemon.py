@@ -2,14 +2,15 @@
 
 Threads
     - the command thread (the caller of `Daemon.serve`) owns the ROUTER command socket: every
-      request goes to `control.commands.CommandHandler`, which checks it against the state machine
-      (`control.daemon_state`) and answers every one; the thread also sends a status heartbeat on
+      request goes to `control.daemon.commands.CommandHandler`, which checks it against the state
+      machine
+      (`control.daemon.state`) and answers every one; the thread also sends a status heartbeat on
       the PUB stream every ``heartbeat_s``;
-    - the acquisition thread (`control.acquisition.AcquisitionLoop`) runs one sweep at a time
+    - the acquisition thread (`control.daemon.acquisition.AcquisitionLoop`) runs one sweep at a time
       (`SweepEngine.run`, which owns the DAQ loop and ends with the drives ramped to zero whatever
       happens); every block goes to a fan-out listener: the run file (`storage.RunWriter`, created
-      by `control.runs`) and the publisher;
-    - the publisher thread (`control.publisher.Publisher`) owns the PUB socket.
+      by `control.run.files`) and the publisher;
+    - the publisher thread (`control.wire.publisher.Publisher`) owns the PUB socket.
 
 State machine (`TRANSITIONS`): a request that the table does not allow in the current state is
 refused with an error reply and changes nothing. Shutdown (SIGTERM, SIGINT, `Daemon.stop`) aborts
@@ -35,12 +36,13 @@ from typing import Any
 
 import zmq
 
-from control.acquisition import AcquisitionLoop, RunJob, as_dict
-from control.commands import CommandHandler
-from control.daemon_state import TRANSITIONS, StateMachine, TransitionError, allowed_commands
-from control.publisher import Publisher
-from control.runs import close_run_file, list_runs, recover_interrupted
-from control.security import (
+from control.daemon.acquisition import AcquisitionLoop, RunJob, as_dict
+from control.daemon.commands import CommandHandler
+from control.daemon.state import TRANSITIONS, StateMachine, TransitionError, allowed_commands
+from control.run.files import close_run_file, list_runs, recover_interrupted
+from control.wire.protocol import MAX_FRAME_BYTES, DaemonState, ErrorKind, Reply
+from control.wire.publisher import Publisher
+from control.wire.security import (
     COMMAND_DOMAIN,
     DATA_DOMAIN,
     ServerKeys,
@@ -48,7 +50,6 @@ from control.security import (
     secure_server_socket,
     start_authenticator,
 )
-from control.wire import MAX_FRAME_BYTES, DaemonState, ErrorKind, Reply
 from daq.backend import DaqBackend
 from daq.channels import ChannelMap
 from daq.errors import DaqWatchdogExpiredError
@@ -69,7 +70,7 @@ class DaemonConfig:
     data_endpoint: str = "tcp://127.0.0.1:0"
     keys: ServerKeys | None = None
     rig_config: Any = None  # RigParams of a simulated rig, or None on hardware
-    limits: Any = None  # control.safety.SafetyLimits, or None for the defaults
+    limits: Any = None  # control.run.safety.SafetyLimits, or None for the defaults
     sndhwm: int = 1000  # PUB send high-water mark [messages]; 0 = unlimited
     lossless_publish: bool = False  # wait for the publisher instead of dropping (fast sim only)
     heartbeat_s: float = 0.25
@@ -91,8 +92,8 @@ class Daemon:
     config : DaemonConfig
         Endpoints, run directory, keys and limits.
     engine_factory, pump_factory : callable, optional
-        Build the sweep engine and the pump relay (defaults: `control.sweep.SweepEngine`,
-        `control.pump.PumpRelay`).
+        Build the sweep engine and the pump relay (defaults: `control.run.sweep.engine.SweepEngine`,
+        `control.run.pump.PumpRelay`).
     hands : RigHands, optional
         What a person's hands do in the structure tests, done in software (simulated rig only).
     """
@@ -103,7 +104,7 @@ class Daemon:
                  spec_parser: Callable[[dict[str, Any]], Any] | None = None,
                  hands: Any = None) -> None:
         self.backend = backend
-        self.hands = hands  # control.program_stream.RigHands on the simulated rig, else None
+        self.hands = hands  # control.run.programs.stream.RigHands on the simulated rig, else None
         self.channel_map = channel_map
         self.cfg = config
         self.cfg.runs_dir.mkdir(parents=True, exist_ok=True)
@@ -112,7 +113,7 @@ class Daemon:
         self._spec_parser = spec_parser
         self.backend.configure(channel_map)
         if pump_factory is None:
-            from control.pump import PumpRelay
+            from control.run.pump import PumpRelay
 
             pump_factory = PumpRelay
         self.pump = pump_factory(backend, drain_s=config.film_drain_s)
@@ -135,7 +136,7 @@ class Daemon:
                                    block_when_full=config.lossless_publish)
         self.loop = AcquisitionLoop(self._run_started, self._run_done)
         # one compression pool for every run file: threads new each run grew the RSS run
-        # after run (each took over another malloc arena; control.native_memory)
+        # after run (each took over another malloc arena; control.daemon.native_memory)
         from storage.runfile import deflate_pool  # h5py: imported when the daemon is built
 
         self.deflate_pool = deflate_pool("sfdrig-deflate")
@@ -284,13 +285,13 @@ class Daemon:
     def sweep_factories(self) -> tuple[Callable[[dict[str, Any]], Any], Callable[..., Any]]:
         """(spec parser, engine factory): the injected ones, else `SweepSpec`, `SweepEngine`."""
         if self._spec_parser is None or self._engine_factory is None:
-            from control.sweep import SweepEngine, SweepSpec  # resolved at first use
+            from control.run.sweep.engine import SweepEngine, SweepSpec  # resolved at first use
             self._spec_parser = self._spec_parser or SweepSpec.model_validate
             self._engine_factory = self._engine_factory or SweepEngine
         return self._spec_parser, self._engine_factory
 
     def hold_pump(self, what: str, owner: object | None = None) -> None:
-        """Hold the pump relay until the run ends (`control.pump.PumpRelay`: the one place
+        """Hold the pump relay until the run ends (`control.run.pump.PumpRelay`: the one place
         that refuses a switch while a run holds it): as it is, or switched by ``owner`` alone."""
         self._pump_hold.enter_context(self.pump.shakers_running(what, owner))
 
@@ -360,7 +361,7 @@ class Daemon:
         if max_updates is not None:
             progress["max_updates"] = max_updates
         spec = getattr(job.engine, "spec", None) if job is not None else None
-        from control.safety import SafetyLimits
+        from control.run.safety import SafetyLimits
 
         limits = self.cfg.limits or SafetyLimits()
         return {
@@ -384,7 +385,8 @@ class Daemon:
                           "phase_deg": getattr(spec, "tolerance_phase_deg", None)}
             if hasattr(spec, "tolerance_amplitude_pct") else None,
             "fault_reason": self.fault_reason,
-            # what a structure test asks the operator now (control.operator.Question), or None
+            # what a structure test asks the operator now (control.run.programs.operator.Question),
+            # or None
             "question": _question(job),
             "last_run": self._last_run,
             "recovered_at_start": self.recovered,

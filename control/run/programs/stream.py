@@ -6,7 +6,8 @@ A force over the limit or the emergency stop does not let the AO already queued 
 sweep, the backend drops it (`DaqBackend.cut_ao`) and the drives are at 0 V from the first sample
 not generated (or fade fast from it, where the backend resumes). Every other end ramps.
 
-The operator is an `control.operator.OperatorDesk`; what a person's hands do that the software must
+The operator is an `control.run.programs.operator.OperatorDesk`; what a person's hands do that the
+software must
 do on the simulated rig (strike, show a dial gauge, turn the regulator, take the journal out) is an
 optional `RigHands`, given only for the simulated rig by the composition root.
 """
@@ -21,9 +22,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from control.ao_writer import AoWriter
-from control.listener import Listener
-from control.operator import Answer, OperatorDesk, Question
+from control.run.ao_writer import AoWriter
+from control.run.listener import Listener
+from control.run.programs.operator import Answer, OperatorDesk, Question
 from daq.backend import DaqBackend
 from daq.errors import EmergencyStopError
 

@@ -1,4 +1,5 @@
-"""A structure or instrument test run by the daemon: the programme of `control.programs` behind
+"""A structure or instrument test run by the daemon: the programme of
+`control.run.programs.procedures` behind
 the engine interface the acquisition loop runs (``run``, ``abort``, ``progress``), with its
 operator desk, whose pending question the daemon's status shows to every front end."""
 
@@ -8,11 +9,11 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from control.impact import run_impact_test
-from control.operator import OperatorDesk
-from control.program_specs import FlowSpec, ImpactSpec, ProbeCalSpec, StaticSpec
-from control.program_stream import ProgramOutcome, RigHands
-from control.programs import run_flow_test, run_probe_calibration, run_static_test
+from control.run.programs.impact import run_impact_test
+from control.run.programs.operator import OperatorDesk
+from control.run.programs.procedures import run_flow_test, run_probe_calibration, run_static_test
+from control.run.programs.specs import FlowSpec, ImpactSpec, ProbeCalSpec, StaticSpec
+from control.run.programs.stream import ProgramOutcome, RigHands
 from daq.backend import DaqBackend
 
 SPECS: dict[str, type[BaseModel]] = {"static": StaticSpec, "impact": ImpactSpec,

@@ -31,7 +31,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
-from control.text import SafeReason, SafeRequestId, Text, safe_json, safe_text
+from control.wire.text import SafeReason, SafeRequestId, Text, safe_json, safe_text
 
 #: Live-data topics (the first frame of every PUB message).
 TOPIC_BLOCK = b"block"
@@ -51,7 +51,7 @@ MAX_FRAME_BYTES = 4 * MAX_REQUEST_BYTES
 
 
 class DaemonState(StrEnum):
-    """States of the daemon's state machine (see `control.daemon.TRANSITIONS`)."""
+    """States of the daemon's state machine (see `control.daemon.daemon.TRANSITIONS`)."""
 
     IDLE = "idle"
     ARMING = "arming"
@@ -78,7 +78,8 @@ class _Request(BaseModel):
 
 
 class StartRequest(_Request):
-    """Start a sweep. ``spec`` holds the sweep's fields (a `control.sweep.SweepSpec` as a dict,
+    """Start a sweep. ``spec`` holds the sweep's fields (a `control.run.sweep.engine.SweepSpec` as
+    a dict,
     e.g. a sweep TOML file parsed by the client); the daemon validates it."""
 
     cmd: Literal["start"]
@@ -89,7 +90,7 @@ class StartRequest(_Request):
 
 class StartTestRequest(_Request):
     """Start a structure or instrument test (the report's sections IV-V, Appendix A) with the
-    operator in the loop; ``spec`` holds fields of its spec (`control.program_specs`)."""
+    operator in the loop; ``spec`` holds fields of its spec (`control.run.programs.specs`)."""
 
     cmd: Literal["start_test"]
     test: Literal["static", "impact", "probe_calibration", "flow"]
