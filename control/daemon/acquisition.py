@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import queue
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
+from control.run.engine import Engine
 from control.run.errors import InterlockError, TargetError
 from control.run.listener import FanOut
+
+if TYPE_CHECKING:
+    from storage.runfile import RunWriter  # h5py: loaded with the first run file, not before
 
 log = logging.getLogger("sfdrig.daemon")
 
@@ -20,12 +23,13 @@ log = logging.getLogger("sfdrig.daemon")
 # --- the acquisition loop -----------------------------------------------------------------------
 @dataclasses.dataclass
 class RunJob:
-    """One sweep to run: what the acquisition thread needs, prepared by the command thread."""
+    """One run (a sweep or a programme): what the acquisition thread needs, prepared by the
+    command thread."""
 
     run_id: str
     path: Path
-    engine: Any  # control.run.sweep.engine.SweepEngine
-    writer: Any  # storage.RunWriter: its own I/O thread keeps the disk out of the loop
+    engine: Engine
+    writer: RunWriter  # its own I/O thread keeps the disk out of the loop
     fanout: FanOut
     abort_reason: str = ""
 
@@ -59,7 +63,7 @@ class AcquisitionLoop:
             fault = False
             try:
                 outcome = job.engine.run()
-                status, reason = outcome_status(outcome)
+                status, reason = outcome.status, outcome.reason
             except (TargetError, InterlockError) as err:  # refused before any output
                 status, reason = "failed", f"refused: {err}"
             except Exception as err:  # the engine ramped down already; record why it stopped
@@ -70,30 +74,3 @@ class AcquisitionLoop:
                               and not reason.startswith("refused"))
             except Exception:  # the thread must live on to run the next sweep
                 log.exception("ending %s failed", job.run_id)
-
-
-def outcome_status(outcome: Any) -> tuple[str, str]:
-    """(status, reason) of a `SweepOutcome`, read from its ``status``/``aborted`` fields."""
-    status = getattr(outcome, "status", None)
-    reason = str(getattr(outcome, "reason", "") or getattr(outcome, "abort_reason", "") or "")
-    if status is None:
-        status = "aborted" if getattr(outcome, "aborted", False) else "completed"
-    status = str(getattr(status, "value", status))
-    if status not in ("completed", "aborted", "failed"):
-        status = "failed" if status in ("fault", "error", "tripped") else "aborted"
-    return status, reason
-
-
-def as_dict(obj: Any) -> dict[str, Any]:
-    """A JSON-safe dict of a progress/outcome object (pydantic model, dataclass, dict)."""
-    if obj is None:
-        return {}
-    if hasattr(obj, "model_dump"):
-        d = obj.model_dump(mode="json")
-    elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        d = dataclasses.asdict(obj)
-    elif isinstance(obj, dict):
-        d = dict(obj)
-    else:
-        d = {k: v for k, v in vars(obj).items() if not k.startswith("_")}
-    return json.loads(json.dumps(d, default=str))

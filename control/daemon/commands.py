@@ -17,6 +17,7 @@ from pydantic import ValidationError
 
 from control.daemon.acquisition import RunJob
 from control.daemon.state import TransitionError, refusal
+from control.run.engine import Engine
 from control.run.errors import TargetError
 from control.run.files import create_run_writer, new_run_id
 from control.run.listener import FanOut
@@ -99,7 +100,7 @@ class CommandHandler:
             case AnswerRequest():
                 return self._answer(req)
             case PauseRequest():
-                if d.job is not None and not getattr(d.job.engine, "can_pause", True):
+                if d.job is not None and not d.job.engine.can_pause:
                     return self._error(ErrorKind.FORBIDDEN, "pause: a structure test does not "
                                        "pause (answer its question, or abort)", req.cmd,
                                        req.request_id)
@@ -132,7 +133,7 @@ class CommandHandler:
                 return self._ok(req)
         raise RequestError(ErrorKind.INVALID, f"unhandled request {req!r}")
 
-    def _engine(self) -> Any:
+    def _engine(self) -> Engine:
         assert self.d.job is not None
         return self.d.job.engine
 
@@ -203,9 +204,7 @@ class CommandHandler:
         d.hold_pump(f"the {'lubricated' if lubricated else 'dry'} sweep {run_id}")
         d.sm.fire("start")
         d.loop.submit(d.job)
-        plan = getattr(engine, "plan", None)
-        steps_total = len(plan) if isinstance(plan, list) else None
-        return self._ok(req, run_id=run_id, path=str(path), steps_total=steps_total)
+        return self._ok(req, run_id=run_id, path=str(path), steps_total=engine.steps_total)
 
     def _start_test(self, req: StartTestRequest) -> Reply:
         """Start a structure or instrument test with the operator in the loop."""
@@ -256,7 +255,7 @@ class CommandHandler:
     def _answer(self, req: AnswerRequest) -> Reply:
         from control.run.programs.operator import EntryError
 
-        desk = getattr(self.d.job.engine, "desk", None) if self.d.job is not None else None
+        desk = self.d.job.engine.desk if self.d.job is not None else None
         if desk is None:
             return self._error(ErrorKind.FORBIDDEN, "answer: no test is asking anything",
                                req.cmd, req.request_id)

@@ -36,9 +36,10 @@ from typing import Any
 
 import zmq
 
-from control.daemon.acquisition import AcquisitionLoop, RunJob, as_dict
+from control.daemon.acquisition import AcquisitionLoop, RunJob
 from control.daemon.commands import CommandHandler
 from control.daemon.state import TRANSITIONS, StateMachine, TransitionError, allowed_commands
+from control.run.engine import Engine
 from control.run.files import close_run_file, list_runs, recover_interrupted
 from control.wire.protocol import MAX_FRAME_BYTES, DaemonState, ErrorKind, Reply
 from control.wire.publisher import Publisher
@@ -99,7 +100,7 @@ class Daemon:
     """
 
     def __init__(self, backend: DaqBackend, channel_map: ChannelMap, config: DaemonConfig,
-                 engine_factory: Callable[..., Any] | None = None,
+                 engine_factory: Callable[..., Engine] | None = None,
                  pump_factory: Callable[..., Any] | None = None,
                  spec_parser: Callable[[dict[str, Any]], Any] | None = None,
                  hands: Any = None) -> None:
@@ -282,7 +283,7 @@ class Daemon:
         """Carry out one validated request; refusals come back as error replies."""
         return self.commands.execute(req)
 
-    def sweep_factories(self) -> tuple[Callable[[dict[str, Any]], Any], Callable[..., Any]]:
+    def sweep_factories(self) -> tuple[Callable[[dict[str, Any]], Any], Callable[..., Engine]]:
         """(spec parser, engine factory): the injected ones, else `SweepSpec`, `SweepEngine`."""
         if self._spec_parser is None or self._engine_factory is None:
             from control.run.sweep.engine import SweepEngine, SweepSpec  # resolved at first use
@@ -317,10 +318,10 @@ class Daemon:
         with self.sm.lock:
             self._last_run = {"run_id": job.run_id, "path": str(job.path), "status": status,
                               "reason": reason}
-            summary = getattr(job.engine, "summary", None)
-            if isinstance(summary, dict) and summary:
+            summary = job.engine.summary
+            if summary:
                 # the run's peak orbit and load, any contact, where a trip came (issue 21)
-                self._last_run["summary"] = as_dict(summary)
+                self._last_run["summary"] = json.loads(json.dumps(summary, default=str))
             try:
                 self.publisher.on_event("state", f"run {job.run_id} {status}"
                                         + (f": {reason}" if reason else ""),
@@ -355,12 +356,7 @@ class Daemon:
     def status(self) -> dict[str, Any]:
         """What a late joiner needs: state, run, progress, pump, sequence numbers, endpoints."""
         job = self.job
-        progress = as_dict(getattr(job.engine, "progress", None)) if job is not None else {}
-        max_updates = getattr(getattr(job.engine, "spec", None), "max_updates", None) \
-            if job is not None else None
-        if max_updates is not None:
-            progress["max_updates"] = max_updates
-        spec = getattr(job.engine, "spec", None) if job is not None else None
+        progress = job.engine.progress_fields() if job is not None else {}
         from control.run.safety import SafetyLimits
 
         limits = self.cfg.limits or SafetyLimits()
@@ -381,9 +377,7 @@ class Daemon:
             "safety": {"radial_clearance_m": limits.radial_clearance_m,
                        "displacement_limit_m": limits.displacement_limit_m,
                        "load_limit_n": limits.max_load_n, "drive_limit_v": limits.max_drive_v},
-            "tolerance": {"amplitude_pct": getattr(spec, "tolerance_amplitude_pct", None),
-                          "phase_deg": getattr(spec, "tolerance_phase_deg", None)}
-            if hasattr(spec, "tolerance_amplitude_pct") else None,
+            "tolerance": job.engine.tolerance() if job is not None else None,
             "fault_reason": self.fault_reason,
             # what a structure test asks the operator now (control.run.programs.operator.Question),
             # or None
@@ -458,7 +452,7 @@ class Daemon:
 
 
 def _question(job: RunJob | None) -> dict[str, Any] | None:
-    desk = getattr(job.engine, "desk", None) if job is not None else None
+    desk = job.engine.desk if job is not None else None
     q = desk.pending() if desk is not None else None
     return q.model_dump(mode="json") if q is not None else None
 

@@ -34,8 +34,14 @@ class ScriptSpec(BaseModel):
 
 
 class ScriptEngine:
+    """A run the test scripts block by block, behind `control.run.engine.Engine`."""
+
     gates: dict[str, threading.Event] = {}
     abort_done = threading.Event()
+    can_pause = True
+    steps_total = None
+    desk = None
+    summary: dict = {}
 
     def __init__(self, backend, spec, limits=None, listener=None, pump=None):
         self.backend, self.spec, self.listener, self.pump = backend, spec, listener, pump
@@ -87,6 +93,12 @@ class ScriptEngine:
         self.reason = reason
         self._aborted.set()
         self._running.set()
+
+    def progress_fields(self):
+        return dict(self.progress)
+
+    def tolerance(self):
+        return None
 
 
 @pytest.fixture

@@ -1,14 +1,15 @@
 """A structure or instrument test run by the daemon: the programme of
-`control.run.programs.procedures` behind
-the engine interface the acquisition loop runs (``run``, ``abort``, ``progress``), with its
+`control.run.programs.procedures` behind the `control.run.engine.Engine` protocol, with its
 operator desk, whose pending question the daemon's status shows to every front end."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from pydantic import BaseModel
 
+from control.run.listener import Listener
 from control.run.programs.impact import run_impact_test
 from control.run.programs.operator import OperatorDesk
 from control.run.programs.procedures import run_flow_test, run_probe_calibration, run_static_test
@@ -24,7 +25,7 @@ DRY_TESTS = ("static", "impact", "probe_calibration")
 class _Counting:
     """Passes everything on to the run's listener and counts the steps."""
 
-    def __init__(self, listener: Any) -> None:
+    def __init__(self, listener: Listener) -> None:
         self.listener = listener
         self.steps = 0
 
@@ -43,10 +44,11 @@ class ProgramEngine:
     """One test programme with its operator desk. ``hands`` only on the simulated rig."""
 
     can_pause = False  # a person is in the loop: they answer, repeat, skip or abort
+    steps_total = None  # the operator decides: repeat, skip, abort
 
-    def __init__(self, kind: str, backend: DaqBackend, spec: Any, listener: Any,
+    def __init__(self, kind: str, backend: DaqBackend, spec: Any, listener: Listener,
                  desk: OperatorDesk, hands: RigHands | None = None,
-                 set_pump: Any = None) -> None:
+                 set_pump: Callable[[bool], None] | None = None) -> None:
         self.kind, self.backend, self.spec = kind, backend, spec
         self.listener = _Counting(listener)
         self.desk, self.hands, self.set_pump = desk, hands, set_pump
@@ -68,9 +70,25 @@ class ProgramEngine:
     def abort(self, reason: str) -> None:
         self.desk.abort(reason)
 
+    def pause(self) -> None:
+        raise RuntimeError("a structure test does not pause (answer its question, or abort)")
+
+    def resume(self) -> None:
+        raise RuntimeError("a structure test does not pause, so it does not resume")
+
     @property
     def progress(self) -> dict[str, Any]:
         return {"test": self.kind, "steps_done": self.listener.steps}
+
+    def progress_fields(self) -> dict[str, Any]:
+        return self.progress
+
+    @property
+    def summary(self) -> dict[str, Any]:
+        return {}  # peaks are a sweep's: a programme's drive is a DC level the operator sets
+
+    def tolerance(self) -> None:
+        return None
 
 
 __all__ = ["DRY_TESTS", "SPECS", "ProgramEngine"]

@@ -23,6 +23,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from control.run.ao_writer import AoWriter
+from control.run.engine import RunStatus
 from control.run.listener import Listener
 from control.run.programs.operator import Answer, OperatorDesk, Question
 from daq.backend import DaqBackend
@@ -80,8 +81,8 @@ class ProgramOutcome:
     step_dicts: list[dict[str, Any]] = field(default_factory=list)
 
     @property
-    def status(self) -> str:
-        """"completed" or "aborted" (read by the daemon's acquisition loop)."""
+    def status(self) -> RunStatus:
+        """"completed" or "aborted" (`control.run.engine.RunOutcome`)."""
         return "completed" if self.completed else "aborted"
 
 

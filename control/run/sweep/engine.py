@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import logging
 import threading
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from control.run.engine import OperatorQuestions, RunStatus
 from control.run.errors import InterlockError, LimitTrip, TargetError
 from control.run.listener import FanOut, Listener, NullListener
 from control.run.plan import StepPlan
@@ -89,7 +90,7 @@ class SweepOutcome:
         `control.run.summary.RunPeaks.summary`: peak orbit and load, contact, where a trip came.
     """
 
-    status: str
+    status: RunStatus
     reason: str
     steps: list[StepResult] = field(default_factory=list)
     samples: int = 0
@@ -99,6 +100,11 @@ class SweepOutcome:
     @property
     def rig_time_s(self) -> float:
         return self.samples / self.sample_rate_hz if self.sample_rate_hz else 0.0
+
+
+#: the engine's final states as the run's outcome
+_RUN_STATUS: dict[State, RunStatus] = {State.COMPLETED: "completed", State.ABORTED: "aborted",
+                                       State.FAILED: "failed"}
 
 
 class SweepEngine:
@@ -116,6 +122,9 @@ class SweepEngine:
     pump : PumpRelay, optional
         Required for a lubricated sweep; held on (interlocked) for the whole run.
     """
+
+    can_pause = True
+    desk: OperatorQuestions | None = None  # unattended: nobody is asked anything
 
     def __init__(
         self,
@@ -145,6 +154,18 @@ class SweepEngine:
     @property
     def progress(self) -> SweepProgress:
         return self._progress
+
+    def progress_fields(self) -> dict[str, Any]:
+        """`progress` and the spec's ``max_updates``, as the daemon's status shows them."""
+        return {**asdict(self._progress), "max_updates": self.spec.max_updates}
+
+    @property
+    def steps_total(self) -> int:
+        return len(self.plan)
+
+    def tolerance(self) -> dict[str, float]:
+        return {"amplitude_pct": self.spec.tolerance_amplitude_pct,
+                "phase_deg": self.spec.tolerance_phase_deg}
 
     @property
     def state(self) -> State:
@@ -343,7 +364,7 @@ class SweepEngine:
                         status, reason = State.FAILED, msg
                 self._emit_safe("info", peak_line(self.peaks.summary))
                 self._machine.to(status)
-        return SweepOutcome(status.value, reason, list(self.results), stream.sample, fs,
+        return SweepOutcome(_RUN_STATUS[status], reason, list(self.results), stream.sample, fs,
                             self.peaks.summary)
 
     def _on_update(self, updates: int) -> None:
