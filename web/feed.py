@@ -28,8 +28,13 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from control.daemon.instance import process_gone
-from control.wire.client import CommandClient, CommandRefused, DaemonUnavailable, Subscriber
+from control.wire.client import (
+    CommandClient,
+    CommandRefused,
+    DaemonUnavailable,
+    Subscriber,
+    process_gone,
+)
 from control.wire.security import ClientKeys
 from web.view import LiveView
 

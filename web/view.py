@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from control.run.summary import CONTACT, peak_line
 from control.signal.lockin import LockIn
 from control.wire.client import Message
+from control.wire.summary_lines import CONTACT, peak_line
 
 UM = 1e-6
 STALE_AFTER_S = 1.0  # traces older than this are drawn grey, with the time of their data

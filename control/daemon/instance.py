@@ -23,20 +23,6 @@ from typing import Any
 RUNS_LOCK_NAME = "daemon.lock"
 
 
-def process_gone(pid: object) -> bool:
-    """Whether ``pid`` names no process on this computer (a killed daemon's state file); a
-    value that is not a pid is not known to be gone."""
-    if not isinstance(pid, int) or pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except OSError:  # another user's process: alive
-        return False
-    return False
-
-
 class AlreadyRunning(RuntimeError):
     """Another live process holds the lock; ``holder`` is what its lock file says."""
 

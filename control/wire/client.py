@@ -18,6 +18,7 @@ With CURVE keys (``sfdrig keys``), pass ``keys=load_client_keys(DIR, NAME)`` to 
 from __future__ import annotations
 
 import json
+import os
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -29,6 +30,20 @@ from zmq.utils.monitor import recv_monitor_message
 
 from control.wire.protocol import TOPICS, Reply, decode_block
 from control.wire.security import ClientKeys, secure_client_socket
+
+
+def process_gone(pid: object) -> bool:
+    """Whether ``pid`` names no process on this computer (a killed daemon's state file); a
+    value that is not a pid is not known to be gone."""
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # another user's process: alive
+        return False
+    return False
 
 
 class DaemonUnavailable(TimeoutError):

@@ -7,8 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from control.daemon.instance import process_gone
-from control.wire.client import CommandClient, Subscriber
+from control.wire.client import CommandClient, Subscriber, process_gone
 from control.wire.security import ClientKeys, load_client_keys
 
 DEFAULT_RUNS_DIR = Path("runs")

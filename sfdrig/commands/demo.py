@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from analysis.report import write_report
-from control.run.summary import peak_line
 from control.wire.client import CommandClient, Subscriber
+from control.wire.summary_lines import peak_line
 from rig_model.params import rig_params_named_or_file
 from sfdrig.commands.structure import run_structure_tests
 from sfdrig.commands.sweep import UM, achieved, follow, run_summary

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import io
 
-from control.run.summary import end_line, peak_line
 from control.run.sweep.engine import SweepEngine, SweepSpec
+from control.wire.summary_lines import end_line, peak_line
 from daq.channels import default_channel_map
 from rig_model.params import RigParams
 from sfdrig.commands import sweep as sweep_cmd

@@ -27,7 +27,7 @@ from control.run.plan import StepPlan
 from control.run.pump import PumpRelay
 from control.run.safety import AxisSignals, SafetyLimits, SafetyMonitor, validate_targets
 from control.run.stream import DriveStream
-from control.run.summary import RunPeaks, peak_line
+from control.run.summary import RunPeaks
 from control.run.sweep.dwell import StepResult, StepRunner
 from control.run.sweep.spec import (
     ControlSettings,
@@ -37,6 +37,7 @@ from control.run.sweep.spec import (
 )
 from control.run.sweep.states import FINAL, State, StateMachine
 from control.signal.synthesis import SineSynthesizer
+from control.wire.summary_lines import peak_line
 from daq.backend import DaqBackend
 from daq.channels import ChannelMap
 from daq.errors import DaqError, EmergencyStopError
