@@ -18,7 +18,7 @@ from pydantic import ValidationError
 from control.daemon.acquisition import RunJob
 from control.daemon.state import TransitionError, refusal
 from control.run.engine import Engine
-from control.run.errors import TargetError
+from control.run.errors import InterlockError, TargetError
 from control.run.files import create_run_writer, new_run_id
 from control.run.listener import FanOut
 from control.wire.protocol import (
@@ -186,6 +186,12 @@ class CommandHandler:
             log.exception("building the sweep engine failed")
             return self._error(ErrorKind.FAILED, f"start: {type(err).__name__}: {err}",
                                req.cmd, req.request_id)
+        try:  # the engine's own check, once: its run does not repeat it
+            engine.check()
+        except TargetError as err:
+            return self._error(ErrorKind.INVALID, f"start.spec: {err}", req.cmd, req.request_id)
+        except InterlockError as err:
+            return self._error(ErrorKind.FORBIDDEN, f"start: {err}", req.cmd, req.request_id)
         run_id = new_run_id()
         path = d.cfg.runs_dir / f"{run_id}.h5"
         cm = d.channel_map
@@ -281,13 +287,4 @@ class CommandHandler:
             return ErrorKind.FORBIDDEN, f"start: the film is still draining after the pump " \
                 f"went off: a dry sweep can start in {math.ceil(wait):.0f} s (its dwells are " \
                 f"recorded as dry; the daemon waits {d.pump.drain_s:g} s, --film-drain-s)"
-        from control.run.sweep.engine import SweepSpec, check_sweep
-
-        if isinstance(spec, SweepSpec):
-            from control.run.safety import SafetyLimits
-
-            try:
-                check_sweep(spec, d.cfg.limits or SafetyLimits(), d.channel_map)
-            except TargetError as err:
-                return ErrorKind.INVALID, f"start.spec: {err}"
         return None

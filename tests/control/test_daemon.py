@@ -94,6 +94,9 @@ class ScriptEngine:
         self._aborted.set()
         self._running.set()
 
+    def check(self):
+        return None
+
     def progress_fields(self):
         return dict(self.progress)
 

@@ -150,6 +150,7 @@ class SweepEngine:
         self._stream: DriveStream | None = None
         self.results: list[StepResult] = []
         self.peaks: RunPeaks | None = None
+        self._checked = False  # `check` passed: `run` does not repeat it
 
     # --- thread-safe controls ---------------------------------------------------------------
     @property
@@ -222,6 +223,16 @@ class SweepEngine:
             raise _Pause()
         self._progress = replace(self._progress, sample=self._sample())
 
+    def check(self) -> None:
+        """Refuse the sweep before any output (`TargetError`, `InterlockError`): targets and
+        limits against the channel map, and for a lubricated sweep the pump and its pressure
+        input. Done once: by the daemon before the run file exists, else by `run`."""
+        if self._checked:
+            return
+        self._check_config()
+        self._check_interlock_before_start()
+        self._checked = True
+
     def _check_config(self) -> None:
         try:
             cm = self.backend.channel_map
@@ -290,8 +301,7 @@ class SweepEngine:
             raise RuntimeError("a SweepEngine runs once; make a new one")
         self._machine.to(State.CHECKING)
         try:
-            self._check_config()
-            self._check_interlock_before_start()
+            self.check()
         except (TargetError, InterlockError) as err:
             self._emit_safe("abort", f"refused: {err}", 0)
             self._machine.to(State.REFUSED)
