@@ -1,16 +1,18 @@
 """The sfdrig daemon: a state machine, one acquisition loop, a command socket and a publisher.
 
 Threads
-    - the command thread (the caller of `Daemon.serve`) owns the ROUTER command socket: every
-      request goes to `control.daemon.commands.CommandHandler`, which checks it against the state
-      machine
-      (`control.daemon.state`) and answers every one; the thread also sends a status heartbeat on
-      the PUB stream every ``heartbeat_s``;
-    - the acquisition thread (`control.daemon.acquisition.AcquisitionLoop`) runs one sweep at a time
-      (`SweepEngine.run`, which owns the DAQ loop and ends with the drives ramped to zero whatever
+    - the command thread (the caller of `Daemon.serve`) owns the ROUTER command socket: the
+      daemon parses every request (`control.wire.protocol`), checks it against its state machine
+      (`control.daemon.state`), carries it out and answers every one; the thread also sends a
+      status heartbeat on the PUB stream every ``heartbeat_s``;
+    - the acquisition thread (`control.daemon.acquisition.AcquisitionLoop`) runs one run at a
+      time (`Engine.run`, which owns the DAQ loop and ends with the drives ramped to zero whatever
       happens); every block goes to a fan-out listener: the run file (`storage.RunWriter`, created
       by `control.run.files`) and the publisher;
     - the publisher thread (`control.wire.publisher.Publisher`) owns the PUB socket.
+
+The daemon is the one owner of its state (the state machine, the job, the fault, the pump's
+hold): its commands and the acquisition thread's callbacks change it, under ``sm.lock``.
 
 State machine (`TRANSITIONS`): a request that the table does not allow in the current state is
 refused with an error reply and changes nothing. Shutdown (SIGTERM, SIGINT, `Daemon.stop`) aborts
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import gc
 import json
 import logging
@@ -35,22 +38,47 @@ from pathlib import Path
 from typing import Any
 
 import zmq
+from pydantic import ValidationError
 
 from control.daemon.acquisition import AcquisitionLoop, RunJob
-from control.daemon.commands import CommandHandler
-from control.daemon.state import TRANSITIONS, StateMachine, TransitionError, allowed_commands
-from control.run.engine import Engine
-from control.run.files import close_run_file, list_runs, recover_interrupted
-from control.wire.protocol import MAX_FRAME_BYTES, DaemonState, ErrorKind, Reply
-from control.wire.publisher import Publisher
-from control.wire.security import (
-    COMMAND_DOMAIN,
-    DATA_DOMAIN,
-    ServerKeys,
-    is_loopback,
-    secure_server_socket,
-    start_authenticator,
+from control.daemon.sockets import bind_sockets
+from control.daemon.state import (
+    TRANSITIONS,
+    StateMachine,
+    TransitionError,
+    allowed_commands,
+    refusal,
 )
+from control.run.engine import Engine
+from control.run.errors import InterlockError, TargetError
+from control.run.files import (
+    close_run_file,
+    create_run_writer,
+    list_runs,
+    new_run_id,
+    recover_interrupted,
+)
+from control.run.listener import FanOut
+from control.wire.protocol import (
+    AbortRequest,
+    AnswerRequest,
+    DaemonState,
+    ErrorKind,
+    ListRunsRequest,
+    PauseRequest,
+    PumpRequest,
+    Reply,
+    RequestError,
+    ResetRequest,
+    ResumeRequest,
+    StartRequest,
+    StartTestRequest,
+    StatusRequest,
+    describe_errors,
+    parse_request,
+)
+from control.wire.publisher import Publisher
+from control.wire.security import ServerKeys
 from daq.backend import DaqBackend
 from daq.channels import ChannelMap
 from daq.errors import DaqWatchdogExpiredError
@@ -129,8 +157,8 @@ class Daemon:
         self._pump_hold = ExitStack()  # the pump interlock, held from a run's start to its end
 
         self._ctx = zmq.Context()
-        self._auth: Any = None
-        self._command, self._data, self.endpoints = self._bind()
+        self._command, self._data, self.endpoints, self._auth = bind_sockets(
+            self._ctx, config.command_endpoint, config.data_endpoint, config.keys, config.sndhwm)
         channels = channel_map.ai_names + channel_map.ao_names
         self.publisher = Publisher(self._data, channels, len(channel_map.ai),
                                    channel_map.sample_rate_hz,
@@ -141,38 +169,9 @@ class Daemon:
         from storage.runfile import deflate_pool  # h5py: imported when the daemon is built
 
         self.deflate_pool = deflate_pool("sfdrig-deflate")
-        self.commands = CommandHandler(self)
         # before anyone is told the endpoints (`sfdrig daemon` prints them next): a client that
         # reads daemon.json then finds these, not a dead predecessor's
         self._write_state_file()
-
-    # --- sockets --------------------------------------------------------------------------
-    def _bind(self) -> tuple[zmq.Socket, zmq.Socket, dict[str, str]]:
-        cfg = self.cfg
-        for ep in (cfg.command_endpoint, cfg.data_endpoint):
-            if not is_loopback(ep) and cfg.keys is None:
-                raise PermissionError(
-                    f"binding {ep} exposes the rig beyond this computer: CURVE keys are required "
-                    f"(make them with `sfdrig keys DIR`, then pass --keys DIR)"
-                )
-        if cfg.keys is not None:
-            self._auth = start_authenticator(self._ctx, cfg.keys)
-        command = self._ctx.socket(zmq.ROUTER)
-        data = self._ctx.socket(zmq.PUB)
-        for s in (command, data):
-            s.linger = 500
-        command.router_mandatory = False
-        command.maxmsgsize = MAX_FRAME_BYTES  # a bigger frame drops its peer, unread
-        data.sndhwm = cfg.sndhwm
-        if cfg.keys is not None:
-            secure_server_socket(command, cfg.keys, COMMAND_DOMAIN)
-            secure_server_socket(data, cfg.keys, DATA_DOMAIN)
-        endpoints = {}
-        for name, sock, ep in (("command", command, cfg.command_endpoint),
-                               ("data", data, cfg.data_endpoint)):
-            sock.bind(_random_port(ep))
-            endpoints[name] = str(sock.getsockopt_string(zmq.LAST_ENDPOINT))
-        return command, data, endpoints
 
     # --- the command loop -------------------------------------------------------------------
     def serve(self) -> None:
@@ -269,7 +268,7 @@ class Daemon:
         else:
             envelope, body = [identity], frames[1:]
         try:
-            frame = self.commands.handle(body).to_frame()
+            frame = self.handle(body).to_frame()
         except Exception:  # not reachable by construction; the loop must outlive it anyway
             log.exception("could not build a reply")
             frame = Reply(ok=False, state=self.sm.state, error_kind=ErrorKind.FAILED,
@@ -279,9 +278,237 @@ class Daemon:
         except zmq.ZMQError:
             log.warning("could not send a reply (client gone)")
 
+    # --- the commands: one request in, one reply out ----------------------------------------
+    def handle(self, body: list[bytes]) -> Reply:
+        """The reply to the frames after the routing envelope; never raises."""
+        try:
+            if len(body) != 1:
+                raise RequestError(ErrorKind.MALFORMED,
+                                   f"expected one JSON request frame, got {len(body)} frames")
+            req = parse_request(body[0])
+            return self.execute(req)
+        except RequestError as err:
+            return self._error(err.kind, str(err), err.cmd, err.request_id)
+        except Exception as err:  # the daemon never dies on a request
+            log.exception("request failed")
+            return self._error(ErrorKind.FAILED, f"{type(err).__name__}: {err}")
+
     def execute(self, req: Any) -> Reply:
         """Carry out one validated request; refusals come back as error replies."""
-        return self.commands.execute(req)
+        try:
+            with self.sm.lock:
+                return self._dispatch(req)
+        except TransitionError as err:
+            message = f"{req.cmd}: {err}"
+            if self.sm.state is S.FAULT and self.fault_reason:
+                message += f" (the fault: {self.fault_reason})"
+            return self._error(ErrorKind.FORBIDDEN, message, req.cmd, req.request_id)
+
+    def _error(self, kind: ErrorKind, message: str, cmd: str = "", rid: str = "") -> Reply:
+        return Reply(ok=False, cmd=cmd, request_id=rid, state=self.sm.state, error_kind=kind,
+                     error=message)
+
+    def _ok(self, req: Any, **data: Any) -> Reply:
+        return Reply(ok=True, cmd=req.cmd, request_id=req.request_id, state=self.sm.state,
+                     data=data)
+
+    def _dispatch(self, req: Any) -> Reply:
+        match req:
+            case StatusRequest():
+                return self._ok(req, **self.status())
+            case ListRunsRequest():
+                return self._ok(req, runs=self.list_runs())
+            case StartRequest():
+                return self._start(req)
+            case StartTestRequest():
+                return self._start_test(req)
+            case AnswerRequest():
+                return self._answer(req)
+            case PauseRequest():
+                if self.job is not None and not self.job.engine.can_pause:
+                    return self._error(ErrorKind.FORBIDDEN, "pause: a structure test does not "
+                                       "pause (answer its question, or abort)", req.cmd,
+                                       req.request_id)
+                self.sm.fire("pause")
+                self._engine().pause()
+                self._operator_event("paused by operator")
+                return self._ok(req)
+            case ResumeRequest():
+                self.sm.fire("resume")
+                self._engine().resume()
+                self._operator_event("resumed by operator")
+                return self._ok(req)
+            case AbortRequest():
+                if self.sm.state is S.ABORTING:  # pressed again: it is under way, not refused
+                    return self._ok(req, already_aborting=True)
+                self.sm.fire("abort")
+                assert self.job is not None
+                self.job.abort_reason = req.reason
+                self._engine().abort(req.reason)
+                return self._ok(req)
+            case PumpRequest():
+                return self._pump(req)
+            case ResetRequest():
+                if self.sm.state is S.FAULT and self.backend.estop_pressed():
+                    return self._error(ErrorKind.FORBIDDEN, "reset: the emergency stop is "
+                                       "still pressed; release it first", req.cmd,
+                                       req.request_id)
+                self.sm.fire("reset")
+                self.fault_reason = ""
+                return self._ok(req)
+        raise RequestError(ErrorKind.INVALID, f"unhandled request {req!r}")
+
+    def _engine(self) -> Engine:
+        assert self.job is not None
+        return self.job.engine
+
+    def _operator_event(self, message: str) -> None:
+        job = self.job
+        if job is not None:
+            job.fanout.on_event("operator", message, job.fanout.last_sample)
+
+    def _pump(self, req: PumpRequest) -> Reply:
+        """Switch the pump. Whether it may be switched now is `control.run.pump.PumpRelay`'s
+        decision alone: from a run's start to its end the daemon holds the relay
+        (`Daemon.hold_pump`), so a dry run refuses on and a lubricated run refuses off."""
+        try:
+            self.pump.set(req.on)
+        except (RuntimeError, ValueError) as err:  # InterlockError: a run holds the relay
+            return self._error(ErrorKind.FORBIDDEN, f"pump: {err}", req.cmd, req.request_id)
+        message = f"pump switched {'on' if req.on else 'off'} by operator"
+        job = self.job
+        if job is not None:
+            job.fanout.on_event("pump", message, job.fanout.last_sample)
+        else:
+            self.publisher.on_event("pump", message, 0)
+        return self._ok(req, pump_on=bool(self.pump.is_on))
+
+    def _start(self, req: StartRequest) -> Reply:
+        """Validate the whole start (spec, targets, control and stream settings, the shutdown
+        budget, the engine) before the run file exists; only then create it and queue the run."""
+        if not self.sm.allowed("start"):
+            self.sm.fire("start")  # raises the TransitionError that names the state
+        spec_parser, engine_factory = self.sweep_factories()
+        try:
+            spec = spec_parser(req.spec)
+        except ValidationError as err:
+            return self._error(ErrorKind.INVALID, describe_errors(err, "start.spec"), req.cmd,
+                               req.request_id)
+        except ValueError as err:
+            return self._error(ErrorKind.INVALID, f"start.spec: {err}", req.cmd, req.request_id)
+        refusal = self._refusal(spec)
+        if refusal is not None:
+            return self._error(refusal[0], refusal[1], req.cmd, req.request_id)
+        fanout = FanOut([], [self.publisher])  # the run file joins once it exists
+        try:
+            engine = engine_factory(self.backend, spec, limits=self.cfg.limits, listener=fanout,
+                                    pump=self.pump)
+        except (TargetError, ValueError) as err:
+            return self._error(ErrorKind.INVALID, f"start.spec: {err}", req.cmd, req.request_id)
+        except Exception as err:
+            log.exception("building the sweep engine failed")
+            return self._error(ErrorKind.FAILED, f"start: {type(err).__name__}: {err}",
+                               req.cmd, req.request_id)
+        try:  # the engine's own check, once: its run does not repeat it
+            engine.check()
+        except TargetError as err:
+            return self._error(ErrorKind.INVALID, f"start.spec: {err}", req.cmd, req.request_id)
+        except InterlockError as err:
+            return self._error(ErrorKind.FORBIDDEN, f"start: {err}", req.cmd, req.request_id)
+        run_id = new_run_id()
+        path = self.cfg.runs_dir / f"{run_id}.h5"
+        cm = self.channel_map
+        try:
+            writer = create_run_writer(path, "sweep", cm, run_id=run_id, test_spec=spec,
+                                       rig_config=self.cfg.rig_config, operator=req.operator,
+                                       notes=req.notes, pool=self.deflate_pool)
+        except Exception as err:  # disk full, permissions: nothing has run
+            log.exception("creating %s failed", path)
+            return self._error(ErrorKind.FAILED, f"start: cannot create the run file: {err}",
+                               req.cmd, req.request_id)
+        fanout.required.append(writer)
+        self.job = RunJob(run_id, path, engine, writer, fanout)
+        self.publisher.set_run(run_id)
+        lubricated = bool(getattr(spec, "lubricated", False))
+        self.hold_pump(f"the {'lubricated' if lubricated else 'dry'} sweep {run_id}")
+        self.sm.fire("start")
+        self.loop.submit(self.job)
+        return self._ok(req, run_id=run_id, path=str(path), steps_total=engine.steps_total)
+
+    def _start_test(self, req: StartTestRequest) -> Reply:
+        """Start a structure or instrument test with the operator in the loop."""
+        from control.run.programs.engine import DRY_TESTS, SPECS, ProgramEngine
+        from control.run.programs.operator import OperatorDesk
+
+        if not self.sm.allowed("start"):
+            raise TransitionError(refusal("start_test", self.sm.state))
+        try:
+            spec = SPECS[req.test].model_validate(req.spec)
+        except ValidationError as err:
+            return self._error(ErrorKind.INVALID, describe_errors(err, "start_test.spec"),
+                               req.cmd, req.request_id)
+        if req.test in DRY_TESTS and self.pump.is_on:
+            return self._error(ErrorKind.FORBIDDEN, f"start_test: the {req.test} test is dry "
+                               "(no journal, no oil): switch the pump off first", req.cmd,
+                               req.request_id)
+        fanout = FanOut([], [self.publisher])
+        desk = OperatorDesk(lambda kind, message: fanout.on_event(kind, message,
+                                                                  fanout.last_sample))
+        # the flow test switches the pump itself, and only it may while it runs
+        owner = object()
+        engine = ProgramEngine(req.test, self.backend, spec, fanout, desk, self.hands,
+                               functools.partial(self.pump.set, owner=owner))
+        run_id = f"{new_run_id()}-{req.test}"
+        path = self.cfg.runs_dir / f"{run_id}.h5"
+        try:
+            writer = create_run_writer(path, req.test, self.channel_map, run_id=run_id,
+                                       test_spec=spec, rig_config=self.cfg.rig_config,
+                                       operator=req.operator, notes=req.notes,
+                                       lubricated=req.test == "flow", pool=self.deflate_pool)
+        except Exception as err:  # disk full, permissions: nothing has run
+            log.exception("creating %s failed", path)
+            return self._error(ErrorKind.FAILED, f"start_test: cannot create the run file: "
+                               f"{err}", req.cmd, req.request_id)
+        fanout.required.append(writer)
+        self.job = RunJob(run_id, path, engine, writer, fanout)
+        self.publisher.set_run(run_id)
+        if req.test in DRY_TESTS:
+            self.hold_pump(f"the dry {req.test} test {run_id}")
+        else:
+            self.hold_pump(f"the {req.test} test {run_id}", owner)
+        self.sm.fire("start")
+        self.loop.submit(self.job)
+        return self._ok(req, run_id=run_id, path=str(path))
+
+    def _answer(self, req: AnswerRequest) -> Reply:
+        from control.run.programs.operator import EntryError
+
+        desk = self.job.engine.desk if self.job is not None else None
+        if desk is None:
+            return self._error(ErrorKind.FORBIDDEN, "answer: no test is asking anything",
+                               req.cmd, req.request_id)
+        try:
+            answer = desk.submit(req.question_id, req.choice, req.text)
+        except EntryError as err:
+            return self._error(ErrorKind.INVALID, f"answer: {err}", req.cmd, req.request_id)
+        return self._ok(req, answer=answer.model_dump(mode="json"))
+
+    def _refusal(self, spec: Any) -> tuple[ErrorKind, str] | None:
+        """Why a valid sweep must not start now (before a run file exists), or None."""
+        lubricated = bool(getattr(spec, "lubricated", False))
+        if lubricated and not self.pump.is_on:
+            return ErrorKind.FORBIDDEN, "start: a lubricated sweep needs the pump on " \
+                "(send pump on first)"
+        if not lubricated and self.pump.is_on:
+            # the run file would call oil-wet dwells dry, and identify would treat them so
+            return ErrorKind.FORBIDDEN, "start: a dry sweep needs the pump off (its dwells " \
+                "are recorded as dry; oil in the film would make them wet): send pump off " \
+                "first, or set lubricated = true"
+        if not lubricated and (wait := self.pump.drains_for_s()) > 0:
+            return ErrorKind.FORBIDDEN, f"start: the film is still draining after the pump " \
+                f"went off: a dry sweep can start in {math.ceil(wait):.0f} s (its dwells are " \
+                f"recorded as dry; the daemon waits {self.pump.drain_s:g} s, --film-drain-s)"
+        return None
 
     def sweep_factories(self) -> tuple[Callable[[dict[str, Any]], Any], Callable[..., Engine]]:
         """(spec parser, engine factory): the injected ones, else `SweepSpec`, `SweepEngine`."""
@@ -455,9 +682,3 @@ def _question(job: RunJob | None) -> dict[str, Any] | None:
     desk = job.engine.desk if job is not None else None
     q = desk.pending() if desk is not None else None
     return q.model_dump(mode="json") if q is not None else None
-
-
-def _random_port(endpoint: str) -> str:
-    """``tcp://host:0`` -> ``tcp://host:*`` (ZeroMQ's any-free-port)."""
-    return endpoint[:-2] + ":*" if endpoint.startswith("tcp://") and endpoint.endswith(":0") \
-        else endpoint

@@ -47,7 +47,7 @@ def allowed_commands(state: DaemonState) -> list[str]:
     """The requests the daemon takes in ``state``, in the order of `COMMAND_EVENTS`."""
     fired = {e for (s, e) in TRANSITIONS if s is state}
     if state is S.ABORTING:
-        fired.add("abort")  # answered ok (under way), not refused: `control.daemon.commands`
+        fired.add("abort")  # answered ok (under way), not refused: `Daemon._dispatch`
     return [c for e, cmds in COMMAND_EVENTS.items() if e in fired for c in cmds] \
         + list(ALWAYS_ALLOWED)
 
