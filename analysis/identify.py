@@ -42,8 +42,8 @@ from analysis.structure import (
 )
 from analysis.sync import amplitude_spectrum
 from analysis.uncertainty import U_DISPLACEMENT_REL
-from simulated_hw.film import energy_equivalent_damping, eq16_damping
-from simulated_hw.params import RigParams
+from rig_model.film import energy_equivalent_damping, eq16_damping
+from rig_model.params import RigParams
 from storage import RunData, RunFileError, open_run
 
 ANALYSES = ("sync", "dry", "lubricated", "static", "impact", "probe_calibration", "flow")
@@ -412,7 +412,7 @@ def simulated_reference(params: RigParams, ident: Identification) -> dict[str, A
         "M_kg": st.mass_kg, "M_f_kg": film.fluid_mass_kg, "D_kg": film.added_mass(),
         "M_T_kg": st.mass_kg + film.fluid_mass_kg + film.added_mass(),
         "sfd_damping_note": ("energy-equivalent of eq. 16 with the instantaneous eccentricity "
-                             "over a cycle of the identified amplitude (simulated_hw.film)"),
+                             "over a cycle of the identified amplitude (rig_model.film)"),
         "sfd_damping_by_amplitude": [],
     }
     if ident.lubricated is not None:

@@ -31,7 +31,7 @@ from analysis.uncertainty import (
     static_stiffness_u,
     t95,
 )
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 from storage import RunData
 
 MIL_M = 25.4e-6

@@ -4,7 +4,8 @@ Starts `sfdrig sim-server` (paced: samples appear with the wall clock, as on a b
 separate process on a free loopback port, then runs the control loop's pattern through
 `NidaqmxBackend` (the report's 14 AI, 2 AO, 10 kS/s, 10 ms blocks): write one block, read one
 block, for ``--seconds``, with the AO ``lead`` blocks ahead. Before each write it asks the board how
-many AO samples are still queued (as `control.stream.DriveStream` does); the minimum is the margin
+many AO samples are still queued (as `control.run.stream.DriveStream` does); the minimum is the
+margin
 the lead left. An underflow (-200290) ends that run. Each lead runs in a child process at the
 priority asked (``normal``, ``high`` = nice -10, ``realtime`` = SCHED_FIFO), like the daemon.
 

@@ -1,7 +1,7 @@
 """AO generation on a busy PC (issue 21): a paced drive session at normal priority beside K
 busy-loop processes, on the simulated backend or through nidaqmx against `sfdrig sim-server`.
 
-The session is the sweep's own streaming (`control.stream.DriveStream`, 10 ms blocks, 30 ms
+The session is the sweep's own streaming (`control.run.stream.DriveStream`, 10 ms blocks, 30 ms
 lead, the report's 14 AI and 2 AO at 10 kS/s) driving a circular sine that changes frequency
 and amplitude every 2 s (seeded), ending each ``--session-s`` with an abort (a ramped stop,
 `DriveStream.shutdown`), then starting again. Reported: underflows (-200290, each ends its
@@ -56,10 +56,10 @@ def _backend(kind: str, ring_s: float | None, address: str | None):
 
 def session(backend, cm, seconds: float, rng: np.random.Generator) -> dict:
     """One paced session: drive for ``seconds``, then abort; what happened."""
-    from control.listener import RecordingListener
-    from control.safety import SafetyLimits, SafetyMonitor
-    from control.stream import DriveStream
-    from control.synthesis import SineSynthesizer
+    from control.run.listener import RecordingListener
+    from control.run.safety import SafetyLimits, SafetyMonitor
+    from control.run.stream import DriveStream
+    from control.signal.synthesis import SineSynthesizer
     from daq.errors import DaqError, DaqUnderflowError, DaqWatchdogExpiredError
 
     fs = cm.sample_rate_hz

@@ -23,13 +23,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from control.listener import NullListener  # noqa: E402
-from control.pump import PumpRelay  # noqa: E402
-from control.safety import SafetyLimits  # noqa: E402
-from control.sweep import SweepEngine, SweepSpec  # noqa: E402
+from control.run.listener import NullListener  # noqa: E402
+from control.run.pump import PumpRelay  # noqa: E402
+from control.run.safety import SafetyLimits  # noqa: E402
+from control.run.sweep.engine import SweepEngine, SweepSpec  # noqa: E402
 from daq.channels import default_channel_map  # noqa: E402
+from rig_model.params import RigParams  # noqa: E402
 from simulated_hw.backend import SimulatedBackend  # noqa: E402
-from simulated_hw.params import RigParams  # noqa: E402
 
 CONTROLLERS = {
     "newton-broyden 2x2 (default)": {"algorithm": "newton_broyden", "predict": True},

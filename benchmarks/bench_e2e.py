@@ -83,7 +83,7 @@ def _toml(d: dict[str, Any]) -> str:
 # --- subscriber processes -----------------------------------------------------------------------
 def subscriber_main(endpoint: str, ready: Any, results: Any, name: str, stop_after_s: float
                     ) -> None:
-    from control.client import Subscriber
+    from control.wire.client import Subscriber
 
     lat: list[float] = []
     blocks = samples = 0
@@ -237,7 +237,7 @@ def main() -> int:
     eps = dict(p.split("=", 1) for p in line.split())
     print(line.strip())
 
-    from control.client import CommandClient
+    from control.wire.client import CommandClient
 
     mpctx = mp.get_context("spawn")
     ready, results = mpctx.Queue(), mpctx.Queue()

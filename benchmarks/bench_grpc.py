@@ -22,7 +22,7 @@ import numpy as np
 
 from daq.channels import AnalogInput, ChannelKind, ChannelMap, default_channel_map
 from daq.nidaqmx_backend import NidaqmxBackend
-from simulated_hw import RigModel, RigParams
+from rig_model import RigModel, RigParams
 
 
 def sixteen_channel_map(address: str, with_ao: bool) -> ChannelMap:

@@ -15,13 +15,13 @@ from pathlib import Path
 
 from analysis.identify import identify, write_results
 from analysis.report import build_report
-from control.pump import PumpRelay
-from control.runs import create_run_writer
-from control.safety import SafetyLimits
-from control.sweep import SweepEngine, SweepSpec
+from control.run.files import create_run_writer
+from control.run.pump import PumpRelay
+from control.run.safety import SafetyLimits
+from control.run.sweep.engine import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 
 
 def record(path: Path, spec: SweepSpec, seed: int, limits: SafetyLimits | None = None) -> float:

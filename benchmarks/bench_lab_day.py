@@ -221,7 +221,7 @@ class Churn:
     def _loop(self) -> None:
         import zmq
 
-        from control.client import CommandClient, Subscriber
+        from control.wire.client import CommandClient, Subscriber
 
         while not self._stop.wait(2.0):
             try:
@@ -258,7 +258,7 @@ def main() -> int:
     ap.add_argument("--dir", type=Path, default=None, help="keep the run files here")
     args = ap.parse_args()
 
-    from control.client import CommandClient, Subscriber
+    from control.wire.client import CommandClient, Subscriber
 
     if args.dir is not None:
         args.dir.mkdir(parents=True, exist_ok=True)

@@ -16,8 +16,9 @@ import time
 import numpy as np
 
 from daq import default_channel_map
-from simulated_hw import RigParams, SimulatedBackend
-from simulated_hw.params import Oil
+from rig_model import RigParams
+from rig_model.params import Oil
+from simulated_hw import SimulatedBackend
 
 
 def one_sweep(block: int, dwell_s: float = 2.0) -> tuple[float, float]:

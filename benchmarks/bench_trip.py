@@ -23,12 +23,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from control.listener import RecordingListener  # noqa: E402
-from control.safety import AxisSignals, SafetyLimits  # noqa: E402
-from control.sweep import SweepEngine, SweepSpec  # noqa: E402
+from control.run.listener import RecordingListener  # noqa: E402
+from control.run.safety import AxisSignals, SafetyLimits  # noqa: E402
+from control.run.sweep.engine import SweepEngine, SweepSpec  # noqa: E402
 from daq.channels import default_channel_map  # noqa: E402
+from rig_model.params import RigParams  # noqa: E402
 from simulated_hw.backend import SimulatedBackend  # noqa: E402
-from simulated_hw.params import RigParams  # noqa: E402
 
 FS = 10_000.0
 #: when the gain turns, per case (motion, frequency): the step has converged and is recording by

@@ -162,7 +162,7 @@ def main() -> int:
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
-    from control.client import CommandClient
+    from control.wire.client import CommandClient
     from storage.reader import open_run
 
     work = Path(tempfile.mkdtemp(prefix="bench_web_", dir=args.dir))

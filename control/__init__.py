@@ -1,17 +1,15 @@
-"""Shaker control: synthesis, lock-in, amplitude controller, safety, pump relay, sweep engine.
+"""Shaker control, one room an idea (the import-linter contracts in pyproject.toml hold them):
 
-Modules (each small, one responsibility):
-
-- `control.synthesis`: phase-continuous sine synthesis with ramps (`SineSynthesizer`).
-- `control.lockin`: least-squares lock-in over whole cycles, 1X..5X (`LockIn`).
-- `control.controller`: the 2x2 Newton-Broyden amplitude controller (`AmplitudeController`),
-  motion shapes, the drive predictor, and a plain proportional loop for comparison.
-- `control.safety`: `SafetyLimits`, the per-block `SafetyMonitor`, `validate_targets`.
-- `control.pump`: `PumpRelay` and its interlock with the shakers.
-- `control.stream`: block-wise AO/AI streaming with the safe shutdown (`DriveStream`).
-- `control.dwell`: one step (ramp, converge, settle, record); `control.approach`: the margins
-  and the anticipating moves (start, watched raise, break-away); `control.step_result`.
-- `control.spec`, `control.sweep`: `SweepSpec` (TOML) and the `SweepEngine` (contract C).
-- `control.listener`: the `Listener` protocol (contract A), the one `FanOut`, and helpers.
-- `control.errors`: `TargetError`, `InterlockError`, `LimitTrip`, ...
+- `control.signal`: synthesis, lock-in, amplitude controller. Algorithms, no I/O, no siblings.
+- `control.run`: a run on the rig. Shared by both kinds of run: the `Listener` stream and its
+  `FanOut` (`listener`), the drive stream (`stream`) and where its AO goes (`ao_writer`),
+  `safety`, the `pump` interlock, `errors`, the run's file (`files`) and `summary`, the dwell
+  `plan`. `control.run.sweep`: the sine sweep (spec, engine, dwell, approach, states,
+  step_result). `control.run.programs`: the operator programmes (specs, their DC-level stream,
+  the operator protocol, procedures, impact, static by hand, the engine the daemon runs).
+- `control.daemon`: the daemon, its state machine, its commands, the acquisition thread, the
+  one-instance locks.
+- `control.wire`: what crosses the network: protocol, client, publisher, security, safe text.
+  Imports no other room of `control`; clients import it.
+- `control.commissioning`: `sfdrig commission` (procedure and checks).
 """

@@ -11,14 +11,14 @@ from __future__ import annotations
 from pathlib import Path
 
 from analysis.calibration.plan import ReportPlan
-from control.pump import PumpRelay
-from control.runs import create_run_writer
-from control.safety import SafetyLimits
-from control.sweep import SweepEngine, SweepSpec, sweep_spec_from_dict
+from control.run.files import create_run_writer
+from control.run.pump import PumpRelay
+from control.run.safety import SafetyLimits
+from control.run.sweep.engine import SweepEngine, SweepSpec, sweep_spec_from_dict
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
 from sfdrig.commands.structure import run_structure_tests
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 
 DRY_LIMITS = SafetyLimits(max_displacement_m=110e-6)
 

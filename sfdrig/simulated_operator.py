@@ -3,7 +3,7 @@
 On the real rig a person strikes the housing with the impact hammer, reads the dial gauges, turns
 the pump's pressure regulator, pushes the housing with a force gauge and takes the journal out. On
 the simulated rig `SimulatedHands` does these to the rig model when the operator's answer asks for
-them (`control.program_stream.RigHands`). `StandInOperator` answers every question at once the
+them (`control.run.programs.stream.RigHands`). `StandInOperator` answers every question at once the
 way a careful technician would (the demo, `sfdrig structure --unattended`);
 `SimulatedCommissioner` is the person at the rig for `sfdrig commission --backend sim`. This
 wiring lives in the composition root, so `control` never imports `simulated_hw`.
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from control.operator import OperatorDesk, Question
+from control.run.programs.operator import OperatorDesk, Question
 from simulated_hw.backend import SimulatedBackend
 
 DIAL_GAUGE_RESOLUTION_M = 0.0001 * 0.0254  # +/- 0.0001 in dial gauges (Appendix A)
@@ -104,7 +104,7 @@ class StandInOperator(OperatorDesk):
 @dataclass
 class SimulatedCommissioner:
     """The person at the simulated rig during `sfdrig commission` (a
-    `control.commissioning.Operator`): presses and releases the emergency stop when asked,
+    `control.commissioning.procedure.Operator`): presses and releases the emergency stop when asked,
     takes the journal out before the drives, and reports the pump relay as the rig has it.
     ``say`` shows what the hands do."""
 

@@ -1,4 +1,5 @@
-"""The terminal front end of the operator protocol (`control.operator`): shows the question the
+"""The terminal front end of the operator protocol (`control.run.programs.operator`): shows the
+question the
 daemon's running test asks, reads what the person types, sends it as an answer and shows the
 daemon's refusal (wrong unit, out of range) until an answer is accepted. The browser view is the
 other front end of the same protocol; neither decides anything the daemon does not check."""
@@ -9,7 +10,7 @@ import select
 import time
 from typing import Any, TextIO
 
-from control.client import CommandClient
+from control.wire.client import CommandClient
 
 POLL_S = 0.2  # how often the daemon's status is read while waiting [s]
 KEYS = {"": "ok", "y": "ok", "ok": "ok", "accept": "ok", "r": "repeat", "repeat": "repeat",

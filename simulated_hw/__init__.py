@@ -1,10 +1,6 @@
-"""The rig in software: physics, the in-process SimulatedBackend, the simulated NI gRPC server."""
+"""The simulated board: the in-process SimulatedBackend and the simulated NI gRPC server, both
+running the rig model (`rig_model`) behind the DAQ protocol."""
 
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams, RigParamsError, load_rig_params
-from simulated_hw.rig import RigModel, simulate_response
 
-__all__ = [
-    "RigModel", "RigParams", "RigParamsError", "SimulatedBackend", "load_rig_params",
-    "simulate_response",
-]
+__all__ = ["SimulatedBackend"]

@@ -54,13 +54,13 @@ from daq.errors import (
     EmergencyStopError,
     error_for_code,
 )
-from simulated_hw import physics
+from rig_model import physics
+from rig_model.params import RigParams
+from rig_model.rig import RigModel
 from simulated_hw.board.ao_generation import AoStream
 from simulated_hw.board.safe_states import EmergencyStop, SafeStates
 from simulated_hw.board.sensor_wiring import floating, sensors_on
 from simulated_hw.board.watchdog import Watchdog
-from simulated_hw.params import RigParams
-from simulated_hw.rig import RigModel
 
 #: Paced: what a resuming cut leaves queued past the generation, so that the fade written next
 #: arrives before the generation does [s].

@@ -3,7 +3,7 @@
 The servicer subclasses the one shipped in the pinned ``nidaqmx`` package, so the official
 client (``nidaqmx.Task(grpc_options=...)``) drives it exactly as it would drive NI's own server.
 It serves one device (``Dev1`` by default: ai0..ai15, ao0..ao1, port0/line0..7) wired to one
-`simulated_hw.rig.RigModel`: each AI terminal carries the sensor the wiring map puts there, each
+`rig_model.rig.RigModel`: each AI terminal carries the sensor the wiring map puts there, each
 AO terminal drives the shaker of its axis, and the relay line switches the oil pump.
 
 Supported, as a multifunction board accepts them: AI hardware-timed (continuous or finite, on
@@ -49,11 +49,11 @@ from nidaqmx._stubs import nidaqmx_pb2 as pb
 from nidaqmx._stubs import nidaqmx_pb2_grpc as pb_grpc
 
 from daq.channels import ChannelMap, default_channel_map
+from rig_model.params import RigParams
 from simulated_hw.board.codes import SERVICE_NAME
 from simulated_hw.board.device import SimDevice
 from simulated_hw.board.servicer import SimulatedDaqmxServicer
 from simulated_hw.board.wire import serialize_reply
-from simulated_hw.params import RigParams
 
 _log = logging.getLogger(__name__)
 

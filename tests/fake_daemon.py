@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import zmq
 
-from control.wire import Reply, encode_header
+from control.wire.protocol import Reply, encode_header
 
 
 def until(condition: Callable[[], bool], timeout_s: float = 10.0) -> float:

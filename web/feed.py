@@ -1,7 +1,8 @@
 """The web process's link to the daemon: a feed thread, a watch thread and command clients.
 
 The web process is a client like any other: it subscribes to the daemon's (or a proxy's) PUB
-stream with `control.client.Subscriber` and sends commands with `control.client.CommandClient`.
+stream with `control.wire.client.Subscriber` and sends commands with
+`control.wire.client.CommandClient`.
 The acquisition thread never knows it is there; if the web process falls behind, it loses
 messages at its own high-water mark (counted, shown on the page), never the daemon.
 
@@ -27,9 +28,14 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from control.client import CommandClient, CommandRefused, DaemonUnavailable, Subscriber
-from control.instance import process_gone
-from control.security import ClientKeys
+from control.wire.client import (
+    CommandClient,
+    CommandRefused,
+    DaemonUnavailable,
+    Subscriber,
+    process_gone,
+)
+from control.wire.security import ClientKeys
 from web.view import LiveView
 
 log = logging.getLogger(__name__)

@@ -1,6 +1,6 @@
 """What the browser draws, computed from the daemon's live stream (no I/O here).
 
-`LiveView` is fed every message of a `control.client.Subscriber` (blocks, steps, events, status
+`LiveView` is fed every message of a `control.wire.client.Subscriber` (blocks, steps, events, status
 heartbeats) and keeps only what the page shows: the last second of samples in a ring buffer, the
 step points of the run, the recent events and the latest status. `LiveView.frame` turns that into
 one small JSON-safe dict, decimated on the server: a few triggered cycles of each trace and of the
@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from control.client import Message
-from control.lockin import LockIn
-from control.run_summary import CONTACT, peak_line
+from control.signal.lockin import LockIn
+from control.wire.client import Message
+from control.wire.summary_lines import CONTACT, peak_line
 
 UM = 1e-6
 STALE_AFTER_S = 1.0  # traces older than this are drawn grey, with the time of their data

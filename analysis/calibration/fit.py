@@ -40,7 +40,7 @@ from analysis.calibration.compare import Comparison, compare
 from analysis.calibration.plan import ReportPlan
 from analysis.errors import AnalysisError
 from analysis.identify import Identification
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 
 Simulate = Callable[[RigParams, ReportPlan], Identification]
 Log = Callable[[str], None]

@@ -5,7 +5,7 @@ module writes the JSON, the extended rig TOML and the HTML page. The effect libr
 `LIBRARY` (ids, parameter names and the documented recovery tolerances).
 
 Modules: ``data`` (runs, segments, train/held-out split), ``model`` (the replay through
-`simulated_hw.simulate_response`), ``effects`` (the library), ``fitting`` (output-error
+`rig_model.simulate_response`), ``effects`` (the library), ``fitting`` (output-error
 Levenberg-Marquardt), ``start`` (the fitted baseline's start from the data: dynamic stiffness
 per dwell or H1 FRF), ``baseline`` (the fitted baseline and its order chosen on held-out
 data), ``candidates`` (candidates and findings: criterion, bootstrap, what is not a finding),

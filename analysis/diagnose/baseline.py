@@ -32,7 +32,7 @@ from analysis.diagnose.effects import LIBRARY, Context, Variant, parameters_of
 from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit, fit_failure, train_sse
 from analysis.diagnose.model import Evaluator, Model, Param, Residuals, residuals, rig_param
 from analysis.diagnose.start import OneMode, one_mode_estimate
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 
 
 @dataclass

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from simulated_hw.params import RigParams, rig_params_from_dict
+from rig_model.params import RigParams, rig_params_from_dict
 
 
 class DiagnoseError(ValueError):

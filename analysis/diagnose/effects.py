@@ -39,7 +39,7 @@ import numpy as np
 
 from analysis.diagnose.data import RunRecord
 from analysis.diagnose.model import Model, Param, get_path, set_path
-from simulated_hw.params import VISCOSITY_SLOPE_PER_C, RigParams
+from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
 
 
 @dataclass

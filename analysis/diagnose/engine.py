@@ -101,7 +101,7 @@ from analysis.diagnose.residual_structure import (
     signature_sd,
 )
 from analysis.diagnose.verdict import Verdict, excited_band, judge, refinement_share, signal_fit
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 
 __all__ = ["Diagnosis", "Finding", "diagnose"]
 

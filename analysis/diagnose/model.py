@@ -3,7 +3,7 @@
 A `Model` is the rig configuration (`RigParams`, the same object the simulator loads) plus the
 parts of the measurement chain a diagnosis may change: per-channel recorded/true gain and time
 delay, a viscosity drift over the data, and a force offset (imported data). `Evaluator` replays
-the measured force of every run through `simulated_hw.simulate_response` (the simulator's own
+the measured force of every run through `rig_model.simulate_response` (the simulator's own
 kernel), windowed around the segments it is asked about, and returns predicted response channels.
 
 Replay details, stated:
@@ -37,9 +37,9 @@ import numpy as np
 from scipy.signal import resample_poly
 
 from analysis.diagnose.data import RunRecord, Segment
-from simulated_hw import physics
-from simulated_hw.params import VISCOSITY_SLOPE_PER_C, RigParams
-from simulated_hw.rig import simulate_response
+from rig_model import physics
+from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
+from rig_model.rig import simulate_response
 
 
 @dataclass(frozen=True)

@@ -60,7 +60,7 @@ def order_status(row: dict[str, Any]) -> str:
 
 
 def write_extended_model(diag: Diagnosis, path: Path) -> None:
-    """The extended rig model as TOML (`simulated_hw.load_rig_params` loads it as it is)."""
+    """The extended rig model as TOML (`rig_model.load_rig_params` loads it as it is)."""
     head = "# Extended rig model written by sfdrig diagnose"
     found = ", ".join(f.effect for f in diag.findings) or "no effect found"
     path.write_text(f"{head} ({diag.baseline_kind} baseline; {found})\n"

@@ -7,9 +7,8 @@ import argparse
 import json
 from pathlib import Path
 
-from control.client import CommandClient, Subscriber
-from control.instance import process_gone
-from control.security import ClientKeys, load_client_keys
+from control.wire.client import CommandClient, Subscriber, process_gone
+from control.wire.security import ClientKeys, load_client_keys
 
 DEFAULT_RUNS_DIR = Path("runs")
 STATE_FILE_NAME = "daemon.json"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from control.client import CommandRefused, DaemonUnavailable
+from control.wire.client import CommandRefused, DaemonUnavailable
 from sfdrig.commands._client_args import add_connection_arguments, command_client
 
 NAME = "abort"

@@ -17,8 +17,8 @@ from analysis.calibration.fit import Calibration, Simulate, calibrate
 from analysis.calibration.plan import ReportPlan
 from analysis.errors import AnalysisError
 from analysis.identify import Identification, identify
+from rig_model.params import NAMED_RIGS, RigParams, rig_params_named_or_file
 from sfdrig.report_plan import run_report_plan
-from simulated_hw.params import NAMED_RIGS, RigParams, rig_params_named_or_file
 
 NAME = "calibrate"
 HELP = ("run the report's test plan on the simulated rig, compare with the report's tables, fit "

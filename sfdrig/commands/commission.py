@@ -1,4 +1,5 @@
-"""`sfdrig commission MAP.toml`: the guided first power-up (`control.commissioning`): every input
+"""`sfdrig commission MAP.toml`: the guided first power-up (`control.commissioning.procedure`):
+every input
 at rest, the emergency stop and the watchdog with the operator, a small drive per shaker; a
 record (run file and report) and the proposed corrections of the map as a diff."""
 
@@ -68,7 +69,7 @@ class TerminalOperator:
 
 
 def run(args: argparse.Namespace) -> int:
-    from control.commissioning import CommissionError, CommissionSpec
+    from control.commissioning.procedure import CommissionError, CommissionSpec
     from daq.channels import load_channel_map
     from daq.errors import ConfigFileError, DaqConnectionError, DaqError
 
@@ -113,9 +114,9 @@ def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
                                watchdog_timeout_s=args.watchdog_s or None),
                 TerminalOperator(args.yes), None)
     from daq.channels import load_channel_map
+    from rig_model.params import RigParamsError, rig_params_named_or_file
     from sfdrig.simulated_operator import SimulatedCommissioner
     from simulated_hw.backend import SimulatedBackend
-    from simulated_hw.params import RigParamsError, rig_params_named_or_file
 
     try:
         params = rig_params_named_or_file(args.rig)
@@ -129,8 +130,12 @@ def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
 
 def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, operator: Any,
                 rig: Any) -> int:
-    from control.commissioning import Commissioning, CommissionInterrupted, report_markdown
-    from control.runs import create_run_writer
+    from control.commissioning.procedure import (
+        Commissioning,
+        CommissionInterrupted,
+        report_markdown,
+    )
+    from control.run.files import create_run_writer
 
     out = Path(args.out)
     stamp = time.strftime("%Y%m%d-%H%M%S")

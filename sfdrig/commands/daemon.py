@@ -2,13 +2,14 @@
 
 Chooses the backend from the command line (the simulated rig, paced to the wall clock or as fast
 as possible, or NI-DAQmx through the local driver or a gRPC device server), loads the channel map
-and rig configuration, and serves `control.daemon.Daemon` until SIGTERM or Ctrl-C, which shut
+and rig configuration, and serves `control.daemon.daemon.Daemon` until SIGTERM or Ctrl-C, which shut
 down the safe way (drives ramped to zero, run file closed valid, marked aborted with the reason).
 
 The first line on stdout is ``command=<endpoint> data=<endpoint>``; the same endpoints go to
 ``RUNS_DIR/daemon.json`` for the client commands.
 
-One daemon per runs directory and per board (`control.instance`): a second one is refused with
+One daemon per runs directory and per board (`control.daemon.instance`): a second one is refused
+with
 the first one's pid and endpoints, before it touches the runs directory or the board.
 """
 
@@ -24,10 +25,10 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
-from control.daemon import Daemon, DaemonConfig
-from control.instance import AlreadyRunning, InstanceLock, device_lock, runs_lock
-from control.native_memory import pin_mmap_threshold
-from control.security import KeyFileError, load_server_keys
+from control.daemon.daemon import Daemon, DaemonConfig
+from control.daemon.instance import AlreadyRunning, InstanceLock, device_lock, runs_lock
+from control.daemon.native_memory import pin_mmap_threshold
+from control.wire.security import KeyFileError, load_server_keys
 from daq.channels import ChannelMap, default_channel_map, load_channel_map
 from daq.errors import ChannelConfigError, DaqConnectionError, DaqError
 from sfdrig.commands._client_args import DEFAULT_RUNS_DIR, STATE_FILE_NAME
@@ -114,8 +115,8 @@ def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[An
         watchdog = args.watchdog_s if args.watchdog_s > 0 else None
         return (NidaqmxBackend(grpc_target=args.grpc_target, watchdog_timeout_s=watchdog,
                                ao_ring_s=ring), channel_map, None)
+    from rig_model.params import RigParams, rig_params_named_or_file
     from simulated_hw.backend import SimulatedBackend
-    from simulated_hw.params import RigParams, rig_params_named_or_file
 
     params = rig_params_named_or_file(args.rig) if args.rig else RigParams()
     backend = SimulatedBackend(params, seed=args.seed, realtime=not args.fast, ao_ring_s=ring)
@@ -151,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     # lock-in product waited on it was delayed by every other process (underflows at load 2-4)
     threadpool_limits(limits=1, user_api="blas")
     # Freed sample arrays go back to the kernel, not scattered over the malloc arenas: RSS flat
-    # over days of sweeps (control.native_memory)
+    # over days of sweeps (control.daemon.native_memory)
     logging.getLogger("sfdrig.daemon").info("%s", pin_mmap_threshold())
     try:
         scheduling = apply_priority(args.priority)
@@ -218,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def take_locks(args: argparse.Namespace, channel_map: ChannelMap) -> list[InstanceLock]:
-    """The runs directory's lock and, on a board, the device's (`control.instance`); held for
+    """The runs directory's lock and, on a board, the device's (`control.daemon.instance`); held for
     the life of the process (the kernel drops them when it ends, however it ends)."""
     runs_dir = Path(args.runs_dir)
     locks = [runs_lock(runs_dir).acquire()]

@@ -21,11 +21,11 @@ from pathlib import Path
 from typing import Any
 
 from analysis.report import write_report
-from control.client import CommandClient, Subscriber
-from control.run_summary import peak_line
+from control.wire.client import CommandClient, Subscriber
+from control.wire.summary_lines import peak_line
+from rig_model.params import rig_params_named_or_file
 from sfdrig.commands.structure import run_structure_tests
 from sfdrig.commands.sweep import UM, achieved, follow, run_summary
-from simulated_hw.params import rig_params_named_or_file
 
 NAME = "demo"
 HELP = "run a dry and a lubricated sweep on the simulated rig, store them, summarise, report"

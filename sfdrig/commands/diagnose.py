@@ -113,7 +113,7 @@ def _run(args: argparse.Namespace) -> int:
         write_json,
         write_report,
     )
-    from simulated_hw.params import RigParamsError, load_rig_params
+    from rig_model.params import RigParamsError, load_rig_params
 
     def log(msg: str) -> None:
         if not args.quiet:

@@ -7,8 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+from rig_model.params import RigParamsError, load_rig_params
 from sfdrig.commands._batch import run_each
-from simulated_hw.params import RigParamsError, load_rig_params
 from storage import open_run
 from storage.errors import ImportDataError
 from storage.importers import CANONICAL, import_file, parse_assignments, parse_scale

@@ -2,7 +2,7 @@
 
 Gives a server key pair, and one key pair per client: commanders may send commands and read live
 data; readers may only read live data. Copy ``DIR/server.key`` and ``DIR/clients/NAME.key_secret``
-to each client; keep ``DIR/server.key_secret`` on the rig PC. See `control.security`.
+to each client; keep ``DIR/server.key_secret`` on the rig PC. See `control.wire.security`.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from control.security import KeyFileError, make_keys
+from control.wire.security import KeyFileError, make_keys
 
 NAME = "keys"
 HELP = "make CURVE keys (server, commanders, read-only viewers) for a daemon off loopback"

@@ -6,7 +6,7 @@ The daemon runs on the rig PC, next to the DAQ hardware, and publishes every blo
 proxy runs on another host (a lab server): it subscribes to the daemon (XSUB) and re-publishes to
 any number of subscribers (XPUB), using ZeroMQ's own ``zmq.proxy``, so the cost of fan-out (copies,
 slow subscribers, network) lands on the proxy host and never on the acquisition loop. Subscribers
-(``sfdrig watch``, ``sfdrig sweep``, notebooks with `control.client.Subscriber`) connect to the
+(``sfdrig watch``, ``sfdrig sweep``, notebooks with `control.wire.client.Subscriber`) connect to the
 proxy, anywhere on the network; commands still go straight to the daemon's command socket::
 
     rig PC:       sfdrig daemon --backend nidaqmx --data-endpoint tcp://10.0.0.5:5556 \\
@@ -32,7 +32,7 @@ from pathlib import Path
 
 import zmq
 
-from control.security import (
+from control.wire.security import (
     DATA_DOMAIN,
     is_loopback,
     load_client_keys,

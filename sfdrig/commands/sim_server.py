@@ -36,8 +36,8 @@ def run(args: argparse.Namespace) -> int:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     from daq.channels import default_channel_map, load_channel_map
     from daq.errors import ChannelConfigError
+    from rig_model.params import RigParamsError, rig_params_named_or_file
     from simulated_hw.grpc_server import SimulatedDeviceServer
-    from simulated_hw.params import RigParamsError, rig_params_named_or_file
 
     if not 0 <= args.port <= 65535:
         print(f"sim-server: --port {args.port} is not a TCP port (0..65535)", file=sys.stderr)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from control.client import CommandRefused, DaemonUnavailable
-from control.run_summary import peak_line
+from control.wire.client import CommandRefused, DaemonUnavailable
+from control.wire.summary_lines import peak_line
 from sfdrig.commands._client_args import add_connection_arguments, command_client
 
 NAME = "status"

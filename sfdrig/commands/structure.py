@@ -16,8 +16,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from control.client import CommandRefused, DaemonUnavailable
-from control.programs import (
+from control.run.files import create_run_writer
+from control.run.programs.procedures import (
     FlowSpec,
     ImpactSpec,
     ProbeCalSpec,
@@ -27,14 +27,14 @@ from control.programs import (
     run_probe_calibration,
     run_static_test,
 )
-from control.runs import create_run_writer
+from control.wire.client import CommandRefused, DaemonUnavailable
 from daq.channels import default_channel_map, load_channel_map
+from rig_model.params import RigParams, rig_params_named_or_file
 from sfdrig.commands._client_args import add_connection_arguments, command_client
 from sfdrig.commands.sweep import sweep_fields
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
 from sfdrig.terminal_operator import run_test
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams, rig_params_named_or_file
 
 NAME = "structure"
 HELP = ("run the static, impact, probe-calibration and flow tests on the daemon's rig with this "

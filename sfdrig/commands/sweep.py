@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from control.client import CommandClient, CommandRefused, DaemonUnavailable, Subscriber
-from control.run_summary import end_line, peak_line
+from control.wire.client import CommandClient, CommandRefused, DaemonUnavailable, Subscriber
+from control.wire.summary_lines import end_line, peak_line
 from sfdrig.commands._client_args import add_connection_arguments, command_client, subscriber
 
 NAME = "sweep"

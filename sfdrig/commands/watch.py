@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from control.client import DaemonUnavailable
+from control.wire.client import DaemonUnavailable
 from sfdrig.commands._client_args import add_connection_arguments, subscriber
 from sfdrig.commands.sweep import step_line
 

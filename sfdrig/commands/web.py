@@ -20,8 +20,8 @@ from pathlib import Path
 from aiohttp import web as aioweb
 from threadpoolctl import threadpool_limits
 
-from control.client import DaemonUnavailable
-from control.security import KeyFileError, is_loopback
+from control.wire.client import DaemonUnavailable
+from control.wire.security import KeyFileError, is_loopback
 from sfdrig.commands._client_args import STATE_FILE_NAME, _state, add_connection_arguments, keys
 from web.auth import OPERATOR, VIEWER
 from web.feed import DaemonLink

@@ -22,6 +22,8 @@ from daq.errors import (
     SAMPLE_RATE_TOO_HIGH,
     WRITE_FAILED_WATCHDOG_EXPIRED,
 )
+from rig_model.params import RigParams
+from rig_model.rig import RigModel
 from simulated_hw.board import ao_stream, thermocouple
 from simulated_hw.board import digital as digital_io
 from simulated_hw.board.codes import (
@@ -42,8 +44,6 @@ from simulated_hw.board.safe_states import EmergencyStop, SafeStates
 from simulated_hw.board.sensor_wiring import floating, sensors_on
 from simulated_hw.board.tasks import AiRing, SimTask
 from simulated_hw.board.watchdog import Watchdog
-from simulated_hw.params import RigParams
-from simulated_hw.rig import RigModel
 
 _log = logging.getLogger(__name__)
 

@@ -9,9 +9,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from daq.channels import ChannelMap
+from rig_model.rig import RigModel
 from simulated_hw.board.sensor_wiring import floating
 from simulated_hw.board.tasks import SimTask
-from simulated_hw.rig import RigModel
 
 if TYPE_CHECKING:
     from simulated_hw.board.device import SimDevice

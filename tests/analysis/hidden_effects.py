@@ -37,8 +37,9 @@ import numpy as np
 
 from analysis.diagnose.residual_analysis import harmonics
 from daq.channels import default_channel_map
-from simulated_hw import RigParams, SimulatedBackend
-from simulated_hw.params import VISCOSITY_SLOPE_PER_C
+from rig_model import RigParams
+from rig_model.params import VISCOSITY_SLOPE_PER_C
+from simulated_hw import SimulatedBackend
 from storage.runfile import RunWriter
 
 PROBES = ("x1", "x2", "y1", "y2")

@@ -29,9 +29,9 @@ from analysis.calibration.fit import (
 from analysis.calibration.plan import ReportPlan
 from analysis.identify import identify
 from analysis.report_tables import find, load_table
+from rig_model.params import RigParams, rig_params_named_or_file
 from sfdrig.commands.calibrate import simulator
 from sfdrig.report_plan import run_report_plan
-from simulated_hw.params import RigParams, rig_params_named_or_file
 
 #: The fixed bands the simulated identification is judged on, written here (issue 27; the same
 #: bands as issue 28): the report's stated bands for Tables 2 and 3 (C_s: the report's own

@@ -13,9 +13,9 @@ from analysis.diagnose.data import Segment, records_from_arrays, split_segments
 from analysis.diagnose.fitting import apply, arx_linear_guess, levenberg_marquardt
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals, rig_param
 from analysis.diagnose.start import one_mode_estimate
+from rig_model import load_rig_params
+from rig_model.params import RigParams
 from sfdrig.cli import main
-from simulated_hw import load_rig_params
-from simulated_hw.params import RigParams
 from tests.analysis.hidden_effects import make_case
 from tests.analysis.independent_cases import COUPLING_TOLERANCE, make_independent_case
 
@@ -63,7 +63,7 @@ def test_span_blocks_cover_the_span_without_overlap():
 
 def test_replay_of_the_simulator_is_exact_without_noise():
     """The config replay of a force through the rig equals simulate_response itself."""
-    from simulated_hw import simulate_response
+    from rig_model import simulate_response
 
     fs = 5000.0
     rig = RigParams()
@@ -122,7 +122,7 @@ def test_a_parameter_fitted_onto_its_bound_stays_within_it():
 
 
 def test_arx_guess_finds_a_linear_oscillator():
-    from simulated_hw import simulate_response
+    from rig_model import simulate_response
 
     fs = 2000.0
     rig = RigParams().model_copy(update={"seal": RigParams().seal.model_copy(

@@ -28,7 +28,7 @@ from analysis.diagnose.effects import LIBRARY, Context
 from analysis.diagnose.fitting import fit_failure
 from analysis.diagnose.model import Model, rig_param
 from analysis.diagnose.report import diagnosis_json
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 from tests.independent_rig import DahlJoint, Dwell, Generator, RigSpec, Sensors, gain
 
 K_X = 788e3

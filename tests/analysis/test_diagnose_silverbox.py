@@ -12,8 +12,8 @@ import json
 
 import pytest
 
+from rig_model import load_rig_params
 from sfdrig.cli import main
-from simulated_hw import load_rig_params
 
 pytestmark = pytest.mark.needs_shared
 

@@ -6,11 +6,12 @@ from __future__ import annotations
 import pytest
 
 from analysis.diagnose import diagnose, load_run
-from control.pump import PumpRelay
-from control.sweep import SweepEngine
+from control.run.pump import PumpRelay
+from control.run.sweep.engine import SweepEngine
 from daq.channels import default_channel_map
+from rig_model import RigParams
 from sfdrig.cli import main
-from simulated_hw import RigParams, SimulatedBackend
+from simulated_hw import SimulatedBackend
 from storage.runfile import RunWriter
 from tests.analysis.hidden_effects import config_rig
 from tests.independent_rig import Generator, RigSpec, Sensors, Sweep

@@ -5,7 +5,7 @@ removed, as the report's static tests had no journal) and a lubricated unidirect
 X (25 um and 38 um, 20-60 Hz), each written as a run file by `storage.RunWriter`; then
 `analysis.identify` on the files. The simulated values are the rig's parameters, and for the SFD
 damping the energy-equivalent coefficient of eq. 16 with the instantaneous eccentricity over a
-cycle of the identified amplitude (`simulated_hw.film.energy_equivalent_damping`).
+cycle of the identified amplitude (`rig_model.film.energy_equivalent_damping`).
 """
 
 from __future__ import annotations
@@ -19,15 +19,15 @@ import pytest
 
 from analysis.identify import identify, write_results
 from analysis.report import build_report
-from control.programs import StaticSpec, run_static_test
-from control.pump import PumpRelay
-from control.runs import create_run_writer
-from control.safety import SafetyLimits
-from control.sweep import SweepEngine, SweepSpec
+from control.run.files import create_run_writer
+from control.run.programs.procedures import StaticSpec, run_static_test
+from control.run.pump import PumpRelay
+from control.run.safety import SafetyLimits
+from control.run.sweep.engine import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
+from rig_model.film import energy_equivalent_damping
+from rig_model.params import RigParams
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.film import energy_equivalent_damping
-from simulated_hw.params import RigParams
 
 DRY_FREQS = [20.0, 30.0, 60.0, 80.0, 100.0, 150.0, 200.0]  # 40-50 Hz: resonance, > 100 um
 LUB_FREQS = [20.0, 30.0, 40.0, 50.0, 60.0]

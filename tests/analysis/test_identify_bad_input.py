@@ -16,7 +16,7 @@ import pytest
 
 from analysis.identify import identify
 from analysis.report import build_report
-from control.sweep import SweepSpec
+from control.run.sweep.engine import SweepSpec
 from storage import RunWriter, open_run
 from tests.analysis.test_identify_acceptance import DRY_LIMITS, run_sweep
 

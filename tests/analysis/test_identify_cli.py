@@ -8,13 +8,13 @@ from pathlib import Path
 import h5py
 import pytest
 
-from control.programs import FlowSpec, StaticSpec, run_flow_test, run_static_test
-from control.runs import create_run_writer
+from control.run.files import create_run_writer
+from control.run.programs.procedures import FlowSpec, StaticSpec, run_flow_test, run_static_test
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
 from sfdrig.cli import main
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.identify import identify
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 from storage.runfile import RunWriter
 
 

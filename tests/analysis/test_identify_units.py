@@ -12,8 +12,8 @@ from analysis.dwells import Dwell
 from analysis.lubricated import seal_force_1x
 from analysis.sync import harmonics, synthesize, whole_cycle_span
 from analysis.uncertainty import line_fit, probe_gain_u, scatter_u95, t95
-from simulated_hw.film import eccentricity_factor, energy_equivalent_damping
-from simulated_hw.params import RigParams
+from rig_model.film import eccentricity_factor, energy_equivalent_damping
+from rig_model.params import RigParams
 
 FS = 10_000.0
 

@@ -9,12 +9,12 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from control.listener import RecordingListener
-from control.safety import AxisSignals
+from control.run.listener import RecordingListener
+from control.run.safety import AxisSignals
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
+from rig_model.rig import RigModel
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
-from simulated_hw.rig import RigModel
 
 
 class WriteLog(SimulatedBackend):

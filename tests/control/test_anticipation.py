@@ -11,13 +11,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.listener import RecordingListener
-from control.pump import PumpRelay
-from control.safety import AxisSignals, SafetyLimits
-from control.sweep import SweepEngine, SweepSpec
-from control.synthesis import SineSynthesizer
+from control.run.listener import RecordingListener
+from control.run.pump import PumpRelay
+from control.run.safety import AxisSignals, SafetyLimits
+from control.run.sweep.engine import SweepEngine, SweepSpec
+from control.signal.synthesis import SineSynthesizer
 from daq.channels import default_channel_map
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 from tests.control.conftest import make_backend
 
 LIMIT_M = SafetyLimits().displacement_limit_m  # 63.5 um
@@ -226,7 +226,7 @@ class FrequencyWatch(SineSynthesizer):
 @pytest.fixture
 def watched_frequency(monkeypatch):
     FrequencyWatch.changes_under_drive = []
-    monkeypatch.setattr("control.sweep.SineSynthesizer", FrequencyWatch)
+    monkeypatch.setattr("control.run.sweep.engine.SineSynthesizer", FrequencyWatch)
     return FrequencyWatch
 
 

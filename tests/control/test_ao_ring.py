@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.listener import RecordingListener
-from control.safety import LimitTrip, SafetyLimits, SafetyMonitor
-from control.stream import DriveStream
-from control.synthesis import SineSynthesizer
+from control.run.listener import RecordingListener
+from control.run.safety import LimitTrip, SafetyLimits, SafetyMonitor
+from control.run.stream import DriveStream
+from control.signal.synthesis import SineSynthesizer
 from daq.channels import default_channel_map
 from simulated_hw.backend import SimulatedBackend
 from tests.simulated_hw.fake_clock import FakeClock
@@ -185,10 +185,10 @@ def test_a_drive_over_the_limit_trips_before_it_is_written():
 
 
 def test_the_structure_tests_dc_stream_rides_a_stall_on_the_ring():
-    """`control.program_stream.Stream` writes through the same ring: a 0.4 s stall while a DC
+    """`control.run.programs.stream.Stream` writes through the same ring: a 0.4 s stall while a DC
     level is held plays that level (not an underflow), the record is what played, and the
     finish ramps to 0 V and leaves only zeros in the ring."""
-    from control.program_stream import Stream
+    from control.run.programs.stream import Stream
 
     clock = FakeClock()
     be = Played(clock)
@@ -240,7 +240,7 @@ def test_a_stall_just_after_a_new_command_plays_the_new_command_not_the_old_ring
 def test_the_dc_stream_ring_holds_the_level_it_is_moving_to():
     """A stall 0.3 s after a new level (well within a ring of the old one) plays the new ramp
     and level, not the old level the ring held a ring ago."""
-    from control.program_stream import Stream
+    from control.run.programs.stream import Stream
 
     clock = FakeClock()
     be = Played(clock)
@@ -368,7 +368,7 @@ def test_a_late_host_does_not_raise_a_stuck_housing_past_what_it_has_seen():
     drive breaks it away) peaked at 56.7-58.6 um, and was stopped at 90 % of the limit: the
     watched raise went on raising once per block read while the blocks it read were older than
     the lead, so it raised past what it could see. Now it holds while it reads a backlog."""
-    from control.sweep import SweepEngine
+    from control.run.sweep.engine import SweepEngine
 
     peaks = []
     for stall_s in (0.0, 0.12, 0.25):
@@ -448,7 +448,7 @@ class Stalling(SimulatedBackend):
     20-500 ms (seeded)."""
 
     def __init__(self, clock: FakeClock, seed: int, p: float) -> None:
-        from simulated_hw.params import RigParams
+        from rig_model.params import RigParams
 
         super().__init__(RigParams(), seed=5, realtime=True, clock=clock, sleep=clock.sleep,
                          ao_ring_s=2.0)
@@ -472,9 +472,9 @@ def test_a_lubricated_sweep_on_a_stalling_host_approaches_every_step_without_a_t
     the seal's friction stuck the housing, and its regrowth at the same drive set off the
     soft limit's growth check (2 of 100 seeds: the step did not converge). Every step
     converges, the orbit stays under the limit."""
-    from control.pump import PumpRelay
-    from control.spec import SweepSpec
-    from control.sweep import SweepEngine
+    from control.run.pump import PumpRelay
+    from control.run.sweep.engine import SweepEngine
+    from control.run.sweep.spec import SweepSpec
 
     clock = FakeClock()
     be = Stalling(clock, seed, p)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.controller import (
+from control.signal.controller import (
     AmplitudeController,
     DrivePredictor,
     Tolerance,

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from pydantic import BaseModel, ConfigDict
 
-from control.client import CommandClient, CommandRefused, Subscriber
-from control.daemon import TRANSITIONS, Daemon, DaemonConfig, StateMachine, TransitionError
-from control.pump import PumpRelay
-from control.wire import DaemonState
+from control.daemon.daemon import TRANSITIONS, Daemon, DaemonConfig, StateMachine, TransitionError
+from control.run.pump import PumpRelay
+from control.wire.client import CommandClient, CommandRefused, Subscriber
+from control.wire.protocol import DaemonState
 from daq.channels import default_channel_map
 from simulated_hw.backend import SimulatedBackend
 from storage.reader import open_run
@@ -34,8 +34,14 @@ class ScriptSpec(BaseModel):
 
 
 class ScriptEngine:
+    """A run the test scripts block by block, behind `control.run.engine.Engine`."""
+
     gates: dict[str, threading.Event] = {}
     abort_done = threading.Event()
+    can_pause = True
+    steps_total = None
+    desk = None
+    summary: dict = {}
 
     def __init__(self, backend, spec, limits=None, listener=None, pump=None):
         self.backend, self.spec, self.listener, self.pump = backend, spec, listener, pump
@@ -87,6 +93,15 @@ class ScriptEngine:
         self.reason = reason
         self._aborted.set()
         self._running.set()
+
+    def check(self):
+        return None
+
+    def progress_fields(self):
+        return dict(self.progress)
+
+    def tolerance(self):
+        return None
 
 
 @pytest.fixture

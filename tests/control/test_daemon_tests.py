@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from control.client import CommandClient
-from control.daemon import Daemon, DaemonConfig
+from control.daemon.daemon import Daemon, DaemonConfig
+from control.wire.client import CommandClient
 from daq.channels import default_channel_map
 from sfdrig.simulated_operator import SimulatedHands
 from simulated_hw.backend import SimulatedBackend

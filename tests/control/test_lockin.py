@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.lockin import LockIn, cycles_to_samples, relative_change
+from control.signal.lockin import LockIn, cycles_to_samples, relative_change
 
 FS = 10_000.0
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from control.operator import Entry, EntryError, OperatorDesk, Question
+from control.run.programs.operator import Entry, EntryError, OperatorDesk, Question
 
 GAUGE = Entry(name="gauge", label="dial gauge x", quantity="length", unit="in",
               min_si=-2.5e-3, max_si=2.5e-3)

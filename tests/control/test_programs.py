@@ -15,8 +15,9 @@ from analysis.structure import (
     identify_probe_calibration,
     identify_static,
 )
-from control.operator import OperatorDesk, Question
-from control.programs import (
+from control.run.files import create_run_writer
+from control.run.programs.operator import OperatorDesk, Question
+from control.run.programs.procedures import (
     FlowSpec,
     ImpactSpec,
     ProbeCalSpec,
@@ -26,9 +27,8 @@ from control.programs import (
     run_probe_calibration,
     run_static_test,
 )
-from control.runs import create_run_writer
 from daq.channels import default_channel_map
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 from storage import open_run
 from tests.control.conftest import WriteLog
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.errors import InterlockError, TargetError
-from control.listener import RecordingListener
-from control.pump import PumpRelay
-from control.sweep import SweepEngine
+from control.run.errors import InterlockError, TargetError
+from control.run.listener import RecordingListener
+from control.run.pump import PumpRelay
+from control.run.sweep.engine import SweepEngine
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 from tests.control.conftest import make_backend
 
 LUB = {"motion": "x", "lubricated": True, "amplitude_m": [13e-6], "freq_hz": [30.0]}

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.listener import FanOut, RecordingListener
-from control.pump import PumpRelay
-from control.sweep import SweepEngine, SweepSpec
+from control.run.listener import FanOut, RecordingListener
+from control.run.pump import PumpRelay
+from control.run.sweep.engine import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
 from storage import reader, runfile
 from tests.control.conftest import make_backend

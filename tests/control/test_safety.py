@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.errors import LimitTrip, SpecError, TargetError
-from control.listener import RecordingListener
-from control.safety import SafetyLimits, SafetyMonitor
-from control.sweep import SweepEngine, SweepSpec
+from control.run.errors import LimitTrip, SpecError, TargetError
+from control.run.listener import RecordingListener
+from control.run.safety import SafetyLimits, SafetyMonitor
+from control.run.sweep.engine import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
 from daq.errors import DaqTimeoutError
-from simulated_hw.params import RigParams
+from rig_model.params import RigParams
 from tests.control.conftest import TRIP_AT_S, GainJump, GainKnob, WriteLog, make_backend
 
 FS = 10_000

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from control.states import FINAL, TRANSITIONS, State, StateMachine
+from control.run.sweep.states import FINAL, TRANSITIONS, State, StateMachine
 
 
 def test_transitions_follow_the_table_and_report_changes():

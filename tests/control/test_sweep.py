@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from control.listener import RecordingListener
-from control.pump import PumpRelay
-from control.safety import SafetyLimits
-from control.stream import CATCH_UP_BLOCKS
-from control.sweep import SweepEngine, SweepSpec
-from simulated_hw.params import RigParams
+from control.run.listener import RecordingListener
+from control.run.pump import PumpRelay
+from control.run.safety import SafetyLimits
+from control.run.stream import CATCH_UP_BLOCKS
+from control.run.sweep.engine import SweepEngine, SweepSpec
+from rig_model.params import RigParams
 from tests.control.conftest import make_backend
 
 # The simulated dry rig (C_rv = 370 N.s/m, F_mu = 26 N) would answer a 40 N circular load with

@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from control.lockin import LockIn
-from control.synthesis import SineSynthesizer
+from control.signal.lockin import LockIn
+from control.signal.synthesis import SineSynthesizer
 
 FS = 10_000.0
 

@@ -11,9 +11,8 @@ import zmq
 from hypothesis import given
 from hypothesis import strategies as st
 
-from control.client import GapCounter, Subscriber
-from control.publisher import Publisher
-from control.wire import (
+from control.wire.client import GapCounter, Subscriber
+from control.wire.protocol import (
     DaemonState,
     ErrorKind,
     PumpRequest,
@@ -23,6 +22,7 @@ from control.wire import (
     decode_block,
     parse_request,
 )
+from control.wire.publisher import Publisher
 
 
 @pytest.mark.parametrize(("frame", "kind", "message"), [

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from control.security import (
+from control.wire.security import (
     KeyFileError,
     is_loopback,
     load_client_keys,

@@ -12,7 +12,8 @@ import pytest
 from daq.backend import DaqBackend
 from daq.channels import ChannelMap, default_channel_map
 from daq.nidaqmx_backend import NidaqmxBackend
-from simulated_hw import RigParams, SimulatedBackend
+from rig_model import RigParams
+from simulated_hw import SimulatedBackend
 from simulated_hw.grpc_server import SimulatedDeviceServer
 from tests.daq.conftest import FakeClock, on_server
 

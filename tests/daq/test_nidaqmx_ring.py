@@ -9,10 +9,10 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from control.listener import RecordingListener
-from control.safety import SafetyLimits, SafetyMonitor
-from control.stream import DriveStream
-from control.synthesis import SineSynthesizer
+from control.run.listener import RecordingListener
+from control.run.safety import SafetyLimits, SafetyMonitor
+from control.run.stream import DriveStream
+from control.signal.synthesis import SineSynthesizer
 from daq.nidaqmx_backend import NidaqmxBackend
 from simulated_hw.grpc_server import SimulatedDeviceServer
 

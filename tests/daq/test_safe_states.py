@@ -205,8 +205,8 @@ def test_a_sweep_that_underflows_ends_with_the_drives_at_zero(
     """The whole engine through nidaqmx: the loop stalls for 0.2 s mid-step (the fake clock
     jumps), the board underflows, the fade cannot be written any more, and still both drive
     terminals end at 0 V: the AO idle output behaviour does it, not the program."""
-    from control.listener import RecordingListener
-    from control.sweep import SweepEngine, SweepSpec
+    from control.run.listener import RecordingListener
+    from control.run.sweep.engine import SweepEngine, SweepSpec
 
     class Stall(RecordingListener):
         def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
@@ -247,7 +247,7 @@ def _trip_through_nidaqmx(server: SimulatedDeviceServer, ramp_s: float, then: ob
     in the dwell) over ``ramp_s``,
     then the sweep ``then`` on the same backend: (outcome, knob, AO samples the board generated,
     AO samples written, the outcome of ``then``)."""
-    from control.sweep import SweepEngine, SweepSpec
+    from control.run.sweep.engine import SweepEngine, SweepSpec
     from tests.control.conftest import TRIP_AT_S, GainKnob
 
     def rig():
@@ -275,7 +275,7 @@ def test_a_trip_stops_the_board_s_ao_at_once_and_the_motion_within_10_percent(
     it was seen in; the 30 ms queued on the board are never generated, the terminals go to
     0 V (idle output), and the housing peaks at 1.03x the limit (1.68x when the queue and the
     fade played out). The next run primes the stopped AO task again and completes."""
-    from control.sweep import SweepSpec
+    from control.run.sweep.engine import SweepSpec
 
     out, knob, generated, written, after = _trip_through_nidaqmx(
         fast_server, ramp_s=0.1, then=SweepSpec(motion="x", amplitude_m=[20e-6], freq_hz=[60.0]))
@@ -317,8 +317,8 @@ def test_a_force_trip_in_a_test_programme_stops_the_board_s_ao_at_once(
     """The static programme's force limit through nidaqmx: the two blocks queued on the board
     are never generated (the AO task stopped at the end of the block the force was seen in),
     the terminals are at 0 V, and the motion after is read out."""
-    from control.listener import RecordingListener
-    from control.programs import StaticSpec, run_static_test
+    from control.run.listener import RecordingListener
+    from control.run.programs.procedures import StaticSpec, run_static_test
 
     backend = NidaqmxBackend(watchdog_timeout_s=None)
     try:

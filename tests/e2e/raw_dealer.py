@@ -1,4 +1,5 @@
-"""A bare pyzmq DEALER on the daemon's command socket (not `control.client`): what any program on
+"""A bare pyzmq DEALER on the daemon's command socket (not `control.wire.client`): what any program
+on
 the network can send, frame by frame, with a hard deadline on every reply (a hung daemon or a lost
 request: 30 s by default, not a speed figure; how fast the replies come is
 `benchmarks/bench_command_replies.py`'s)."""

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from control.client import CommandClient, CommandRefused, Subscriber
+from control.wire.client import CommandClient, CommandRefused, Subscriber
 from daq.channels import default_channel_map, load_channel_map
 from daq.config_files import to_toml
 from storage.reader import open_run

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from control.client import CommandClient, Subscriber
+from control.wire.client import CommandClient, Subscriber
 from storage.reader import open_run
 
 from .test_stream_e2e import collect_run

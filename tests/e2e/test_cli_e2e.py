@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from control.client import CommandClient, Subscriber
+from control.wire.client import CommandClient, Subscriber
 from storage.reader import open_run
 
 pytestmark = pytest.mark.e2e

@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from control import wire
-from control.client import CommandClient
+from control.wire import protocol as wire
+from control.wire.client import CommandClient
 
 pytestmark = pytest.mark.e2e
 
@@ -56,7 +56,8 @@ def _text(max_len: int, min_len: int = 0):
 
 _RID = {"request_id": _text(128)}
 _IS_DICT = {"spec": lambda v: isinstance(v, dict)}
-#: The protocol as written in this test (not computed with `control.wire`): per command, the
+#: The protocol as written in this test (not computed with `control.wire.protocol`): per command,
+#: the
 #: fields it takes (each with its check), the ones it needs, and how the daemon answers a
 #: well-formed one while idle: ok, refused as "forbidden" or "invalid" (every generated sweep spec
 #: is invalid by construction), "acts" (a valid pump switch: meant to act, not sent), or

@@ -8,7 +8,7 @@ import h5py
 import numpy as np
 import pytest
 
-from control.client import CommandClient, Subscriber
+from control.wire.client import CommandClient, Subscriber
 from tests.e2e.conftest import start_daemon
 from tests.e2e.test_stream_e2e import LONG_X, stacked, until_a_step_is_durable
 

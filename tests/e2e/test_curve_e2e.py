@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from control.client import CommandClient, DaemonUnavailable, Subscriber
-from control.security import load_client_keys, make_keys
+from control.wire.client import CommandClient, DaemonUnavailable, Subscriber
+from control.wire.security import load_client_keys, make_keys
 
 pytestmark = pytest.mark.e2e
 

@@ -48,7 +48,7 @@ def test_demo_stores_runs_and_writes_the_report(tmp_path: Path):
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_demo_on_the_calibrated_report_rig(tmp_path: Path):
-    from simulated_hw.params import rig_params_named_or_file
+    from rig_model.params import rig_params_named_or_file
 
     out = tmp_path / "demo"
     proc = subprocess.run([sys.executable, "-m", "sfdrig", "demo", "--rig", "report", "--out",

@@ -8,7 +8,7 @@ import signal
 
 import pytest
 
-from control.client import Subscriber
+from control.wire.client import Subscriber
 from storage.reader import open_run
 from tests.e2e.test_board_safety_e2e import LONGER_X, _wait_for_event, estop_rig, sfdrig
 

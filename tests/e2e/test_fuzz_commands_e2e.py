@@ -1,5 +1,6 @@
 """Issue 12: property-based fuzz of the command socket of a real daemon process through a raw
-pyzmq DEALER (not `control.client`). Strategies reach lone surrogates, NULs, huge and non-finite
+pyzmq DEALER (not `control.wire.client`). Strategies reach lone surrogates, NULs, huge and
+non-finite
 numbers, deep nesting, many frames and large frames, and sweeps whose every field is hostile.
 
 Asserted for every message: a reply (within `raw_dealer.DEADLINE_S`, a hung daemon, not a slow one:
@@ -17,16 +18,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from control.client import CommandClient, Subscriber
-from control.spec import ControlSettings, SweepSpec
-from control.wire import COMMANDS
+from control.run.sweep.spec import ControlSettings, SweepSpec
+from control.wire.client import CommandClient, Subscriber
+from control.wire.protocol import COMMANDS
 from tests.e2e.raw_dealer import RawDealer
 
 pytestmark = pytest.mark.e2e
 
 CI_EXAMPLES = 1500
 #: the largest request frame the daemon parses [bytes], as the README states it ("a frame over
-#: 1 MB is refused unparsed"): written here, not read from `control.wire`
+#: 1 MB is refused unparsed"): written here, not read from `control.wire.protocol`
 MAX_REQUEST_BYTES = 1_000_000
 LONG_EXAMPLES = 20_000
 

@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-from control.client import CommandClient, Subscriber
+from control.wire.client import CommandClient, Subscriber
 from storage.reader import open_run
 from tests.e2e.raw_dealer import RawDealer
 

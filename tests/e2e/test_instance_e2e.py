@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from control.client import CommandClient
+from control.wire.client import CommandClient
 from tests.e2e.conftest import REPO_ROOT, start_daemon
 from tests.e2e.test_board_safety_e2e import SimServer
 

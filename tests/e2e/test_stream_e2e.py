@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from control.client import CommandClient, Message, Subscriber
+from control.wire.client import CommandClient, Message, Subscriber
 from storage.reader import open_run
 
 pytestmark = pytest.mark.e2e

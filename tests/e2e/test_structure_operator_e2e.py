@@ -13,7 +13,7 @@ import pexpect
 import pytest
 
 from analysis.structure import identify_impact, identify_probe_calibration, identify_static
-from control.client import CommandClient, CommandRefused
+from control.wire.client import CommandClient, CommandRefused
 from storage import open_run
 from tests.e2e.conftest import REPO_ROOT
 
@@ -212,7 +212,7 @@ def test_on_the_nidaqmx_backend_the_person_reads_the_instruments(tmp_path: Path)
     reading and the person's typed dial-gauge reading is what the run keeps."""
     import subprocess
 
-    from simulated_hw.params import RigParams
+    from rig_model.params import RigParams
     from tests.e2e.conftest import start_daemon
 
     rig = RigParams()

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from control.client import CommandClient
-from control.security import make_keys
+from control.wire.client import CommandClient
+from control.wire.security import make_keys
 from storage.reader import open_run
 from tests.e2e.conftest import REPO_ROOT, DaemonProcess, start_daemon
 

@@ -36,7 +36,7 @@ def test_shares_no_code_with_simulated_hw() -> None:
         for node in ast.walk(tree):
             names = ([a.name for a in node.names] if isinstance(node, ast.Import)
                      else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
-            assert not any(n.split(".")[0] in ("simulated_hw", "analysis", "control")
+            assert not any(n.split(".")[0] in ("rig_model", "simulated_hw", "analysis", "control")
                            for n in names), f"{path.name} imports {names}"
 
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from rig_model.params import RigParams, rig_params_named_or_file
 from sfdrig.cli import main
-from simulated_hw.params import RigParams, rig_params_named_or_file
 
 
 def _one_line_error(capsys) -> str:

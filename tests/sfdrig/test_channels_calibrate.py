@@ -10,15 +10,15 @@ from pathlib import Path
 
 import pytest
 
-from control.operator import Question
-from control.program_specs import ProbeCalSpec, StaticSpec
-from control.programs import run_probe_calibration, run_static_test
-from control.runs import create_run_writer
+from control.run.files import create_run_writer
+from control.run.programs.operator import Question
+from control.run.programs.procedures import run_probe_calibration, run_static_test
+from control.run.programs.specs import ProbeCalSpec, StaticSpec
 from daq.channels import load_channel_map
+from rig_model.params import RigParams
 from sfdrig.cli import main
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 from tests.conftest import REPO_ROOT
 
 EXAMPLE = REPO_ROOT / "examples" / "channels_report_rig.toml"

@@ -29,7 +29,7 @@ def test_the_web_command_does_not_load_the_simulator() -> None:
     # a fresh interpreter: what `sfdrig web` imports before it serves
     code = ("import sys; from sfdrig.cli import build_parser, _module_of; "
             "build_parser(_module_of(['web'])).parse_args(['web', '--port', '0']); "
-            "print(sorted(m for m in ('numba', 'h5py', 'simulated_hw', 'analysis') "
+            "print(sorted(m for m in ('numba', 'h5py', 'rig_model', 'simulated_hw', 'analysis') "
             "if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from control.commissioning import (
+from control.commissioning.procedure import (
     CommissionError,
     Commissioning,
     CommissionInterrupted,
@@ -24,9 +24,9 @@ from control.commissioning import (
     CommissionSpec,
 )
 from daq.channels import ChannelMap, channel_map_from_dict, load_channel_map
+from rig_model.params import RigParams
 from sfdrig.simulated_operator import SimulatedCommissioner
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 from storage import open_run
 from tests.conftest import REPO_ROOT
 from tests.simulated_hw.fake_clock import FakeClock
@@ -237,7 +237,7 @@ def test_a_drive_over_2_n_or_near_the_resonance_is_refused() -> None:
 
 
 def test_the_record_holds_the_stages_and_the_findings(tmp_path: Path) -> None:
-    from control.runs import create_run_writer
+    from control.run.files import create_run_writer
 
     clock = FakeClock(0.0)
     wiring = changed(_swap_x1_y1)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from control.sweep import load_sweep_spec
+from control.run.sweep.engine import load_sweep_spec
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import io
 
-from control.run_summary import end_line, peak_line
-from control.sweep import SweepEngine, SweepSpec
+from control.run.sweep.engine import SweepEngine, SweepSpec
+from control.wire.summary_lines import end_line, peak_line
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
 from sfdrig.commands import sweep as sweep_cmd
-from simulated_hw.params import RigParams
 from tests.control.conftest import GainJump, make_backend
 
 

@@ -8,7 +8,7 @@ import subprocess
 import sys
 import threading
 
-from control.wire import encode_header
+from control.wire.protocol import encode_header
 from tests.fake_daemon import block_message
 
 

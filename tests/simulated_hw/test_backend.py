@@ -13,8 +13,9 @@ from daq import (
     default_channel_map,
 )
 from daq.errors import DaqError
-from simulated_hw import RigParams, SimulatedBackend, load_rig_params
-from simulated_hw.params import RigParamsError, rig_params_from_dict
+from rig_model import RigParams, load_rig_params
+from rig_model.params import RigParamsError, rig_params_from_dict
+from simulated_hw import SimulatedBackend
 
 CM = default_channel_map()
 

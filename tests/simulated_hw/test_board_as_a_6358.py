@@ -195,6 +195,6 @@ def test_thermocouple_on_the_oil_input_reads_the_oil_temperature(paced: grpc.Cha
     value = task.read()
     # the rig's oil starts at its initial temperature; 10 mV/C through a 16-bit +/-1 V range
     # reads within a count (30.5 uV = 0.003 C) plus the sensor's noise
-    from simulated_hw.params import RigParams
+    from rig_model.params import RigParams
     assert value == pytest.approx(RigParams().oil.initial_temperature_c, abs=0.5)
     task.close()

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from daq import default_channel_map
-from simulated_hw import RigParams, SimulatedBackend, simulate_response
-from simulated_hw.params import Film, Oil, Seal
+from rig_model import RigParams, simulate_response
+from rig_model.params import Film, Oil, Seal
+from simulated_hw import SimulatedBackend
 
 FS = 10_000.0
 CM = default_channel_map()
@@ -350,7 +351,7 @@ def test_film_added_mass_acts_on_the_motion_relative_to_the_journal(freq_hz: flo
 def test_the_journal_stops_the_housing_at_the_clearance():
     """The issue's case: 100 N at 40 Hz on the dry rig went to 410 um, three times the 127 um
     clearance. With the journal as a wall the orbit ends at c and the contact force shows."""
-    from simulated_hw.rig import simulate_response
+    from rig_model.rig import simulate_response
 
     fs = 10_000.0
     t = np.arange(20_000) / fs
@@ -370,7 +371,7 @@ def test_the_journal_stops_the_housing_at_the_clearance():
 def test_contact_restitution_reflects_the_approach_speed():
     """A housing thrown at the wall (no spring, no friction, no film) comes back at e times its
     speed: the coefficient of restitution."""
-    from simulated_hw.rig import simulate_response
+    from rig_model.rig import simulate_response
 
     fs = 10_000.0
     params = RigParams.model_validate({

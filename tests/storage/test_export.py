@@ -19,14 +19,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 from nptdms import TdmsFile
 
-from control.programs import StaticSpec, run_static_test
-from control.pump import PumpRelay
-from control.runs import create_run_writer
-from control.sweep import SweepEngine, SweepSpec
+from control.run.files import create_run_writer
+from control.run.programs.procedures import StaticSpec, run_static_test
+from control.run.pump import PumpRelay
+from control.run.sweep.engine import SweepEngine, SweepSpec
 from daq.channels import default_channel_map
+from rig_model.params import RigParams
 from sfdrig.cli import main
 from simulated_hw.backend import SimulatedBackend
-from simulated_hw.params import RigParams
 from storage import RunWriter, open_run
 from storage.errors import ExportError
 from storage.exporters import column_name, export_run

@@ -548,7 +548,7 @@ def test_channel_map_json_is_stored_verbatim(tmp_path: Path) -> None:
 
 def test_the_event_kinds_of_the_listener_and_the_run_file_agree() -> None:
     """Two copies (control must not import h5py to name an event): kept equal here."""
-    from control.listener import EVENT_KINDS as sent
+    from control.run.listener import EVENT_KINDS as sent
     from storage.layout import EVENT_KINDS as stored
 
     assert sent == stored and "fault" in stored

@@ -12,7 +12,7 @@ import os
 import subprocess
 from pathlib import Path
 
-from control.wire import encode_header
+from control.wire.protocol import encode_header
 from tests.fake_daemon import block_message, until
 from web.feed import LOST_AFTER_S, DaemonLink
 from web.view import LiveView

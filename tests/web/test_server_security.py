@@ -17,7 +17,7 @@ import pytest
 from aiohttp import WSMsgType
 from aiohttp.test_utils import TestClient, TestServer
 
-from control.security import make_keys
+from control.wire.security import make_keys
 from web.auth import COOKIE
 from web.server import WS_REVOKED, WebApp, WebConfig, host_name
 from web.view import LiveView

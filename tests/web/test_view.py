@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from control.client import Message
+from control.wire.client import Message
 from web.view import LiveView, step_point, upward_crossings
 
 FS = 10_000.0

@@ -1,0 +1,1 @@
+"""`sfdrig commission`: the first power-up of a rig and what it concludes."""

@@ -1,0 +1,4 @@
+"""A run on the rig: the one stream of a run (listener, drive stream, AO writer), its safety limits
+and
+pump interlock, its errors, its file and summary; the sweep (`run.sweep`) and the operator
+programmes (`run.programs`) are the two kinds of run."""

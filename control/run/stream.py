@@ -1,0 +1,614 @@
+"""The acquisition loop's I/O: synthesise a drive block, check it, write it, read the next AI
+block, convert, check, publish. Where a sweep writes AO (the structure tests write theirs in
+`control.run.programs.stream`).
+
+AO streams ahead of the generation by ``ahead_blocks`` blocks, through
+`control.run.ao_writer.AoWriter`.
+On a regenerating backend (`DaqBackend.ao_ring_samples`) the blocks go into the ring at their
+absolute sample and a late host makes the board repeat the ring instead of underflowing: the
+stream then skips forward (the synthesiser is phase-continuous by absolute sample) and records
+what the ring played. A stop (abort, pause, normal end) rewrites the ring from the generation
+plus the writer's margin with the fade and then zeros over a whole ring, so nothing stale can
+play again whatever the host does next. A trip does not let the AO queued play: the backend
+stops it (`DaqBackend.cut_ao`) and the drives are at 0 V from the first sample not generated
+(or, where the backend resumes, fade from it). Samples read are kept for a while
+(`DriveStream.window`) so that the lock-in can look back over them.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from control.run.ao_writer import AoWriter
+from control.run.errors import LimitTrip
+from control.run.listener import Listener
+from control.run.safety import SafetyMonitor
+from control.signal.synthesis import SineSynthesizer
+from daq.backend import DaqBackend
+
+log = logging.getLogger(__name__)
+
+#: What the soft limit (`DriveStream.guard`) leaves of the drive.
+GUARD_CUT = 0.5
+#: The stop budget: an abort has the drives at 0 V this long after it is handled [s].
+STOP_S = 0.1
+#: Ring mode: blocks of the predicted drive written at once beyond the lead, until the ring
+#: holds the current command's continuation up to a ring ahead (8: a 2 s ring in 0.25 s); then
+#: extended by this many at a time (through gRPC each write is a round trip or two).
+PREDICT_BLOCKS = 8
+#: Ring mode: blocks written at once when a new command restarts the prediction. Commands come
+#: every block while a step is approached, so the 8 a cycle never got further than 80 ms into
+#: the ring and a host late past that heard an earlier drive (or the zeros before the step):
+#: 300 ms of the present command at each command keep most late hosts on it (bench_lab_day).
+PREDICT_RESTART_BLOCKS = 30
+#: A cycle reads at most this many blocks more while the backend holds AI read ahead (a host
+#: catching up): 0.25 s of 10 ms blocks.
+CATCH_UP_BLOCKS = 25
+
+
+@dataclass
+class _SynthState:
+    values: dict[str, object]
+
+
+def _snapshot(s: SineSynthesizer) -> _SynthState:
+    return _SynthState({k: (v.copy() if isinstance(v, np.ndarray) else v)
+                        for k, v in vars(s).items()})
+
+
+def _restore(s: SineSynthesizer, st: _SynthState) -> None:
+    for k, v in st.values.items():
+        setattr(s, k, v)
+
+
+class DriveStream:
+    """Block-wise AO/AI streaming with limit checks and a safe shutdown.
+
+    Parameters
+    ----------
+    backend : DaqBackend
+        Configured, not started.
+    synth : SineSynthesizer
+        The drive generator (its sample counter must be 0: it starts with the run).
+    monitor : SafetyMonitor
+        Checks AO blocks before writing and AI blocks on arrival.
+    listener : Listener
+        Receives every block.
+    block_samples : int
+        Samples per read and per write.
+    ahead_blocks : int
+        Blocks written ahead of the generation (the prefill).
+    keep_samples : int
+        How many past samples `window` can reach, ending at the sample advanced to (a cycle
+        that catches up may read `CATCH_UP_BLOCKS` beyond it: those are kept too).
+    interrupt : callable, optional
+        Called after every block (outside shutdown); may raise to stop the caller.
+    """
+
+    def __init__(
+        self,
+        backend: DaqBackend,
+        synth: SineSynthesizer,
+        monitor: SafetyMonitor,
+        listener: Listener,
+        block_samples: int,
+        ahead_blocks: int = 1,
+        keep_samples: int = 0,
+        interrupt: Callable[[], None] | None = None,
+    ) -> None:
+        if block_samples < 1:
+            raise ValueError(f"block_samples must be >= 1, got {block_samples}")
+        if ahead_blocks < 1:
+            raise ValueError(f"ahead_blocks must be >= 1, got {ahead_blocks}")
+        self.backend = backend
+        self.cm = backend.channel_map
+        self.synth = synth
+        self.monitor = monitor
+        self.listener = listener
+        self.block = block_samples
+        self.ahead_blocks = ahead_blocks
+        # one cycle may read `CATCH_UP_BLOCKS` past the sample its caller advanced to: what
+        # the caller keeps, ending there, must still be here
+        self.keep = max(keep_samples, block_samples) + CATCH_UP_BLOCKS * block_samples
+        self.interrupt = interrupt
+        self.sample = 0  # next AI sample to be read (= samples read so far)
+        self.check_limits = True
+        #: called with (first_sample, ai, ao) for every block read, e.g. lock-in accumulators
+        self.taps: list[Callable[[int, np.ndarray, np.ndarray], None]] = []
+        self._fifo: deque[np.ndarray] = deque()  # AO blocks written, not yet read
+        self._states: deque[_SynthState] = deque()  # the synthesiser before each of them
+        self._hist: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        self._hist_len = 0
+        self._started = False
+        self.zero_sample: int | None = None  # first sample of the final all-zero output
+        #: the end of the last samples a late host's ring played other than the present
+        #: command's drive (an earlier command beyond the prediction): what was read before it
+        #: answered another drive than the synthesiser's (-1: none)
+        self.other_drive_end = -1
+        #: the soft limit: called with every engineering block read while limits are checked;
+        #: a non-empty answer (why) halves the drive at once and is kept in `guard_event`
+        #: (first sample of the block, why) until the caller clears it
+        self.guard: Callable[[np.ndarray], str] | None = None
+        self.guard_event: tuple[int, str] | None = None
+        #: the first journal-housing contact seen (sample, message), checked on every block
+        self.contact_event: tuple[int, str] | None = None
+        #: writes the AO (queued, or into the backend's ring) and measures how the host kept
+        #: its lead
+        self.writer = AoWriter(backend, block_samples, ahead_blocks * block_samples)
+        # ring mode: a copy of the synthesiser running ahead of the lead, whose samples (the
+        # current command's continuation) fill the ring up to a ring ahead of the generation,
+        # so a late host hears the drive it would have written, not the drive of a ring ago
+        self._pred: SineSynthesizer | None = None
+        self._pred_end = 0
+        self._pred_prev: np.ndarray | None = None  # the drive before the next predicted block
+        # ring mode: what the ring may hold beyond the prediction (earlier commands' drives, or
+        # zeros): at most `_ring_amp_v` per channel [V], at `_ring_freq_hz` (NaN: unknown).
+        # A command that this does not stay under is predicted over the whole ring at once
+        self._ring_amp_v = np.zeros(len(self.cm.ao))
+        self._ring_freq_hz = 0.0
+        # ring mode: after a prediction over the whole ring, the slots it could not reach (the
+        # lead playing then, and the margin behind it): zeroed once played (absolute samples)
+        self._wrap_clear: tuple[int, int] | None = None
+
+    @property
+    def min_ao_backlog(self) -> int | None:
+        """The fewest AO samples written ahead of the generation before a write (ring mode:
+        negative when the generation had passed them)."""
+        return self.writer.min_backlog
+
+    @property
+    def min_ao_backlog_sample(self) -> int:
+        """The AI sample at which `min_ao_backlog` was seen."""
+        return self.writer.min_backlog_at
+
+    # --- running ----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Prefill the AO buffer (zeros from the synthesiser) and start the tasks."""
+        blocks = []
+        for _ in range(self.ahead_blocks):
+            state = _snapshot(self.synth)
+            ao = self.synth.next_block(self.block)
+            self.monitor.check_ao(ao, self.synth.sample - ao.shape[1])
+            self._fifo.append(ao)
+            self._states.append(state)
+            blocks.append(ao)
+        self.writer.prefill(np.concatenate(blocks, axis=1))
+        self.backend.start()
+        self._started = True
+
+    def _write(self, ao: np.ndarray, state: _SynthState, check: bool) -> None:
+        """Write ``ao``, synthesised from ``state`` (kept until the block is read: a trip's
+        fade starts from the synthesiser as it was at the first sample not generated)."""
+        if check:
+            self.monitor.check_ao(ao, self.synth.sample - ao.shape[1])
+        if self._predicted(ao.shape[1]):
+            self.writer.pos += ao.shape[1]  # the ring holds these samples already
+        else:
+            self.writer.write(ao)
+        self._fifo.append(ao)
+        self._states.append(state)
+
+    def cycle(self) -> None:
+        """Write the next drive block(s), read the next AI block, publish and check it.
+
+        Without a ring: one block. With one: first, if the host is late, skip the samples the
+        ring plays (or is about to) and record what it plays there; then write while the lead
+        is short (one block when on time; up to the whole lead after a skip)."""
+        self._catch_up()
+        while self.writer.wants_write():
+            state = _snapshot(self.synth)
+            ao = self.synth.next_block(self.block)
+            try:
+                self._write(ao, state, check=True)
+            except BaseException:
+                _restore(self.synth, state)  # the fade must continue from what was written
+                raise
+            if not self.writer.regenerating:
+                break
+        if self.writer.regenerating:
+            self._predict()
+        self._read_one(check=self.check_limits)
+        if self.interrupt is not None:
+            self.interrupt()
+        # a host behind the board (it read ahead, `ai_on_host`) takes up to a quarter second
+        # of blocks in this cycle: each block still checked, published and recorded, but the
+        # AO and the caller's per-cycle work once (through gRPC a cycle costs round trips)
+        extra = 0
+        while extra < CATCH_UP_BLOCKS and len(self._fifo) > 1 and \
+                self.backend.ai_on_host() >= self.block:
+            self._read_one(check=self.check_limits)
+            if self.interrupt is not None:
+                self.interrupt()
+            extra += 1
+
+    def _predicted(self, n: int) -> bool:
+        """Whether the ring already holds the next ``n`` samples as the synthesiser will make
+        them: the prediction started from its state with the same commands since."""
+        return (self._pred is not None and self._pred.revision == self.synth.revision
+                and self._pred_end >= self.writer.pos + n)
+
+    def _predict(self) -> None:
+        """Ring mode: extend the prediction (the synthesiser's continuation without a new
+        command) by up to `PREDICT_BLOCKS` blocks, up to a ring ahead of the generation less a
+        block and the margin. A new command restarts it from the position with
+        `PREDICT_RESTART_BLOCKS` at once; a predicted block
+        over a drive limit ends it until the next command."""
+        w = self.writer
+        assert w.ring is not None
+        self._clear_wrap()
+        if self._pred is None or self._pred.revision != self.synth.revision or \
+                self._pred_end < w.pos:
+            if self._pred is not None and self._pred.revision == self.synth.revision and \
+                    self._pred_end < 0:
+                return  # over a limit: nothing more until the next command
+            self._pred = SineSynthesizer(self.synth.n_channels, self.synth.fs)
+            _restore(self._pred, _snapshot(self.synth))
+            self._pred_end = w.pos
+            self._pred_prev = self.monitor.last_ao
+            target_v = np.abs(self.synth.target_phasors)
+            # a ramp's continuation holds the ramp too: its start, its end, or between
+            amp_v = np.maximum(np.abs(self.synth.phasors), target_v)
+            freq_hz = self.synth.target_freq_hz
+            # what a late host hears past the restart's blocks is an earlier command: safe only
+            # if it is at this frequency and no larger than this one's end (a raise); after a
+            # lower drive or a new frequency the whole ring is the new command's (issue 21:
+            # after a step to 20 Hz a 0.5 s stall played the 60 Hz step's 1.97 V of a ring ago
+            # and the orbit tripped)
+            stale_ok = (not np.any(self._ring_amp_v > 0)) or (
+                freq_hz == self._ring_freq_hz and self.synth.freq_hz == freq_hz
+                and bool(np.all(self._ring_amp_v <= target_v * (1 + 1e-9) + 1e-12)))
+            most = PREDICT_RESTART_BLOCKS if stale_ok else w.ring // self.block
+        else:
+            most = PREDICT_BLOCKS
+            amp_v, freq_hz, stale_ok = self._ring_amp_v, self._ring_freq_hz, True
+        limit = w.generated + w.ring - self.block - w.margin
+        if most == PREDICT_BLOCKS and limit - self._pred_end < PREDICT_BLOCKS * self.block:
+            return  # extended by whole chunks: one write per chunk, not one per block
+        start, parts = self._pred_end, list[np.ndarray]()
+        while len(parts) < most and self._pred_end + self.block <= limit:
+            blk = self._pred.next_block(self.block)
+            try:
+                self.monitor.check_ao_after(blk, self._pred_end, self._pred_prev)
+            except LimitTrip:
+                self._pred_end = -1
+                break
+            self._pred_prev = blk[:, -1:]
+            parts.append(blk)
+            self._pred_end += self.block
+        if parts:
+            w.write_at(start, np.concatenate(parts, axis=1))
+        whole = self._pred_end >= 0 and self._pred_end + self.block > limit
+        if whole and not stale_ok:
+            # the ring holds this command's continuation all round but for the slots of the
+            # lead now playing and the margin behind it: zeros there once the lead has played
+            self._ring_amp_v, self._ring_freq_hz = amp_v.copy(), freq_hz
+            first, last = self._pred_end, start + w.ring
+            if self._wrap_clear is not None:  # one still pending: both are zeroed (what a
+                # newer prediction reached is skipped, `_clear_wrap`)
+                first, last = min(first, self._wrap_clear[0]), max(last, self._wrap_clear[1])
+            self._wrap_clear = (first, last)
+        elif whole:
+            self._ring_amp_v, self._ring_freq_hz = np.maximum(self._ring_amp_v, amp_v), freq_hz
+        else:
+            self._ring_amp_v = np.maximum(self._ring_amp_v, amp_v)
+            self._ring_freq_hz = freq_hz if stale_ok else math.nan
+
+    def _clear_wrap(self) -> None:
+        """Ring mode: zero what a prediction over the whole ring left of the drive before it
+        (`_wrap_clear`) once the generation has passed it, beyond any newer prediction."""
+        if self._wrap_clear is None:
+            return
+        first, last = self._wrap_clear
+        w = self.writer
+        assert w.ring is not None
+        if w.generated + w.ring < last:
+            return  # the lead written before the prediction is still to play
+        if self._pred is not None and self._pred_end >= 0:
+            first = max(first, self._pred_end)
+        if first < last:
+            w.write_at(first, np.zeros((len(self.cm.ao), last - first)))
+        self._wrap_clear = None
+
+    def _forget_prediction(self) -> None:
+        self._pred = None
+
+    def _catch_up(self) -> None:
+        """Ring mode: read the generation; if it has come within the margin of the next
+        position, move past it by whole blocks: the synthesiser is advanced over them (so the
+        drive keeps its phase) and what the ring plays there is queued for the record."""
+        skip = self.writer.late_skip(self.sample)
+        if skip:
+            self._skip(skip)
+        if self.writer.regenerating:
+            self.writer.clear_played()
+
+    @property
+    def read_lag(self) -> int:
+        """How far the reading is behind the writing beyond the lead [samples]: 0 while the
+        host keeps up; after a late host's skip, the backlog it still has to read (a command
+        given now is seen that much later than the lead says)."""
+        return max(self.writer.pos - self.sample - self.ahead_blocks * self.block, 0)
+
+    def generation(self) -> int:
+        """The sample the AO is generating now: on a ring the board's count (a late host's
+        reads lag it), otherwise the next AI sample to read (the lead keeps them together).
+        What a stop's event is stamped with: its 0 V is timed from here."""
+        if self.writer.regenerating and self._started:
+            try:
+                return max(self.backend.ao_generated(), self.sample)
+            except Exception:  # noqa: BLE001 - a stamp, never a reason to fail the stop
+                log.exception("could not read the AO generation count")
+        return self.sample
+
+    def margin_report(self) -> str:
+        """The AO lead and how it was kept (the underflow margin, or how often and how late
+        the host was and what the ring repeated), in words."""
+        return self.writer.report(self.cm.sample_rate_hz)
+
+    def advance_to(self, sample: int) -> None:
+        """Cycle until every sample before ``sample`` has been read."""
+        while self.sample < sample:
+            self.cycle()
+
+    def _read_one(self, check: bool) -> None:
+        volts = self.backend.read_ai(self.block)
+        eng = self.cm.to_engineering(volts)
+        ao = self._fifo.popleft()
+        if self._states:
+            self._states.popleft()
+        first = self.sample
+        self.sample += self.block
+        self._hist.append((first, eng, ao))
+        self._hist_len += self.block
+        while self._hist_len - self._hist[0][1].shape[1] >= self.keep:
+            old = self._hist.popleft()
+            self._hist_len -= old[1].shape[1]
+        for tap in list(self.taps):
+            tap(first, eng, ao)
+        self.listener.on_block(first, eng, ao)
+        if self.contact_event is None:
+            # contact is a fault whenever it happens, also after a trip
+            self.contact_event = self.monitor.contact(eng, first)
+        if check:
+            self.monitor.check_ai(eng, first)
+            if self.guard is not None:
+                why = self.guard(eng) if self.guard_event is None else ""
+                if why:
+                    # halve both drives within a block, from what is generated next (the AO
+                    # already written still plays): the trip level is not reached
+                    self.synth.ramp_to(self.synth.phasors * GUARD_CUT, None,
+                                       self.block / self.cm.sample_rate_hz)
+                    self.guard_event = (first, why)
+
+    @property
+    def kept_samples(self) -> int:
+        """Past samples held for `window` now (at most ``keep`` plus one block)."""
+        return self._hist_len
+
+    def window(self, first: int, last: int) -> tuple[np.ndarray, np.ndarray]:
+        """AI (engineering units) and AO samples ``first <= k < last``, already read."""
+        if last > self.sample:
+            raise ValueError(f"window end {last} not read yet (read up to {self.sample})")
+        if not self._hist or first < self._hist[0][0]:
+            raise ValueError(f"window start {first} no longer kept")
+        ai_parts, ao_parts = [], []
+        for b0, eng, ao in self._hist:
+            b1 = b0 + eng.shape[1]
+            if b1 <= first or b0 >= last:
+                continue
+            lo, hi = max(first, b0) - b0, min(last, b1) - b0
+            ai_parts.append(eng[:, lo:hi])
+            ao_parts.append(ao[:, lo:hi])
+        return np.concatenate(ai_parts, axis=1), np.concatenate(ao_parts, axis=1)
+
+    # --- stopping ---------------------------------------------------------------------------
+    def ramp_down(self, ramp_s: float) -> None:
+        """Ramp both drives to zero (normal stop or pause) and keep streaming until they are.
+
+        Ring mode: the whole ramp is written at once, from the generation plus the margin,
+        followed by zeros over the rest of the ring, so a host late during the ramp cannot
+        make the ring repeat the drive from before it."""
+        if self.writer.regenerating:
+            self._catch_up()
+            self._truncate_to_margin()
+        n = self.synth.fade_out(ramp_s)
+        end = self.synth.sample + n + self.block * (self.ahead_blocks + 1)
+        if self.writer.regenerating and n:
+            self._write_fade(n)
+        self.advance_to(end)
+
+    def _write_fade(self, n: int) -> None:
+        """Ring mode: the next ``n`` samples of the synthesiser (a fade) from the position
+        (the generation plus the margin), then zeros over the ring, in one write."""
+        ring = self.writer.ring
+        assert ring is not None
+        at = self.writer.pos
+        m = self.block * math.ceil(n / self.block)
+        if self.writer.generated + ring - at < m + self.block:
+            return  # longer than the ring: written block by block as usual
+        parts = []
+        for _ in range(m // self.block):
+            state = _snapshot(self.synth)
+            ao = self.synth.next_block(self.block)
+            self.monitor.check_ao(ao, self.synth.sample - self.block)
+            self._fifo.append(ao)
+            self._states.append(state)
+            parts.append(ao)
+        self.writer.fill_ring(at, np.concatenate(parts, axis=1))
+        self.writer.pos = at + m
+
+    def _truncate_to_margin(self) -> int:
+        """Ring mode: drop what was written beyond the generation plus the margin (whole
+        blocks), putting the synthesiser back to that sample; returns it."""
+        w = self.writer
+        at = self.block * math.ceil(max(w.generated + w.margin, self.sample) / self.block)
+        index = (at - self.sample) // self.block
+        self._forget_prediction()
+        if index < len(self._fifo):
+            _restore(self.synth, self._states[index])
+            for _ in range(len(self._fifo) - index):
+                self._fifo.pop()
+                self._states.pop()
+            w.pos = at
+            # the slew check goes on from the last sample kept, not from the blocks dropped
+            before = self._fifo[-1] if self._fifo else (self._hist[-1][2] if self._hist
+                                                         else None)
+            self.monitor.last_ao = before
+        return w.pos
+
+    def shutdown(self, fade_s: float, cut: bool = False) -> None:
+        """Fade both drives to zero, write two blocks of zeros, read out the buffer, stop the tasks.
+
+        ``cut`` (a trip): the AO already queued is not let play out first. The backend drops
+        what it has not generated (`DaqBackend.cut_ao`) and the fade starts from the first
+        sample dropped, or the drives are at 0 V from there (a board's AO task stopped);
+        either way the motion after the trip is read out for as long as the queue and the
+        fade would have lasted.
+
+        Never raises: a failure on the way is logged, and the tasks are stopped regardless. If
+        reading fails (a stalled acquisition), the fade and the zeros are still written. The
+        first sample of the final zeros is kept in `zero_sample`.
+        """
+        reading = True
+        try:
+            if self._started:
+                at, tail = self._tail(fade_s, cut)
+                if not self.writer.regenerating:
+                    for ao in tail:
+                        self.backend.write_ao(ao)
+                elif tail:  # the fade, then zeros over the rest of the ring, in one write
+                    self.writer.fill_ring(at, np.concatenate(tail, axis=1), urgent=True)
+                while reading and self._fifo:
+                    try:
+                        self._read_one(check=False)
+                    except Exception:
+                        log.exception("acquisition failed while ramping down; the fade is "
+                                      "written")
+                        reading = False
+                    if tail and self.writer.regenerating:
+                        # once the fade has played, zeros over it too: the whole ring is 0 V
+                        # even if the host now stalls past a ring before the task stops
+                        self.writer.generated = self.sample
+                        self.writer.clear_played()
+        except Exception:
+            log.exception("error while ramping the drives down; stopping the tasks")
+            try:
+                if self.writer.regenerating:
+                    assert self.writer.ring is not None
+                    self.writer.write_at(self.backend.ao_generated() + self.writer.margin,
+                                         np.zeros((len(self.cm.ao), self.writer.ring)))
+                else:
+                    self.backend.write_ao(np.zeros((len(self.cm.ao), self.block)))
+            except Exception:
+                log.exception("could not write zeros")
+        finally:
+            try:
+                self.backend.stop()
+            except Exception:
+                log.exception("could not stop the tasks")
+            self._started = False
+
+    def _tail(self, fade_s: float, cut: bool) -> tuple[int, list[np.ndarray]]:
+        """The end of the stream after a stop: where the AO still to write goes and what it is
+        (the fade and the zeros; nothing when a cut stopped the generation), with the queue of
+        blocks to read rebuilt to what the outputs will show. Ring mode: a normal stop starts
+        from the generation plus the margin (not after the lead), a cut from the sample the
+        backend names, past what the host wrote if it was late (the ring played that)."""
+        fs = self.cm.sample_rate_hz
+        at, resumes = self.synth.sample, True
+        if cut:
+            done = self.backend.cut_ao()
+            if self.writer.regenerating and done.at > self.writer.pos:
+                self._skip(done.at - self.writer.pos)  # the ring played it
+            at, resumes = min(max(done.at, self.sample), self.synth.sample), done.resumes
+            if at < self.synth.sample:
+                self._rewind(at)
+        elif self.writer.regenerating:  # the fade from the generation plus the margin
+            self._catch_up()
+            at = self._truncate_to_margin()
+        queued = (np.concatenate(list(self._fifo), axis=1) if self._fifo
+                  else np.zeros((len(self.cm.ao), 0)))
+        kept = queued[:, :at - self.sample]
+        new = []
+        if resumes:
+            n = self.synth.fade_out(fade_s)
+            if n:
+                new.append(self.synth.next_block(n))
+        self.zero_sample = at + sum(a.shape[1] for a in new)
+        # at least two blocks of zeros: the run file shows the drives at rest after the fade
+        end = self.zero_sample + 2 * self.block
+        if cut:  # read the motion out for as long as the queue and the fade would have taken
+            end = max(end, self.sample + self.block * (self.ahead_blocks + 1)
+                      + math.ceil(fade_s * fs))
+        elif self.writer.regenerating:  # the file holds the whole 100 ms stop budget and more
+            end = max(end, max(self.sample, self.writer.generated) + math.ceil(STOP_S * fs)
+                      + self.block)
+        end = self.sample + math.ceil((end - self.sample) / self.block) * self.block
+        new.append(np.zeros((len(self.cm.ao), end - self.zero_sample)))
+        self.synth.sample = end
+        self.writer.pos = end
+        tail = np.concatenate([kept, *new], axis=1)
+        self._fifo = deque(tail[:, i:i + self.block] for i in range(0, tail.shape[1], self.block))
+        self._states.clear()
+        return at, (new if resumes else [])
+
+    def _skip(self, n: int) -> None:
+        """Move past at least ``n`` samples (whole blocks) the ring plays, as a late host does."""
+        for _ in range(math.ceil(n / self.block)):
+            self._states.append(_snapshot(self.synth))
+            meant = self.synth.next_block(self.block)
+            played = self.writer.played(self.block)
+            if not np.allclose(played, meant, rtol=0.0, atol=1e-9):
+                self.other_drive_end = self.writer.pos
+            self._fifo.append(played)
+            # the next block written follows what the ring played, not what was last written
+            # (at 150 Hz a 10 ms block is 1.5 cycles: that reference saw a jump of 2x the drive)
+            self.monitor.last_ao = played
+        self._follow_what_played(self._states[-1], self._fifo[-1])
+
+    def _follow_what_played(self, before: _SynthState, played: np.ndarray) -> None:
+        """After a skip: the drive goes on from what the ring played, not from where the
+        command would be by now. Commands come every block while a step is approached, and each
+        one's prediction reaches only a few blocks into the ring, so a host late past it hears an
+        earlier command's drive (or the zeros of the ring-down before the step); jumping from
+        there to the present command is a step in the drive (bench_lab_day on a loaded PC:
+        3.5 V played, 8 V written next at 150 Hz, 'would slew at 4.5e4 V/s'). The last block
+        played is fitted with the synthesiser's own phase over it; where it fits (the same
+        frequency: an earlier command or zeros), the drive continues from those phasors and
+        ramps to the present command again. Where it does not (a drive from another frequency,
+        a ring ago), the synthesiser goes on from zero and the slew check decides."""
+        phase = SineSynthesizer(self.synth.n_channels, self.synth.fs)
+        unit = np.ones(self.synth.n_channels, dtype=np.complex128)
+        basis_rows = []
+        for p in (unit, -1j * unit):  # Re(e^{i theta}) = cos, Re(-i e^{i theta}) = sin
+            _restore(phase, before)
+            phase.ramp_to(p, None, 0.0)
+            basis_rows.append(phase.next_block(played.shape[1])[0])
+        # the envelope may be ramping within the block: phasors linear in time, evaluated at
+        # the next sample (t = 1)
+        t = np.arange(played.shape[1]) / played.shape[1]
+        basis = np.stack([*basis_rows, basis_rows[0] * t, basis_rows[1] * t], axis=1)
+        coef, *_ = np.linalg.lstsq(basis, played.T, rcond=None)
+        fitted = (coef[0] + coef[2]) - 1j * (coef[1] + coef[3])
+        residual = played.T - basis @ coef
+        rms = float(np.sqrt(np.mean(played ** 2)))
+        if float(np.sqrt(np.mean(residual ** 2))) > 0.02 * rms + 1e-3:
+            log.warning("the ring played a drive at another frequency while the host was "
+                        "late; the drive goes on from zero")
+            fitted = np.zeros_like(fitted)
+        self.synth.resume_from(fitted, self.block / self.cm.sample_rate_hz)
+
+    def _rewind(self, at: int) -> None:
+        """Put the synthesiser back to where it was at sample ``at`` (queued, not generated)."""
+        self._forget_prediction()
+        first = self.synth.sample - self.block * len(self._states)
+        index = (at - first) // self.block
+        _restore(self.synth, self._states[index])
+        if at > self.synth.sample:
+            self.synth.next_block(at - self.synth.sample)

@@ -1,0 +1,2 @@
+"""The sine sweep: its spec and plan, the engine, each dwell (approach, converge, settle,
+record)."""

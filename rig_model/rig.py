@@ -1,0 +1,371 @@
+"""The rig in software: shakers, structure, seal, film, oil system and sensors, block by block.
+
+`RigModel.process` takes the AO block (volts, as written to the board) and returns the AI block
+(volts, as the board would read it). Everything is deterministic for a given seed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from daq.channels import ChannelKind, ChannelMap
+from rig_model import physics
+from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
+
+
+def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
+    """The flat parameter vector of `physics.integrate` for ``params``."""
+    st, film, eff = params.structure, params.film, params.effects
+    p = np.zeros(physics.N_PARAMS)
+    p[physics.P_M] = st.mass_kg
+    p[physics.P_MF] = film.fluid_mass_kg
+    p[physics.P_D] = film.added_mass()
+    p[physics.P_KX] = st.stiffness_x_n_per_m
+    p[physics.P_KY] = st.stiffness_y_n_per_m
+    p[physics.P_KXY] = st.stiffness_xy_n_per_m
+    p[physics.P_CRV] = st.residual_damping_ns_per_m
+    p[physics.P_DM_Y] = st.mass_y() - st.mass_kg
+    p[physics.P_DC_Y] = st.residual_damping_y() - st.residual_damping_ns_per_m
+    mu0, _ = film.reference_viscosity()
+    p[physics.P_C0] = film.eq16_damping_centred(mu0)
+    p[physics.P_FMU] = params.seal.friction_force_n if params.seal.enabled else 0.0
+    p[physics.P_SEAL_KT] = params.seal.contact_stiffness_n_per_m or 0.0
+    p[physics.P_SEAL_KTY] = params.seal.contact_stiffness_y_n_per_m or 0.0
+    p[physics.P_FMU_WET] = params.seal.wet_friction_increase_n if params.seal.enabled else 0.0
+    p[physics.P_CLEAR] = film.clearance_m
+    p[physics.P_ECC] = 1.0 if film.eccentricity_law else 0.0
+    if eff.cross_coupling.enabled:
+        cc = eff.cross_coupling
+        p[physics.P_CXY], p[physics.P_CYX] = cc.c_xy_ns_per_m, cc.c_yx_ns_per_m
+        p[physics.P_DXY], p[physics.P_DYX] = cc.d_xy_kg, cc.d_yx_kg
+    if eff.cubic_stiffness.enabled:
+        p[physics.P_K3] = eff.cubic_stiffness.k3_n_per_m3
+    if eff.quadratic_stiffness.enabled:
+        p[physics.P_K2] = eff.quadratic_stiffness.k2_n_per_m2
+    if eff.air_entrainment.enabled:
+        ae = eff.air_entrainment
+        p[physics.P_AIR_K] = ae.coefficient_s_per_m
+        p[physics.P_AIR_MAX] = ae.max_fraction
+    p[physics.P_AIR_TAU] = eff.air_entrainment.time_constant_s
+    sm = eff.second_mode
+    p[physics.P_FRAME_M] = sm.modal_mass_kg
+    if sm.enabled:
+        wn = 2 * math.pi * sm.frequency_hz
+        p[physics.P_FRAME_ON] = 1.0
+        p[physics.P_FRAME_K] = sm.modal_mass_kg * wn**2
+        p[physics.P_FRAME_C] = 2 * sm.damping_ratio * sm.modal_mass_kg * wn
+    p[physics.P_CONTACT_ON] = 1.0 if params.contact.enabled else 0.0
+    p[physics.P_RESTITUTION] = params.contact.restitution
+    p[physics.P_CONTACT_MU] = params.contact.friction_coefficient
+    jm = eff.joint_microslip
+    if jm.enabled and max(jm.stiffness_n_per_m, jm.stiffness_y()) > 0:
+        p[physics.P_JOINT_ON] = 1.0 if jm.mode == "housing" else 2.0
+        p[physics.P_JOINT_K] = jm.stiffness_n_per_m
+        p[physics.P_JOINT_KY] = jm.stiffness_y()
+    p[physics.P_JOINT_FS] = jm.slip_force_n
+    p[physics.P_JOINT_FSY] = jm.slip_force_y()
+    rs = eff.relaxing_stiffness
+    p[physics.P_RELAX_TAU] = rs.relaxation_time_s
+    if rs.enabled:
+        p[physics.P_RELAX_KX] = rs.stiffness_x_n_per_m
+        p[physics.P_RELAX_KY] = rs.stiffness_y_n_per_m
+    p[physics.P_DT] = 1.0 / sample_rate_hz
+    p[physics.P_NSUB] = params.steps_per_sample(sample_rate_hz)
+    return p
+
+
+def simulate_response(
+    force_n: np.ndarray,
+    params: RigParams,
+    sample_rate_hz: float,
+    fill: float | np.ndarray = 1.0,
+    viscosity_scale: float | np.ndarray = 1.0,
+    state: np.ndarray | None = None,
+) -> tuple[physics.Truth, np.ndarray]:
+    """Replay a measured force (N, shape (2, n)) through the structure, seal and film.
+
+    Returns the true response and the final state vector (pass it back to continue). This is
+    the path the diagnosis uses: the same equations as the live simulation, without shakers,
+    sensors or the oil system.
+    """
+    force = np.ascontiguousarray(force_n, dtype=np.float64)
+    if force.ndim != 2 or force.shape[0] != 2:
+        raise ValueError(f"force_n must have shape (2, n), got {force.shape}")
+    n = force.shape[1]
+    fill_arr = np.broadcast_to(np.asarray(fill, dtype=np.float64), (n,)).copy()
+    visc_arr = np.broadcast_to(np.asarray(viscosity_scale, dtype=np.float64), (n,)).copy()
+    s = np.zeros(physics.N_STATE) if state is None else state.copy()
+    out = np.empty((physics.N_OUT, n))
+    physics.integrate(force, fill_arr, visc_arr, kernel_params(params, sample_rate_hz), s, out)
+    return physics.Truth.from_kernel(out, force, np.zeros(n)), s
+
+
+NOISE_TABLE_SIZE = 1 << 20  # standard normal draws reused with random offsets (4 MiB)
+REST_HORIZON_S = 120.0  # `RigModel.rest` follows the oil this long (24 drain time constants)
+
+
+class RigModel:
+    """The whole simulated rig behind a channel map: AO volts in, AI volts out."""
+
+    def __init__(self, params: RigParams, channel_map: ChannelMap, seed: int = 0) -> None:
+        self.params = params
+        self.channel_map = channel_map
+        self.fs = channel_map.sample_rate_hz
+        self.dt = 1.0 / self.fs
+        self._rng = np.random.default_rng(seed)
+        self._noise = self._rng.standard_normal(NOISE_TABLE_SIZE, dtype=np.float32)
+        self._kp = kernel_params(params, self.fs)
+        self._state = np.zeros(physics.N_STATE)
+        self.sample_index = 0
+        # shakers: first-order drive dynamics, one filter state per axis
+        a = math.exp(-2 * math.pi * params.shaker.bandwidth_hz * self.dt)
+        self._shaker_pole = a
+        self._shaker_state = np.zeros(2)
+        self._ao_axis = [ao.axis for ao in channel_map.ao]
+        # oil system
+        self.pump_on = False
+        self._relay_names = {d.name for d in channel_map.do}
+        oil = params.oil
+        self._p_in = 0.0
+        self._p_rec = 0.0
+        self._fill = 1.0 if oil.initially_filled else 0.0
+        self._temp_c = oil.initial_temperature_c
+        self._mu_ref, self._t_ref = params.film.reference_viscosity()
+        # impact hammer: pending half-sine pulses (start sample, axis, peak N, duration samples)
+        self._impacts: list[tuple[int, int, float, int]] = []
+        # a hand pushing with a force gauge: held force per axis, ramped (from, to, start, width)
+        self._push = [(0.0, 0.0, 0, 1), (0.0, 0.0, 0, 1)]
+        self._build_sensor_tables()
+        self.last_truth: physics.Truth | None = None
+
+    # --- operator-side actions ------------------------------------------------------------
+    def set_relay(self, name: str, value: bool) -> None:
+        if name not in self._relay_names:
+            raise KeyError(f"no relay named {name!r}")
+        self.pump_on = bool(value)
+
+    def set_journal(self, installed: bool) -> None:
+        """Journal in (the seal rubs and the housing meets the journal at the clearance, as
+        configured) or out (the report's structure tests: no seal, no wall), from the next
+        block on."""
+        if not hasattr(self, "_journal_config"):
+            self._journal_config = (self.params.seal.enabled, self.params.contact.enabled)
+        seal, contact = self._journal_config
+        self.params.seal.enabled = bool(installed) and seal
+        self.params.contact.enabled = bool(installed) and contact
+        self._kp = kernel_params(self.params, self.fs)
+
+    def schedule_impact(self, axis: str, peak_force_n: float, duration_s: float = 0.002,
+                        delay_s: float = 0.0) -> None:
+        """Strike the housing with the hammer: a half-sine pulse, read on the hammer channel."""
+        if axis not in ("x", "y"):
+            raise ValueError(f"axis must be 'x' or 'y', got {axis!r}")
+        start = self.sample_index + int(round(delay_s * self.fs))
+        width = max(2, int(round(duration_s * self.fs)))
+        self._impacts.append((start, 0 if axis == "x" else 1, float(peak_force_n), width))
+
+    def push(self, axis: str, force_n: float, ramp_s: float = 0.5) -> None:
+        """A hand pushes the housing along ``axis`` with ``force_n`` (0: lets go), reached over
+        ``ramp_s`` and held: an external force that no channel reads (the person reads the
+        force gauge)."""
+        if axis not in ("x", "y"):
+            raise ValueError(f"axis must be 'x' or 'y', got {axis!r}")
+        a = 0 if axis == "x" else 1
+        now = self._push_at(a, np.array([self.sample_index]))[0]
+        self._push[a] = (float(now), float(force_n), self.sample_index,
+                         max(1, int(round(ramp_s * self.fs))))
+
+    def rest(self, seconds: float) -> None:
+        """The rig left at rest for ``seconds`` while no task runs (drives at 0 V): the oil
+        keeps pressurising or venting, and the film filling or draining, as the pump relay says.
+        Only these slow states advance, and only over the first `REST_HORIZON_S` (by then the
+        film and the pressures have settled; the oil's warming beyond it is not followed). The
+        housing is not integrated: with no drive it settles within a fraction of a second."""
+        left = int(round(min(max(seconds, 0.0), REST_HORIZON_S) * self.fs))
+        while left > 0:  # one second at a time: bounded memory
+            n = min(left, int(self.fs))
+            self._oil_block(n)
+            left -= n
+
+    def continue_from(self, other: RigModel) -> None:
+        """Take over ``other``'s physical state (the housing's motion, the shakers' forces, the
+        oil and the film, the pump relay): the same rig, observed from now on through this
+        model's channels and sample rate."""
+        self._state = other._state.copy()
+        self._shaker_state = other._shaker_state.copy()
+        self._p_in, self._p_rec, self._fill = other._p_in, other._p_rec, other._fill
+        self._temp_c = other._temp_c
+        self.pump_on = other.pump_on
+
+    @property
+    def temperature_c(self) -> float:
+        return self._temp_c
+
+    @property
+    def film_fill(self) -> float:
+        return self._fill
+
+    @property
+    def inlet_pressure_pa(self) -> float:
+        return self._p_in
+
+    def film_viscosity_pa_s(self) -> float:
+        return self._mu_ref * math.exp(-VISCOSITY_SLOPE_PER_C * (self._temp_c - self._t_ref))
+
+    # --- one block ------------------------------------------------------------------------
+    def process(self, ao_volts: np.ndarray) -> np.ndarray:
+        """Advance the rig by one block. ``ao_volts`` (n_ao, n) -> AI volts (n_ai, n)."""
+        ao = np.asarray(ao_volts, dtype=np.float64)
+        n = ao.shape[1]
+        # shaker force along each axis
+        sh = self.params.shaker
+        cmd = np.zeros((2, n))
+        for row, axis in enumerate(self._ao_axis):
+            cmd[0 if axis == "x" else 1] = sh.force_per_volt_n * ao[row]
+        force = np.empty_like(cmd)
+        physics.shaker_force(cmd, self._shaker_pole, sh.max_force_n, self._shaker_state, force)
+        hammer = self._hammer_block(n)
+        idx = self.sample_index + np.arange(n)
+        external = force + hammer + np.stack([self._push_at(0, idx), self._push_at(1, idx)])
+        fill, visc, p_in, p_rec, temp = self._oil_block(n)
+        out = np.empty((physics.N_OUT, n))
+        physics.integrate(external, fill, visc, self._kp, self._state, out)
+        truth = physics.Truth.from_kernel(out, force, np.abs(hammer).sum(axis=0))
+        self.last_truth = truth
+        flow = self._eq5_flow_l_per_min(p_in - p_rec, visc)
+        signals = self._true_signals(truth, p_in, p_rec, flow, temp)
+        self.sample_index += n
+        return self._sensors(signals, n)
+
+    # --- internals ------------------------------------------------------------------------
+    def _hammer_block(self, n: int) -> np.ndarray:
+        hammer = np.zeros((2, n))
+        keep = []
+        k0 = self.sample_index
+        for start, axis, peak, width in self._impacts:
+            idx = np.arange(max(start, k0), min(start + width, k0 + n))
+            if idx.size:
+                hammer[axis, idx - k0] = peak * np.sin(np.pi * (idx - start + 0.5) / width)
+            if start + width > k0 + n:
+                keep.append((start, axis, peak, width))
+        self._impacts = keep
+        return hammer
+
+    def _push_at(self, axis: int, idx: np.ndarray) -> np.ndarray:
+        start_n, end_n, start, width = self._push[axis]
+        return start_n + (end_n - start_n) * np.clip((idx - start) / width, 0.0, 1.0)
+
+    def _oil_block(self, n: int) -> tuple[np.ndarray, ...]:
+        oil = self.params.oil
+        t = (np.arange(n) + 1) * self.dt
+        target_in = oil.supply_pressure_pa if self.pump_on else 0.0
+        target_rec = oil.recirculation_pressure_pa if self.pump_on else 0.0
+        decay = np.exp(-t / oil.pressure_time_constant_s)
+        p_in = target_in + (self._p_in - target_in) * decay
+        p_rec = target_rec + (self._p_rec - target_rec) * decay
+        # the film fills while the inlet is pressurised and drains otherwise, sample by sample
+        pressurised = p_in > 0.5 * oil.supply_pressure_pa if oil.supply_pressure_pa > 0 else (
+            np.zeros(n, dtype=bool))
+        fill = np.empty(n)
+        physics.fill_track(pressurised, self.dt / oil.fill_time_constant_s,
+                           self.dt / oil.drain_time_constant_s, self._fill, fill)
+        rate = (oil.warming_c_per_hour / 3600.0) if self.pump_on else 0.0
+        drift = self.params.effects.viscosity_drift
+        if drift.enabled:
+            rate += drift.warming_c_per_s
+        temp = self._temp_c + rate * t
+        visc = np.exp(-VISCOSITY_SLOPE_PER_C * (temp - self._t_ref))
+        self._p_in, self._p_rec = float(p_in[-1]), float(p_rec[-1])
+        self._fill, self._temp_c = float(fill[-1]), float(temp[-1])
+        return fill, visc, p_in, p_rec, temp
+
+    def _eq5_flow_l_per_min(self, dp: np.ndarray, visc_scale: np.ndarray) -> np.ndarray:
+        film = self.params.film
+        q = math.pi * film.diameter_m * film.clearance_m**3 * np.maximum(dp, 0.0) / (
+            12 * self._mu_ref * visc_scale * film.length_m
+        )
+        return q * 60_000.0
+
+    def _true_signals(self, tr: physics.Truth, p_in: np.ndarray, p_rec: np.ndarray,
+                      flow: np.ndarray, temp: np.ndarray) -> dict[str, np.ndarray]:
+        return {
+            "fx": tr.fx_n, "fy": tr.fy_n,
+            "x": tr.x_m, "y": tr.y_m,
+            "ax": tr.ax_m_per_s2, "ay": tr.ay_m_per_s2,
+            "p_in": p_in, "p_rec": p_rec,
+            "q_in": flow, "q_out": flow,  # the sealed damper does not leak (section V)
+            "t_oil": temp, "hammer": tr.hammer_n,
+        }
+
+    def _build_sensor_tables(self) -> None:
+        """Which true signal each AI channel sees, with which gain, noise and delay."""
+        cm, eff, noise = self.channel_map, self.params.effects, self.params.noise
+        self._sources: list[str] = []
+        gains, offsets, sigmas, lo, hi = [], [], [], [], []
+        delays: list[float] = []
+        for ch in cm.ai:
+            src = _source_for(ch.name, ch.kind)
+            self._sources.append(src)
+            g = ch.gain_v_per_unit
+            if eff.probe_gain_error.enabled and eff.probe_gain_error.channel == ch.name:
+                g *= eff.probe_gain_error.gain_ratio
+            sign = -1.0 if eff.reversed_polarity.enabled and \
+                ch.name in eff.reversed_polarity.channels else 1.0
+            gains.append(sign * g)
+            offsets.append(sign * ch.offset_v)
+            sigmas.append(getattr(noise, ch.kind.value) * ch.gain_v_per_unit)
+            lo.append(ch.range_v[0])
+            hi.append(ch.range_v[1])
+            d = 0.0
+            if eff.channel_delay.enabled and eff.channel_delay.channel == ch.name:
+                d = eff.channel_delay.delay_s
+            delays.append(d)
+        self._gain = np.array(gains)
+        self._offset = np.array(offsets)
+        self._sigma = np.array(sigmas)
+        self._lo = np.array(lo)
+        self._hi = np.array(hi)
+        bits = cm.device.ai_bits
+        self._lsb = (2 * cm.device.ai_range_v) / 2**bits
+        # fractional delays: keep enough history per delayed channel
+        self._delays = {i: d * self.fs for i, d in enumerate(delays) if d > 0}
+        self._history = {i: np.zeros(int(math.ceil(d)) + 2) for i, d in self._delays.items()}
+
+    def _sensors(self, signals: dict[str, np.ndarray], n: int) -> np.ndarray:
+        true = np.empty((len(self._sources), n))
+        for i, src in enumerate(self._sources):
+            true[i] = signals[src]
+        for i, d in self._delays.items():
+            true[i] = self._delay(i, true[i], d)
+        starts = self._rng.integers(0, self._noise.size, size=len(self._sources))
+        volts = np.empty_like(true)
+        physics.sensor_volts(true, self._gain, self._offset, self._noise, starts, self._sigma,
+                             self._lsb, self._lo, self._hi, volts)
+        return volts
+
+    def _delay(self, i: int, sig: np.ndarray, d: float) -> np.ndarray:
+        hist = self._history[i]
+        ext = np.concatenate([hist, sig])
+        idx = np.arange(sig.size) + hist.size - d
+        out = np.interp(idx, np.arange(ext.size), ext)
+        self._history[i] = ext[-hist.size:]
+        return out
+
+
+def _source_for(name: str, kind: ChannelKind) -> str:
+    """Map an AI channel to the true signal it measures, by kind and axis letter of its name."""
+    if kind is ChannelKind.LOAD_CELL:
+        if name == "hammer":
+            return "hammer"
+        return "fy" if "y" in name else "fx"
+    if kind is ChannelKind.EDDY_CURRENT_PROBE:
+        return "y" if name.startswith("y") else "x"
+    if kind is ChannelKind.ACCELEROMETER:
+        return "ay" if "y" in name else "ax"
+    if kind is ChannelKind.PRESSURE_4_20MA:
+        return "p_rec" if "rec" in name else "p_in"
+    if kind is ChannelKind.FLOW:
+        return "q_out" if "out" in name else "q_in"
+    return "t_oil"

@@ -1,0 +1,1 @@
+"""Rig files shipped with the package (TOML, `rig_model.params.NAMED_RIGS`)."""

@@ -1,1 +1,0 @@
-"""Rig files shipped with the package (TOML, `simulated_hw.params.NAMED_RIGS`)."""
