@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -124,9 +125,26 @@ def _wait_for_event(sub: Subscriber, containing: str, timeout_s: float = 30.0) -
             return msg.header["message"]
 
 
+def _wait_for_step(sub: Subscriber, run_id: str, timeout_s: float = 60.0) -> None:
+    """Until run ``run_id`` has recorded a whole step (its drives are up). A run that ends
+    first, or no step within ``timeout_s`` while other messages (heartbeats) keep coming, fails
+    here with what came instead; the loop once waited for ever on heartbeats."""
+    deadline = time.monotonic() + timeout_s
+    while (left := deadline - time.monotonic()) > 0:
+        msg = sub.recv(timeout_s=left)
+        assert msg is not None, f"run {run_id}: nothing published for {left:.0f} s"
+        if msg.topic == "step" and msg.header["run_id"] == run_id:
+            return
+        if msg.topic == "event" and f"run {run_id} " in msg.header["message"]:
+            raise AssertionError(f"run {run_id} ended before a step: {msg.header['message']}")
+    raise AssertionError(f"run {run_id}: no step within {timeout_s:g} s")
+
+
 def estop_rig(tmp_path: Path) -> tuple[SimServer, DaemonProcess]:
     """The sim-server with an emergency stop wired to Dev1/port0/line1, and a paced daemon on
-    it through nidaqmx, without a watchdog (a loaded machine must not trip it in these tests)."""
+    it through nidaqmx with the production AO design: the board's 1 s watchdog and the 2 s
+    regenerating ring (without the watchdog the daemon falls back to the non-regenerating
+    stream, which underflowed (-200290) 2.4 s into a sweep at load 5: issue 27)."""
     data = default_channel_map().model_dump(mode="json")
     data["estop"] = {"physical_channel": "Dev1/port0/line1"}
     channels = tmp_path / "channels.toml"
@@ -134,8 +152,7 @@ def estop_rig(tmp_path: Path) -> tuple[SimServer, DaemonProcess]:
     assert load_channel_map(channels).estop is not None
     server = SimServer("--fast", "--channels", str(channels))
     d = start_daemon(tmp_path / "runs", "--backend", "nidaqmx", "--grpc-target",
-                     server.address, "--channels", str(channels), "--watchdog-s", "0",
-                     fast=False)
+                     server.address, "--channels", str(channels), fast=False)
     return server, d
 
 
@@ -160,9 +177,7 @@ def test_the_emergency_stop_ramps_down_and_latches_a_fault_until_released_and_re
             assert c.status()["state"] == "idle"
             # pressed during a run: the drives ramp down, the run fails, the fault latches
             run_id = c.start_sweep(LONGER_X).data["run_id"]
-            while (msg := sub.recv(timeout_s=30)) is not None:
-                if msg.topic == "step" and msg.header["run_id"] == run_id:
-                    break  # a whole step recorded: the drives are well up
+            _wait_for_step(sub, run_id)  # a whole step recorded: the drives are well up
             server.proc.send_signal(signal.SIGUSR1)
             ended = _wait_for_event(sub, f"run {run_id} ")  # however it ended
             assert f"run {run_id} failed" in ended, ended

@@ -10,7 +10,13 @@ import pytest
 
 from control.wire.client import Subscriber
 from storage.reader import open_run
-from tests.e2e.test_board_safety_e2e import LONGER_X, _wait_for_event, estop_rig, sfdrig
+from tests.e2e.test_board_safety_e2e import (
+    LONGER_X,
+    _wait_for_event,
+    _wait_for_step,
+    estop_rig,
+    sfdrig,
+)
 
 pytestmark = pytest.mark.e2e
 
@@ -27,9 +33,7 @@ def test_status_reset_after_a_fault_and_the_next_sweep_runs(tmp_path, monkeypatc
                            for a in ("--set", f"{k}={LONGER_X[k]!r}")], *conn)
             assert out.returncode == 0, out
             run_id = out.stdout.split()[1]
-            while (msg := sub.recv(timeout_s=60)) is not None:
-                if msg.topic == "step" and msg.header["run_id"] == run_id:
-                    break  # a whole step recorded: the drives are up
+            _wait_for_step(sub, run_id)  # a whole step recorded: the drives are up
             server.proc.send_signal(signal.SIGUSR1)  # the emergency stop
             ended = _wait_for_event(sub, f"run {run_id} ")
             assert f"run {run_id} failed" in ended, ended
