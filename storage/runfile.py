@@ -90,6 +90,7 @@ class RunWriter:
         overwrite: bool = False,
         swmr: bool = True,
         pool: ThreadPoolExecutor | None = None,
+        wait_when_behind: bool = False,
     ) -> None:
         """Create the run file with every dataset and attribute, then switch SWMR on.
 
@@ -141,6 +142,10 @@ class RunWriter:
         max_backlog_s : float
             Data [s] the I/O thread may fall behind before `on_block` raises (a disk or CPU
             too slow for the sample rate), rather than filling memory.
+        wait_when_behind : bool
+            Past ``max_backlog_s``, `on_block` waits for the I/O thread instead of raising: for
+            a producer not paced by a clock (the simulated rig's fast mode makes data many
+            times faster than real time, faster than any disk takes it), never for a board.
         overwrite : bool
             Replace an existing file.
         swmr : bool
@@ -179,6 +184,9 @@ class RunWriter:
         self._buf_lock = threading.Lock()
         self._io_lock = threading.RLock()
         self._flushed = threading.Condition()
+        # the I/O thread took the blocks handed over (a writer waiting when behind wakes)
+        self._drained = threading.Condition(self._buf_lock)
+        self.wait_when_behind = bool(wait_when_behind)
         self._wake = threading.Event()
         # Samples flow: on_block -> _pending (list of blocks, the hand-over) -> the chunk
         # writer (whole chunks, and at a flush the partly filled last one) -> file.
@@ -294,7 +302,16 @@ class RunWriter:
             if n == 0:
                 return
             backlog_s = (self._pending_n + n) / self.sample_rate_hz
-            if self._io_thread is not None and backlog_s > self.max_backlog_s:
+            if self._io_thread is not None and backlog_s > self.max_backlog_s \
+                    and self.wait_when_behind:
+                # until the I/O thread has taken what waits (a block alone may be longer)
+                self._wake.set()
+                self._drained.wait_for(lambda: (
+                    self._pending_n == 0
+                    or (self._pending_n + n) / self.sample_rate_hz <= self.max_backlog_s
+                    or self._closed or self.flush_error is not None))
+                self._check_open()
+            elif self._io_thread is not None and backlog_s > self.max_backlog_s:
                 raise OSError(
                     f"{self.path}: the run writer is {backlog_s:.1f} s behind the acquisition "
                     f"(limit {self.max_backlog_s:g} s): disk or CPU too slow for "
@@ -401,6 +418,7 @@ class RunWriter:
         ``whole_chunks_only=False`` also the partly filled last chunk (for a flush)."""
         with self._buf_lock:
             blocks, self._pending, self._pending_n = self._pending, [], 0
+            self._drained.notify_all()
         self._chunks.write(blocks, whole_chunks_only)
 
     def _flush_locked(self) -> None:
@@ -440,6 +458,8 @@ class RunWriter:
                     self.flush_error = err
                     with self._flushed:
                         self._flushed.notify_all()
+                    with self._buf_lock:
+                        self._drained.notify_all()
                     return
 
     # --- closing ------------------------------------------------------------------------------
@@ -474,6 +494,7 @@ class RunWriter:
             finally:
                 with self._buf_lock:
                     self._closed = True
+                    self._drained.notify_all()
                 self._wake.set()
                 try:
                     self._file.close()

@@ -101,7 +101,9 @@ class DaemonConfig:
     rig_config: Any = None  # RigParams of a simulated rig, or None on hardware
     limits: Any = None  # control.run.safety.SafetyLimits, or None for the defaults
     sndhwm: int = 1000  # PUB send high-water mark [messages]; 0 = unlimited
-    lossless_publish: bool = False  # wait for the publisher instead of dropping (fast sim only)
+    # fast sim only: wait for the publisher (instead of dropping) and for the run writer (instead
+    # of failing the run when it falls 30 s of data behind a producer no clock paces)
+    lossless_publish: bool = False
     heartbeat_s: float = 0.25
     state_file: Path | None = None
     # after the pump goes off, a dry sweep waits this long for the film to drain [s]: its
@@ -421,7 +423,8 @@ class Daemon:
         try:
             writer = create_run_writer(path, "sweep", cm, run_id=run_id, test_spec=spec,
                                        rig_config=self.cfg.rig_config, operator=req.operator,
-                                       notes=req.notes, pool=self.deflate_pool)
+                                       notes=req.notes, pool=self.deflate_pool,
+                                       paced=not self.cfg.lossless_publish)
         except Exception as err:  # disk full, permissions: nothing has run
             log.exception("creating %s failed", path)
             return self._error(ErrorKind.FAILED, f"start: cannot create the run file: {err}",
@@ -464,7 +467,8 @@ class Daemon:
             writer = create_run_writer(path, req.test, self.channel_map, run_id=run_id,
                                        test_spec=spec, rig_config=self.cfg.rig_config,
                                        operator=req.operator, notes=req.notes,
-                                       lubricated=req.test == "flow", pool=self.deflate_pool)
+                                       lubricated=req.test == "flow", pool=self.deflate_pool,
+                                       paced=not self.cfg.lossless_publish)
         except Exception as err:  # disk full, permissions: nothing has run
             log.exception("creating %s failed", path)
             return self._error(ErrorKind.FAILED, f"start_test: cannot create the run file: "

@@ -91,7 +91,8 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
             spec = spec.model_copy(update={"load_by": load_by})
         writer = create_run_writer(path, kind, backend.channel_map, run_id=run_id,
                                    rig_config=test_params, test_spec=spec, operator=operator,
-                                   lubricated=kind == "flow", overwrite=True)
+                                   lubricated=kind == "flow", overwrite=True,
+                                   paced=backend.realtime)
         desk = StandInOperator(_logged_to(writer))
         if not quiet:
             print(f"{kind}: running ...", flush=True)

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import h5py
@@ -242,6 +243,37 @@ def test_writer_falling_behind_raises_instead_of_filling_memory(tmp_path: Path) 
         w.close()
     with open_run(tmp_path / "slow.h5") as run:
         assert run.n_samples == 4000 and run.status == "completed"
+
+
+def test_writer_behind_an_unpaced_producer_holds_it_back(tmp_path: Path) -> None:
+    """The simulated rig's fast mode makes data faster than any disk takes it: with
+    ``wait_when_behind`` the block that would go past the backlog waits for the I/O thread
+    (here stalled until the producer waits) instead of failing the run (`sfdrig demo` failed a
+    flow test that way: "30.0 s behind the acquisition")."""
+    w = _make(tmp_path / "fast.h5", flush_interval_s=0.05, max_backlog_s=1.0,
+              wait_when_behind=True)
+    stalled, waiting = threading.Event(), threading.Event()
+
+    def stalled_disk() -> None:
+        with w._io_lock:
+            stalled.set()
+            # until the producer waits in on_block (its wait is on the condition below)
+            while not w._drained._waiters:  # type: ignore[attr-defined]
+                waiting.wait(0.001)
+    stall = threading.Thread(target=stalled_disk)
+    stall.start()
+    assert stalled.wait(10.0)
+    try:
+        w.on_block(0, np.zeros((4, 4000)), np.zeros((2, 4000)))  # 0.8 s at 5 kS/s
+        w.on_block(4000, np.ones((4, 2000)), np.ones((2, 2000)))  # 1.2 s behind: waits
+        stall.join(10.0)
+        assert not stall.is_alive()
+        w.on_block(6000, np.ones((4, 6000)), np.ones((2, 6000)))
+    finally:
+        w.close()
+    with open_run(tmp_path / "fast.h5") as run:
+        assert run.n_samples == 12000 and run.status == "completed"
+        assert run.channel("fx", 3999, 4001).tolist() == [0.0, 1.0]
 
 
 def test_context_manager_records_failure(tmp_path: Path) -> None:
