@@ -251,11 +251,11 @@ def fit_wet_friction(simulate: Simulate, plan: ReportPlan, params: RigParams,
     friction's 4 F_mu |z| per cycle; a seal rubbing dF harder leaves 4 dF / (pi w |z|) in C_sfd,
     largest at 20 Hz, so the trend is linear in dF: solved from two runs (the present value and
     one newton more). None when the trend does not move with it."""
-    dry = params.model_copy(deep=True)
-    f0 = dry.seal.wet_friction_increase_n
-    t0 = _trend_13um_x(simulate, plan, dry)
-    dry.seal.wet_friction_increase_n = f0 + WET_FRICTION_STEP_N
-    t1 = _trend_13um_x(simulate, plan, dry)
+    trial = params.model_copy(deep=True)
+    f0 = trial.seal.wet_friction_increase_n
+    t0 = _trend_13um_x(simulate, plan, trial)
+    trial.seal.wet_friction_increase_n = f0 + WET_FRICTION_STEP_N
+    t1 = _trend_13um_x(simulate, plan, trial)
     slope = (t1.simulated - t0.simulated) / WET_FRICTION_STEP_N
     log(f"  wet seal friction {f0:+.2f} N: X trend at 13 um {t0.simulated:+.3f}; "
         f"{f0 + WET_FRICTION_STEP_N:+.2f} N: {t1.simulated:+.3f} (report {t0.report:+.3f})")
