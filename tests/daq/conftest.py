@@ -72,3 +72,13 @@ def backend() -> Iterator[NidaqmxBackend]:
     b = NidaqmxBackend(connect_timeout_s=5.0)
     yield b
     b.close()
+
+
+@pytest.fixture
+def clocked_backend(fake_clock: FakeClock) -> Iterator[NidaqmxBackend]:
+    """The host for `clocked_server`: it counts on the same fake clock (its read-ahead, AO
+    generation estimate), as a host and a board count the same seconds. No watchdog: a test's
+    blocking read of a second of samples would let a 1 s watchdog expire, as on a board."""
+    b = NidaqmxBackend(connect_timeout_s=5.0, watchdog_timeout_s=None, clock=fake_clock.now)
+    yield b
+    b.close()

@@ -36,8 +36,10 @@ def _prefill_and_start(backend: NidaqmxBackend, n: int = 1_000) -> None:
 
 # --- errors raised by the device ------------------------------------------------------------
 def test_read_timeout_is_typed_and_consumes_nothing(
-    clocked_server: SimulatedDeviceServer, fake_clock: FakeClock, backend: NidaqmxBackend
+    clocked_server: SimulatedDeviceServer, fake_clock: FakeClock,
+    clocked_backend: NidaqmxBackend
 ) -> None:
+    backend = clocked_backend
     backend.configure(on_server(clocked_server))
     _prefill_and_start(backend, 20_000)
     t0 = fake_clock.now()
@@ -55,7 +57,7 @@ def test_read_timeout_is_typed_and_consumes_nothing(
 def test_reader_falling_behind_raises_overflow_not_a_gap(
     clocked_server: SimulatedDeviceServer, fake_clock: FakeClock
 ) -> None:
-    backend = NidaqmxBackend(buffer_s=1.0)  # 10,000 samples per channel
+    backend = NidaqmxBackend(buffer_s=1.0, clock=fake_clock.now)  # 10,000 samples a channel
     try:
         backend.configure(on_server(clocked_server))
         _prefill_and_start(backend, 30_000)
@@ -92,7 +94,8 @@ def test_ao_underflow_is_typed(fast_server: SimulatedDeviceServer,
 
 
 def test_ao_underflow_in_real_time(clocked_server: SimulatedDeviceServer, fake_clock: FakeClock,
-                                   backend: NidaqmxBackend) -> None:
+                                   clocked_backend: NidaqmxBackend) -> None:
+    backend = clocked_backend
     backend.configure(on_server(clocked_server))
     _prefill_and_start(backend, 2_000)
     backend.read_ai(1_000)

@@ -44,8 +44,11 @@ class Generated:
 
 
 @pytest.fixture
-def ring_backend() -> Iterator[NidaqmxBackend]:
-    b = NidaqmxBackend(connect_timeout_s=5.0, watchdog_timeout_s=0.8, ao_ring_s=1.0)
+def ring_backend(fake_clock: FakeClock) -> Iterator[NidaqmxBackend]:
+    """The host on the board's fake clock: its watchdog feeding (every quarter timeout),
+    read-ahead and generation estimate count the same time as the board does."""
+    b = NidaqmxBackend(connect_timeout_s=5.0, watchdog_timeout_s=0.8, ao_ring_s=1.0,
+                       clock=fake_clock.now)
     yield b
     b.close()
 
@@ -62,9 +65,6 @@ def _stream(server, backend, clock_steps):
     stream = DriveStream(backend, synth, SafetyMonitor(SafetyLimits(), cm), listener,
                          int(0.01 * fs), ahead_blocks=3, keep_samples=int(0.04 * fs))
     stream.check_limits = False
-    # the board's watchdog runs on the fake clock, the backend feeds it by the wall clock:
-    # feed it every block, as the backend does every quarter timeout on a real clock
-    stream.taps.append(lambda *_: backend.feed_watchdog())
     stream.taps.extend(clock_steps)
     return stream, listener, spy, fs
 

@@ -201,7 +201,7 @@ def test_a_broken_estop_wire_reads_as_pressed() -> None:
 
 
 def test_a_sweep_that_underflows_ends_with_the_drives_at_zero(
-        clocked_server: SimulatedDeviceServer, fake_clock) -> None:
+        clocked_server: SimulatedDeviceServer, fake_clock: FakeClock) -> None:
     """The whole engine through nidaqmx: the loop stalls for 0.2 s mid-step (the fake clock
     jumps), the board underflows, the fade cannot be written any more, and still both drive
     terminals end at 0 V: the AO idle output behaviour does it, not the program."""
@@ -214,7 +214,10 @@ def test_a_sweep_that_underflows_ends_with_the_drives_at_zero(
             if first_sample == 25_000:  # 2.5 s in, recording: the drives are up
                 fake_clock.advance(0.2)
 
-    backend = NidaqmxBackend(watchdog_timeout_s=None)
+    # the host counts on the server's fake clock too: its AO generation estimate and AI
+    # read-ahead on the wall clock drifted from a board whose time moves only with the reads
+    # (seen failing once on a busy machine)
+    backend = NidaqmxBackend(watchdog_timeout_s=None, clock=fake_clock.now)
     try:
         backend.configure(on_server(clocked_server))
         listener = Stall(keep_blocks=True)
