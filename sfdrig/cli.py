@@ -3,7 +3,8 @@
 Each command module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
 The CLI wires backends and configs; it never talks to hardware itself. Every command ends
 without a traceback on Ctrl-C (exit 130) and on a closed pipe (`sfdrig status --json | head`:
-quietly, exit 141), handled here once.
+quietly, exit 141), handled here once. Commands answer their own errors; one that escapes them
+(a defect) is named in one line, its traceback written to a file for the report (exit 70).
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ import importlib
 import os
 import signal
 import sys
+import tempfile
+import traceback
 from types import ModuleType
 
 # Order is the order shown in --help.
@@ -69,12 +72,25 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             code = 130
+        except Exception as err:  # a defect: one line here, the traceback in a file
+            code = _unexpected(argv[0] if argv else "", err)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush
         return code
     except BrokenPipeError:
         # `sfdrig status --json | head`: the reader has gone; stop quietly, as `cat` would
         _discard_stdout()
         return 128 + signal.SIGPIPE
+
+
+def _unexpected(command: str, err: Exception) -> int:
+    """Name an error no command answered, keep its traceback for the bug report; exit 70
+    (EX_SOFTWARE)."""
+    fd, path = tempfile.mkstemp(prefix=f"sfdrig-{command or 'cli'}-", suffix=".traceback")
+    with os.fdopen(fd, "w") as f:
+        traceback.print_exception(err, file=f)
+    print(f"sfdrig {command}: unexpected error: {type(err).__name__}: {err} (a defect: please "
+          f"report it with {path})", file=sys.stderr)
+    return 70
 
 
 def _discard_stdout() -> None:

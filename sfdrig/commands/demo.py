@@ -145,7 +145,11 @@ def run(args: argparse.Namespace) -> int:
     ok = all(r["status"] == "completed" for r in runs)
     if ok:
         print("\nstructure and instrument tests (static, impact, probe calibration, flow)")
-        structure_runs = run_structure_tests(runs_dir, rig, seed=args.seed)
+        try:
+            structure_runs = run_structure_tests(runs_dir, rig, seed=args.seed)
+        except OSError as err:
+            print(f"demo: {err}", file=sys.stderr)
+            return 1
         html = write_report([Path(r["path"]) for r in runs] + structure_runs,
                             args.out / "report")
         print(f"identification report: {html}")

@@ -10,6 +10,7 @@ a stand-in operator (the demo)."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -96,14 +97,21 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
         desk = StandInOperator(_logged_to(writer))
         if not quiet:
             print(f"{kind}: running ...", flush=True)
-        if isinstance(spec, StaticSpec):
-            outcome = run_static_test(backend, writer, spec, operator=desk, hands=hands)
-        elif isinstance(spec, ImpactSpec):
-            outcome = run_impact_test(backend, writer, desk, spec, hands=hands)
-        elif isinstance(spec, ProbeCalSpec):
-            outcome = run_probe_calibration(backend, writer, desk, spec, hands=hands)
-        else:
-            outcome = run_flow_test(backend, writer, desk, spec, hands=hands)
+        try:
+            if isinstance(spec, StaticSpec):
+                outcome = run_static_test(backend, writer, spec, operator=desk, hands=hands)
+            elif isinstance(spec, ImpactSpec):
+                outcome = run_impact_test(backend, writer, desk, spec, hands=hands)
+            elif isinstance(spec, ProbeCalSpec):
+                outcome = run_probe_calibration(backend, writer, desk, spec, hands=hands)
+            else:
+                outcome = run_flow_test(backend, writer, desk, spec, hands=hands)
+        except Exception as err:
+            # what was recorded stays readable: the file is closed as failed, with the reason
+            _close_failed(writer, f"{kind} test failed: {err}")
+            backend.close()
+            raise OSError(f"{kind} test failed: {err} (what it recorded is in {path}, "
+                          "closed as failed)") from err
         status = "completed" if outcome.completed else "aborted"
         writer.close(status, outcome.reason)
         backend.close()
@@ -112,6 +120,14 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
             print(f"{kind}: {outcome.steps} steps, {status}{why} -> {path}", flush=True)
         written.append(path)
     return written
+
+
+def _close_failed(writer: Any, reason: str) -> None:
+    """Close ``writer`` as failed after an error in its run. After a failed write `close`
+    still records the status and reason, and then raises what went wrong: the caller
+    reports that error already."""
+    with contextlib.suppress(OSError, RuntimeError):
+        writer.close("failed", reason)
 
 
 def _logged_to(writer: Any) -> Callable[[str, str], None]:

@@ -5,10 +5,11 @@ from __future__ import annotations
 import importlib
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
-from sfdrig.cli import COMMAND_MODULES, _module_of, build_parser
+from sfdrig.cli import COMMAND_MODULES, _module_of, build_parser, main
 
 
 @pytest.mark.parametrize("module", COMMAND_MODULES)
@@ -77,3 +78,26 @@ def test_default_outputs_go_where_git_ignores_them() -> None:
         probe = path / "probe.json"  # a file the command would write there
         ignored = subprocess.run(["git", "check-ignore", "-q", str(probe)], cwd=root)
         assert ignored.returncode == 0, f"{what}: {path} is not ignored by .gitignore"
+
+
+def test_an_error_no_command_answers_is_one_line_and_a_kept_traceback(monkeypatch, capsys
+                                                                      ) -> None:
+    """A defect that escapes a command (here `sfdrig runs` made to raise) ends in one line that
+    names it and where its traceback is kept, exit 70, never a traceback on the terminal."""
+    import sfdrig.commands.runs as runs
+
+    def broken(args):
+        raise KeyError("steps")
+
+    monkeypatch.setattr(runs, "run", broken)
+    assert main(["runs", "--runs-dir", "."]) == 70
+    err = capsys.readouterr().err
+    assert err.startswith("sfdrig runs: unexpected error: KeyError: 'steps' (a defect: please "
+                          "report it with ")
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    kept = Path(err.strip().rsplit(" ", 1)[1].rstrip(")"))
+    try:
+        text = kept.read_text()
+        assert "Traceback" in text and "raise KeyError" in text
+    finally:
+        kept.unlink()
