@@ -24,7 +24,7 @@ from daq.errors import (
 )
 from rig_model.params import RigParams
 from rig_model.rig import RigModel
-from simulated_hw.board import ao_stream, thermocouple
+from simulated_hw.board import ao_stream, thermocouple, triggers
 from simulated_hw.board import digital as digital_io
 from simulated_hw.board.codes import (
     INVALID_AO_DATA_WRITE,
@@ -283,6 +283,9 @@ class SimDevice:
                         f"start {task.name!r}: {sorted(clash)} in use by running task "
                         f"{other.name!r}",
                     )
+            if triggers.waits_on_external(task):
+                triggers.arm(task)  # nothing drives the line: armed, never triggered
+                return
             if task.kind == "watchdog":
                 self.safe.start(task.watchdog)
                 task.running = True
@@ -606,6 +609,10 @@ class SimDevice:
         """The next ``n`` samples of an AI task, shape (n_ch, n); ``n < 0``: all available (a
         finite task: the rest of it). A read starts a task that is not running, as DAQmx
         does; a finite task started that way stops when its last sample is read."""
+        if triggers.waits_on_external(task):
+            if not task.running:
+                self.start(task, others)
+            return triggers.read_times_out(self, task, n, timeout_s)
         with self.lock:
             if task.error is not None and task.running:
                 raise task.error

@@ -23,7 +23,7 @@ from daq.errors import (
     INVALID_ATTRIBUTE_VALUE,
     DaqError,
 )
-from simulated_hw.board import events, thermocouple
+from simulated_hw.board import events, thermocouple, triggers
 from simulated_hw.board.chan_attrs import ATTR_TASK_DEVICES, ChannelAttrRpcs, task_devices
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
@@ -71,7 +71,6 @@ from simulated_hw.board.codes import (
     IDLE_ZERO_VOLTS,
     INIT_ATTACH,
     INIT_NEW,
-    INVALID_ROUTING_SOURCE,
     INVALID_TASK,
     LINES_PER_CHAN_ALL,
     MEAS_VOLTAGE,
@@ -184,7 +183,7 @@ CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
 
 
 class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrRpcs,
-                             pb_grpc.NiDAQmxServicer):
+                             triggers.TriggerRpcs, pb_grpc.NiDAQmxServicer):
     """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer the DAQmx
     error the board gives for them (`simulated_hw.board.refusals`), never UNIMPLEMENTED."""
 
@@ -300,13 +299,10 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
         self.device.check_rate(request.rate, where)
         source = request.source
         clock = self.device.terminal("SampleClock").lower()
+        task.external.pop("sample clock", None)
         if source and source.lower() not in ("onboardclock", clock):
-            raise daq_error(
-                INVALID_ROUTING_SOURCE,
-                f"{where}: sample clock source {source!r} is not available on the simulated "
-                f"{self.device.spec.name} (use OnboardClock or "
-                f"{self.device.terminal('SampleClock')})",
-            )
+            task.external["sample clock"] = triggers.check_external(
+                self.device, source, where, "sample clock")
         if request.sample_mode_raw not in (MODE_CONTINUOUS, MODE_FINITE):
             raise daq_error(INVALID_ATTRIBUTE_VALUE,
                             f"{where}: sample mode {request.sample_mode_raw} not supported")
@@ -319,13 +315,12 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
     @reports_daq_errors
     def CfgDigEdgeStartTrig(self, request, context):  # noqa: N802
         task = self._task(request.task)
+        task.external.pop("start trigger", None)
         if request.trigger_source.lower() != self.device.terminal("StartTrigger").lower():
-            raise daq_error(
-                INVALID_ROUTING_SOURCE,
-                f"CfgDigEdgeStartTrig on task {task.name!r}: trigger source "
-                f"{request.trigger_source!r} is not available on the simulated "
-                f"{self.device.spec.name} (use {self.device.terminal('StartTrigger')})",
-            )
+            task.external["start trigger"] = triggers.check_external(
+                self.device, request.trigger_source, f"CfgDigEdgeStartTrig on task "
+                f"{task.name!r}", "start trigger")
+            return pb.CfgDigEdgeStartTrigResponse(status=0)
         task.trigger_source = request.trigger_source
         return pb.CfgDigEdgeStartTrigResponse(status=0)
 

@@ -71,6 +71,10 @@ class SimTask:
     watchdog: Any = None  # a `simulated_hw.board.watchdog.Watchdog` for a watchdog task
     run_id: int = 0  # counts the task's starts (event streams restart their counts with it)
     di_read: int = 0  # hardware-timed DI: samples read since the start
+    #: role ("start trigger", "reference trigger", "sample clock") -> the external line it is
+    #: on: nothing on the rig drives those, so the task waits (`simulated_hw.board.triggers`)
+    external: dict[str, str] = field(default_factory=dict)
+    retriggerable: bool = False  # start trigger: a finite task rearms after each
 
     @property
     def kind(self) -> str | None:

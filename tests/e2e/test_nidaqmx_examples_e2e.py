@@ -20,6 +20,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import SHARED
+
 pytestmark = [pytest.mark.e2e, pytest.mark.paced, pytest.mark.needs_shared]
 
 RUNNER = Path(__file__).with_name("nidaqmx_example_runner.py")
@@ -49,15 +51,18 @@ class Runs:
 
     check: Callable[[dict, str], None] | None = None
     loops: int = 3  # reads/writes/events before the simulated user stops it
+    patience_s: float = 30.0  # how long the user waits for events before pressing Enter
 
 
 @dataclass(frozen=True)
 class Refused:
     """The example ends in ``nidaqmx.errors.DaqError`` with ``code``; ``why`` is the board's
-    reason."""
+    reason. ``waits_s``: the example first waits this long on the board (a read's timeout):
+    such examples are started together at the module's start, so their waits overlap."""
 
     code: int
     why: str = field(default="")
+    waits_s: float = 0.0
 
 
 def _contains(*texts: str) -> Callable[[dict, str], None]:
@@ -107,7 +112,21 @@ def _system(result: dict, out: str) -> None:
 
 NO_COUNTERS = Refused(-201380, "the simulated board has no counters")
 NO_WAVEFORMS = Refused(-201380, "the waveform API is not simulated")
-PFI = Refused(-200040, "nothing drives the PFI lines: a trigger there is an invalid routing")
+#: a finite read of a task armed on a PFI line nothing drives: the board waits the read's
+#: timeout (nidaqmx's default, 10 s) and answers -200284
+UNTRIGGERED_READ = Refused(-200284, "nothing drives the PFI line: the trigger never comes",
+                           waits_s=10.0)
+
+
+def _untriggered_events(result: dict, out: str) -> None:
+    """Armed on a PFI line nothing drives: no every-N event, nothing acquired, the user stops it
+    (after 1 s of patience)."""
+    assert result["events"] == 0 and result["calls"] == 0, result
+    assert "Acquired 0 total samples." in out, out[-500:]
+    assert 1.0 <= result["wall_s"] <= 10.0, result
+
+
+UNTRIGGERED_EVENTS = Runs(_untriggered_events, patience_s=1.0)
 NO_POWER = Refused(-200170, "a PXIe-6358 has no power channel (TS1Mod1/power -> Dev1/power)")
 
 
@@ -128,14 +147,14 @@ EXPECTED: dict[str, Runs | Refused] = {
     "analog_in/cont_calculated_power_acq_int_clk.py": Refused(-200431, "no calculated power"),
     "analog_in/cont_thrmcpl_samples_int_clk.py": Runs(_acquired(50), loops=1),
     "analog_in/cont_voltage_acq_int_clk.py": Runs(_acquired(3000)),
-    "analog_in/cont_voltage_acq_int_clk_dig_start.py": PFI,
-    "analog_in/cont_voltage_acq_int_clk_dig_start_retrig.py": PFI,
+    "analog_in/cont_voltage_acq_int_clk_dig_start.py": UNTRIGGERED_EVENTS,
+    "analog_in/cont_voltage_acq_int_clk_dig_start_retrig.py": UNTRIGGERED_EVENTS,
     "analog_in/cont_voltage_acq_int_clk_every_n_samples_event.py": Runs(
         _every_n("Acquired data: 1000 samples.")),
     "analog_in/thrmcpl_sample.py": Runs(_celsius),
     "analog_in/voltage_acq_int_clk.py": Runs(_volts(50, 0.01)),
-    "analog_in/voltage_acq_int_clk_dig_ref.py": PFI,
-    "analog_in/voltage_acq_int_clk_dig_start_ref.py": PFI,
+    "analog_in/voltage_acq_int_clk_dig_ref.py": UNTRIGGERED_READ,
+    "analog_in/voltage_acq_int_clk_dig_start_ref.py": UNTRIGGERED_READ,
     "analog_in/voltage_acq_int_clk_plot_data.py": Runs(),
     "analog_in/voltage_acq_int_clk_plot_wfm.py": NO_WAVEFORMS,
     "analog_in/voltage_acq_int_clk_tdms_logging.py": Refused(-201380, "no TDMS logging"),
@@ -181,19 +200,67 @@ EXPECTED: dict[str, Runs | Refused] = {
 }
 
 
-@pytest.fixture(scope="module")
-def sim_server() -> Iterator[str]:
-    server = subprocess.Popen(
+def _start_server() -> subprocess.Popen[str]:
+    return subprocess.Popen(
         [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "7"],
         cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        first = server.stdout.readline().strip()  # type: ignore[union-attr]
-        assert first.startswith("listening on "), first
-        yield first.removeprefix("listening on ")
-    finally:
-        server.send_signal(signal.SIGTERM)
-        _, err = server.communicate(timeout=30)
+
+
+def _address(server: subprocess.Popen[str]) -> str:
+    first = server.stdout.readline().strip()  # type: ignore[union-attr]
+    assert first.startswith("listening on "), first
+    return first.removeprefix("listening on ")
+
+
+def _stop_server(server: subprocess.Popen[str]) -> None:
+    server.send_signal(signal.SIGTERM)
+    _, err = server.communicate(timeout=30)
     assert "Traceback" not in err, err[-3000:]
+
+
+@pytest.fixture(scope="module")
+def sim_server() -> Iterator[str]:
+    server = _start_server()
+    try:
+        yield _address(server)
+    finally:
+        _stop_server(server)
+
+
+def _example(shared_dir: Path, example: str) -> Path:
+    return shared_dir / "reference" / "nidaqmx-python-examples" / example
+
+
+def _start(sim_server: str, path: Path, expected: Runs | Refused) -> subprocess.Popen[str]:
+    loops = expected.loops if isinstance(expected, Runs) else 3
+    patience = expected.patience_s if isinstance(expected, Runs) else 30.0
+    return subprocess.Popen([sys.executable, str(RUNNER), sim_server, str(path), "--loops",
+                             str(loops), "--patience", str(patience)], cwd=path.parent,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.fixture(scope="module")
+def waiting_runs() -> Iterator[dict[str, subprocess.Popen[str]]]:
+    """The examples that wait on the board (a read's timeout), all started with the module,
+    each against a sim-server of its own (one board cannot run two of them at once): they only
+    wait, so overlapping them costs one wait, not one each. None without ../shared (the tests
+    then skip, or fail on CI, through ``shared_dir``)."""
+    waiting = [name for name, expected in EXPECTED.items()
+               if isinstance(expected, Refused) and expected.waits_s > 0]
+    if not SHARED.is_dir():
+        waiting = []
+    servers = [_start_server() for _ in waiting]
+    try:
+        runs = {name: _start(_address(server), _example(SHARED, name), EXPECTED[name])
+                for name, server in zip(waiting, servers, strict=True)}
+        yield runs
+        for run in runs.values():
+            if run.poll() is None:
+                run.kill()
+                run.communicate()
+    finally:
+        for server in servers:
+            _stop_server(server)
 
 
 def test_the_table_covers_every_example(shared_dir: Path) -> None:
@@ -204,20 +271,21 @@ def test_the_table_covers_every_example(shared_dir: Path) -> None:
 
 @pytest.mark.parametrize("example", sorted(EXPECTED))
 def test_nis_example_runs_or_is_refused_as_the_board_does(
-        example: str, sim_server: str, shared_dir: Path) -> None:
-    path = shared_dir / "reference" / "nidaqmx-python-examples" / example
+        example: str, sim_server: str, shared_dir: Path,
+        waiting_runs: dict[str, subprocess.Popen[str]]) -> None:
     expected = EXPECTED[example]
-    loops = expected.loops if isinstance(expected, Runs) else 3
-    run = subprocess.run([sys.executable, str(RUNNER), sim_server, str(path), "--loops",
-                          str(loops)], cwd=path.parent, capture_output=True, text=True,
-                         timeout=120)
-    lines = [line for line in run.stdout.splitlines() if line.startswith("RESULT ")]
-    assert lines, run.stdout[-2000:] + run.stderr[-2000:]
+    run = waiting_runs.get(example) or _start(sim_server, _example(shared_dir, example),
+                                               expected)
+    stdout, stderr = run.communicate(timeout=120)
+    lines = [line for line in stdout.splitlines() if line.startswith("RESULT ")]
+    assert lines, stdout[-2000:] + stderr[-2000:]
     result = json.loads(lines[-1].removeprefix("RESULT "))
-    out = run.stdout[: run.stdout.rfind("RESULT ")]
-    assert "UNIMPLEMENTED" not in run.stdout + run.stderr
+    out = stdout[: stdout.rfind("RESULT ")]
+    assert "UNIMPLEMENTED" not in stdout + stderr
     if isinstance(expected, Refused):
         assert (result["status"], result.get("code")) == ("daqerror", expected.code), result
+        if expected.waits_s:  # the board answered after the read's timeout, not before
+            assert result["wall_s"] >= expected.waits_s, result
     else:
         assert result["status"] == "ok", result
         if expected.check is not None:
