@@ -24,7 +24,7 @@ from daq.errors import (
 )
 from rig_model.params import RigParams
 from rig_model.rig import RigModel
-from simulated_hw.board import ao_stream, thermocouple, triggers
+from simulated_hw.board import ao_stream, counters, thermocouple, triggers
 from simulated_hw.board import digital as digital_io
 from simulated_hw.board.codes import (
     INVALID_AO_DATA_WRITE,
@@ -305,6 +305,8 @@ class SimDevice:
                 linked = task.clock_source.lower() == self.terminal("SampleClock").lower()
                 task.t_start = (self.t0 if self.ai_task is not None else None) if linked \
                     else self.now()
+            elif task.kind in ("ci", "co"):
+                counters.start(self, task)
             elif task.kind is None:
                 raise daq_error(NO_CHANS_IN_TASK, f"start {task.name!r}: the task has no channels")
             task.error = None
@@ -776,6 +778,8 @@ class SimDevice:
                 return self.generated >= task.samps_per_chan
             if task.running and task.kind == "di" and task.finite:
                 return self.di_acquired(task) >= task.samps_per_chan
+            if task.kind == "co":
+                return counters.generation_done(self, task)
             return task.done or not task.running
 
     def wait_until_done(self, task: SimTask, timeout_s: float) -> None:
@@ -823,6 +827,8 @@ class SimDevice:
 
     def _end_time(self, task: SimTask) -> float | None:
         """Device time at which a running finite task ends; None if it never ends by itself."""
+        if task.kind == "co":
+            return counters.end_time(task)
         if not task.running or not task.finite or task.rate_hz is None:
             return None
         if task is self.ai_task:

@@ -23,7 +23,7 @@ from daq.errors import (
     INVALID_ATTRIBUTE_VALUE,
     DaqError,
 )
-from simulated_hw.board import events, thermocouple, triggers
+from simulated_hw.board import counters, events, thermocouple, triggers
 from simulated_hw.board.chan_attrs import ATTR_TASK_DEVICES, ChannelAttrRpcs, task_devices
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
@@ -182,8 +182,8 @@ CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
 }
 
 
-class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrRpcs,
-                             triggers.TriggerRpcs, pb_grpc.NiDAQmxServicer):
+class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, DigitalRpcs,
+                             ChannelAttrRpcs, triggers.TriggerRpcs, pb_grpc.NiDAQmxServicer):
     """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer the DAQmx
     error the board gives for them (`simulated_hw.board.refusals`), never UNIMPLEMENTED."""
 
@@ -360,7 +360,10 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
         attr = request.attribute_raw
         values = set()
         for ch in _find_channels(task, request.channel):
-            if attr == ATTR_CHAN_TYPE:
+            counter_value = counters.chan_int32(ch, attr)
+            if counter_value is not None:
+                values.add(counter_value)
+            elif attr == ATTR_CHAN_TYPE:
                 values.add(types[ch.kind])
             elif attr == ATTR_AO_IDLE_OUTPUT and ch.kind == "ao":
                 self._idle_output_supported(task)
@@ -419,7 +422,8 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
             value = (task.samps_per_chan - self.device.read_pos
                      if task.finite and task is self.device.ai_task
                      else task.samps_per_chan if task.finite
-                     else self.device.available(task) if task.rate_hz is not None else 1)
+                     else self.device.available(task)
+                     if task.rate_hz is not None or counters.buffered(task) else 1)
         else:
             raise _unsupported("read", request.attribute_raw)
         return pb.GetReadAttributeUInt32Response(value=value)

@@ -36,12 +36,13 @@ def default_input_buffer(rate_hz: float) -> int:
 @dataclass
 class SimChannel:
     name: str  # virtual channel name, as the client derives it
-    kind: str  # "ai" | "ao" | "do"
+    kind: str  # "ai" | "ao" | "do" | "di" | "ci" | "co"
     physical: list[str]  # canonical physical names (one, or several lines for a DO channel)
     min_v: float = -10.0
     max_v: float = 10.0
     idle_behavior: int = IDLE_MAINTAIN  # AO: what the terminal does when no generation runs
     temperature_units: int | None = None  # AI thermocouple: read in these (TemperatureUnits)
+    counter: Any = None  # CI/CO: its `simulated_hw.board.counters.Counter`
 
 
 @dataclass

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from nidaqmx._stubs import nidaqmx_pb2 as pb
 
-from daq.errors import ATTR_NOT_SUPPORTED_IN_TASK, READ_TIMEOUT
+from daq.errors import ATTR_NOT_SUPPORTED_IN_TASK, READ_TIMEOUT, DaqError
 from simulated_hw.board.codes import INVALID_ROUTING_SOURCE, daq_error
 from simulated_hw.board.device_rpcs import _unsupported
 from simulated_hw.board.tasks import SimTask
@@ -72,6 +72,18 @@ def arm(task: SimTask) -> None:
     task.run_id += 1
 
 
+def wait_out(device: Any, task: SimTask, timeout_s: float) -> None:
+    """Wait a read's ``timeout_s`` on the device clock (-1: until the task stops) for what
+    never comes."""
+    if device.fast:
+        return  # nothing paces a fast board: its timeout passes at once
+    if timeout_s >= 0:
+        device.sleep(timeout_s)
+        return
+    while task.running and not device.stopping():
+        device.pause(0.05)
+
+
 def read_times_out(device: Any, task: SimTask, n: int, timeout_s: float) -> np.ndarray:
     """A read of a task armed on an external line: no samples, or what is available of a
     continuous task (nothing) at once; else the wait of ``timeout_s`` (-1: until the task
@@ -79,19 +91,18 @@ def read_times_out(device: Any, task: SimTask, n: int, timeout_s: float) -> np.n
     n_ch = max(len(task.channels), 1)
     if n == 0 or (n < 0 and not task.finite):
         return np.zeros((n_ch, 0))
-    if device.fast:
-        pass  # nothing paces a fast board: its timeout passes at once
-    elif timeout_s >= 0:
-        device.sleep(timeout_s)
-    else:
-        while task.running and not device.stopping():
-            device.pause(0.05)
+    wait_out(device, task, timeout_s)
+    raise samples_not_acquired(task, n, timeout_s,
+                               f"it waits on {source_of(task)}, which nothing on the rig drives")
+
+
+def samples_not_acquired(task: SimTask, n: int, timeout_s: float, why: str) -> DaqError:
+    """DAQmx -200284 for a read of ``n`` samples (-1: the finite task's all) that got none."""
     wanted = task.samps_per_chan if n < 0 else n
-    raise daq_error(
+    return daq_error(
         READ_TIMEOUT,
-        f"{TIMEOUT_TEXT}\nTask {task.name!r} waits on {source_of(task)}, which nothing "
-        f"on the rig drives: 0 of {wanted} samples acquired after "
-        f"{'no limit' if timeout_s < 0 else f'{timeout_s:g} s'}.",
+        f"{TIMEOUT_TEXT}\nTask {task.name!r}: 0 of {wanted} samples acquired after "
+        f"{'no limit' if timeout_s < 0 else f'{timeout_s:g} s'}: {why}.",
         samps_per_chan_read=0)
 
 

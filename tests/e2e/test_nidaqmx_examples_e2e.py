@@ -110,7 +110,24 @@ def _system(result: dict, out: str) -> None:
            "PXIe-6358" in out
 
 
-NO_COUNTERS = Refused(-201380, "the simulated board has no counters")
+#: a frequency or pulse measurement with nothing on the counter's input: the read waits its
+#: timeout (10 s) and the board answers -200474 on demand, -200284 buffered
+NO_EDGE_ON_DEMAND = Refused(-200474, "nothing drives the counter's input", waits_s=10.0)
+NO_EDGE_BUFFERED = Refused(-200284, "nothing drives the counter's input (or its PFI clock)",
+                           waits_s=10.0)
+
+
+def _no_edges(result: dict, out: str) -> None:
+    # polled three times, then Ctrl+C: nothing drives PFI8, so every count is the initial 0
+    assert result["calls"] == 4, result
+    assert out.count("Acquired count: 0") == 3, out[-500:]
+    assert "Acquired 0 total counts." in out, out[-500:]
+
+
+def _single_pulse(result: dict, out: str) -> None:
+    # no initial delay, then 1.0 s high: wait_until_done returns when the pulse has ended
+    assert 1.0 <= result["wall_s"] <= 5.0, result
+
 NO_WAVEFORMS = Refused(-201380, "the waveform API is not simulated")
 #: a finite read of a task armed on a PFI line nothing drives: the board waits the read's
 #: timeout (nidaqmx's default, 10 s) and answers -200284
@@ -167,15 +184,15 @@ EXPECTED: dict[str, Runs | Refused] = {
     "analog_out/gen_voltage_wfm_int_clk.py": NO_WAVEFORMS,
     "analog_out/voltage_update.py": Runs(),
     "channel_properties.py": Runs(_properties),
-    "counter_in/cnt_dig_event.py": NO_COUNTERS,
-    "counter_in/cont_cnt_buff_event_ext_clk.py": NO_COUNTERS,
-    "counter_in/cont_read_buff_freq.py": NO_COUNTERS,
-    "counter_in/read_freq.py": NO_COUNTERS,
-    "counter_in/read_pulse_freq.py": NO_COUNTERS,
-    "counter_out/cont_gen_dig_pulse_train.py": NO_COUNTERS,
-    "counter_out/cont_gen_dig_pulse_train_buff_ext_clk.py": NO_COUNTERS,
-    "counter_out/cont_gen_dig_pulse_train_buff_implicit.py": NO_COUNTERS,
-    "counter_out/write_single_dig_pulse.py": NO_COUNTERS,
+    "counter_in/cnt_dig_event.py": Runs(_no_edges),
+    "counter_in/cont_cnt_buff_event_ext_clk.py": NO_EDGE_BUFFERED,
+    "counter_in/cont_read_buff_freq.py": NO_EDGE_BUFFERED,
+    "counter_in/read_freq.py": NO_EDGE_ON_DEMAND,
+    "counter_in/read_pulse_freq.py": NO_EDGE_ON_DEMAND,
+    "counter_out/cont_gen_dig_pulse_train.py": Runs(),
+    "counter_out/cont_gen_dig_pulse_train_buff_ext_clk.py": Runs(),
+    "counter_out/cont_gen_dig_pulse_train_buff_implicit.py": Runs(),
+    "counter_out/write_single_dig_pulse.py": Runs(_single_pulse),
     "digital_in/acq_dig_port_int_clk.py": Runs(),
     "digital_in/acq_dig_port_int_clk_wfm.py": NO_WAVEFORMS,
     "digital_in/cont_acq_dig_lines_int_clk.py": Runs(),
@@ -194,7 +211,8 @@ EXPECTED: dict[str, Runs | Refused] = {
     "pwr_sw_timed.py": NO_POWER,
     "synchronization/multi_function/ai_ao_sync.py": Runs(
         _every_n("Acquired data: 1000 samples.")),
-    "synchronization/multi_function/cont_ai_ci_tdms_sync.py": NO_COUNTERS,
+    "synchronization/multi_function/cont_ai_ci_tdms_sync.py": Refused(
+        -201380, "a counter sampled on the AI sample clock is not simulated"),
     "synchronization/multi_function/cont_ai_di_acq.py": Runs(),
     "system_properties.py": Runs(_system),
 }
