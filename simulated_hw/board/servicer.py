@@ -23,7 +23,7 @@ from daq.errors import (
     INVALID_ATTRIBUTE_VALUE,
     DaqError,
 )
-from simulated_hw.board import counters, events, thermocouple, triggers
+from simulated_hw.board import counters, events, thermocouple, triggers, waveforms
 from simulated_hw.board.chan_attrs import ATTR_TASK_DEVICES, ChannelAttrRpcs, task_devices
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
@@ -183,7 +183,8 @@ CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
 
 
 class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, DigitalRpcs,
-                             ChannelAttrRpcs, triggers.TriggerRpcs, pb_grpc.NiDAQmxServicer):
+                             ChannelAttrRpcs, triggers.TriggerRpcs, waveforms.WaveformRpcs,
+                             pb_grpc.NiDAQmxServicer):
     """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer the DAQmx
     error the board gives for them (`simulated_hw.board.refusals`), never UNIMPLEMENTED."""
 

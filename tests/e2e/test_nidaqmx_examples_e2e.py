@@ -128,7 +128,6 @@ def _single_pulse(result: dict, out: str) -> None:
     # no initial delay, then 1.0 s high: wait_until_done returns when the pulse has ended
     assert 1.0 <= result["wall_s"] <= 5.0, result
 
-NO_WAVEFORMS = Refused(-201380, "the waveform API is not simulated")
 #: a finite read of a task armed on a PFI line nothing drives: the board waits the read's
 #: timeout (nidaqmx's default, 10 s) and answers -200284
 UNTRIGGERED_READ = Refused(-200284, "nothing drives the PFI line: the trigger never comes",
@@ -145,6 +144,29 @@ def _untriggered_events(result: dict, out: str) -> None:
 
 UNTRIGGERED_EVENTS = Runs(_untriggered_events, patience_s=1.0)
 NO_POWER = Refused(-200170, "a PXIe-6358 has no power channel (TS1Mod1/power -> Dev1/power)")
+
+
+def _ai0_waveform(result: dict, out: str) -> None:
+    # 50 samples of the fx load cell at rest (within +/-10 mV), its name, units and timing
+    data = out[out.index("Acquired data: [") + 16: out.index("]")]
+    values = [float(v) for v in data.split()]
+    assert len(values) == 50 and all(abs(v) <= 0.01 for v in values), out[-800:]
+    for text in ("Channel name: Dev1/ai0", "Units: Volts", "dt: 0:00:00.001000", "t0: 20"):
+        assert text in out, out[-800:]
+
+
+def _port0_waveform(result: dict, out: str) -> None:
+    # the 8 lines of port0, each 50 samples of the pull-down (nothing drives them)
+    lines = re.findall(r"^Dev1/port0/line(\d): \[([01 \n]*)\]", out, re.MULTILINE)
+    assert sorted(int(n) for n, _ in lines) == list(range(8)), out[-800:]
+    assert all(bits.split() == ["0"] * 50 for _, bits in lines), out[-800:]
+    assert "Channel name: Dev1/port0" in out and "dt: 0:00:00.001000" in out, out[-800:]
+
+
+def _finite_ao_waveform(result: dict, out: str) -> None:
+    # 1,000 samples at 1 kHz: wait_until_done returns when the clock has generated them
+    assert "Generating 1000 voltage samples." in out, out[-500:]
+    assert 0.95 <= result["wall_s"] <= 5.0, result
 
 
 def _celsius(result: dict, out: str) -> None:
@@ -173,15 +195,15 @@ EXPECTED: dict[str, Runs | Refused] = {
     "analog_in/voltage_acq_int_clk_dig_ref.py": UNTRIGGERED_READ,
     "analog_in/voltage_acq_int_clk_dig_start_ref.py": UNTRIGGERED_READ,
     "analog_in/voltage_acq_int_clk_plot_data.py": Runs(),
-    "analog_in/voltage_acq_int_clk_plot_wfm.py": NO_WAVEFORMS,
+    "analog_in/voltage_acq_int_clk_plot_wfm.py": Runs(),
     "analog_in/voltage_acq_int_clk_tdms_logging.py": Refused(-201380, "no TDMS logging"),
-    "analog_in/voltage_acq_int_clk_wfm.py": NO_WAVEFORMS,
+    "analog_in/voltage_acq_int_clk_wfm.py": Runs(_ai0_waveform),
     "analog_in/voltage_sample.py": Runs(_volts(1, 0.01)),
     "analog_out/cont_gen_voltage_wfm_int_clk.py": Runs(),
     "analog_out/cont_gen_voltage_wfm_int_clk_every_n_samples_event.py": Runs(
         _every_n("Transferred data: 1000 samples.")),
     "analog_out/cont_gen_voltage_wfm_int_clk_non_regen.py": Runs(_non_regen, loops=15),
-    "analog_out/gen_voltage_wfm_int_clk.py": NO_WAVEFORMS,
+    "analog_out/gen_voltage_wfm_int_clk.py": Runs(_finite_ao_waveform),
     "analog_out/voltage_update.py": Runs(),
     "channel_properties.py": Runs(_properties),
     "counter_in/cnt_dig_event.py": Runs(_no_edges),
@@ -194,12 +216,13 @@ EXPECTED: dict[str, Runs | Refused] = {
     "counter_out/cont_gen_dig_pulse_train_buff_implicit.py": Runs(),
     "counter_out/write_single_dig_pulse.py": Runs(_single_pulse),
     "digital_in/acq_dig_port_int_clk.py": Runs(),
-    "digital_in/acq_dig_port_int_clk_wfm.py": NO_WAVEFORMS,
+    "digital_in/acq_dig_port_int_clk_wfm.py": Runs(_port0_waveform),
     "digital_in/cont_acq_dig_lines_int_clk.py": Runs(),
     "digital_in/read_dig_lines.py": Runs(),
     "digital_in/read_dig_port.py": Runs(),
     "digital_out/cont_gen_dig_port_int_clk.py": Runs(),
-    "digital_out/cont_gen_dig_port_int_clk_wfm.py": NO_WAVEFORMS,
+    "digital_out/cont_gen_dig_port_int_clk_wfm.py": Runs(_contains(
+        "line  7: [0 0 0 0 0 0 0 1]")),
     "digital_out/gen_dig_line_int_clk.py": Runs(_paced_do),
     "digital_out/write_dig_lines.py": Runs(),
     "digital_out/write_dig_port.py": Runs(),
@@ -272,8 +295,8 @@ def waiting_runs() -> Iterator[dict[str, subprocess.Popen[str]]]:
         runs = {name: _start(_address(server), _example(SHARED, name), EXPECTED[name])
                 for name, server in zip(waiting, servers, strict=True)}
         yield runs
-        for run in runs.values():
-            if run.poll() is None:
+        for run in runs.values():  # those a deselected test left: stopped, their pipes closed
+            if run.stdout is not None and not run.stdout.closed:
                 run.kill()
                 run.communicate()
     finally:
