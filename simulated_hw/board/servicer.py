@@ -23,7 +23,14 @@ from daq.errors import (
     INVALID_ATTRIBUTE_VALUE,
     DaqError,
 )
-from simulated_hw.board import counters, events, thermocouple, triggers, waveforms
+from simulated_hw.board import (
+    counters,
+    events,
+    tdms_logging,
+    thermocouple,
+    triggers,
+    waveforms,
+)
 from simulated_hw.board.chan_attrs import ATTR_TASK_DEVICES, ChannelAttrRpcs, task_devices
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
@@ -184,7 +191,7 @@ CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
 
 class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, DigitalRpcs,
                              ChannelAttrRpcs, triggers.TriggerRpcs, waveforms.WaveformRpcs,
-                             pb_grpc.NiDAQmxServicer):
+                             tdms_logging.LoggingRpcs, pb_grpc.NiDAQmxServicer):
     """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer the DAQmx
     error the board gives for them (`simulated_hw.board.refusals`), never UNIMPLEMENTED."""
 
@@ -265,6 +272,7 @@ class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, Dig
             task = self.tasks.pop(request.task.name, None)
         if task is None:
             raise daq_error(INVALID_TASK, f"task {request.task.name!r} does not exist")
+        tdms_logging.flush(self.device, task, self._others())
         self.device.stop(task)
         if task.watchdog is not None:
             self.device.remove_watchdog(task.watchdog)
@@ -277,7 +285,9 @@ class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, Dig
 
     @reports_daq_errors
     def StopTask(self, request, context):  # noqa: N802
-        self.device.stop(self._task(request.task))
+        task = self._task(request.task)
+        tdms_logging.flush(self.device, task, self._others())
+        self.device.stop(task)
         return pb.StopTaskResponse(status=0)
 
     @reports_daq_errors
@@ -521,7 +531,9 @@ class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, Dig
 
     @reports_daq_errors
     def WaitUntilTaskDone(self, request, context):  # noqa: N802
-        self.device.wait_until_done(self._task(request.task), request.time_to_wait)
+        task = self._task(request.task)
+        self.device.wait_until_done(task, request.time_to_wait)
+        tdms_logging.flush(self.device, task, self._others())
         return pb.WaitUntilTaskDoneResponse(status=0)
 
     @reports_daq_errors
@@ -567,7 +579,10 @@ class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, Dig
                 f"holds only {request.array_size_in_samps} samples",
                 samps_per_chan_read=0,
             )
+        tdms_logging.check_read(task)
+        t_first = waveforms.first_sample_time(self.device, task)
         data = self.device.read(task, n, request.timeout, self._others())
+        tdms_logging.write(self.device, task, data, t_first)
         samps = data.shape[1]
         if request.fill_mode_raw != FILL_GROUP_BY_CHANNEL:
             data = data.T

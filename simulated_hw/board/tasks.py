@@ -76,6 +76,7 @@ class SimTask:
     #: on: nothing on the rig drives those, so the task waits (`simulated_hw.board.triggers`)
     external: dict[str, str] = field(default_factory=dict)
     retriggerable: bool = False  # start trigger: a finite task rearms after each
+    tdms_log: Any = None  # AI: its `simulated_hw.board.tdms_logging.TdmsLog`, if it logs
 
     @property
     def kind(self) -> str | None:

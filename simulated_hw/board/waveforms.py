@@ -25,7 +25,7 @@ from ni.protobuf.types.waveform_conversion import (
 from nidaqmx._stubs import nidaqmx_pb2 as pb
 from nitypes.waveform import AnalogWaveform, DigitalWaveform, Timing
 
-from simulated_hw.board import digital
+from simulated_hw.board import digital, tdms_logging
 from simulated_hw.board.codes import WRITE_NUM_CHANS_MISMATCH, daq_error
 from simulated_hw.board.tasks import SimTask
 from simulated_hw.board.wire import reports_daq_errors
@@ -80,9 +80,11 @@ class WaveformRpcs:
     def ReadAnalogWaveforms(self, request, context):  # noqa: N802
         task = self._task(request.task)
         task.kind_or_raise("ai")
+        tdms_logging.check_read(task)
         t_first = first_sample_time(self.device, task)
         data = self.device.read(task, request.num_samps_per_chan, request.timeout,
                                 self._others())
+        tdms_logging.write(self.device, task, data, t_first)
         mode = request.waveform_attribute_mode_raw
         timing = _timing(self.device, task, t_first, mode)
         out = []

@@ -52,6 +52,9 @@ class Runs:
     check: Callable[[dict, str], None] | None = None
     loops: int = 3  # reads/writes/events before the simulated user stops it
     patience_s: float = 30.0  # how long the user waits for events before pressing Enter
+    #: run in the server's working directory: a file the example has the server write (TDMS
+    #: logging) is on the server's disk, relative to its directory, as with NI's gRPC server
+    in_server_dir: bool = False
 
 
 @dataclass(frozen=True)
@@ -169,6 +172,15 @@ def _finite_ao_waveform(result: dict, out: str) -> None:
     assert 0.95 <= result["wall_s"] <= 5.0, result
 
 
+def _logged(result: dict, out: str) -> None:
+    # the server logged the read's 10 samples of ai0 (at rest: within +/-10 mV) to TestData.tdms
+    # in its directory; the example read them back from there, then removed the file
+    lines = [line for line in out.splitlines() if line.startswith("Read data from TDMS file")]
+    assert len(lines) == 1, out[-800:]
+    values = _floats(lines[0])
+    assert len(values) == 10 and all(abs(v) <= 0.01 for v in values), out[-800:]
+
+
 def _celsius(result: dict, out: str) -> None:
     # ai0 (the fx load cell, at rest) read as a type K thermocouple: the 25 C cold junction
     # plus the load cell's noise (within +/-2 mV at rest, see voltage_acq_int_clk) over
@@ -196,7 +208,7 @@ EXPECTED: dict[str, Runs | Refused] = {
     "analog_in/voltage_acq_int_clk_dig_start_ref.py": UNTRIGGERED_READ,
     "analog_in/voltage_acq_int_clk_plot_data.py": Runs(),
     "analog_in/voltage_acq_int_clk_plot_wfm.py": Runs(),
-    "analog_in/voltage_acq_int_clk_tdms_logging.py": Refused(-201380, "no TDMS logging"),
+    "analog_in/voltage_acq_int_clk_tdms_logging.py": Runs(_logged, in_server_dir=True),
     "analog_in/voltage_acq_int_clk_wfm.py": Runs(_ai0_waveform),
     "analog_in/voltage_sample.py": Runs(_volts(1, 0.01)),
     "analog_out/cont_gen_voltage_wfm_int_clk.py": Runs(),
@@ -241,10 +253,10 @@ EXPECTED: dict[str, Runs | Refused] = {
 }
 
 
-def _start_server() -> subprocess.Popen[str]:
+def _start_server(cwd: Path = REPO_ROOT) -> subprocess.Popen[str]:
     return subprocess.Popen(
         [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "7"],
-        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def _address(server: subprocess.Popen[str]) -> str:
@@ -260,8 +272,14 @@ def _stop_server(server: subprocess.Popen[str]) -> None:
 
 
 @pytest.fixture(scope="module")
-def sim_server() -> Iterator[str]:
-    server = _start_server()
+def server_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The sim-server's working directory (where a relative log file path lands)."""
+    return tmp_path_factory.mktemp("sim-server")
+
+
+@pytest.fixture(scope="module")
+def sim_server(server_dir: Path) -> Iterator[str]:
+    server = _start_server(server_dir)
     try:
         yield _address(server)
     finally:
@@ -272,11 +290,14 @@ def _example(shared_dir: Path, example: str) -> Path:
     return shared_dir / "reference" / "nidaqmx-python-examples" / example
 
 
-def _start(sim_server: str, path: Path, expected: Runs | Refused) -> subprocess.Popen[str]:
+def _start(sim_server: str, path: Path, expected: Runs | Refused,
+           server_dir: Path | None = None) -> subprocess.Popen[str]:
     loops = expected.loops if isinstance(expected, Runs) else 3
     patience = expected.patience_s if isinstance(expected, Runs) else 30.0
+    in_server_dir = isinstance(expected, Runs) and expected.in_server_dir
     return subprocess.Popen([sys.executable, str(RUNNER), sim_server, str(path), "--loops",
-                             str(loops), "--patience", str(patience)], cwd=path.parent,
+                             str(loops), "--patience", str(patience)],
+                            cwd=server_dir if in_server_dir else path.parent,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -312,11 +333,11 @@ def test_the_table_covers_every_example(shared_dir: Path) -> None:
 
 @pytest.mark.parametrize("example", sorted(EXPECTED))
 def test_nis_example_runs_or_is_refused_as_the_board_does(
-        example: str, sim_server: str, shared_dir: Path,
+        example: str, sim_server: str, server_dir: Path, shared_dir: Path,
         waiting_runs: dict[str, subprocess.Popen[str]]) -> None:
     expected = EXPECTED[example]
     run = waiting_runs.get(example) or _start(sim_server, _example(shared_dir, example),
-                                               expected)
+                                               expected, server_dir)
     stdout, stderr = run.communicate(timeout=120)
     lines = [line for line in stdout.splitlines() if line.startswith("RESULT ")]
     assert lines, stdout[-2000:] + stderr[-2000:]
