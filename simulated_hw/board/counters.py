@@ -7,8 +7,10 @@ Counter input:
   (frequency, time, ticks) measurements: no edge arrives, so a read waits its timeout and ends
   as the board's does: on demand DAQmx -200474 (the operation timed out), buffered (implicit
   timing) -200284 (samples not yet acquired);
+- an edge count sampled on the AI sample clock: the initial count at each AI sample, paced by
+  it (-200284 past the timeout, e.g. before the AI task starts);
 - a sample clock or terminal on a PFI line: accepted, and the task waits for ever
-  (`simulated_hw.board.triggers`); count edges on another sample clock, encoders, velocity and
+  (`simulated_hw.board.triggers`); other sample-clocked measurements, encoders, velocity and
   GPS are not simulated (-201380).
 
 Counter output (pulses by frequency, time or ticks): the pulse times are coerced to whole ticks
@@ -211,13 +213,20 @@ def _create_handler(rpc: str) -> Callable[..., Any]:
 
 # --- the device's hooks ---------------------------------------------------------------------
 def start(device: Any, task: SimTask) -> None:
-    """A counter task starts: a generation's pulses count from now. An input sampled on a
-    clock other than a PFI line (the AI sample clock) is not simulated: -201380."""
+    """A counter task starts: a generation's pulses count from now; an edge count sampled on
+    the AI sample clock samples from the AI task's start (`SimDevice._start_ai` sets it when
+    that comes later). Another sample clock (the onboard clock): -201380."""
+    task.di_read = 0  # samples read since the start
     if task.kind == "ci" and task.rate_hz is not None:
-        raise daq_error(DEVICE_DOES_NOT_SUPPORT_THIS_OPERATION,
-                        f"start {task.name!r}: a counter input sampled on "
-                        f"{task.clock_source or 'the onboard clock'} is not simulated (an "
-                        "on-demand count, implicit timing, or a clock on a PFI line are)")
+        if task.clock_source.lower() != device.terminal("SampleClock").lower() \
+                or task.channels[0].counter.usage != CI_COUNT_EDGES:
+            raise daq_error(DEVICE_DOES_NOT_SUPPORT_THIS_OPERATION,
+                            f"start {task.name!r}: a counter input sampled on "
+                            f"{task.clock_source or 'the onboard clock'} is not simulated (an "
+                            "edge count on /Dev1/ai/SampleClock or a PFI line, implicit "
+                            "timing, or on demand are)")
+        task.t_start = device.t0 if device.ai_task is not None else None
+        return
     task.t_start = device.now()
 
 
@@ -336,7 +345,9 @@ class CounterRpcs:
         try:
             if triggers.waits_on_external(task):
                 return triggers.read_times_out(self.device, task, n, request.timeout)
-            if counters[0].usage == CI_COUNT_EDGES:  # on demand (`start` refuses the rest)
+            if counters[0].usage == CI_COUNT_EDGES and task.rate_hz is not None:
+                return self._sampled_counts(task, n, request.timeout)
+            if counters[0].usage == CI_COUNT_EDGES:  # on demand
                 return np.array([[c.initial_count] * max(n, 1) for c in counters], dtype=float)
             if n == 0 or (n < 0 and timed and task.sample_mode == MODE_CONTINUOUS):
                 return np.zeros((len(counters), 0))  # what is available: nothing
@@ -353,6 +364,33 @@ class CounterRpcs:
         finally:
             if task.auto_started and task.running and not timed:  # on demand: one read
                 self.device.stop(task)
+
+    def _sampled_counts(self, task: SimTask, n: int, timeout_s: float) -> np.ndarray:
+        """``n`` edge counts sampled on the AI sample clock (nothing counted: the initial
+        count): they wait for the clock, -200284 past the timeout."""
+        device = self.device
+        assert task.rate_hz is not None
+        with device.lock:
+            if task.t_start is None and device.ai_task is not None:
+                task.t_start = device.t0
+            t_start = task.t_start
+            taken = (0 if t_start is None
+                     else max(math.floor((device.now() - t_start) * task.rate_hz), 0))
+            if n < 0:
+                n = taken - task.di_read
+            ready_at = math.inf if t_start is None else t_start + (task.di_read + n) / task.rate_hz
+        if not device.fast and n > 0:
+            now = device.now()
+            if timeout_s >= 0 and ready_at > now + timeout_s:
+                device.sleep(timeout_s)
+                raise triggers.samples_not_acquired(task, n, timeout_s, "the AI sample clock "
+                                                    "it counts on has not produced them")
+            while now < ready_at and not device.stopping() and task.running:
+                device.sleep(ready_at - now)
+                now = device.now()
+        task.di_read += max(n, 0)
+        return np.array([[ch.counter.initial_count] * max(n, 0) for ch in task.channels],
+                        dtype=float)
 
     @reports_daq_errors
     def ReadCounterF64Ex(self, request, context):  # noqa: N802

@@ -374,8 +374,8 @@ class SimDevice:
             if ao_task.t_start is None and ao_task.clock_source.lower() != \
                     self.terminal("SampleClock").lower():
                 ao_task.t_start = t0
-        for other in others:  # DI on the AI sample clock starts with it
-            if other.kind == "di" and other.running and other.rate_hz is not None \
+        for other in others:  # DI and edge counts on the AI sample clock start with it
+            if other.kind in ("di", "ci") and other.running and other.rate_hz is not None \
                     and other.t_start is None:
                 other.t_start = t0
 

@@ -155,7 +155,8 @@ def test_what_the_counters_do_not_do_is_refused_with_the_boards_code(
     task.close()
 
 
-def test_a_counter_is_one_task_s_at_a_time_and_not_on_the_ai_clock(paced: grpc.Channel) -> None:
+def test_a_counter_is_one_task_s_at_a_time_and_not_on_the_onboard_clock(
+        paced: grpc.Channel) -> None:
     a, b = _task(paced), _task(paced)
     a.ci_channels.add_ci_count_edges_chan("Dev1/ctr0")
     b.co_channels.add_co_pulse_chan_freq("Dev1/ctr0", freq=10.0)
@@ -164,9 +165,33 @@ def test_a_counter_is_one_task_s_at_a_time_and_not_on_the_ai_clock(paced: grpc.C
         b.start()
     assert err.value.error_code == -50103
     a.stop()
-    a.timing.cfg_samp_clk_timing(1_000.0, source="/Dev1/ai/SampleClock")
+    a.timing.cfg_samp_clk_timing(1_000.0)
     with pytest.raises(DaqError) as err:
         a.start()
     assert err.value.error_code == -201380
     a.close()
     b.close()
+
+
+def test_an_edge_count_on_the_ai_sample_clock_waits_for_it_and_counts_nothing(
+        paced: grpc.Channel, clock: FakeClock) -> None:
+    ci = _task(paced)
+    ci.ci_channels.add_ci_count_edges_chan("Dev1/ctr0", initial_count=0)
+    ci.timing.cfg_samp_clk_timing(1_000.0, source="/Dev1/ai/SampleClock",
+                                  sample_mode=AcquisitionType.CONTINUOUS)
+    ci.start()
+    t0 = clock.t
+    with pytest.raises(DaqError) as err:  # the AI clock has not started
+        ci.read(number_of_samples_per_channel=10, timeout=1.0)
+    assert err.value.error_code == -200284
+    assert clock.t - t0 == pytest.approx(1.0)
+    ai = _task(paced)
+    ai.ai_channels.add_ai_voltage_chan("Dev1/ai0")
+    ai.timing.cfg_samp_clk_timing(1_000.0, sample_mode=AcquisitionType.CONTINUOUS)
+    ai.start()
+    t0 = clock.t
+    assert ci.read(number_of_samples_per_channel=100) == [0.0] * 100
+    assert clock.t - t0 == pytest.approx(0.1, abs=0.002)  # paced by the AI sample clock
+    assert len(ai.read(number_of_samples_per_channel=100)) == 100
+    ai.close()
+    ci.close()
