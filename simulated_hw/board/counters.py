@@ -126,7 +126,7 @@ def counter_names(device: Any, name: str, where: str) -> list[str]:
 def coerced(seconds: float, what: str, where: str) -> float:
     """``seconds`` as whole ticks of the fastest timebase whose 32-bit count holds it; -200077
     for a time no timebase makes."""
-    for rate in TIMEBASES_HZ:
+    for rate in TIMEBASES_HZ if math.isfinite(seconds) else ():
         ticks = round(seconds * rate)
         if ticks < 2 ** 32:
             if ticks < MIN_TICKS:
@@ -174,8 +174,9 @@ def _counter_of(rpc: str, request: Any, where: str) -> Counter:
         high = coerced(request.high_ticks / TIMEBASES_HZ[0], "high time", where)
         low = coerced(request.low_ticks / TIMEBASES_HZ[0], "low time", where)
         delay = request.initial_delay / TIMEBASES_HZ[0]
-    if delay < 0:
-        raise daq_error(INVALID_ATTRIBUTE_VALUE, f"{where}: initial delay {delay:g} s < 0")
+    if not (math.isfinite(delay) and delay >= 0):
+        raise daq_error(INVALID_ATTRIBUTE_VALUE, f"{where}: initial delay {delay:g} s must be "
+                        ">= 0")
     return Counter(usage, high_s=high, low_s=low, initial_delay_s=delay,
                    idle_high=request.idle_state_raw == LEVEL_HIGH)
 
@@ -480,6 +481,9 @@ class CounterRpcs:
         freq = np.asarray(request.frequency, dtype=float)
         duty = np.asarray(request.duty_cycle, dtype=float)
         where = f"write to task {request.task.name!r}"
+        if freq.size != duty.size:
+            raise daq_error(WRITE_NUM_CHANS_MISMATCH, f"{where}: {freq.size} frequencies for "
+                            f"{duty.size} duty cycles")
         times = [pulse_times(float(f), float(d), where) for f, d in zip(freq, duty, strict=True)]
         highs = np.array([t[0] for t in times])
         lows = np.array([t[1] for t in times])

@@ -331,6 +331,7 @@ class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, Dig
             task.external["start trigger"] = triggers.check_external(
                 self.device, request.trigger_source, f"CfgDigEdgeStartTrig on task "
                 f"{task.name!r}", "start trigger")
+            task.trigger_source = ""  # not the AI start trigger any more
             return pb.CfgDigEdgeStartTrigResponse(status=0)
         task.trigger_source = request.trigger_source
         return pb.CfgDigEdgeStartTrigResponse(status=0)
@@ -580,7 +581,7 @@ class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, Dig
                 samps_per_chan_read=0,
             )
         tdms_logging.check_read(task)
-        t_first = waveforms.first_sample_time(self.device, task)
+        t_first = waveforms.first_sample_time(self.device, task) if task.tdms_log else 0.0
         data = self.device.read(task, n, request.timeout, self._others())
         tdms_logging.write(self.device, task, data, t_first)
         samps = data.shape[1]

@@ -135,6 +135,8 @@ def test_pulse_times_are_whole_ticks_of_the_fastest_timebase_that_holds_them() -
         coerced(10e-9, "t", "here")  # 1 tick: the counter needs 2
     with pytest.raises(Exception, match="outside what the counter makes"):
         coerced(1e5, "t", "here")  # 1e10 ticks of 100 kHz
+    with pytest.raises(Exception, match="outside what the counter makes"):
+        coerced(float("nan"), "t", "here")
 
 
 @pytest.mark.parametrize(("make", "code"), [
