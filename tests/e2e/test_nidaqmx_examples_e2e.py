@@ -328,18 +328,24 @@ def _start(sim_server: str, path: Path, expected: Runs | Refused,
 
 @pytest.fixture(scope="module")
 def waiting_runs() -> Iterator[dict[str, subprocess.Popen[str]]]:
-    """The examples that wait on the board (a read's timeout), all started with the module,
-    each against a sim-server of its own (one board cannot run two of them at once): they only
-    wait, so overlapping them costs one wait, not one each. None without ../shared (the tests
-    then skip, or fail on CI, through ``shared_dir``)."""
-    waiting = [name for name, expected in EXPECTED.items()
-               if isinstance(expected, Refused) and expected.waits_s > 0]
-    if not SHARED.is_dir():
-        waiting = []
-    servers = [_start_server() for _ in waiting]
+    """The examples that wait on the board (a read's timeout), all started with the module: they
+    only wait, so overlapping them costs one wait, not one each. One board cannot run two that
+    hold the same input (the examples of one folder use the same one: ai0, ctr0), so each
+    server takes at most one example of each folder. None without ../shared (the tests then
+    skip, or fail on CI, through ``shared_dir``)."""
+    by_folder: dict[str, list[str]] = {}
+    for name, expected in EXPECTED.items():
+        if isinstance(expected, Refused) and expected.waits_s > 0 and SHARED.is_dir():
+            by_folder.setdefault(name.split("/")[0], []).append(name)
+    lanes = [[names[i] for names in by_folder.values() if i < len(names)]
+             for i in range(max(map(len, by_folder.values()), default=0))]
+    servers = [_start_server() for _ in lanes]
     try:
-        runs = {name: _start(_address(server), _example(SHARED, name), EXPECTED[name])
-                for name, server in zip(waiting, servers, strict=True)}
+        runs = {}
+        for lane, server in zip(lanes, servers, strict=True):
+            address = _address(server)
+            runs.update({name: _start(address, _example(SHARED, name), EXPECTED[name])
+                         for name in lane})
         yield runs
         for run in runs.values():  # those a deselected test left: stopped, their pipes closed
             if run.stdout is not None and not run.stdout.closed:
