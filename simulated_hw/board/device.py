@@ -24,7 +24,7 @@ from daq.errors import (
 )
 from rig_model.params import RigParams
 from rig_model.rig import RigModel
-from simulated_hw.board import ao_stream, thermocouple
+from simulated_hw.board import ao_stream, counters, thermocouple, triggers
 from simulated_hw.board import digital as digital_io
 from simulated_hw.board.codes import (
     INVALID_AO_DATA_WRITE,
@@ -283,6 +283,9 @@ class SimDevice:
                         f"start {task.name!r}: {sorted(clash)} in use by running task "
                         f"{other.name!r}",
                     )
+            if triggers.waits_on_external(task):
+                triggers.arm(task)  # nothing drives the line: armed, never triggered
+                return
             if task.kind == "watchdog":
                 self.safe.start(task.watchdog)
                 task.running = True
@@ -302,6 +305,8 @@ class SimDevice:
                 linked = task.clock_source.lower() == self.terminal("SampleClock").lower()
                 task.t_start = (self.t0 if self.ai_task is not None else None) if linked \
                     else self.now()
+            elif task.kind in ("ci", "co"):
+                counters.start(self, task)
             elif task.kind is None:
                 raise daq_error(NO_CHANS_IN_TASK, f"start {task.name!r}: the task has no channels")
             task.error = None
@@ -369,8 +374,8 @@ class SimDevice:
             if ao_task.t_start is None and ao_task.clock_source.lower() != \
                     self.terminal("SampleClock").lower():
                 ao_task.t_start = t0
-        for other in others:  # DI on the AI sample clock starts with it
-            if other.kind == "di" and other.running and other.rate_hz is not None \
+        for other in others:  # DI and edge counts on the AI sample clock start with it
+            if other.kind in ("di", "ci") and other.running and other.rate_hz is not None \
                     and other.t_start is None:
                 other.t_start = t0
 
@@ -606,6 +611,10 @@ class SimDevice:
         """The next ``n`` samples of an AI task, shape (n_ch, n); ``n < 0``: all available (a
         finite task: the rest of it). A read starts a task that is not running, as DAQmx
         does; a finite task started that way stops when its last sample is read."""
+        if triggers.waits_on_external(task):
+            if not task.running:
+                self.start(task, others)
+            return triggers.read_times_out(self, task, n, timeout_s)
         with self.lock:
             if task.error is not None and task.running:
                 raise task.error
@@ -769,6 +778,8 @@ class SimDevice:
                 return self.generated >= task.samps_per_chan
             if task.running and task.kind == "di" and task.finite:
                 return self.di_acquired(task) >= task.samps_per_chan
+            if task.kind == "co":
+                return counters.generation_done(self, task)
             return task.done or not task.running
 
     def wait_until_done(self, task: SimTask, timeout_s: float) -> None:
@@ -816,6 +827,8 @@ class SimDevice:
 
     def _end_time(self, task: SimTask) -> float | None:
         """Device time at which a running finite task ends; None if it never ends by itself."""
+        if task.kind == "co":
+            return counters.end_time(task)
         if not task.running or not task.finite or task.rate_hz is None:
             return None
         if task is self.ai_task:

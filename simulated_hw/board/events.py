@@ -129,6 +129,8 @@ def done(device: Any, task: SimTask, alive: Callable[[], bool]) -> Iterator[Any]
 
 
 def _ended(device: Any, task: SimTask) -> bool:
+    if task.kind == "co":  # a pulse generation ends on the counter's timebase
+        return bool(device.is_done(task))
     if task is device.ai_task:
         return bool(device.generated >= task.samps_per_chan)
     return task.done

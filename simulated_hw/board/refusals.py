@@ -8,12 +8,12 @@ handler that raises `daq.errors.DaqError` (status UNKNOWN with ``ni-error``, so 
 - a ``Create*Chan`` for a channel the device lacks (``Dev1/power``): -200170, as the driver
   says for any physical channel that does not exist; a measurement on an AI channel the
   simulated board does not make (strain, current, RTD, ...): -200431
-  (``PHYS_CHAN_MEAS_TYPE``); a counter channel ``Dev1/ctr0..3``: -201380
-  (``DEVICE_DOES_NOT_SUPPORT_THIS_OPERATION``): the board has four counters, the simulation none;
+  (``PHYS_CHAN_MEAS_TYPE``); a counter measurement the simulated counters do not make
+  (encoders, velocity, GPS; `simulated_hw.board.counters` serves the rest): -201380
+  (``DEVICE_DOES_NOT_SUPPORT_THIS_OPERATION``);
 - a ``Get/Set/Reset...Attribute``: -200197 (``ATTRIBUTE_NOT_SUPPORTED_IN_TASK_CONTEXT``);
 - signal events: -200982 (``SIGNAL_EVENTS_NOT_SUPPORTED_BY_DEVICE``);
-- a reference trigger on a PFI terminal: -200040 (nothing drives the board's PFI lines, as a
-  start trigger there);
+- another kind of trigger (analog, pattern, ...): -200040 with its source;
 - anything else: -201380 with the RPC's name.
 """
 
@@ -55,7 +55,9 @@ def refusal_for(servicer: Any, rpc: str, request: Any) -> DaqError:
                 return daq_error(
                     DEVICE_DOES_NOT_SUPPORT_THIS_OPERATION,
                     f"{where}: {part} is one of the {device.spec.product}'s counters; the "
-                    "simulated board has no counters (nothing on the rig is wired to them)")
+                    "simulated board's counters count edges, measure frequency, period and "
+                    "pulses and generate pulses, but do not simulate encoders, velocity or "
+                    "GPS (nothing on the rig is wired to them)")
             if not part.lower().lstrip("/").split("/", 1)[-1].startswith("ai"):
                 device.physical(part, "ai", where)  # raises -200220 / -200170 as the driver
                 raise daq_error(PHYSICAL_CHAN_DOES_NOT_EXIST, f"{where}: {part!r} does not exist")

@@ -23,7 +23,14 @@ from daq.errors import (
     INVALID_ATTRIBUTE_VALUE,
     DaqError,
 )
-from simulated_hw.board import events, thermocouple
+from simulated_hw.board import (
+    counters,
+    events,
+    tdms_logging,
+    thermocouple,
+    triggers,
+    waveforms,
+)
 from simulated_hw.board.chan_attrs import ATTR_TASK_DEVICES, ChannelAttrRpcs, task_devices
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
@@ -71,7 +78,6 @@ from simulated_hw.board.codes import (
     IDLE_ZERO_VOLTS,
     INIT_ATTACH,
     INIT_NEW,
-    INVALID_ROUTING_SOURCE,
     INVALID_TASK,
     LINES_PER_CHAN_ALL,
     MEAS_VOLTAGE,
@@ -183,8 +189,9 @@ CREATE_CHAN_RPCS: dict[str, tuple[str, str, str]] = {
 }
 
 
-class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrRpcs,
-                             pb_grpc.NiDAQmxServicer):
+class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, DigitalRpcs,
+                             ChannelAttrRpcs, triggers.TriggerRpcs, waveforms.WaveformRpcs,
+                             tdms_logging.LoggingRpcs, pb_grpc.NiDAQmxServicer):
     """The NI-DAQmx gRPC service on a `SimDevice`. RPCs not defined here answer the DAQmx
     error the board gives for them (`simulated_hw.board.refusals`), never UNIMPLEMENTED."""
 
@@ -265,6 +272,7 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
             task = self.tasks.pop(request.task.name, None)
         if task is None:
             raise daq_error(INVALID_TASK, f"task {request.task.name!r} does not exist")
+        tdms_logging.flush(self.device, task, self._others())
         self.device.stop(task)
         if task.watchdog is not None:
             self.device.remove_watchdog(task.watchdog)
@@ -277,7 +285,9 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
 
     @reports_daq_errors
     def StopTask(self, request, context):  # noqa: N802
-        self.device.stop(self._task(request.task))
+        task = self._task(request.task)
+        tdms_logging.flush(self.device, task, self._others())
+        self.device.stop(task)
         return pb.StopTaskResponse(status=0)
 
     @reports_daq_errors
@@ -300,13 +310,10 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
         self.device.check_rate(request.rate, where)
         source = request.source
         clock = self.device.terminal("SampleClock").lower()
+        task.external.pop("sample clock", None)
         if source and source.lower() not in ("onboardclock", clock):
-            raise daq_error(
-                INVALID_ROUTING_SOURCE,
-                f"{where}: sample clock source {source!r} is not available on the simulated "
-                f"{self.device.spec.name} (use OnboardClock or "
-                f"{self.device.terminal('SampleClock')})",
-            )
+            task.external["sample clock"] = triggers.check_external(
+                self.device, source, where, "sample clock")
         if request.sample_mode_raw not in (MODE_CONTINUOUS, MODE_FINITE):
             raise daq_error(INVALID_ATTRIBUTE_VALUE,
                             f"{where}: sample mode {request.sample_mode_raw} not supported")
@@ -319,13 +326,13 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
     @reports_daq_errors
     def CfgDigEdgeStartTrig(self, request, context):  # noqa: N802
         task = self._task(request.task)
+        task.external.pop("start trigger", None)
         if request.trigger_source.lower() != self.device.terminal("StartTrigger").lower():
-            raise daq_error(
-                INVALID_ROUTING_SOURCE,
-                f"CfgDigEdgeStartTrig on task {task.name!r}: trigger source "
-                f"{request.trigger_source!r} is not available on the simulated "
-                f"{self.device.spec.name} (use {self.device.terminal('StartTrigger')})",
-            )
+            task.external["start trigger"] = triggers.check_external(
+                self.device, request.trigger_source, f"CfgDigEdgeStartTrig on task "
+                f"{task.name!r}", "start trigger")
+            task.trigger_source = ""  # not the AI start trigger any more
+            return pb.CfgDigEdgeStartTrigResponse(status=0)
         task.trigger_source = request.trigger_source
         return pb.CfgDigEdgeStartTrigResponse(status=0)
 
@@ -365,7 +372,10 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
         attr = request.attribute_raw
         values = set()
         for ch in _find_channels(task, request.channel):
-            if attr == ATTR_CHAN_TYPE:
+            counter_value = counters.chan_int32(ch, attr)
+            if counter_value is not None:
+                values.add(counter_value)
+            elif attr == ATTR_CHAN_TYPE:
                 values.add(types[ch.kind])
             elif attr == ATTR_AO_IDLE_OUTPUT and ch.kind == "ao":
                 self._idle_output_supported(task)
@@ -424,7 +434,8 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
             value = (task.samps_per_chan - self.device.read_pos
                      if task.finite and task is self.device.ai_task
                      else task.samps_per_chan if task.finite
-                     else self.device.available(task) if task.rate_hz is not None else 1)
+                     else self.device.available(task)
+                     if task.rate_hz is not None or counters.buffered(task) else 1)
         else:
             raise _unsupported("read", request.attribute_raw)
         return pb.GetReadAttributeUInt32Response(value=value)
@@ -521,7 +532,9 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
 
     @reports_daq_errors
     def WaitUntilTaskDone(self, request, context):  # noqa: N802
-        self.device.wait_until_done(self._task(request.task), request.time_to_wait)
+        task = self._task(request.task)
+        self.device.wait_until_done(task, request.time_to_wait)
+        tdms_logging.flush(self.device, task, self._others())
         return pb.WaitUntilTaskDoneResponse(status=0)
 
     @reports_daq_errors
@@ -567,7 +580,10 @@ class SimulatedDaqmxServicer(WatchdogRpcs, DeviceRpcs, DigitalRpcs, ChannelAttrR
                 f"holds only {request.array_size_in_samps} samples",
                 samps_per_chan_read=0,
             )
+        tdms_logging.check_read(task)
+        t_first = waveforms.first_sample_time(self.device, task) if task.tdms_log else 0.0
         data = self.device.read(task, n, request.timeout, self._others())
+        tdms_logging.write(self.device, task, data, t_first)
         samps = data.shape[1]
         if request.fill_mode_raw != FILL_GROUP_BY_CHANNEL:
             data = data.T

@@ -36,12 +36,13 @@ def default_input_buffer(rate_hz: float) -> int:
 @dataclass
 class SimChannel:
     name: str  # virtual channel name, as the client derives it
-    kind: str  # "ai" | "ao" | "do"
+    kind: str  # "ai" | "ao" | "do" | "di" | "ci" | "co"
     physical: list[str]  # canonical physical names (one, or several lines for a DO channel)
     min_v: float = -10.0
     max_v: float = 10.0
     idle_behavior: int = IDLE_MAINTAIN  # AO: what the terminal does when no generation runs
     temperature_units: int | None = None  # AI thermocouple: read in these (TemperatureUnits)
+    counter: Any = None  # CI/CO: its `simulated_hw.board.counters.Counter`
 
 
 @dataclass
@@ -71,6 +72,11 @@ class SimTask:
     watchdog: Any = None  # a `simulated_hw.board.watchdog.Watchdog` for a watchdog task
     run_id: int = 0  # counts the task's starts (event streams restart their counts with it)
     di_read: int = 0  # hardware-timed DI: samples read since the start
+    #: role ("start trigger", "reference trigger", "sample clock") -> the external line it is
+    #: on: nothing on the rig drives those, so the task waits (`simulated_hw.board.triggers`)
+    external: dict[str, str] = field(default_factory=dict)
+    retriggerable: bool = False  # start trigger: a finite task rearms after each
+    tdms_log: Any = None  # AI: its `simulated_hw.board.tdms_logging.TdmsLog`, if it logs
 
     @property
     def kind(self) -> str | None:

@@ -1,13 +1,16 @@
 """Run one of NI's nidaqmx examples unchanged against a gRPC device server (``sfdrig sim-server``).
 
-Usage: ``python nidaqmx_example_runner.py HOST:PORT EXAMPLE.py [--loops N]``
+Usage: ``python nidaqmx_example_runner.py HOST:PORT EXAMPLE.py [--loops N] [--patience S]
+[--enter-after S]``
 
 Only what a lab engineer changes to move a program onto the server is supplied: the session
 (every ``nidaqmx.Task``, ``System.local()`` and ``nidaqmx.system.Device`` get the server's
 ``grpc_options``) and the device names (requests naming another board's device are renamed to
 the server's ``Dev1`` on the wire, by a client interceptor; ``Dev2`` stays: there is one board).
 The user's hand is simulated too: ``input()`` ("press Enter to stop") returns once the example's
-events have been called ``N`` times (at once if it registered none), and the
+events have been called ``N`` times (or after ``S`` seconds, 30 by default: a task waiting on a
+trigger that never comes; if it registered none, at once or after ``--enter-after`` seconds:
+a program whose threads read until Enter), and the
 ``N + 1``-th read or write of a ``while True`` loop raises ``KeyboardInterrupt`` (Ctrl+C), which
 the examples catch. Plots are drawn off screen.
 
@@ -68,8 +71,10 @@ class _Renamer(grpc.UnaryUnaryClientInterceptor, grpc.UnaryStreamClientIntercept
 class _Hand:
     """The user: Ctrl+C after ``loops`` reads/writes, Enter after ``loops`` events."""
 
-    def __init__(self, loops: int) -> None:
+    def __init__(self, loops: int, patience_s: float, enter_after_s: float = 0.0) -> None:
         self.loops = loops
+        self.patience_s = patience_s  # how long the user waits for events before Enter
+        self.enter_after_s = enter_after_s  # ... and with no events: watching it run
         self.calls = 0
         self.events = 0
         self.enough = threading.Event()
@@ -90,19 +95,25 @@ class _Hand:
             self.enough.set()
 
     def input(self, prompt: object = "") -> str:
-        """Enter: after ``loops`` events, or at once when nothing will call back."""
+        """Enter: after ``loops`` events (or ``patience_s``), at once when nothing will call
+        back."""
         print(prompt, end="")
         if self.registered:
-            self.enough.wait(30.0)
+            self.enough.wait(self.patience_s)
+        elif self.enter_after_s:
+            time.sleep(self.enter_after_s)  # the user, not a synchronisation
         return ""
 
 
 def main(argv: list[str]) -> int:
     address, path = argv[0], argv[1]
     loops = int(argv[argv.index("--loops") + 1]) if "--loops" in argv else 3
+    patience_s = float(argv[argv.index("--patience") + 1]) if "--patience" in argv else 30.0
+    enter_after_s = (float(argv[argv.index("--enter-after") + 1]) if "--enter-after" in argv
+                     else 0.0)
     channel = grpc.intercept_channel(grpc.insecure_channel(address), _Renamer())
     options = nidaqmx.GrpcSessionOptions(channel, "")
-    hand = _Hand(loops)
+    hand = _Hand(loops, patience_s, enter_after_s)
     with open(path) as source:  # only a program that waits for Ctrl+C gets one
         hand.ctrl_c = "KeyboardInterrupt" in source.read()
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -19,6 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+
+from tests.conftest import SHARED
 
 pytestmark = [pytest.mark.e2e, pytest.mark.paced, pytest.mark.needs_shared]
 
@@ -49,15 +52,25 @@ class Runs:
 
     check: Callable[[dict, str], None] | None = None
     loops: int = 3  # reads/writes/events before the simulated user stops it
+    patience_s: float = 30.0  # how long the user waits for events before pressing Enter
+    #: run in the server's working directory: a file the example has the server write (TDMS
+    #: logging) is on the server's disk, relative to its directory, as with NI's gRPC server
+    in_server_dir: bool = False
+    enter_after_s: float = 0.0  # the user presses Enter after this, when no event calls back
+    #: run from a copy in a directory of its own: the example writes files beside itself,
+    #: which must not land in ../shared
+    own_dir: bool = False
 
 
 @dataclass(frozen=True)
 class Refused:
     """The example ends in ``nidaqmx.errors.DaqError`` with ``code``; ``why`` is the board's
-    reason."""
+    reason. ``waits_s``: the example first waits this long on the board (a read's timeout):
+    such examples are started together at the module's start, so their waits overlap."""
 
     code: int
     why: str = field(default="")
+    waits_s: float = 0.0
 
 
 def _contains(*texts: str) -> Callable[[dict, str], None]:
@@ -105,10 +118,90 @@ def _system(result: dict, out: str) -> None:
            "PXIe-6358" in out
 
 
-NO_COUNTERS = Refused(-201380, "the simulated board has no counters")
-NO_WAVEFORMS = Refused(-201380, "the waveform API is not simulated")
-PFI = Refused(-200040, "nothing drives the PFI lines: a trigger there is an invalid routing")
+#: a frequency or pulse measurement with nothing on the counter's input: the read waits its
+#: timeout (10 s) and the board answers -200474 on demand, -200284 buffered
+NO_EDGE_ON_DEMAND = Refused(-200474, "nothing drives the counter's input", waits_s=10.0)
+NO_EDGE_BUFFERED = Refused(-200284, "nothing drives the counter's input (or its PFI clock)",
+                           waits_s=10.0)
+
+
+def _no_edges(result: dict, out: str) -> None:
+    # polled three times, then Ctrl+C: nothing drives PFI8, so every count is the initial 0
+    assert result["calls"] == 4, result
+    assert out.count("Acquired count: 0") == 3, out[-500:]
+    assert "Acquired 0 total counts." in out, out[-500:]
+
+
+def _single_pulse(result: dict, out: str) -> None:
+    # no initial delay, then 1.0 s high: wait_until_done returns when the pulse has ended
+    assert 1.0 <= result["wall_s"] <= 5.0, result
+
+#: a finite read of a task armed on a PFI line nothing drives: the board waits the read's
+#: timeout (nidaqmx's default, 10 s) and answers -200284
+UNTRIGGERED_READ = Refused(-200284, "nothing drives the PFI line: the trigger never comes",
+                           waits_s=10.0)
+
+
+def _untriggered_events(result: dict, out: str) -> None:
+    """Armed on a PFI line nothing drives: no every-N event, nothing acquired, the user stops it
+    (after 1 s of patience)."""
+    assert result["events"] == 0 and result["calls"] == 0, result
+    assert "Acquired 0 total samples." in out, out[-500:]
+    assert 1.0 <= result["wall_s"] <= 10.0, result
+
+
+UNTRIGGERED_EVENTS = Runs(_untriggered_events, patience_s=1.0)
 NO_POWER = Refused(-200170, "a PXIe-6358 has no power channel (TS1Mod1/power -> Dev1/power)")
+
+
+def _ai0_waveform(result: dict, out: str) -> None:
+    # 50 samples of the fx load cell at rest (within +/-10 mV), its name, units and timing
+    data = out[out.index("Acquired data: [") + 16: out.index("]")]
+    values = [float(v) for v in data.split()]
+    assert len(values) == 50 and all(abs(v) <= 0.01 for v in values), out[-800:]
+    for text in ("Channel name: Dev1/ai0", "Units: Volts", "dt: 0:00:00.001000", "t0: 20"):
+        assert text in out, out[-800:]
+
+
+def _port0_waveform(result: dict, out: str) -> None:
+    # the 8 lines of port0, each 50 samples of the pull-down (nothing drives them)
+    lines = re.findall(r"^Dev1/port0/line(\d): \[([01 \n]*)\]", out, re.MULTILINE)
+    assert sorted(int(n) for n, _ in lines) == list(range(8)), out[-800:]
+    assert all(bits.split() == ["0"] * 50 for _, bits in lines), out[-800:]
+    assert "Channel name: Dev1/port0" in out and "dt: 0:00:00.001000" in out, out[-800:]
+
+
+def _finite_ao_waveform(result: dict, out: str) -> None:
+    # 1,000 samples at 1 kHz: wait_until_done returns when the clock has generated them
+    assert "Generating 1000 voltage samples." in out, out[-500:]
+    assert 0.95 <= result["wall_s"] <= 5.0, result
+
+
+def _logged(result: dict, out: str) -> None:
+    # the server logged the read's 10 samples of ai0 (at rest: within +/-10 mV) to TestData.tdms
+    # in its directory; the example read them back from there, then removed the file
+    lines = [line for line in out.splitlines() if line.startswith("Read data from TDMS file")]
+    assert len(lines) == 1, out[-800:]
+    values = _floats(lines[0])
+    assert len(values) == 10 and all(abs(v) <= 0.01 for v in values), out[-800:]
+
+
+def _synchronized(result: dict, out: str) -> None:
+    # 2.5 s of 1 kHz acquisition on ai0/ai1 and an edge count on the AI sample clock, logged by
+    # the example to its own TDMS file (1,000 samples a block) and read back: at least one
+    # block; the counter counted nothing (PFI0 is undriven); the fx and fy load cells show
+    # what earlier examples left on the shakers (the rig keeps moving between tasks: up to
+    # 0.31 V seen), each held steady over the 10 ms printed
+    assert "Data saved to multi_task_data.tdms" in out, out[-800:]
+    blocks = re.findall(r"First 10 samples from (\w+)/(\w+):\n\[([^\]]*)\]", out)
+    names = [(g, c) for g, c, _ in blocks]
+    assert names == [("AI_Task", "Channel01"), ("AI_Task", "Channel02"),
+                     ("CI_Task", "Counter0")], out[-800:]
+    ai0, ai1, counts = ([float(v) for v in values.split()] for _, _, values in blocks)
+    assert counts == [0.0] * 10, out[-800:]
+    for load_cell in (ai0, ai1):
+        assert len(load_cell) == 10 and all(abs(v) <= 10.0 for v in load_cell), out[-800:]
+        assert max(load_cell) - min(load_cell) <= 0.02, out[-800:]
 
 
 def _celsius(result: dict, out: str) -> None:
@@ -128,42 +221,43 @@ EXPECTED: dict[str, Runs | Refused] = {
     "analog_in/cont_calculated_power_acq_int_clk.py": Refused(-200431, "no calculated power"),
     "analog_in/cont_thrmcpl_samples_int_clk.py": Runs(_acquired(50), loops=1),
     "analog_in/cont_voltage_acq_int_clk.py": Runs(_acquired(3000)),
-    "analog_in/cont_voltage_acq_int_clk_dig_start.py": PFI,
-    "analog_in/cont_voltage_acq_int_clk_dig_start_retrig.py": PFI,
+    "analog_in/cont_voltage_acq_int_clk_dig_start.py": UNTRIGGERED_EVENTS,
+    "analog_in/cont_voltage_acq_int_clk_dig_start_retrig.py": UNTRIGGERED_EVENTS,
     "analog_in/cont_voltage_acq_int_clk_every_n_samples_event.py": Runs(
         _every_n("Acquired data: 1000 samples.")),
     "analog_in/thrmcpl_sample.py": Runs(_celsius),
     "analog_in/voltage_acq_int_clk.py": Runs(_volts(50, 0.01)),
-    "analog_in/voltage_acq_int_clk_dig_ref.py": PFI,
-    "analog_in/voltage_acq_int_clk_dig_start_ref.py": PFI,
+    "analog_in/voltage_acq_int_clk_dig_ref.py": UNTRIGGERED_READ,
+    "analog_in/voltage_acq_int_clk_dig_start_ref.py": UNTRIGGERED_READ,
     "analog_in/voltage_acq_int_clk_plot_data.py": Runs(),
-    "analog_in/voltage_acq_int_clk_plot_wfm.py": NO_WAVEFORMS,
-    "analog_in/voltage_acq_int_clk_tdms_logging.py": Refused(-201380, "no TDMS logging"),
-    "analog_in/voltage_acq_int_clk_wfm.py": NO_WAVEFORMS,
+    "analog_in/voltage_acq_int_clk_plot_wfm.py": Runs(),
+    "analog_in/voltage_acq_int_clk_tdms_logging.py": Runs(_logged, in_server_dir=True),
+    "analog_in/voltage_acq_int_clk_wfm.py": Runs(_ai0_waveform),
     "analog_in/voltage_sample.py": Runs(_volts(1, 0.01)),
     "analog_out/cont_gen_voltage_wfm_int_clk.py": Runs(),
     "analog_out/cont_gen_voltage_wfm_int_clk_every_n_samples_event.py": Runs(
         _every_n("Transferred data: 1000 samples.")),
     "analog_out/cont_gen_voltage_wfm_int_clk_non_regen.py": Runs(_non_regen, loops=15),
-    "analog_out/gen_voltage_wfm_int_clk.py": NO_WAVEFORMS,
+    "analog_out/gen_voltage_wfm_int_clk.py": Runs(_finite_ao_waveform),
     "analog_out/voltage_update.py": Runs(),
     "channel_properties.py": Runs(_properties),
-    "counter_in/cnt_dig_event.py": NO_COUNTERS,
-    "counter_in/cont_cnt_buff_event_ext_clk.py": NO_COUNTERS,
-    "counter_in/cont_read_buff_freq.py": NO_COUNTERS,
-    "counter_in/read_freq.py": NO_COUNTERS,
-    "counter_in/read_pulse_freq.py": NO_COUNTERS,
-    "counter_out/cont_gen_dig_pulse_train.py": NO_COUNTERS,
-    "counter_out/cont_gen_dig_pulse_train_buff_ext_clk.py": NO_COUNTERS,
-    "counter_out/cont_gen_dig_pulse_train_buff_implicit.py": NO_COUNTERS,
-    "counter_out/write_single_dig_pulse.py": NO_COUNTERS,
+    "counter_in/cnt_dig_event.py": Runs(_no_edges),
+    "counter_in/cont_cnt_buff_event_ext_clk.py": NO_EDGE_BUFFERED,
+    "counter_in/cont_read_buff_freq.py": NO_EDGE_BUFFERED,
+    "counter_in/read_freq.py": NO_EDGE_ON_DEMAND,
+    "counter_in/read_pulse_freq.py": NO_EDGE_ON_DEMAND,
+    "counter_out/cont_gen_dig_pulse_train.py": Runs(),
+    "counter_out/cont_gen_dig_pulse_train_buff_ext_clk.py": Runs(),
+    "counter_out/cont_gen_dig_pulse_train_buff_implicit.py": Runs(),
+    "counter_out/write_single_dig_pulse.py": Runs(_single_pulse),
     "digital_in/acq_dig_port_int_clk.py": Runs(),
-    "digital_in/acq_dig_port_int_clk_wfm.py": NO_WAVEFORMS,
+    "digital_in/acq_dig_port_int_clk_wfm.py": Runs(_port0_waveform),
     "digital_in/cont_acq_dig_lines_int_clk.py": Runs(),
     "digital_in/read_dig_lines.py": Runs(),
     "digital_in/read_dig_port.py": Runs(),
     "digital_out/cont_gen_dig_port_int_clk.py": Runs(),
-    "digital_out/cont_gen_dig_port_int_clk_wfm.py": NO_WAVEFORMS,
+    "digital_out/cont_gen_dig_port_int_clk_wfm.py": Runs(_contains(
+        "line  7: [0 0 0 0 0 0 0 1]")),
     "digital_out/gen_dig_line_int_clk.py": Runs(_paced_do),
     "digital_out/write_dig_lines.py": Runs(),
     "digital_out/write_dig_port.py": Runs(),
@@ -175,25 +269,91 @@ EXPECTED: dict[str, Runs | Refused] = {
     "pwr_sw_timed.py": NO_POWER,
     "synchronization/multi_function/ai_ao_sync.py": Runs(
         _every_n("Acquired data: 1000 samples.")),
-    "synchronization/multi_function/cont_ai_ci_tdms_sync.py": NO_COUNTERS,
+    "synchronization/multi_function/cont_ai_ci_tdms_sync.py": Runs(
+        _synchronized, enter_after_s=2.5, own_dir=True),
     "synchronization/multi_function/cont_ai_di_acq.py": Runs(),
     "system_properties.py": Runs(_system),
 }
 
 
-@pytest.fixture(scope="module")
-def sim_server() -> Iterator[str]:
-    server = subprocess.Popen(
+def _start_server(cwd: Path = REPO_ROOT) -> subprocess.Popen[str]:
+    return subprocess.Popen(
         [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "7"],
-        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        first = server.stdout.readline().strip()  # type: ignore[union-attr]
-        assert first.startswith("listening on "), first
-        yield first.removeprefix("listening on ")
-    finally:
-        server.send_signal(signal.SIGTERM)
-        _, err = server.communicate(timeout=30)
+        cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _address(server: subprocess.Popen[str]) -> str:
+    first = server.stdout.readline().strip()  # type: ignore[union-attr]
+    assert first.startswith("listening on "), first
+    return first.removeprefix("listening on ")
+
+
+def _stop_server(server: subprocess.Popen[str]) -> None:
+    server.send_signal(signal.SIGTERM)
+    _, err = server.communicate(timeout=30)
     assert "Traceback" not in err, err[-3000:]
+
+
+@pytest.fixture(scope="module")
+def server_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The sim-server's working directory (where a relative log file path lands)."""
+    return tmp_path_factory.mktemp("sim-server")
+
+
+@pytest.fixture(scope="module")
+def sim_server(server_dir: Path) -> Iterator[str]:
+    server = _start_server(server_dir)
+    try:
+        yield _address(server)
+    finally:
+        _stop_server(server)
+
+
+def _example(shared_dir: Path, example: str) -> Path:
+    return shared_dir / "reference" / "nidaqmx-python-examples" / example
+
+
+def _start(sim_server: str, path: Path, expected: Runs | Refused,
+           server_dir: Path | None = None) -> subprocess.Popen[str]:
+    loops = expected.loops if isinstance(expected, Runs) else 3
+    patience = expected.patience_s if isinstance(expected, Runs) else 30.0
+    in_server_dir = isinstance(expected, Runs) and expected.in_server_dir
+    enter_after = expected.enter_after_s if isinstance(expected, Runs) else 0.0
+    return subprocess.Popen([sys.executable, str(RUNNER), sim_server, str(path), "--loops",
+                             str(loops), "--patience", str(patience), "--enter-after",
+                             str(enter_after)],
+                            cwd=server_dir if in_server_dir else path.parent,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.fixture(scope="module")
+def waiting_runs() -> Iterator[dict[str, subprocess.Popen[str]]]:
+    """The examples that wait on the board (a read's timeout), all started with the module: they
+    only wait, so overlapping them costs one wait, not one each. One board cannot run two that
+    hold the same input (the examples of one folder use the same one: ai0, ctr0), so each
+    server takes at most one example of each folder. None without ../shared (the tests then
+    skip, or fail on CI, through ``shared_dir``)."""
+    by_folder: dict[str, list[str]] = {}
+    for name, expected in EXPECTED.items():
+        if isinstance(expected, Refused) and expected.waits_s > 0 and SHARED.is_dir():
+            by_folder.setdefault(name.split("/")[0], []).append(name)
+    lanes = [[names[i] for names in by_folder.values() if i < len(names)]
+             for i in range(max(map(len, by_folder.values()), default=0))]
+    servers = [_start_server() for _ in lanes]
+    try:
+        runs = {}
+        for lane, server in zip(lanes, servers, strict=True):
+            address = _address(server)
+            runs.update({name: _start(address, _example(SHARED, name), EXPECTED[name])
+                         for name in lane})
+        yield runs
+        for run in runs.values():  # those a deselected test left: stopped, their pipes closed
+            if run.stdout is not None and not run.stdout.closed:
+                run.kill()
+                run.communicate()
+    finally:
+        for server in servers:
+            _stop_server(server)
 
 
 def test_the_table_covers_every_example(shared_dir: Path) -> None:
@@ -204,20 +364,23 @@ def test_the_table_covers_every_example(shared_dir: Path) -> None:
 
 @pytest.mark.parametrize("example", sorted(EXPECTED))
 def test_nis_example_runs_or_is_refused_as_the_board_does(
-        example: str, sim_server: str, shared_dir: Path) -> None:
-    path = shared_dir / "reference" / "nidaqmx-python-examples" / example
+        example: str, sim_server: str, server_dir: Path, shared_dir: Path, tmp_path: Path,
+        waiting_runs: dict[str, subprocess.Popen[str]]) -> None:
     expected = EXPECTED[example]
-    loops = expected.loops if isinstance(expected, Runs) else 3
-    run = subprocess.run([sys.executable, str(RUNNER), sim_server, str(path), "--loops",
-                          str(loops)], cwd=path.parent, capture_output=True, text=True,
-                         timeout=120)
-    lines = [line for line in run.stdout.splitlines() if line.startswith("RESULT ")]
-    assert lines, run.stdout[-2000:] + run.stderr[-2000:]
+    path = _example(shared_dir, example)
+    if isinstance(expected, Runs) and expected.own_dir:  # unchanged, byte for byte
+        path = Path(shutil.copy(path, tmp_path / path.name))
+    run = waiting_runs.get(example) or _start(sim_server, path, expected, server_dir)
+    stdout, stderr = run.communicate(timeout=120)
+    lines = [line for line in stdout.splitlines() if line.startswith("RESULT ")]
+    assert lines, stdout[-2000:] + stderr[-2000:]
     result = json.loads(lines[-1].removeprefix("RESULT "))
-    out = run.stdout[: run.stdout.rfind("RESULT ")]
-    assert "UNIMPLEMENTED" not in run.stdout + run.stderr
+    out = stdout[: stdout.rfind("RESULT ")]
+    assert "UNIMPLEMENTED" not in stdout + stderr
     if isinstance(expected, Refused):
         assert (result["status"], result.get("code")) == ("daqerror", expected.code), result
+        if expected.waits_s:  # the board answered after the read's timeout, not before
+            assert result["wall_s"] >= expected.waits_s, result
     else:
         assert result["status"] == "ok", result
         if expected.check is not None:

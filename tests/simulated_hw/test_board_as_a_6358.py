@@ -175,7 +175,7 @@ def test_rates_are_coerced_on_the_100_mhz_timebase(paced: grpc.Channel) -> None:
 
 
 @pytest.mark.parametrize(("add", "code"), [
-    (lambda t: t.ci_channels.add_ci_count_edges_chan("Dev1/ctr0"), -201380),
+    (lambda t: t.ci_channels.add_ci_ang_encoder_chan("Dev1/ctr0"), -201380),  # not simulated
     (lambda t: t.ai_channels.add_ai_strain_gage_chan("Dev1/ai0"), -200431),
     (lambda t: t.ai_channels.add_ai_voltage_chan("Dev1/power"), -200170),
     (lambda t: t.ai_channels.add_ai_voltage_chan("Dev9/ai0"), -200220),
