@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.run.errors import InterlockError, TargetError
+from control.run.errors import InterlockError
 from control.run.listener import RecordingListener
 from control.run.pump import PumpRelay
 from control.run.sweep.engine import SweepEngine
+from control.wire.errors import TargetError
 from daq.channels import default_channel_map
 from rig_model.params import RigParams
 from simulated_hw.backend import SimulatedBackend

@@ -19,7 +19,6 @@ from collections.abc import Callable
 import numpy as np
 
 from control.run.errors import OpenLoopError
-from control.run.plan import StepPlan
 from control.run.safety import AxisSignals, SafetyLimits
 from control.run.stream import DriveStream
 from control.run.sweep.approach import (
@@ -29,7 +28,6 @@ from control.run.sweep.approach import (
     RAISE_STOP,
     Approach,
 )
-from control.run.sweep.spec import SweepSpec
 from control.run.sweep.step_result import StepResult
 from control.signal.controller import (
     AmplitudeController,
@@ -38,6 +36,8 @@ from control.signal.controller import (
     orbit_peak_radius,
 )
 from control.signal.lockin import LockIn, LockInAccumulator, cycles_to_samples
+from control.wire.step_plan import StepPlan
+from control.wire.sweep_spec import SweepSpec
 
 __all__ = ["StepResult", "StepRunner"]
 

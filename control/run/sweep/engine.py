@@ -21,23 +21,24 @@ from typing import Any
 import numpy as np
 
 from control.run.engine import OperatorQuestions, RunStatus
-from control.run.errors import InterlockError, LimitTrip, TargetError
+from control.run.errors import InterlockError, LimitTrip
 from control.run.listener import FanOut, Listener, NullListener
-from control.run.plan import StepPlan
 from control.run.pump import PumpRelay
 from control.run.safety import AxisSignals, SafetyLimits, SafetyMonitor, validate_targets
 from control.run.stream import DriveStream
 from control.run.summary import RunPeaks
 from control.run.sweep.dwell import StepResult, StepRunner
-from control.run.sweep.spec import (
+from control.run.sweep.states import FINAL, State, StateMachine
+from control.signal.synthesis import SineSynthesizer
+from control.wire.errors import TargetError
+from control.wire.step_plan import StepPlan
+from control.wire.summary_lines import peak_line
+from control.wire.sweep_spec import (
     ControlSettings,
     SweepSpec,
     load_sweep_spec,
     sweep_spec_from_dict,
 )
-from control.run.sweep.states import FINAL, State, StateMachine
-from control.signal.synthesis import SineSynthesizer
-from control.wire.summary_lines import peak_line
 from daq.backend import DaqBackend
 from daq.channels import ChannelMap
 from daq.errors import DaqError, EmergencyStopError
