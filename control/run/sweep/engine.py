@@ -28,6 +28,7 @@ from control.run.safety import AxisSignals, SafetyLimits, SafetyMonitor, validat
 from control.run.stream import DriveStream
 from control.run.summary import RunPeaks
 from control.run.sweep.dwell import StepResult, StepRunner
+from control.run.sweep.dwell_states import DwellState
 from control.run.sweep.states import FINAL, State, StateMachine
 from control.signal.synthesis import SineSynthesizer
 from control.wire.errors import TargetError
@@ -73,6 +74,7 @@ class SweepProgress:
     updates: int = 0
     sample: int = 0
     steps_done: int = 0
+    dwell: str = ""  # the present dwell's state (`dwell_states.DwellState`); "" before the first
 
 
 @dataclass
@@ -322,6 +324,7 @@ class SweepEngine:
         self._stream = stream
         runner = StepRunner(stream, self.spec, self.limits, self._emit)
         runner.on_update = self._on_update
+        runner.dwell.on_change = self._on_dwell
         status, reason = State.COMPLETED, ""
         cut = False  # a trip or the emergency stop: the AO already queued does not play
         try:
@@ -372,6 +375,9 @@ class SweepEngine:
             self._machine.to(status)
         return SweepOutcome(_RUN_STATUS[status], reason, list(self.results), stream.sample, fs,
                             self.peaks.summary)
+
+    def _on_dwell(self, state: DwellState) -> None:
+        self._progress = replace(self._progress, dwell=state.value, sample=self._sample())
 
     def _on_update(self, updates: int) -> None:
         self._progress = replace(self._progress, updates=updates, sample=self._sample())
