@@ -153,6 +153,7 @@ class SweepEngine:
         self._progress = SweepProgress(steps_total=len(self.plan))
         self._machine = StateMachine(self._on_state)
         self._stream: DriveStream | None = None
+        self._monitor: SafetyMonitor | None = None  # the run's limits, on its stream
         self.results: list[StepResult] = []
         self.peaks: RunPeaks | None = None
         self._checked = False  # `check` passed: `run` does not repeat it
@@ -284,7 +285,8 @@ class SweepEngine:
                     "with the pump on"
                 )
         stream.advance_to(stream.sample + int(lim.film_prime_s * fs))
-        stream.monitor.pressure_row = row  # from now on, losing the pressure trips
+        assert self._monitor is not None
+        self._monitor.pressure_row = row  # from now on, losing the pressure trips
 
     # --- the run ----------------------------------------------------------------------------
     def run(self) -> SweepOutcome:
@@ -317,8 +319,9 @@ class SweepEngine:
                               self.limits.max_load_n)
         self.listener = FanOut([self.listener, self.peaks])
         synth = SineSynthesizer(len(cm.ao), fs)
+        self._monitor = SafetyMonitor(self.limits, cm)
         stream = DriveStream(
-            self.backend, synth, SafetyMonitor(self.limits, cm), self.listener, block,
+            self.backend, synth, self._monitor, self.listener, block,
             cfg.ahead_blocks, keep, self._interrupt,
         )
         self._stream = stream
