@@ -5,8 +5,9 @@
   `FanOut` (`listener`), the drive stream (`stream`) and where its AO goes (`ao_writer`),
   `safety`, the `pump` interlock, the errors raised while running (`errors`), the run's file
   (`files`) and `summary`. `control.run.sweep`: the sine sweep (engine, dwell, approach, states,
-  step_result). `control.run.programs`: the operator programmes (specs, their DC-level stream,
-  the operator protocol, procedures, impact, static by hand, the engine the daemon runs).
+  step_result, dwell_states). `control.run.programs`: the operator programmes (specs, their DC
+  levels on the run's drive stream, the operator protocol, procedures, impact, static by hand,
+  the engine the daemon runs).
 - `control.daemon`: the daemon, its state machine, its commands, the acquisition thread, the
   one-instance locks.
 - `control.wire`: what crosses the network: protocol, client, publisher, security, safe text, the

@@ -9,8 +9,8 @@ than ``margin`` (or behind it), skips forward by whole blocks. The caller advanc
 synthesiser over the skipped samples (phase-continuous by absolute sample) and records what
 `played` returns for them: the recorded drive is what was generated, and the AI stays gapless.
 
-Both streams (`control.run.stream.DriveStream`, `control.run.programs.stream.Stream`) write through
-one.
+The one AO stream of every run (`control.run.stream.DriveStream`, a sweep's or a programme's)
+writes through one.
 """
 
 from __future__ import annotations
