@@ -138,6 +138,7 @@ class Stream:
                                  listener, block, ahead_blocks=2, keep_samples=block,
                                  interrupt=self._after_block)
         self.drive.check_limits = False  # the force is checked in `_after_block`
+        self.drive.writer.watch_backlog = False
         self.drive.taps.append(self._keep_last)
         self._target: np.ndarray | None = None
         self._last_block = np.zeros((len(self.cm.ai), 0))
