@@ -8,7 +8,7 @@ and amplitude every 2 s (seeded), ending each ``--session-s`` with an abort (a r
 session), how often and how late the host was (it had to skip forward: the ring played what it
 held), samples the ring repeated, and each abort's time to zero (from the generation count
 when the abort was handled to the first sample after which both recorded drives stay 0 V; the
-recorded drive is what played, see tests/control/test_ao_ring.py).
+recorded drive is what played, see tests/control/run/test_ao_ring.py).
 
     .venv/bin/python benchmarks/bench_ao_ring.py --minutes 5 --busy 3 --backend sim
     .venv/bin/python benchmarks/bench_ao_ring.py --minutes 5 --busy 3 --backend nidaqmx

@@ -3,13 +3,15 @@
 - `control.signal`: synthesis, lock-in, amplitude controller. Algorithms, no I/O, no siblings.
 - `control.run`: a run on the rig. Shared by both kinds of run: the `Listener` stream and its
   `FanOut` (`listener`), the drive stream (`stream`) and where its AO goes (`ao_writer`),
-  `safety`, the `pump` interlock, `errors`, the run's file (`files`) and `summary`, the dwell
-  `plan`. `control.run.sweep`: the sine sweep (spec, engine, dwell, approach, states,
-  step_result). `control.run.programs`: the operator programmes (specs, their DC-level stream,
-  the operator protocol, procedures, impact, static by hand, the engine the daemon runs).
+  `safety`, the `pump` interlock, the errors raised while running (`errors`), the run's file
+  (`files`) and `summary`. `control.run.sweep`: the sine sweep (engine, dwell, approach, states,
+  step_result, dwell_states). `control.run.programs`: the operator programmes (specs, their DC
+  levels on the run's drive stream, the operator protocol, procedures, impact, static by hand,
+  the engine the daemon runs).
 - `control.daemon`: the daemon, its state machine, its commands, the acquisition thread, the
   one-instance locks.
-- `control.wire`: what crosses the network: protocol, client, publisher, security, safe text.
-  Imports no other room of `control`; clients import it.
+- `control.wire`: what crosses the network: protocol, client, publisher, security, safe text, the
+  sweep request (`sweep_spec`, `step_plan`), the refusals (`errors`) and the lock-in clients
+  apply to the blocks (`harmonics`). Imports only `control.signal`; clients import only it.
 - `control.commissioning`: `sfdrig commission` (procedure and checks).
 """

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from control.run.sweep.spec import SweepSpec
+from control.wire.sweep_spec import SweepSpec
 from daq.config_files import to_toml
 
 MAX_ERRORS = 30

@@ -73,8 +73,8 @@ def _planned(test_spec: dict[str, Any] | None) -> list[float]:
     """The sweep's planned frequencies in running order ([] for other tests or a bad spec)."""
     if not test_spec:
         return []
-    from control.run.errors import TargetError
-    from control.run.sweep.spec import sweep_spec_from_dict
+    from control.wire.errors import TargetError
+    from control.wire.sweep_spec import sweep_spec_from_dict
 
     try:
         return [p.freq_hz for p in sweep_spec_from_dict(test_spec).steps()]

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from control.signal.lockin import LockIn
 from control.wire.client import Message
+from control.wire.harmonics import LockIn
 from control.wire.summary_lines import CONTACT, peak_line
 
 UM = 1e-6

@@ -11,8 +11,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from control.run.engine import Engine
-from control.run.errors import InterlockError, TargetError
+from control.run.errors import InterlockError
 from control.run.listener import FanOut
+from control.wire.errors import TargetError
 
 if TYPE_CHECKING:
     from storage.runfile import RunWriter  # h5py: loaded with the first run file, not before

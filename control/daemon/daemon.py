@@ -50,7 +50,7 @@ from control.daemon.state import (
     refusal,
 )
 from control.run.engine import Engine
-from control.run.errors import InterlockError, TargetError
+from control.run.errors import InterlockError
 from control.run.files import (
     close_run_file,
     create_run_writer,
@@ -59,6 +59,7 @@ from control.run.files import (
     recover_interrupted,
 )
 from control.run.listener import FanOut
+from control.wire.errors import TargetError
 from control.wire.protocol import (
     AbortRequest,
     AnswerRequest,

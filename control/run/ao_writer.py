@@ -9,8 +9,8 @@ than ``margin`` (or behind it), skips forward by whole blocks. The caller advanc
 synthesiser over the skipped samples (phase-continuous by absolute sample) and records what
 `played` returns for them: the recorded drive is what was generated, and the AI stays gapless.
 
-Both streams (`control.run.stream.DriveStream`, `control.run.programs.stream.Stream`) write through
-one.
+The one AO stream of every run (`control.run.stream.DriveStream`, a sweep's or a programme's)
+writes through one.
 """
 
 from __future__ import annotations
@@ -61,6 +61,9 @@ class AoWriter:
         self.min_backlog: int | None = None
         self.min_backlog_at = 0
         self._to_clear: tuple[int, int] | None = None  # live samples to zero once played
+        #: without a ring: read the backlog before each write, for the report's underflow
+        #: margin (a round trip through gRPC each block)
+        self.watch_backlog = True
 
     @property
     def regenerating(self) -> bool:
@@ -83,8 +86,8 @@ class AoWriter:
         stream must skip before its next write lands far enough ahead (0: on time). ``sample``
         (the next AI sample to read) only labels the backlog statistic."""
         if self.ring is None:
-            backlog = self.backend.ao_backlog()
-            self._note_backlog(backlog, sample)
+            if self.watch_backlog:
+                self._note_backlog(self.backend.ao_backlog(), sample)
             return 0
         self.generated = self.backend.ao_generated()
         self._note_backlog(self.pos - self.generated, sample)

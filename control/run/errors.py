@@ -1,7 +1,7 @@
-"""The control layer's errors. Each subclasses a standard exception, so callers may catch either.
+"""The errors raised while a run runs. Each subclasses a standard exception, so callers may catch
+either. A request refused before anything runs (`TargetError`, `SpecError`) is in
+`control.wire.errors`, since clients see it too.
 
-- `TargetError` (ValueError): a sweep or target that must not be run (bad amplitude, frequency out
-  of range, over a limit); raised before any output is written.
 - `InterlockError` (RuntimeError): the pump interlock refuses (pump off, no inlet pressure) or the
   pump may not be switched off while the shakers run.
 - `LimitTrip` (RuntimeError): a safety limit was exceeded while running; carries the sample.
@@ -11,17 +11,7 @@
 
 from __future__ import annotations
 
-
-class ControlError(Exception):
-    """Base of every error raised by the control package."""
-
-
-class TargetError(ControlError, ValueError):
-    """A target, sweep description or limit set that is refused before any output is written."""
-
-
-class SpecError(TargetError):
-    """An invalid sweep description (TOML or dict); the message names the field and the value."""
+from control.wire.errors import ControlError
 
 
 class InterlockError(ControlError, RuntimeError):

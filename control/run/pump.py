@@ -1,15 +1,16 @@
 """The oil pump relay and its interlock with the shakers.
 
-`PumpRelay` switches the pump through a relay line of the DAQ (`DaqBackend.set_do`). While a run
-holds the relay (`PumpRelay.shakers_running`: the daemon from a run's start to its end, a sweep
-engine for as long as it runs), the pump stays as it was when the run started, and this class is
-the one place that refuses a switch, with `InterlockError` saying why: off during a lubricated
-run (a squeeze film must not be drained while the housing is shaken), on during a dry run (oil in
-the film would make dwells wet that the run file records as dry). The pressure side of the
-interlock (a lubricated sweep waits, with zero drive, for the inlet pressure to build) lives in
+`PumpRelay` switches the pump through a relay line of the DAQ (`DaqBackend.set_do`). One owner
+holds the relay for a run (`PumpRelay.shakers_running`: the daemon from a run's start to its end,
+for a sweep and a programme alike); a sweep engine only asks it whether the pump is on
+(`PumpState`). While the relay is held the pump stays as it was when the run started, and this
+class is the one place that refuses a switch, with `InterlockError` saying why: off during a
+lubricated run (a squeeze film must not be drained while the housing is shaken), on during a dry
+run (oil in the film would make dwells wet that the run file records as dry). The pressure side of
+the interlock (a lubricated sweep waits, with zero drive, for the inlet pressure to build) lives in
 the sweep engine, which owns the acquisition. The film does not empty when the pump stops:
-`PumpRelay.drains_for_s` says how long it still drains (``drain_s`` after the switch off), and
-the daemon refuses a dry sweep until then, for the same reason as a pump on during a dry run.
+`PumpRelay.drains_for_s` says how long it still drains (``drain_s`` after the switch off), and the
+daemon refuses a dry sweep until then, for the same reason as a pump on during a dry run.
 A run that switches the pump itself (the flow test) holds the relay as its owner: only its own
 switches (``owner=``) go through, every other one is refused until it ends.
 """
@@ -20,9 +21,17 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import Protocol
 
 from control.run.errors import InterlockError
 from daq.backend import DaqBackend
+
+
+class PumpState(Protocol):
+    """What a run asks the pump's owner: whether the pump is on (a `PumpRelay` is one)."""
+
+    @property
+    def is_on(self) -> bool: ...
 
 
 class PumpRelay:
@@ -78,7 +87,7 @@ class PumpRelay:
 
     @property
     def shakers_active(self) -> bool:
-        """Whether a sweep engine holds the interlock (its shakers may be moving)."""
+        """Whether a run holds the interlock (its shakers may be moving)."""
         return bool(self._holds)
 
     def set(self, on: bool, owner: object | None = None) -> None:

@@ -19,9 +19,10 @@ from typing import Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from control.run.errors import LimitTrip, TargetError
-from control.run.plan import StepPlan
+from control.run.errors import LimitTrip
 from control.signal.controller import orbit_peak_radius
+from control.wire.errors import TargetError
+from control.wire.step_plan import StepPlan
 from daq.channels import ChannelKind, ChannelMap
 
 #: Time from a trip to zero drive that the engine guarantees [s].

@@ -1,6 +1,6 @@
 """The acquisition loop's I/O: synthesise a drive block, check it, write it, read the next AI
-block, convert, check, publish. Where a sweep writes AO (the structure tests write theirs in
-`control.run.programs.stream`).
+block, convert, check, publish. The one AO stream of every run: a sweep's sines, and the
+programmes' DC levels (a 0 Hz drive, `control.run.programs.stream.Stream`).
 
 AO streams ahead of the generation by ``ahead_blocks`` blocks, through
 `control.run.ao_writer.AoWriter`.
@@ -22,13 +22,13 @@ import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from control.run.ao_writer import AoWriter
 from control.run.errors import LimitTrip
 from control.run.listener import Listener
-from control.run.safety import SafetyMonitor
 from control.signal.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
 
@@ -50,6 +50,23 @@ PREDICT_RESTART_BLOCKS = 30
 #: A cycle reads at most this many blocks more while the backend holds AI read ahead (a host
 #: catching up): 0.25 s of 10 ms blocks.
 CATCH_UP_BLOCKS = 25
+
+
+class StreamMonitor(Protocol):
+    """What the stream checks its blocks with: a sweep's `SafetyMonitor` (drive, slew, the
+    limits on the AI, contact); a programme's levels need none of it
+    (`control.run.programs.stream`)."""
+
+    last_ao: np.ndarray | None
+
+    def check_ao(self, block: np.ndarray, first_sample: int) -> None: ...
+
+    def check_ao_after(self, block: np.ndarray, first_sample: int,
+                       before: np.ndarray | None) -> None: ...
+
+    def check_ai(self, eng: np.ndarray, first_sample: int) -> None: ...
+
+    def contact(self, eng: np.ndarray, first_sample: int) -> tuple[int, str] | None: ...
 
 
 @dataclass
@@ -76,8 +93,8 @@ class DriveStream:
         Configured, not started.
     synth : SineSynthesizer
         The drive generator (its sample counter must be 0: it starts with the run).
-    monitor : SafetyMonitor
-        Checks AO blocks before writing and AI blocks on arrival.
+    monitor : StreamMonitor
+        Checks AO blocks before writing and AI blocks on arrival (a sweep's `SafetyMonitor`).
     listener : Listener
         Receives every block.
     block_samples : int
@@ -95,7 +112,7 @@ class DriveStream:
         self,
         backend: DaqBackend,
         synth: SineSynthesizer,
-        monitor: SafetyMonitor,
+        monitor: StreamMonitor,
         listener: Listener,
         block_samples: int,
         ahead_blocks: int = 1,
@@ -155,6 +172,11 @@ class DriveStream:
         # ring mode: after a prediction over the whole ring, the slots it could not reach (the
         # lead playing then, and the margin behind it): zeroed once played (absolute samples)
         self._wrap_clear: tuple[int, int] | None = None
+
+    @property
+    def queued_blocks(self) -> int:
+        """AO blocks written (or played by the ring) and not yet read."""
+        return len(self._fifo)
 
     @property
     def min_ao_backlog(self) -> int | None:

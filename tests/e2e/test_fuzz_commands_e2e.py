@@ -18,9 +18,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from control.run.sweep.spec import ControlSettings, SweepSpec
 from control.wire.client import CommandClient, Subscriber
 from control.wire.protocol import COMMANDS
+from control.wire.sweep_spec import ControlSettings, SweepSpec
 from tests.e2e.raw_dealer import RawDealer
 
 pytestmark = pytest.mark.e2e

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from control.run.sweep.spec import SweepSpec
+from control.wire.sweep_spec import SweepSpec
 from sfdrig.commands.sweep import sweep_fields
 
 RANGE = """

@@ -6,7 +6,7 @@ import tomllib
 
 import pytest
 
-from control.run.sweep.spec import SweepSpec
+from control.wire.sweep_spec import SweepSpec
 from web.sweep_form import check
 
 SAFETY = {"displacement_limit_m": 63.5e-6, "load_limit_n": 448.0, "drive_limit_v": 9.0,

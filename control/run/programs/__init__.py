@@ -1,2 +1,3 @@
 """The operator programmes (static, impact, probe calibration, flow): their specs, the DC-level
-stream they share, the operator protocol and the engine the daemon runs them behind."""
+drive they share (on the run's one AO stream, `control.run.stream.DriveStream`), the operator
+protocol and the engine the daemon runs them behind."""

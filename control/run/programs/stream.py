@@ -1,10 +1,11 @@
-"""What every non-sweep test programme shares: the DC-level stream (AO written two blocks ahead,
-every block to the listener), the harness that always ends with the drives at zero, the wait for a
-person's answer while the DAQ keeps streaming, and the check that signals are steady.
+"""What every non-sweep test programme shares: the DC-level drive (on the sweep's AO stream,
+`control.run.stream.DriveStream`: AO two blocks ahead, every block to the listener), the harness
+that always ends with the drives at zero, the wait for a person's answer while the DAQ keeps
+streaming, and the check that signals are steady.
 
-A force over the limit or the emergency stop does not let the AO already queued play: as in a
-sweep, the backend drops it (`DaqBackend.cut_ao`) and the drives are at 0 V from the first sample
-not generated (or fade fast from it, where the backend resumes). Every other end ramps.
+A force over the limit or the emergency stop does not let the AO already queued play: the stream
+cuts it as a sweep's trip does (`DaqBackend.cut_ao`) and the drives are at 0 V from the first
+sample not generated (or fade fast from it, where the backend resumes). Every other end ramps.
 
 The operator is an `control.run.programs.operator.OperatorDesk`; what a person's hands do that the
 software must
@@ -15,7 +16,6 @@ optional `RigHands`, given only for the simulated rig by the composition root.
 from __future__ import annotations
 
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -26,12 +26,12 @@ from control.run.ao_writer import AoWriter
 from control.run.engine import RunStatus
 from control.run.listener import Listener
 from control.run.programs.operator import Answer, OperatorDesk, Question
+from control.run.stream import DriveStream
+from control.signal.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
 from daq.errors import EmergencyStopError
 
 FAULT_RAMP_S = 0.04  # drive fade on a fault [s]
-#: ring mode: blocks of the predicted level written per cycle beyond the lead
-PREDICT_BLOCKS = 8
 
 
 class ProgramError(RuntimeError):
@@ -86,11 +86,34 @@ class ProgramOutcome:
         return "completed" if self.completed else "aborted"
 
 
-class Stream:
-    """AO written two blocks ahead, AI read block by block, every block passed to the listener.
+class _NoDriveLimits:
+    """The programmes' monitor for `DriveStream`: their levels are clipped to the channels'
+    ranges before they are commanded, and the only AI limit is the force, which `Stream` checks
+    after every block (after the operator's abort, as the programmes always have)."""
 
-    The drive is a DC level per shaker that moves by linear ramps; ``level_v`` is the level the
-    next written block ends at.
+    last_ao: np.ndarray | None = None
+
+    def check_ao(self, block: np.ndarray, first_sample: int) -> None:
+        pass
+
+    def check_ao_after(self, block: np.ndarray, first_sample: int,
+                       before: np.ndarray | None) -> None:
+        pass
+
+    def check_ai(self, eng: np.ndarray, first_sample: int) -> None:
+        pass
+
+    def contact(self, eng: np.ndarray, first_sample: int) -> tuple[int, str] | None:
+        return None
+
+
+class Stream:
+    """A programme's drive: a DC level per shaker that moves by linear ramps, on the sweep's own
+    AO stream (`control.run.stream.DriveStream`: a 0 Hz drive whose phasors are the levels), so
+    the ring, a late host's skip, the cut and the fade are written once. AO two blocks ahead,
+    AI read block by block, every block passed to the listener.
+
+    ``level_v`` is the level of the last sample written.
     """
 
     def __init__(self, backend: DaqBackend, listener: Listener, block: int,
@@ -102,141 +125,77 @@ class Stream:
         self.pace_waits = getattr(backend, "realtime", True) is False
         self.max_force_n = max_force_n
         self.where = ""  # what the programme is doing, for the trip message
-        self._fading = False  # set while ramping to zero at the end: no more trips
         self.listener = listener
         self.cm = backend.channel_map
         self.fs = backend.sample_rate_hz
         self.block = block
         self.n_ao = len(self.cm.ao)
-        self.level_v = np.zeros(self.n_ao)
-        self._written: deque[np.ndarray] = deque()
+        if self.n_ao == 0:
+            raise ProgramError("a test programme needs the shakers' AO channels; the channel "
+                               "map has none")
+        self._range_v = np.array([ch.range_v for ch in self.cm.ao], dtype=float)
+        self.drive = DriveStream(backend, SineSynthesizer(self.n_ao, self.fs), _NoDriveLimits(),
+                                 listener, block, ahead_blocks=2, keep_samples=block,
+                                 interrupt=self._after_block)
+        self.drive.check_limits = False  # the force is checked in `_after_block`
+        self.drive.writer.watch_backlog = False
+        self.drive.taps.append(self._keep_last)
         self._target: np.ndarray | None = None
-        self._rate = np.zeros(self.n_ao)  # ramp rate toward the target [V per sample]
-        self.sample = 0  # next AI sample to read
-        self.last_ai = np.zeros((len(self.cm.ai), 0))
-        self._shown_v = np.zeros(self.n_ao)  # the drive at the end of the last block read
-        self._started = False
-        #: the AO's writer: queued, or (a regenerating backend) the ring a late host cannot
-        #: underflow, two blocks ahead of the generation
-        self.writer = AoWriter(backend, block, 2 * block)
-        self._prefill: list[np.ndarray] = []
-        # ring mode: the current ramp's continuation written ahead (level, target, rate), the
-        # target it follows (`_cmd` counts new targets) and where it has reached
-        self._cmd = 0
-        self._pred_cmd = -1
-        self._pred: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._pred_end = 0
+        self._last_block = np.zeros((len(self.cm.ai), 0))
+        self.last_ai = np.zeros((len(self.cm.ai), 0))  # what the last `step` read
 
-    def _write(self, target_v: np.ndarray, ramp_samples: int) -> None:
-        """Write the next block moving linearly toward ``target_v`` (a regenerating backend: as
-        many as keep the lead, after skipping what the ring played while the host was late:
-        the ramp moves on over those samples, and what the ring played is what is recorded)."""
-        if not self.writer.regenerating:
-            self.backend.write_ao(self._next(target_v, ramp_samples))
+    @property
+    def sample(self) -> int:
+        """The next AI sample to read."""
+        return self.drive.sample
+
+    @property
+    def level_v(self) -> np.ndarray:
+        return self.drive.synth.phasors.real
+
+    @property
+    def writer(self) -> AoWriter:
+        """The AO's writer (queued, or the ring a late host cannot underflow)."""
+        return self.drive.writer
+
+    def _keep_last(self, first: int, ai: np.ndarray, ao: np.ndarray) -> None:
+        self._last_block = ai
+
+    def _after_block(self) -> None:
+        """After every block read while running: the operator's abort, then the force (a trip
+        is seen within one block)."""
+        if self.operator is not None and self.operator.abort_reason:
+            raise ProgramAborted(f"{self.where or 'programme'}: {self.operator.abort_reason}")
+        self._check_force(self._last_block)
+
+    def _command(self, target_v: np.ndarray, ramp_s: float) -> None:
+        """A new target starts a linear ramp from the present level over ``ramp_s`` (clipped to
+        the channels' ranges, as the level then stays within them); the same target goes on."""
+        target_v = np.clip(np.asarray(target_v, dtype=float), self._range_v[:, 0],
+                           self._range_v[:, 1])
+        if self._target is not None and np.array_equal(target_v, self._target):
             return
-        if not self._started:  # the prefill: written as the ring's start by `start`
-            self._prefill.append(self._next(target_v, ramp_samples))
-            return
-        skip = self.writer.late_skip(self.sample)
-        for _ in range(skip // self.block):
-            self._next(target_v, ramp_samples)
-            self._written[-1] = self.writer.played(self.block)
-        self.writer.clear_played()
-        while self.writer.wants_write():
-            blk = self._next(target_v, ramp_samples)
-            if self._pred_cmd == self._cmd and self._pred_end >= self.writer.pos + self.block:
-                self.writer.pos += self.block  # the ring holds this block already
-            else:
-                self.writer.write(blk)
-        self._predict()
-
-    def _predict(self) -> None:
-        """Ring mode: keep the ring filled, up to a ring ahead of the generation, with the
-        current ramp's continuation (as `DriveStream` does), so a late host hears the level it
-        is moving to, not one from a ring ago. A new target restarts it from the position."""
-        w = self.writer
-        assert w.ring is not None
-        if self._pred_cmd != self._cmd or self._pred_end < w.pos:
-            target = self.level_v if self._target is None else self._target
-            self._pred = (self.level_v.copy(), target.copy(), self._rate.copy())
-            self._pred_cmd, self._pred_end = self._cmd, w.pos
-        assert self._pred is not None
-        level, target, rate = self._pred
-        limit = w.generated + w.ring - self.block - w.margin
-        start, parts = self._pred_end, list[np.ndarray]()
-        while len(parts) < PREDICT_BLOCKS and self._pred_end + self.block <= limit:
-            blk = self._ramp_block(level, target, rate)
-            level = blk[:, -1].copy()
-            parts.append(blk)
-            self._pred_end += self.block
-        self._pred = (level, target, rate)
-        if parts:
-            w.write_at(start, np.concatenate(parts, axis=1))
-
-    def _next(self, target_v: np.ndarray, ramp_samples: int) -> np.ndarray:
-        """The next block moving linearly toward ``target_v``, queued to be read: a new target
-        sets the rate so that the whole change takes ``ramp_samples``; the level then arrives
-        exactly."""
-        target_v = np.asarray(target_v, dtype=float)
-        if self._target is None or not np.array_equal(target_v, self._target):
-            self._target = target_v.copy()
-            self._rate = np.abs(target_v - self.level_v) / max(int(ramp_samples), 1)
-            self._cmd += 1
-        blk = self._ramp_block(self.level_v, self._target, self._rate)
-        self._written.append(blk)
-        self.level_v = blk[:, -1].copy()
-        return blk
-
-    def _ramp_block(self, level: np.ndarray, target: np.ndarray,
-                    rate: np.ndarray) -> np.ndarray:
-        """One block from ``level`` toward ``target`` at ``rate`` [V per sample], clipped to
-        the channels' ranges."""
-        delta = target - level
-        k = np.arange(1, self.block + 1)[None, :]
-        moved = np.minimum(rate[:, None] * k, np.abs(delta)[:, None])
-        blk = level[:, None] + np.sign(delta)[:, None] * moved
-        for row, ch in enumerate(self.cm.ao):
-            lo, hi = ch.range_v
-            np.clip(blk[row], lo, hi, out=blk[row])
-        return blk
-
-    def _read(self) -> np.ndarray:
-        """Read the block the oldest written AO is generated with; AI in engineering units."""
-        volts = self.backend.read_ai(self.block)
-        ai = self.cm.to_engineering(volts)
-        self.last_ai = ai
-        ao = self._written.popleft()
-        self.listener.on_block(self.sample, ai, ao)
-        self.sample += self.block
-        self._shown_v = ao[:, -1].copy()
-        return ai
+        self._target = target_v
+        remaining = float(np.max(np.abs(target_v - self.level_v)))
+        ramp = int(ramp_s * self.fs) if remaining > 0 else 1
+        self.drive.synth.ramp_to(target_v.astype(np.complex128), None, max(ramp, 1) / self.fs)
 
     def start(self) -> None:
-        self._prefill = []
-        for _ in range(2):
-            self._write(self.level_v, 1)
-        if self.writer.regenerating:
-            self.writer.prefill(np.concatenate(self._prefill, axis=1))
-        self.backend.start()
-        self._started = True
+        self.drive.start()
 
     def step(self, target_v: np.ndarray, ramp_s: float) -> np.ndarray:
-        """Write one block moving toward ``target_v``, read one block; AI in engineering units."""
-        remaining = np.max(np.abs(target_v - self.level_v)) if self.n_ao else 0.0
-        ramp = int(ramp_s * self.fs) if remaining > 0 else 1
-        self._write(target_v, ramp)
-        ai = self._read()
-        if not self._fading:
-            if self.operator is not None and self.operator.abort_reason:
-                raise ProgramAborted(f"{self.where or 'programme'}: "
-                                     f"{self.operator.abort_reason}")
-            self._check_force(ai)  # every block: a trip is seen within one block
-        return ai
+        """Move toward ``target_v``, read a block (more while a late host catches up); AI in
+        engineering units, every sample from the one `sample` named before the call."""
+        self._command(target_v, ramp_s)
+        first = self.drive.sample
+        self.drive.cycle()
+        self.last_ai = self.drive.window(first, self.drive.sample)[0]
+        return self.last_ai
 
     def _check_force(self, ai: np.ndarray) -> None:
         for name in ("fx", "fy"):
             if name in self.cm.ai_names:
-                peak = float(np.max(np.abs(ai_row(self.cm, ai, name))))
+                peak = float(np.max(np.abs(ai_row(self.cm, ai, name)), initial=0.0))
                 if peak > self.max_force_n:
                     raise ForceTrip(f"{self.where or 'programme'}: {name} reached "
                                        f"{peak:.1f} N, over the {self.max_force_n:g} N limit")
@@ -247,86 +206,23 @@ class Stream:
         The blocks already queued (written before this call) and the ramp are let out first, so
         every returned sample was generated at the target level.
         """
-        lead = len(self._written) + int(np.ceil(ramp_s * self.fs / self.block))
-        if np.max(np.abs(target_v - self.level_v), initial=0.0) > 0 or lead:
-            for _ in range(lead):
-                self.step(target_v, ramp_s)
+        lead = self.drive.queued_blocks + int(np.ceil(ramp_s * self.fs / self.block))
+        for _ in range(lead):
+            self.step(target_v, ramp_s)
         first = self.sample
-        n_blocks = max(int(np.ceil(seconds * self.fs / self.block)), 1)
-        blocks = [self.step(target_v, ramp_s) for _ in range(n_blocks)]
+        end = first + max(int(np.ceil(seconds * self.fs / self.block)), 1) * self.block
+        blocks = []
+        while self.sample < end:
+            blocks.append(self.step(target_v, ramp_s))
         return first, np.concatenate(blocks, axis=1)
 
     def finish(self, ramp_s: float, cut: bool = False) -> None:
-        """Ramp to zero, let the queued blocks out, stop (always called).
+        """Ramp to zero in ``ramp_s``, read out, stop (always called; `DriveStream.shutdown`).
 
-        ``cut`` (a force trip or the emergency stop): the queued blocks do not play
-        (`_cut`); the motion is read out for as long as they and the ramp would have taken.
+        ``cut`` (a force trip or the emergency stop): the queued blocks do not play; the
+        motion is read out for as long as they and the ramp would have taken.
         """
-        if not self._started:
-            return
-        zero = np.zeros(self.n_ao)
-        self._fading = True
-        try:
-            if cut:
-                self._cut(ramp_s)
-            n_blocks = int(np.ceil(ramp_s * self.fs / self.block)) + 3
-            if not cut and self.writer.regenerating and self._fade_in_ring(ramp_s, n_blocks):
-                return
-            for _ in range(n_blocks):
-                self.step(zero, ramp_s)
-        finally:
-            self.backend.stop()
-
-    def _fade_in_ring(self, ramp_s: float, n_blocks: int) -> bool:
-        """Ring mode: the ramp to zero and zeros over the rest of the ring in one write, so a
-        host late while it plays cannot make the ring repeat an earlier level; then read out."""
-        zero = np.zeros(self.n_ao)
-        ramp = int(ramp_s * self.fs)
-        skip = self.writer.late_skip(self.sample)
-        for _ in range(skip // self.block):
-            self._next(zero, ramp)
-            self._written[-1] = self.writer.played(self.block)
-        at = self.writer.pos
-        if self.writer.generated + (self.writer.ring or 0) - at < (n_blocks + 1) * self.block:
-            return False
-        blocks = [self._next(zero, ramp) for _ in range(n_blocks)]
-        self.writer.fill_ring(at, np.concatenate(blocks, axis=1))
-        self.writer.pos = at + n_blocks * self.block
-        while self._written:
-            self._read()
-            self.writer.generated = self.sample
-            self.writer.clear_played()
-        return True
-
-    def _cut(self, ramp_s: float) -> None:
-        """Drop the AO not yet generated; the drives are at 0 V from there, or (a backend that
-        resumes) ramp to zero in ``ramp_s`` from the level they had reached. The blocks to read
-        are rebuilt to what the outputs show, and read out."""
-        queued = (np.concatenate(list(self._written), axis=1) if self._written
-                  else np.zeros((self.n_ao, 0)))
-        done = self.backend.cut_ao()
-        if self.writer.regenerating and done.at > self.sample + queued.shape[1]:
-            # the host was late: the ring played on past what was written, up to the cut
-            n = self.block * int(np.ceil((done.at - self.sample - queued.shape[1]) / self.block))
-            queued = np.concatenate([queued, self.writer.played(n)], axis=1)
-        at = min(max(done.at, self.sample), self.sample + queued.shape[1]) - self.sample
-        kept = queued[:, :at]
-        level = kept[:, -1] if at else self._shown_v
-        n_ramp = max(int(ramp_s * self.fs), 1) if done.resumes else 0
-        fade = level[:, None] * (1.0 - np.arange(1, n_ramp + 1) / n_ramp)[None, :]
-        total = self.block * int(np.ceil((queued.shape[1] + n_ramp) / self.block))
-        zeros = np.zeros((self.n_ao, total - at - n_ramp))
-        if done.resumes and self.writer.regenerating:
-            self.writer.generated = self.sample + at
-            self.writer.fill_ring(self.sample + at, np.concatenate([fade, zeros], axis=1))
-        elif done.resumes:
-            self.backend.write_ao(np.concatenate([fade, zeros], axis=1))
-        tail = np.concatenate([kept, fade, zeros], axis=1)
-        self._written = deque(tail[:, i:i + self.block] for i in range(0, total, self.block))
-        self.level_v = np.zeros(self.n_ao)
-        self._target = None
-        while self._written:
-            self._read()
+        self.drive.shutdown(ramp_s, cut=cut)
 
 
 def ai_row(cm: Any, ai: np.ndarray, name: str) -> np.ndarray:

@@ -1,2 +1,2 @@
-"""The sine sweep: its spec and plan, the engine, each dwell (approach, converge, settle,
-record)."""
+"""The sine sweep (its request is `control.wire.sweep_spec`): the engine, each dwell (approach,
+converge, settle, record)."""

@@ -14,10 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from control.run.plan import StepPlan
 from control.run.safety import AxisSignals, SafetyLimits
 from control.run.stream import DriveStream
-from control.run.sweep.spec import ControlSettings, SweepSpec
 from control.signal.controller import (
     AmplitudeController,
     DrivePredictor,
@@ -25,6 +23,8 @@ from control.signal.controller import (
     orbit_peak_radius,
 )
 from control.signal.lockin import cycles_to_samples
+from control.wire.step_plan import StepPlan
+from control.wire.sweep_spec import ControlSettings, SweepSpec
 from daq.channels import ChannelMap
 
 #: A correction never asks for more than this fraction of the load limit (predicted from the

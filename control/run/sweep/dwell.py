@@ -1,6 +1,6 @@
-"""One dwell of a sweep: ramp, converge, settle, record.
+"""One dwell of a sweep: approach, converge, settle, record (its states: `dwell_states`).
 
-    ramp      drive and frequency move to the predicted drive (ramped, phase-continuous)
+    approach  drive and frequency move to the predicted drive (ramped, phase-continuous)
     converge  wait ``wait_cycles``, lock-in over ``window_cycles``, correct (Newton-Broyden),
               until the controlled amplitudes are inside the tolerance band
     settle    ``settle_cycles`` after the last change, and successive windows agree
@@ -19,7 +19,6 @@ from collections.abc import Callable
 import numpy as np
 
 from control.run.errors import OpenLoopError
-from control.run.plan import StepPlan
 from control.run.safety import AxisSignals, SafetyLimits
 from control.run.stream import DriveStream
 from control.run.sweep.approach import (
@@ -29,7 +28,7 @@ from control.run.sweep.approach import (
     RAISE_STOP,
     Approach,
 )
-from control.run.sweep.spec import SweepSpec
+from control.run.sweep.dwell_states import DwellMachine, DwellState
 from control.run.sweep.step_result import StepResult
 from control.signal.controller import (
     AmplitudeController,
@@ -38,6 +37,8 @@ from control.signal.controller import (
     orbit_peak_radius,
 )
 from control.signal.lockin import LockIn, LockInAccumulator, cycles_to_samples
+from control.wire.step_plan import StepPlan
+from control.wire.sweep_spec import SweepSpec
 
 __all__ = ["StepResult", "StepRunner"]
 
@@ -85,6 +86,8 @@ class StepRunner(Approach):
         self.ceiling_v = np.inf
         self._guard_reason = ""  # the soft limit's event in the present step, if any
         self.on_update: Callable[[int], None] | None = None
+        #: the present dwell's state (approach, converge, settle, record, done)
+        self.dwell = DwellMachine()
         self._last_drive: np.ndarray | None = None  # (X, Y) drive of the last converged step
         self._last_jacobian: np.ndarray | None = None
         self._compliance: dict[float, float] = {}  # largest orbit per newton at a frequency
@@ -204,7 +207,10 @@ class StepRunner(Approach):
 
         stream.guard_event = None
         self._guard_reason = ""
+        dwell = self.dwell
+        dwell.begin(plan.describe(), start_sample)
         ctl, change_end = self._start(plan)
+        dwell.to(DwellState.CONVERGE, change_end)
         self.limited_by = ""
 
         updates = 0
@@ -238,12 +244,14 @@ class StepRunner(Approach):
                 if guarded >= 2 or updates >= spec.max_updates:
                     ctl.saturated = True
                     self.limited_by = f"the soft limit ({why})"
+                    dwell.to(DwellState.DONE, next_free)
                     return self._failed(plan, w0, w0 + w, updates, start_sample,
                                         f"stopped below the limits: {why}",
                                         ctl.assess(ctrl))
                 change_end, next_free = synth.sample, synth.sample + cyc(cfg.wait_cycles)
                 updates += 1
                 prev_ok = prev_win = None
+                dwell.to(DwellState.CONVERGE, change_end)
                 continue
             if not self.open_loop_checked[np.abs(plan.shape) > 0].all():
                 self._check_open_loop(plan, drive, w0 + w, w0, w0 + w)
@@ -253,6 +261,7 @@ class StepRunner(Approach):
             orbit_over = (plan.target_kind == "load" and cfg.algorithm != "proportional"
                           and orbit_peak_radius(other) > self._response_cap("displacement"))
             if assess.within and not orbit_over:
+                dwell.to(DwellState.SETTLE, next_free)
                 if prev_ok is not None and next_free >= settle_end:
                     change = self._drift(plan, (ctrl, other, s_ctrl, s_other), prev_ok)
                     waited = next_free - change_end
@@ -262,16 +271,19 @@ class StepRunner(Approach):
                                       f"after {cfg.max_settle_cycles} cycles (successive "
                                       f"windows differ by {100 * change:.2f} %); recording",
                                       next_free)
+                        dwell.to(DwellState.RECORD, next_free)
                         result = self._record(plan, ctl, next_free, updates, start_sample)
                         if result.converged or updates >= spec.max_updates:
                             if result.converged:
                                 self._remember(plan, result, ctl)
+                            dwell.to(DwellState.DONE, result.last_sample)
                             return result
                         # drifted out during the recording: correct and go round again
                         rec_ctrl = result.controlled
                         assert rec_ctrl is not None
                         rec_load = (rec_ctrl if plan.target_kind == "load"
                                     else result.harmonics[self.signals.load_rows, 0])
+                        dwell.to(DwellState.CONVERGE, result.last_sample)
                         change_end, next_free = self._correct(
                             plan, ctl, self._axis_drive(synth.to_absolute(synth.phasors)), rec_ctrl,
                             rec_load)
@@ -281,6 +293,7 @@ class StepRunner(Approach):
                 prev_ok = (ctrl, other, s_ctrl, s_other)
                 continue
             prev_ok = None
+            dwell.to(DwellState.CONVERGE, next_free)
             # a lightly damped housing is still ringing after a change: correct only once two
             # successive windows agree to within a quarter of the remaining error (Newton on
             # a transient misleads J), or once the settling time has passed
@@ -302,6 +315,7 @@ class StepRunner(Approach):
                 why = f"did not converge in {spec.max_updates} updates ({assess.describe()})"
                 if ctl.saturated or self.limited_by:
                     why += f"; the drive is held by {self.limited_by or 'the drive limit'}"
+                dwell.to(DwellState.DONE, next_free)
                 return self._failed(plan, w0, w0 + w, updates, start_sample, why, assess)
             if plan.target_kind == "load":
                 change_end, next_free = self._correct(plan, ctl, drive, ctrl, ctrl, other)

@@ -21,23 +21,25 @@ from typing import Any
 import numpy as np
 
 from control.run.engine import OperatorQuestions, RunStatus
-from control.run.errors import InterlockError, LimitTrip, TargetError
+from control.run.errors import InterlockError, LimitTrip
 from control.run.listener import FanOut, Listener, NullListener
-from control.run.plan import StepPlan
-from control.run.pump import PumpRelay
+from control.run.pump import PumpState
 from control.run.safety import AxisSignals, SafetyLimits, SafetyMonitor, validate_targets
 from control.run.stream import DriveStream
 from control.run.summary import RunPeaks
 from control.run.sweep.dwell import StepResult, StepRunner
-from control.run.sweep.spec import (
+from control.run.sweep.dwell_states import DwellState
+from control.run.sweep.states import FINAL, State, StateMachine
+from control.signal.synthesis import SineSynthesizer
+from control.wire.errors import TargetError
+from control.wire.step_plan import StepPlan
+from control.wire.summary_lines import peak_line
+from control.wire.sweep_spec import (
     ControlSettings,
     SweepSpec,
     load_sweep_spec,
     sweep_spec_from_dict,
 )
-from control.run.sweep.states import FINAL, State, StateMachine
-from control.signal.synthesis import SineSynthesizer
-from control.wire.summary_lines import peak_line
 from daq.backend import DaqBackend
 from daq.channels import ChannelMap
 from daq.errors import DaqError, EmergencyStopError
@@ -72,6 +74,7 @@ class SweepProgress:
     updates: int = 0
     sample: int = 0
     steps_done: int = 0
+    dwell: str = ""  # the present dwell's state (`dwell_states.DwellState`); "" before the first
 
 
 @dataclass
@@ -120,8 +123,10 @@ class SweepEngine:
         Defaults to `SafetyLimits()`.
     listener : Listener, optional
         Receives the stream (`control.run.listener.FanOut` for several).
-    pump : PumpRelay, optional
-        Required for a lubricated sweep; held on (interlocked) for the whole run.
+    pump : PumpState, optional
+        Required for a lubricated sweep: the engine asks it whether the pump is on (before the
+        start and while the inlet pressure builds). The engine does not hold the relay: its
+        owner does (`PumpRelay.shakers_running`; the daemon from the run's start to its end).
     """
 
     can_pause = True
@@ -133,7 +138,7 @@ class SweepEngine:
         spec: SweepSpec | dict[str, Any],
         limits: SafetyLimits | None = None,
         listener: Listener | None = None,
-        pump: PumpRelay | None = None,
+        pump: PumpState | None = None,
     ) -> None:
         self.backend = backend
         self.spec = spec if isinstance(spec, SweepSpec) else sweep_spec_from_dict(spec)
@@ -148,6 +153,7 @@ class SweepEngine:
         self._progress = SweepProgress(steps_total=len(self.plan))
         self._machine = StateMachine(self._on_state)
         self._stream: DriveStream | None = None
+        self._monitor: SafetyMonitor | None = None  # the run's limits, on its stream
         self.results: list[StepResult] = []
         self.peaks: RunPeaks | None = None
         self._checked = False  # `check` passed: `run` does not repeat it
@@ -279,14 +285,8 @@ class SweepEngine:
                     "with the pump on"
                 )
         stream.advance_to(stream.sample + int(lim.film_prime_s * fs))
-        stream.monitor.pressure_row = row  # from now on, losing the pressure trips
-
-    def _hold_pump(self) -> Any:
-        if self.pump is None:
-            from contextlib import nullcontext
-
-            return nullcontext()
-        return self.pump.shakers_running()
+        assert self._monitor is not None
+        self._monitor.pressure_row = row  # from now on, losing the pressure trips
 
     # --- the run ----------------------------------------------------------------------------
     def run(self) -> SweepOutcome:
@@ -319,64 +319,68 @@ class SweepEngine:
                               self.limits.max_load_n)
         self.listener = FanOut([self.listener, self.peaks])
         synth = SineSynthesizer(len(cm.ao), fs)
+        self._monitor = SafetyMonitor(self.limits, cm)
         stream = DriveStream(
-            self.backend, synth, SafetyMonitor(self.limits, cm), self.listener, block,
+            self.backend, synth, self._monitor, self.listener, block,
             cfg.ahead_blocks, keep, self._interrupt,
         )
         self._stream = stream
         runner = StepRunner(stream, self.spec, self.limits, self._emit)
         runner.on_update = self._on_update
+        runner.dwell.on_change = self._on_dwell
         status, reason = State.COMPLETED, ""
         cut = False  # a trip or the emergency stop: the AO already queued does not play
-        with self._hold_pump():
-            try:
-                stream.start()
-                self._emit("info", f"sweep {self.spec.name!r}: {len(self.plan)} steps, "
-                                   f"{self.spec.motion}, {self.spec.target_kind} held; block "
-                                   f"{block} samples, AO {cfg.ahead_blocks} blocks ahead")
-                if self.spec.lubricated:
-                    self._machine.to(State.PRIMING)
-                    self._prime(stream)
-                self._machine.to(State.RUNNING)
-                self._run_steps(runner, stream)
-                if not all(r.converged for r in self.results):
-                    bad = sum(not r.converged for r in self.results)
-                    reason = f"{bad} of {len(self.results)} steps did not converge"
-            except _Abort as ab:
-                status, reason = State.ABORTED, ab.reason
-                self._emit_safe("abort", reason, stream.generation())
-            except LimitTrip as trip:
-                status, reason, cut = State.ABORTED, str(trip), True
-                self._emit_safe("limit_trip", reason, trip.sample if trip.sample >= 0 else None)
-            except InterlockError as err:
-                status, reason = State.ABORTED, str(err)
-                self._emit_safe("abort", reason)
-            except _StepFailed as err:
-                status, reason = State.ABORTED, str(err)
-                self._emit_safe("abort", reason)
-            except EmergencyStopError as err:
-                status, reason, cut = State.FAILED, f"{type(err).__name__}: {err}", True
-                self._emit_safe("error", reason)
-            except Exception as err:  # noqa: BLE001 - any failure must end in a safe stop
-                log.exception("sweep failed")
-                status, reason = State.FAILED, f"{type(err).__name__}: {err}"
-                self._emit_safe("error", reason)
-            finally:
-                if self._machine.state not in FINAL and self._machine.state is not State.STOPPING:
-                    self._machine.to(State.STOPPING)
-                stream.shutdown(self.limits.fade_s, cut=cut)
-                self._emit_safe("info", stream.margin_report())
-                if stream.contact_event is not None:
-                    # the housing touched the journal (maybe after a trip, while fading)
-                    k, msg = stream.contact_event
-                    if not reason.startswith("journal-housing contact"):
-                        self._emit_safe("fault", msg, k)
-                    if status is State.COMPLETED:
-                        status, reason = State.FAILED, msg
-                self._emit_safe("info", peak_line(self.peaks.summary))
-                self._machine.to(status)
+        try:
+            stream.start()
+            self._emit("info", f"sweep {self.spec.name!r}: {len(self.plan)} steps, "
+                               f"{self.spec.motion}, {self.spec.target_kind} held; block "
+                               f"{block} samples, AO {cfg.ahead_blocks} blocks ahead")
+            if self.spec.lubricated:
+                self._machine.to(State.PRIMING)
+                self._prime(stream)
+            self._machine.to(State.RUNNING)
+            self._run_steps(runner, stream)
+            if not all(r.converged for r in self.results):
+                bad = sum(not r.converged for r in self.results)
+                reason = f"{bad} of {len(self.results)} steps did not converge"
+        except _Abort as ab:
+            status, reason = State.ABORTED, ab.reason
+            self._emit_safe("abort", reason, stream.generation())
+        except LimitTrip as trip:
+            status, reason, cut = State.ABORTED, str(trip), True
+            self._emit_safe("limit_trip", reason, trip.sample if trip.sample >= 0 else None)
+        except InterlockError as err:
+            status, reason = State.ABORTED, str(err)
+            self._emit_safe("abort", reason)
+        except _StepFailed as err:
+            status, reason = State.ABORTED, str(err)
+            self._emit_safe("abort", reason)
+        except EmergencyStopError as err:
+            status, reason, cut = State.FAILED, f"{type(err).__name__}: {err}", True
+            self._emit_safe("error", reason)
+        except Exception as err:  # noqa: BLE001 - any failure must end in a safe stop
+            log.exception("sweep failed")
+            status, reason = State.FAILED, f"{type(err).__name__}: {err}"
+            self._emit_safe("error", reason)
+        finally:
+            if self._machine.state not in FINAL and self._machine.state is not State.STOPPING:
+                self._machine.to(State.STOPPING)
+            stream.shutdown(self.limits.fade_s, cut=cut)
+            self._emit_safe("info", stream.margin_report())
+            if stream.contact_event is not None:
+                # the housing touched the journal (maybe after a trip, while fading)
+                k, msg = stream.contact_event
+                if not reason.startswith("journal-housing contact"):
+                    self._emit_safe("fault", msg, k)
+                if status is State.COMPLETED:
+                    status, reason = State.FAILED, msg
+            self._emit_safe("info", peak_line(self.peaks.summary))
+            self._machine.to(status)
         return SweepOutcome(_RUN_STATUS[status], reason, list(self.results), stream.sample, fs,
                             self.peaks.summary)
+
+    def _on_dwell(self, state: DwellState) -> None:
+        self._progress = replace(self._progress, dwell=state.value, sample=self._sample())
 
     def _on_update(self, updates: int) -> None:
         self._progress = replace(self._progress, updates=updates, sample=self._sample())

@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from control.run.plan import StepPlan
 from control.signal.controller import Assessment
+from control.wire.step_plan import StepPlan
 
 
 @dataclass

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.run.errors import LimitTrip, SpecError, TargetError
+from control.run.errors import LimitTrip
 from control.run.listener import RecordingListener
 from control.run.safety import SafetyLimits, SafetyMonitor
 from control.run.sweep.engine import SweepEngine, SweepSpec
+from control.wire.errors import SpecError, TargetError
 from daq.channels import default_channel_map
 from daq.errors import DaqTimeoutError
 from rig_model.params import RigParams

@@ -1,5 +1,6 @@
-"""One planned dwell of a sweep: what to hold, at which frequency. Shared by spec, safety and
-engine (kept apart so that safety does not depend on the sweep module)."""
+"""One planned dwell of a sweep: what to hold, at which frequency. What the sweep request
+(`sweep_spec`) enumerates; shared with the run's safety and the sweep engine (kept apart so that
+safety does not depend on the sweep module)."""
 
 from __future__ import annotations
 

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from control.run.errors import SpecError, TargetError
 from control.run.sweep.engine import SweepSpec, load_sweep_spec, sweep_spec_from_dict
+from control.wire.errors import SpecError, TargetError
 
 REPORT_TOML = """
 name = "lubricated X, 13-38 um"

@@ -474,7 +474,7 @@ def test_a_lubricated_sweep_on_a_stalling_host_approaches_every_step_without_a_t
     converges, the orbit stays under the limit."""
     from control.run.pump import PumpRelay
     from control.run.sweep.engine import SweepEngine
-    from control.run.sweep.spec import SweepSpec
+    from control.wire.sweep_spec import SweepSpec
 
     clock = FakeClock()
     be = Stalling(clock, seed, p)

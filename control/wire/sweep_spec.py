@@ -1,4 +1,6 @@
-"""The sweep description (pydantic, loadable from TOML). Re-exported by `control.run.sweep.engine`.
+"""The sweep request (pydantic, loadable from TOML): what a client writes and the daemon validates
+again at start. Here in the wire so that clients check a sweep with the same model; re-exported
+by `control.run.sweep.engine`.
 
 Example (the report's lubricated tests, section VI.1)::
 
@@ -33,9 +35,9 @@ from typing import Annotated, Any, Literal, Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from control.run.errors import SpecError
-from control.run.plan import StepPlan
 from control.signal.controller import Tolerance, motion_shape
+from control.wire.errors import SpecError
+from control.wire.step_plan import StepPlan
 from control.wire.text import Text
 from daq.config_files import read_toml, validate
 

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.run.errors import InterlockError, TargetError
+from control.run.errors import InterlockError
 from control.run.listener import RecordingListener
 from control.run.pump import PumpRelay
 from control.run.sweep.engine import SweepEngine
+from control.wire.errors import TargetError
 from daq.channels import default_channel_map
 from rig_model.params import RigParams
 from simulated_hw.backend import SimulatedBackend
@@ -67,12 +68,30 @@ def test_pump_cannot_be_switched_off_while_the_shakers_run():
             except InterlockError as err:
                 refusals.append(str(err))
 
-    out = SweepEngine(be, LUB, pump=pump, listener=Operator(keep_blocks=False)).run()
+    # the relay's one owner holds it for the run (the daemon does); the engine only asks it
+    with pump.shakers_running():
+        out = SweepEngine(be, LUB, pump=pump, listener=Operator(keep_blocks=False)).run()
     assert out.status == "completed"
     assert refusals and "cannot be switched off while the shakers run" in refusals[0]
     assert pump.is_on and be.rig.pump_on
     pump.set(False)  # allowed once the run is over
     assert not pump.is_on
+
+
+def test_the_sweep_engine_asks_the_pump_and_never_holds_it():
+    """One owner holds the relay (the daemon); a sweep run alone leaves it free."""
+    be = make_backend(seed=3)
+    pump = PumpRelay(be)
+    pump.set(True)
+    held = []
+
+    class Watch(RecordingListener):
+        def on_step(self, step):
+            super().on_step(step)
+            held.append(pump.shakers_active)
+
+    out = SweepEngine(be, LUB, pump=pump, listener=Watch(keep_blocks=False)).run()
+    assert out.status == "completed" and held == [False]
 
 
 def test_a_dry_run_refuses_pump_on_and_a_lubricated_one_pump_off():
