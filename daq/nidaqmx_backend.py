@@ -345,8 +345,14 @@ class NidaqmxBackend:
         reads), whole multiples of ``need`` more, up to `AI_CATCH_UP_S` and less one
         ``need`` for the two clocks' offset: a host that fell behind catches up in a few
         calls instead of one per block (the e-stop and the gRPC round trip with each). What
-        is read ahead is handed out by the next `read_ai` calls without a call."""
+        is read ahead is handed out by the next `read_ai` calls without a call.
+
+        Not on a board whose generation count is seen not to follow the host's clock (the
+        sim-server's fast mode): there a read moves the board's clock, and reading ahead of
+        what a late host has written underflows the AO."""
         fs = self.channel_map.sample_rate_hz
+        if self._gen_answers and not self._gen_paced(fs):
+            return need
         held = int((self._clock() - self._ai_started_at) * fs) - self._ai_taken - have
         extra = min(held - 2 * need, int(AI_CATCH_UP_S * fs))
         return need + need * max(extra // need, 0)
