@@ -854,10 +854,12 @@ async function loadIncidents() {
     tr.dataset.run = r.run_id;
     for (const c of [r.time_utc.replace("T", " ").slice(0, 23), r.run_id, r.incident, r.what, r.where,
       fmt(r.peak_orbit_um, 1), fmt(r.peak_load_n, 1)]) tr.insertCell().textContent = String(c);
+    const cell = tr.insertCell();
+    if (!r.run_id) continue;  // between runs: no run to open
     const open = document.createElement("button");
     open.textContent = "Open";
     open.onclick = () => openRun(r.run_id);
-    tr.insertCell().appendChild(open);
+    cell.appendChild(open);
   }
 }
 $("incident-filter").onchange = loadIncidents;
@@ -880,7 +882,8 @@ $("note-add").onclick = async () => {
 let runsKey = null;
 function followRuns(fr) {
   const st = fr.status || {};
-  const key = [(fr.link || {}).state, st.run_id, st.last_run && st.last_run.run_id, st.last_run && st.last_run.status].join("|");
+  const key = [(fr.link || {}).state, st.run_id, st.last_run && st.last_run.run_id, st.last_run && st.last_run.status,
+    st.pid, st.idle_incidents].join("|");  // (an e-stop between runs is in the daemon's incident log)
   if (key !== runsKey) { runsKey = key; loadRuns(); loadIncidents(); }
 }
 
