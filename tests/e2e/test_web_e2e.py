@@ -152,6 +152,7 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
     assert page.inner_text("#state") == "idle"
     assert page.is_visible("#abort") and not page.is_visible("#viewer-note")
+    assert page.is_enabled("#pump-on") and page.is_disabled("#pump-off")  # idle, pump off
 
     # bad files: the page shows the CLI's own messages
     bad_toml = 'motion = "x"\nload_n = [40.0\n'
@@ -171,6 +172,8 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     # the step table and the orbit update while it runs
     page.wait_for_function("document.querySelectorAll('#steps tbody tr').length >= 2",
                            timeout=120_000)
+    # the run holds the pump relay (the daemon refuses either switch): no pump button offered
+    assert page.is_disabled("#pump-on") and page.is_disabled("#pump-off")
     first = page.evaluate("window.sfdrig.lastFrame.traces.last_sample")
     page.wait_for_function(f"window.sfdrig.lastFrame.traces.last_sample > {first} + 5000")
     assert int(page.get_attribute("#orbit", "data-points")) > 100

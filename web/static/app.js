@@ -486,8 +486,11 @@ function followState(st, up) {
   for (const id of STARTS) $(id).disabled = !allowed.has("start");
   $("sweep-start").disabled = !checked || !allowed.has("start");
   for (const id of ["pause", "resume", "abort", "reset"]) $(id).disabled = !allowed.has(id);
-  $("pump-on").disabled = !up || !!st.pump_on;
-  $("pump-off").disabled = !up || !st.pump_on;
+  // a run holds the pump relay from its start to its end: the daemon refuses either switch
+  const held = !!st.run_id;
+  $("pump-on").disabled = !up || !!st.pump_on || held;
+  $("pump-off").disabled = !up || !st.pump_on || held;
+  for (const id of ["pump-on", "pump-off"]) $(id).title = held ? "the running run holds the pump relay until it ends" : "";
 }
 
 // Starting a run and switching the pump are confirmed first (abort never is).
