@@ -435,6 +435,10 @@ def test_a_killed_daemon_looks_gone_and_a_restarted_one_is_found(daemon_factory,
                            ".textContent)", timeout=120_000)
     assert page.inner_text("#state") == "running" and not page.is_disabled("#abort")
     assert page.is_disabled("#start-example") and page.inner_text("#data-age").endswith(" s old")
+    # the history's row of the running run follows it: its steps as the step table's
+    page.wait_for_function(f"(() => {{ const r = document.querySelector(\"#runs tbody tr"
+                           f"[data-run='{run_id}']\"); return r !== null && r.cells[3].textContent"
+                           " === String(document.querySelectorAll('#steps tbody tr').length); })()")
     assert not page.evaluate("document.body.classList.contains('stale')")
 
     t0 = time.monotonic()

@@ -888,6 +888,12 @@ function followRuns(fr) {
   const key = [(fr.link || {}).state, st.run_id, st.last_run && st.last_run.run_id, st.last_run && st.last_run.status,
     st.pid, st.idle_incidents].join("|");  // (an e-stop between runs is in the daemon's incident log)
   if (key !== runsKey) { runsKey = key; loadRuns(); loadIncidents(); }
+  // the running run's row follows it (the list was read when it started: 0 steps, 0.1 s)
+  const row = st.run_id && linkUp(fr) ? document.querySelector(`#runs tbody tr[data-run="${CSS.escape(st.run_id)}"]`) : null;
+  if (row) {
+    row.cells[3].textContent = String((fr.steps || []).length);
+    if (st.samples > 0 && st.sample_rate_hz > 0) row.cells[5].textContent = duration(st.samples / st.sample_rate_hz);
+  }
 }
 
 const DRAWN_LATEST_MS = 250;  // the next frame is asked for by then even if not painted
