@@ -169,7 +169,7 @@ class Daemon:
                                    block_when_full=config.lossless_publish)
         self.loop = AcquisitionLoop(self._run_started, self._run_done)
         # one compression pool for every run file: threads new each run grew the RSS run
-        # after run (each took over another malloc arena; control.daemon.native_memory)
+        # after run (each took over another malloc arena; sfdrig.commands._native_memory)
         from storage.runfile import deflate_pool  # h5py: imported when the daemon is built
 
         self.deflate_pool = deflate_pool("sfdrig-deflate")
