@@ -147,6 +147,11 @@ def main() -> int:
     ap.add_argument("--transfer", action="store_true",
                     help="sfdrig web reads the runs directory and the first WebSocket client "
                          "asks for the run's transfer function at each new step, as the page")
+    ap.add_argument("--record-cycles", type=int, default=None,
+                    help="cycles recorded per step (default: 1500 or more, 15 steps outlasting "
+                         "--seconds); fewer make steps, and so transfer requests, come more "
+                         "often, with more amplitudes to outlast --seconds (a short run that "
+                         "shows what 30 min of requests do)")
     ap.add_argument("--ws-clients", type=int, default=0,
                     help="plain WebSocket clients of the page's frame stream (no drawing)")
     ap.add_argument("--browser-nice", type=int, default=10,
@@ -193,8 +198,13 @@ def main() -> int:
     freqs = [20.0, 30.0, 40.0, 50.0, 60.0]
     # long enough to outlast the measurement (15 steps; 1500 cycles: about 11 min)
     cycles = max(1500, math.ceil(1.2 * args.seconds / (3 * sum(1 / f for f in freqs))))
+    amplitudes = [13e-6, 25e-6, 38e-6]
+    if args.record_cycles:
+        cycles = args.record_cycles
+        n_amp = max(3, math.ceil(1.2 * args.seconds / (cycles * sum(1 / f for f in freqs))))
+        amplitudes = [float(a) for a in np.linspace(13e-6, 38e-6, n_amp)]
     spec = {"name": "bench_web", "motion": "x", "lubricated": True,
-            "amplitude_m": [13e-6, 25e-6, 38e-6], "freq_hz": freqs,
+            "amplitude_m": amplitudes, "freq_hz": freqs,
             "settle_cycles": 10, "record_cycles": cycles,
             "control": {"block_s": 0.0125, "ahead_blocks": 3}}
     rss: list[tuple[float, float]] = []

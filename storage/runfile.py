@@ -155,7 +155,7 @@ class RunWriter:
             `deflate_pool`; its owner shuts it down, not the writer). By default the writer
             starts its own and shuts it down at close. A process writing run after run should
             share one: new threads per run each take over a malloc arena of their own, and the
-            daemon's resident memory grew with every run (`control.daemon.native_memory`).
+            daemon's resident memory grew with every run (`sfdrig.commands._native_memory`).
         """
         path = Path(path)
         chans, ao_list, chunk_samples = _checked_arguments(

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from web.transfer import COHERENCE_LOW, axes_of, from_segments, segments_of
-from web.trips import incidents_of_run, select
+from web.trips import idle_rows, incidents_of_run, select
 from web.view import finite, step_point
 
 FORMATS = ("h5", "mat", "csv", "tdms")
@@ -185,9 +185,11 @@ class RunHistory:
 
     # --- trips, e-stops, watchdogs and interrupted runs across runs ---------------------------
     def trips(self, incidents: set[str] | None = None, since: Any = None) -> dict[str, Any]:
-        """Every incident (`web.trips`) of the runs that did not complete, newest first, read
-        from their files (a file is read again only when it has changed)."""
+        """Every incident (`web.trips`) of the runs that did not complete, read from their
+        files (a file is read again only when it has changed), and those of no run, from the
+        daemon's incident log: newest first."""
         from storage.errors import RunFileError
+        from storage.incident_log import LOG_NAME, read_incidents
         from storage.reader import open_run
 
         rows: list[dict[str, Any]] = []
@@ -221,9 +223,11 @@ class RunHistory:
             rows.extend(cached[1])
         for gone in set(self._incidents) - seen:
             del self._incidents[gone]
+        logged, skipped = read_incidents(self.runs_dir)
+        rows.extend(idle_rows(logged, LOG_NAME))
         shown = select(rows, incidents, since)
         return {"runs_dir": str(self.runs_dir), "incidents": shown, "total": len(rows),
-                "unreadable": unreadable}
+                "unreadable": unreadable, "log_lines_skipped": skipped}
 
     # --- downloads ------------------------------------------------------------------------
     def download(self, run_id: str, fmt: str, work: Path) -> tuple[Path, str]:

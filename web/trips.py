@@ -1,6 +1,9 @@
 """Trips, emergency stops, watchdogs and interrupted runs across a test day, from the run files.
 
-Each run file keeps its events and how it ended; nothing here asks the daemon. One row per
+Each run file keeps its events and how it ended, and the daemon's incident log
+(`storage.incident_log`) those that happen while no run is going (an emergency stop pressed
+or released between runs, the board's watchdog expiring while idle); nothing here asks the
+daemon. One row per
 incident: a limit trip (``limit_trip`` event), an emergency stop (an ``error`` naming
 ``EmergencyStopError``), the board's watchdog (an event naming the watchdog), a
 journal-housing contact (``fault``), a run that was interrupted (its writer died: status
@@ -27,6 +30,8 @@ from web.view import finite
 INCIDENTS = ("trip", "e-stop", "watchdog", "contact", "interrupted", "failed")
 PEAK_BEFORE_S = 1.0
 PEAK_AFTER_S = 0.2
+#: where an incident of no run happened
+IDLE_WHERE = "between runs (no run going)"
 CSV_COLUMNS = ("time_utc", "run_id", "incident", "what", "where", "run_time_s",
                "peak_orbit_um", "peak_load_n", "run_status", "file")
 
@@ -165,6 +170,15 @@ def incidents_of_run(run: Any, status: str, file: str, changed_at: float
             "run_status": status, "file": file,
         })
     return rows
+
+
+def idle_rows(records: list[dict[str, Any]], file: str) -> list[dict[str, Any]]:
+    """The rows of the daemon's incident log (`storage.incident_log`): incidents while no run
+    was going (an emergency stop pressed or released between runs, the board's watchdog), in
+    no run file."""
+    return [{"time_utc": r["time"], "run_id": "", "incident": r["incident"], "what": r["what"],
+             "where": IDLE_WHERE, "run_time_s": None, "peak_orbit_um": None,
+             "peak_load_n": None, "run_status": "", "file": file} for r in records]
 
 
 def select(rows: list[dict[str, Any]], incidents: set[str] | None,

@@ -157,6 +157,8 @@ class Daemon:
         self._stop_reason = ""
         self._stop = threading.Event()
         self._watchdog_error = ""
+        self._estop_released_logged = False  # for the fault latched now
+        self._idle_incidents = 0  # written to the incident log since start
         self._pump_hold = ExitStack()  # the pump interlock, held from a run's start to its end
 
         self._ctx = zmq.Context()
@@ -168,7 +170,7 @@ class Daemon:
                                    block_when_full=config.lossless_publish)
         self.loop = AcquisitionLoop(self._run_started, self._run_done)
         # one compression pool for every run file: threads new each run grew the RSS run
-        # after run (each took over another malloc arena; control.daemon.native_memory)
+        # after run (each took over another malloc arena; sfdrig.commands._native_memory)
         from storage.runfile import deflate_pool  # h5py: imported when the daemon is built
 
         self.deflate_pool = deflate_pool("sfdrig-deflate")
@@ -196,6 +198,7 @@ class Daemon:
                     next_beat = now + self.cfg.heartbeat_s
                     self._feed_watchdog_while_idle()
                     self._check_estop_while_idle()
+                    self._check_estop_release()
                 if self._command.poll(int(max(0.0, next_beat - now) * 1000) + 1):
                     self._handle(self._command.recv_multipart())
         finally:
@@ -222,6 +225,36 @@ class Daemon:
             self.pump.set(False)
         except Exception:
             log.exception("could not switch the pump off after the emergency stop")
+        self._log_idle_incident("e-stop", "emergency stop pressed while idle (no run): fault "
+                                "latched, pump off")
+
+    def _check_estop_release(self) -> None:
+        """Once the emergency stop that latched the fault (between runs or in a run) reads
+        released, say so in the incident log: the history shows how long it was held."""
+        if self.job is not None or self.sm.state is not DaemonState.FAULT or \
+                "emergency stop" not in self.fault_reason or self._estop_released_logged:
+            return
+        try:
+            pressed = self.backend.estop_pressed()
+        except Exception:  # reported by `_check_estop_while_idle`'s next read
+            return
+        if not pressed:
+            self._estop_released_logged = True
+            self._log_idle_incident("e-stop", "emergency stop released (the fault stays "
+                                    "latched until reset)")
+
+    def _log_idle_incident(self, incident: str, what: str) -> None:
+        """An incident while no run is going is in no run file: the daemon's incident log under
+        the runs directory keeps it (`storage.incident_log`, read by the page's history), and
+        the data stream says it now."""
+        from storage.incident_log import append_incident  # storage (h5py) at first use
+
+        try:  # first: whoever hears the event below finds it in the log
+            append_incident(self.cfg.runs_dir, incident, what)
+        except OSError as err:
+            log.error("incident log %s: %s (the incident: %s)", self.cfg.runs_dir, err, what)
+        self._idle_incidents += 1
+        self.publisher.on_event("fault" if incident == "e-stop" else "warning", what, 0)
 
     def _feed_watchdog_between(self) -> None:
         """Feed the board's watchdog from the end of a run (`_run_done`); an expired one is
@@ -243,6 +276,9 @@ class Daemon:
             kind = type(err).__name__  # the message counts the seconds since: not per call
             if kind != self._watchdog_error:
                 log.error("board watchdog: %s", err)
+                if isinstance(err, DaqWatchdogExpiredError):
+                    self._log_idle_incident("watchdog", f"the board's watchdog expired while "
+                                            f"idle (no run): {err}")
             self._watchdog_error = kind
         else:
             self._watchdog_error = ""
@@ -582,6 +618,8 @@ class Daemon:
     def _state_changed(self, old: DaemonState, new: DaemonState, event: str) -> None:
         job = self.job
         sample = job.fanout.last_sample if job is not None else 0
+        if new is S.FAULT:
+            self._estop_released_logged = False  # a new fault: its release still to be seen
         self.publisher.on_event("state", f"{old.value} -> {new.value} ({event})", sample)
 
     # --- status -----------------------------------------------------------------------------
@@ -611,6 +649,9 @@ class Daemon:
                        "load_limit_n": limits.max_load_n, "drive_limit_v": limits.max_drive_v},
             "tolerance": job.engine.tolerance() if job is not None else None,
             "fault_reason": self.fault_reason,
+            # incidents of no run written to the incident log since start (a display reads
+            # the log again when it changes)
+            "idle_incidents": self._idle_incidents,
             # what a structure test asks the operator now (control.run.programs.operator.Question),
             # or None
             "question": _question(job),

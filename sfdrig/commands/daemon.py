@@ -27,11 +27,11 @@ from threadpoolctl import threadpool_limits
 
 from control.daemon.daemon import Daemon, DaemonConfig
 from control.daemon.instance import AlreadyRunning, InstanceLock, device_lock, runs_lock
-from control.daemon.native_memory import pin_mmap_threshold
 from control.wire.security import KeyFileError, load_server_keys
 from daq.channels import ChannelMap, default_channel_map, load_channel_map
 from daq.errors import ChannelConfigError, DaqConnectionError, DaqError
 from sfdrig.commands._client_args import DEFAULT_RUNS_DIR, STATE_FILE_NAME
+from sfdrig.commands._native_memory import pin_mmap_threshold
 from sfdrig.commands._priority import LEVELS, PriorityError, apply_priority
 
 NAME = "daemon"
@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     # lock-in product waited on it was delayed by every other process (underflows at load 2-4)
     threadpool_limits(limits=1, user_api="blas")
     # Freed sample arrays go back to the kernel, not scattered over the malloc arenas: RSS flat
-    # over days of sweeps (control.daemon.native_memory)
+    # over days of sweeps (sfdrig.commands._native_memory)
     logging.getLogger("sfdrig.daemon").info("%s", pin_mmap_threshold())
     try:
         scheduling = apply_priority(args.priority)

@@ -23,6 +23,7 @@ from threadpoolctl import threadpool_limits
 from control.wire.client import DaemonUnavailable
 from control.wire.security import KeyFileError, is_loopback
 from sfdrig.commands._client_args import STATE_FILE_NAME, _state, add_connection_arguments, keys
+from sfdrig.commands._native_memory import pin_mmap_threshold
 from web.auth import OPERATOR, VIEWER
 from web.feed import DaemonLink
 from web.server import LOOPBACK_NAMES, WebApp, WebConfig
@@ -101,6 +102,10 @@ def run(args: argparse.Namespace) -> int:
     # spread it over every core and spin-wait there: on a loaded 2-core machine, 20 times the CPU
     # for the same product, taken from the paced daemon (README "Measured figures").
     threadpool_limits(limits=1, user_api="blas")
+    # Freed arrays of 128 KiB or more (a transfer request's segments, the frames' windows) go
+    # back to the kernel, not scattered over the executor threads' malloc arenas
+    # (sfdrig.commands._native_memory)
+    logging.getLogger("sfdrig.web").info("%s", pin_mmap_threshold())
     config = WebConfig(key_dir=args.keys, anonymous_role=args.role, examples_dir=args.examples,
                        fps=args.fps, secure_cookie=tls is not None,
                        allowed_hosts=allowed_hosts(args.host, args.allow_host),

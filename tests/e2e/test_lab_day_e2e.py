@@ -10,8 +10,8 @@ the host late, never the drive underflow.
 The memory criterion, from measurements (one daemon, the sweep below; RSS after each run): at
 ``--priority realtime`` the daemon grows 0.13 MB a run from after run 1 to after run 15 (before
 issue 21's fix of glibc's dynamic mmap threshold and the per-run compression pool,
-`control.daemon.native_memory`: 0.35 MB a run); at normal priority beside other work (load 8-14, as
-this
+`sfdrig.commands._native_memory`: 0.35 MB a run); at normal priority beside other work (load
+8-14, as this
 suite runs) 0.43-0.48 MB a run. What grows is memory glibc holds freed, not memory in use
 (mallinfo2: 28-32 MB in use over 200 runs), and it levels off: `benchmarks/bench_lab_day.py`'s
 30-minute session held 271.6 MB over its last 8 minutes. The limit, a sixth of one run's

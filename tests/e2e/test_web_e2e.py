@@ -11,10 +11,12 @@ import cmath
 import math
 import os
 import selectors
+import signal
 import subprocess
 import sys
 import time
 import tomllib
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -150,6 +152,7 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
     assert page.inner_text("#state") == "idle"
     assert page.is_visible("#abort") and not page.is_visible("#viewer-note")
+    assert page.is_enabled("#pump-on") and page.is_disabled("#pump-off")  # idle, pump off
 
     # bad files: the page shows the CLI's own messages
     bad_toml = 'motion = "x"\nload_n = [40.0\n'
@@ -169,6 +172,8 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     # the step table and the orbit update while it runs
     page.wait_for_function("document.querySelectorAll('#steps tbody tr').length >= 2",
                            timeout=120_000)
+    # the run holds the pump relay (the daemon refuses either switch): no pump button offered
+    assert page.is_disabled("#pump-on") and page.is_disabled("#pump-off")
     first = page.evaluate("window.sfdrig.lastFrame.traces.last_sample")
     page.wait_for_function(f"window.sfdrig.lastFrame.traces.last_sample > {first} + 5000")
     assert int(page.get_attribute("#orbit", "data-points")) > 100
@@ -430,6 +435,10 @@ def test_a_killed_daemon_looks_gone_and_a_restarted_one_is_found(daemon_factory,
                            ".textContent)", timeout=120_000)
     assert page.inner_text("#state") == "running" and not page.is_disabled("#abort")
     assert page.is_disabled("#start-example") and page.inner_text("#data-age").endswith(" s old")
+    # the history's row of the running run follows it: its steps as the step table's
+    page.wait_for_function(f"(() => {{ const r = document.querySelector(\"#runs tbody tr"
+                           f"[data-run='{run_id}']\"); return r !== null && r.cells[3].textContent"
+                           " === String(document.querySelectorAll('#steps tbody tr').length); })()")
     assert not page.evaluate("document.body.classList.contains('stale')")
 
     t0 = time.monotonic()
@@ -713,3 +722,78 @@ def test_trips_and_e_stops_across_runs(daemon_factory, web_factory, browser):
     page.wait_for_function("document.getElementById('run-title').textContent.startsWith('T1 ')")
     assert page.inner_text("#run-title") == "T1 (sweep, aborted)"
     assert page.errors == []
+
+
+def _get_json(url: str) -> Any:
+    import json
+
+    with urllib.request.urlopen(url, timeout=30) as r:  # noqa: S310 (our loopback server)
+        return json.loads(r.read())
+
+
+@pytest.mark.paced
+def test_an_e_stop_between_runs_is_in_the_history_across_a_restart(tmp_path, web_factory):
+    """Issue 25: an emergency stop pressed and released while no run is going is in no run
+    file; the daemon's incident log keeps it, and /api/trips (JSON and CSV) lists it with its
+    time, after the daemon's restart too, beside a press in the restarted daemon."""
+    from datetime import UTC, datetime
+
+    from control.wire.client import Subscriber
+    from tests.e2e.test_board_safety_e2e import _wait_for_event, estop_rig
+    from web.trips import IDLE_WHERE
+
+    server, d = estop_rig(tmp_path)
+    d2 = None
+    try:
+        url = web_factory(d, follow=True)
+
+        def press_and_release(daemon: DaemonProcess) -> tuple[datetime, datetime]:
+            with Subscriber(daemon.data, rcvhwm=0) as sub:
+                sub.wait_connected()
+                before = datetime.now(UTC)
+                server.proc.send_signal(signal.SIGUSR1)
+                server.next_line("emergency stop pressed", timeout_s=10)
+                _wait_for_event(sub, "emergency stop pressed while idle")
+                server.proc.send_signal(signal.SIGUSR2)
+                server.next_line("emergency stop released", timeout_s=10)
+                _wait_for_event(sub, "emergency stop released")  # logged before it is said
+                return before, datetime.now(UTC)
+
+        def idle_rows() -> list[dict[str, Any]]:
+            out = _get_json(url + "api/trips?incident=e-stop")
+            assert out["ok"] and out["log_lines_skipped"] == 0, out
+            return [r for r in out["incidents"] if r["where"] == IDLE_WHERE]
+
+        first = press_and_release(d)
+        rows = idle_rows()
+        assert [r["what"].split(" (")[0] for r in rows] == [  # newest first
+            "emergency stop released", "emergency stop pressed while idle"]
+        for r in rows:
+            when = datetime.fromisoformat(r["time_utc"])
+            assert first[0] <= when <= first[1], (r, first)
+            assert r["run_id"] == "" and r["incident"] == "e-stop"
+            assert r["peak_orbit_um"] is None and r["file"] == "incidents.jsonl"
+        assert rows[1]["time_utc"] < rows[0]["time_utc"]
+
+        # the daemon stopped and started again (new ports, found by the page through
+        # daemon.json): the log survives, and the new daemon's press is added to it
+        assert d.terminate() == 0
+        d.proc.communicate(timeout=10)
+        d2 = start_daemon(d.runs_dir, "--backend", "nidaqmx", "--grpc-target", server.address,
+                          "--channels", str(tmp_path / "channels.toml"), fast=False)
+        second = press_and_release(d2)
+        rows = idle_rows()
+        assert len(rows) == 4
+        assert [datetime.fromisoformat(r["time_utc"]) >= second[0] for r in rows] == [
+            True, True, False, False]
+        with urllib.request.urlopen(url + "api/trips?format=csv",  # noqa: S310
+                                    timeout=30) as r:
+            lines = r.read().decode().splitlines()
+        idle = [line for line in lines[1:] if IDLE_WHERE in line]
+        assert len(idle) == 4 and all(',"","e-stop","emergency stop ' in line for line in idle)
+    finally:
+        for daemon in (d, d2):
+            if daemon is not None and daemon.proc.poll() is None:
+                daemon.terminate()
+                daemon.proc.communicate(timeout=10)
+        server.stop()

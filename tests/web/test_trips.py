@@ -163,6 +163,38 @@ def test_filtered_and_exported_as_csv(runs_dir):
     assert trip[9] == "T1.h5"
 
 
+def test_incidents_between_runs_come_from_the_daemons_log(runs_dir):
+    """An e-stop pressed and released between runs (in no run file) is in the daemon's
+    incident log: listed among the runs' incidents by its time, filtered and exported alike."""
+    from datetime import UTC, datetime
+
+    from storage.incident_log import append_incident
+    from web.trips import IDLE_WHERE
+
+    for hh_mm, what in (("10:30", "emergency stop pressed while idle (no run)"),
+                        ("10:31", "emergency stop released")):
+        append_incident(runs_dir, "e-stop", what,
+                        when=datetime.fromisoformat(f"2026-11-25T{hh_mm}:00+00:00"))
+    append_incident(runs_dir, "watchdog", "the board's watchdog expired while idle",
+                    when=datetime(2026, 11, 25, 12, 30, tzinfo=UTC))
+    app = WebApp(_Daemon(), WebConfig(runs_dir=runs_dir))  # type: ignore[arg-type]
+    every, estops, csv_all = _serve(app, [
+        "/api/trips", "/api/trips?incident=e-stop&since=2026-11-25T10:15", "/api/trips?format=csv"])
+    out = json.loads(every[2])
+    assert [(r["run_id"], r["incident"], r["time_utc"][11:16]) for r in out["incidents"]] == [
+        ("I1", "interrupted", "14:00"), ("", "watchdog", "12:30"), ("W1", "watchdog", "11:00"),
+        ("", "e-stop", "10:31"), ("", "e-stop", "10:30"), ("E1", "e-stop", "10:00"),
+        ("T1", "trip", "09:00")]
+    assert out["total"] == 7 and out["log_lines_skipped"] == 0
+    idle = [r for r in out["incidents"] if not r["run_id"]]
+    assert all(r["where"] == IDLE_WHERE and r["file"] == "incidents.jsonl"
+               and r["peak_orbit_um"] is None for r in idle)
+    assert [r["what"] for r in json.loads(estops[2])["incidents"]] == [
+        "emergency stop released", "emergency stop pressed while idle (no run)"]
+    table = list(csv.reader(io.StringIO(csv_all[2].decode())))
+    assert table[4][1:5] == ["", "e-stop", "emergency stop released", IDLE_WHERE]
+
+
 def test_bad_parameters_are_refused_with_the_reason(runs_dir):
     app = WebApp(_Daemon(), WebConfig(runs_dir=runs_dir))  # type: ignore[arg-type]
     none = WebApp(_Daemon(), WebConfig())  # type: ignore[arg-type]

@@ -486,8 +486,11 @@ function followState(st, up) {
   for (const id of STARTS) $(id).disabled = !allowed.has("start");
   $("sweep-start").disabled = !checked || !allowed.has("start");
   for (const id of ["pause", "resume", "abort", "reset"]) $(id).disabled = !allowed.has(id);
-  $("pump-on").disabled = !up || !!st.pump_on;
-  $("pump-off").disabled = !up || !st.pump_on;
+  // a run holds the pump relay from its start to its end: the daemon refuses either switch
+  const held = !!st.run_id;
+  $("pump-on").disabled = !up || !!st.pump_on || held;
+  $("pump-off").disabled = !up || !st.pump_on || held;
+  for (const id of ["pump-on", "pump-off"]) $(id).title = held ? "the running run holds the pump relay until it ends" : "";
 }
 
 // Starting a run and switching the pump are confirmed first (abort never is).
@@ -854,10 +857,12 @@ async function loadIncidents() {
     tr.dataset.run = r.run_id;
     for (const c of [r.time_utc.replace("T", " ").slice(0, 23), r.run_id, r.incident, r.what, r.where,
       fmt(r.peak_orbit_um, 1), fmt(r.peak_load_n, 1)]) tr.insertCell().textContent = String(c);
+    const cell = tr.insertCell();
+    if (!r.run_id) continue;  // between runs: no run to open
     const open = document.createElement("button");
     open.textContent = "Open";
     open.onclick = () => openRun(r.run_id);
-    tr.insertCell().appendChild(open);
+    cell.appendChild(open);
   }
 }
 $("incident-filter").onchange = loadIncidents;
@@ -880,8 +885,15 @@ $("note-add").onclick = async () => {
 let runsKey = null;
 function followRuns(fr) {
   const st = fr.status || {};
-  const key = [(fr.link || {}).state, st.run_id, st.last_run && st.last_run.run_id, st.last_run && st.last_run.status].join("|");
+  const key = [(fr.link || {}).state, st.run_id, st.last_run && st.last_run.run_id, st.last_run && st.last_run.status,
+    st.pid, st.idle_incidents].join("|");  // (an e-stop between runs is in the daemon's incident log)
   if (key !== runsKey) { runsKey = key; loadRuns(); loadIncidents(); }
+  // the running run's row follows it (the list was read when it started: 0 steps, 0.1 s)
+  const row = st.run_id && linkUp(fr) ? document.querySelector(`#runs tbody tr[data-run="${CSS.escape(st.run_id)}"]`) : null;
+  if (row) {
+    row.cells[3].textContent = String((fr.steps || []).length);
+    if (st.samples > 0 && st.sample_rate_hz > 0) row.cells[5].textContent = duration(st.samples / st.sample_rate_hz);
+  }
 }
 
 const DRAWN_LATEST_MS = 250;  // the next frame is asked for by then even if not painted

@@ -1,5 +1,5 @@
-"""The daemon process's C heap: a fixed glibc mmap threshold, so that the resident size of a
-daemon running sweep after sweep does not climb with every run.
+"""The C heap of the daemon and of `sfdrig web`: a fixed glibc mmap threshold, so that the
+resident size of a process running day-long does not climb with what it has freed.
 
 glibc serves an allocation of at least ``M_MMAP_THRESHOLD`` bytes (128 KiB at start) with its
 own ``mmap`` and gives it back to the kernel when it is freed. By default the threshold is
@@ -14,6 +14,12 @@ throughout but 5 -> 34 MB held free, RSS 253 MB after run 1, 270 after run 15, 2
 `Daemon.deflate_pool`): 243, 248, 252 MB, 255 MB after run 200; in a second daemon 259 MB
 after run 100, 260 after 200, 262 after 400 (12 kB a run over runs 200-400, 8 over 300-400).
 ``malloc_trim(0)`` after each run instead did not help (267 MB after run 200).
+
+`sfdrig web` had the same growth: a transfer-function request (`web.history`) frees segment
+arrays of 800 kB, and the default executor's threads, which also make the frames, then carved
+such arrays from their arenas. Over a 30-min sweep with a request at each new step (README,
+`bench_web --transfer`) its thread arenas grew 8.8 -> 31.1 MB (RSS 104 -> 129 MB); with the
+threshold fixed, 3.0 -> 7.1 MB (RSS 100 -> 106 MB).
 
 The cost: arrays of 128 KiB or more are mmapped and unmapped each time (page faults). At 1 MS/s
 (16 AI x 62.5 kS/s, `benchmarks/bench_e2e.py --seconds 15` at ``--priority realtime``, load
