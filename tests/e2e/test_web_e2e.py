@@ -191,6 +191,13 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
                 plots.force.u.axes.map((a) => a.label), plots.drive.u.axes[1].label]; }""")
     assert trips[0] == [448.0, -448.0] and trips[1] == [9.0, -9.0]
     assert trips[2] == ["time [ms]", "force [N]"] and trips[3] == "drive [V]"
+    # the displacement's trip (the orbit radius) on the displacement traces once they reach a
+    # quarter of it, and in words always
+    disp = page.evaluate("""() => [plots.disp.u.series.map((s) => s.label),
+        document.getElementById('disp-info').textContent]""")
+    peak = float(disp[1].split("largest here ")[1].split()[0])
+    assert disp[1].startswith("trip at 63.5 um (orbit radius): largest here ") and peak > 0.5
+    assert ("+ trip" in disp[0]) == (peak >= 0.25 * 63.5), disp
     assert page.inner_text("#state") == "running" and page.inner_text("#run-id") == run_id
     # each input's RMS, peak and how much of its range it uses: 40 N of the load cell's range
     fx = [c.inner_text() for c in page.query_selector_all("#levels tr[data-input='fx'] td")]

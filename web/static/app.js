@@ -51,10 +51,14 @@ function drawTraces(tr, status) {
   const w = Math.max(380, $("plot-force").parentElement.clientWidth - 14);
   const safety = status.safety || {};
   // the trip levels drawn on the traces they apply to: load on the forces, volts on the drives
-  const limits = { force: safety.load_limit_n, drive: safety.drive_limit_v };
+  // the displacement's (a radius, drawn on each axis's trace) only once a trace reaches a
+  // quarter of it: drawn always it would flatten a trace of a few um into a line
+  const dispLimit = safety.displacement_limit_m ? safety.displacement_limit_m * 1e6 : null;
+  const limits = { force: safety.load_limit_n, drive: safety.drive_limit_v, disp: dispLimit };
+  const peakOf = (data) => data.reduce((m, d) => d.reduce((a, v) => Math.max(a, Math.abs(v)), m), 0);
   const withLimit = (key, names, data) => {
     const lim = limits[key];
-    if (!lim) return [names, data];
+    if (!lim || (key === "disp" && peakOf(data) < 0.25 * lim)) return [names, data];
     return [names.concat(["+ trip", "- trip"]), data.concat([tr.t_ms.map(() => lim), tr.t_ms.map(() => -lim)])];
   };
   for (const [key, el, pick, scale, yLabel] of GROUPS) {
@@ -62,6 +66,13 @@ function drawTraces(tr, status) {
     const [names, data] = withLimit(key, picked, picked.map((n) => tr.channels[n].map((v) => v * scale)));
     const u = ensurePlot(key, el, names, lineOpts("time [ms]", names, w, 190, yLabel));
     u.setData([tr.t_ms].concat(data));
+    if (key === "disp") {
+      const peak = peakOf(data.slice(0, picked.length));
+      $("disp-info").textContent = dispLimit
+        ? `trip at ${fmt(dispLimit, 1)} um (orbit radius): largest here ${fmt(peak, 2)} um, ` +
+          `${fmt(100 * peak / dispLimit, 0)} % of it` + (peak < 0.25 * dispLimit ? " (trip lines drawn from 25 %)" : "")
+        : "";
+    }
   }
   const [drives, ddata] = withLimit("drive", tr.drives || [], (tr.drives || []).map((n) => tr.channels[n]));
   const ud = ensurePlot("drive", "plot-drive", drives, lineOpts("time [ms]", drives, w, 190, "drive [V]"));
