@@ -200,17 +200,12 @@ class SimulatedBackend:
         return 0
 
     def ao_generated(self) -> int:
-        """AO samples generated since the start; after a stopping cut the count the AI clock
-        has reached (the drives show 0 V there)."""
+        """AO samples generated since the start: the AO runs on the AI sample clock from the AI
+        start, so the samples that clock has produced (counted, not simulated: asked every
+        block, simulating the few samples since the last call would cost a rig step each)."""
         if not self._running:
             return 0
-        dev, ao = self._board(), self._ao
-        assert ao is not None
-        if self._cut_at is not None:
-            with dev.lock:
-                dev.catch_up()
-                return dev.generated
-        return dev.generated_by(ao)
+        return self._board().samples_due()
 
     def start(self) -> None:
         """Start the generation and the acquisition: a new run counts its samples from 0, as a
@@ -331,18 +326,10 @@ class SimulatedBackend:
     def ao_backlog(self) -> int:
         """Samples written and not yet generated (regenerating: negative once the generation
         has passed the last sample written)."""
-        ao = self._ao
-        if ao is None:
-            return 0
         if not self._running:
             return self._written_end
-        if self.ao_ring_samples is None:
-            if self._cut_at is not None:
-                return 0
-            dev = self._board()
-            with dev.lock:
-                dev.catch_up()
-                return ao.ao.queued
+        if self.ao_ring_samples is None and self._cut_at is not None:
+            return 0  # a stopped generation: what was queued was dropped
         return self._written_end - self.ao_generated()
 
     def cut_ao(self) -> AoCut:

@@ -798,6 +798,14 @@ class SimDevice:
                             if r is not None}.values():
                     rig.set_relay(d.name, value)
 
+    def samples_due(self) -> int:
+        """AI samples the sample clock has produced since the AI start, taken or not: paced,
+        counted from the clock without simulating them; fast, those taken (0: no AI runs)."""
+        with self.lock:
+            if self.ai_task is None:
+                return 0
+            return self.generated if self.fast else max(self._due(), self.generated)
+
     def generated_by(self, task: SimTask) -> int:
         with self.lock:
             self.catch_up()
