@@ -67,6 +67,8 @@ from simulated_hw.board.watchdog import Watchdog
 #: Paced: what a resuming cut leaves queued past the generation, so that the fade written next
 #: arrives before the generation does [s].
 CUT_MARGIN_S = 0.002
+#: fast mode: the AI buffer [s] (nothing is ever behind the reader; a read larger grows it)
+FAST_AI_BUFFER_S = 0.1
 #: how long a non-regenerating write waits for room in the board's buffer [s]
 WRITE_TIMEOUT_S = 10.0
 
@@ -156,6 +158,8 @@ class SimulatedBackend:
         self._ao_terminals = [ao_all.index(c.physical_channel) for c in channel_map.ao]
         fs = channel_map.sample_rate_hz
         buffer = max(int(round(self.buffer_s * fs)), 2)
+        if not self.realtime:  # the board takes only what is read: a small buffer stays in cache
+            buffer = min(buffer, max(int(fs * FAST_AI_BUFFER_S), 2))
         self._ai = SimTask("ai", [SimChannel(c.name, "ai", [c.physical_channel], *c.range_v)
                                   for c in channel_map.ai],
                            rate_hz=fs, sample_mode=MODE_CONTINUOUS, buffer_samples=buffer)

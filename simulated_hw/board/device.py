@@ -113,6 +113,9 @@ class SimDevice:
         self.on_demand = OnDemandAi(self)  # software-timed AI reads, with their own rig
         self.watchdog_timer = self.safe.timer
         self._physical = self._physical_names()
+        self._ao_all = self.spec.ao_channels()  # the AO terminals, in the device's order
+        #: the AO terminal each of the rig's drives is wired to
+        self._wired_ao = [self._ao_all.index(c.physical_channel) for c in wiring.ao]
         #: the rig as last simulated, and the device time up to which it was: the next
         #: acquisition's rig continues from it (the rig keeps moving between tasks)
         self.carried: tuple[RigModel, float] | None = None
@@ -351,7 +354,7 @@ class SimDevice:
                     f"start {task.name!r}: {ch.physical[0]} is held in its watchdog expiration "
                     "state; clear the expiration first",
                 )
-        ao_all = self.spec.ao_channels()
+        ao_all = self._ao_all
         digital = task.kind == "do"
         task.wired_rows = [] if digital else [(row, ao_all.index(ch.physical[0]))
                                                for row, ch in enumerate(task.channels)]
@@ -443,7 +446,7 @@ class SimDevice:
         if gap <= 0:
             return
         n = int(round(min(gap, GAP_DYNAMIC_S) * old.fs))
-        wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
+        wired = self._wired_ao
         drive = self.present_terminals()[wired]
         while n > 0:
             k = min(n, MAX_CHUNK)
@@ -566,7 +569,7 @@ class SimDevice:
         if task.error is not None:  # overwritten: the acquisition is dead until restarted
             self.generated = max(self.generated, target)
             return
-        wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
+        wired = self._wired_ao
         while self.generated < target:
             n = min(target - self.generated, MAX_CHUNK)
             terminals = self._terminals(self.generated, n)
@@ -597,7 +600,7 @@ class SimDevice:
 
     def present_terminals(self) -> np.ndarray:
         """Every AO terminal's voltage now (after `catch_up`), shape (ao_count,)."""
-        ao_all = self.spec.ao_channels()
+        ao_all = self._ao_all
         out = np.array([self.terminal_value(p) for p in ao_all])
         for task in self.ao_tasks:
             now = (task.ao.last if ao_stream.generating(task) and task.ao.last is not None
@@ -609,7 +612,7 @@ class SimDevice:
 
     def _terminals(self, first: int, n: int) -> np.ndarray:
         """Every AO terminal's voltage at AI samples ``first..first+n``, shape (ao_count, n)."""
-        ao_all = self.spec.ao_channels()
+        ao_all = self._ao_all
         out = np.repeat(np.array([self.terminal_value(p) for p in ao_all])[:, None], n, axis=1)
         for task in self.ao_tasks:
             if task.t_start is None:  # on the AI sample clock
