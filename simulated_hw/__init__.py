@@ -1,5 +1,5 @@
-"""The simulated board: the in-process SimulatedBackend and the simulated NI gRPC server, both
-running the rig model (`rig_model`) behind the DAQ protocol."""
+"""The simulated board (`board`, running the rig model `rig_model`), served by the simulated NI
+gRPC server and adapted in process to the DAQ protocol by SimulatedBackend."""
 
 from simulated_hw.backend import SimulatedBackend
 

@@ -1,43 +1,42 @@
-"""`SimulatedBackend`: the `DaqBackend` protocol in process, on the simulated rig.
+"""`SimulatedBackend`: the `DaqBackend` protocol in process, on the sim-server's own board.
 
-Fast mode (``realtime=False``) simulates a block the moment it is read: a 40 s sweep takes well
-under a second. Paced mode (``realtime=True``) behaves as hardware does: samples become available
-as the wall clock advances, a read waits for them (timeout -> DAQmx -200284), a reader that falls
-more than the buffer behind loses data (-200279), and an AO writer that falls behind the
-generation underflows (-200290). The clock and the sleep are injectable for tests.
+A thin adapter: it holds a `simulated_hw.board.device.SimDevice` (the board `sfdrig sim-server`
+serves) and drives it with the tasks `daq.nidaqmx_backend.NidaqmxBackend` creates on a board: AI
+continuous on the board's clock, AO on the AI sample clock (non-regenerating, or the
+regenerating ring ``ao_ring_s``) with idle output 0 V, the relay lines software-timed, and the
+optional watchdog timer task (relay lines low, drives 0 V). The clock, the acquisition, the AO
+generation and its errors, the watchdog, the e-stop and the rig between runs are the board's;
+what is left here is the protocol's bookkeeping (the ring's prefill, the cut, the counts).
 
-A trip's `cut_ao` drops the AO queued beyond the generation (fast mode: beyond the samples read;
-the rig has not simulated them yet). ``cut_stops=True`` (default): the generation stops there
-with the drives at 0 V, as a board's AO task stopped with idle output 0 V does;
-``cut_stops=False``: the stream goes on with the next write (the caller's fade) from the first
-sample dropped, which a board cannot do (`benchmarks/bench_trip.py` compares the two).
+Fast mode (``realtime=False``) is the board's fast mode: the rig runs when a block is read, so a
+40 s sweep takes well under a second, and between runs the device clock follows ``clock`` in
+whole seconds (the oil fills or drains over a pause). Paced mode (``realtime=True``): samples
+become available as the (injectable) clock advances, a read waits for them (timeout -> DAQmx
+-200284), a reader that falls more than ``buffer_s`` behind loses data (-200279), and an AO
+writer that falls behind the generation underflows (-200290; `read_ai` reports it too).
+
+A trip's `cut_ao` drops the AO queued beyond the generation (fast mode: beyond the samples read).
+``cut_stops=True`` (default): the AO task stops there and the drives show 0 V, as a board's AO
+task stopped with idle output 0 V does; ``cut_stops=False``: the stream goes on with the next
+write (the caller's fade) from the first sample dropped (paced: `CUT_MARGIN_S` after the
+generation), which a board cannot do (`benchmarks/bench_trip.py` compares the two).
 
 ``wiring`` (None: the map the backend is configured with) is the simulated rig's own channel
-map: which sensor is on which terminal, with its true gain and gap voltage, and the drives and
-lines by terminal, as the sim-server's ``--channels``. The map given to `configure` is then only
-what the software believes: a terminal the wiring leaves empty reads the board's noise about
-0 V, and a sensor on another terminal than the map says reads there. It rehearses mis-wiring
-(`sfdrig commission`); `press_estop` presses the wiring's emergency stop (a map's ``[estop]``
-line the wiring leaves open reads low, as a board's pulled-down line does). ``watchdog_s``: a
-watchdog timer as a board's (relays off, drives to 0 V and `feed_watchdog` raising -200644 once
-not fed for that long, on the backend's clock, cleared by the next run's first write or a relay
-switched on); None (default): none, the in-process rig stops with the process that runs it.
+map, as the sim-server's ``--channels``: which sensor is on which terminal, with its true gain
+and gap voltage, and the drives and lines by terminal. The map given to `configure` is then only
+what the software believes (a terminal the wiring leaves empty reads the board's noise about
+0 V). `press_estop` presses the wiring's emergency stop. ``watchdog_s``: the board's watchdog
+timer task on ``clock`` (relays off, drives 0 V, `feed_watchdog` raising -200644 once it was not
+fed for that long; cleared by the next run's first write or a relay switched on); None
+(default): none, the in-process rig stops with the process that runs it.
 
 ``ao_ring_s`` (None: non-regenerating) makes the AO a regenerating ring of that many seconds, as
-`NidaqmxBackend` with ``ao_ring_s`` makes the board's: position ``k mod B`` plays at sample ``k``.
-Paced, what plays is fixed when the wall clock generates it (a write changes only what has not
-been generated yet), so a late writer hears the ring repeat, exactly as on a board; fast, the
-generation is the samples read.
-
-The board's parts it shares with the sim-server's `simulated_hw.board.device.SimDevice`: the AO
-generation (`board.ao_generation.AoStream`), the watchdog and e-stop (`board.safe_states`), the
-wiring's sensors and an unwired terminal's noise (`board.sensor_wiring`).
+`NidaqmxBackend` with ``ao_ring_s`` makes the board's: position ``k mod B`` plays at sample ``k``,
+and a write lands at once (``ao_min_lead`` 0: no FIFO between it and the generation).
 """
 
 from __future__ import annotations
 
-import math
-import threading
 import time
 from collections.abc import Callable
 
@@ -46,29 +45,37 @@ import numpy as np
 from daq.backend import AoCut
 from daq.channels import ChannelMap
 from daq.errors import (
-    CANT_RESET_EXPIRED_WATCHDOG,
-    INPUT_BUFFER_OVERWRITTEN,
     OUTPUT_UNDERFLOW,
-    READ_TIMEOUT,
     DaqError,
     EmergencyStopError,
     error_for_code,
 )
-from rig_model import physics
 from rig_model.params import RigParams
 from rig_model.rig import RigModel
-from simulated_hw.board.ao_generation import AoStream
-from simulated_hw.board.safe_states import EmergencyStop, SafeStates
-from simulated_hw.board.sensor_wiring import floating, sensors_on
+from simulated_hw.board.codes import (
+    IDLE_ZERO_VOLTS,
+    MODE_CONTINUOUS,
+    REGEN_ALLOW,
+    REGEN_DONT_ALLOW,
+    WRITE_REL_CURR_POS,
+    WRITE_REL_FIRST_SAMPLE,
+)
+from simulated_hw.board.device import SimDevice
+from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.watchdog import Watchdog
 
 #: Paced: what a resuming cut leaves queued past the generation, so that the fade written next
 #: arrives before the generation does [s].
 CUT_MARGIN_S = 0.002
+#: fast mode: the AI buffer [s] (nothing is ever behind the reader; a read larger grows it)
+FAST_AI_BUFFER_S = 0.1
+#: how long a non-regenerating write waits for room in the board's buffer [s]
+WRITE_TIMEOUT_S = 10.0
 
 
 class SimulatedBackend:
-    """The simulated rig behind the `daq.DaqBackend` protocol."""
+    """The simulated rig behind the `daq.DaqBackend` protocol: the sim-server's board, in
+    process."""
 
     def __init__(
         self,
@@ -85,44 +92,34 @@ class SimulatedBackend:
     ) -> None:
         if watchdog_s is not None and not watchdog_s > 0:
             raise ValueError(f"watchdog_s must be positive or None, got {watchdog_s}")
-        self.wiring = wiring
-        self.watchdog_s = watchdog_s
-        # the board's safe states, in the parts the sim-server's board keeps them in: the
-        # watchdog expires when next looked at (nothing outlives this process to need a thread)
-        self._safe = SafeStates(clock, threading.RLock(), self._expire, live=False)
-        self._watchdog = None if watchdog_s is None else Watchdog("sim", watchdog_s)
-        if self._watchdog is not None:
-            self._safe.add(self._watchdog)
-        self._estop = EmergencyStop(wiring.estop if wiring is not None else None)
-        self._estop_latched = False  # read_ai raised for this press already
-        #: per configured AI row: the rig's row, or None (a terminal the wiring leaves empty)
-        self._ai_rows: list[int | None] = []
-        #: per rig AO row (the wiring's drives): the configured map's AO row, or None
-        self._ao_rows: list[int | None] = []
         if ao_ring_s is not None and not ao_ring_s > 0:
             raise ValueError(f"ao_ring_s must be positive or None, got {ao_ring_s}")
-        self.ao_ring_s = ao_ring_s
         self.params = params if params is not None else RigParams()
         self.seed = seed
         self.realtime = realtime
         self.buffer_s = buffer_s
+        self.cut_stops = cut_stops
+        self.ao_ring_s = ao_ring_s
+        self.wiring = wiring
+        self.watchdog_s = watchdog_s
         self._clock = clock
-        self._rest_since: float | None = None  # when the last run stopped (the rig rests)
         self._sleep = sleep
         self._map: ChannelMap | None = None
-        self.rig: RigModel | None = None
-        self._ao = AoStream()  # the generation's samples, as the sim-server's board plays them
+        #: the board (built at the first `configure`; again for another map without a wiring)
+        self.device: SimDevice | None = None
+        self._ai: SimTask | None = None
+        self._ao: SimTask | None = None
+        self._watchdog: SimTask | None = None
+        self._prefill: np.ndarray | None = None  # the ring written before the start
+        self._written_end = 0  # the end of the samples written this run
         self._running = False
-        self._t0 = 0.0
-        self._read = 0  # samples handed to the reader
+        self._cut_at: int | None = None  # a stopping cut: the drives are at 0 V from here
+        self._estop_latched = False  # read_ai raised for this press already
+        self._read = 0  # samples handed to the reader this run
         self._closed = False
-        self.cut_stops = cut_stops
-        self._ao_stopped = False  # a stopping cut: the drives are at 0 V until the run stops
-        # the regenerating ring (ao_ring_s, the stream's loop): the end of the samples written,
-        # and what the generation has played already and the rig not yet simulated (the
-        # samples from _read on; a stopping cut is the stream's end: 0 V from there on)
-        self._written_end = 0
+        #: what the AO terminals showed at the samples not yet read (map rows), per block
         self._played: list[np.ndarray] = []
+        self._ao_terminals: list[int] = []  # the map's AO rows among the board's terminals
 
     # --- protocol -------------------------------------------------------------------------
     @property
@@ -135,55 +132,65 @@ class SimulatedBackend:
     def sample_rate_hz(self) -> float:
         return self.channel_map.sample_rate_hz
 
+    @property
+    def rig(self) -> RigModel | None:
+        """The simulated rig now: the acquisition's, or the one between runs."""
+        dev = self.device
+        if dev is None:
+            return None
+        if dev.rig is not None:
+            return dev.rig
+        return dev.carried[0] if dev.carried is not None else None
+
     def configure(self, channel_map: ChannelMap) -> None:
         if self._running:
             raise DaqError("cannot reconfigure while running; stop first")
+        wiring = self.wiring if self.wiring is not None else channel_map
+        if self.device is None or self.device.wiring != wiring:
+            if self.device is not None:
+                self.device.shutdown()
+            self.device = SimDevice(wiring, self.params, self.seed, fast=not self.realtime,
+                                    clock=self._clock, sleep=self._sleep, live_watchdog=False,
+                                    rest_on_clock=True)
+            self.device.on_terminals = self._on_terminals
         self._map = channel_map
-        physics.warm_up()  # before start: a paced first read must not wait for the compiler
-        self.rig = RigModel(self.params, self._rig_map(channel_map), self.seed)
-        if self.wiring is None:  # the map's own button
-            self._estop.button = channel_map.estop
+        ao_all = self.device.spec.ao_channels()
+        self._ao_terminals = [ao_all.index(c.physical_channel) for c in channel_map.ao]
+        fs = channel_map.sample_rate_hz
+        buffer = max(int(round(self.buffer_s * fs)), 2)
+        if not self.realtime:  # the board takes only what is read: a small buffer stays in cache
+            buffer = min(buffer, max(int(fs * FAST_AI_BUFFER_S), 2))
+        self._ai = SimTask("ai", [SimChannel(c.name, "ai", [c.physical_channel], *c.range_v)
+                                  for c in channel_map.ai],
+                           rate_hz=fs, sample_mode=MODE_CONTINUOUS, buffer_samples=buffer)
+        self._new_ao_task()
         if self._watchdog is not None:
-            self._safe.start(self._watchdog)
-        self._rest_since = self._clock()
-        self._read = 0
-        self._new_stream()
+            self.device.remove_watchdog(self._watchdog.watchdog)
+            self._watchdog = None
+        if self.watchdog_s is not None:
+            w = Watchdog(channel_map.device.name, self.watchdog_s,
+                         ao_states={c.physical_channel: 0.0 for c in channel_map.ao},
+                         do_states={d.physical_channel: False for d in channel_map.do})
+            self._watchdog = SimTask("watchdog", watchdog=w)
+            self.device.add_watchdog(w)
+            self.device.start(self._watchdog, [])
 
-    def _rig_map(self, cm: ChannelMap) -> ChannelMap:
-        """The map the rig converts with: ``cm`` itself, or the wiring's sensors at the
-        terminals ``cm`` reads (with ``cm``'s ranges) and the wiring's drives and lines."""
-        wiring = self.wiring
-        if wiring is None:
-            self._ai_rows = list(range(len(cm.ai)))
-            self._ao_rows = list(range(len(cm.ao)))
-            return cm
-        ai, self._ai_rows = sensors_on(wiring, [(c.physical_channel, c.range_v) for c in cm.ai])
-        terminals = [c.physical_channel for c in cm.ao]
-        self._ao_rows = [terminals.index(c.physical_channel) if c.physical_channel in terminals
-                         else None for c in wiring.ao]
-        return ChannelMap(device=cm.device, sample_rate_hz=cm.sample_rate_hz, ai=tuple(ai),
-                          ao=wiring.ao, do=wiring.do)
-
-    def _wired(self, ao: np.ndarray) -> np.ndarray:
-        """The configured map's AO rows as the rig's drives (a terminal not driven: 0 V)."""
-        if self.wiring is None:
-            return ao
-        out = np.zeros((len(self._ao_rows), ao.shape[1]))
-        for i, row in enumerate(self._ao_rows):
-            if row is not None:
-                out[i] = ao[row]
-        return out
-
-    def _as_read(self, rig_out: np.ndarray) -> np.ndarray:
-        """The rig's inputs in the configured map's rows; an empty terminal floats at 0 V."""
-        if self.wiring is None:
-            return rig_out
-        spec = self.channel_map.device
-        rng = np.random.default_rng(self.seed + 1 + self._read)
-        out = np.empty((len(self._ai_rows), rig_out.shape[1]))
-        for i, row in enumerate(self._ai_rows):
-            out[i] = rig_out[row] if row is not None else floating(spec, rng, rig_out.shape[1])
-        return out
+    def _new_ao_task(self) -> None:
+        """A fresh AO task on the AI sample clock, idle output 0 V: nothing written yet."""
+        cm = self.channel_map
+        fs = cm.sample_rate_hz
+        ring = self.ao_ring_samples
+        self._ao = SimTask(
+            "ao", [SimChannel(c.name, "ao", [c.physical_channel], *c.range_v,
+                              idle_behavior=IDLE_ZERO_VOLTS) for c in cm.ao],
+            rate_hz=fs, clock_source=f"/{cm.device.name}/ai/SampleClock",
+            sample_mode=MODE_CONTINUOUS,
+            buffer_samples=ring if ring is not None else max(int(round(self.buffer_s * fs)), 2),
+            regen_mode=REGEN_DONT_ALLOW if ring is None else REGEN_ALLOW,
+            write_relative_to=WRITE_REL_CURR_POS if ring is None else WRITE_REL_FIRST_SAMPLE)
+        self._prefill = None if ring is None else np.zeros((len(cm.ao), ring))
+        self._written_end = 0
+        self._cut_at = None
 
     @property
     def ao_ring_samples(self) -> int | None:
@@ -193,59 +200,40 @@ class SimulatedBackend:
 
     @property
     def ao_min_lead(self) -> int:
-        """Paced: a write lands at once, nothing between it and the generation."""
+        """A write lands at once, nothing between it and the generation."""
         return 0
 
     def ao_generated(self) -> int:
+        """AO samples generated since the start: the AO runs on the AI sample clock from the AI
+        start, so the samples that clock has produced (counted, not simulated: asked every
+        block, simulating the few samples since the last call would cost a rig step each)."""
         if not self._running:
             return 0
-        return self._generated() if self.realtime else self._read
-
-    def _new_stream(self) -> None:
-        """An empty generation: a queue, or (``ao_ring_s``) a ring of 0 V."""
-        ring = self.ao_ring_samples if self._map is not None else None
-        self._ao = AoStream(None if ring is None else np.zeros((len(self.channel_map.ao), ring)))
-        self._written_end, self._played = 0, []
-
-    def _fix_played(self, upto: int) -> None:
-        """Generate the ring up to sample ``upto`` now, before a write changes the ring (a
-        board has generated them already); past a stopping cut the drives are at 0 V."""
-        k = upto - self._ao.generated
-        if k > 0:
-            block = np.zeros((len(self.channel_map.ao), k))
-            self._ao.take_into(block)
-            self._played.append(block)
-
-    def _take_played(self, n: int) -> np.ndarray:
-        self._fix_played(self._read + n)
-        parts, got = [], 0
-        while got < n:
-            chunk = self._played[0]
-            take = min(n - got, chunk.shape[1])
-            parts.append(chunk[:, :take])
-            if take == chunk.shape[1]:
-                self._played.pop(0)
-            else:
-                self._played[0] = chunk[:, take:]
-            got += take
-        return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
+        return self._board().samples_due()
 
     def start(self) -> None:
         """Start the generation and the acquisition: a new run counts its samples from 0, as a
         board's tasks do (the rig itself keeps moving from where the last run left it)."""
-        self._rest()
-        self._rest_since = None
+        dev, ai, ao = self._board(), self._ai, self._ao
+        assert ai is not None and ao is not None
+        if self._prefill is not None:  # the ring: written whole, in order, before the start
+            ao.write_offset = 0
+            dev.write_ao(ao, self._prefill, False, WRITE_TIMEOUT_S, [ai])
+            self._prefill = None
+        if ao.channels:
+            dev.start(ao, [ai])
+        dev.start(ai, [ao])
         self._running = True
         self._read = 0
         self._played = []
-        self._ao.restart()
-        self._t0 = self._clock()
 
     def write_ao(self, block: np.ndarray, at: int | None = None) -> None:
         cm = self.channel_map
         arr = np.asarray(block, dtype=np.float64)
         if arr.ndim != 2 or arr.shape[0] != len(cm.ao):
             raise ValueError(f"AO block must have shape ({len(cm.ao)}, n), got {arr.shape}")
+        dev, ai, ao = self._board(), self._ai, self._ao
+        assert ai is not None and ao is not None
         if not self._running:  # a run's first write: the operator's decision to drive
             if self.estop_pressed():
                 raise EmergencyStopError("the emergency stop is pressed: nothing is driven")
@@ -257,32 +245,33 @@ class SimulatedBackend:
                 raise error_for_code(
                     f"{ch.name}: AO sample outside the channel range {ch.range_v} V", -200561
                 )
-        if self._ao_stopped:
+        if self._cut_at is not None or arr.shape[1] == 0:
             return  # the generation has stopped: nothing written now plays
-        if self._ao.loop is not None:
-            self._write_ring(arr, self._written_end if at is None else int(at))
+        ring = self.ao_ring_samples
+        if ring is not None:
+            at = self._written_end if at is None else int(at)
+            if arr.shape[1] > ring:
+                raise ValueError(f"AO write of {arr.shape[1]} samples is longer than the "
+                                 f"{ring}-sample ring")
+            if at < 0:
+                raise ValueError(f"AO write position must be >= 0, got {at}")
+            if self._prefill is not None:
+                idx = (at + np.arange(arr.shape[1])) % ring
+                self._prefill[:, idx] = arr
+            else:
+                ao.write_offset = at % ring
+                dev.write_ao(ao, arr, False, WRITE_TIMEOUT_S, [ai])
+            self._written_end = max(self._written_end, at + arr.shape[1])
             return
-        end = self._read + self._ao.queued
-        if at is not None and at != end:
-            raise ValueError(f"a non-regenerating AO stream writes at sample {end}, not {at}")
-        if self.realtime and self._running and self._generated() > end:
-            raise error_for_code("AO generation ran past the samples written", OUTPUT_UNDERFLOW)
-        self._ao.queue(arr)
-
-    def _write_ring(self, arr: np.ndarray, at: int) -> None:
-        assert self._ao.loop is not None
-        n, size = arr.shape[1], self._ao.loop.shape[1]
-        if n > size:
-            raise ValueError(f"AO write of {n} samples is longer than the {size}-sample ring")
-        if at < 0:
-            raise ValueError(f"AO write position must be >= 0, got {at}")
-        if self._running:  # what the clock has generated already keeps what it played
-            self._fix_played(self.ao_generated())
-        self._ao.overwrite(arr, at)
-        self._written_end = max(self._written_end, at + n)
+        if at is not None and at != self._written_end:
+            raise ValueError(f"a non-regenerating AO stream writes at sample "
+                             f"{self._written_end}, not {at}")
+        dev.write_ao(ao, arr, False, WRITE_TIMEOUT_S, [ai])
+        self._written_end += arr.shape[1]
 
     def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
-        rig = self._require_rig()
+        dev, ai, ao = self._board(), self._ai, self._ao
+        assert ai is not None and ao is not None
         if not self._running:
             raise DaqError("read_ai before start()")
         if n <= 0:
@@ -290,27 +279,40 @@ class SimulatedBackend:
         if not self._estop_latched and self.estop_pressed():
             self._estop_latched = True  # once: the reads of the ramp-down go on
             raise EmergencyStopError(f"emergency stop pressed ({self._estop_where()})")
-        self._check_watchdog()
-        if self.realtime:
-            self._wait_for(self._read + n, timeout_s)
-        if self._ao.loop is not None:
-            ao = self._take_played(n)
-        elif not self._ao_stopped and self._ao.queued < n:
-            raise error_for_code(
-                f"AO buffer ran dry: {self._ao.queued} samples queued, {n} needed",
-                OUTPUT_UNDERFLOW,
-            )
-        else:  # stopped: what is left of the queue, then the drives at 0 V
-            ao = np.zeros((len(self.channel_map.ao), n))
-            self._ao.take_into(ao)
-        w = self._watchdog
-        if w is not None and w.expired:  # the board holds the drives at 0 V
-            ao = np.zeros_like(ao)
-        out = self._as_read(rig.process(self._wired(ao)))
+        with dev.lock:
+            dev.watchdog_timer.check()
+        out = dev.read(ai, n, timeout_s, [ao])
         self._read += n
-        if w is not None and not w.expired:
-            w.fed_at = self._clock()  # a read feeds the watchdog, as the board backend's
+        self._take_played(n)
+        if ao.error is not None and ao.error.code == OUTPUT_UNDERFLOW:
+            raise ao.error  # the generation ran dry (a board reports it on the next write)
+        w = self._watchdog
+        if w is not None:
+            with dev.lock:  # a read feeds the watchdog, as the board backend's
+                dev.watchdog_timer.check()
+                if not w.watchdog.expired:
+                    dev.feed_watchdog(w)
         return out
+
+    def _on_terminals(self, first: int, terminals: np.ndarray) -> None:
+        """The board's hook: every AO terminal at AI samples ``first..``; kept in map rows."""
+        self._played.append(terminals[self._ao_terminals])
+
+    def _take_played(self, n: int) -> np.ndarray:
+        """What the AO terminals showed at the ``n`` samples just read (map rows)."""
+        parts, got = [], 0
+        while got < n and self._played:
+            chunk = self._played[0]
+            take = min(n - got, chunk.shape[1])
+            parts.append(chunk[:, :take])
+            if take == chunk.shape[1]:
+                self._played.pop(0)
+            else:
+                self._played[0] = chunk[:, take:]
+            got += take
+        if not parts:
+            return np.zeros((len(self.channel_map.ao), 0))
+        return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
 
     def ai_on_host(self) -> int:
         """Never reads ahead: in process a read costs no round trip."""
@@ -318,114 +320,78 @@ class SimulatedBackend:
 
     def set_do(self, name: str, value: bool) -> None:
         relay = self.channel_map.relay(name)  # KeyError names the missing relay
-        self._rest()  # the oil up to now followed the relay as it was
+        dev = self._board()
         if value:
             self._clear_watchdog()  # switching a relay on: the operator's decision
-        elif self._check_watchdog():
-            return
-        rig = self._require_rig()
-        if self.wiring is None:
-            rig.set_relay(name, value)
-        else:  # the relay on that line, if the wiring has one there
-            for d in self.wiring.do:
-                if d.physical_channel == relay.physical_channel:
-                    rig.set_relay(d.name, value)
-
-    def _rest(self) -> None:
-        """Between runs the rig rests in real time: its oil goes on filling or draining. In
-        whole seconds (the fraction carries over): a program's own set-up between a relay
-        switch and its start (milliseconds) leaves the rig as it was. (The sim-server's board
-        instead runs its rig on over the whole gap, `SimDevice.new_rig`: not yet shared.)"""
-        rig = self._require_rig()
-        if self._rest_since is not None and not self._running:
-            whole = math.floor(self._clock() - self._rest_since)
-            if whole >= 1:
-                rig.rest(whole)
-                self._rest_since += whole
+        elif self.watchdog_expired:
+            return  # the expired watchdog holds the line low already
+        dev.write_lines([relay.physical_channel], [bool(value)])
 
     def ao_backlog(self) -> int:
-        """Samples written and not yet generated: paced, the wall clock generates them
-        (regenerating: negative once the generation has passed the last sample written)."""
-        if self._ao.loop is not None:
-            return self._written_end - self.ao_generated()
-        if self.realtime and self._running:
-            return self._read + self._ao.queued - self._generated()
-        return self._ao.queued
+        """Samples written and not yet generated (regenerating: negative once the generation
+        has passed the last sample written)."""
+        if not self._running:
+            return self._written_end
+        if self.ao_ring_samples is None and self._cut_at is not None:
+            return 0  # a stopped generation: what was queued was dropped
+        return self._written_end - self.ao_generated()
 
     def cut_ao(self) -> AoCut:
         """Drop the AO queued beyond the generation (see the module doc)."""
-        if self._ao.loop is not None:
-            return self._cut_ring()
-        keep = self._ao.queued
-        if self._running and not self._ao_stopped:
-            keep = 0
-            if self.realtime:
-                margin = 0 if self.cut_stops else int(CUT_MARGIN_S * self.sample_rate_hz)
-                keep = min(max(self._generated() + margin - self._read, 0), self._ao.queued)
-            self._ao.keep_queued(keep)
-            self._ao_stopped = self.cut_stops
-        return AoCut(self._read + keep, not self._ao_stopped)
-
-    def _cut_ring(self) -> AoCut:
-        if not self._running or self._ao_stopped:
-            at = self._ao.end if self._ao.end is not None else self._written_end
-            return AoCut(at, not self._ao_stopped)
-        margin = 0 if self.cut_stops or not self.realtime else \
-            int(CUT_MARGIN_S * self.sample_rate_hz)
-        at = self.ao_generated() + margin
-        self._fix_played(at)
-        if self.cut_stops:
-            self._ao.end = at
-            self._ao_stopped = True
-        return AoCut(at, not self._ao_stopped)
+        if not self._running:
+            return AoCut(self._written_end, True)
+        if self._cut_at is not None:
+            return AoCut(self._cut_at, False)
+        dev, ao = self._board(), self._ao
+        assert ao is not None
+        with dev.lock:
+            dev.catch_up()
+            generated = ao.ao.generated
+            if self.cut_stops:
+                dev.stop(ao)  # idle output 0 V from the next sample on
+                self._cut_at = generated
+                return AoCut(generated, False)
+            margin = int(CUT_MARGIN_S * self.sample_rate_hz) if self.realtime else 0
+            if self.ao_ring_samples is not None:
+                return AoCut(generated + margin, True)
+            keep = min(margin, ao.ao.queued)
+            ao.ao.keep_queued(keep)
+            self._written_end = generated + keep
+            return AoCut(self._written_end, True)
 
     def feed_watchdog(self) -> None:
         """Reset the watchdog timer (``watchdog_s``; no-op without one); raises
         `daq.errors.DaqWatchdogExpiredError` (-200644) once it has expired."""
-        if self._watchdog is None:
-            return
-        if self._check_watchdog():
-            raise error_for_code(
-                f"the watchdog timer expired (not reset for {self._watchdog.timeout_s:g} s): "
-                "relays off, drives at 0 V", CANT_RESET_EXPIRED_WATCHDOG)
-        self._safe.feed(self._watchdog, "watchdog")
-
-    def _check_watchdog(self) -> bool:
-        """Expire the watchdog if it has not been fed for ``watchdog_s``. Whether it has
-        expired."""
-        if self._watchdog is None:
-            return False
-        self._safe.check()
-        return self._watchdog.expired
-
-    def _expire(self, w: Watchdog) -> None:
-        """The relays off and the drives at 0 V from then on, as a board does on its own."""
-        self._safe.hold(w)
-        if self.rig is not None:
-            for d in self.rig.channel_map.do:
-                self.rig.set_relay(d.name, False)
+        if self._watchdog is not None:
+            self._board().feed_watchdog(self._watchdog)
 
     def _clear_watchdog(self) -> None:
-        if self._watchdog is not None:
-            self._check_watchdog()
-            self._safe.clear_expiration(self._watchdog)
+        if self._watchdog is not None and self.watchdog_expired:
+            self._board().clear_expiration(self._watchdog)
 
     @property
     def watchdog_expired(self) -> bool:
         """Whether the watchdog has expired (what the board's own state says)."""
-        return self._check_watchdog()
+        if self._watchdog is None:
+            return False
+        dev = self._board()
+        with dev.lock:
+            dev.watchdog_timer.check()
+            return bool(self._watchdog.watchdog.expired)
 
     def press_estop(self, pressed: bool) -> None:
         """A hand on the wiring's emergency-stop button (simulation only)."""
-        self._estop.press(pressed)
+        self._board().press_estop(pressed)
 
     def estop_pressed(self) -> bool:
         """Whether the map's emergency-stop line reads pressed: the wiring's button (the map's
         own without a wiring) sets its level; a line the wiring leaves open reads low."""
-        cm = self._map
-        if cm is None or cm.estop is None:
+        cm, dev = self._map, self.device
+        if cm is None or cm.estop is None or dev is None:
             return False
-        return self._estop.level_on(cm.estop.physical_channel) == cm.estop.pressed_level
+        with dev.lock:
+            level = dev.inputs.get(cm.estop.physical_channel, False)
+        return level == cm.estop.pressed_level
 
     def _estop_where(self) -> str:
         estop = self.channel_map.estop
@@ -434,12 +400,19 @@ class SimulatedBackend:
     def stop(self) -> None:
         """Stop both tasks: what was written and not generated is dropped (a board's buffer
         is), and the next run primes the AO again and counts from sample 0."""
+        dev = self.device
+        if dev is not None and self._ai is not None and self._ao is not None:
+            dev.stop(self._ai)
+            dev.stop(self._ao)
         self._running = False
-        self._ao_stopped = False
-        self._new_stream()
-        self._rest_since = self._clock()
+        if self._map is not None:
+            self._new_ao_task()
 
     def close(self) -> None:
+        if self.device is not None and not self._closed:
+            if self._running:
+                self.stop()
+            self.device.shutdown()
         self._running = False
         self._closed = True
 
@@ -448,38 +421,10 @@ class SimulatedBackend:
     def samples_read(self) -> int:
         return self._read
 
-    def _require_rig(self) -> RigModel:
-        if self.rig is None:
+    def _board(self) -> SimDevice:
+        if self.device is None or self._map is None:
             raise DaqError("backend not configured: call configure(channel_map) first")
         if self._closed:
             raise DaqError("backend is closed")
-        return self.rig
+        return self.device
 
-    def _generated(self) -> int:
-        # a hair over the float product: 0.01 s at 10 kS/s is 100 samples, not 99.99999
-        return int((self._clock() - self._t0) * self.sample_rate_hz + 1e-6)
-
-    def _wait_for(self, needed: int, timeout_s: float) -> None:
-        fs = self.sample_rate_hz
-        behind = self._generated() - self._read
-        if behind > self.buffer_s * fs:
-            raise error_for_code(
-                f"input buffer overwritten: reader {behind / fs:.2f} s behind, buffer "
-                f"{self.buffer_s:g} s",
-                INPUT_BUFFER_OVERWRITTEN,
-            )
-        deadline = self._clock() + timeout_s
-        while True:
-            now = self._clock()
-            ready_at = self._t0 + needed / fs
-            if now >= ready_at:
-                return
-            if ready_at > deadline:
-                wait = deadline - now
-                if wait > 0:
-                    self._sleep(wait)
-                raise error_for_code(
-                    f"read of {needed - self._read} samples timed out after {timeout_s:g} s",
-                    READ_TIMEOUT,
-                )
-            self._sleep(ready_at - now)

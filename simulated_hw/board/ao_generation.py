@@ -1,6 +1,6 @@
-"""`AoStream`: the samples of one AO generation, as the board plays them. One class for the
-sim-server's board (`simulated_hw.board.ao_stream` on its tasks) and the in-process
-`simulated_hw.backend.SimulatedBackend`, so both generate the same way."""
+"""`AoStream`: the samples of one AO generation, as the board plays them (its AO and DO tasks,
+`simulated_hw.board.ao_stream`; the in-process `simulated_hw.backend.SimulatedBackend` is an
+adapter over the same board)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,9 @@ import numpy as np
 class AoStream:
     """One AO generation's samples, in the order they play: the buffer written and not yet
     generated (non-regenerating: chunks taken once, in order) or the loop a regenerating
-    generation plays (position ``k mod size`` at sample ``k``), the count generated, the last
-    value generated and the sample at which the generation ends (None: it goes on while there
-    are samples). The board's AO tasks (`take`, `skip` below) and the in-process
-    `simulated_hw.backend.SimulatedBackend` both generate through it."""
+    generation plays (position ``k mod size`` at sample ``k``), the count generated and the
+    last value generated. The board's AO tasks generate through it (`ao_stream.take`,
+    `ao_stream.skip`)."""
 
     def __init__(self, loop: np.ndarray | None = None) -> None:
         self.chunks: list[np.ndarray] = []  # non-regenerating: written, not yet generated
@@ -22,7 +21,6 @@ class AoStream:
         self.generated = 0  # samples generated since the start
         self.last: np.ndarray | None = None  # last value generated, per channel [V]
         self.loop = loop  # regenerating: the buffer played in a loop
-        self.end: int | None = None  # the generation ends at this sample (None: never)
 
     def queue(self, block: np.ndarray) -> None:
         """Append ``block`` (n_ch, n) to the samples to generate in order."""
@@ -47,11 +45,9 @@ class AoStream:
 
     def take_into(self, out: np.ndarray) -> int:
         """Generate the next samples into ``out`` (n_ch, n), from its first column on, up to
-        the end of the generation or of the samples queued; returns how many (the caller says
-        what the terminals show for the rest)."""
+        the end of the samples queued; returns how many (the caller says what the terminals
+        show for the rest)."""
         limit = out.shape[1]
-        if self.end is not None:
-            limit = min(limit, max(self.end - self.generated, 0))
         got = 0
         if self.loop is not None:
             out[:, :limit] = self.loop[:, (self.generated + np.arange(limit)) % self.loop.shape[1]]
@@ -71,10 +67,6 @@ class AoStream:
         if got:
             self.last = out[:, got - 1].copy()
         return got
-
-    def restart(self) -> None:
-        """A new start: it counts from sample 0 and has no end; what was written stays."""
-        self.generated, self.end = 0, None
 
     def discard(self) -> None:
         """Drop the samples not generated and the loop (a stop; the counts stay)."""

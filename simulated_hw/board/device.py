@@ -22,6 +22,7 @@ from daq.errors import (
     SAMPLE_RATE_TOO_HIGH,
     WRITE_FAILED_WATCHDOG_EXPIRED,
 )
+from rig_model import physics
 from rig_model.params import RigParams
 from rig_model.rig import RigModel
 from simulated_hw.board import ao_stream, counters, thermocouple, triggers
@@ -55,6 +56,11 @@ GAP_DYNAMIC_S = 1.0
 INTERNAL_AO = re.compile(r"_ao(\d+)_vs_aognd", re.IGNORECASE)
 
 
+def _same_rig(a: ChannelMap, b: ChannelMap) -> bool:
+    """Whether a rig built for ``a`` converts exactly as one built for ``b``."""
+    return (a.sample_rate_hz, a.ai, a.ao, a.do) == (b.sample_rate_hz, b.ai, b.ao, b.do)
+
+
 # --- the device -----------------------------------------------------------------------------
 class SimDevice:
     """One simulated board and the rig wired to it. All methods hold the device lock briefly;
@@ -73,6 +79,8 @@ class SimDevice:
         fast: bool = False,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] | None = None,
+        live_watchdog: bool = True,
+        rest_on_clock: bool = False,
     ) -> None:
         self.spec: DeviceSpec = wiring.device
         self.wiring = wiring
@@ -86,25 +94,37 @@ class SimDevice:
         self.lines: dict[str, bool] = {}  # DO line states, by canonical physical name
         self.inputs: dict[str, bool] = {}  # levels applied to input lines from outside
         self.ao_hold: dict[str, float] = {}  # AO terminal values when no generation drives them
-        self.safe = SafeStates(clock, self.lock, self._expire)  # watchdogs, what they hold
+        # watchdogs, what they hold; ``live_watchdog``: a thread expires them on time (a
+        # server, whose client may die), else the next look at the board does (in process)
+        self.safe = SafeStates(clock, self.lock, self._expire, live=live_watchdog)
         self.locked_ao = self.safe.locked_ao  # AO terminals an expired watchdog holds [V]
         self.locked_do = self.safe.locked_do  # lines an expired watchdog holds
         self.estop = EmergencyStop(wiring.estop)
         self.ao_tasks: list[SimTask] = []  # running hardware-timed AO tasks
+        #: told every AO terminal's voltage at the AI samples it is taking, (first, (ao, n))
+        self.on_terminals: Callable[[int, np.ndarray], None] | None = None
         self._vtime = 0.0  # fast mode: the device clock while no AI runs [s]
+        #: fast mode: between acquisitions the device clock also follows ``clock``, in whole
+        #: seconds (the in-process rig: the oil fills or drains over a pause, while a
+        #: program's milliseconds of set-up leave the rig as it was); ``_idle_since``: the
+        #: ``clock`` time the idle stretch began
+        self.rest_on_clock = rest_on_clock
+        self._idle_since = clock()
         self.on_demand = OnDemandAi(self)  # software-timed AI reads, with their own rig
         self.watchdog_timer = self.safe.timer
         self._physical = self._physical_names()
+        self._ao_all = self.spec.ao_channels()  # the AO terminals, in the device's order
+        #: the AO terminal each of the rig's drives is wired to
+        self._wired_ao = [self._ao_all.index(c.physical_channel) for c in wiring.ao]
         #: the rig as last simulated, and the device time up to which it was: the next
         #: acquisition's rig continues from it (the rig keeps moving between tasks)
         self.carried: tuple[RigModel, float] | None = None
         self._reset_acquisition()
         self.press_estop(False)  # the emergency-stop loop is closed: released
         # load the compiled physics now, not during the first paced read (it takes ~0.5 s);
-        # this is the rig from the server's start on (see `carried`)
-        rig = RigModel(params, wiring, seed)
-        rig.process(np.zeros((len(wiring.ao), 16)))
-        self.carried = (rig, self.now())
+        # the rig from the board's start on (see `carried`) has not moved yet
+        physics.warm_up()
+        self.carried = (RigModel(params, wiring, seed), self.now())
 
     def _physical_names(self) -> dict[str, tuple[str, str]]:
         """lower-case physical name -> (canonical name, kind)."""
@@ -127,6 +147,7 @@ class SimDevice:
             self.carried = (rig, self.now())  # the rig goes on moving after the task
         if self.fast and getattr(self, "ai_task", None) is not None:
             self._vtime = self.now()  # fast mode: the clock stays where the AI left it
+            self._idle_since = self._clock()
         self.rig: RigModel | None = None
         self.ai_task: SimTask | None = None
         self.t0 = 0.0
@@ -209,6 +230,8 @@ class SimDevice:
             return self._clock()
         if self.ai_task is not None:
             return self.t0 + self.generated / self.ai_rate
+        if self.rest_on_clock:
+            return self._vtime + math.floor(self._clock() - self._idle_since)
         return self._vtime
 
     # --- lookups --------------------------------------------------------------------------
@@ -336,7 +359,7 @@ class SimDevice:
                     f"start {task.name!r}: {ch.physical[0]} is held in its watchdog expiration "
                     "state; clear the expiration first",
                 )
-        ao_all = self.spec.ao_channels()
+        ao_all = self._ao_all
         digital = task.kind == "do"
         task.wired_rows = [] if digital else [(row, ao_all.index(ch.physical[0]))
                                                for row, ch in enumerate(task.channels)]
@@ -395,28 +418,47 @@ class SimDevice:
         return ai, rows
 
     def new_rig(self, rig_map: ChannelMap) -> RigModel:
-        """The rig behind a new acquisition, continuing the rig as it was last simulated: run
-        on from then to now with the AO terminals as they are (at most `GAP_DYNAMIC_S` of
-        motion; the oil and film follow the rest of the gap), so a drive held between tasks
-        is read at its steady response in the next acquisition's first sample."""
-        rig = RigModel(self.params, rig_map, self.seed)
+        """The rig behind a new acquisition: the rig as last simulated, run on to now
+        (`carry_to_now`), so a drive held between tasks is read at its steady response in the
+        next acquisition's first sample. The same `RigModel` when it converts the same sensors
+        at the same rate (its noise goes on, and what the hands set on it stays: a push, a
+        journal taken out), otherwise a new one that takes over its state."""
+        rig = RigModel(self.params, rig_map, self.seed) if self.carried is None else None
         if self.carried is not None:
-            old, since = self.carried
-            gap = max(self.now() - since, 0.0)
-            n = int(round(min(gap, GAP_DYNAMIC_S) * old.fs))
-            wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
-            drive = self.present_terminals()[wired]
-            while n > 0:
-                k = min(n, MAX_CHUNK)
-                old.process(np.repeat(drive[:, None], k, axis=1))
-                n -= k
-            old.rest(gap - GAP_DYNAMIC_S)
-            rig.continue_from(old)
+            self.carry_to_now()
+            old, _ = self.carried
+            if _same_rig(old.channel_map, rig_map):
+                rig = old
+            else:
+                rig = RigModel(self.params, rig_map, self.seed)
+                rig.continue_from(old)
             self.carried = (rig, self.now())
+        assert rig is not None
         for d in self.wiring.do:
             if self.lines.get(d.physical_channel):
                 rig.set_relay(d.name, True)
         return rig
+
+    def carry_to_now(self) -> None:
+        """Run the rig no acquisition runs on from when it was last simulated to now, with the
+        AO terminals as they are: at most `GAP_DYNAMIC_S` of motion, and the oil and film
+        follow the rest of the gap (`RigModel.rest`)."""
+        if self.carried is None or self.ai_task is not None:
+            return
+        old, since = self.carried
+        now = self.now()
+        gap = now - since
+        if gap <= 0:
+            return
+        n = int(round(min(gap, GAP_DYNAMIC_S) * old.fs))
+        wired = self._wired_ao
+        drive = self.present_terminals()[wired]
+        while n > 0:
+            k = min(n, MAX_CHUNK)
+            old.process(np.repeat(drive[:, None], k, axis=1))
+            n -= k
+        old.rest(gap - GAP_DYNAMIC_S)
+        self.carried = (old, now)
 
     def stop(self, task: SimTask) -> None:
         """Stop ``task``; its pending samples and its error go (it can be restarted). The AO
@@ -448,7 +490,8 @@ class SimDevice:
     # --- the clock ------------------------------------------------------------------------
     def _due(self) -> int:
         """Samples the AI clock has produced by now (paced mode)."""
-        due = int((self._clock() - self.t0) * self.ai_rate)
+        # a hair over the float product: 0.15 s at 10 kS/s is 1,500 samples, not 1,499.99..
+        due = int((self._clock() - self.t0) * self.ai_rate + 1e-6)
         assert self.ai_task is not None
         return min(due, self.ai_task.samps_per_chan) if self.ai_task.finite else due
 
@@ -531,10 +574,12 @@ class SimDevice:
         if task.error is not None:  # overwritten: the acquisition is dead until restarted
             self.generated = max(self.generated, target)
             return
-        wired = [self.spec.ao_channels().index(c.physical_channel) for c in self.wiring.ao]
+        wired = self._wired_ao
         while self.generated < target:
             n = min(target - self.generated, MAX_CHUNK)
             terminals = self._terminals(self.generated, n)
+            if self.on_terminals is not None:
+                self.on_terminals(self.generated, terminals)
             rig_out = rig.process(terminals[wired])
             out = np.empty((len(self._rows), n))
             for i, source in enumerate(self._rows):
@@ -560,7 +605,7 @@ class SimDevice:
 
     def present_terminals(self) -> np.ndarray:
         """Every AO terminal's voltage now (after `catch_up`), shape (ao_count,)."""
-        ao_all = self.spec.ao_channels()
+        ao_all = self._ao_all
         out = np.array([self.terminal_value(p) for p in ao_all])
         for task in self.ao_tasks:
             now = (task.ao.last if ao_stream.generating(task) and task.ao.last is not None
@@ -572,7 +617,7 @@ class SimDevice:
 
     def _terminals(self, first: int, n: int) -> np.ndarray:
         """Every AO terminal's voltage at AI samples ``first..first+n``, shape (ao_count, n)."""
-        ao_all = self.spec.ao_channels()
+        ao_all = self._ao_all
         out = np.repeat(np.array([self.terminal_value(p) for p in ao_all])[:, None], n, axis=1)
         for task in self.ao_tasks:
             if task.t_start is None:  # on the AI sample clock
@@ -753,14 +798,25 @@ class SimDevice:
             self._set_lines(dict(zip(lines, values, strict=True)))
 
     def _set_lines(self, values: dict[str, bool]) -> None:
+        idle = self.carried[0] if self.carried is not None and self.ai_task is None else None
+        if idle is not None:
+            self.carry_to_now()  # the rig up to now followed the lines as they were
         for line, value in values.items():
             self.lines[line] = value
             for d in self.wiring.do:
                 if d.physical_channel != line:
                     continue
-                for rig in (self.rig, self.on_demand.rig):
-                    if rig is not None:
-                        rig.set_relay(d.name, value)
+                for rig in {id(r): r for r in (self.rig, self.on_demand.rig, idle)
+                            if r is not None}.values():
+                    rig.set_relay(d.name, value)
+
+    def samples_due(self) -> int:
+        """AI samples the sample clock has produced since the AI start, taken or not: paced,
+        counted from the clock without simulating them; fast, those taken (0: no AI runs)."""
+        with self.lock:
+            if self.ai_task is None:
+                return 0
+            return self.generated if self.fast else max(self._due(), self.generated)
 
     def generated_by(self, task: SimTask) -> int:
         with self.lock:

@@ -52,6 +52,8 @@ class OnDemandAi:
                                                   ai=tuple(ai), ao=dev.wiring.ao,
                                                   do=dev.wiring.do))
             self._task, self._last = task, now - n / fs
+        if dev.carried is not None and dev.carried[0] is self.rig:
+            self._last = max(self._last, dev.carried[1])  # a relay switch ran it on already
         steps = int(min(max(round((now - self._last) * fs), n), fs))
         terminals = dev.present_terminals()
         drive = np.repeat(terminals[:, None], steps, axis=1)

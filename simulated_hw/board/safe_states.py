@@ -1,9 +1,9 @@
 """The board's safe states, as parts that own their state: `SafeStates` (the watchdog timer
 tasks, and the AO terminals and lines an expired one holds until its expiration is cleared) and
-`EmergencyStop` (the button the wiring puts on an input line). The sim-server's
-`simulated_hw.board.device.SimDevice` and the in-process `simulated_hw.backend.SimulatedBackend`
-both keep their safe states in them; what an expiry does to the generations running is the
-owner's (`SimDevice._expire`: they stop with -200678 at the expiry's instant)."""
+`EmergencyStop` (the button the wiring puts on an input line), parts of the board
+(`simulated_hw.board.device.SimDevice`, which the in-process backend adapts too); what an expiry
+does to the generations running is the device's (`SimDevice._expire`: they stop with -200678 at
+the expiry's instant)."""
 
 from __future__ import annotations
 

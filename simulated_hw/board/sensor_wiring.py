@@ -1,7 +1,5 @@
 """What the wiring puts on the AI terminals a task reads: the rig's sensor where the wiring has
-one (with the range the task reads it with), the board's noise about 0 V where it has none. The
-sim-server's board and the in-process `simulated_hw.backend.SimulatedBackend` both read their
-terminals through it."""
+one (with the range the task reads it with), the board's noise about 0 V where it has none."""
 
 from __future__ import annotations
 

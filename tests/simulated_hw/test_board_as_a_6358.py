@@ -14,6 +14,8 @@ import pytest
 from nidaqmx.constants import AcquisitionType, LineGrouping, RegenerationMode
 from nidaqmx.errors import DaqError
 
+from daq import default_channel_map
+from rig_model import RigParams
 from simulated_hw.grpc_server import SimulatedDeviceServer
 from tests.simulated_hw.fake_clock import FakeClock as _Clock
 
@@ -64,6 +66,30 @@ def test_a_dc_level_held_between_tasks_reads_steady_in_the_first_sample(
     first, steady_again = _first_and_steady(paced, clock, 0.5)
     assert first == pytest.approx(steady_again, abs=0.005)
     assert steady_again == pytest.approx(steady, abs=0.005)
+
+
+def test_a_pump_switched_on_between_tasks_pressurises_the_rig_before_the_next(
+        paced: grpc.Channel, clock: _Clock) -> None:
+    """The relay acts from the instant it is written, not from the next acquisition's start:
+    3 s after the pump went on (inlet time constant 0.5 s) the first sample reads the supply
+    pressure. Before, the rig between tasks kept the old relay over the gap: 0 Pa."""
+    cm = default_channel_map()
+    p_in = cm.ai_channel("p_in")
+    do = _task(paced)
+    do.do_channels.add_do_chan(cm.relay("pump").physical_channel)
+    do.write(True)
+    clock.t += 3.0
+    ai = _task(paced)
+    ai.ai_channels.add_ai_voltage_chan(p_in.physical_channel, min_val=p_in.range_v[0],
+                                       max_val=p_in.range_v[1])
+    ai.timing.cfg_samp_clk_timing(10_000.0, sample_mode=AcquisitionType.FINITE,
+                                  samps_per_chan=100)
+    volts = np.asarray(ai.read(number_of_samples_per_channel=100))
+    ai.close()
+    do.close()
+    pressure = (volts[:10].mean() - p_in.offset_v) / p_in.gain_v_per_unit
+    supply = RigParams().oil.supply_pressure_pa
+    assert pressure == pytest.approx(supply * (1 - np.exp(-3.0 / 0.5)), rel=0.02)
 
 
 def test_non_regenerating_ao_streams_on_through_its_fifo(paced: grpc.Channel,
