@@ -295,17 +295,7 @@ class SimDevice:
             if task.running:
                 return
             self.catch_up()
-            for other in others:
-                if other is task or not other.running:
-                    continue
-                busy = {p for c in other.channels for p in c.physical}
-                clash = busy & {p for c in task.channels for p in c.physical}
-                if clash:
-                    raise daq_error(
-                        RESOURCE_RESERVED,
-                        f"start {task.name!r}: {sorted(clash)} in use by running task "
-                        f"{other.name!r}",
-                    )
+            self._check_free(task, others, "start")
             if triggers.waits_on_external(task):
                 triggers.arm(task)  # nothing drives the line: armed, never triggered
                 return
@@ -336,6 +326,38 @@ class SimDevice:
             task.done = False
             task.running = True
             task.run_id += 1
+
+    def _check_free(self, task: SimTask, others: list[SimTask], what: str) -> None:
+        """-50103 when a running or reserved (committed) task holds one of ``task``'s
+        channels, or, for hardware-timed AI, the AI timing engine."""
+        for other in others:
+            if other is task or not (other.running or other.reserved):
+                continue
+            held = "running" if other.running else "reserved"
+            busy = {p for c in other.channels for p in c.physical}
+            clash = busy & {p for c in task.channels for p in c.physical}
+            if clash:
+                raise daq_error(
+                    RESOURCE_RESERVED,
+                    f"{what} {task.name!r}: {sorted(clash)} in use by {held} task "
+                    f"{other.name!r}",
+                )
+            if task.kind == other.kind == "ai" and task.rate_hz and other.rate_hz:
+                raise daq_error(
+                    RESOURCE_RESERVED,
+                    f"{what} {task.name!r}: the AI timing engine is in use by {held} task "
+                    f"{other.name!r}",
+                )
+
+    def reserve(self, task: SimTask, others: list[SimTask]) -> None:
+        """TaskControl commit / reserve: the task's channels and timing engine are held (a
+        second task asking for them gets -50103) until it is unreserved or cleared."""
+        with self.lock:
+            if task.kind is None:
+                raise daq_error(NO_CHANS_IN_TASK,
+                                f"commit {task.name!r}: the task has no channels")
+            self._check_free(task, others, "commit")
+            task.reserved = True
 
     def _arm_ao(self, task: SimTask) -> None:
         if task.ao.written == 0 and (task.regenerating or task.finite):

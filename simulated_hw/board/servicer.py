@@ -83,6 +83,7 @@ from simulated_hw.board.codes import (
     MEAS_VOLTAGE,
     MODE_CONTINUOUS,
     MODE_FINITE,
+    NO_CHANS_IN_TASK,
     PHYSICAL_CHAN_DOES_NOT_EXIST,
     READ_BUFFER_TOO_SMALL,
     REGEN_ALLOW,
@@ -282,6 +283,32 @@ class SimulatedDaqmxServicer(counters.CounterRpcs, WatchdogRpcs, DeviceRpcs, Dig
     def StartTask(self, request, context):  # noqa: N802
         self.device.start(self._task(request.task), self._others())
         return pb.StartTaskResponse(status=0)
+
+    @reports_daq_errors
+    def TaskControl(self, request, context):  # noqa: N802
+        """start, stop, abort, verify, commit / reserve, unreserve (DAQmxTaskControl)."""
+        task = self._task(request.task)
+        action = request.action_raw or request.action
+        if action == 0:  # start
+            self.device.start(task, self._others())
+        elif action in (1, 6):  # stop; abort (no logging flush: the acquisition is dropped)
+            if action == 1:
+                tdms_logging.flush(self.device, task, self._others())
+            self.device.stop(task)
+        elif action == 2:  # verify
+            if task.kind is None:
+                raise daq_error(NO_CHANS_IN_TASK,
+                                f"verify {task.name!r}: the task has no channels")
+        elif action in (3, 4):  # commit, reserve
+            self.device.reserve(task, self._others())
+        elif action == 5:  # unreserve: a running task is aborted first
+            self.device.stop(task)
+            task.reserved = False
+        else:
+            raise daq_error(INVALID_ATTRIBUTE_VALUE,
+                            f"TaskControl on {task.name!r}: action {action} is not one of "
+                            "0 (start) .. 6 (abort)")
+        return pb.TaskControlResponse(status=0)
 
     @reports_daq_errors
     def StopTask(self, request, context):  # noqa: N802

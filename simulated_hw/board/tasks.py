@@ -76,6 +76,8 @@ class SimTask:
     #: on: nothing on the rig drives those, so the task waits (`simulated_hw.board.triggers`)
     external: dict[str, str] = field(default_factory=dict)
     retriggerable: bool = False  # start trigger: a finite task rearms after each
+    reserved: bool = False  # committed / reserved (TaskControl): its resources held until cleared
+    sync_type: int = 10230  # DAQmx_Trigger_SyncType: None (10230), Master, Slave (skew only)
     tdms_log: Any = None  # AI: its `simulated_hw.board.tdms_logging.TdmsLog`, if it logs
 
     @property

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from nidaqmx._stubs import nidaqmx_pb2 as pb
 
-from daq.errors import ATTR_NOT_SUPPORTED_IN_TASK, READ_TIMEOUT, DaqError
+from daq.errors import ATTR_NOT_SUPPORTED_IN_TASK, INVALID_ATTRIBUTE_VALUE, READ_TIMEOUT, DaqError
 from simulated_hw.board.codes import INVALID_ROUTING_SOURCE, daq_error
 from simulated_hw.board.device_rpcs import _unsupported
 from simulated_hw.board.tasks import SimTask
@@ -107,6 +107,10 @@ def samples_not_acquired(task: SimTask, n: int, timeout_s: float, why: str) -> D
 
 
 ATTR_START_TRIG_RETRIGGERABLE = 0x190F  # start_trigger.retriggerable
+#: triggers.sync_type: a device's role in trigger skew correction across PXIe devices. One
+#: board has no skew to correct: the value is kept and read back, and changes no timing.
+ATTR_TRIG_SYNC_TYPE = 0x2F80
+SYNC_TYPES = {10230: "None", 15888: "Master", 15889: "Slave"}
 
 
 class TriggerRpcs:
@@ -157,3 +161,33 @@ class TriggerRpcs:
         if request.attribute_raw != ATTR_START_TRIG_RETRIGGERABLE:
             raise _unsupported("trigger", request.attribute_raw)
         return pb.GetTrigAttributeBoolResponse(value=task.retriggerable)
+
+    @reports_daq_errors
+    def SetTrigAttributeInt32(self, request, context):  # noqa: N802
+        task = self._task(request.task)
+        if request.attribute_raw != ATTR_TRIG_SYNC_TYPE:
+            raise _unsupported("trigger", request.attribute_raw)
+        if request.value_raw not in SYNC_TYPES:
+            raise daq_error(INVALID_ATTRIBUTE_VALUE,
+                            f"sync_type on task {task.name!r}: {request.value_raw} is not one of "
+                            f"{', '.join(f'{v} ({n})' for v, n in SYNC_TYPES.items())}")
+        task.sync_type = int(request.value_raw)
+        return pb.SetTrigAttributeInt32Response(status=0)
+
+    @reports_daq_errors
+    def GetTrigAttributeInt32(self, request, context):  # noqa: N802
+        task = self._task(request.task)
+        if request.attribute_raw != ATTR_TRIG_SYNC_TYPE:
+            raise _unsupported("trigger", request.attribute_raw)
+        return pb.GetTrigAttributeInt32Response(value_raw=task.sync_type)
+
+    @reports_daq_errors
+    def ResetTrigAttribute(self, request, context):  # noqa: N802
+        task = self._task(request.task)
+        if request.attribute_raw == ATTR_TRIG_SYNC_TYPE:
+            task.sync_type = 10230
+        elif request.attribute_raw == ATTR_START_TRIG_RETRIGGERABLE:
+            task.retriggerable = False
+        else:
+            raise _unsupported("trigger", request.attribute_raw)
+        return pb.ResetTrigAttributeResponse(status=0)
