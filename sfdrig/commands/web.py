@@ -23,7 +23,7 @@ from threadpoolctl import threadpool_limits
 from control.wire.client import DaemonUnavailable
 from control.wire.security import KeyFileError, is_loopback
 from sfdrig.commands._client_args import STATE_FILE_NAME, _state, add_connection_arguments, keys
-from sfdrig.commands._native_memory import pin_mmap_threshold
+from sfdrig.commands._native_memory import limit_arenas, pin_mmap_threshold
 from web.auth import OPERATOR, VIEWER
 from web.feed import DaemonLink
 from web.server import LOOPBACK_NAMES, WebApp, WebConfig
@@ -103,9 +103,9 @@ def run(args: argparse.Namespace) -> int:
     # for the same product, taken from the paced daemon (README "Measured figures").
     threadpool_limits(limits=1, user_api="blas")
     # Freed arrays of 128 KiB or more (a transfer request's segments, the frames' windows) go
-    # back to the kernel, not scattered over the executor threads' malloc arenas
-    # (sfdrig.commands._native_memory)
-    logging.getLogger("sfdrig.web").info("%s", pin_mmap_threshold())
+    # back to the kernel, and what is smaller stays on one arena, not scattered over the
+    # executor threads' own (sfdrig.commands._native_memory)
+    logging.getLogger("sfdrig.web").info("%s; %s", pin_mmap_threshold(), limit_arenas(1))
     config = WebConfig(key_dir=args.keys, anonymous_role=args.role, examples_dir=args.examples,
                        fps=args.fps, secure_cookie=tls is not None,
                        allowed_hosts=allowed_hosts(args.host, args.allow_host),

@@ -1,0 +1,45 @@
+"""`sfdrig web` keeps its threads on one glibc malloc arena (`limit_arenas`): counted by glibc's
+own `malloc_stats` in a child process whose threads allocate at once."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+CHILD = """
+import ctypes, ctypes.util, sys, threading
+from sfdrig.commands._native_memory import limit_arenas
+if sys.argv[1] == "limit":
+    print(limit_arenas(1))
+libc = ctypes.CDLL(ctypes.util.find_library("c"))
+libc.malloc.restype = ctypes.c_void_p
+libc.free.argtypes = [ctypes.c_void_p]
+go = threading.Barrier(4)
+def work():
+    go.wait()  # all four allocate together: glibc gives a contending thread an arena of its own
+    blocks = [libc.malloc(4096) for _ in range(20000)]
+    for b in blocks:
+        libc.free(b)
+threads = [threading.Thread(target=work) for _ in range(4)]
+for t in threads: t.start()
+for t in threads: t.join()
+libc.malloc_stats()
+"""
+
+
+def _arenas(mode: str) -> tuple[int, str]:
+    out = subprocess.run([sys.executable, "-c", CHILD, mode], capture_output=True, text=True,
+                         timeout=60, check=True, env={"PATH": "/usr/bin:/bin"})
+    return out.stderr.count("Arena "), out.stdout.strip()
+
+
+def test_limit_arenas_keeps_every_thread_on_one_arena() -> None:
+    if sys.platform != "linux":
+        pytest.skip("glibc's malloc arenas: Linux only")
+    free, _ = _arenas("none")
+    one, said = _arenas("limit")
+    assert said == "malloc: at most 1 arena(s)"
+    assert one == 1
+    assert free >= 2  # without it the four threads spread over arenas of their own
