@@ -94,6 +94,7 @@ from analysis.diagnose.fitting import (
 )
 from analysis.diagnose.hysteresis import amplitude_levels, joint_table
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals
+from analysis.diagnose.modes import Modes, modal_dependence
 from analysis.diagnose.residual_structure import (
     Z_STRUCTURE,
     excess_chi2,
@@ -129,6 +130,8 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     verdict: Verdict | None = None
     amplitude: AmplitudeDependence | None = None
+    #: the modes in the band per level and axis (modal fit of the dwells' receptance)
+    modes: Modes | None = None
     #: the fitted baseline's order chosen on held-out data: one row per order tried
     order: list[dict[str, Any]] = field(default_factory=list)
 
@@ -156,7 +159,9 @@ class Diagnosis:
                          .enabled else 1,
                          "coupled_axes": self.baseline_model.rig.structure
                          .stiffness_xy_n_per_m != 0.0,
-                         "order_selection": self.order},
+                         "order_selection": self.order,
+                         "modes_in_band_per_axis": self.modes.per_axis() if self.modes
+                         else {}},
             "findings": [f.to_dict() for f in self.findings],
             "unexplained": self.unexplained,
             "extended_model": extended_model_path,
@@ -170,6 +175,7 @@ class Diagnosis:
             "notes": self.notes,
             "verdict": self.verdict.to_dict() if self.verdict else None,
             "amplitude_dependence": self.amplitude.to_dict() if self.amplitude else None,
+            "modes": self.modes.to_dict() if self.modes else None,
             "train_runs": sorted({self.records[s.run].name for s in self.train}),
             "test_runs": sorted({self.records[s.run].name for s in self.test}),
         }
@@ -283,6 +289,10 @@ def diagnose(
     amplitude = check_levels(ev, base.model, pb.fit_train, train + test, base.train.offsets,
                              findings)
     say(f"amplitude dependence: {amplitude.text}")
+    # the modes in the band per level, from the data alone (the baseline holds one or two)
+    modes = modal_dependence(records, train + test)
+    say(f"modes in the band: {modes.text}")
+    _more_modes_than_the_baseline(modes, base.model, notes)
     ext = extended_rig(search.model, ev.duration_s)
     if imported:
         ext = ext.model_copy(update={"substeps": int(min(32, max(oversample.values())))})
@@ -293,8 +303,18 @@ def diagnose(
         final_test=search.test, unexplained=verdict.unexplained, rounds=search.rounds,
         skipped=skipped, noise_floor=noise, extended_rig=ext,
         elapsed_s=time.perf_counter() - t_start, notes=notes, verdict=verdict,
-        amplitude=amplitude, order=base.order,
+        amplitude=amplitude, modes=modes, order=base.order,
     )
+
+
+def _more_modes_than_the_baseline(modes: Modes, baseline: Model, notes: list[str]) -> None:
+    """A note where the band holds more modes than the baseline: its residual is then, at
+    least in part, the modes it lacks (no effect of the library is one)."""
+    held = 2 if baseline.rig.effects.second_mode.enabled else 1
+    for ax, n in modes.per_axis().items():
+        if n > held:
+            notes.append(f"the band holds {n} modes on {ax} (modal fit of the dwells); the "
+                         f"baseline holds {held}: its residual is in part the modes it lacks")
 
 
 # --- set-up ------------------------------------------------------------------------------

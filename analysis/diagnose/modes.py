@@ -118,6 +118,7 @@ class Modes:
     levels: list[LevelModes]
     tracks: list[ModeTrack]
     reason: str = ""
+    skipped: list[str] = field(default_factory=list)  # levels whose fit failed, and why
 
     def per_axis(self) -> dict[str, int]:
         """The most modes found at any level, per axis."""
@@ -142,7 +143,8 @@ class Modes:
 
     def to_dict(self) -> dict[str, Any]:
         return {"modes_per_axis": self.per_axis(), "levels": [lv.to_dict() for lv in self.levels],
-                "tracks": [t.to_dict() for t in self.tracks], "verdict": self.text}
+                "tracks": [t.to_dict() for t in self.tracks], "not_fitted": self.skipped,
+                "verdict": self.text}
 
 
 # --- points ------------------------------------------------------------------------------
@@ -305,7 +307,11 @@ def modal_dependence(records: list[RunRecord], segs: list[Segment]) -> Modes:
             w, h, sd = receptance_points(records, ss, axis)
             if w.size < 5:
                 continue
-            modes, rows = fit_modes(w, h, sd)
+            try:
+                modes, rows = fit_modes(w, h, sd)
+            except (np.linalg.LinAlgError, ValueError) as err:  # e.g. points not finite
+                out.skipped.append(f"{'xy'[axis]} {lab}: modal fit failed: {err}")
+                continue
             if not modes:
                 continue
             f_amp = [abs(harmonics(records[s.run].force_n[axis, s.start:s.stop], s.start,
@@ -317,5 +323,6 @@ def modal_dependence(records: list[RunRecord], segs: list[Segment]) -> Modes:
         if fits:
             out.tracks.extend(_track("xy"[axis], fits))
     if not out.levels:
-        out.reason = "no modal fit: it needs 5 or more dwell frequencies on a driven axis"
+        out.reason = ("no modal fit: it needs 5 or more dwell frequencies on a driven axis"
+                      + "".join(f"; {why}" for why in out.skipped))
     return out

@@ -182,6 +182,13 @@ def _run(args: argparse.Namespace) -> int:
                   f"Hz, damping ratio {lv.damping_ratio:.3g} +/- {lv.damping_ratio_sd:.2g}")
         for eff, why in diag.amplitude.contradicted.items():
             print(f"  {eff}: contradicted by the levels: {why}")
+    if diag.modes is not None:
+        print(f"modes in the band: {diag.modes.text}")
+        for tr in diag.modes.tracks:
+            trends = (f": {tr.frequency.verdict} ({tr.frequency.change:+.1%}), damping "
+                      f"{tr.damping.verdict} ({tr.damping.change:+.0%})"
+                      if tr.frequency and tr.damping else "")
+            print(f"  {tr.axis} mode {tr.index} over {len(tr.levels)} level(s){trends}")
     print(f"extended model: {model_path}")
     return 0
 
