@@ -43,6 +43,7 @@ from analysis.diagnose.amplitude import (
 )
 from analysis.diagnose.data import RunRecord, Segment, driven_axes
 from analysis.diagnose.residual_analysis import harmonics
+from analysis.diagnose.start import stands_above_noise
 
 #: the most modes fitted per level and axis (a bound on the work, not on the data)
 MAX_MODES = 8
@@ -163,8 +164,8 @@ def receptance_points(records: list[RunRecord], segs: list[Segment],
         zf, _, nf = harmonics(rec.force_n[axis, seg.start:seg.stop], seg.start, fs,
                               seg.freq_hz, 1)
         zz, _, nz = harmonics(z, seg.start, fs, seg.freq_hz, 1)
-        if abs(zf[0]) == 0.0 or abs(zz[0]) == 0.0:
-            continue
+        if abs(zz[0]) == 0.0 or not stands_above_noise(abs(zf[0]), nf, n):
+            continue  # the axis is not driven in this dwell
         hh = zz[0] / zf[0]
         scale = math.sqrt(2.0 / n) / abs(zf[0])
         w.append(2 * math.pi * seg.freq_hz)
