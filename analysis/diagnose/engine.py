@@ -669,11 +669,15 @@ def _share_of_signal(records: list[RunRecord], test: list[Segment], base_test: R
     """Each finding's share of the held-out signal, and whether it is only a refinement."""
     noise_of = ra.channel_noise(records, test)
     before_res = base_test
+    # dwells give each term's signature against their own noise; other data only the share
+    dwells = any(s.freq_hz for s in test)
     for f in findings:
         assert f.test_residuals is not None
-        refinement, share = refinement_share(signal_fit(records, before_res, test, noise_of),
-                                             signal_fit(records, f.test_residuals, test,
-                                                        noise_of))
+        refinement, share = refinement_share(
+            signal_fit(records, before_res, test, noise_of),
+            signal_fit(records, f.test_residuals, test, noise_of),
+            float(f.evidence["signature_sd"]) if dwells and "signature_sd" in f.evidence
+            else None)
         f.evidence["share_of_signal_explained"] = share
         # a model that left structure above the noise (held-out dwells) did not leave
         # "nothing unexplained": a term removing it is a cause, not a refinement
