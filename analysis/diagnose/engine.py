@@ -41,7 +41,8 @@ Procedure
    runner-up (not found itself in a later round) explains the held-out data nearly as well
    (held-out MSE within 25 %), and a refinement: a term found once the model already left
    nothing unexplained (no structure above the noise either), explaining less than 0.5 % of the
-   signal and less than 3/4 of what was left (``verdict.refinement_share``).
+   signal and, on dwells, a signature under 5 sd of their own noise (elsewhere less than 3/4
+   of what was left; ``verdict.refinement_share``).
 """
 
 from __future__ import annotations
