@@ -140,6 +140,18 @@ class Diagnosis:
     def baseline_rms(self) -> float:
         return self.baseline_test.rms()
 
+    def best_candidate(self) -> dict[str, Any] | None:
+        """The first round's candidate of least held-out error, with its size and gain, when
+        nothing was found (None otherwise, or when none could be fitted): what comes nearest,
+        though not a finding (a rejected one carries why)."""
+        if self.findings or not self.rounds:
+            return None
+        fitted = [c for c in self.rounds[0] if "held_out_error" in c]
+        if not fitted:
+            return None
+        best = min(fitted, key=lambda c: c["held_out_error"])
+        return {**best, "gain": self.baseline_rms / best["held_out_error"]}
+
     def residual_numbers(self) -> dict[str, Any]:
         """Held-out residuals of the baseline and the extended model: per dwell (1X amplitude
         and phase error, residual per harmonic, with frequency, amplitude and time), per
@@ -164,6 +176,7 @@ class Diagnosis:
                          "modes_in_band_per_axis": self.modes.per_axis() if self.modes
                          else {}},
             "findings": [f.to_dict() for f in self.findings],
+            "best_candidate": self.best_candidate(),
             "unexplained": self.unexplained,
             "extended_model": extended_model_path,
             "final_rms_error": self.final_test.rms(),

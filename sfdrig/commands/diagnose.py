@@ -165,6 +165,13 @@ def _run(args: argparse.Namespace) -> int:
               f"({f.evidence.get('confidence', '')} confidence)")
     if not diag.findings:
         print("no effect of the library explains the residual significantly")
+        best = diag.best_candidate()
+        if best is not None:
+            params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                               for k, v in best["parameters"].items())
+            why = best.get("not_a_finding", "not significant")
+            print(f"  best candidate: {best['effect']} ({params}), held-out "
+                  f"{best['held_out_error']:.4g} {u}, gain {best['gain']:.3g} ({why})")
     if diag.unexplained:
         print("unexplained: a structured discrepancy remains that the library does not explain")
     if diag.verdict is not None:

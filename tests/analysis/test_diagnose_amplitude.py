@@ -173,6 +173,11 @@ def test_cli_train_runs_test_runs(level_runs, tmp_path, capsys):
     assert doc["train_runs"] == [a.name, b.name] and doc["test_runs"] == [c.name]
     assert doc["segments"] == {"train": 10, "test": 5}
     assert doc["findings"] == []
+    # nothing found: the nearest candidate is reported with its size, its gain insignificant
+    best = doc["best_candidate"]
+    assert best["effect"] in ("cubic_stiffness", "coulomb_friction")
+    assert best["gain"] == pytest.approx(doc["baseline"]["rms_error"] / best["held_out_error"])
+    assert best["gain"] < 1.05
     dep = doc["amplitude_dependence"]
     assert [lv["level"] for lv in dep["levels"]] == [a.name, b.name, c.name]
     # the independent rig is linear: 17.9 kg, 788 kN/m -> 33.4 Hz at every level
@@ -194,6 +199,7 @@ def test_cli_train_runs_test_runs(level_runs, tmp_path, capsys):
     out_text = capsys.readouterr().out
     assert "amplitude dependence: x: natural frequency level-independent" in out_text
     assert "modes in the band: x: 1 mode (33.4" in out_text
+    assert f"  best candidate: {best['effect']} (" in out_text
 
 
 @pytest.mark.parametrize(("args", "message"), [
