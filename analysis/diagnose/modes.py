@@ -234,7 +234,8 @@ def fit_modes(w: np.ndarray, h: np.ndarray, sd: np.ndarray,
     w, h, sd = w[order], h[order], sd[order]
     n_eq = 2 * w.size
     w_lim = (float(w.min()) / 2, float(w.max()) * 2)
-    top = min(max_modes, (w.size - 1) // 4)
+    # distinct frequencies: a repeated dwell adds no information on the number of poles
+    top = min(max_modes, (np.unique(w).size - 1) // 4)
     rows: list[dict[str, float]] = []
     best: tuple[float, list[Mode]] | None = None
     best_n = 0

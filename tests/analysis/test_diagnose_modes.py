@@ -157,6 +157,10 @@ def test_five_dwell_frequencies_fit_one_mode():
     h = 1.0 / (788e3 - w**2 * 17.9 + 1j * w * 300.0)
     modes, rows = fit_modes(w, h, np.full(w.size, 1e-3 * float(np.abs(h).max())))
     assert len(modes) == 1 and [r["modes"] for r in rows] == [1]
+    # three amplitudes at the same five frequencies (the report's plan as one level): still one
+    w3, h3 = np.tile(w, 3), np.tile(h, 3)
+    modes, rows = fit_modes(w3, h3, np.full(w3.size, 1e-3 * float(np.abs(h).max())))
+    assert len(modes) == 1 and [r["modes"] for r in rows] == [1]
 
 
 def test_receptance_points_carry_their_dwells_noise():
