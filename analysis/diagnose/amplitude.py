@@ -180,7 +180,7 @@ def _clusters(values: np.ndarray) -> list[np.ndarray]:
     return [np.array(g) for g in groups]
 
 
-def _levels(records: list[RunRecord], segs: list[Segment],
+def levels(records: list[RunRecord], segs: list[Segment],
             axis: int) -> tuple[list[tuple[str, list[Segment]]], str]:
     """(label, segments) per level, and what the level is ("force" or "response")."""
     segs = [s for s in segs if axis in driven_axes(records[s.run], s.start, s.stop)]
@@ -241,7 +241,7 @@ def fit_level(records: list[RunRecord], segs: list[Segment], axis: int, label: s
                     float(math.sqrt(max(g_z @ cov @ g_z, 0.0))), float(m), float(c), float(k))
 
 
-def _trend(x: np.ndarray, y: np.ndarray, sd: np.ndarray, min_change: float,
+def trend(x: np.ndarray, y: np.ndarray, sd: np.ndarray, min_change: float,
            words: tuple[str, str], ref: float | None = None) -> Trend:
     """Weighted regression of y on x; change over the levels relative to ``ref`` (default:
     the mean of y)."""
@@ -290,9 +290,9 @@ def amplitude_dependence(records: list[RunRecord], segs: list[Segment],
     fits: list[LevelFit] = []
     out = AmplitudeDependence(fits)
     for axis in (0, 1):
-        levels, by = _levels(records, segs, axis)
+        lvls, by = levels(records, segs, axis)
         pairs = []
-        for lab, ss in levels:
+        for lab, ss in lvls:
             f = fit_level(records, ss, axis, lab, by)
             p = fit_level(predicted, ss, axis, lab, by) if predicted is not None else None
             if f is not None and (predicted is None or p is not None):
@@ -309,8 +309,8 @@ def amplitude_dependence(records: list[RunRecord], segs: list[Segment],
         fsd = np.array([f.natural_hz_sd for f in got])
         zt = np.array([f.damping_ratio for f in got])
         zsd = np.array([f.damping_ratio_sd for f in got])
-        out.frequency[ax] = _trend(x, fn, fsd, FREQ_CHANGE, ("hardening", "softening"))
-        out.damping[ax] = _trend(x, zt, zsd, DAMP_CHANGE, ("rising", "falling"))
+        out.frequency[ax] = trend(x, fn, fsd, FREQ_CHANGE, ("hardening", "softening"))
+        out.damping[ax] = trend(x, zt, zsd, DAMP_CHANGE, ("rising", "falling"))
         out.effects[ax] = EFFECTS_BY_TREND[(out.frequency[ax].verdict,
                                             out.damping[ax].verdict)]
         if predicted is not None:
@@ -318,9 +318,9 @@ def amplitude_dependence(records: list[RunRecord], segs: list[Segment],
             pz = np.array([p.damping_ratio for _, p in pairs if p is not None])
             psd_f = np.array([p.natural_hz_sd for _, p in pairs if p is not None])
             psd_z = np.array([p.damping_ratio_sd for _, p in pairs if p is not None])
-            out.excess_frequency[ax] = _trend(x, fn - pf, np.hypot(fsd, psd_f), FREQ_CHANGE,
+            out.excess_frequency[ax] = trend(x, fn - pf, np.hypot(fsd, psd_f), FREQ_CHANGE,
                                               ("hardening", "softening"), float(np.mean(fn)))
-            out.excess_damping[ax] = _trend(x, zt - pz, np.hypot(zsd, psd_z), DAMP_CHANGE,
+            out.excess_damping[ax] = trend(x, zt - pz, np.hypot(zsd, psd_z), DAMP_CHANGE,
                                             ("rising", "falling"), float(np.mean(zt)))
     if not out.frequency:
         out.reason = ("no amplitude dependence judged: it needs two or more levels (runs, or "

@@ -41,7 +41,8 @@ Procedure
    runner-up (not found itself in a later round) explains the held-out data nearly as well
    (held-out MSE within 25 %), and a refinement: a term found once the model already left
    nothing unexplained (no structure above the noise either), explaining less than 0.5 % of the
-   signal and less than 3/4 of what was left (``verdict.refinement_share``).
+   signal and, on dwells, a signature under 5 sd of their own noise (elsewhere less than 3/4
+   of what was left; ``verdict.refinement_share``).
 """
 
 from __future__ import annotations
@@ -94,6 +95,7 @@ from analysis.diagnose.fitting import (
 )
 from analysis.diagnose.hysteresis import amplitude_levels, joint_table
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals
+from analysis.diagnose.modes import Modes, modal_dependence
 from analysis.diagnose.residual_structure import (
     Z_STRUCTURE,
     excess_chi2,
@@ -129,12 +131,26 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     verdict: Verdict | None = None
     amplitude: AmplitudeDependence | None = None
+    #: the modes in the band per level and axis (modal fit of the dwells' receptance)
+    modes: Modes | None = None
     #: the fitted baseline's order chosen on held-out data: one row per order tried
     order: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def baseline_rms(self) -> float:
         return self.baseline_test.rms()
+
+    def best_candidate(self) -> dict[str, Any] | None:
+        """The first round's candidate of least held-out error, with its size and gain, when
+        nothing was found (None otherwise, or when none could be fitted): what comes nearest,
+        though not a finding (a rejected one carries why)."""
+        if self.findings or not self.rounds:
+            return None
+        fitted = [c for c in self.rounds[0] if "held_out_error" in c]
+        if not fitted:
+            return None
+        best = min(fitted, key=lambda c: c["held_out_error"])
+        return {**best, "gain": self.baseline_rms / best["held_out_error"]}
 
     def residual_numbers(self) -> dict[str, Any]:
         """Held-out residuals of the baseline and the extended model: per dwell (1X amplitude
@@ -156,8 +172,11 @@ class Diagnosis:
                          .enabled else 1,
                          "coupled_axes": self.baseline_model.rig.structure
                          .stiffness_xy_n_per_m != 0.0,
-                         "order_selection": self.order},
+                         "order_selection": self.order,
+                         "modes_in_band_per_axis": self.modes.per_axis() if self.modes
+                         else {}},
             "findings": [f.to_dict() for f in self.findings],
+            "best_candidate": self.best_candidate(),
             "unexplained": self.unexplained,
             "extended_model": extended_model_path,
             "final_rms_error": self.final_test.rms(),
@@ -170,6 +189,7 @@ class Diagnosis:
             "notes": self.notes,
             "verdict": self.verdict.to_dict() if self.verdict else None,
             "amplitude_dependence": self.amplitude.to_dict() if self.amplitude else None,
+            "modes": self.modes.to_dict() if self.modes else None,
             "train_runs": sorted({self.records[s.run].name for s in self.train}),
             "test_runs": sorted({self.records[s.run].name for s in self.test}),
         }
@@ -283,6 +303,10 @@ def diagnose(
     amplitude = check_levels(ev, base.model, pb.fit_train, train + test, base.train.offsets,
                              findings)
     say(f"amplitude dependence: {amplitude.text}")
+    # the modes in the band per level, from the data alone (the baseline holds one or two)
+    modes = modal_dependence(records, train + test)
+    say(f"modes in the band: {modes.text}")
+    _more_modes_than_the_baseline(modes, base.model, notes)
     ext = extended_rig(search.model, ev.duration_s)
     if imported:
         ext = ext.model_copy(update={"substeps": int(min(32, max(oversample.values())))})
@@ -293,8 +317,18 @@ def diagnose(
         final_test=search.test, unexplained=verdict.unexplained, rounds=search.rounds,
         skipped=skipped, noise_floor=noise, extended_rig=ext,
         elapsed_s=time.perf_counter() - t_start, notes=notes, verdict=verdict,
-        amplitude=amplitude, order=base.order,
+        amplitude=amplitude, modes=modes, order=base.order,
     )
+
+
+def _more_modes_than_the_baseline(modes: Modes, baseline: Model, notes: list[str]) -> None:
+    """A note where the band holds more modes than the baseline: its residual is then, at
+    least in part, the modes it lacks (no effect of the library is one)."""
+    held = 2 if baseline.rig.effects.second_mode.enabled else 1
+    for ax, n in modes.per_axis().items():
+        if n > held:
+            notes.append(f"the band holds {n} modes on {ax} (modal fit of the dwells); the "
+                         f"baseline holds {held}: its residual is in part the modes it lacks")
 
 
 # --- set-up ------------------------------------------------------------------------------
@@ -649,11 +683,15 @@ def _share_of_signal(records: list[RunRecord], test: list[Segment], base_test: R
     """Each finding's share of the held-out signal, and whether it is only a refinement."""
     noise_of = ra.channel_noise(records, test)
     before_res = base_test
+    # dwells give each term's signature against their own noise; other data only the share
+    dwells = any(s.freq_hz for s in test)
     for f in findings:
         assert f.test_residuals is not None
-        refinement, share = refinement_share(signal_fit(records, before_res, test, noise_of),
-                                             signal_fit(records, f.test_residuals, test,
-                                                        noise_of))
+        refinement, share = refinement_share(
+            signal_fit(records, before_res, test, noise_of),
+            signal_fit(records, f.test_residuals, test, noise_of),
+            float(f.evidence["signature_sd"]) if dwells and "signature_sd" in f.evidence
+            else None)
         f.evidence["share_of_signal_explained"] = share
         # a model that left structure above the noise (held-out dwells) did not leave
         # "nothing unexplained": a term removing it is a cause, not a refinement

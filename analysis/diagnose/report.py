@@ -240,6 +240,33 @@ def _amplitude_html(diag: Diagnosis) -> list[str]:
     return out
 
 
+def _modes_html(diag: Diagnosis) -> list[str]:
+    modes = diag.modes
+    if modes is None:
+        return []
+    out = ["<h2>Modes in the band (modal fit per level, order by the points' noise)</h2>",
+           f"<p><b>{html.escape(modes.text)}</b></p>"]
+    rows = [{"level": lv.label, "axis": lv.axis, "force_amplitude_N": lv.force_n,
+             "points": lv.points, "mode": i + 1, **m.to_dict(),
+             "chi2_per_dof": lv.chi2_per_dof}
+            for lv in modes.levels for i, m in enumerate(lv.modes)]
+    if rows:
+        out.append(_table(rows, ["level", "axis", "force_amplitude_N", "points", "mode",
+                                 "natural_frequency_hz", "natural_frequency_sd_hz",
+                                 "damping_ratio", "damping_ratio_sd", "chi2_per_dof"]))
+    trends = [{"axis": t.axis, "mode": t.index, "levels": len(t.levels),
+               "frequency": t.frequency.verdict if t.frequency else "",
+               "frequency_change": t.frequency.change if t.frequency else "",
+               "damping": t.damping.verdict if t.damping else "",
+               "damping_change": t.damping.change if t.damping else ""}
+              for t in modes.tracks]
+    if trends:
+        out.append("<p>Each mode against the level:</p>")
+        out.append(_table(trends, ["axis", "mode", "levels", "frequency", "frequency_change",
+                                   "damping", "damping_change"]))
+    return out
+
+
 def _table(rows: list[dict], keys: list[str]) -> str:
     def fmt(v: Any) -> str:
         if isinstance(v, float):
@@ -369,6 +396,7 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
                      "</p>")
     parts.extend(_verdict_html(diag))
     parts.extend(_amplitude_html(diag))
+    parts.extend(_modes_html(diag))
     if extended_model_path:
         parts.append(f"<p>Extended model: <code>{html.escape(extended_model_path)}</code></p>")
     for i, rnd in enumerate(diag.rounds, 1):

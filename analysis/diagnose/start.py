@@ -4,7 +4,9 @@ Per axis, the dynamic stiffness ``D(w) = F(w) / Z(w) = K - w^2 M + i w C`` of a 
 structure is linear in (K, M, C), so a least-squares fit over frequencies needs no start:
 
 - dwells: ``F`` and ``Z`` are the 1X complex amplitudes of force and response of each dwell
-  (``residual_analysis.harmonics``), one equation per dwell;
+  (``residual_analysis.harmonics``), one equation per dwell whose 1X force stands
+  ``Z_STRUCTURE`` standard deviations above its own noise (`stands_above_noise`; a dwell along
+  the other axis leaves this one's load cell noise, whatever its size against the drive);
 - other data (broadband, sweeps): ``1 / D`` is the H1 estimate ``S_fz / S_ff`` (Welch), over the
   excited band where the coherence is at least 0.5.
 
@@ -23,6 +25,7 @@ from scipy.signal import csd, welch
 
 from analysis.diagnose.data import RunRecord, Segment
 from analysis.diagnose.residual_analysis import harmonics
+from analysis.diagnose.residual_structure import Z_STRUCTURE
 
 
 @dataclass(frozen=True)
@@ -47,8 +50,11 @@ class OneMode:
         return 2 * self.mass_kg / max(self.damping_ns_per_m, 1e-12)
 
 
-#: an axis whose 1X force is below this fraction of the other axis's is not driven in a dwell
-_UNDRIVEN = 0.01
+def stands_above_noise(amplitude: float, rest_rms: float, n: int) -> bool:
+    """Whether a dwell's 1X amplitude stands ``Z_STRUCTURE`` standard deviations above its own
+    noise: the RMS ``rest_rms`` the harmonic fit leaves, over ``n`` samples, is an error of
+    ``rest_rms * sqrt(2 / n)`` on each of the amplitude's two components."""
+    return amplitude >= Z_STRUCTURE * rest_rms * math.sqrt(2.0 / n)
 
 
 def _axis_response(rec: RunRecord, axis: int) -> np.ndarray | None:
@@ -73,15 +79,12 @@ def _points(records: list[RunRecord], segs: list[Segment],
             broadband.append(seg)
             continue
         fs = rec.sample_rate_hz
-        zf, _, _ = harmonics(f[seg.start:seg.stop], seg.start, fs, seg.freq_hz, 1)
+        zf, _, f_rest = harmonics(f[seg.start:seg.stop], seg.start, fs, seg.freq_hz, 1)
         zz, _, _ = harmonics(z[seg.start:seg.stop], seg.start, fs, seg.freq_hz, 1)
-        if abs(zz[0]) == 0 or abs(zf[0]) == 0:
-            continue
-        other, _, _ = harmonics(rec.force_n[1 - axis, seg.start:seg.stop], seg.start, fs,
-                                seg.freq_hz, 1)
-        if abs(zf[0]) < _UNDRIVEN * abs(other[0]):
-            # a dwell driven along the other axis: this axis's force and motion are its load
-            # cell's and probe's noise (or a coupling's), and their ratio no dynamic stiffness
+        if abs(zz[0]) == 0 or not stands_above_noise(abs(zf[0]), f_rest, seg.n):
+            # a dwell driven along the other axis: this axis's 1X force is its load cell's
+            # noise, and the ratio of noise to motion no dynamic stiffness (weighted |Z/F|,
+            # it would outweigh every driven dwell)
             continue
         w_all.append(2 * math.pi * seg.freq_hz)
         d_all.append(complex(zf[0] / zz[0]))

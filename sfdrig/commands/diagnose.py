@@ -165,6 +165,13 @@ def _run(args: argparse.Namespace) -> int:
               f"({f.evidence.get('confidence', '')} confidence)")
     if not diag.findings:
         print("no effect of the library explains the residual significantly")
+        best = diag.best_candidate()
+        if best is not None:
+            params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                               for k, v in best["parameters"].items())
+            why = best.get("not_a_finding", "not significant")
+            print(f"  best candidate: {best['effect']} ({params}), held-out "
+                  f"{best['held_out_error']:.4g} {u}, gain {best['gain']:.3g} ({why})")
     if diag.unexplained:
         print("unexplained: a structured discrepancy remains that the library does not explain")
     if diag.verdict is not None:
@@ -182,6 +189,13 @@ def _run(args: argparse.Namespace) -> int:
                   f"Hz, damping ratio {lv.damping_ratio:.3g} +/- {lv.damping_ratio_sd:.2g}")
         for eff, why in diag.amplitude.contradicted.items():
             print(f"  {eff}: contradicted by the levels: {why}")
+    if diag.modes is not None:
+        print(f"modes in the band: {diag.modes.text}")
+        for tr in diag.modes.tracks:
+            trends = (f": {tr.frequency.verdict} ({tr.frequency.change:+.1%}), damping "
+                      f"{tr.damping.verdict} ({tr.damping.change:+.0%})"
+                      if tr.frequency and tr.damping else "")
+            print(f"  {tr.axis} mode {tr.index} over {len(tr.levels)} level(s){trends}")
     print(f"extended model: {model_path}")
     return 0
 

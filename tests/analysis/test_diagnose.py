@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from analysis.diagnose.candidates import bootstrap_gain
 from analysis.diagnose.data import Segment, records_from_arrays, split_segments
 from analysis.diagnose.fitting import apply, arx_linear_guess, levenberg_marquardt
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals, rig_param
-from analysis.diagnose.start import one_mode_estimate
+from analysis.diagnose.start import dynamic_stiffness_points, one_mode_estimate
 from rig_model import load_rig_params
 from rig_model.params import RigParams
 from sfdrig.cli import main
@@ -204,6 +205,27 @@ def test_the_start_leaves_out_an_axis_a_dwell_does_not_drive(tmp_path):
         assert est.stiffness_n_per_m == pytest.approx(k_n_per_m, rel=0.01)
         assert est.mass_kg == pytest.approx(9.7, rel=0.01)
         assert est.damping_ns_per_m == pytest.approx(370.0, rel=0.05)
+
+
+def test_an_axis_is_driven_when_its_force_stands_above_its_own_noise():
+    """Two x dwells with a y force: noise only (0.05 N white) gives no y point; 0.5 % of the x
+    force, 40 sd above that noise, is a drive (the fixed 1 % of the other axis's force, before,
+    left it out) and gives the y dynamic stiffness it was made with."""
+    fs, n = 5000.0, 5000
+    rng = np.random.default_rng(11)
+    t = np.arange(2 * n) / fs
+    e = np.exp(2j * math.pi * 30.0 * t)
+    k_y = 5e5 - 2e3j  # the y dynamic stiffness [N/m]
+    fx = np.real(200.0 * e)
+    fy = np.where(t < n / fs, 0.0, np.real(1.0 * e)) + 0.05 * rng.standard_normal(2 * n)
+    y = np.where(t < n / fs, 0.0, np.real(1.0 / k_y * e)) + 1e-9 * rng.standard_normal(2 * n)
+    rec = records_from_arrays(np.vstack([fx, fy]), {"x": np.real(200.0 / 6e5 * e), "y": y},
+                              fs)
+    segs = [Segment(0, 0, n, "noise", 30.0, "x"), Segment(0, n, 2 * n, "0.5 %", 30.0, "x")]
+    w, d, _ = dynamic_stiffness_points([rec], segs, 1)
+    assert w.size == 1  # the second dwell only
+    # the force noise's 1X error is 0.05 N x sqrt(2 / 5000) = 1e-3 of the 1 N: within 3 sd
+    assert d[0] == pytest.approx(k_y, rel=3e-3)
 
 
 def test_cli_coupled_axes_in_the_order_table_report_and_extended_model(tmp_path, capsys):

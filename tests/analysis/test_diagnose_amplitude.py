@@ -173,6 +173,11 @@ def test_cli_train_runs_test_runs(level_runs, tmp_path, capsys):
     assert doc["train_runs"] == [a.name, b.name] and doc["test_runs"] == [c.name]
     assert doc["segments"] == {"train": 10, "test": 5}
     assert doc["findings"] == []
+    # nothing found: the nearest candidate is reported with its size, its gain insignificant
+    best = doc["best_candidate"]
+    assert best["effect"] in ("cubic_stiffness", "coulomb_friction")
+    assert best["gain"] == pytest.approx(doc["baseline"]["rms_error"] / best["held_out_error"])
+    assert best["gain"] < 1.05
     dep = doc["amplitude_dependence"]
     assert [lv["level"] for lv in dep["levels"]] == [a.name, b.name, c.name]
     # the independent rig is linear: 17.9 kg, 788 kN/m -> 33.4 Hz at every level
@@ -180,11 +185,21 @@ def test_cli_train_runs_test_runs(level_runs, tmp_path, capsys):
         assert lv["natural_frequency_hz"] == pytest.approx(33.40, rel=0.01)
     assert dep["natural_frequency_trend"]["x"]["verdict"] == "none"
     assert dep["damping_trend"]["x"]["verdict"] == "none"
+    # the modal fit: one mode per level (5 dwell frequencies cannot carry two), the same mode
+    modes = doc["modes"]
+    assert modes["modes_per_axis"] == {"x": 1} == doc["baseline"]["modes_in_band_per_axis"]
+    assert [lv["level"] for lv in modes["levels"]] == [a.name, b.name, c.name]
+    for lv in modes["levels"]:
+        assert lv["modes"][0]["natural_frequency_hz"] == pytest.approx(33.40, rel=0.01)
+    assert modes["tracks"][0]["natural_frequency_trend"]["verdict"] == "none"
     page = (rep / "index.html").read_text()
     assert "Amplitude dependence" in page and "amplitude.png" in page
+    assert "Modes in the band" in page
     assert (rep / "amplitude.png").read_bytes()[:4] == b"\x89PNG"
-    assert "amplitude dependence: x: natural frequency level-independent" in \
-        capsys.readouterr().out
+    out_text = capsys.readouterr().out
+    assert "amplitude dependence: x: natural frequency level-independent" in out_text
+    assert "modes in the band: x: 1 mode (33.4" in out_text
+    assert f"  best candidate: {best['effect']} (" in out_text
 
 
 @pytest.mark.parametrize(("args", "message"), [

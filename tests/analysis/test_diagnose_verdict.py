@@ -162,3 +162,10 @@ def test_a_refinement_is_a_minor_term_on_a_model_that_already_explains_the_signa
     assert not refinement_share(fit(14.4), fit(13.0))[0]  # 7 % of the signal left before
     assert not refinement_share(fit(0.73, noise_mv=0.1), fit(0.40, noise_mv=0.1))[0]  # 7x noise
     assert refinement_share(fit(0.14, noise_mv=0.1), fit(0.125, noise_mv=0.1))[0]
+    # on dwells the term's signature against their own noise decides, not the share: removing
+    # 36 % of the remainder is a cause at 5 sd, a refinement below; 97 % below 5 sd refines
+    assert refinement_share(fit(0.40), fit(0.32), signature_sd=4.99)[0]
+    assert not refinement_share(fit(0.40), fit(0.32), signature_sd=5.0)[0]
+    assert refinement_share(fit(0.73), fit(0.73 / 6.4), signature_sd=3.0)[0]
+    # the other conditions hold either way: 7 % of the signal left before is no refinement
+    assert not refinement_share(fit(14.4), fit(13.0), signature_sd=0.0)[0]
