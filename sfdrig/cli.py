@@ -72,6 +72,8 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             code = 130
+        except BrokenPipeError:
+            raise  # answered below, as the closed pipe it is
         except Exception as err:  # a defect: one line here, the traceback in a file
             code = _unexpected(argv[0] if argv else "", err)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush

@@ -80,9 +80,21 @@ class CommandClient:
         self._ctx = context or zmq.Context.instance()
         self._keys = keys
         self._sock = self._connect()
-        self._monitor: zmq.Socket | None = self._sock.get_monitor_socket(
-            zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
-        ) if keys is not None else None
+        try:
+            self._monitor: zmq.Socket | None = self._watch(self._sock) \
+                if keys is not None else None
+        except zmq.ZMQError:
+            self._sock.close(0)
+            raise
+
+    @staticmethod
+    def _watch(sock: zmq.Socket) -> zmq.Socket:
+        """A monitor of ``sock``'s refused handshakes, on an inproc address of its own:
+        pyzmq's default names it after the socket's file descriptor, which a new socket may
+        reuse while the old monitor is still being torn down ('Address already in use')."""
+        return sock.get_monitor_socket(
+            zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL,
+            addr=f"inproc://sfdrig-client-monitor-{uuid.uuid4().hex}")
 
     def _connect(self) -> zmq.Socket:
         sock = self._ctx.socket(zmq.DEALER)
@@ -151,13 +163,13 @@ class CommandClient:
     def _timed_out(self, refused: bool = False) -> NoReturn:
         refused = refused or self._auth_refused()
         # A DEALER would deliver the stale request later: start afresh.
+        if self._monitor is not None:
+            self._sock.disable_monitor()
+            self._monitor.close(0)
         self._sock.close(0)
         self._sock = self._connect()
         if self._monitor is not None:
-            self._monitor.close(0)
-            self._monitor = self._sock.get_monitor_socket(
-                zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
-            )
+            self._monitor = self._watch(self._sock)
         if refused:
             raise DaemonUnavailable(
                 f"{self.endpoint}: the daemon refused this client's CURVE key (not authorised)"
