@@ -44,6 +44,18 @@ M_ARENA_MAX = -8
 DEFAULT_MMAP_THRESHOLD = 128 * 1024  # glibc's own starting value [bytes]
 
 
+def _mallopt(param: int, value: int) -> bool | None:
+    """glibc's ``mallopt(param, value)``: True if taken, False if refused, None without glibc."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return None
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    mallopt.restype = ctypes.c_int
+    return bool(mallopt(param, value) == 1)
+
+
 def pin_mmap_threshold(nbytes: int = DEFAULT_MMAP_THRESHOLD) -> str:
     """Fix glibc's mmap threshold at ``nbytes`` for this process (which also stops the dynamic
     heap trim threshold); returns what was done, for the log. Does nothing when the C library
@@ -52,14 +64,10 @@ def pin_mmap_threshold(nbytes: int = DEFAULT_MMAP_THRESHOLD) -> str:
     env = os.environ.get("MALLOC_MMAP_THRESHOLD_")
     if env is not None:
         return f"malloc: MALLOC_MMAP_THRESHOLD_={env} (environment)"
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
+    taken = _mallopt(M_MMAP_THRESHOLD, int(nbytes))
+    if taken is None:
         return "malloc: not glibc, mmap threshold left as it is"
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    mallopt.restype = ctypes.c_int
-    if mallopt(M_MMAP_THRESHOLD, int(nbytes)) != 1:
+    if not taken:
         log.warning("mallopt(M_MMAP_THRESHOLD, %d) refused", nbytes)
         return "malloc: mmap threshold could not be fixed"
     return f"malloc: mmap threshold fixed at {nbytes // 1024} KiB"
@@ -72,14 +80,10 @@ def limit_arenas(n: int = 1) -> str:
     env = os.environ.get("MALLOC_ARENA_MAX")
     if env is not None:
         return f"malloc: MALLOC_ARENA_MAX={env} (environment)"
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
+    taken = _mallopt(M_ARENA_MAX, int(n))
+    if taken is None:
         return "malloc: not glibc, arenas left as they are"
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    mallopt.restype = ctypes.c_int
-    if mallopt(M_ARENA_MAX, int(n)) != 1:
+    if not taken:
         log.warning("mallopt(M_ARENA_MAX, %d) refused", n)
         return "malloc: arena count could not be limited"
     return f"malloc: at most {n} arena(s)"

@@ -5,10 +5,8 @@ sample-rate coercion, and refusals as DaqError with the board's code."""
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
 
 import grpc
-import nidaqmx
 import numpy as np
 import pytest
 from nidaqmx.constants import AcquisitionType, LineGrouping, RegenerationMode
@@ -18,24 +16,9 @@ from daq import default_channel_map
 from rig_model import RigParams
 from simulated_hw.grpc_server import SimulatedDeviceServer
 from tests.simulated_hw.fake_clock import FakeClock as _Clock
+from tests.simulated_hw.grpc_board import task_on
 
-
-@pytest.fixture
-def clock() -> _Clock:
-    return _Clock()
-
-
-@pytest.fixture
-def paced(clock: _Clock) -> Iterator[grpc.Channel]:
-    """A paced board on a clock the test moves (a read or a wait moves it)."""
-    with SimulatedDeviceServer(seed=4, clock=clock.now, sleep=clock.sleep) as srv:
-        ch = grpc.insecure_channel(srv.address)
-        yield ch
-        ch.close()
-
-
-def _task(channel: grpc.Channel) -> nidaqmx.Task:
-    return nidaqmx.Task(grpc_options=nidaqmx.GrpcSessionOptions(channel, ""))
+_task = task_on  # clock and paced: tests/simulated_hw/conftest.py
 
 
 def _first_and_steady(channel: grpc.Channel, clock: _Clock, held_s: float) -> tuple[float, float]:

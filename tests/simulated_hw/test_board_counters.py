@@ -5,34 +5,17 @@ pulses are generated on the counter timebase and end when the board's would."""
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
 
 import grpc
-import nidaqmx
 import pytest
 from nidaqmx.constants import READ_ALL_AVAILABLE, AcquisitionType, Level
 from nidaqmx.errors import DaqError
 
 from simulated_hw.board.counters import coerced
-from simulated_hw.grpc_server import SimulatedDeviceServer
 from tests.simulated_hw.fake_clock import FakeClock
+from tests.simulated_hw.grpc_board import task_on
 
-
-@pytest.fixture
-def clock() -> FakeClock:
-    return FakeClock()
-
-
-@pytest.fixture
-def paced(clock: FakeClock) -> Iterator[grpc.Channel]:
-    with SimulatedDeviceServer(seed=4, clock=clock.now, sleep=clock.sleep) as srv:
-        ch = grpc.insecure_channel(srv.address)
-        yield ch
-        ch.close()
-
-
-def _task(channel: grpc.Channel) -> nidaqmx.Task:
-    return nidaqmx.Task(grpc_options=nidaqmx.GrpcSessionOptions(channel, ""))
+_task = task_on  # clock and paced: tests/simulated_hw/conftest.py
 
 
 def test_an_edge_count_with_nothing_wired_stays_at_its_initial_count(

@@ -4,8 +4,6 @@ the board's -200284 after their timeout, and nothing is generated."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import grpc
 import nidaqmx
 import numpy as np
@@ -13,25 +11,10 @@ import pytest
 from nidaqmx.constants import READ_ALL_AVAILABLE, AcquisitionType
 from nidaqmx.errors import DaqError
 
-from simulated_hw.grpc_server import SimulatedDeviceServer
 from tests.simulated_hw.fake_clock import FakeClock
+from tests.simulated_hw.grpc_board import task_on
 
-
-@pytest.fixture
-def clock() -> FakeClock:
-    return FakeClock()
-
-
-@pytest.fixture
-def paced(clock: FakeClock) -> Iterator[grpc.Channel]:
-    with SimulatedDeviceServer(seed=4, clock=clock.now, sleep=clock.sleep) as srv:
-        ch = grpc.insecure_channel(srv.address)
-        yield ch
-        ch.close()
-
-
-def _task(channel: grpc.Channel) -> nidaqmx.Task:
-    return nidaqmx.Task(grpc_options=nidaqmx.GrpcSessionOptions(channel, ""))
+_task = task_on  # clock and paced: tests/simulated_hw/conftest.py
 
 
 def _ai(channel: grpc.Channel, mode: AcquisitionType = AcquisitionType.FINITE) -> nidaqmx.Task:

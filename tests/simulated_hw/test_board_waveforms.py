@@ -4,36 +4,19 @@ timing (t0 on the wall clock, dt the sample clock's period) and channel names.""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 
 import grpc
-import nidaqmx
 import numpy as np
 import pytest
 from nidaqmx.constants import AcquisitionType, LineGrouping
 from nidaqmx.errors import DaqError
 from nitypes.waveform import AnalogWaveform, DigitalWaveform
 
-from simulated_hw.grpc_server import SimulatedDeviceServer
 from tests.simulated_hw.fake_clock import FakeClock
+from tests.simulated_hw.grpc_board import task_on
 
-
-@pytest.fixture
-def clock() -> FakeClock:
-    return FakeClock()
-
-
-@pytest.fixture
-def paced(clock: FakeClock) -> Iterator[grpc.Channel]:
-    with SimulatedDeviceServer(seed=4, clock=clock.now, sleep=clock.sleep) as srv:
-        ch = grpc.insecure_channel(srv.address)
-        yield ch
-        ch.close()
-
-
-def _task(channel: grpc.Channel) -> nidaqmx.Task:
-    return nidaqmx.Task(grpc_options=nidaqmx.GrpcSessionOptions(channel, ""))
+_task = task_on  # clock and paced: tests/simulated_hw/conftest.py
 
 
 def test_an_analog_waveform_written_is_what_the_terminal_then_reads(paced: grpc.Channel,
