@@ -56,18 +56,19 @@ function drawTraces(tr, status) {
   const dispLimit = safety.displacement_limit_m ? safety.displacement_limit_m * 1e6 : null;
   const limits = { force: safety.load_limit_n, drive: safety.drive_limit_v, disp: dispLimit };
   const peakOf = (data) => data.reduce((m, d) => d.reduce((a, v) => Math.max(a, Math.abs(v)), m), 0);
-  const withLimit = (key, names, data) => {
+  const withLimit = (key, names, data, peak) => {
     const lim = limits[key];
-    if (!lim || (key === "disp" && peakOf(data) < 0.25 * lim)) return [names, data];
+    if (!lim || (key === "disp" && peak < 0.25 * lim)) return [names, data];
     return [names.concat(["+ trip", "- trip"]), data.concat([tr.t_ms.map(() => lim), tr.t_ms.map(() => -lim)])];
   };
   for (const [key, el, pick, scale, yLabel] of GROUPS) {
     const picked = Object.keys(tr.channels).filter((n) => pick(n, units[n]));
-    const [names, data] = withLimit(key, picked, picked.map((n) => tr.channels[n].map((v) => v * scale)));
+    const traces = picked.map((n) => tr.channels[n].map((v) => v * scale));
+    const peak = key === "disp" ? peakOf(traces) : null;  // once a frame, for the line and the words
+    const [names, data] = withLimit(key, picked, traces, peak);
     const u = ensurePlot(key, el, names, lineOpts("time [ms]", names, w, 190, yLabel));
     u.setData([tr.t_ms].concat(data));
     if (key === "disp") {
-      const peak = peakOf(data.slice(0, picked.length));
       $("disp-info").textContent = dispLimit
         ? `trip at ${fmt(dispLimit, 1)} um (orbit radius): largest here ${fmt(peak, 2)} um, ` +
           `${fmt(100 * peak / dispLimit, 0)} % of it` + (peak < 0.25 * dispLimit ? " (trip lines drawn from 25 %)" : "")
