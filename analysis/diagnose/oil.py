@@ -21,35 +21,43 @@ import numpy as np
 
 from analysis.diagnose.data import RunRecord
 
-#: degree of the polynomial in time the oil temperature is smoothed with: a temperature
-#: follows heating and losses with time constants of minutes, so over one record it bends
-#: at most a few times, and the fit keeps its noise out of the film's damping
-SMOOTH_DEGREE = 3
+#: blocks a record's oil temperature is averaged over: a temperature follows heating and
+#: losses with time constants of minutes, so a 64th of a record resolves its course, and each
+#: block's mean keeps the channel's noise out of the film's damping
+SMOOTH_BLOCKS = 64
 
 
 @dataclass(frozen=True)
 class Smoothed:
-    """A record's oil temperature as a polynomial in its time, and the standard deviation of
-    the polynomial at the record's ends (from the scatter it leaves)."""
+    """A record's oil temperature smoothed: block means at their centres [s] (the ends
+    extrapolated linearly from the first and last two), and the standard deviation of the
+    course at the record's ends (from the scatter about it)."""
 
-    poly: np.polynomial.Polynomial
+    times_s: np.ndarray
+    temps_c: np.ndarray
     end_sd_c: float
 
     def at(self, t_s: np.ndarray) -> np.ndarray:
-        return np.asarray(self.poly(t_s), dtype=np.float64)
+        return np.interp(t_s, self.times_s, self.temps_c)
 
 
 def smoothed_temperature(rec: RunRecord) -> Smoothed | None:
-    """The record's oil temperature smoothed (None: not recorded)."""
-    if rec.t_oil_c is None or rec.t_oil_c.size < 2 * (SMOOTH_DEGREE + 1):
+    """The record's oil temperature smoothed (None: not recorded, or too short to smooth)."""
+    temp = rec.t_oil_c
+    blocks = min(SMOOTH_BLOCKS, 0 if temp is None else temp.size // 16)
+    if temp is None or blocks < 2:
         return None
-    t = np.arange(rec.t_oil_c.size) / rec.sample_rate_hz
-    poly = np.polynomial.Polynomial.fit(t, rec.t_oil_c, SMOOTH_DEGREE)
-    scatter = float(np.std(rec.t_oil_c - poly(t), ddof=SMOOTH_DEGREE + 1))
-    # a least-squares polynomial of degree d is known at the ends of its span (d + 1)^2 / n
-    # times the scatter's variance (the ends' leverage)
-    end_sd = scatter * (SMOOTH_DEGREE + 1) / math.sqrt(rec.t_oil_c.size)
-    return Smoothed(poly, end_sd)
+    per = temp.size // blocks
+    means = temp[:blocks * per].reshape(blocks, per).mean(axis=1)
+    centres = (np.arange(blocks) * per + 0.5 * (per - 1)) / rec.sample_rate_hz
+    t_end = (temp.size - 1) / rec.sample_rate_hz
+    first = means[0] - (means[1] - means[0]) * centres[0] / (centres[1] - centres[0])
+    last = means[-1] + (means[-1] - means[-2]) * (t_end - centres[-1]) / (centres[-1] - centres[-2])
+    course = Smoothed(np.concatenate([[0.0], centres, [t_end]]),
+                      np.concatenate([[first], means, [last]]), 0.0)
+    scatter = float(np.std(temp - course.at(np.arange(temp.size) / rec.sample_rate_hz)))
+    # an end extrapolated half a block from two block means: 1.5 m1 - 0.5 m2
+    return Smoothed(course.times_s, course.temps_c, scatter * math.sqrt(2.5 / per))
 
 
 def mean_temperature(records: list[RunRecord]) -> float | None:
