@@ -10,7 +10,7 @@ import pytest
 
 from analysis.diagnose.baseline import data_start
 from analysis.diagnose.data import RunRecord, Segment
-from analysis.diagnose.effects import LIBRARY, Context
+from analysis.diagnose.effects import LIBRARY, Context, extended_rig
 from analysis.diagnose.model import Evaluator, Model
 from analysis.diagnose.oil import drift_course, mean_temperature
 from analysis.diagnose.residual_structure import Z_STRUCTURE
@@ -122,3 +122,15 @@ def test_the_film_cross_terms_fitted_are_those_from_a_driven_axis() -> None:
     one_sensor = _context([RunRecord("x only", FS, np.ones((2, n)), {"x": np.zeros(n)},
                                      {"x": 0}, lubricated=True)])
     assert "both axes" in str(eff.applicable(one_sensor))
+
+
+def test_the_extended_rig_warms_from_where_the_drift_starts() -> None:
+    """A film held at 32.64 C (the data's mean) half-way through a -25 % drift over 16 s: the
+    rig the simulator loads starts at 24.0 C and warms 17.28 C over the 16 s (eq. 1)."""
+    rise = -math.log(0.75) / VISCOSITY_SLOPE_PER_C
+    rig = RigParams()
+    held = rig.model_copy(update={"oil": rig.oil.model_copy(
+        update={"initial_temperature_c": 24.0 + 0.5 * rise, "warming_c_per_hour": 0.0})})
+    ext = extended_rig(Model(held, visc_relative_change=-0.25), 16.0, drift_anchor=0.5)
+    assert ext.oil.initial_temperature_c == pytest.approx(24.0, abs=1e-9)
+    assert ext.effects.viscosity_drift.warming_c_per_s * 16.0 == pytest.approx(rise, rel=1e-9)
