@@ -95,7 +95,8 @@ def data_start(records: list[RunRecord], train: list[Segment], base_rig: RigPara
     A frequency-domain fit of the dynamic stiffness per axis (``start.py``), the film's known
     added mass and centred damping taken off when the runs are lubricated; the equation-error
     ARX estimate where that has too few points. The warm-up before each replayed segment covers
-    four decay times of the estimated mode (at least 0.5 s, at most 30 s), so a lightly damped
+    four decay times of the estimated mode, the film's damping and mass included (at least
+    0.5 s, at most 30 s), so a lightly damped
     structure has forgotten its start from rest before it is scored.
     """
     film = base_rig.film
@@ -106,12 +107,13 @@ def data_start(records: list[RunRecord], train: list[Segment], base_rig: RigPara
     est = {ax: one_mode_estimate(records, train, ax, d_mass, d_damp) for ax in (0, 1)}
     st = base_rig.structure
     x, y = est[0], est[1]
+    whole_mode = False  # the estimate holds the film's share (ARX), or not (taken off)
     if x is None and y is None:
         try:
             m_kg, c, k, _ = arx_linear_guess(records[0], train)
         except ValueError as err:
             raise DiagnoseError(f"cannot start the fitted baseline: {err}") from None
-        x = OneMode(m_kg, c, k, 0)
+        x, whole_mode = OneMode(m_kg, c, k, 0), True
         notes.append("fitted baseline started from an equation-error (ARX) estimate")
     first = x if x is not None else y
     assert first is not None
@@ -122,7 +124,13 @@ def data_start(records: list[RunRecord], train: list[Segment], base_rig: RigPara
         update["residual_damping_ns_per_m"] = 0.02 * 2 * math.sqrt(
             first.stiffness_n_per_m * first.mass_kg)
     model = Model(rig=base_rig.model_copy(update={"structure": st.model_copy(update=update)}))
-    tau = first.decay_time_s()
+    # the mode decays with all its damping and mass, the film's too: the structure's share
+    # alone (nothing, where warm oil leaves the film below its nominal damping) would give a
+    # warm-up of 30 s, and with it a fit on 2 of 11 dwells
+    whole = first if whole_mode else OneMode(first.mass_kg + d_mass,
+                                             first.damping_ns_per_m + d_damp,
+                                             first.stiffness_n_per_m, first.points)
+    tau = whole.decay_time_s()
     warmup = float(min(30.0, max(0.5, 4 * tau)))
     say(f"start from the data: {first.natural_hz:.4g} Hz, damping ratio "
         f"{first.damping_ratio:.3g}, warm-up {warmup:.3g} s")
@@ -177,7 +185,7 @@ def choose_order(pb: Problem, ctx: Context, one: Baseline, band: tuple[float, fl
             rows.append(two_row)
             if two is not None:
                 chosen, chosen_row = two, two_row
-    coupled, coupled_row = _coupled_axes(pb, chosen, rules, say)
+    coupled, coupled_row = _coupled_axes(pb, ctx, chosen, rules, say)
     rows.append(coupled_row)
     if coupled is not None:
         chosen, chosen_row = coupled, coupled_row
@@ -254,7 +262,7 @@ def _two_modes(pb: Problem, ctx: Context, one: Baseline, rules: _Rules,
     return _with_residuals(pb, two.fit.model, one.free + var.params, []), row
 
 
-def _coupled_axes(pb: Problem, base: Baseline, rules: _Rules,
+def _coupled_axes(pb: Problem, ctx: Context, base: Baseline, rules: _Rules,
                   say: Any) -> tuple[Baseline | None, dict[str, Any]]:
     """The baseline ``base`` with its axes coupled by a structural cross stiffness if chosen
     (None: uncoupled), and its row in the order table.
@@ -263,7 +271,9 @@ def _coupled_axes(pb: Problem, base: Baseline, rules: _Rules,
     y), unlike the film's cross-coupled damping and mass (the library's ``cross_coupling``),
     which is why it belongs to the baseline and is judged here, before any effect. It is
     fitted with every parameter of ``base``, from 0 and from +-5 % of the mean axis stiffness,
-    within the bound no rod set reaches, |k_xy| < sqrt(K_x K_y).
+    within the bound no rod set reaches, |k_xy| < sqrt(K_x K_y). Any coupling beats none
+    where the other axis answers, so on a film the rods' k_xy is chosen only where it explains
+    the held-out data better than the film's cross terms would (``_film_couples_better``).
     """
     modes = 2 if base.model.rig.effects.second_mode.enabled else 1
     row: dict[str, Any] = {"modes_per_axis": modes, "coupled_axes": True}
@@ -290,6 +300,8 @@ def _coupled_axes(pb: Problem, base: Baseline, rules: _Rules,
         say(f"baseline order: axes uncoupled (coupled {failed})")
         return None, {**row, "not_chosen": failed}
     judged, why = _judged(pb, base, cand, rules)
+    if why is None:
+        why = _film_couples_better(pb, ctx, base, cand.test_rms)
     lo, hi = judged["gain_interval"]
     say(f"baseline order: axes {'coupled' if why is None else 'uncoupled'} (coupled: k_xy "
         f"{k_xy.get(res.model):.4g} N/m, held-out {cand.test_rms:.4g}, gain "
@@ -297,8 +309,40 @@ def _coupled_axes(pb: Problem, base: Baseline, rules: _Rules,
         f"{time.process_time() - t0:.1f} s CPU, {res.nfev} evaluations)")
     row.update(judged)
     if why is not None:
+        row["not_chosen"] = why
         return None, row
     return _with_residuals(pb, res.model, base.free + var.params, []), row
+
+
+def _film_couples_better(pb: Problem, ctx: Context, base: Baseline,
+                         coupled_rms: float) -> str | None:
+    """Why the rods' coupling is not chosen (None: it is): the film's cross terms (the
+    library's ``cross_coupling``, fitted as the coupling is, with every parameter of
+    ``base``) explain the held-out data at least as well as k_xy (held-out RMS
+    ``coupled_rms``). Not tried where the library's term cannot be fitted (no film)."""
+    eff = LIBRARY["cross_coupling"]
+    if eff.applicable(ctx) is not None:
+        return None
+    best: Candidate | None = None
+    for var in eff.variants(ctx, base.model):
+        k = len(base.free) + len(var.params)
+        try:
+            res = fit(pb.ev, var.starts, base.free + var.params, pb.fit_train, pb.scale_m,
+                      step=pb.step, max_nfev=20 * (k + 1))
+            cand = judge_candidate(pb, eff.id, var, res, len(base.free))
+        except Exception as err:
+            if fit_failure(err) is None:
+                raise
+            continue
+        if best is None or cand.test_rms < best.test_rms:
+            best = cand
+    if best is None or best.test_rms > coupled_rms:
+        return None
+    sizes = ", ".join(f"{k} {v:.4g}" for k, v in parameters_of(best.variant, best.fit.model)
+                      .items())
+    return (f"the film's cross terms ({sizes}) explain the held-out data as well or better "
+            f"(held-out {best.test_rms:.4g} against {coupled_rms:.4g}): a cause for the "
+            "library, not the rods")
 
 
 def _why_not_coupled(records: list[RunRecord]) -> str | None:

@@ -14,7 +14,8 @@ quadratic_stiffness         k2_N_per_m2 (F = k2 z^2 per axis)
 amplitude_dependent_damping clearance_m: the c in the film's eccentricity law
                             (1 + 2 eps^2) / (1 - eps^2)^2, eps = |r| / c, centred damping held
 added_mass                  added_mass_kg (mass added to the configured structure mass)
-cross_coupling              c_xy_Ns_per_m, c_yx_Ns_per_m, d_xy_kg, d_yx_kg (film cross terms)
+cross_coupling              c_xy_Ns_per_m, c_yx_Ns_per_m, d_xy_kg, d_yx_kg (film cross terms;
+                            fitted: those from a driven axis into the other)
 second_mode                 frequency_hz, modal_mass_kg (the frame as a second mass-spring)
 joint_microslip             mode, slip_force_N, stiffness_N_per_m (a Dahl micro-slip element
                             beside the spring of a mode: the housing's, or the frame's once a
@@ -22,7 +23,8 @@ joint_microslip             mode, slip_force_N, stiffness_N_per_m (a Dahl micro-
                             stiffness up to half of it, so at small motion the model is
                             unchanged, and stays positive however stiff the joint: a seal
                             stiffer than the rods is in the family)
-viscosity_drift             relative_change (film damping, end of data / start - 1)
+viscosity_drift             relative_change (film damping, end of data / start - 1), following
+                            the recorded oil temperature where it changes (eq. 1), else time
 sensor_gain                 channel, gain_ratio (recorded / true)
 channel_delay               channel, delay_s
 air_entrainment             coefficient_s_per_m (L_eff = L (1 - k mean|v|))
@@ -37,8 +39,10 @@ from typing import Any
 
 import numpy as np
 
-from analysis.diagnose.data import RunRecord
+from analysis.diagnose.data import RunRecord, driven_axes
 from analysis.diagnose.model import Model, Param, get_path, set_path
+from analysis.diagnose.oil import drift_course
+from analysis.diagnose.residual_structure import Z_STRUCTURE
 from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
 
 
@@ -60,7 +64,15 @@ class Context:
 
     @property
     def two_axes(self) -> bool:
-        return any(len(r.axes) == 2 and np.any(r.force_n[1] != 0) for r in self.records)
+        """Some run measures a response on both axes (a cross term shows in the response of
+        the axis it couples into)."""
+        return any({ax for ax, _ in r.objective_channels().values()} >= {0, 1}
+                   for r in self.records)
+
+    def driven_axes(self) -> set[int]:
+        """The axes some run drives (``data.driven_axes``: a load cell's noise on an axis
+        nobody drives does not count)."""
+        return set().union(*(driven_axes(r) for r in self.records))
 
     def redundant_channels(self) -> list[str]:
         """Objective channels (probes, accelerometers, velocity sensors) that share their axis
@@ -212,14 +224,19 @@ def _added_mass(ctx: Context, m: Model) -> list[Variant]:
 
 
 def _cross(ctx: Context, m: Model) -> list[Variant]:
+    """The film's cross terms the data can show: those from a driven axis into the other
+    (C_yx, D_yx where x is driven: y's response to x's motion). The terms back from an
+    undriven axis act only through its small coupled motion; fitted beside the others they are
+    nearly free (a 43 kN.s/m C_xy on x-only dwells), so they stay as they are."""
     c0 = ctx.base.rig.film.eq16_damping_centred(ctx.base.rig.film.reference_viscosity()[0])
     d0 = max(ctx.base.rig.film.added_mass(), 1.0)
-    ps = [
-        _effect_param("c_xy_Ns_per_m", "effects.cross_coupling.c_xy_ns_per_m", 0.1 * c0),
-        _effect_param("c_yx_Ns_per_m", "effects.cross_coupling.c_yx_ns_per_m", 0.1 * c0),
-        _effect_param("d_xy_kg", "effects.cross_coupling.d_xy_kg", 0.1 * d0),
-        _effect_param("d_yx_kg", "effects.cross_coupling.d_yx_kg", 0.1 * d0),
-    ]
+    into = {0: ("c_yx_Ns_per_m", "d_yx_kg"), 1: ("c_xy_Ns_per_m", "d_xy_kg")}
+    names = [n for ax in sorted(ctx.driven_axes()) for n in into[ax]]
+    path = {"c_xy_Ns_per_m": "c_xy_ns_per_m", "c_yx_Ns_per_m": "c_yx_ns_per_m",
+            "d_xy_kg": "d_xy_kg", "d_yx_kg": "d_yx_kg"}
+    ps = [_effect_param(n, f"effects.cross_coupling.{path[n]}",
+                        0.1 * (c0 if n.startswith("c_") else d0))
+          for n in sorted(names, key=list(path).index)]
     return [Variant({}, ps, [ps[0].set(m, ps[0].get(m))])]
 
 
@@ -313,7 +330,9 @@ def _joint(ctx: Context, m: Model) -> list[Variant]:
 def _visc_drift(ctx: Context, m: Model) -> list[Variant]:
     p = Param("relative_change", lambda mm: mm.visc_relative_change,
               lambda mm, v: replace(mm, visc_relative_change=float(v)), 0.05, -0.9, 10.0)
-    return [Variant({}, [p], [m])]
+    # the course it follows: the recorded oil temperature where it changes, else time
+    follows = drift_course(ctx.records, Z_STRUCTURE).describe()
+    return [Variant({"follows": follows}, [p], [m])]
 
 
 def _channel_param(name: str, attr: str, ch: str, default: float, scale: float, lo: float,
@@ -362,7 +381,9 @@ def _needs_config_mass(ctx: Context) -> str | None:
 
 def _needs_two_axes_film(ctx: Context) -> str | None:
     if not ctx.two_axes:
-        return "needs motion and force on both axes"
+        return "needs a response measured on both axes (a sensor on x and one on y)"
+    if not ctx.driven_axes():
+        return "no axis is driven"
     return _needs_film(ctx)
 
 
@@ -438,12 +459,14 @@ def parameters_of(variant: Variant, model: Model) -> dict[str, Any]:
     return out
 
 
-def extended_rig(model: Model, duration_s: float) -> RigParams:
+def extended_rig(model: Model, duration_s: float, drift_anchor: float = 0.0) -> RigParams:
     """The rig configuration the simulator loads: model terms written into ``RigParams``.
 
     Measurement terms become ``effects.probe_gain_error`` / ``effects.channel_delay`` (one
     channel each, as the simulator supports); a viscosity drift becomes the warming rate that
-    gives the same damping change over ``duration_s`` through eq. 1.
+    gives the same damping change over ``duration_s`` through eq. 1, from the temperature
+    ``drift_anchor`` of the drift before the model's own (``Evaluator.drift_anchor``: a film
+    held at the data's mean temperature is half-way through a steady warming).
     """
     data = model.rig.model_dump(mode="python")
     eff = data["effects"]
@@ -458,4 +481,5 @@ def extended_rig(model: Model, duration_s: float) -> RigParams:
         prev = eff["viscosity_drift"]["warming_c_per_s"] if eff["viscosity_drift"]["enabled"] \
             else 0.0
         eff["viscosity_drift"] = {"enabled": True, "warming_c_per_s": prev + rate}
+        data["oil"]["initial_temperature_c"] -= drift_anchor * rate * duration_s
     return RigParams.model_validate(data)

@@ -96,6 +96,7 @@ from analysis.diagnose.fitting import (
 from analysis.diagnose.hysteresis import amplitude_levels, joint_table
 from analysis.diagnose.model import Evaluator, Model, Residuals, residuals
 from analysis.diagnose.modes import Modes, modal_dependence
+from analysis.diagnose.oil import drift_course, mean_temperature
 from analysis.diagnose.residual_structure import (
     Z_STRUCTURE,
     excess_chi2,
@@ -307,7 +308,7 @@ def diagnose(
     modes = modal_dependence(records, train + test)
     say(f"modes in the band: {modes.text}")
     _more_modes_than_the_baseline(modes, base.model, notes)
-    ext = extended_rig(search.model, ev.duration_s)
+    ext = extended_rig(search.model, ev.duration_s, ev.drift_anchor(search.model))
     if imported:
         ext = ext.model_copy(update={"substeps": int(min(32, max(oversample.values())))})
     return Diagnosis(
@@ -364,18 +365,24 @@ def _replay_rig(records: list[RunRecord], rig: RigParams | None, imported: bool,
         # imported data without a rig description: no seal; the film as the run file says
         # (its lubricated flag), linear (its centred damping and added mass: the eccentricity
         # law is the library's amplitude_dependent_damping, for the data to show, not a
-        # prior of the baseline), the oil at a constant temperature; force interpolated
-        # between samples (see model.py)
+        # prior of the baseline), the oil at a constant temperature: the mean it was recorded
+        # at, where it was (eq. 1 gives the film's viscosity; a drift over the data is the
+        # library's viscosity_drift); force interpolated between samples (see model.py)
+        oil = {"warming_c_per_hour": 0.0}
+        if (t_oil := mean_temperature(records)) is not None:
+            oil["initial_temperature_c"] = t_oil
         base_rig = base_rig.model_copy(update={
             "seal": base_rig.seal.model_copy(update={"enabled": False}),
             "film": base_rig.film.model_copy(update={"eccentricity_law": False}),
-            "oil": base_rig.oil.model_copy(update={"warming_c_per_hour": 0.0})})
+            "oil": base_rig.oil.model_copy(update=oil)})
         for i, r in enumerate(records):
             oversample[i] = int(min(32, max(1, math.ceil(4000.0 / r.sample_rate_hz))))
         films = sorted({"linear film on (lubricated)" if r.lubricated else "film off (dry)"
                         for r in records})
-        notes.append(f"imported data without a rig description: seal off, {', '.join(films)}; "
-                     f"force oversampled x{oversample[0]} for the replay")
+        held = (f"; the oil held at {t_oil:.4g} C, its recorded mean" if t_oil is not None
+                else "")
+        notes.append(f"imported data without a rig description: seal off, {', '.join(films)}"
+                     f"{held}; force oversampled x{oversample[0]} for the replay")
     rates = {r.sample_rate_hz for r in records}
     if len(rates) > 1:
         notes.append(f"runs at different sample rates {sorted(rates)}")
@@ -401,7 +408,8 @@ def _evaluator(records: list[RunRecord], train: list[Segment], warmup_s: float,
     # sensors of different quantities (probe, accelerometer) weighed by their noise
     weights = ra.noise_weights(records, ra.channel_noise(records, train, without_dwells=True))
     ev = Evaluator(records, warmup_s=warmup_s, oversample=oversample,
-                   steady_state_dwells=steady, weights=weights)
+                   steady_state_dwells=steady, weights=weights,
+                   drift=drift_course(records, Z_STRUCTURE))
     if weights:
         notes.append("fitted to every response channel, weighted by its noise (factor to "
                      "displacement-equivalent: " + ", ".join(

@@ -37,6 +37,7 @@ import numpy as np
 from scipy.signal import resample_poly
 
 from analysis.diagnose.data import RunRecord, Segment
+from analysis.diagnose.oil import DriftCourse
 from rig_model import physics
 from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
 from rig_model.rig import simulate_response
@@ -115,13 +116,18 @@ class Evaluator:
         Per run index: the force oversampling factor (1: replay at the run's rate).
     weights : dict of str -> float
         Per objective channel: the factor applied to its residual (`noise_weights`).
+    drift : DriftCourse or None
+        What a viscosity drift follows (``oil.drift_course``: the recorded oil temperature or
+        time); None: time.
     """
 
     def __init__(self, records: list[RunRecord], warmup_s: float = 0.5,
                  oversample: dict[int, int] | None = None,
                  steady_state_dwells: bool = False,
-                 weights: dict[str, float] | None = None) -> None:
+                 weights: dict[str, float] | None = None,
+                 drift: DriftCourse | None = None) -> None:
         self.records = records
+        self.drift = drift or DriftCourse((), None, None)
         #: channel -> factor to displacement-equivalent units (absent: 1)
         self.weights = dict(weights or {})
         self.warmup_s = warmup_s
@@ -182,7 +188,8 @@ class Evaluator:
     def _fill(self, rec: RunRecord) -> float:
         return 1.0 if rec.lubricated else 0.0
 
-    def _viscosity_scale(self, model: Model, rec: RunRecord, a: int, b: int) -> np.ndarray:
+    def _viscosity_scale(self, model: Model, run: int, a: int, b: int) -> np.ndarray:
+        rec = self.records[run]
         t = np.arange(a, b) / rec.sample_rate_hz
         oil = model.rig.oil
         _, t_ref = model.rig.film.reference_viscosity()
@@ -193,8 +200,13 @@ class Evaluator:
         temp = oil.initial_temperature_c + warming * t
         scale = np.exp(-VISCOSITY_SLOPE_PER_C * (temp - t_ref))
         if model.visc_relative_change != 0.0:
-            scale = scale * (1.0 + model.visc_relative_change) ** (t / self.duration_s)
+            u = self.drift.share(run, t, self.duration_s) - self.drift_anchor(model)
+            scale = scale * (1.0 + model.visc_relative_change) ** u
         return scale
+
+    def drift_anchor(self, model: Model) -> float:
+        """The share of the viscosity drift at which ``model``'s film is (``DriftCourse``)."""
+        return self.drift.model_share(model.rig.oil.initial_temperature_c)
 
     def _window_force(self, run: int, a: int, b: int, lead: int) -> np.ndarray:
         """The measured force of [a, b) with ``lead`` samples of its first whole periods
@@ -217,7 +229,7 @@ class Evaluator:
         rec = self.records[run]
         lead = self._lead(run, a, b)
         force = self._window_force(run, a, b, lead) + np.asarray(model.force_offset_n)[:, None]
-        visc = self._viscosity_scale(model, rec, a, b)
+        visc = self._viscosity_scale(model, run, a, b)
         if lead:
             visc = np.concatenate([np.full(lead, visc[0]), visc])
         up = self.oversample.get(run, 1)
