@@ -38,8 +38,6 @@ WRONG_TODAY: dict[str, str] = {
                   "'explained'",
     "oil_warming": "film damping -25 % with the oil temperature rising 17 degC: no finding, "
                    "'baseline inadequate'",
-    "frame_mode": "a 47 Hz frame: no second_mode; cross_coupling with low confidence, "
-                  "'unexplained discrepancy'",
     "film_cross_coupling": "C_yx 300 N.s/m (y answers x at ~400 sigma): channel_delay on ay "
                            "with low confidence, verdict 'unexplained discrepancy'",
     "bouc_wen_seal": "a Bouc-Wen seal (20 N, 2 MN/m): no finding, 'unexplained discrepancy'",
