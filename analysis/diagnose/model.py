@@ -224,8 +224,11 @@ class Evaluator:
         self.simulations += 1
         if up <= 1:
             tr, _ = simulate_response(force, model.rig, rec.sample_rate_hz, self._fill(rec), visc)
-            xy = np.vstack([tr.x_m, tr.y_m, tr.vx_m_per_s, tr.vy_m_per_s, tr.ax_m_per_s2,
-                            tr.ay_m_per_s2])[:, lead:]
+            # a copy: a view past the lead would keep the whole replay (lead included) alive
+            # in the cache while counting only its own bytes (a 30 s lead before 1 s dwells
+            # held 31x the cache's limit: 12 GB)
+            xy = np.vstack([tr.x_m[lead:], tr.y_m[lead:], tr.vx_m_per_s[lead:],
+                            tr.vy_m_per_s[lead:], tr.ax_m_per_s2[lead:], tr.ay_m_per_s2[lead:]])
         else:
             fup = self._upsampled(run, a, b, up, lead)
             fup = fup + np.asarray(model.force_offset_n)[:, None]

@@ -81,6 +81,36 @@ def test_replay_of_the_simulator_is_exact_without_noise():
     assert res.rms() < 1e-15
 
 
+def test_the_replay_cache_holds_no_more_than_its_limit():
+    """A dwell replayed in steady state after a long lead caches its own samples only: a view
+    past the lead kept the whole replay alive while the cache counted the view's bytes (a
+    30 s lead before 1 s dwells held 31x the limit: 12 GB, the process killed)."""
+    import tracemalloc
+
+    fs, n = 2000.0, 400  # 0.2 s dwell at 20 Hz, 10 s of lead: 50x the dwell
+    t = np.arange(n) / fs
+    force = np.vstack([50 * np.sin(2 * np.pi * 20 * t), np.zeros(n)])
+    rig = RigParams()
+    rec = records_from_arrays(force, {"x": 1e-6 * np.sin(2 * np.pi * 20 * t)}, fs, rig=rig)
+    rec.segments = [Segment(0, 0, n, "dwell", 20.0)]
+    ev = Evaluator([rec], warmup_s=10.0, steady_state_dwells=True)
+    assert ev._lead(0, 0, n) == 20000
+    ev.cache_limit_bytes = 2**20
+    k = rig_param("k", "structure.stiffness_x_n_per_m", 1e4)
+    ev.truth(k.set(Model(rig=rig), 7e5), 0, 0, n)  # the kernel loaded before counting
+    tracemalloc.start()
+    try:
+        for i in range(60):
+            ev.truth(k.set(Model(rig=rig), 8e5 * (1 + 1e-3 * i)), 0, 0, n)
+        held, _ = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert ev.simulations == 61
+    # each replay is 20,400 samples of every kernel output (over 1 MB); 60 views would hold
+    # over 60 MB
+    assert held < 2 * ev.cache_limit_bytes, f"{held / 2**20:.1f} MiB held"
+
+
 def test_bootstrap_is_seeded_and_brackets_the_gain():
     segs = [Segment(0, i, i + 1, f"s{i}") for i in range(12)]
     rng = np.random.default_rng(3)
