@@ -16,7 +16,8 @@ amplitude_dependent_damping clearance_m: the c in the film's eccentricity law
 added_mass                  added_mass_kg (mass added to the configured structure mass)
 cross_coupling              c_xy_Ns_per_m, c_yx_Ns_per_m, d_xy_kg, d_yx_kg (film cross terms;
                             fitted: those from a driven axis into the other)
-second_mode                 frequency_hz, modal_mass_kg (the frame as a second mass-spring)
+second_mode                 frequency_hz, modal_mass_kg, damping_ratio (the frame as a second
+                            mass-spring)
 joint_microslip             mode, slip_force_N, stiffness_N_per_m (a Dahl micro-slip element
                             beside the spring of a mode: the housing's, or the frame's once a
                             second mode is in the model; the spring gives up the joint's
@@ -247,14 +248,18 @@ def _second_mode(ctx: Context, m: Model) -> list[Variant]:
                        0.3 * ctx.base.rig.structure.mass_kg, 0.05 * ctx.base.rig.structure.mass_kg)
     # start from the configured frame; on a fitted (e.g. imported, unknown scale) structure,
     # from the fitted mass
+    # the frame's damping is fitted too: a mode in the band is seen through its damping as
+    # much as through its frequency, and a fixed ratio leaves its share as structure
+    pz = _effect_param("damping_ratio", "effects.second_mode.damping_ratio", 0.01, 1e-4, 0.5)
     mass0 = (ctx.base.rig.structure.mass_kg if ctx.fitted_baseline
              else ctx.base.rig.effects.second_mode.modal_mass_kg)
+    zeta0 = ctx.base.rig.effects.second_mode.damping_ratio
     f_lo, f_hi = 0.3 * ctx.f_typ_hz, min(3.0 * ctx.f_typ_hz, fs / 4)
     starts = []
     for f in np.geomspace(f_lo, f_hi, 15):
         for mass in (mass0, 4 * mass0):
-            starts.append(pm.set(pf.set(m, float(f)), mass))
-    return [Variant({}, [pf, pm], starts, keep=3)]
+            starts.append(pz.set(pm.set(pf.set(m, float(f)), mass), zeta0))
+    return [Variant({}, [pf, pm, pz], starts, keep=3)]
 
 
 def _spring_beside_joint(spring: float, k_old: float, k_new: float) -> float:

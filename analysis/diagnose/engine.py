@@ -64,6 +64,7 @@ from analysis.diagnose.baseline import (
     fit_linear,
     fit_subset,
     is_imported,
+    second_mode_finding,
 )
 from analysis.diagnose.candidates import (
     Candidate,
@@ -297,6 +298,10 @@ def diagnose(
             f.evidence.update(sensor_pair_check(pb, ctx, base.free, findings, f, search.model))
     _share_of_signal(records, test, base.test, findings)
     _confidence(pb, base, findings, search, verdict, bool(on_bound))
+    mode = second_mode_finding(pb, ctx, base) if fitted else None
+    if mode is not None:
+        mode.evidence["confidence"] = ("low" if _weak(verdict, bool(on_bound), mode)
+                                       else "high")
     if not findings and verdict.unexplained:
         notes.append("the baseline misses something that no effect of the library explains")
     # amplitude dependence over the levels (runs or amplitude groups), of the data and of the
@@ -314,7 +319,8 @@ def diagnose(
     return Diagnosis(
         baseline_kind=kind, units="m", records=records, train=train, test=test,
         baseline_model=base.model, baseline_params=base.params, baseline_train=base.train,
-        baseline_test=base.test, findings=findings, final_model=search.model,
+        baseline_test=base.test, findings=[mode, *findings] if mode else findings,
+        final_model=search.model,
         final_test=search.test, unexplained=verdict.unexplained, rounds=search.rounds,
         skipped=skipped, noise_floor=noise, extended_rig=ext,
         elapsed_s=time.perf_counter() - t_start, notes=notes, verdict=verdict,
@@ -727,9 +733,15 @@ def _confidence(pb: Problem, base: Baseline, findings: list[Finding], search: _S
                 f.evidence["runner_up"]["held_out_error_swapped"] = swap_rms
                 if swap_rms**2 > 1.25 * search.test.rms() ** 2:
                     f.evidence["ambiguous"] = False
-        # structure left in the residual weakens every finding unless the findings explain
-        # nearly all of the baseline's (``verdict.STRUCTURE_LEFT``)
-        weak = (verdict.signal_unexplained or not verdict.adequate or base_on_bound
-                or f.evidence.get("refinement", False)
-                or (bool(verdict.structure) and not verdict.structure_mostly_explained))
+        weak = _weak(verdict, base_on_bound, f)
         f.evidence["confidence"] = "low" if (weak or f.evidence.get("ambiguous")) else "high"
+
+
+def _weak(verdict: Verdict, base_on_bound: bool, f: Finding) -> bool:
+    """Whether the final model leaves too much for ``f`` to be named with confidence: the
+    signal not explained, an inadequate baseline or one on a bound, a refinement, or structure
+    left in the residual unless the findings explain nearly all of the baseline's
+    (``verdict.STRUCTURE_LEFT``)."""
+    return (verdict.signal_unexplained or not verdict.adequate or base_on_bound
+            or f.evidence.get("refinement", False)
+            or (bool(verdict.structure) and not verdict.structure_mostly_explained))

@@ -177,7 +177,10 @@ def _fig_gains(diag: Diagnosis, path: Path) -> None:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 4))
     labels = ["baseline"] + [f.effect for f in diag.findings]
-    errs = [diag.baseline_rms] + [f.error_after for f in diag.findings]
+    # from the first finding's error before it: a second mode the fitted baseline's order
+    # chose is reported against the one-mode baseline
+    errs = ([diag.findings[0].error_before if diag.findings else diag.baseline_rms]
+            + [f.error_after for f in diag.findings])
     ax.bar(range(len(errs)), errs)
     ax.set_xticks(range(len(errs)), labels, rotation=20)
     ax.set_yscale("log")
