@@ -171,6 +171,18 @@ def test_the_transfer_route_refuses_what_is_not_a_run(tmp_path):
                                                "--runs-dir")
 
 
+def test_each_transfer_request_then_releases_the_freed_memory(tmp_path):
+    # `sfdrig web` gives the C heap's free pages back there (sfdrig.commands._native_memory)
+    write_rig_run(tmp_path / "S1.h5", "S1")
+    calls: list[str] = []
+    app = WebApp(_Daemon(), WebConfig(  # type: ignore[arg-type]
+        runs_dir=tmp_path, release_memory=lambda: calls.append("released")))
+    answers = _serve(app, ["/api/runs/S1/transfer", "/api/runs", "/api/runs/S1/transfer",
+                           "/api/runs/S9/transfer"])
+    assert [status for status, _ in answers] == [200, 200, 200, 404]
+    assert calls == ["released"] * 3  # each transfer request, the refused one too; not the list
+
+
 def test_transfer_requests_leave_no_file_open_and_no_samples_behind(tmp_path):
     # the page asks at every new step of a day-long sweep: what a request opens and reads must
     # be let go when it answers (a file kept open keeps HDF5's caches; a kept array, its samples)
