@@ -110,6 +110,10 @@ class WebConfig:
     identify_command, identify_timeout_s
         The command that makes a run's identification report (given the run file, then
         ``--no-store --report DIR``) and how long it may take [s].
+    release_memory : callable or None
+        Called after each transfer request, in its thread: `sfdrig web` gives the free pages
+        inside the C heap back to the kernel there (glibc keeps free space under blocks still
+        in use resident; once a step of a sweep is often enough).
     """
 
     key_dir: Path | None = None
@@ -123,6 +127,7 @@ class WebConfig:
     runs_dir: Path | None = None
     identify_command: tuple[str, ...] = (sys.executable, "-m", "sfdrig", "identify")
     identify_timeout_s: float = 600.0
+    release_memory: Callable[[], object] | None = None
 
 
 @dataclass(eq=False)  # hashed by identity: one per connection
@@ -449,8 +454,17 @@ class WebApp:
         asks again at each new step of a running sweep."""
         self._guard(request, need_operator=False)
         run_id = request.match_info["run_id"]
+        release = self.cfg.release_memory
+
+        def answer(h: RunHistory) -> dict[str, Any]:
+            try:
+                return h.transfer(run_id)
+            finally:
+                if release is not None:
+                    release()
+
         return web.Response(content_type="application/json", body=orjson.dumps(
-            {"ok": True, **await self._history(request, lambda h: h.transfer(run_id))}))
+            {"ok": True, **await self._history(request, answer)}))
 
     async def download(self, request: web.Request) -> web.StreamResponse:
         """The run file (``format=h5``) or `sfdrig export`'s files (mat, csv, tdms; a zip when

@@ -23,7 +23,7 @@ from threadpoolctl import threadpool_limits
 from control.wire.client import DaemonUnavailable
 from control.wire.security import KeyFileError, is_loopback
 from sfdrig.commands._client_args import STATE_FILE_NAME, _state, add_connection_arguments, keys
-from sfdrig.commands._native_memory import limit_arenas, pin_mmap_threshold
+from sfdrig.commands._native_memory import limit_arenas, pin_mmap_threshold, trim_heap
 from web.auth import OPERATOR, VIEWER
 from web.feed import DaemonLink
 from web.server import LOOPBACK_NAMES, WebApp, WebConfig
@@ -104,12 +104,13 @@ def run(args: argparse.Namespace) -> int:
     threadpool_limits(limits=1, user_api="blas")
     # Freed arrays of 128 KiB or more (a transfer request's segments, the frames' windows) go
     # back to the kernel, and what is smaller stays on one arena, not scattered over the
-    # executor threads' own (sfdrig.commands._native_memory)
+    # executor threads' own; the heap's free pages are given back after each transfer request
+    # (sfdrig.commands._native_memory)
     logging.getLogger("sfdrig.web").info("%s; %s", pin_mmap_threshold(), limit_arenas(1))
     config = WebConfig(key_dir=args.keys, anonymous_role=args.role, examples_dir=args.examples,
                        fps=args.fps, secure_cookie=tls is not None,
                        allowed_hosts=allowed_hosts(args.host, args.allow_host),
-                       runs_dir=args.runs_dir)
+                       runs_dir=args.runs_dir, release_memory=trim_heap)
     app = WebApp(link, config)
     try:
         asyncio.run(_serve(app, args.host, args.port, tls))
