@@ -39,7 +39,7 @@ from scipy.signal import resample_poly
 from analysis.diagnose.data import RunRecord, Segment
 from rig_model import physics
 from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
-from rig_model.rig import simulate_response
+from rig_model.rig import kernel_params, simulate_response
 
 
 @dataclass(frozen=True)
@@ -52,8 +52,6 @@ class Model:
     visc_relative_change: float = 0.0  # film damping change from start to end of the data
     force_offset_n: tuple[float, float] = (0.0, 0.0)
 
-    def sim_key(self) -> str:
-        return f"{self.rig.model_dump_json()}|{self.visc_relative_change!r}|{self.force_offset_n}"
 
 
 def set_path(model: Model, path: str, value: Any) -> Model:
@@ -135,6 +133,12 @@ class Evaluator:
         self._cache_bytes = 0
         self.cache_limit_bytes = 400 * 2**20  # simulations kept for measurement-only changes
         self._up_cache: dict[tuple[int, int, int], np.ndarray] = {}
+        # per window: its force with the lead (the same for every model) and whether its y
+        # force is zero (`_replay_key`)
+        self._force_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
+        self._undriven_y: dict[tuple[int, int, int, int], bool] = {}
+        # the replay inputs of the last model asked about (a prediction asks per window)
+        self._inputs_of: tuple[Model, dict[int, tuple[np.ndarray, tuple]]] | None = None
         self.simulations = 0
 
     # --- windows --------------------------------------------------------------------------
@@ -198,32 +202,79 @@ class Evaluator:
 
     def _window_force(self, run: int, a: int, b: int, lead: int) -> np.ndarray:
         """The measured force of [a, b) with ``lead`` samples of its first whole periods
-        repeated before it (steady state), shape (2, lead + b - a)."""
+        repeated before it (steady state), shape (2, lead + b - a); made once per window."""
+        key = (run, a, b, lead)
+        hit = self._force_cache.get(key)
+        if hit is not None:
+            return hit
         f = self.records[run].force_n[:, a:b]
-        if not lead:
-            return f
-        chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
-        return np.hstack([np.tile(f[:, :chunk], (1, lead // chunk)), f])
+        if lead:
+            chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
+            f = np.hstack([np.tile(f[:, :chunk], (1, lead // chunk)), f])
+        f = np.ascontiguousarray(f, dtype=np.float64)
+        self._force_cache[key] = f
+        self._undriven_y[key] = not np.any(f[1])
+        return f
+
+    def _inputs(self, model: Model, run: int) -> tuple[np.ndarray, tuple]:
+        """The kernel's parameter vector for run ``run`` under ``model`` and what else of the
+        model a replay reads (the viscosity's law, the force offset): made once per model and
+        run, not per window."""
+        if self._inputs_of is None or self._inputs_of[0] is not model:
+            self._inputs_of = (model, {})
+        per_run = self._inputs_of[1]
+        hit = per_run.get(run)
+        if hit is None:
+            rec = self.records[run]
+            up = self.oversample.get(run, 1)
+            rig = model.rig if up <= 1 else model.rig.model_copy(update={"substeps": 1})
+            oil, drift = model.rig.oil, model.rig.effects.viscosity_drift
+            visc = (oil.initial_temperature_c, oil.warming_c_per_hour,
+                    model.rig.film.reference_viscosity()[1], drift.enabled,
+                    drift.warming_c_per_s, model.visc_relative_change)
+            hit = (kernel_params(rig, rec.sample_rate_hz * up),
+                   (visc, tuple(model.force_offset_n)))
+            per_run[run] = hit
+        return hit
+
+    def _replay_key(self, model: Model, run: int, a: int, b: int, lead: int) -> tuple:
+        """What the replay of window [a, b) reads of ``model``: equal keys, equal responses.
+
+        An x-only window (no y force, none offset) of a rig whose axes nothing couples (no
+        cross stiffness, film cross terms, friction or wall) leaves y at rest, exactly, so
+        the y stiffness changes no bit of it: left out of the key, a fit's step in K_y
+        replays nothing."""
+        p, rest = self._inputs(model, run)
+        self._window_force(run, a, b, lead)
+        if (self._undriven_y[(run, a, b, lead)] and model.force_offset_n[1] == 0.0
+                and not np.any(p[_COUPLING])):
+            p = p.copy()
+            p[physics.P_KY] = 0.0
+        return (p.tobytes(), rest, run, a, b)
 
     def truth(self, model: Model, run: int, a: int, b: int) -> np.ndarray:
         """Simulated response (6, b - a) of run ``run`` over [a, b): relative displacement x, y
         [m], relative velocity [m/s], absolute housing acceleration [m/s^2]; from rest
         at ``a``, or, for a dwell replayed in steady state, after whole periods of its own
         force (the viscosity of its first sample)."""
-        key = (model.sim_key(), run, a, b)
+        rec = self.records[run]
+        lead = self._lead(run, a, b)
+        key = self._replay_key(model, run, a, b, lead)
         hit = self._cache.get(key)
         if hit is not None:
             return hit
-        rec = self.records[run]
-        lead = self._lead(run, a, b)
-        force = self._window_force(run, a, b, lead) + np.asarray(model.force_offset_n)[:, None]
+        kp, _ = self._inputs(model, run)
         visc = self._viscosity_scale(model, rec, a, b)
         if lead:
             visc = np.concatenate([np.full(lead, visc[0]), visc])
         up = self.oversample.get(run, 1)
         self.simulations += 1
         if up <= 1:
-            tr, _ = simulate_response(force, model.rig, rec.sample_rate_hz, self._fill(rec), visc)
+            force = self._window_force(run, a, b, lead)
+            if any(model.force_offset_n):
+                force = force + np.asarray(model.force_offset_n)[:, None]
+            tr, _ = simulate_response(force, model.rig, rec.sample_rate_hz, self._fill(rec), visc,
+                                      kernel=kp)
             xy = np.vstack([tr.x_m, tr.y_m, tr.vx_m_per_s, tr.vy_m_per_s, tr.ax_m_per_s2,
                             tr.ay_m_per_s2])[:, lead:]
         else:
@@ -231,7 +282,8 @@ class Evaluator:
             fup = fup + np.asarray(model.force_offset_n)[:, None]
             rig1 = model.rig.model_copy(update={"substeps": 1})
             vup = np.repeat(visc, up)
-            tr, _ = simulate_response(fup, rig1, rec.sample_rate_hz * up, self._fill(rec), vup)
+            tr, _ = simulate_response(fup, rig1, rec.sample_rate_hz * up, self._fill(rec), vup,
+                                      kernel=kp)
             # Sample i of the run is oversampled index i*up; the kernel reports the state at
             # the end of each step (linear-force kernel) or after it (held-force kernel).
             shift = 0 if hasattr(physics, "S_FPX") else -1
@@ -294,6 +346,11 @@ class Evaluator:
         rec = self.records[seg.run]
         return {ch: rec.signal(ch)[seg.start:seg.stop] for ch in rec.objective_channels()}
 
+
+#: the kernel's parameters that couple the axes (a window forced along x alone moves y only
+#: through these)
+_COUPLING = [physics.P_KXY, physics.P_DXY, physics.P_DYX, physics.P_CXY, physics.P_CYX,
+             physics.P_FMU, physics.P_CONTACT_ON]
 
 #: row of `Evaluator.truth` of each quantity's x axis
 _ROW = {"displacement": 0, "velocity": 2, "acceleration": 4}
