@@ -129,14 +129,12 @@ class Evaluator:
             (s.run, s.start, s.stop): s.freq_hz for r in records for s in r.segments}
         self.oversample = oversample or {}
         self.duration_s = max(r.n_samples / r.sample_rate_hz for r in records)
-        self._cache: dict[tuple[str, int, int, int], np.ndarray] = {}
+        self._cache: dict[tuple[bytes, tuple, int, int, int], np.ndarray] = {}
         self._cache_bytes = 0
         self.cache_limit_bytes = 400 * 2**20  # simulations kept for measurement-only changes
         self._up_cache: dict[tuple[int, int, int], np.ndarray] = {}
-        # per window: its force with the lead (the same for every model) and whether its y
-        # force is zero (`_replay_key`)
+        # per window: its force with the lead (the same for every model)
         self._force_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
-        self._undriven_y: dict[tuple[int, int, int, int], bool] = {}
         # the replay inputs of the last model asked about (a prediction asks per window)
         self._inputs_of: tuple[Model, dict[int, tuple[np.ndarray, tuple]]] | None = None
         self.simulations = 0
@@ -213,7 +211,6 @@ class Evaluator:
             f = np.hstack([np.tile(f[:, :chunk], (1, lead // chunk)), f])
         f = np.ascontiguousarray(f, dtype=np.float64)
         self._force_cache[key] = f
-        self._undriven_y[key] = not np.any(f[1])
         return f
 
     def _inputs(self, model: Model, run: int) -> tuple[np.ndarray, tuple]:
@@ -237,21 +234,6 @@ class Evaluator:
             per_run[run] = hit
         return hit
 
-    def _replay_key(self, model: Model, run: int, a: int, b: int, lead: int) -> tuple:
-        """What the replay of window [a, b) reads of ``model``: equal keys, equal responses.
-
-        An x-only window (no y force, none offset) of a rig whose axes nothing couples (no
-        cross stiffness, film cross terms, friction or wall) leaves y at rest, exactly, so
-        the y stiffness changes no bit of it: left out of the key, a fit's step in K_y
-        replays nothing."""
-        p, rest = self._inputs(model, run)
-        self._window_force(run, a, b, lead)
-        if (self._undriven_y[(run, a, b, lead)] and model.force_offset_n[1] == 0.0
-                and not np.any(p[_COUPLING])):
-            p = p.copy()
-            p[physics.P_KY] = 0.0
-        return (p.tobytes(), rest, run, a, b)
-
     def truth(self, model: Model, run: int, a: int, b: int) -> np.ndarray:
         """Simulated response (6, b - a) of run ``run`` over [a, b): relative displacement x, y
         [m], relative velocity [m/s], absolute housing acceleration [m/s^2]; from rest
@@ -259,11 +241,13 @@ class Evaluator:
         force (the viscosity of its first sample)."""
         rec = self.records[run]
         lead = self._lead(run, a, b)
-        key = self._replay_key(model, run, a, b, lead)
+        # what the replay reads of the model: equal keys, equal responses (a model that
+        # differs only where the kernel does not look, an effect enabled at 0, is a hit)
+        kp, rest = self._inputs(model, run)
+        key = (kp.tobytes(), rest, run, a, b)
         hit = self._cache.get(key)
         if hit is not None:
             return hit
-        kp, _ = self._inputs(model, run)
         visc = self._viscosity_scale(model, rec, a, b)
         if lead:
             visc = np.concatenate([np.full(lead, visc[0]), visc])
@@ -346,11 +330,6 @@ class Evaluator:
         rec = self.records[seg.run]
         return {ch: rec.signal(ch)[seg.start:seg.stop] for ch in rec.objective_channels()}
 
-
-#: the kernel's parameters that couple the axes (a window forced along x alone moves y only
-#: through these)
-_COUPLING = [physics.P_KXY, physics.P_DXY, physics.P_DYX, physics.P_CXY, physics.P_CYX,
-             physics.P_FMU, physics.P_CONTACT_ON]
 
 #: row of `Evaluator.truth` of each quantity's x axis
 _ROW = {"displacement": 0, "velocity": 2, "acceleration": 4}
