@@ -238,11 +238,13 @@ def integrate(
     relax_a = np.exp(-h / p[P_RELAX_TAU]) if relax else 1.0
     relax_bx = p[P_RELAX_KX] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
     relax_by = p[P_RELAX_KY] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
-    # the eccentricity law and the air make the kick's matrices depend on the state
+    if n == 0:  # nothing to integrate: the state stays as it is
+        return
+    # the eccentricity law and the air make the kick's matrices depend on the state; the first
+    # sample's are those its first substep computed before
     per_substep = p[P_ECC] > 0.5 or p[P_AIR_K] > 0.0
-    have_kick = False
-    kick_fi = kick_visc = 0.0
-    kick = _kick_matrices(x, y, 1.0, 1.0, vbar, p, hh, frame_on)
+    kick = _kick_matrices(x, y, fill[0], visc[0], vbar, p, hh, frame_on)
+    kick_fi, kick_visc = fill[0], visc[0]
     for i in range(n):
         # sample i is taken at the end of the interval; the force ramps from the previous sample
         dfx = (force[0, i] - fpx) / nsub
@@ -257,9 +259,8 @@ def integrate(
         bounce_r = bounce_nx = bounce_ny = 0.0
         # the kick's matrices: per sample where the state does not enter them (recomputed
         # only when the fill or the viscosity changes), per substep otherwise
-        if per_substep or not have_kick or fi != kick_fi or visc[i] != kick_visc:
+        if not per_substep and (fi != kick_fi or visc[i] != kick_visc):
             kick = _kick_matrices(x, y, fi, visc[i], vbar, p, hh, frame_on)
-            have_kick = True
             kick_fi = fi
             kick_visc = visc[i]
         for k in range(nsub):
