@@ -102,6 +102,62 @@ def _schur(a11, a12, a21, a22, b11, b12, b21, b22, e11, e12, e21, e22):  # noqa:
 
 
 @numba.njit(cache=True, inline="always")
+def _kick_matrices(x, y, fi, visc_i, vbar, p, hh, frame_on):  # noqa: ANN001, ANN202
+    """What the implicit kick needs of the coefficients at this instant: the mass and damping
+    matrices (`_coefficients`), the frame's coupling B and inverse block E = D^-1 with
+    G = B E, the inverse S^-1 of the housing's (Schur complement) block, and the impulse maps
+    Q (housing) and R (frame). They depend on the state only through the eccentricity law and
+    the air, so without those `integrate` computes them once per sample, not per substep
+    (the same operations on the same numbers: the same bits)."""
+    m11, m12, m21, m22, c11, c12, c21, c22, _, da = _coefficients(x, y, fi, visc_i, vbar, p)
+    a11 = m11 + hh * c11
+    a12 = m12 + hh * c12
+    a21 = m21 + hh * c21
+    a22 = m22 + hh * c22
+    if frame_on:
+        m2 = p[P_FRAME_M]
+        cf = p[P_FRAME_C]
+        b11 = -(da + hh * c11)
+        b12 = -(m12 + hh * c12)
+        b21 = -(m21 + hh * c21)
+        b22 = -(da + hh * c22)
+        d11 = m2 + da + hh * (c11 + cf)
+        d12 = m12 + hh * c12
+        d21 = m21 + hh * c21
+        d22 = m2 + da + hh * (c22 + cf)
+        ddet = d11 * d22 - d12 * d21
+        e11, e12, e21, e22 = d22 / ddet, -d12 / ddet, -d21 / ddet, d11 / ddet  # D^-1
+        # G = B D^-1 (2x2); Schur complement S = A - G B; P = I - G (impulse map)
+        g11, g12, g21, g22, s11, s12, s21, s22 = _schur(
+            a11, a12, a21, a22, b11, b12, b21, b22, e11, e12, e21, e22)
+        sdet = s11 * s22 - s12 * s21
+        i11, i12, i21, i22 = s22 / sdet, -s12 / sdet, -s21 / sdet, s11 / sdet  # S^-1
+        # an impulse J on the housing (-J on the frame) moves vh by Q J, vf by R J
+        p11, p12, p21, p22 = 1.0 + g11, g12, g21, 1.0 + g22  # I + B D^-1
+        q11 = i11 * p11 + i12 * p21
+        q12 = i11 * p12 + i12 * p22
+        q21 = i21 * p11 + i22 * p21
+        q22 = i21 * p12 + i22 * p22
+        u11 = 1.0 + (b11 * q11 + b12 * q21)
+        u12 = b11 * q12 + b12 * q22
+        u21 = b21 * q11 + b22 * q21
+        u22 = 1.0 + (b21 * q12 + b22 * q22)
+        rr11 = -(e11 * u11 + e12 * u21)
+        rr12 = -(e11 * u12 + e12 * u22)
+        rr21 = -(e21 * u11 + e22 * u21)
+        rr22 = -(e21 * u12 + e22 * u22)
+    else:
+        b11 = b12 = b21 = b22 = e11 = e12 = e21 = e22 = g11 = g12 = g21 = g22 = 0.0
+        det = a11 * a22 - a12 * a21
+        i11, i12, i21, i22 = a22 / det, -a12 / det, -a21 / det, a11 / det
+        q11, q12, q21, q22 = i11, i12, i21, i22
+        rr11 = rr12 = rr21 = rr22 = 0.0
+    return (m11, m12, m21, m22, c11, c12, c21, c22, da, b11, b12, b21, b22, e11, e12, e21,
+            e22, g11, g12, g21, g22, i11, i12, i21, i22, q11, q12, q21, q22, rr11, rr12, rr21,
+            rr22)
+
+
+@numba.njit(cache=True, inline="always")
 def _elastic(x, y, fx_in, fy_in, p):  # noqa: ANN001, ANN202
     """External force minus the structure's restoring force (linear and nonlinear); the
     cross stiffness k_xy (rods whose principal axes are turned from x and y) is symmetric, as
@@ -182,6 +238,13 @@ def integrate(
     relax_a = np.exp(-h / p[P_RELAX_TAU]) if relax else 1.0
     relax_bx = p[P_RELAX_KX] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
     relax_by = p[P_RELAX_KY] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
+    if n == 0:  # nothing to integrate: the state stays as it is
+        return
+    # the eccentricity law and the air make the kick's matrices depend on the state; the first
+    # sample's are those its first substep computed before
+    per_substep = p[P_ECC] > 0.5 or p[P_AIR_K] > 0.0
+    kick = _kick_matrices(x, y, fill[0], visc[0], vbar, p, hh, frame_on)
+    kick_fi, kick_visc = fill[0], visc[0]
     for i in range(n):
         # sample i is taken at the end of the interval; the force ramps from the previous sample
         dfx = (force[0, i] - fpx) / nsub
@@ -194,10 +257,19 @@ def integrate(
         contact_n = 0.0
         bounced = False
         bounce_r = bounce_nx = bounce_ny = 0.0
+        # the kick's matrices: per sample where the state does not enter them (recomputed
+        # only when the fill or the viscosity changes), per substep otherwise
+        if not per_substep and (fi != kick_fi or visc[i] != kick_visc):
+            kick = _kick_matrices(x, y, fi, visc[i], vbar, p, hh, frame_on)
+            kick_fi = fi
+            kick_visc = visc[i]
         for k in range(nsub):
             # the kick uses the force at the start of the substep, where x is (leapfrog)
-            m11, m12, m21, m22, c11, c12, c21, c22, _, da = _coefficients(x, y, fi, visc[i],
-                                                                           vbar, p)
+            if per_substep:
+                kick = _kick_matrices(x, y, fi, visc[i], vbar, p, hh, frame_on)
+            (m11, m12, m21, m22, c11, c12, c21, c22, da, b11, b12, b21, b22, e11, e12, e21,
+             e22, g11, g12, g21, g22, i11, i12, i21, i22, q11, q12, q21, q22, rr11, rr12, rr21,
+             rr22) = kick
             ex, ey = _elastic(x, y, fpx + k * dfx, fpy + k * dfy, p)
             if compliant:
                 frx, fry, wx, wy = _compliant_seal(x, y, wx, wy, kt, kty, fmu)
@@ -215,28 +287,15 @@ def integrate(
             #   m2 (vf' - vf) - Da (v_rel' - v_rel) = h Ef + h/2 C (v_rel + v_rel')
             #                                         - h/2 cf (vf + vf')      v_rel = vh - vf
             # with M the absolute part. Housing block A = M + Da + h/2 C (the total mass matrix
-            # m), coupling B = -(Da + h/2 C) both ways, frame block D = m2 + Da + h/2 (C + cf).
+            # m), coupling B = -(Da + h/2 C) both ways, frame block D = m2 + Da + h/2 (C + cf)
+            # (`_kick_matrices`).
             vhx = vx + vxf  # absolute housing velocity (x, vx are relative to the frame)
             vhy = vy + vyf
-            a11 = m11 + hh * c11
-            a12 = m12 + hh * c12
-            a21 = m21 + hh * c21
-            a22 = m22 + hh * c22
             r1x = m11 * vhx + m12 * vhy + h * ex - hh * (c11 * vx + c12 * vy)
             r1y = m21 * vhx + m22 * vhy + h * ey - hh * (c21 * vx + c22 * vy)
             if frame_on:
                 m2 = p[P_FRAME_M]
                 cf = p[P_FRAME_C]
-                b11 = -(da + hh * c11)
-                b12 = -(m12 + hh * c12)
-                b21 = -(m21 + hh * c21)
-                b22 = -(da + hh * c22)
-                d11 = m2 + da + hh * (c11 + cf)
-                d12 = m12 + hh * c12
-                d21 = m21 + hh * c21
-                d22 = m2 + da + hh * (c22 + cf)
-                ddet = d11 * d22 - d12 * d21
-                e11, e12, e21, e22 = d22 / ddet, -d12 / ddet, -d21 / ddet, d11 / ddet  # D^-1
                 fx_in = fpx + k * dfx
                 fy_in = fpy + k * dfy
                 r2x = (m2 * vxf + h * (-p[P_FRAME_K] * xf - (ex - fx_in))
@@ -251,11 +310,6 @@ def integrate(
                 r1y -= m21 * vxf + da * vyf
                 r2x -= da * vx + m12 * vy
                 r2y -= m21 * vx + da * vy
-                # G = B D^-1 (2x2); Schur complement S = A - G B; P = I - G (impulse map)
-                g11, g12, g21, g22, s11, s12, s21, s22 = _schur(
-                    a11, a12, a21, a22, b11, b12, b21, b22, e11, e12, e21, e22)
-                sdet = s11 * s22 - s12 * s21
-                i11, i12, i21, i22 = s22 / sdet, -s12 / sdet, -s21 / sdet, s11 / sdet  # S^-1
                 rx = r1x - (g11 * r2x + g12 * r2y)
                 ry = r1y - (g21 * r2x + g22 * r2y)
                 vhx = i11 * rx + i12 * ry
@@ -264,28 +318,10 @@ def integrate(
                 ty = r2y - (b21 * vhx + b22 * vhy)
                 nvxf = e11 * tx + e12 * ty
                 nvyf = e21 * tx + e22 * ty
-                # an impulse J on the housing (-J on the frame) moves vh by Q J, vf by R J
-                p11, p12, p21, p22 = 1.0 + g11, g12, g21, 1.0 + g22  # I + B D^-1
-                q11 = i11 * p11 + i12 * p21
-                q12 = i11 * p12 + i12 * p22
-                q21 = i21 * p11 + i22 * p21
-                q22 = i21 * p12 + i22 * p22
-                u11 = 1.0 + (b11 * q11 + b12 * q21)
-                u12 = b11 * q12 + b12 * q22
-                u21 = b21 * q11 + b22 * q21
-                u22 = 1.0 + (b21 * q12 + b22 * q22)
-                rr11 = -(e11 * u11 + e12 * u21)
-                rr12 = -(e11 * u12 + e12 * u22)
-                rr21 = -(e21 * u11 + e22 * u21)
-                rr22 = -(e21 * u12 + e22 * u22)
             else:
-                det = a11 * a22 - a12 * a21
-                i11, i12, i21, i22 = a22 / det, -a12 / det, -a21 / det, a11 / det
                 vhx = i11 * r1x + i12 * r1y
                 vhy = i21 * r1x + i22 * r1y
                 nvxf = nvyf = 0.0
-                q11, q12, q21, q22 = i11, i12, i21, i22
-                rr11 = rr12 = rr21 = rr22 = 0.0
             # dry friction: implicit, on the relative velocity (compliance W = Q - R)
             tx = vhx - nvxf
             ty = vhy - nvyf

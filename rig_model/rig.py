@@ -83,12 +83,14 @@ def simulate_response(
     fill: float | np.ndarray = 1.0,
     viscosity_scale: float | np.ndarray = 1.0,
     state: np.ndarray | None = None,
+    kernel: np.ndarray | None = None,
 ) -> tuple[physics.Truth, np.ndarray]:
     """Replay a measured force (N, shape (2, n)) through the structure, seal and film.
 
     Returns the true response and the final state vector (pass it back to continue). This is
     the path the diagnosis uses: the same equations as the live simulation, without shakers,
-    sensors or the oil system.
+    sensors or the oil system. ``kernel``: ``kernel_params(params, sample_rate_hz)`` when the
+    caller already has it (a diagnosis replays many windows under one rig).
     """
     force = np.ascontiguousarray(force_n, dtype=np.float64)
     if force.ndim != 2 or force.shape[0] != 2:
@@ -98,7 +100,8 @@ def simulate_response(
     visc_arr = np.broadcast_to(np.asarray(viscosity_scale, dtype=np.float64), (n,)).copy()
     s = np.zeros(physics.N_STATE) if state is None else state.copy()
     out = np.empty((physics.N_OUT, n))
-    physics.integrate(force, fill_arr, visc_arr, kernel_params(params, sample_rate_hz), s, out)
+    kp = kernel_params(params, sample_rate_hz) if kernel is None else kernel
+    physics.integrate(force, fill_arr, visc_arr, kp, s, out)
     return physics.Truth.from_kernel(out, force, np.zeros(n)), s
 
 

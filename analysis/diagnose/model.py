@@ -40,7 +40,7 @@ from analysis.diagnose.data import RunRecord, Segment
 from analysis.diagnose.oil import DriftCourse
 from rig_model import physics
 from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
-from rig_model.rig import simulate_response
+from rig_model.rig import kernel_params, simulate_response
 
 
 @dataclass(frozen=True)
@@ -53,8 +53,6 @@ class Model:
     visc_relative_change: float = 0.0  # film damping change from start to end of the data
     force_offset_n: tuple[float, float] = (0.0, 0.0)
 
-    def sim_key(self) -> str:
-        return f"{self.rig.model_dump_json()}|{self.visc_relative_change!r}|{self.force_offset_n}"
 
 
 def set_path(model: Model, path: str, value: Any) -> Model:
@@ -137,10 +135,14 @@ class Evaluator:
             (s.run, s.start, s.stop): s.freq_hz for r in records for s in r.segments}
         self.oversample = oversample or {}
         self.duration_s = max(r.n_samples / r.sample_rate_hz for r in records)
-        self._cache: dict[tuple[str, int, int, int], np.ndarray] = {}
+        self._cache: dict[tuple[bytes, tuple, int, int, int], np.ndarray] = {}
         self._cache_bytes = 0
         self.cache_limit_bytes = 400 * 2**20  # simulations kept for measurement-only changes
         self._up_cache: dict[tuple[int, int, int], np.ndarray] = {}
+        # per window: its force with the lead (the same for every model)
+        self._force_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
+        # the replay inputs of the last model asked about (a prediction asks per window)
+        self._inputs_of: tuple[Model, dict[int, tuple[np.ndarray, tuple]]] | None = None
         self.simulations = 0
 
     # --- windows --------------------------------------------------------------------------
@@ -210,32 +212,65 @@ class Evaluator:
 
     def _window_force(self, run: int, a: int, b: int, lead: int) -> np.ndarray:
         """The measured force of [a, b) with ``lead`` samples of its first whole periods
-        repeated before it (steady state), shape (2, lead + b - a)."""
+        repeated before it (steady state), shape (2, lead + b - a); made once per window."""
+        key = (run, a, b, lead)
+        hit = self._force_cache.get(key)
+        if hit is not None:
+            return hit
         f = self.records[run].force_n[:, a:b]
-        if not lead:
-            return f
-        chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
-        return np.hstack([np.tile(f[:, :chunk], (1, lead // chunk)), f])
+        if lead:
+            chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
+            f = np.hstack([np.tile(f[:, :chunk], (1, lead // chunk)), f])
+        f = np.ascontiguousarray(f, dtype=np.float64)
+        self._force_cache[key] = f
+        return f
+
+    def _inputs(self, model: Model, run: int) -> tuple[np.ndarray, tuple]:
+        """The kernel's parameter vector for run ``run`` under ``model`` and what else of the
+        model a replay reads (the viscosity's law, the force offset): made once per model and
+        run, not per window."""
+        if self._inputs_of is None or self._inputs_of[0] is not model:
+            self._inputs_of = (model, {})
+        per_run = self._inputs_of[1]
+        hit = per_run.get(run)
+        if hit is None:
+            rec = self.records[run]
+            up = self.oversample.get(run, 1)
+            rig = model.rig if up <= 1 else model.rig.model_copy(update={"substeps": 1})
+            oil, drift = model.rig.oil, model.rig.effects.viscosity_drift
+            visc = (oil.initial_temperature_c, oil.warming_c_per_hour,
+                    model.rig.film.reference_viscosity()[1], drift.enabled,
+                    drift.warming_c_per_s, model.visc_relative_change)
+            hit = (kernel_params(rig, rec.sample_rate_hz * up),
+                   (visc, tuple(model.force_offset_n)))
+            per_run[run] = hit
+        return hit
 
     def truth(self, model: Model, run: int, a: int, b: int) -> np.ndarray:
         """Simulated response (6, b - a) of run ``run`` over [a, b): relative displacement x, y
         [m], relative velocity [m/s], absolute housing acceleration [m/s^2]; from rest
         at ``a``, or, for a dwell replayed in steady state, after whole periods of its own
         force (the viscosity of its first sample)."""
-        key = (model.sim_key(), run, a, b)
+        rec = self.records[run]
+        lead = self._lead(run, a, b)
+        # what the replay reads of the model: equal keys, equal responses (a model that
+        # differs only where the kernel does not look, an effect enabled at 0, is a hit)
+        kp, rest = self._inputs(model, run)
+        key = (kp.tobytes(), rest, run, a, b)
         hit = self._cache.get(key)
         if hit is not None:
             return hit
-        rec = self.records[run]
-        lead = self._lead(run, a, b)
-        force = self._window_force(run, a, b, lead) + np.asarray(model.force_offset_n)[:, None]
         visc = self._viscosity_scale(model, run, a, b)
         if lead:
             visc = np.concatenate([np.full(lead, visc[0]), visc])
         up = self.oversample.get(run, 1)
         self.simulations += 1
         if up <= 1:
-            tr, _ = simulate_response(force, model.rig, rec.sample_rate_hz, self._fill(rec), visc)
+            force = self._window_force(run, a, b, lead)
+            if any(model.force_offset_n):
+                force = force + np.asarray(model.force_offset_n)[:, None]
+            tr, _ = simulate_response(force, model.rig, rec.sample_rate_hz, self._fill(rec), visc,
+                                      kernel=kp)
             # a copy: a view past the lead would keep the whole replay (lead included) alive
             # in the cache while counting only its own bytes (a 30 s lead before 1 s dwells
             # held 31x the cache's limit: 12 GB)
@@ -246,7 +281,8 @@ class Evaluator:
             fup = fup + np.asarray(model.force_offset_n)[:, None]
             rig1 = model.rig.model_copy(update={"substeps": 1})
             vup = np.repeat(visc, up)
-            tr, _ = simulate_response(fup, rig1, rec.sample_rate_hz * up, self._fill(rec), vup)
+            tr, _ = simulate_response(fup, rig1, rec.sample_rate_hz * up, self._fill(rec), vup,
+                                      kernel=kp)
             # Sample i of the run is oversampled index i*up; the kernel reports the state at
             # the end of each step (linear-force kernel) or after it (held-force kernel).
             shift = 0 if hasattr(physics, "S_FPX") else -1

@@ -111,6 +111,37 @@ def test_the_replay_cache_holds_no_more_than_its_limit():
     assert held < 2 * ev.cache_limit_bytes, f"{held / 2**20:.1f} MiB held"
 
 
+def test_a_replay_is_redone_only_when_what_the_kernel_reads_changes():
+    """The Evaluator keys its replays on the kernel's inputs: an effect enabled at 0 or a
+    measurement term replays nothing and predicts the same; a stiffness, the viscosity's
+    drift or a force offset replays."""
+    fs = 5000.0
+    rig = RigParams()
+    t = np.arange(4000) / fs
+    force = np.vstack([80 * np.sin(2 * np.pi * 30 * t), np.zeros_like(t)])
+    rec = records_from_arrays(force, {"x1": np.zeros_like(t)}, fs, kind="sweep", rig=rig,
+                              lubricated=True)
+    seg = Segment(0, 0, 4000, "all", 30.0)
+    ev = Evaluator([rec], warmup_s=0.0)
+    base = Model(rig=rig)
+    x0 = ev.predict(base, [seg])[seg]["x1"]
+    assert ev.simulations == 1
+    zero_cubic = rig.model_copy(update={"effects": rig.effects.model_copy(update={
+        "cubic_stiffness": rig.effects.cubic_stiffness.model_copy(
+            update={"enabled": True, "k3_n_per_m3": 0.0})})})
+    for same in (Model(rig=zero_cubic), Model(rig=rig, gain={"x1": 1.1})):
+        ev.predict(same, [seg])
+    assert ev.simulations == 1
+    np.testing.assert_array_equal(ev.predict(Model(rig=zero_cubic), [seg])[seg]["x1"], x0)
+    stiffer = rig_param("k", "structure.stiffness_x_n_per_m", 1.0).set(
+        base, 1.01 * rig.structure.stiffness_x_n_per_m)
+    for other in (stiffer, Model(rig=rig, visc_relative_change=0.1),
+                  Model(rig=rig, force_offset_n=(1.0, 0.0))):
+        x = ev.predict(other, [seg])[seg]["x1"]
+        assert np.max(np.abs(x - x0)) > 1e-3 * np.max(np.abs(x0))
+    assert ev.simulations == 4
+
+
 def test_bootstrap_is_seeded_and_brackets_the_gain():
     segs = [Segment(0, i, i + 1, f"s{i}") for i in range(12)]
     rng = np.random.default_rng(3)
