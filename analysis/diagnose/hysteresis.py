@@ -93,6 +93,19 @@ def joint_table(k_j: float, f_s: float, amplitudes_m: list[float],
     return rows
 
 
+def describing_function_text(row: dict[str, Any]) -> str:
+    """One `joint_table` row in words, for the CLI and the report."""
+    text = (f"at {row['amplitude_m'] * 1e6:.3g} um: stiffness "
+            f"{row['stiffness_N_per_m'] / 1e3:.4g} kN/m, loss stiffness "
+            f"{row['loss_stiffness_N_per_m'] / 1e3:.4g} kN/m, "
+            f"{row['energy_per_cycle_J'] * 1e3:.3g} mJ per cycle")
+    damping = row.get("damping_Ns_per_m_at_hz")
+    if damping:
+        text += (f", equivalent damping {damping['damping_Ns_per_m']:.4g} N.s/m at "
+                 f"{damping['freq_hz']:.3g} Hz")
+    return text
+
+
 #: sorted amplitudes split into levels where one exceeds the previous by this factor
 LEVEL_GAP = 1.25
 

@@ -11,7 +11,12 @@ import math
 import numpy as np
 import pytest
 
-from analysis.diagnose.hysteresis import amplitude_levels, joint_describing_function, joint_table
+from analysis.diagnose.hysteresis import (
+    amplitude_levels,
+    describing_function_text,
+    joint_describing_function,
+    joint_table,
+)
 
 
 def _stepped(k_j: float, f_s: float, amp: float, cycles: int = 4,
@@ -123,3 +128,12 @@ def test_table_per_amplitude_level():
         assert c == pytest.approx(rows[0]["loss_stiffness_N_per_m"] / (2 * math.pi * 40.0))
         assert rows[0]["stiffness_N_per_m"] == pytest.approx(
             joint_describing_function(2e6, 20.0, levels[0], shape)[0])
+
+
+def test_a_row_in_words_has_its_numbers_with_units():
+    (row,) = joint_table(2e6, 20.0, [13e-6], 40.0, 0.0)
+    text = describing_function_text(row)
+    k_eq, k_loss = joint_describing_function(2e6, 20.0, 13e-6, 0.0)
+    assert text.startswith("at 13 um: stiffness ")
+    assert f"{k_eq / 1e3:.4g} kN/m" in text and f"{k_loss / 1e3:.4g} kN/m" in text
+    assert f"{k_loss / (2 * math.pi * 40.0):.4g} N.s/m at 40 Hz" in text
