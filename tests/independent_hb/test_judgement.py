@@ -42,7 +42,6 @@ WRONG_TODAY: dict[str, str] = {
                   "'unexplained discrepancy'",
     "film_cross_coupling": "C_yx 300 N.s/m (y answers x at ~400 sigma): channel_delay on ay "
                            "with low confidence, verdict 'unexplained discrepancy'",
-    "bouc_wen_seal": "a Bouc-Wen seal (20 N, 2 MN/m): no finding, 'unexplained discrepancy'",
     "friction_and_cubic": "coulomb_friction 10.5 N (truth 10, +5 %) high, cubic_stiffness "
                           "(k3 -46 %) and channel_delay low, 'unexplained discrepancy'",
 }
