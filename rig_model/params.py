@@ -181,9 +181,12 @@ class SecondMode(_Model):
 
 
 class JointMicroslip(_Model):
-    """A joint that micro-slips (friction at a bolted or clamped interface): a Dahl element,
-    dF/dz = k_j (1 - sgn(z') F / F_s), per axis, beside the spring of ``mode`` ("housing": the
-    rods, between housing and frame; "frame": the frame's own spring, needs ``second_mode``).
+    """A joint that micro-slips (friction at a bolted or clamped interface, a seal's
+    pre-sliding): a smooth hysteretic element per axis beside the spring of ``mode``
+    ("housing": the rods, between housing and frame; "frame": the frame's own spring, needs
+    ``second_mode``). Its law is Bouc-Wen's of exponent 1 with beta + gamma = 1, F = F_s w,
+    dw/dz = (k_j / F_s) (1 - (beta sgn(w z') + gamma) |w|), and ``shape`` = beta - gamma:
+    shape 1 is Dahl's law dF/dz = k_j (1 - sgn(z') F / F_s); shape 0 unloads elastically at k_j.
 
     Stuck (small motion) it adds its stiffness k_j; as the motion grows it slips more and
     more (stiffness falls towards 0, dissipation rises), its force never above F_s: the mode
@@ -200,6 +203,9 @@ class JointMicroslip(_Model):
         "need not hold alike in X and Y); None: stiffness_n_per_m [N/m]")
     slip_force_y_n: float | None = Field(
         None, gt=0, description="F_s along Y where it differs; None: slip_force_n [N]")
+    shape: float = Field(
+        1.0, ge=0, le=1, description="beta - gamma of the Bouc-Wen law (beta + gamma = 1): "
+        "1 Dahl (unloading stiffness k_j (1 + |F| / F_s)), 0 elastic unloading at k_j [-]")
 
     def stiffness_y(self) -> float:
         return self.stiffness_n_per_m if self.stiffness_y_n_per_m is None \

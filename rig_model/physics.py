@@ -38,8 +38,8 @@ import numpy as np
  P_K3, P_K2, P_AIR_K, P_AIR_MAX, P_AIR_TAU, P_FRAME_ON, P_FRAME_M, P_FRAME_K, P_FRAME_C,
  P_DT, P_NSUB, P_SEAL_KT, P_DM_Y, P_DC_Y, P_CONTACT_ON, P_RESTITUTION,
  P_CONTACT_MU, P_JOINT_ON, P_JOINT_K, P_JOINT_FS, P_KXY, P_JOINT_KY, P_JOINT_FSY, P_SEAL_KTY,
- P_RELAX_KX, P_RELAX_KY, P_RELAX_TAU, P_FMU_WET) = range(42)
-N_PARAMS = 42
+ P_RELAX_KX, P_RELAX_KY, P_RELAX_TAU, P_FMU_WET, P_JOINT_SHAPE) = range(43)
+N_PARAMS = 43
 
 # Indices into the state vector: housing (relative) x, y, vx, vy; frame xf, yf, vxf, vyf; mean |v|;
 # the previous sample's force (the force is interpolated linearly between samples); the compliant
@@ -185,12 +185,33 @@ def _compliant_seal(x, y, wx, wy, kt, kty, fmu):  # noqa: ANN001, ANN202
 
 
 @numba.njit(cache=True, inline="always")
-def _dahl(f, dz, k, fs):  # noqa: ANN001, ANN202
-    """The joint's force after a displacement step dz: dF/dz = k (1 - sgn(dz) F / F_s),
-    integrated exactly over the step (so it never exceeds F_s, whatever the step)."""
-    if dz >= 0.0:
-        return fs - (fs - f) * np.exp(-k * dz / fs)
-    return -fs + (f + fs) * np.exp(k * dz / fs)
+def _joint_step(f, dz, k, fs, shape):  # noqa: ANN001, ANN202
+    """The joint's force [N] after a displacement step dz [m]: a Bouc-Wen law of exponent 1 with
+    beta + gamma = 1 and ``shape`` = beta - gamma in [0, 1]. With u = sgn(dz) F / F_s and
+    s = k |dz| / F_s (the step in pre-sliding distances F_s / k):
+        du/ds = 1 - u          loading (u >= 0): stiffness k, saturating at F_s;
+        du/ds = 1 - shape u    unloading (u < 0): k (1 + shape |u|), elastic at k for shape 0.
+    shape 1 is Dahl's law (dF/dz = k (1 - sgn(dz) F / F_s), the same exponential both ways);
+    shape 0 unloads elastically at k until F = 0. Integrated exactly over the step (a branch
+    change at F = 0 within it included), so |F| never exceeds F_s whatever the step."""
+    if shape >= 1.0:  # Dahl: one exponential
+        if dz >= 0.0:
+            return fs - (fs - f) * np.exp(-k * dz / fs)
+        return -fs + (f + fs) * np.exp(k * dz / fs)
+    sign = 1.0 if dz >= 0.0 else -1.0
+    u = sign * f / fs
+    s = k * abs(dz) / fs
+    if u < 0.0:
+        # unloading: u(s) = u e^{-a s} + (1 - e^{-a s}) / a, reaching 0 at s0 = ln(1 - a u) / a
+        s0 = np.log1p(-shape * u) / shape if shape > 1e-12 else -u
+        if s <= s0:
+            if shape > 1e-12:
+                e = np.exp(-shape * s)
+                return sign * fs * (u * e - np.expm1(-shape * s) / shape)
+            return sign * fs * (u + s)
+        s -= s0
+        u = 0.0
+    return sign * fs * (1.0 - (1.0 - u) * np.exp(-s))
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -231,6 +252,7 @@ def integrate(
     kj, fsj = p[P_JOINT_K], p[P_JOINT_FS]
     kjy, fsjy = p[P_JOINT_KY], p[P_JOINT_FSY]  # the joint along Y (the rig sets X's by default)
     gjx, gjy = s[S_JX], s[S_JY]  # the joint's force (it resists the motion of its mode)
+    jshape = p[P_JOINT_SHAPE]  # its Bouc-Wen shape (1: Dahl, 0: elastic unloading)
     # the relaxing stiffness (a Maxwell element beside the rods: spring k_r in series with a
     # dashpot k_r tau): its force, integrated exactly over a step at constant velocity
     relax = p[P_RELAX_KX] > 0.0 or p[P_RELAX_KY] > 0.0
@@ -415,11 +437,11 @@ def integrate(
             xf += h * vxf
             yf += h * vyf
             if joint == 1:
-                gjx = _dahl(gjx, h * vx, kj, fsj)
-                gjy = _dahl(gjy, h * vy, kjy, fsjy)
+                gjx = _joint_step(gjx, h * vx, kj, fsj, jshape)
+                gjy = _joint_step(gjy, h * vy, kjy, fsjy, jshape)
             elif joint == 2:
-                gjx = _dahl(gjx, h * vxf, kj, fsj)
-                gjy = _dahl(gjy, h * vyf, kjy, fsjy)
+                gjx = _joint_step(gjx, h * vxf, kj, fsj, jshape)
+                gjy = _joint_step(gjy, h * vyf, kjy, fsjy, jshape)
             if relax:
                 grx = relax_a * grx + relax_bx * vx
                 gry = relax_a * gry + relax_by * vy

@@ -66,6 +66,7 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
         p[physics.P_JOINT_KY] = jm.stiffness_y()
     p[physics.P_JOINT_FS] = jm.slip_force_n
     p[physics.P_JOINT_FSY] = jm.slip_force_y()
+    p[physics.P_JOINT_SHAPE] = jm.shape
     rs = eff.relaxing_stiffness
     p[physics.P_RELAX_TAU] = rs.relaxation_time_s
     if rs.enabled:

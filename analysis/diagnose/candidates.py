@@ -95,6 +95,8 @@ def judge_candidate(pb: Problem, effect: str, var: Variant, res: FitResult,
 
 
 def on_bound(p: Param, model: Model) -> bool:
+    if p.ends_are_models:
+        return False
     v = p.get(model)
     tol = 1e-3 * p.scale
     return bool((math.isfinite(p.lo) and v - p.lo <= tol)

@@ -18,12 +18,14 @@ cross_coupling              c_xy_Ns_per_m, c_yx_Ns_per_m, d_xy_kg, d_yx_kg (film
                             fitted: those from a driven axis into the other)
 second_mode                 frequency_hz, modal_mass_kg, damping_ratio (the frame as a second
                             mass-spring)
-joint_microslip             mode, slip_force_N, stiffness_N_per_m (a Dahl micro-slip element
-                            beside the spring of a mode: the housing's, or the frame's once a
-                            second mode is in the model; the spring gives up the joint's
-                            stiffness up to half of it, so at small motion the model is
-                            unchanged, and stays positive however stiff the joint: a seal
-                            stiffer than the rods is in the family)
+joint_microslip             mode, slip_force_N, stiffness_N_per_m, shape (a smooth hysteretic
+                            element, Bouc-Wen of exponent 1: shape 1 Dahl's micro-slip, 0
+                            elastic unloading, a seal's pre-sliding; beside the spring of a
+                            mode: the housing's, or the frame's once a second mode is in the
+                            model; the spring gives up the joint's stiffness up to half of it,
+                            so at small motion the model is unchanged, and stays positive
+                            however stiff the joint: a seal stiffer than the rods is in the
+                            family)
 viscosity_drift             relative_change (film damping, end of data / start - 1), following
                             the recorded oil temperature where it changes (eq. 1), else time
 sensor_gain                 channel, gain_ratio (recorded / true)
@@ -41,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from analysis.diagnose.data import RunRecord, driven_axes
+from analysis.diagnose.hysteresis import joint_describing_function
 from analysis.diagnose.model import Model, Param, get_path, set_path
 from analysis.diagnose.oil import drift_course
 from analysis.diagnose.residual_structure import Z_STRUCTURE
@@ -96,6 +99,9 @@ class Variant:
     params: list[Param]
     starts: list[Model]
     keep: int = 1  # starts refined after screening (more where the error surface is rugged)
+    #: a fitted baseline follows the screened parameters to first order (`fitting.Following`);
+    #: off where the variant keeps the baseline's linear fit itself (the joint)
+    follow: bool = True
 
 
 @dataclass
@@ -263,12 +269,13 @@ def _second_mode(ctx: Context, m: Model) -> list[Variant]:
 
 
 def _spring_beside_joint(spring: float, k_old: float, k_new: float) -> float:
-    """A mode's spring once the joint beside it goes from stiffness ``k_old`` to ``k_new``.
+    """A mode's spring once the stiffness the joint beside it takes goes from ``k_old`` to
+    ``k_new`` (`_joint`: the stuck stiffness, or its equivalent stiffness at the data's
+    typical amplitude).
 
-    Of the spring ``R`` the mode has without the joint, the joint takes its own stiffness,
-    ``R - k_j``, up to half of it (the stuck joint leaves the model as it was, so only the slip
-    is new); beyond, ``R^2 / (4 k_j)`` (the same value and slope at ``k_j = R / 2``), which stays
-    positive for any ``k_j``: a joint or seal stiffer than the spring itself has a stuck
+    Of the spring ``R`` the mode has without the joint, the joint takes ``k``, ``R - k``, up to
+    half of it; beyond, ``R^2 / (4 k)`` (the same value and slope at ``k = R / 2``), which stays
+    positive for any ``k``: a joint or seal stiffer than the spring itself has a stuck
     stiffness above ``R``, and a refit that moves the spring and the joint together keeps the
     model valid.
     """
@@ -279,41 +286,62 @@ def _spring_beside_joint(spring: float, k_old: float, k_new: float) -> float:
 def _joint(ctx: Context, m: Model) -> list[Variant]:
     """A micro-slipping joint beside the spring of each mode the model has.
 
-    Setting its stiffness k_j takes that much from the mode's spring (the structure's
-    stiffness per axis, or the frame's through its frequency), up to half of it
-    (`_spring_beside_joint`), so the stuck joint leaves the model as it was and only the slip
-    (softening, dissipation) is new; its stiffness may exceed the spring's (a seal stiffer
-    than the rods)."""
+    The joint takes from the mode's spring (the structure's stiffness per axis, or the frame's
+    through its frequency) what it adds, up to half of it (`_spring_beside_joint`), so only
+    its amplitude dependence (softening, dissipation) is new: on a configured baseline its
+    stuck stiffness k_j (the model at small motion is as configured); on a fitted one, which
+    has absorbed the joint's mean stiffness, its equivalent stiffness at the data's typical
+    amplitude (the describing function: the linear fit stays where it was). Its stiffness may
+    exceed the spring's (a seal stiffer than the rods)."""
     k_struct = _stiffness(ctx)
+    typical_amplitude_m = math.sqrt(2.0) * ctx.x_rms_m
+
+    def taken(j: dict[str, Any]) -> float:
+        if not j["enabled"]:
+            return 0.0
+        if not ctx.fitted_baseline:
+            return float(j["stiffness_n_per_m"])
+        return joint_describing_function(j["stiffness_n_per_m"], j["slip_force_n"],
+                                         typical_amplitude_m, j["shape"])[0]
+
+    def put(mm: Model, mode: str, **change: float) -> Model:
+        data = mm.rig.model_dump(mode="python")
+        j = data["effects"]["joint_microslip"]
+        old = taken(j)
+        j.update(enabled=True, mode=mode, **change)
+        new = taken(j)
+        if mode == "housing":
+            st = data["structure"]
+            for key in ("stiffness_x_n_per_m", "stiffness_y_n_per_m"):
+                st[key] = _spring_beside_joint(st[key], old, new)
+        else:
+            sm = data["effects"]["second_mode"]
+            k_fr = sm["modal_mass_kg"] * (2 * math.pi * sm["frequency_hz"]) ** 2
+            k_fr = _spring_beside_joint(k_fr, old, new)
+            sm["frequency_hz"] = math.sqrt(k_fr / sm["modal_mass_kg"]) / (2 * math.pi)
+        return replace(mm, rig=RigParams.model_validate(data))
+
+    def get_k(mm: Model) -> float:
+        j = mm.rig.effects.joint_microslip
+        return j.stiffness_n_per_m if j.enabled else 0.0
+
+    def get_f(mm: Model) -> float:
+        return mm.rig.effects.joint_microslip.slip_force_n
+
+    def get_shape(mm: Model) -> float:
+        return mm.rig.effects.joint_microslip.shape
+
     out = []
     modes = ["housing"] + (["frame"] if m.rig.effects.second_mode.enabled else [])
     for mode in modes:
-        def get_k(mm: Model) -> float:
-            j = mm.rig.effects.joint_microslip
-            return j.stiffness_n_per_m if j.enabled else 0.0
-
         def put_k(mm: Model, v: float, _mode: str = mode) -> Model:
-            data = mm.rig.model_dump(mode="python")
-            j = data["effects"]["joint_microslip"]
-            old = j["stiffness_n_per_m"] if j["enabled"] else 0.0
-            new = max(float(v), 0.0)
-            j.update(enabled=True, mode=_mode, stiffness_n_per_m=new)
-            if _mode == "housing":
-                st = data["structure"]
-                for key in ("stiffness_x_n_per_m", "stiffness_y_n_per_m"):
-                    st[key] = _spring_beside_joint(st[key], old, new)
-            else:
-                sm = data["effects"]["second_mode"]
-                k_fr = sm["modal_mass_kg"] * (2 * math.pi * sm["frequency_hz"]) ** 2
-                k_fr = _spring_beside_joint(k_fr, old, new)
-                sm["frequency_hz"] = math.sqrt(k_fr / sm["modal_mass_kg"]) / (2 * math.pi)
-            return replace(mm, rig=RigParams.model_validate(data))
+            return put(mm, _mode, stiffness_n_per_m=max(float(v), 0.0))
 
-        def get_f(mm: Model) -> float:
-            return mm.rig.effects.joint_microslip.slip_force_n
+        def put_f(mm: Model, v: float, _mode: str = mode) -> Model:
+            return put(mm, _mode, slip_force_n=float(v))
 
-        def put_f(mm: Model, v: float) -> Model:
-            return set_path(mm, "effects.joint_microslip.slip_force_n", float(v))
+        def put_shape(mm: Model, v: float, _mode: str = mode) -> Model:
+            return put(mm, _mode, shape=min(max(float(v), 0.0), 1.0))
 
         if mode == "housing":
             k_mode = min(m.rig.structure.stiffness_x_n_per_m, m.rig.structure.stiffness_y_n_per_m)
@@ -325,10 +353,17 @@ def _joint(ctx: Context, m: Model) -> list[Variant]:
         # spring is stuck rigid over any motion the data show
         pk = Param("stiffness_N_per_m", get_k, put_k, 0.1 * k_struct, 0.0, 30.0 * k_mode)
         pf = Param("slip_force_N", get_f, put_f, 0.3 * f0, 1e-3 * f0)
-        # stuck stiffness below and above the spring's (a seal stiffer than the rods)
-        starts = [put_f(put_k(m, k0), k0 * ctx.x_rms_m * r)
-                  for k0 in (0.3 * k_mode, 2.0 * k_mode) for r in (0.5, 1.0, 2.0)]
-        out.append(Variant({"mode": mode}, [pf, pk], starts, keep=2))
+        # the law's shape: Dahl (1) to elastic unloading (0), the smooth Bouc-Wen seal; both
+        # ends are laws, not a fit held on a bound
+        ps = Param("shape", get_shape, put_shape, 0.2, 0.0, 1.0, ends_are_models=True)
+        # stuck stiffness below and above the spring's (a seal stiffer than the rods), each law
+        starts = [put(m, mode, stiffness_n_per_m=k0, slip_force_n=k0 * ctx.x_rms_m * r,
+                      shape=shape)
+                  for k0 in (0.3 * k_mode, 2.0 * k_mode) for r in (0.5, 1.0, 2.0)
+                  for shape in (0.0, 1.0)]
+        # the joint keeps the fitted baseline's linear model itself, exactly where following
+        # holds to first order only (a stiff joint is far from first order)
+        out.append(Variant({"mode": mode}, [pf, pk, ps], starts, keep=2, follow=False))
     return out
 
 
@@ -443,8 +478,8 @@ LIBRARY: dict[str, Effect] = {e.id: e for e in [
            "c_xy_Ns_per_m", 0.15),
     Effect("second_mode", "a second structural mode (the frame)", "frequency_hz", 0.10),
     Effect("joint_microslip",
-           "a joint micro-slipping beside a mode's spring (Dahl): the mode softens and damps "
-           "more with the level", "slip_force_N", 0.20),
+           "a joint micro-slipping beside a mode's spring (Bouc-Wen, Dahl to elastic "
+           "unloading): the mode softens and damps more with the level", "slip_force_N", 0.20),
     Effect("viscosity_drift", "film damping drifting over the data (oil warming)",
            "relative_change", 0.15),
     Effect("sensor_gain", "a response sensor whose gain is off (recorded / true)", "gain_ratio",

@@ -620,7 +620,7 @@ def _joint_describing_function(ctx: Context, model: Model,
                                rec.sample_rate_hz, seg.freq_hz, 1)
         amps.append(abs(complex(z[0])))
     return joint_table(j.stiffness_n_per_m, j.slip_force_n, amplitude_levels(amps),
-                       ctx.f_typ_hz)
+                       ctx.f_typ_hz, j.shape)
 
 
 def _screen(pb: Problem, ctx: Context, lib: list[Effect], findings: list[Finding],
@@ -638,7 +638,7 @@ def _screen(pb: Problem, ctx: Context, lib: list[Effect], findings: list[Finding
         try:
             for var in eff.variants(ctx, current):
                 res = fit(pb.ev, var.starts, var.params, pb.fit_train, pb.scale_m,
-                          step=pb.step, keep=var.keep, follow=follow)
+                          step=pb.step, keep=var.keep, follow=follow if var.follow else None)
                 if best is None or res.train_sse < best[0].train_sse:
                     best = (res, var)
             if best is None:

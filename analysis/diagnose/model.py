@@ -83,6 +83,9 @@ class Param:
     scale: float
     lo: float = -math.inf
     hi: float = math.inf
+    #: lo and hi are models of their own (the joint's law at Dahl's end or the elastic one),
+    #: not a fit held on a bound
+    ends_are_models: bool = False
 
 
 def rig_param(name: str, path: str, scale: float, lo: float = -math.inf,

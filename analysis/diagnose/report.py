@@ -13,6 +13,7 @@ import numpy as np
 
 from analysis.diagnose import residual_analysis as ra
 from analysis.diagnose.engine import Diagnosis
+from analysis.diagnose.hysteresis import describing_function_text
 from analysis.diagnose.model import Residuals
 from analysis.diagnose.residual_structure import Z_STRUCTURE
 
@@ -394,6 +395,12 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
             "confidence": f.evidence.get("confidence", ""),
         } for f in diag.findings], ["effect", "parameters", "error before", "error after",
                                     "gain", "gain 95% interval", "confidence"]))
+        for f in diag.findings:
+            if f.evidence.get("describing_function"):
+                parts.append(f"<p>{html.escape(f.effect)}: describing function per amplitude "
+                             "level</p><ul>" + "".join(
+                                 f"<li>{html.escape(describing_function_text(r))}</li>"
+                                 for r in f.evidence["describing_function"]) + "</ul>")
     else:
         parts.append("<p>No effect of the library improves the held-out error significantly."
                      "</p>")

@@ -106,6 +106,7 @@ def _select_runs(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from analysis.diagnose import DiagnoseError, diagnose, load_run, parse_spans
+    from analysis.diagnose.hysteresis import describing_function_text
     from analysis.diagnose.report import (
         order_label,
         order_status,
@@ -163,6 +164,8 @@ def _run(args: argparse.Namespace) -> int:
               f"{f.error_after:.4g} {u}, gain {f.gain:.3g} "
               f"[{f.gain_interval[0]:.3g}, {f.gain_interval[1]:.3g}] "
               f"({f.evidence.get('confidence', '')} confidence)")
+        for row in f.evidence.get("describing_function", []):
+            print("  " + describing_function_text(row))
     if not diag.findings:
         print("no effect of the library explains the residual significantly")
         best = diag.best_candidate()

@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import Phase, example, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
@@ -26,6 +27,7 @@ from analysis.diagnose import diagnose, load_run
 from analysis.diagnose.data import DiagnoseError
 from analysis.diagnose.effects import LIBRARY, Context
 from analysis.diagnose.fitting import fit_failure
+from analysis.diagnose.hysteresis import joint_describing_function
 from analysis.diagnose.model import Model, rig_param
 from analysis.diagnose.report import diagnosis_json
 from rig_model.params import RigParams
@@ -34,14 +36,17 @@ from tests.independent_rig import DahlJoint, Dwell, Generator, RigSpec, Sensors,
 K_X = 788e3
 
 
-def _context(model: Model) -> Context:
-    return Context(records=[], base=model, fitted_baseline=True, duration_s=8.0,
-                   x_rms_m=20e-6, f_rms_n=30.0, f_typ_hz=40.0)
+X_RMS_M = 20e-6
 
 
-def _joint_variant(model: Model):
-    (var,) = LIBRARY["joint_microslip"].variants(_context(model), model)
-    pf, pk = var.params
+def _context(model: Model, fitted: bool = True) -> Context:
+    return Context(records=[], base=model, fitted_baseline=fitted, duration_s=8.0,
+                   x_rms_m=X_RMS_M, f_rms_n=30.0, f_typ_hz=40.0)
+
+
+def _joint_variant(model: Model, fitted: bool = True):
+    (var,) = LIBRARY["joint_microslip"].variants(_context(model, fitted), model)
+    pf, pk, _shape = var.params
     return pf, pk
 
 
@@ -50,7 +55,7 @@ def test_a_joint_stiffer_than_a_free_spring_keeps_the_model_valid():
     # (a seal stiffer than the rods) was taken out of both springs: -1.35 MN/m
     rig = RigParams().model_copy(deep=True)
     model = Model(rig=rig)
-    pf, pk = _joint_variant(model)
+    pf, pk = _joint_variant(model, fitted=False)  # the joint takes its stuck stiffness
     k_y = rig_param("stiffness_y_N_per_m", "structure.stiffness_y_n_per_m", 1e4, 1.0)
     m = pk.set(model, 2e5)
     m = k_y.set(m, 0.45e6)
@@ -67,11 +72,11 @@ def test_a_joint_stiffer_than_a_free_spring_keeps_the_model_valid():
     assert math.isclose(pk.set(m, 0.0).rig.structure.stiffness_y_n_per_m, r, rel_tol=1e-12)
 
 
-def test_a_stuck_joint_leaves_the_model_as_it_was():
+def test_a_stuck_joint_leaves_the_configured_model_as_it_was():
     # up to half the spring, the joint's stiffness comes out of it: the stuck stiffness is the
     # configured one (the hidden joint of simulated_hw and of the independent rig is so built)
     model = Model(rig=RigParams())
-    _, pk = _joint_variant(model)
+    _, pk = _joint_variant(model, fitted=False)
     k0 = model.rig.structure.stiffness_x_n_per_m
     for k_j in (1e3, 0.3 * k0, 0.5 * k0):
         st_ = pk.set(model, k_j).rig.structure
@@ -81,11 +86,71 @@ def test_a_stuck_joint_leaves_the_model_as_it_was():
     assert math.isclose(st_.stiffness_x_n_per_m, k0 / 12, rel_tol=1e-12)
 
 
+@pytest.mark.parametrize("shape", [0.0, 1.0])
+def test_a_joint_leaves_a_fitted_model_as_it_was_at_the_typical_amplitude(shape):
+    # a fitted baseline absorbed the joint's mean stiffness: the joint takes from the spring its
+    # equivalent stiffness at the data's typical amplitude (sqrt 2 x the RMS displacement),
+    # so the linear fit stays where it was and only the amplitude dependence is new
+    model = Model(rig=RigParams())
+    (var,) = LIBRARY["joint_microslip"].variants(_context(model), model)
+    pf, pk, ps = var.params
+    k0 = model.rig.structure.stiffness_x_n_per_m
+    m = ps.set(pf.set(pk.set(model, 2e6), 10.0), shape)  # a seal stiffer than the rods
+    k_eq, _ = joint_describing_function(2e6, 10.0, math.sqrt(2) * X_RMS_M, shape)
+    assert 0.5 * k0 > k_eq > 0.1 * k0  # the case where the spring gives up k_eq exactly
+    assert math.isclose(m.rig.structure.stiffness_x_n_per_m + k_eq, k0, rel_tol=1e-9)
+    # the slip force and shape move the spring with the equivalent stiffness; back to none
+    # gives the spring the mode has without the joint
+    assert pk.set(m, 0.0).rig.structure.stiffness_x_n_per_m == pytest.approx(k0, rel=1e-12)
+
+
 def test_the_joint_may_be_stiffer_than_the_spring():
     model = Model(rig=RigParams())
     _, pk = _joint_variant(model)
     k0 = min(model.rig.structure.stiffness_x_n_per_m, model.rig.structure.stiffness_y_n_per_m)
     assert pk.hi >= 10 * k0  # no 0.9x-of-the-spring bound (issue 24: a seal stiffer than rods)
+
+
+_FREE = {  # the fitted baseline's free springs and the joint's parameters, as a refit moves them
+    "k_x": rig_param("stiffness_x_N_per_m", "structure.stiffness_x_n_per_m", 1e4, 1.0),
+    "k_y": rig_param("stiffness_y_N_per_m", "structure.stiffness_y_n_per_m", 1e4, 1.0),
+}
+
+
+@settings(max_examples=100, deadline=None, derandomize=True)
+@given(moves=st.lists(st.tuples(st.sampled_from(["k_x", "k_y", "k_j", "slip", "shape"]),
+                                st.floats(-0.5, 8.0)), min_size=1, max_size=12),
+       frame=st.booleans())
+def test_random_joint_refits_keep_every_stiffness_positive(moves, frame):
+    # any sequence of refit steps over the baseline's springs and the joint's stiffness, slip
+    # force and shape (a seal from 0 to 8x stiffer than the rods, on the housing or the frame)
+    # leaves a valid rig: positive springs, the joint's law within its bounds; and the joint
+    # set back to 0 leaves the springs the mode has without it
+    rig = RigParams().model_copy(deep=True)
+    if frame:
+        rig = RigParams.model_validate({"effects": {"second_mode": {"enabled": True}}})
+    model = Model(rig=rig)
+    variants = LIBRARY["joint_microslip"].variants(_context(model), model)
+    var = variants[-1]  # the frame's where the model has one
+    pf, pk, ps = var.params
+    k0 = min(rig.structure.stiffness_x_n_per_m, rig.structure.stiffness_y_n_per_m)
+    for name, v in moves:
+        if name in _FREE:
+            p, value = _FREE[name], (1.0 + v) * 0.3 * k0
+        else:
+            p = {"k_j": pk, "slip": pf, "shape": ps}[name]
+            value = {"k_j": v * k0, "slip": 20.0 * (1.0 + v), "shape": v / 8.0}[name]
+        model = p.set(model, min(max(value, p.lo), p.hi))
+        rig_now = model.rig
+        assert rig_now.structure.stiffness_x_n_per_m > 0
+        assert rig_now.structure.stiffness_y_n_per_m > 0
+        assert rig_now.effects.second_mode.frequency_hz > 0
+        assert 0.0 <= rig_now.effects.joint_microslip.shape <= 1.0
+    springs = (model.rig.structure.stiffness_x_n_per_m, model.rig.effects.second_mode.frequency_hz)
+    k_now = pk.get(model)
+    back = pk.set(pk.set(model, 0.0), k_now)
+    assert (back.rig.structure.stiffness_x_n_per_m, back.rig.effects.second_mode.frequency_hz) \
+        == pytest.approx(springs, rel=1e-9)
 
 
 def test_fit_failures_are_named_and_bad_requests_are_not_swallowed():

@@ -39,7 +39,6 @@ WRONG_TODAY: dict[str, str] = {
                     "'explained'",
     "probe_gain": "sensor_gain on x at 1.041 (truth 1.04) with low confidence only, verdict "
                   "'explained'",
-    "bouc_wen_seal": "a Bouc-Wen seal (20 N, 2 MN/m): no finding, 'unexplained discrepancy'",
     "friction_and_cubic": "coulomb_friction 10.5 N (truth 10, +5 %) and cubic_stiffness "
                           "(k3 -46 %) high (the cubic was low while a four-term cross_coupling "
                           "stood beside it as runner-up), channel_delay low, 'unexplained "
