@@ -38,8 +38,10 @@ Procedure
    repeated dwell, harmonics, the other axis). Under either, and when a baseline parameter sits
    on a bound, every finding is low-confidence, except beside structure alone when the findings
    removed nearly all of the baseline's (``verdict.STRUCTURE_LEFT``); so is a finding whose
-   runner-up (not found itself in a later round) explains the held-out data nearly as well
-   (held-out MSE within 25 %), and a refinement: a term found once the model already left
+   runner-up (not found itself in a later round) the held-out data do not tell from it (its
+   held-out squared error under ``distinguish.Z_DISTINCT`` = 5 sd of the data's own noise
+   above the finding's, or a segment preferring it by as much; swapped in beside the other
+   findings it must stand as far above the final model), and a refinement: a term found once the model already left
    nothing unexplained (no structure above the noise either), explaining less than 0.5 % of the
    signal and, on dwells, a signature under 5 sd of their own noise (elsewhere less than 3/4
    of what was left; ``verdict.refinement_share``).
