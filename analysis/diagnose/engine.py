@@ -41,10 +41,10 @@ Procedure
    runner-up (not found itself in a later round) the held-out data do not tell from it (its
    held-out squared error under ``distinguish.Z_DISTINCT`` = 5 sd of the data's own noise
    above the finding's, or a segment preferring it by as much; swapped in beside the other
-   findings it must stand as far above the final model), and a refinement: a term found once the model already left
-   nothing unexplained (no structure above the noise either), explaining less than 0.5 % of the
-   signal and, on dwells, a signature under 5 sd of their own noise (elsewhere less than 3/4
-   of what was left; ``verdict.refinement_share``).
+   findings it must stand as far above the final model), and a refinement: a term found once
+   the model already left nothing unexplained (no structure above the noise either),
+   explaining less than 0.5 % of the signal and, on dwells, a signature under 5 sd of their
+   own noise (elsewhere less than 3/4 of what was left; ``verdict.refinement_share``).
 """
 
 from __future__ import annotations
