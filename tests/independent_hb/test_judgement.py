@@ -26,16 +26,15 @@ FAST = ("clean", "probe_delay")
 #: the noise-derived ambiguity rule, ``analysis.diagnose.distinguish``; the rod stiffness
 #: drifting 10 % was 'explained' before the residual's structure tests, now 'unexplained' with
 #: the repeated dwell's difference named: right, the drift is outside the library; the cubic
-#: spring, low confidence under the fixed 1.25x ambiguity factor, is now named with high
-#: confidence: its runner-up's held-out error stands 10 sd of the noise above its own)
+#: spring and the probe gain, low confidence under the fixed 1.25x ambiguity factor, are now
+#: named with high confidence: their runners-up's held-out errors stand 10 and 8.7 sd of the
+#: noise above theirs)
 WRONG_TODAY: dict[str, str] = {
     "friction_threshold": "0.062 N of seal friction (8 sigma on its largest dwell, 17 over the "
                           "run): no finding, verdict 'explained'",
     "friction_large": "15 N of seal friction: no finding, 'unexplained discrepancy'; its best "
                       "candidate (now reported as such) coulomb_friction 17.1 N (+14 %) not a "
                       "finding (fitted baseline K_x 625 kN/m against 788)",
-    "probe_gain": "sensor_gain on x at 1.041 (truth 1.04) with low confidence only, verdict "
-                  "'explained'",
     "oil_warming": "film damping -25 % with the oil temperature rising 17 degC: no finding, "
                    "'baseline inadequate'",
     "frame_mode": "a 47 Hz frame: no second_mode; cross_coupling with low confidence, "
