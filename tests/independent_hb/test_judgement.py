@@ -40,10 +40,13 @@ WRONG_TODAY: dict[str, str] = {
     "frame_mode": "a 47 Hz frame: no second_mode; cross_coupling with low confidence, "
                   "'unexplained discrepancy'",
     "film_cross_coupling": "C_yx 300 N.s/m (y answers x at ~400 sigma): channel_delay on ay "
-                           "with low confidence, verdict 'unexplained discrepancy'",
+                           "with low confidence (for the structure left; its runner-up, swapped "
+                           "in, 5.3 sd worse), verdict 'unexplained discrepancy'",
     "bouc_wen_seal": "a Bouc-Wen seal (20 N, 2 MN/m): no finding, 'unexplained discrepancy'",
     "friction_and_cubic": "coulomb_friction 10.5 N (truth 10, +5 %) high, cubic_stiffness "
-                          "(k3 -46 %) and channel_delay low, 'unexplained discrepancy'",
+                          "k3 -46 % now high too (its runner-up cross_coupling 2.6 sd, swapped "
+                          "in beside the friction 6.1 sd worse), channel_delay on ax low, "
+                          "'unexplained discrepancy'",
 }
 
 
