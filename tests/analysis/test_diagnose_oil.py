@@ -19,12 +19,15 @@ from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
 FS = 2000.0
 
 
-def _record(temp: np.ndarray, force_y: float = 0.0) -> RunRecord:
+def _record(temp: np.ndarray, force_y: float = 0.0, noise_y: float = 0.0) -> RunRecord:
+    """x driven at 30 Hz (100 N), y by ``force_y`` at 30 Hz, its load cell reading seeded
+    noise of ``noise_y`` N RMS."""
     n = temp.size
     t = np.arange(n) / FS
     x = 20e-6 * np.sin(2 * math.pi * 30 * t)
     force = np.vstack([100.0 * np.sin(2 * math.pi * 30 * t),
-                       force_y * np.sin(2 * math.pi * 30 * t)])
+                       force_y * np.sin(2 * math.pi * 30 * t)
+                       + np.random.default_rng(11).normal(0.0, noise_y, n)])
     return RunRecord("synthetic", FS, force, {"x": x, "y": 0.05 * x}, {"x": 0, "y": 1},
                      t_oil_c=temp, lubricated=True, kind="imported",
                      segments=[Segment(0, 0, n, "all", 30.0)])
@@ -106,12 +109,12 @@ def _context(records: list[RunRecord]) -> Context:
 
 
 def test_the_film_cross_terms_fitted_are_those_from_a_driven_axis() -> None:
-    """x dwells (the y load cell reads noise 1/100 of x's): C_yx and D_yx, what y's response
-    to x's motion shows; both axes driven: all four."""
+    """x dwells (the y load cell reads noise of 1/100 of x's force): C_yx and D_yx, what y's
+    response to x's motion shows; both axes driven: all four."""
     n = int(4 * FS)
     temp = np.full(n, 24.0)
     eff = LIBRARY["cross_coupling"]
-    x_only = _context([_record(temp, force_y=1.0)])
+    x_only = _context([_record(temp, noise_y=1.0)])
     assert eff.applicable(x_only) is None
     (var,) = eff.variants(x_only, x_only.base)
     assert [p.name for p in var.params] == ["c_yx_Ns_per_m", "d_yx_kg"]

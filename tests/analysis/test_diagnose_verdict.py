@@ -102,7 +102,8 @@ def test_excited_band_of_broadband_force():
 def test_two_modes_give_a_two_mode_baseline_chosen_on_held_out_data():
     """Two well-separated modes (12 and 31 Hz, 2 % damping), broadband force 5-45 Hz: the
     fitted baseline's order is chosen on held-out data: two modes, which explain the signal;
-    no term of the library is then needed, and none is named."""
+    no term of the library is then needed: the second mode alone is named, as what a one-mode
+    model lacks, from the baseline."""
     fs, n = 500.0, 30000
     force = _broadband(n, fs, (5.0, 45.0), seed=7)
     x = _modal_response(force, fs, [(10.0, 12.0, 0.02), (4.0, 31.0, 0.02)])
@@ -123,7 +124,9 @@ def test_two_modes_give_a_two_mode_baseline_chosen_on_held_out_data():
     v = diag.verdict
     assert v is not None
     assert v.baseline.explained > 0.98 and v.adequate and v.text == "explained"
-    assert diag.findings == []
+    (mode,) = diag.findings
+    assert mode.effect == "second_mode" and mode.evidence["in_baseline"]
+    assert mode.gain == two["gain"] and mode.evidence["confidence"] == "high"
 
 
 def test_three_modes_given_two_are_judged_baseline_inadequate():

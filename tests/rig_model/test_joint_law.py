@@ -58,7 +58,7 @@ def test_one_step_is_exact_and_bounded(f0, dz, shape, split):
     assert abs(one) <= F_S * (1 + 1e-12)
     # stiffness at the start: k0 (1 - u) loading, k0 (1 - shape u) unloading (u = sgn F/F_s)
     h = 1e-12
-    u = f0 if dz >= 0 else -f0
+    u = f0 if math.copysign(1.0, dz) > 0 else -f0  # the step's direction, -0.0 included
     slope = (_joint_step(f0 * F_S, math.copysign(h, dz), K0, F_S, shape) - f0 * F_S) / h
     want = K0 * (1 - u) if u >= 0 else K0 * (1 - shape * u)
     assert abs(slope) == pytest.approx(want, rel=1e-3, abs=1e-3 * K0)
