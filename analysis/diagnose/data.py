@@ -340,47 +340,10 @@ def split_by_runs(records: list[RunRecord], train_runs: list[int],
     return train, test
 
 
-#: standard deviations of its own noise by which a dwell's 1X force drives its axis (the
-#: structure tests' ``residual_structure.Z_STRUCTURE``)
-Z_DRIVEN = 5.0
-#: share of the larger axis's force (RMS) from which an axis is driven where no dwell tells
-#: a drive from noise
-BROADBAND_SHARE = 0.1
-
-
 def driven_axes(rec: RunRecord, start: int = 0, stop: int | None = None) -> set[int]:
-    """Axes with a response channel that the force over ``[start, stop)`` drives.
-
-    Where the run's dwells cover the span (two periods or more of one within it), an axis is
-    driven when on one of them its 1X force stands ``Z_DRIVEN`` standard deviations above its
-    own load cell's noise (`force_stands_above_noise`): a load cell's noise on an axis nobody
-    drives does not count, and a small real drive does, whatever the other axis's force. Spans
-    without a dwell (blocks, broadband data) have no frequency that tells a drive from noise:
-    there an axis is driven when its force is at least ``BROADBAND_SHARE`` (RMS) of the larger
-    axis's."""
-    stop = rec.n_samples if stop is None else stop
-    fs = rec.sample_rate_hz
-    dwells = [(max(start, s.start), min(stop, s.stop), s.freq_hz) for s in rec.segments
-              if s.freq_hz and s.freq_hz > 0
-              and min(stop, s.stop) - max(start, s.start) >= 2 * fs / s.freq_hz]
-    if dwells:
-        return {ax for ax in rec.axes
-                if any(force_stands_above_noise(rec.force_n[ax, a:b], a, fs, f)
-                       for a, b, f in dwells)}
+    """Axes with a response channel whose force over ``[start, stop)`` is at least 10 % (RMS)
+    of the larger axis's: a load cell's noise on an axis nobody drives does not count."""
     f = rec.force_n[:, start:stop]
     rms = np.sqrt(np.mean((f - f.mean(axis=1, keepdims=True)) ** 2, axis=1))
     top = float(rms.max()) if rms.size else 0.0
-    return {ax for ax in rec.axes if top > 0 and rms[ax] >= BROADBAND_SHARE * top}
-
-
-def force_stands_above_noise(force: np.ndarray, start: int, fs: float, freq_hz: float) -> bool:
-    """Whether ``force`` (a dwell's samples from ``start``) holds a 1X at ``freq_hz`` that
-    stands ``Z_DRIVEN`` sd above what a fit of its mean and 1X leaves (the noise: an error of
-    ``rest_rms * sqrt(2 / n)`` on each of the 1X's two components)."""
-    t = (start + np.arange(force.size)) / fs
-    w = 2 * np.pi * freq_hz
-    a = np.column_stack([np.ones_like(t), np.cos(w * t), np.sin(w * t)])
-    coef, *_ = np.linalg.lstsq(a, force, rcond=None)
-    rest_rms = float(np.sqrt(np.mean((force - a @ coef) ** 2)))
-    amplitude = float(np.hypot(coef[1], coef[2]))
-    return amplitude > 0 and amplitude >= Z_DRIVEN * rest_rms * np.sqrt(2.0 / force.size)
+    return {ax for ax in rec.axes if top > 0 and rms[ax] >= 0.1 * top}

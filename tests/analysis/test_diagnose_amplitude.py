@@ -16,13 +16,7 @@ import pytest
 
 from analysis.diagnose import DiagnoseError
 from analysis.diagnose.amplitude import amplitude_dependence, contradictions
-from analysis.diagnose.data import (
-    RunRecord,
-    Segment,
-    driven_axes,
-    records_from_arrays,
-    split_by_runs,
-)
+from analysis.diagnose.data import RunRecord, Segment, records_from_arrays, split_by_runs
 from sfdrig.cli import main
 from tests.analysis.independent_cases import RIG_TOML
 from tests.independent_rig import Generator, RigSpec, Sensors, grid
@@ -145,30 +139,6 @@ def test_split_by_runs_and_its_errors():
                                  {"y": np.zeros(600)}, FS, "yonly.h5")
     with pytest.raises(DiagnoseError, match=r"yonly\.h5 drives the y axis"):
         split_by_runs([records[0], y_only], [0])
-
-
-def test_a_dwell_drives_an_axis_by_its_1x_force_against_its_own_noise():
-    # x driven at 10 N; y's load cell: noise of 3 N RMS (30 % of x's force RMS, driven by
-    # the old 10 % share), or a real 0.3 N drive (3 %) over 0.05 N of noise: 1X standing
-    # 0.3 / (0.05 sqrt(2 / 5000)) = 212 sd above it
-    n, f_hz = 5000, 20.0
-    t = np.arange(n) / FS
-    rng = np.random.default_rng(3)
-    fx = 10.0 * np.sin(2 * math.pi * f_hz * t)
-
-    def run(fy: np.ndarray) -> RunRecord:
-        rec = records_from_arrays(np.vstack([fx, fy]), {"x": np.zeros(n), "y": np.zeros(n)},
-                                  FS, kind="sweep")
-        rec.segments = [Segment(0, 0, n, "d0", f_hz, "x")]
-        return rec
-
-    noise_only = run(rng.normal(0.0, 3.0, n))
-    small_drive = run(0.3 * np.sin(2 * math.pi * f_hz * t + 1.0) + rng.normal(0.0, 0.05, n))
-    assert driven_axes(noise_only) == {0}
-    assert driven_axes(small_drive) == {0, 1}
-    # without a dwell no frequency tells a drive from noise: the share of the larger force
-    noise_only.segments = []
-    assert driven_axes(noise_only) == {0, 1}
 
 
 def _independent_run(tmp: Path, amp_m: float, seed: int) -> Path:
