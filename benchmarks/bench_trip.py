@@ -83,11 +83,13 @@ class ZeroFrom(SimulatedBackend):
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
         self.zero_at = zero_at
 
-    def _take_ao(self, n: int) -> np.ndarray:
-        first = self._read
-        ao = super()._take_ao(n).copy()
-        ao[:, max(self.zero_at - first, 0):] = 0.0
-        return ao
+    def write_ao(self, block: np.ndarray, at: int | None = None) -> None:
+        # AO sample k plays at AI sample k (one start trigger): zero what would play from
+        # ``zero_at`` on, wherever the block lands in the stream
+        first = self._written_end if at is None else int(at)
+        arr = np.array(block, dtype=np.float64)
+        arr[:, max(self.zero_at - first, 0):] = 0.0
+        super().write_ao(arr, at)
 
 
 #: name -> (block_s, ahead_blocks, fade_s, cut_stops)

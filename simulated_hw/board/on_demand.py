@@ -4,23 +4,39 @@ last."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
-from daq.channels import ChannelMap
+from daq.channels import AnalogInput, ChannelMap, DeviceSpec
 from rig_model.rig import RigModel
 from simulated_hw.board.sensor_wiring import floating
 from simulated_hw.board.tasks import SimTask
 
-if TYPE_CHECKING:
-    from simulated_hw.board.device import SimDevice
+
+class Device(Protocol):
+    """What on-demand reads take from `simulated_hw.board.device.SimDevice` (a protocol, so
+    this part needs no import of the device that holds it)."""
+
+    fast: bool
+    spec: DeviceSpec
+    wiring: ChannelMap
+    carried: tuple[RigModel, float] | None
+    floating_rng: np.random.Generator
+
+    def move_idle_clock(self, seconds: float) -> None: ...
+    def catch_up(self) -> None: ...
+    def now(self) -> float: ...
+    def ai_sources(self, task: SimTask) -> tuple[list[AnalogInput],
+                                                 list[tuple[str, int] | None]]: ...
+    def new_rig(self, rig_map: ChannelMap) -> RigModel: ...
+    def present_terminals(self) -> np.ndarray: ...
 
 
 class OnDemandAi:
     """The rig behind the on-demand reads of one task at a time, and when it was last read."""
 
-    def __init__(self, device: SimDevice) -> None:
+    def __init__(self, device: Device) -> None:
         self._device = device
         self._task: SimTask | None = None
         self.rig: RigModel | None = None  # None: the task reads no wired input
