@@ -58,7 +58,9 @@ def _params() -> list:
 
 
 @pytest.mark.parametrize("name", _params())
-def test_diagnose_names_what_the_hb_generator_hid(name: str, tmp_path: Path) -> None:
+def test_diagnose_names_what_the_hb_generator_hid(name: str, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    from analysis.diagnose.hysteresis import describing_function_text
     from sfdrig.cli import main
 
     case = cases(SEED)[name]
@@ -68,5 +70,14 @@ def test_diagnose_names_what_the_hb_generator_hid(name: str, tmp_path: Path) -> 
     out = tmp_path / "diagnose.json"
     rc = main(["diagnose", str(run), "--baseline", "fitted", "--json", str(out), "--quiet"])
     assert rc == 0, f"diagnose exit {rc} on {name}"
-    ok, said = judge(case, json.loads(out.read_text()), total)
+    said_json = json.loads(out.read_text())
+    # the operator reads the CLI's lines: each finding there, a joint with its describing
+    # function per amplitude (the same rows as the JSON's)
+    text = capsys.readouterr().out
+    for f in said_json["findings"]:
+        assert f"found {f['effect']} (" in text, f"{name}: {f['effect']} not in the CLI's text"
+        for row in f["evidence"].get("describing_function", []):
+            assert "  " + describing_function_text(row) in text.splitlines(), \
+                f"{name}: describing-function row {row} not in the CLI's text"
+    ok, said = judge(case, said_json, total)
     assert ok, f"{name} (signature {total:.0f} sigma over the run): {said}"
