@@ -248,7 +248,7 @@ def test_a_trip_after_a_gain_rise_over_0_1_s_stops_within_10_percent_of_the_limi
 @pytest.mark.xfail(strict=True, reason=(
     "out of reach by a software cut: gain x3 at once moves the housing from under 63.5 um to "
     "the journal (2.0x) within the 10 ms AI block in which the limit is passed, before the "
-    "block is read; 0 V from the very first sample over the limit would still give 1.70x "
+    "block is read; 0 V from the very first sample over the limit would still give 1.68x "
     "(benchmarks/bench_trip.py)"))
 def test_a_trip_after_a_sudden_gain_rise_stops_within_10_percent_of_the_limit():
     be = make_backend(seed=0)
