@@ -72,6 +72,9 @@ MATCH_RATIO = 1.15
 #: 0.5 %-damped 7.3 Hz mode the bias stood above the noise and the fit added 2-3 modes for it;
 #: with 4 the coherence is too uncertain to weigh the lines by
 BROADBAND_AVERAGES = 8
+#: a mode whose half-power band is narrower than this many Welch lines (the Hann window's
+#: main lobe) has its damping biased by the window: said with the modes
+WINDOW_LINES = 4
 #: starts tried for each new pole (the largest peaks of the residual)
 NEW_POLE_TRIES = 3
 #: damping ratios fitted between these (a pole outside is no mode of a structure)
@@ -145,6 +148,7 @@ class Modes:
     tracks: list[ModeTrack]
     reason: str = ""
     skipped: list[str] = field(default_factory=list)  # levels whose fit failed, and why
+    cautions: list[str] = field(default_factory=list)  # modes the estimate may bias, and why
 
     def per_axis(self) -> dict[str, int]:
         """The most modes found at any level, per axis."""
@@ -165,12 +169,13 @@ class Modes:
                 z = " -> ".join(f"{100 * v:.2g}" for v in tr.damping_ratio)
                 rows.append(f"{f} Hz (damping {z} %)")
             parts.append(f"{ax}: {n} mode{'s' if n > 1 else ''} ({'; '.join(rows)})")
-        return "; ".join(parts)
+        return "; ".join(parts + [f"not fitted: {why}" for why in self.skipped]
+                         + [f"caution: {why}" for why in self.cautions])
 
     def to_dict(self) -> dict[str, Any]:
         return {"modes_per_axis": self.per_axis(), "levels": [lv.to_dict() for lv in self.levels],
                 "tracks": [t.to_dict() for t in self.tracks], "not_fitted": self.skipped,
-                "verdict": self.text}
+                "cautions": self.cautions, "verdict": self.text}
 
 
 # --- points ------------------------------------------------------------------------------
@@ -309,17 +314,25 @@ def _welch_h(f: np.ndarray, z: np.ndarray, fs: float) -> tuple[np.ndarray, np.nd
     return 2 * math.pi * fa[good], h, np.abs(h) * err
 
 
+@dataclass
+class BroadbandPoints:
+    """Receptance points of broadband data."""
+
+    w: np.ndarray  # angular frequencies [rad/s]
+    h: np.ndarray  # receptances [m/N]
+    sd: np.ndarray  # standard deviations per real component [m/N]
+    force_n: float  # the force's RMS x sqrt 2 [N]
+    window_hz: float  # the Welch lines' spacing (0: whole periods only, no window)
+
+
 def broadband_points(records: list[RunRecord], segs: list[Segment], axis: int,
-                     why_not: list[str] | None = None) -> tuple[np.ndarray, np.ndarray,
-                                                                np.ndarray, float]:
-    """The receptance of the segments that are not dwells (see the module doc): angular
-    frequencies [rad/s], receptances [m/N], their standard deviations per real component
-    [m/N], and the force's amplitude (RMS x sqrt 2) [N]. A swept run is left out (with a reason
-    in ``why_not``)."""
+                     why_not: list[str] | None = None) -> BroadbandPoints:
+    """The receptance of the segments that are not dwells (see the module doc). A swept run is
+    left out (with a reason in ``why_not``)."""
     w_all: list[np.ndarray] = []
     h_all: list[np.ndarray] = []
     sd_all: list[np.ndarray] = []
-    power, count = 0.0, 0
+    power, count, window_hz = 0.0, 0, 0.0
     for run, a, b in _stretches(segs):
         rec = records[run]
         chans = [v for c, v in rec.responses.items() if rec.response_axis[c] == axis]
@@ -341,15 +354,16 @@ def broadband_points(records: list[RunRecord], segs: list[Segment], axis: int,
             continue
         else:
             w, h, sd = _welch_h(f, z, fs)
+            window_hz = max(window_hz, fs / (f.size // BROADBAND_AVERAGES))
         w_all.append(w)
         h_all.append(h)
         sd_all.append(sd)
         power += float(np.sum(f**2))
         count += f.size
     if not w_all:
-        return np.zeros(0), np.zeros(0, dtype=complex), np.zeros(0), 0.0
-    return (np.concatenate(w_all), np.concatenate(h_all), np.concatenate(sd_all),
-            math.sqrt(2.0 * power / count))
+        return BroadbandPoints(np.zeros(0), np.zeros(0, dtype=complex), np.zeros(0), 0.0, 0.0)
+    return BroadbandPoints(np.concatenate(w_all), np.concatenate(h_all), np.concatenate(sd_all),
+                           math.sqrt(2.0 * power / count), window_hz)
 
 
 # --- the fit -----------------------------------------------------------------------------
@@ -493,9 +507,9 @@ def modal_dependence(records: list[RunRecord], segs: list[Segment]) -> Modes:
         fits = []
         for lab, ss in lvls:
             w, h, sd = receptance_points(records, ss, axis)
-            wb, hb, sdb, f_broad = broadband_points(records, ss, axis, out.skipped)
-            if wb.size:
-                w, h, sd = np.append(w, wb), np.append(h, hb), np.append(sd, sdb)
+            bb = broadband_points(records, ss, axis, out.skipped)
+            if bb.w.size:
+                w, h, sd = np.append(w, bb.w), np.append(h, bb.h), np.append(sd, bb.sd)
             if w.size < 5:
                 continue
             try:
@@ -507,9 +521,18 @@ def modal_dependence(records: list[RunRecord], segs: list[Segment]) -> Modes:
                 continue
             f_amp = [abs(harmonics(records[s.run].force_n[axis, s.start:s.stop], s.start,
                                    records[s.run].sample_rate_hz, s.freq_hz, 1)[0][0])
-                     for s in ss if s.freq_hz] or [f_broad]
+                     for s in ss if s.freq_hz] or [bb.force_n]
             fits.append(LevelModes(lab, "xy"[axis], float(np.median(f_amp)), int(w.size),
                                    modes, rows))
+            narrow = [md.natural_hz for md in modes
+                      if 2 * md.damping_ratio * md.natural_hz < WINDOW_LINES * bb.window_hz]
+            if narrow:
+                out.cautions.append(
+                    f"{'xy'[axis]} {lab}: the half-power band of the mode(s) at "
+                    f"{', '.join(f'{f:.4g}' for f in narrow)} Hz is within the Welch window's "
+                    f"main lobe ({WINDOW_LINES} lines of {bb.window_hz:.3g} Hz): their damping, "
+                    "and any mode beside them, may be the window's bias (a longer record, or a "
+                    "periodic excitation, resolves them)")
         out.levels.extend(fits)
         if fits:
             out.tracks.extend(_track("xy"[axis], fits))

@@ -263,19 +263,24 @@ def _broadband_run(force_1: np.ndarray, level_n: float, rng: np.random.Generator
     return records_from_arrays(np.vstack([f, np.zeros_like(f)]), {"x": z}, FS, name)
 
 
-def test_random_excitation_finds_the_modes_by_welch():
-    """Band-limited random force (not periodic within the record, 640 s): the H1 by Welch with
-    its coherence-based error finds the five modes of the lowest level."""
-    from analysis.diagnose.data import split_segments
-
-    rng = np.random.default_rng(5)
-    n = int(640 * FS)
+def _random_run(seconds: float, seed: int) -> RunRecord:
+    """Band-limited (2.5-16 Hz) random force of the lowest level's amplitude, x axis."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * FS)
     spec = np.zeros(n // 2 + 1, dtype=complex)
     band = (np.fft.rfftfreq(n, 1 / FS) > 2.5) & (np.fft.rfftfreq(n, 1 / FS) < 16.0)
     spec[band] = rng.standard_normal(band.sum()) + 1j * rng.standard_normal(band.sum())
     f1 = np.fft.irfft(spec, n)
     f1 *= LEVELS_N[0] / (math.sqrt(2.0) * float(np.std(f1)))
-    run = _broadband_run(f1, LEVELS_N[0], rng, 0.02, 2e-7, "x-random")
+    return _broadband_run(f1, LEVELS_N[0], rng, 0.02, 2e-7, "x-random")
+
+
+def test_random_excitation_finds_the_modes_by_welch():
+    """Band-limited random force (not periodic within the record, 640 s): the H1 by Welch with
+    its coherence-based error finds the five modes of the lowest level."""
+    from analysis.diagnose.data import split_segments
+
+    run = _random_run(640.0, 5)
     train, test = split_segments([run])
     modes = modal_dependence([run], train + test)
     assert modes.per_axis() == {"x": 5}, (modes.text, modes.skipped)
@@ -289,6 +294,21 @@ def test_random_excitation_finds_the_modes_by_welch():
     # the error from the coherence and the windows' effective number of averages: chi2 per
     # degree of freedom near 1 (1.00-1.06 on seeds 5-7)
     assert 0.7 < lv.chi2_per_dof < 1.4, lv.orders
+    # 80 s windows (0.0125 Hz lines): every mode's half-power band spans 4 lines or more
+    assert modes.cautions == []
+
+
+def test_a_short_random_record_says_which_damping_the_window_biases():
+    """80 s of random force: 10 s Welch windows (0.1 Hz lines) are wider than the 7.33 Hz
+    mode's half-power band (0.073 Hz at 0.5 % damping): the modes come with that caution."""
+    from analysis.diagnose.data import split_segments
+
+    run = _random_run(80.0, 8)
+    train, test = split_segments([run])
+    modes = modal_dependence([run], train + test)
+    assert modes.levels, modes.text
+    assert any("7.3" in c and "window" in c for c in modes.cautions), modes.cautions
+    assert "caution:" in modes.text and modes.to_dict()["cautions"] == modes.cautions
 
 
 def test_a_swept_sine_is_left_out_of_the_modal_fit_with_a_reason():
