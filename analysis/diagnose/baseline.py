@@ -440,6 +440,7 @@ def _more_modes(pb: Problem, one: Baseline, chosen: Baseline, start: ModalStart,
     kept = [r for r in rows if "not_chosen" not in r]
     if not kept:
         return rows, None
+    cur = _refined(pb, cur, kernel)
     # the highest order kept against the order chosen before it, by the same rules
     params = cur.free[len(base_free):]
     var = Variant({}, params, [cur.model], follow=False)
@@ -458,6 +459,20 @@ def _more_modes(pb: Problem, one: Baseline, chosen: Baseline, start: ModalStart,
         kept[-1]["not_chosen"] = f"against the order before: {why}"
         return rows, None
     return rows, cur
+
+
+def _refined(pb: Problem, base: Baseline, kernel: dict[int, list[Param]]) -> Baseline:
+    """``base`` refitted axis by axis (the kernel mode's and the extra modes' numbers of each),
+    from where the order search left it: each order's fit stops at a budget sized for one new
+    mode, and the last one's modes have not all settled."""
+    model = base.model
+    for axis in sorted({m.axis for m in model.extra_modes}):
+        mine = [*kernel.get(axis, []),
+                *(p for i, e in enumerate(model.extra_modes) if e.axis == axis
+                  for p in extra_mode_params(model, i))]
+        model = fit(pb.ev, [model], mine, pb.fit_train, pb.scale_m, step=pb.step,
+                    max_nfev=40 * (len(mine) + 1)).model
+    return _with_residuals(pb, model, base.free, [])
 
 
 def _unique(params: list[Param]) -> list[Param]:

@@ -144,6 +144,8 @@ class Evaluator:
         self._cache_bytes = 0
         self.cache_limit_bytes = 400 * 2**20  # simulations kept for measurement-only changes
         self._up_cache: dict[tuple[int, int, int], np.ndarray] = {}
+        # per steady-state window: the oversampled force the extra modes see (`_modal_force`)
+        self._modal_up: dict[tuple[int, int, int, int], np.ndarray] = {}
         # per window: its force with the lead (the same for every model)
         self._force_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
         # the replay inputs of the last model asked about (a prediction asks per window)
@@ -313,22 +315,19 @@ class Evaluator:
                           xy: np.ndarray) -> np.ndarray:
         """``xy`` with the response of ``model.extra_modes`` added to their axes' rows, driven
         by the force the kernel saw (oversampled where the kernel's was), from the exact
-        periodic steady state of a steady-state dwell's last lead chunk, else from rest at
+        periodic steady state of a steady-state dwell's whole periods, else from rest at
         ``a``."""
         if not model.extra_modes:
             return xy
         up = self.oversample.get(run, 1)
-        fs = self.records[run].sample_rate_hz * up
-        if up <= 1:
-            force = self._window_force(run, a, b, lead)
-        else:
-            force = self._upsampled(run, a, b, up, lead)
-        force = force + np.asarray(model.force_offset_n)[:, None]
         chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
-        first = (lead - chunk) * up if lead else 0  # the last whole-period chunk of the lead
-        # the run's sample i is the force's sample (lead + i) * up: where the kernel reports it
+        force, first = self._modal_force(run, a, b, up, lead, chunk)
+        force = force + np.asarray(model.force_offset_n)[:, None]
+        # the run's sample a + i is the force's sample first + (lead + i) * up (where the
+        # kernel reports it)
         shift = 0 if up <= 1 or hasattr(physics, "S_FPX") else -1
-        idx = np.maximum((lead + np.arange(b - a)) * up + shift, 0) - first
+        idx = np.maximum((lead + np.arange(b - a)) * up + shift, 0)
+        fs = self.records[run].sample_rate_hz * up
         out = xy.copy()
         for axis in (0, 1):
             modes = [md for md in model.extra_modes if md.axis == axis]
@@ -337,6 +336,24 @@ class Evaluator:
                                       periodic=chunk * up if lead else 0)
                 out[axis::2] += resp[:, idx]
         return out
+
+    def _modal_force(self, run: int, a: int, b: int, up: int, lead: int,
+                     chunk: int) -> tuple[np.ndarray, int]:
+        """The force the extra modes are driven by over window [a, b) with its lead, and the
+        index of its sample where the lead starts. Oversampled, a steady-state dwell's force
+        has one more whole-period chunk before its lead, so the interpolator's start-up
+        transient falls there and the chunk the periodic state is taken from is clean."""
+        force = self._window_force(run, a, b, lead)
+        if up <= 1:
+            return force, 0
+        if not lead:
+            return self._upsampled(run, a, b, up, lead), 0
+        key = (run, a, b, lead)
+        hit = self._modal_up.get(key)
+        if hit is None:
+            hit = resample_poly(np.hstack([force[:, :chunk], force]), up, 1, axis=1)
+            self._modal_up[key] = hit
+        return hit, chunk * up
 
     def _upsampled(self, run: int, a: int, b: int, up: int, lead: int = 0) -> np.ndarray:
         key = (run, a, b)
