@@ -334,7 +334,12 @@ def diagnose(
 
 def _more_modes_than_the_baseline(modes: Modes, baseline: Model, notes: list[str]) -> None:
     """A note where the band holds more modes than the baseline: its residual is then, at
-    least in part, the modes it lacks (no effect of the library is one)."""
+    least in part, the modes it lacks (no effect of the library is one); and one where the
+    baseline holds modes the extended rig file cannot."""
+    if baseline.extra_modes:
+        notes.append(f"the baseline holds {len(baseline.extra_modes)} linear mode(s) at the "
+                     "output beyond the rig kernel's (JSON baseline.modes); the extended rig "
+                     "TOML holds the kernel's modes only")
     held_per_axis = modes_per_axis(baseline)
     for ax, n in modes.per_axis().items():
         held = held_per_axis[ax]
