@@ -56,8 +56,6 @@ class Baseline:
     #: where the order chose a second mode: the one-mode baseline's held-out residuals (what
     #: the second mode is reported against, as a finding about the rig)
     one_mode_test: Residuals | None = None
-    #: ... and the two-mode baseline's, before any further mode (what the second mode gives)
-    two_mode_test: Residuals | None = None
 
     @property
     def params(self) -> dict[str, float]:
@@ -199,7 +197,6 @@ def choose_order(pb: Problem, ctx: Context, one: Baseline, band: tuple[float, fl
             rows.append(two_row)
             if two is not None:
                 chosen, chosen_row = two, two_row
-                chosen.two_mode_test = two.test
     start = modal_start(modes, chosen.model, band) if modes else None
     if start is not None:  # searched only where the dwells show modes the baseline lacks
         more_rows, more_base = _more_modes(pb, one, chosen, start, rules, say)
@@ -210,7 +207,6 @@ def choose_order(pb: Problem, ctx: Context, one: Baseline, band: tuple[float, fl
     coupled, coupled_row = _coupled_axes(pb, ctx, chosen, rules, say)
     rows.append(coupled_row)
     if coupled is not None:
-        coupled.two_mode_test = chosen.two_mode_test
         chosen, chosen_row = coupled, coupled_row
     for r in rows:
         r["chosen"] = r is chosen_row
@@ -661,8 +657,7 @@ def second_mode_finding(pb: Problem, ctx: Context, base: Baseline) -> Finding | 
     row = next(r for r in base.order if r["modes_per_axis"] == 2 and not r["coupled_axes"]
                and "extra_mode" not in r)
     var = LIBRARY["second_mode"].variants(ctx, base.model)[0]
-    # what the second mode gives, not the modes added after it
-    two_test = base.two_mode_test if base.two_mode_test is not None else base.test
+    two_test = base.test
     records = pb.ev.records
     noise_of = ra.channel_noise(records, pb.test)
     dwells = any(s.freq_hz for s in pb.test)
