@@ -21,7 +21,7 @@ from analysis.diagnose.data import Segment, records_from_arrays
 from analysis.diagnose.engine import _replay_rig
 from analysis.diagnose.extra_modes import ExtraMode, modal_response
 from analysis.diagnose.model import Evaluator, Model
-from analysis.diagnose.report import baseline_modes_text, order_label
+from analysis.diagnose.report import _modes_html, baseline_modes_text, order_label
 from tests.analysis.chain_modes import Chain, Plan, import_runs
 
 #: x: modes 5.22, 11.70, 23.37 and 34.86 Hz, their visibility at the driven mass within 2x
@@ -140,20 +140,35 @@ def test_a_chain_of_four_masses_gives_a_four_mode_baseline(tmp_path):
     # the text says the modes and the order in words
     assert baseline_modes_text(doc["modes"]).startswith("x: 5.2")
     assert "x 4, y 1 modes (+ x" in order_label(chosen)
+    page = "".join(_modes_html(diag))
+    assert "Modes of the baseline" in page and page.count("extra mode (linear") == 3
 
 
-def test_one_mode_keeps_one_mode_and_no_search(tmp_path):
-    """A single mass on its spring (one mode in the band): the modal fit finds one mode, so
-    no extra mode is searched for, and the baseline holds one mode per axis."""
+def test_one_mode_keeps_one_mode_and_no_search(tmp_path, capsys):
+    """A single mass on its spring (one mode in the band), through ``sfdrig diagnose``: the
+    modal fit finds one mode, so no extra mode is searched for; the baseline holds one mode
+    per axis, and the CLI and the JSON say which."""
+    import json
+
+    from sfdrig.cli import main
+
     one = Chain((12.0,), (2e5,), (0.03,))
-    diag = _diagnose(tmp_path, Plan(axes={"x": one}), 6, ["added_mass"])
-    assert diag.modes is not None and diag.modes.per_axis() == {"x": 1}
-    assert not any("extra_mode" in r for r in diag.order)
-    assert diag.to_dict()["baseline"]["modes_per_axis"] == 1
-    (mode,) = _modes_of(diag, "x")
-    (fn, zeta, mass), = _truth(one)
-    assert mode["natural_frequency_hz"] == pytest.approx(fn, rel=1e-3)
+    (run,) = import_runs(Plan(axes={"x": one}), tmp_path, 6)
+    capsys.readouterr()
+    out_json = tmp_path / "d.json"
+    assert main(["diagnose", str(run), "--effects", "added_mass", "--json", str(out_json),
+                 "--quiet"]) == 0
+    text = capsys.readouterr().out
+    doc = json.loads(out_json.read_text())
+    assert doc["modes"]["modes_per_axis"] == {"x": 1}
+    assert not any("extra_mode" in r for r in doc["baseline"]["order_selection"])
+    assert doc["baseline"]["modes_per_axis"] == 1
+    (mode,) = [m for m in doc["baseline"]["modes"] if m["axis"] == "x"]
+    (fn, zeta, _), = _truth(one)
+    assert mode["natural_frequency_hz"] == pytest.approx(fn, rel=1e-3)  # 20.55 Hz
     assert mode["damping_ratio"] == pytest.approx(zeta, rel=0.05)
+    line = next(ln for ln in text.splitlines() if ln.startswith("baseline's modes"))
+    assert f"x: {fn:.4g} Hz (3 %)" in line, line
 
 
 @pytest.mark.slow  # reason: a diagnose of two axes x 30 dwells, about 60 s of CPU
