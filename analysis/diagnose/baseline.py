@@ -266,6 +266,7 @@ class ModalStart:
     first."""
     kernel: dict[int, ExtraMode]
     extra: dict[int, list[ExtraMode]]
+    driven: frozenset[int]  # the axes the modal fit has points on
 
 
 def modal_start(modes: Modes, model: Model, band: tuple[float, float]) -> ModalStart | None:
@@ -283,6 +284,8 @@ def modal_start(modes: Modes, model: Model, band: tuple[float, float]) -> ModalS
     held = modes_per_axis(model)
     kernel: dict[int, ExtraMode] = {}
     extra: dict[int, list[ExtraMode]] = {}
+    driven = frozenset(i for i, ax in enumerate("xy") if any(lv.axis == ax
+                                                             for lv in modes.levels))
     for axis, ax in enumerate("xy"):
         fits = [lv for lv in modes.levels if lv.axis == ax]
         if not fits:
@@ -297,7 +300,7 @@ def modal_start(modes: Modes, model: Model, band: tuple[float, float]) -> ModalS
                       key=lambda m: -1.0 / (m.modal_mass_kg * 2 * m.damping_ratio
                                             * (2 * math.pi * m.natural_hz) ** 2))
         kernel[axis], extra[axis] = own, rest[:MAX_MODES - 1]
-    return ModalStart(kernel, extra) if extra else None
+    return ModalStart(kernel, extra, driven) if extra else None
 
 
 def _kernel_at(model: Model, records: list[RunRecord], start: ModalStart) -> Model:
@@ -316,7 +319,7 @@ def _kernel_at(model: Model, records: list[RunRecord], start: ModalStart) -> Mod
         names = (("mass_kg", "residual_damping_ns_per_m", "stiffness_x_n_per_m") if axis == 0
                  else ("mass_y_kg", "residual_damping_y_ns_per_m", "stiffness_y_n_per_m"))
         update.update(zip(names, (mass, damp, stiff), strict=True))
-        if axis == 1 and 0 not in start.kernel:  # y alone: x's numbers as y's
+        if axis == 1 and 0 not in start.driven:  # y alone: x's numbers as y's
             update.update(mass_kg=mass, residual_damping_ns_per_m=damp)
     eff = model.rig.effects
     rig = model.rig.model_copy(update={
