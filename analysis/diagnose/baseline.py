@@ -310,6 +310,9 @@ def _kernel_at(model: Model, records: list[RunRecord], start: ModalStart) -> Mod
     d_mass, d_damp = _film_share(model, records)
     st = model.rig.structure
     update: dict[str, Any] = {}
+    if 0 in start.kernel and 1 in start.driven and 1 not in start.kernel:
+        # a driven y keeps its mode while x's moves
+        update.update(mass_y_kg=st.mass_y(), residual_damping_y_ns_per_m=st.residual_damping_y())
     for axis, md in start.kernel.items():
         mass = max(md.modal_mass_kg - d_mass, 0.1 * md.modal_mass_kg)
         w = 2 * math.pi * md.natural_hz
