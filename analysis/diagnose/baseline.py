@@ -376,12 +376,13 @@ def _more_modes(pb: Problem, one: Baseline, chosen: Baseline, start: ModalStart,
 
     Order 0 is the one-mode baseline ``one`` refitted from its kernel mode placed on the
     dwells' modal fit (`_kernel_at`); each next order adds one extra mode (``start.extra``,
-    axis by axis, most visible first) to the order before it and is fitted with every
-    parameter (the baseline's and the extra modes': a mode starts from the modal fit, and the
-    others move once it takes its share). An order is kept where it meets the rules a finding
-    meets against the last order kept; one that does not is still grown on (a mode may matter
-    only once the others are in: the residual of the modes still missing hides it). The last
-    order kept is then judged by the same rules against ``chosen`` (the order chosen before:
+    axis by axis, most visible first) to the order before it and is fitted with its axis'
+    numbers (the kernel mode's and every extra mode's on that axis: a mode starts from the
+    modal fit, and the others move once it takes its share). An order is kept where it meets
+    the rules a finding meets against the last order kept; one that does not is still grown
+    on, unless its mode raised the training error (a mode may matter only once the others are
+    in: the residual of the modes still missing hides it). The last order kept, refitted
+    (`_refined`), is then judged by the same rules against ``chosen`` (the order chosen before:
     one or two kernel modes). Returns a row per order tried and the baseline chosen (None:
     ``chosen`` stays)."""
     t0 = time.process_time()
