@@ -238,11 +238,15 @@ def baseline_modes(model: Model, records: list[RunRecord]) -> list[dict[str, Any
     """Every mode the baseline holds, per axis: natural frequency [Hz], damping ratio and
     modal mass [kg] (the housing's from its mass, damping and stiffness, the film's added mass
     and damping included on a lubricated run; the frame's uncoupled, as the library
-    parametrises it; the extra modes' as fitted), and where each comes from."""
+    parametrises it; the extra modes' as fitted), and where each comes from; on the axes some
+    run measures."""
     st = model.rig.structure
     d_mass, d_damp = _film_share(model, records)
+    measured = {ax for r in records for ax in r.axes}
     out = []
     for i, k in enumerate((st.stiffness_x_n_per_m, st.stiffness_y_n_per_m)):
+        if i not in measured:
+            continue  # an axis no run measures: its mode is no statement about the data
         mass = (st.mass_kg if i == 0 else st.mass_y()) + d_mass
         damp = (st.residual_damping_ns_per_m if i == 0 else st.residual_damping_y()) + d_damp
         out.append({"axis": "xy"[i], "natural_frequency_hz": math.sqrt(k / mass) / (2 * math.pi),
