@@ -418,17 +418,22 @@ def _more_modes(pb: Problem, one: Baseline, chosen: Baseline, start: ModalStart,
         mine = [*kernel.get(md.axis, []),
                 *(p for i, e in enumerate(model.extra_modes) if e.axis == md.axis
                   for p in extra_mode_params(model, i))]
+        # judged where the mode acts: the held-out segments of runs measuring its axis (the
+        # other axis' residual, its modes not yet added, would hide any gain)
+        on_axis = replace(pb, test=[sg for sg in pb.test
+                                    if md.axis in pb.ev.records[sg.run].axes])
         try:
             res = fit(pb.ev, [model], mine, pb.fit_train, pb.scale_m, step=pb.step,
                       max_nfev=20 * (len(mine) + 1))
-            cand = judge_candidate(pb, "extra_mode", var, res, len(base_free) + len(extra) - 3)
+            cand = judge_candidate(on_axis, "extra_mode", var, res,
+                                   len(base_free) + len(extra) - 3)
         except Exception as err:
             failed = fit_failure(err)
             if failed is None:
                 raise
             rows.append({**row, "not_chosen": failed})
             continue
-        judged, why = _judged(pb, cur, cand, rules)
+        judged, why = _judged(on_axis, cur, cand, rules)
         if why != "raises the training error":
             grown = res.model  # a mode that lowers nothing is not grown on
         f_fit = res.model.extra_modes[-1].natural_hz
@@ -440,7 +445,8 @@ def _more_modes(pb: Problem, one: Baseline, chosen: Baseline, start: ModalStart,
             f"{'kept' if why is None else 'not kept'} (mode at {f_fit:.4g} Hz, held-out "
             f"{cand.test_rms:.4g}, gain {judged['gain']:.3g} [{lo:.3g}, {hi:.3g}]"
             f"{'' if why is None else '; ' + why})")
-        rows.append({**row, **judged, "extra_mode": res.model.extra_modes[-1].to_dict(),
+        rows.append({**row, **judged, "held_out_segments": len(on_axis.test),
+                     "extra_mode": res.model.extra_modes[-1].to_dict(),
                      **({"not_chosen": why} if why else {})})
         if why is None:
             cur = _with_residuals(pb, res.model, base_free + extra, [])
@@ -512,7 +518,9 @@ def _judged(pb: Problem, base: Baseline, cand: Candidate,
     chosen (None: chosen), by the rules a finding meets."""
     base_train = train_sse(pb.ev, base.model, pb.fit_train)[0]
     base_crit, _ = criterion(base.test, pb.test, len(base.free))
-    gain = base.test.rms() / cand.test_rms
+    # ``base.test`` may hold more segments than ``pb.test`` (an axis' own, `_more_modes`)
+    gain = (base.test.rms() if len(base.test.per_segment) == len(pb.test)
+            else base.test.rms(pb.test)) / cand.test_rms
     lo, hi = bootstrap_gain(base.test, cand.test, pb.test, rules.seed)
     why = not_a_finding(cand, base_train, rules.band)
     if why is None and not (cand.criterion < base_crit and gain >= rules.min_gain
