@@ -385,7 +385,8 @@ def _more_modes(pb: Problem, one: Baseline, chosen: Baseline, start: ModalStart,
     modal fit, and the others move once it takes its share). An order is kept where it meets
     the rules a finding meets against the last order kept; one that does not is still grown
     on, unless its mode raised the training error (a mode may matter only once the others are
-    in: the residual of the modes still missing hides it). The last order kept, refitted
+    in: the residual of the modes still missing hides it); an axis' last orders not kept are
+    dropped before the next axis. The last order kept, refitted
     (`_refined`), is then judged by the same rules against ``chosen`` (the order chosen before:
     one or two kernel modes). Returns a row per order tried and the baseline chosen (None:
     ``chosen`` stays)."""
@@ -406,7 +407,11 @@ def _more_modes(pb: Problem, one: Baseline, chosen: Baseline, start: ModalStart,
                  "not_chosen": failed}], None
     cur = _with_residuals(pb, res0.model, base_free, [])
     grown = res0.model
+    axis_before = None
     for md in (md for axis in sorted(start.extra) for md in start.extra[axis]):
+        if axis_before is not None and md.axis != axis_before:
+            grown = cur.model  # an axis' last orders not kept end with it
+        axis_before = md.axis
         model = replace(grown, extra_modes=(*grown.extra_modes, md))
         extra = [p for i in range(len(model.extra_modes)) for p in extra_mode_params(model, i)]
         var = Variant({"axis": "xy"[md.axis]}, extra[-3:], [model], follow=False)
