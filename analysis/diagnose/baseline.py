@@ -5,16 +5,18 @@ held-out data.
    (``start.py``), or an equation-error ARX estimate where that has too few points; the
    replay's warm-up from the estimated decay time.
 2. Refinement (`fit_linear`): mass, damping and stiffness per axis by output error.
-3. Order (`choose_order`): one or two modes per axis, then the axes uncoupled or coupled by
-   a structural cross stiffness (where both axes' responses are measured), each kept by the
-   rules a finding meets (``candidates.py``), before any effect is tried.
+3. Order (`choose_order`): one or two modes per axis, then more modes per axis where the
+   dwells' modal fit (``modes.py``) finds them (linear modes at the output, ``extra_modes.py``),
+   then the axes uncoupled or coupled by a structural cross stiffness (where both axes'
+   responses are measured), each kept by the rules a finding meets (``candidates.py``), before
+   any effect is tried.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -31,8 +33,10 @@ from analysis.diagnose.candidates import (
 )
 from analysis.diagnose.data import DiagnoseError, RunRecord, Segment
 from analysis.diagnose.effects import LIBRARY, Context, Variant, parameters_of
+from analysis.diagnose.extra_modes import ExtraMode
 from analysis.diagnose.fitting import FitResult, arx_linear_guess, fit, fit_failure, train_sse
 from analysis.diagnose.model import Evaluator, Model, Param, Residuals, residuals, rig_param
+from analysis.diagnose.modes import MAX_MODES, Modes
 from analysis.diagnose.residual_structure import signature_sd
 from analysis.diagnose.start import OneMode, one_mode_estimate
 from analysis.diagnose.verdict import refinement_share, signal_fit
@@ -170,9 +174,10 @@ def _with_residuals(pb: Problem, model: Model, free: list[Param],
 
 def choose_order(pb: Problem, ctx: Context, one: Baseline, band: tuple[float, float],
                  seed: int, min_gain: float, min_gain_lo: float, say: Any,
-                 second_mode: bool = True) -> Baseline:
+                 second_mode: bool = True, modes: Modes | None = None) -> Baseline:
     """The fitted baseline's order, chosen on held-out data: one or two modes per axis, then
-    the axes uncoupled or coupled by a structural cross stiffness.
+    more modes per axis (``_more_modes``: where the dwells' modal fit ``modes`` finds modes
+    the baseline lacks), then the axes uncoupled or coupled by a structural cross stiffness.
 
     The second mode (``second_mode``: the frame as a second mass-spring under the housing) is
     fitted with the one-mode baseline's parameters, from the same starts as the library term.
@@ -192,6 +197,13 @@ def choose_order(pb: Problem, ctx: Context, one: Baseline, band: tuple[float, fl
             rows.append(two_row)
             if two is not None:
                 chosen, chosen_row = two, two_row
+    start = modal_start(modes, chosen.model, band) if modes else None
+    if start is not None:  # searched only where the dwells show modes the baseline lacks
+        more_rows, more_base = _more_modes(pb, one, chosen, start, rules, say)
+        rows.extend(more_rows)
+        if more_base is not None:
+            chosen, chosen_row = more_base, next(r for r in reversed(more_rows)
+                                                 if "not_chosen" not in r)
     coupled, coupled_row = _coupled_axes(pb, ctx, chosen, rules, say)
     rows.append(coupled_row)
     if coupled is not None:
@@ -202,6 +214,291 @@ def choose_order(pb: Problem, ctx: Context, one: Baseline, band: tuple[float, fl
     if chosen.model.rig.effects.second_mode.enabled:
         chosen.one_mode_test = one.test
     return chosen
+
+
+def modes_per_axis(model: Model) -> dict[str, int]:
+    """The modes the baseline ``model`` holds per axis: the kernel's (the housing, and the
+    frame where ``second_mode`` is on) and the extra modes at the output."""
+    kernel = 2 if model.rig.effects.second_mode.enabled else 1
+    return {ax: kernel + sum(1 for m in model.extra_modes if m.axis == i)
+            for i, ax in enumerate("xy")}
+
+
+def _film_share(model: Model, records: list[RunRecord]) -> tuple[float, float]:
+    """The film's added mass [kg] and centred damping [N.s/m] in the kernel's mode (none on
+    dry runs)."""
+    if not any(r.lubricated for r in records):
+        return 0.0, 0.0
+    film = model.rig.film
+    return (film.fluid_mass_kg + film.added_mass(),
+            film.eq16_damping_centred(film.viscosity_pa_s(model.rig.oil.initial_temperature_c)))
+
+
+def baseline_modes(model: Model, records: list[RunRecord]) -> list[dict[str, Any]]:
+    """Every mode the baseline holds, per axis: natural frequency [Hz], damping ratio and
+    modal mass [kg] (the housing's from its mass, damping and stiffness, the film's added mass
+    and damping included on a lubricated run; the frame's uncoupled, as the library
+    parametrises it; the extra modes' as fitted), and where each comes from; on the axes some
+    run measures."""
+    st = model.rig.structure
+    d_mass, d_damp = _film_share(model, records)
+    measured = {ax for r in records for ax in r.axes}
+    out = []
+    for i, k in enumerate((st.stiffness_x_n_per_m, st.stiffness_y_n_per_m)):
+        if i not in measured:
+            continue  # an axis no run measures: its mode is no statement about the data
+        mass = (st.mass_kg if i == 0 else st.mass_y()) + d_mass
+        damp = (st.residual_damping_ns_per_m if i == 0 else st.residual_damping_y()) + d_damp
+        out.append({"axis": "xy"[i], "natural_frequency_hz": math.sqrt(k / mass) / (2 * math.pi),
+                    "damping_ratio": damp / (2 * math.sqrt(k * mass)), "modal_mass_kg": mass,
+                    "source": "housing (kernel)"})
+        sm = model.rig.effects.second_mode
+        if sm.enabled:
+            out.append({"axis": "xy"[i], "natural_frequency_hz": sm.frequency_hz,
+                        "damping_ratio": sm.damping_ratio, "modal_mass_kg": sm.modal_mass_kg,
+                        "source": "frame (kernel, uncoupled)"})
+        for md in sorted((m for m in model.extra_modes if m.axis == i),
+                         key=lambda m: m.natural_hz):
+            out.append({**md.to_dict(), "source": "extra mode (linear, at the output)"})
+    return out
+
+
+@dataclass(frozen=True)
+class ModalStart:
+    """Where the search for more modes starts: per axis, the mode of the dwells' modal fit
+    the kernel's housing takes, and the others (the extra modes' starts), most visible
+    first."""
+    kernel: dict[int, ExtraMode]
+    extra: dict[int, list[ExtraMode]]
+    driven: frozenset[int]  # the axes the modal fit has points on
+
+
+def modal_start(modes: Modes, model: Model, band: tuple[float, float]) -> ModalStart | None:
+    """The start of the search for more modes (None: no axis has a mode the baseline lacks).
+
+    Per driven axis, the modes of the dwells' modal fit at its reference level (the most
+    modes; the lowest level among equals) in the excited ``band``. Where they are more than
+    the modes ``model`` holds on that axis, the kernel's housing takes the one that forgets
+    its start fastest (largest zeta w_n: the kernel replays each dwell from rest a warm-up
+    sized at the start, while the extra modes start in their exact steady state; on the rig
+    that is the film's well-damped mode), and the others are the extra modes' starts, up to
+    ``MAX_MODES`` per axis in all, most visible first (largest resonant receptance
+    |A| / (2 zeta w_n^2)); modal masses from the residues (|A| = 1 / m).
+    """
+    held = modes_per_axis(model)
+    kernel: dict[int, ExtraMode] = {}
+    extra: dict[int, list[ExtraMode]] = {}
+    driven = frozenset(i for i, ax in enumerate("xy") if any(lv.axis == ax
+                                                             for lv in modes.levels))
+    for axis, ax in enumerate("xy"):
+        fits = [lv for lv in modes.levels if lv.axis == ax]
+        if not fits:
+            continue
+        ref = max(fits, key=lambda lv: len(lv.modes))
+        found = [ExtraMode(axis, m.natural_hz, m.damping_ratio, 1.0 / abs(m.residue))
+                 for m in ref.modes if band[0] <= m.natural_hz <= band[1] and abs(m.residue) > 0]
+        if len(found) <= held[ax]:
+            continue
+        own = max(found, key=lambda m: m.damping_ratio * m.natural_hz)
+        rest = sorted((m for m in found if m is not own),
+                      key=lambda m: -1.0 / (m.modal_mass_kg * 2 * m.damping_ratio
+                                            * (2 * math.pi * m.natural_hz) ** 2))
+        kernel[axis], extra[axis] = own, rest[:MAX_MODES - 1]
+    return ModalStart(kernel, extra, driven) if extra else None
+
+
+def _kernel_at(model: Model, records: list[RunRecord], start: ModalStart) -> Model:
+    """``model`` with one kernel mode per axis (no frame), placed on ``start.kernel``'s modes:
+    each axis' mass, damping and stiffness from its own mode (the film's share taken off, kept
+    positive; y's mass and damping apart from x's)."""
+    d_mass, d_damp = _film_share(model, records)
+    st = model.rig.structure
+    update: dict[str, Any] = {}
+    if 0 in start.kernel and 1 in start.driven and 1 not in start.kernel:
+        # a driven y keeps its mode while x's moves
+        update.update(mass_y_kg=st.mass_y(), residual_damping_y_ns_per_m=st.residual_damping_y())
+    for axis, md in start.kernel.items():
+        mass = max(md.modal_mass_kg - d_mass, 0.1 * md.modal_mass_kg)
+        w = 2 * math.pi * md.natural_hz
+        damp = max(2 * md.damping_ratio * (mass + d_mass) * w - d_damp,
+                   0.1 * md.damping_ratio * (mass + d_mass) * w)
+        stiff = (mass + d_mass) * w**2
+        names = (("mass_kg", "residual_damping_ns_per_m", "stiffness_x_n_per_m") if axis == 0
+                 else ("mass_y_kg", "residual_damping_y_ns_per_m", "stiffness_y_n_per_m"))
+        update.update(zip(names, (mass, damp, stiff), strict=True))
+        if axis == 1 and 0 not in start.driven:  # y alone: x's numbers as y's
+            update.update(mass_kg=mass, residual_damping_ns_per_m=damp)
+    eff = model.rig.effects
+    rig = model.rig.model_copy(update={
+        "structure": st.model_copy(update=update),
+        "effects": eff.model_copy(update={
+            "second_mode": eff.second_mode.model_copy(update={"enabled": False})})})
+    return replace(model, rig=rig, extra_modes=())
+
+
+def _kernel_params(model: Model, axis: int) -> list[Param]:
+    """The kernel mode's mass, damping and stiffness on ``axis`` (y's apart from x's)."""
+    st = model.rig.structure
+    m, c, k = ((st.mass_kg, st.residual_damping_ns_per_m, st.stiffness_x_n_per_m) if axis == 0
+               else (st.mass_y(), st.residual_damping_y(), st.stiffness_y_n_per_m))
+    ax, y = "xy"[axis], "_y" if axis else ""
+    return [rig_param(f"mass{y}_kg", f"structure.mass{y}_kg", 0.05 * m, 1e-3 * m),
+            rig_param(f"damping{y}_Ns_per_m", f"structure.residual_damping{y}_ns_per_m",
+                      0.1 * max(c, 1e-6 * m), 0.0),
+            rig_param(f"stiffness_{ax}_N_per_m", f"structure.stiffness_{ax}_n_per_m", 0.02 * k,
+                      1e-3 * k)]
+
+
+def extra_mode_params(model: Model, index: int) -> list[Param]:
+    """The fitted numbers of ``model.extra_modes[index]``: natural frequency (within 1.5x of
+    its start: further, it is no longer the mode the dwells show), damping ratio and modal
+    mass."""
+    md = model.extra_modes[index]
+    ax = "xy"[md.axis]
+    k = 1 + sum(1 for m in model.extra_modes[:index + 1] if m.axis == md.axis)
+
+    def param(field_name: str, label: str, scale: float, lo: float, hi: float) -> Param:
+        def get(m: Model) -> float:
+            return float(getattr(m.extra_modes[index], field_name))
+
+        def put(m: Model, v: float) -> Model:
+            em = list(m.extra_modes)
+            em[index] = ExtraMode(**{**asdict(em[index]), field_name: float(v)})
+            return replace(m, extra_modes=tuple(em))
+        return Param(f"{ax}_mode{k}_{label}", get, put, scale, lo, hi)
+
+    return [param("natural_hz", "frequency_hz", 0.01 * md.natural_hz, md.natural_hz / 1.5,
+                  md.natural_hz * 1.5),
+            param("damping_ratio", "damping_ratio", 0.2 * md.damping_ratio, 1e-4, 0.5),
+            param("modal_mass_kg", "modal_mass_kg", 0.1 * md.modal_mass_kg,
+                  1e-3 * md.modal_mass_kg, 1e3 * md.modal_mass_kg)]
+
+
+def _more_modes(pb: Problem, one: Baseline, chosen: Baseline, start: ModalStart,
+                rules: _Rules, say: Any) -> tuple[list[dict[str, Any]], Baseline | None]:
+    """More modes per axis: the order 0, 1, 2, ... extra modes chosen on held-out data.
+
+    Order 0 is the one-mode baseline ``one`` refitted from its kernel mode placed on the
+    dwells' modal fit (`_kernel_at`); each next order adds one extra mode (``start.extra``,
+    axis by axis, most visible first) to the order before it and is fitted with its axis'
+    numbers (the kernel mode's and every extra mode's on that axis: a mode starts from the
+    modal fit, and the others move once it takes its share). An order is kept where it meets
+    the rules a finding meets against the last order kept; one that does not is still grown
+    on, unless its mode raised the training error (a mode may matter only once the others are
+    in: the residual of the modes still missing hides it); an axis' last orders not kept are
+    dropped before the next axis. The last order kept, refitted
+    (`_refined`), is then judged by the same rules against ``chosen`` (the order chosen before:
+    one or two kernel modes). Returns a row per order tried and the baseline chosen (None:
+    ``chosen`` stays)."""
+    t0 = time.process_time()
+    rows: list[dict[str, Any]] = []
+    placed = _kernel_at(one.model, pb.ev.records, start)
+    kernel = {axis: _kernel_params(placed, axis) for axis in sorted(start.kernel)}
+    base_free = _unique([*one.free, *(p for ps in kernel.values() for p in ps)])
+    try:
+        res0 = fit(pb.ev, [placed], [p for ps in kernel.values() for p in ps], pb.fit_train,
+                   pb.scale_m, step=pb.step, max_nfev=60)
+    except Exception as err:
+        failed = fit_failure(err)
+        if failed is None:
+            raise
+        say(f"baseline order: no more modes ({failed})")
+        return [{"modes_per_axis": 2, "coupled_axes": False, "extra_mode": None,
+                 "not_chosen": failed}], None
+    cur = _with_residuals(pb, res0.model, base_free, [])
+    grown = res0.model
+    axis_before = None
+    for md in (md for axis in sorted(start.extra) for md in start.extra[axis]):
+        if axis_before is not None and md.axis != axis_before:
+            grown = cur.model  # an axis' last orders not kept end with it
+        axis_before = md.axis
+        model = replace(grown, extra_modes=(*grown.extra_modes, md))
+        extra = [p for i in range(len(model.extra_modes)) for p in extra_mode_params(model, i)]
+        var = Variant({"axis": "xy"[md.axis]}, extra[-3:], [model], follow=False)
+        n_modes = modes_per_axis(model)
+        row: dict[str, Any] = {"modes_per_axis": max(n_modes.values()), "modes": n_modes,
+                               "coupled_axes": False, "extra_mode": md.to_dict()}
+        # the axis' own numbers: the other axis' replay does not change (its runs, if
+        # separate, are replayed from the kernel's cache)
+        mine = [*kernel.get(md.axis, []),
+                *(p for i, e in enumerate(model.extra_modes) if e.axis == md.axis
+                  for p in extra_mode_params(model, i))]
+        # judged where the mode acts: the held-out segments of runs measuring its axis (the
+        # other axis' residual, its modes not yet added, would hide any gain)
+        on_axis = replace(pb, test=[sg for sg in pb.test
+                                    if md.axis in pb.ev.records[sg.run].axes])
+        try:
+            res = fit(pb.ev, [model], mine, pb.fit_train, pb.scale_m, step=pb.step,
+                      max_nfev=20 * (len(mine) + 1))
+            cand = judge_candidate(on_axis, "extra_mode", var, res,
+                                   len(base_free) + len(extra) - 3)
+        except Exception as err:
+            failed = fit_failure(err)
+            if failed is None:
+                raise
+            rows.append({**row, "not_chosen": failed})
+            continue
+        judged, why = _judged(on_axis, cur, cand, rules)
+        if why != "raises the training error":
+            grown = res.model  # a mode that lowers nothing is not grown on
+        f_fit = res.model.extra_modes[-1].natural_hz
+        if why is None and not rules.band[0] <= f_fit <= rules.band[1]:
+            why = (f"mode at {f_fit:.4g} Hz outside the excited band "
+                   f"{rules.band[0]:.4g}..{rules.band[1]:.4g} Hz")
+        lo, hi = judged["gain_interval"]
+        say(f"baseline order: {n_modes['xy'[md.axis]]} modes on {'xy'[md.axis]} "
+            f"{'kept' if why is None else 'not kept'} (mode at {f_fit:.4g} Hz, held-out "
+            f"{cand.test_rms:.4g}, gain {judged['gain']:.3g} [{lo:.3g}, {hi:.3g}]"
+            f"{'' if why is None else '; ' + why})")
+        rows.append({**row, **judged, "held_out_segments": len(on_axis.test),
+                     "extra_mode": res.model.extra_modes[-1].to_dict(),
+                     **({"not_chosen": why} if why else {})})
+        if why is None:
+            cur = _with_residuals(pb, res.model, base_free + extra, [])
+    kept = [r for r in rows if "not_chosen" not in r]
+    if not kept:
+        return rows, None
+    cur = _refined(pb, cur, kernel)
+    # the highest order kept against the order chosen before it, by the same rules
+    params = cur.free[len(base_free):]
+    var = Variant({}, params, [cur.model], follow=False)
+    fit_res = FitResult(cur.model, train_sse(pb.ev, cur.model, pb.fit_train)[0],
+                        sum(s.n for s in pb.fit_train), 0)
+    cand = judge_candidate(pb, "extra_mode", var, fit_res, len(cur.free) - len(params))
+    judged, why = _judged(pb, chosen, cand, rules)
+    lo, hi = judged["gain_interval"]
+    say(f"baseline order: {'more modes' if why is None else 'no more modes'} "
+        f"({', '.join(f'{ax} {n}' for ax, n in modes_per_axis(cur.model).items())} against the "
+        f"order before: gain {judged['gain']:.3g} [{lo:.3g}, {hi:.3g}]"
+        f"{'' if why is None else '; ' + why}; {time.process_time() - t0:.1f} s CPU)")
+    kept[-1]["against_order_before"] = {"gain": judged["gain"], "gain_interval": [lo, hi],
+                                        **({"not_chosen": why} if why else {})}
+    if why is not None:
+        kept[-1]["not_chosen"] = f"against the order before: {why}"
+        return rows, None
+    return rows, cur
+
+
+def _refined(pb: Problem, base: Baseline, kernel: dict[int, list[Param]]) -> Baseline:
+    """``base`` refitted axis by axis (the kernel mode's and the extra modes' numbers of each),
+    from where the order search left it: each order's fit stops at a budget sized for one new
+    mode, and the last one's modes have not all settled."""
+    model = base.model
+    for axis in sorted({m.axis for m in model.extra_modes}):
+        mine = [*kernel.get(axis, []),
+                *(p for i, e in enumerate(model.extra_modes) if e.axis == axis
+                  for p in extra_mode_params(model, i))]
+        model = fit(pb.ev, [model], mine, pb.fit_train, pb.scale_m, step=pb.step,
+                    max_nfev=40 * (len(mine) + 1)).model
+    return _with_residuals(pb, model, base.free, [])
+
+
+def _unique(params: list[Param]) -> list[Param]:
+    """``params`` without the repeats of a name (the first kept)."""
+    seen: dict[str, Param] = {}
+    for p in params:
+        seen.setdefault(p.name, p)
+    return list(seen.values())
 
 
 @dataclass(frozen=True)
@@ -226,7 +523,9 @@ def _judged(pb: Problem, base: Baseline, cand: Candidate,
     chosen (None: chosen), by the rules a finding meets."""
     base_train = train_sse(pb.ev, base.model, pb.fit_train)[0]
     base_crit, _ = criterion(base.test, pb.test, len(base.free))
-    gain = base.test.rms() / cand.test_rms
+    # ``base.test`` may hold more segments than ``pb.test`` (an axis' own, `_more_modes`)
+    gain = (base.test.rms() if len(base.test.per_segment) == len(pb.test)
+            else base.test.rms(pb.test)) / cand.test_rms
     lo, hi = bootstrap_gain(base.test, cand.test, pb.test, rules.seed)
     why = not_a_finding(cand, base_train, rules.band)
     if why is None and not (cand.criterion < base_crit and gain >= rules.min_gain
@@ -284,8 +583,9 @@ def _coupled_axes(pb: Problem, ctx: Context, base: Baseline, rules: _Rules,
     where the other axis answers, so on a film the rods' k_xy is chosen only where it explains
     the held-out data better than the film's cross terms would (``_film_couples_better``).
     """
-    modes = 2 if base.model.rig.effects.second_mode.enabled else 1
-    row: dict[str, Any] = {"modes_per_axis": modes, "coupled_axes": True}
+    modes = modes_per_axis(base.model)
+    row: dict[str, Any] = {"modes_per_axis": max(modes.values()), "coupled_axes": True,
+                           **({"modes": modes} if base.model.extra_modes else {})}
     why_not = _why_not_coupled(pb.ev.records)
     if why_not is not None:
         say(f"baseline order: axes uncoupled (coupling not tried: {why_not})")
@@ -378,7 +678,8 @@ def second_mode_finding(pb: Problem, ctx: Context, base: Baseline) -> Finding | 
     (`engine._weak`)."""
     if base.one_mode_test is None or not base.model.rig.effects.second_mode.enabled:
         return None
-    row = next(r for r in base.order if r["modes_per_axis"] == 2 and not r["coupled_axes"])
+    row = next(r for r in base.order if r["modes_per_axis"] == 2 and not r["coupled_axes"]
+               and "extra_mode" not in r)
     var = LIBRARY["second_mode"].variants(ctx, base.model)[0]
     two_test = base.test
     records = pb.ev.records

@@ -59,11 +59,13 @@ from analysis.diagnose import residual_analysis as ra
 from analysis.diagnose.amplitude import AmplitudeDependence, check_levels
 from analysis.diagnose.baseline import (
     Baseline,
+    baseline_modes,
     choose_order,
     data_start,
     fit_linear,
     fit_subset,
     is_imported,
+    modes_per_axis,
     second_mode_finding,
 )
 from analysis.diagnose.candidates import (
@@ -170,8 +172,9 @@ class Diagnosis:
             "baseline": {"kind": self.baseline_kind, "rms_error": self.baseline_rms,
                          "units": self.units, "parameters": self.baseline_params,
                          "train_rms_error": self.baseline_train.rms(),
-                         "modes_per_axis": 2 if self.baseline_model.rig.effects.second_mode
-                         .enabled else 1,
+                         "modes_per_axis": max(modes_per_axis(self.baseline_model)
+                                               .values()),
+                         "modes": baseline_modes(self.baseline_model, self.records),
                          "coupled_axes": self.baseline_model.rig.structure
                          .stiffness_xy_n_per_m != 0.0,
                          "order_selection": self.order,
@@ -264,9 +267,13 @@ def diagnose(
     lo_hz, hi_hz = excited_band(records, train)
     band = (lo_hz / 1.25, hi_hz * 1.25)
     wanted = effects or list(LIBRARY)
+    # the modes in the band per level, from the data alone: the starts of the modes the
+    # fitted baseline's order adds beyond the kernel's
+    modes = modal_dependence(records, train + test)
+    say(f"modes in the band: {modes.text}")
     if fitted:
         base = choose_order(pb, ctx, base, band, seed, min_gain, min_gain_lo, say,
-                            second_mode="second_mode" in wanted)
+                            second_mode="second_mode" in wanted, modes=modes)
         ctx = replace(ctx, base=base.model)
 
     # 2. rounds of effects
@@ -309,9 +316,6 @@ def diagnose(
     amplitude = check_levels(ev, base.model, pb.fit_train, train + test, base.train.offsets,
                              findings)
     say(f"amplitude dependence: {amplitude.text}")
-    # the modes in the band per level, from the data alone (the baseline holds one or two)
-    modes = modal_dependence(records, train + test)
-    say(f"modes in the band: {modes.text}")
     _more_modes_than_the_baseline(modes, base.model, notes)
     ext = extended_rig(search.model, ev.duration_s, ev.drift_anchor(search.model))
     if imported:
@@ -330,9 +334,15 @@ def diagnose(
 
 def _more_modes_than_the_baseline(modes: Modes, baseline: Model, notes: list[str]) -> None:
     """A note where the band holds more modes than the baseline: its residual is then, at
-    least in part, the modes it lacks (no effect of the library is one)."""
-    held = 2 if baseline.rig.effects.second_mode.enabled else 1
+    least in part, the modes it lacks (no effect of the library is one); and one where the
+    baseline holds modes the extended rig file cannot."""
+    if baseline.extra_modes:
+        notes.append(f"the baseline holds {len(baseline.extra_modes)} linear mode(s) at the "
+                     "output beyond the rig kernel's (JSON baseline.modes); the extended rig "
+                     "TOML holds the kernel's modes only")
+    held_per_axis = modes_per_axis(baseline)
     for ax, n in modes.per_axis().items():
+        held = held_per_axis[ax]
         if n > held:
             notes.append(f"the band holds {n} modes on {ax} (modal fit of the dwells); the "
                          f"baseline holds {held}: its residual is in part the modes it lacks")

@@ -37,6 +37,7 @@ import numpy as np
 from scipy.signal import resample_poly
 
 from analysis.diagnose.data import RunRecord, Segment
+from analysis.diagnose.extra_modes import ExtraMode, modal_response
 from analysis.diagnose.oil import DriftCourse
 from rig_model import physics
 from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
@@ -52,8 +53,9 @@ class Model:
     delay_s: dict[str, float] = field(default_factory=dict)  # channel -> delay [s]
     visc_relative_change: float = 0.0  # film damping change from start to end of the data
     force_offset_n: tuple[float, float] = (0.0, 0.0)
-
-
+    #: linear modes added at the output beyond the kernel's (``extra_modes``): the fitted
+    #: baseline's higher order where the band holds several modes per axis
+    extra_modes: tuple[ExtraMode, ...] = ()
 
 def set_path(model: Model, path: str, value: Any) -> Model:
     """A copy of ``model`` with the RigParams field at dotted ``path`` set to ``value``."""
@@ -142,6 +144,8 @@ class Evaluator:
         self._cache_bytes = 0
         self.cache_limit_bytes = 400 * 2**20  # simulations kept for measurement-only changes
         self._up_cache: dict[tuple[int, int, int], np.ndarray] = {}
+        # per steady-state window: the oversampled force the extra modes see (`_modal_force`)
+        self._modal_up: dict[tuple[int, int, int, int], np.ndarray] = {}
         # per window: its force with the lead (the same for every model)
         self._force_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
         # the replay inputs of the last model asked about (a prediction asks per window)
@@ -254,15 +258,27 @@ class Evaluator:
         [m], relative velocity [m/s], absolute housing acceleration [m/s^2]; from rest
         at ``a``, or, for a dwell replayed in steady state, after whole periods of its own
         force (the viscosity of its first sample)."""
-        rec = self.records[run]
         lead = self._lead(run, a, b)
         # what the replay reads of the model: equal keys, equal responses (a model that
         # differs only where the kernel does not look, an effect enabled at 0, is a hit)
         kp, rest = self._inputs(model, run)
         key = (kp.tobytes(), rest, run, a, b)
         hit = self._cache.get(key)
-        if hit is not None:
-            return hit
+        if hit is None:
+            hit = self._kernel_truth(model, run, a, b, lead, kp)
+            self._cache[key] = hit
+            self._cache_bytes += hit.nbytes
+            while self._cache_bytes > self.cache_limit_bytes and len(self._cache) > 1:
+                oldest = next(iter(self._cache))  # first inserted
+                self._cache_bytes -= self._cache.pop(oldest).nbytes
+        # the extra modes are outside the kernel (and its cache): a fit of their parameters
+        # alone replays no kernel
+        return self._plus_extra_modes(model, run, a, b, lead, hit)
+
+    def _kernel_truth(self, model: Model, run: int, a: int, b: int, lead: int,
+                      kp: np.ndarray) -> np.ndarray:
+        """The kernel's response (6, b - a) of window [a, b) (`truth`, without extra modes)."""
+        rec = self.records[run]
         visc = self._viscosity_scale(model, run, a, b)
         if lead:
             visc = np.concatenate([np.full(lead, visc[0]), visc])
@@ -293,12 +309,51 @@ class Evaluator:
             idx[idx < 0] = 0
             xy = np.vstack([tr.x_m[idx], tr.y_m[idx], tr.vx_m_per_s[idx], tr.vy_m_per_s[idx],
                             tr.ax_m_per_s2[idx], tr.ay_m_per_s2[idx]])
-        self._cache[key] = xy
-        self._cache_bytes += xy.nbytes
-        while self._cache_bytes > self.cache_limit_bytes and len(self._cache) > 1:
-            oldest = next(iter(self._cache))  # first inserted
-            self._cache_bytes -= self._cache.pop(oldest).nbytes
         return xy
+
+    def _plus_extra_modes(self, model: Model, run: int, a: int, b: int, lead: int,
+                          xy: np.ndarray) -> np.ndarray:
+        """``xy`` with the response of ``model.extra_modes`` added to their axes' rows, driven
+        by the force the kernel saw (oversampled where the kernel's was), from the exact
+        periodic steady state of a steady-state dwell's whole periods, else from rest at
+        ``a``."""
+        if not model.extra_modes:
+            return xy
+        up = self.oversample.get(run, 1)
+        chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
+        force, first = self._modal_force(run, a, b, up, lead, chunk)
+        force = force + np.asarray(model.force_offset_n)[:, None]
+        # the run's sample a + i is the force's sample first + (lead + i) * up (where the
+        # kernel reports it)
+        shift = 0 if up <= 1 or hasattr(physics, "S_FPX") else -1
+        idx = np.maximum((lead + np.arange(b - a)) * up + shift, 0)
+        fs = self.records[run].sample_rate_hz * up
+        out = xy.copy()
+        for axis in (0, 1):
+            modes = [md for md in model.extra_modes if md.axis == axis]
+            if modes:
+                resp = modal_response(force[axis, first:], fs, modes,
+                                      periodic=chunk * up if lead else 0)
+                out[axis::2] += resp[:, idx]
+        return out
+
+    def _modal_force(self, run: int, a: int, b: int, up: int, lead: int,
+                     chunk: int) -> tuple[np.ndarray, int]:
+        """The force the extra modes are driven by over window [a, b) with its lead, and the
+        index of its sample where the lead starts. Oversampled, a steady-state dwell's force
+        has one more whole-period chunk before its lead, so the interpolator's start-up
+        transient falls there and the chunk the periodic state is taken from is clean."""
+        force = self._window_force(run, a, b, lead)
+        if up <= 1:
+            return force, 0
+        if not lead:
+            return self._upsampled(run, a, b, up, lead), 0
+        key = (run, a, b, lead)
+        hit = self._modal_up.get(key)
+        if hit is None:
+            hit = resample_poly(np.hstack([force[:, :chunk], force]), up, 1, axis=1)
+            self._modal_up[key] = hit
+        return hit, chunk * up
 
     def _upsampled(self, run: int, a: int, b: int, up: int, lead: int = 0) -> np.ndarray:
         key = (run, a, b)

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from analysis.diagnose import residual_analysis as ra
+from analysis.diagnose.baseline import baseline_modes
 from analysis.diagnose.engine import Diagnosis
 from analysis.diagnose.hysteresis import describing_function_text
 from analysis.diagnose.model import Residuals
@@ -41,10 +42,19 @@ def write_json(diag: Diagnosis, path: Path, extended_model_path: str | None) -> 
 
 
 def order_label(row: dict[str, Any]) -> str:
-    """One row of the fitted baseline's order table in words: modes per axis, and the axes
-    uncoupled or coupled (with the fitted cross stiffness)."""
+    """One row of the fitted baseline's order table in words: modes per axis (and the mode a
+    row adds beyond the kernel's), and the axes uncoupled or coupled (with the fitted cross
+    stiffness)."""
     n = row["modes_per_axis"]
-    text = f"{n} mode{'s' if n > 1 else ''} per axis, axes "
+    per_axis = row.get("modes")
+    if per_axis and len(set(per_axis.values())) > 1:
+        text = ", ".join(f"{ax} {k}" for ax, k in per_axis.items()) + " modes"
+    else:
+        text = f"{n} mode{'s' if n > 1 else ''} per axis"
+    added = row.get("extra_mode")
+    if added:
+        text += f" (+ {added['axis']} {added['natural_frequency_hz']:.4g} Hz)"
+    text += ", axes "
     if not row.get("coupled_axes"):
         return text + "uncoupled"
     k_xy = row.get("parameters", {}).get("stiffness_xy_N_per_m")
@@ -244,11 +254,27 @@ def _amplitude_html(diag: Diagnosis) -> list[str]:
     return out
 
 
+def baseline_modes_text(rows: list[dict[str, Any]]) -> str:
+    """The fitted baseline's modes per axis in words (``baseline.baseline_modes``' rows)."""
+    parts = []
+    for ax in dict.fromkeys(r["axis"] for r in rows):
+        mine = sorted((r for r in rows if r["axis"] == ax),
+                      key=lambda r: r["natural_frequency_hz"])
+        parts.append(f"{ax}: " + ", ".join(f"{r['natural_frequency_hz']:.4g} Hz "
+                                            f"({100 * r['damping_ratio']:.2g} %)" for r in mine))
+    return "; ".join(parts)
+
+
 def _modes_html(diag: Diagnosis) -> list[str]:
     modes = diag.modes
     if modes is None:
         return []
-    out = ["<h2>Modes in the band (modal fit per level, order by the points' noise)</h2>",
+    base = baseline_modes(diag.baseline_model, diag.records)
+    out = ["<h2>Modes of the baseline (one model for every level)</h2>",
+           f"<p><b>{html.escape(baseline_modes_text(base))}</b></p>",
+           _table(base, ["axis", "natural_frequency_hz", "damping_ratio", "modal_mass_kg",
+                         "source"]),
+           "<h2>Modes in the band (modal fit per level, order by the points' noise)</h2>",
            f"<p><b>{html.escape(modes.text)}</b></p>"]
     rows = [{"level": lv.label, "axis": lv.axis, "force_amplitude_N": lv.force_n,
              "points": lv.points, "mode": i + 1, **m.to_dict(),

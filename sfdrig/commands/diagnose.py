@@ -106,8 +106,10 @@ def _select_runs(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from analysis.diagnose import DiagnoseError, diagnose, load_run, parse_spans
+    from analysis.diagnose.baseline import baseline_modes
     from analysis.diagnose.hysteresis import describing_function_text
     from analysis.diagnose.report import (
+        baseline_modes_text,
         order_label,
         order_status,
         write_extended_model,
@@ -192,6 +194,9 @@ def _run(args: argparse.Namespace) -> int:
                   f"Hz, damping ratio {lv.damping_ratio:.3g} +/- {lv.damping_ratio_sd:.2g}")
         for eff, why in diag.amplitude.contradicted.items():
             print(f"  {eff}: contradicted by the levels: {why}")
+    if diag.baseline_kind == "fitted":
+        print("baseline's modes (frequency, damping): "
+              + baseline_modes_text(baseline_modes(diag.baseline_model, diag.records)))
     if diag.modes is not None:
         print(f"modes in the band: {diag.modes.text}")
         for tr in diag.modes.tracks:
