@@ -13,8 +13,18 @@ over the dwells of each channel (`_noise_levels`); the replay's own resolution, 
   of ``Im e`` against log amplitude, the dwell's time, its frequency and the recorded oil
   temperature; its size is the change over the data's range, its significance ``|slope| / sd``
   (the sd scaled by the line's reduced chi-square where that exceeds 1, `_slope`);
+- ``within_frequency``: chi-square of ``e`` about each frequency's own mean, over the dwells
+  sharing a frequency and motion, against the noise alone; ``amplitude_within_frequency``,
+  ``time_within_frequency``, ``oil_temperature_within_frequency``: the slopes of those
+  deviations (one offset per frequency), against the noise alone. The replay's resolution
+  is a function of the frequency (the integrator's and the force interpolation's error scale
+  with ``w dt``; a replay is linear in its force at a given frequency), the same at every
+  amplitude and time, so it cancels in these contrasts: an effect a few times the noise that
+  varies with amplitude (friction's ``1/A``, a cubic's ``A^2``) is not hidden under a floor of
+  ``RESOLUTION``. Not counted by `excess_chi2` (views of the same 1X numbers);
 - ``repeated_dwell``: a dwell measured twice (same frequency, amplitude within 5 %, same motion):
-  the difference of ``e`` between the two over its standard deviation;
+  the difference of ``e`` between the two over the noise alone (the resolution cancels, as
+  above);
 - ``fundamental``: chi-square of ``e`` over every dwell (what the 1X residual holds beyond the
   noise, whatever it follows), on ``2 n - p`` degrees of freedom (``p`` fitted parameters);
 - ``harmonics``: chi-square of the residual's 2X..5X over their noise;
@@ -150,21 +160,33 @@ def z_of_chi2(chi2: float, dof: int) -> float:
     return float(((chi2 / dof) ** (1.0 / 3.0) - (1.0 - c)) / math.sqrt(c))
 
 
-def _slope(x: np.ndarray, y: np.ndarray, sd: np.ndarray) -> tuple[float, float]:
-    """Weighted least-squares slope of ``y`` on ``x`` and its standard deviation.
+def _centred(v: np.ndarray, w: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """``v`` less its weighted mean within each group."""
+    out = v.astype(float)
+    for g in np.unique(groups):
+        m = groups == g
+        out[m] = v[m] - float(np.sum(w[m] * v[m]) / np.sum(w[m]))
+    return out
+
+
+def _slope(x: np.ndarray, y: np.ndarray, sd: np.ndarray,
+           groups: np.ndarray | None = None) -> tuple[float, float]:
+    """Weighted least-squares slope of ``y`` on ``x`` and its standard deviation; with
+    ``groups``, one offset per group (the slope within the groups).
 
     The deviation is the noise's, scaled up by the fit's reduced chi-square where that exceeds
     1: what the line does not follow (structure against another variable) scatters the slope
     too, and would otherwise make any variable, even one that is noise itself (a constant oil
     temperature), look significant beside a large structure."""
     w = 1.0 / sd**2
-    xm = float(np.sum(w * x) / np.sum(w))
-    sxx = float(np.sum(w * (x - xm) ** 2))
-    if sxx <= 0 or x.size < 3:
+    g = np.zeros(x.size, dtype=int) if groups is None else groups
+    xc, yc = _centred(x, w, g), _centred(y, w, g)
+    sxx = float(np.sum(w * xc**2))
+    dof = x.size - np.unique(g).size - 1
+    if sxx <= 0 or dof < 1:
         return 0.0, math.inf
-    b = float(np.sum(w * (x - xm) * y) / sxx)
-    a = float(np.sum(w * y) / np.sum(w)) - b * xm
-    chi2_red = float(np.sum(w * (y - a - b * x) ** 2)) / (x.size - 2)
+    b = float(np.sum(w * xc * yc) / sxx)
+    chi2_red = float(np.sum(w * (yc - b * xc) ** 2)) / dof
     return b, math.sqrt(max(chi2_red, 1.0) / sxx)
 
 
@@ -208,8 +230,9 @@ def find_structure(records: list[RunRecord], res: Residuals, segs: list[Segment]
 def _driven_tests(ch: str, dw: list[_Dwell], q: float, n_params: int) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     e = np.array([-v.r[0] / v.z1 for v in dw])
-    # per component: var(R1)/2 over |Z1|^2, with the replay's resolution
-    sd = np.array([math.hypot(math.sqrt(q / v.n / 2) / abs(v.z1), RESOLUTION) for v in dw])
+    # per component: var(R1)/2 over |Z1|^2, the noise alone and with the replay's resolution
+    sd_noise = np.array([math.sqrt(q / v.n / 2) / abs(v.z1) for v in dw])
+    sd = np.hypot(sd_noise, RESOLUTION)
     chi2 = float(np.sum(np.abs(e) ** 2 / sd**2))
     dof = max(2 * len(dw) - n_params, 1)
     rms = float(np.sqrt(np.mean(np.abs(e) ** 2)))
@@ -248,11 +271,57 @@ def _driven_tests(ch: str, dw: list[_Dwell], q: float, n_params: int) -> list[di
             rows.append(_row(name, ch, part, z, change,
                              f"{ch}: the model's error of the {_PART[part]} varies with "
                              f"{name.replace('_', ' ')} {where}: {what} {change:+.3g}"))
-    rows += _repeated(ch, dw, e, sd)
+    rows += _within_frequency(ch, dw, e, sd_noise, against)
+    rows += _repeated(ch, dw, e, sd_noise)
     return rows
 
 
-def _repeated(ch: str, dw: list[_Dwell], e: np.ndarray, sd: np.ndarray) -> list[dict[str, Any]]:
+def _within_frequency(ch: str, dw: list[_Dwell], e: np.ndarray, sd_noise: np.ndarray,
+                      against: dict[str, tuple[np.ndarray, str]]) -> list[dict[str, Any]]:
+    """The tests among dwells of one frequency and motion, against the noise alone (the
+    replay's resolution, a function of the frequency, cancels; module doc): the chi-square of
+    ``e`` about each frequency's weighted mean, and its slopes against ``against``'s
+    variables with one offset per frequency. No rows where no frequency holds two dwells."""
+    keys = [(v.freq_hz, v.seg.motion) for v in dw]
+    count = {k: keys.count(k) for k in keys}
+    mine = [i for i, k in enumerate(keys) if count[k] > 1]
+    if not mine:
+        return []
+    codes = {k: i for i, k in enumerate(dict.fromkeys(keys[i] for i in mine))}
+    groups = np.array([codes[keys[i]] for i in mine])
+    ee, sd = e[mine], sd_noise[mine]
+    w = 1.0 / sd**2
+    dev = _centred(ee.real, w, groups) + 1j * _centred(ee.imag, w, groups)
+    chi2 = float(np.sum(np.abs(dev) ** 2 * w))
+    # no degree of freedom taken for the model's parameters: a linear model moves every dwell
+    # of a frequency alike, and counting an effect's (which can follow amplitude) would
+    # lower the expected chi-square below the dof: never a false alarm by it
+    dof = 2 * (len(mine) - len(codes))
+    rms = float(np.sqrt(np.mean(np.abs(dev) ** 2)))
+    rows = [_row("within_frequency", ch, "1X", z_of_chi2(chi2, dof), rms,
+                 f"{ch}: the 1X error of the dynamic stiffness differs between dwells of the "
+                 f"same frequency, {rms:.3g} RMS over {len(mine)} dwells at {len(codes)} "
+                 f"frequencies, beyond the noise", chi2, dof)]
+    for name, (x_all, span) in against.items():
+        x = x_all[mine]
+        if float(np.ptp(_centred(x, w, groups))) <= 0:
+            continue
+        shown = np.exp(x) if name == "amplitude" else x
+        where = span.format(lo=float(np.min(shown)), hi=float(np.max(shown)))
+        for part, y in (("re", ee.real), ("im", ee.imag)):
+            b, sb = _slope(x, y, sd, groups)
+            change = b * float(np.ptp(x))
+            z = abs(b) / sb if math.isfinite(sb) else 0.0
+            what = "relative change" if part == "re" else "change [rad]"
+            rows.append(_row(f"{name}_within_frequency", ch, part, z, change,
+                             f"{ch}: the model's error of the {_PART[part]} varies with "
+                             f"{name.replace('_', ' ')} {where} among dwells of the same "
+                             f"frequency: {what} {change:+.3g}"))
+    return rows
+
+
+def _repeated(ch: str, dw: list[_Dwell], e: np.ndarray,
+              sd_noise: np.ndarray) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     for i in range(len(dw)):
         for j in range(i + 1, len(dw)):
@@ -261,7 +330,7 @@ def _repeated(ch: str, dw: list[_Dwell], e: np.ndarray, sd: np.ndarray) -> list[
                     and abs(abs(a.z1) / abs(b.z1) - 1.0) < SAME_AMPLITUDE)
             if not same:
                 continue
-            s = math.hypot(sd[i], sd[j])
+            s = math.hypot(sd_noise[i], sd_noise[j])
             for part, d in (("re", (e[j] - e[i]).real), ("im", (e[j] - e[i]).imag)):
                 rows.append(_row(
                     "repeated_dwell", ch, part, abs(d) / s, float(d),
@@ -282,8 +351,14 @@ def _row(test: str, ch: str, part: str, z: float, size: float, text: str,
 def excess_chi2(rows: list[dict[str, Any]]) -> float:
     """What the residual holds beyond its noise, in noise variances: the chi-square above its
     degrees of freedom, summed over the tests that see everything periodic (the 1X error, the
-    harmonics, the other axis's 1X; the slopes are views of the same numbers)."""
-    return float(sum(max(r["chi2"] - r["dof"], 0.0) for r in rows if "chi2" in r))
+    harmonics, the other axis's 1X; the slopes and the chi-square within frequencies are views
+    of the same numbers)."""
+    return float(sum(max(r["chi2"] - r["dof"], 0.0) for r in rows
+                     if r["test"] in _WHOLE and "chi2" in r))
+
+
+#: the tests whose chi-squares together see everything periodic in the residual, once
+_WHOLE = ("fundamental", "harmonics", "other_axis")
 
 
 def structure_found(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:

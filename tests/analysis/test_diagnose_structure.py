@@ -41,11 +41,12 @@ def _plan(seed: int) -> list[tuple[float, float]]:
     return plan + [plan[0]]
 
 
-def _case(seed: int, error=None, y_share: float = 0.0, third: float = 0.0):
+def _case(seed: int, error=None, y_share: float = 0.0, third: float = 0.0,
+          noise_m: float = NOISE_M):
     """A record and the residual of a model whose relative error of the measured 1X is
     ``error(freq, amp, t)`` (complex; None: no error), with the y probe responding to x by
-    ``y_share`` of x's amplitude (the model predicting none) and a 3X of ``third`` x's
-    amplitude in x's residual."""
+    ``y_share`` of x's amplitude (the model predicting none), a 3X of ``third`` x's
+    amplitude in x's residual and probe noise ``noise_m`` [m]."""
     rng = np.random.default_rng(seed)
     plan = _plan(seed)
     n = int(DWELL_S * FS)
@@ -62,7 +63,7 @@ def _case(seed: int, error=None, y_share: float = 0.0, third: float = 0.0):
         w = 2 * math.pi * f
         clean = a * np.cos(w * t - 0.3)
         e = error(f, a, float(t.mean())) if error else 0.0
-        nx, ny = rng.normal(0, NOISE_M, n), rng.normal(0, NOISE_M, n)
+        nx, ny = rng.normal(0, noise_m, n), rng.normal(0, noise_m, n)
         x[sl] = clean + nx
         # a dynamic stiffness (1 + e) times the model's: the model predicts (1 + e) times the
         # measured 1X, so the residual (measured - predicted) is -e times it
@@ -103,13 +104,18 @@ def test_a_stiffness_changing_with_amplitude_is_named_with_its_size():
     rows = _rows(*_case(3, error=lambda f, a, t: change * (math.log(a / AMPS[0])
                                                            / math.log(AMPS[-1] / AMPS[0]) - 0.5)))
     found = [r for r in rows if r["structure"]]
-    # the chi-square of the 1X error ("fundamental") sees it too; what names it is amplitude
-    top = next(r for r in found if r["test"] != "fundamental")
-    assert (top["test"], top["channel"], top["part"]) == ("amplitude", "x", "re"), found[:3]
-    assert 7.0 < top["z"] < 14.0, top
-    assert top["size"] == pytest.approx(change, rel=0.15)
-    assert "amplitude" in top["text"] and "sd)" in top["text"]
-    assert not [r for r in found if r["test"] in ("time", "repeated_dwell", "other_axis")]
+    # the chi-squares of the 1X error (over all dwells, within each frequency) see it too;
+    # what names it is amplitude, over all dwells and among the dwells of each frequency
+    top = next(r for r in found if "chi2" not in r)
+    assert (top["test"], top["channel"], top["part"]) in (
+        ("amplitude", "x", "re"), ("amplitude_within_frequency", "x", "re")), found[:3]
+    for test in ("amplitude", "amplitude_within_frequency"):
+        row = next(r for r in found if (r["test"], r["channel"], r["part"]) == (test, "x", "re"))
+        assert 7.0 < row["z"] < 14.0, row
+        assert row["size"] == pytest.approx(change, rel=0.15)
+        assert "amplitude" in row["text"] and "sd)" in row["text"]
+    assert not [r for r in found if r["test"] in ("time", "time_within_frequency",
+                                                  "repeated_dwell", "other_axis")]
 
 
 def test_a_drift_over_the_run_shows_in_time_and_the_repeated_dwell():
@@ -199,3 +205,61 @@ def test_a_terms_signature_is_the_structure_it_removes_in_noise_sd():
     # a term that removes nothing but noise has no signature to speak of
     assert signature_sd([clean_rec], clean, clean, segs, 4) == 0.0
     assert excess_chi2(find_structure([clean_rec], clean, segs, 4)) < 60.0
+
+
+#: a quiet record: probe noise 0.1 um, so a 1X estimate's noise (2.2e-4 of |K| at 13 um over
+#: 2500 samples, 0.75e-4 at 38 um) is well under the replay's resolution (1e-3)
+QUIET_M = 0.1e-6
+
+
+def _friction_like(sigmas: float):
+    """A relative error of |K| falling as 1/A (dry friction's describing function beside a
+    linear model's absorbed mean), ``sigmas`` noise sd of a quiet record's 13 um dwell there."""
+    sd_13 = QUIET_M * math.sqrt(2 / (DWELL_S * FS)) / AMPS[0]
+    return lambda f, a, t: sigmas * sd_13 * (AMPS[0] / a - 0.6)
+
+
+@pytest.mark.parametrize(("sigmas", "flagged"), [(8.0, True), (2.0, False)])
+def test_an_amplitude_dependence_under_the_replays_resolution_is_seen_within_frequencies(
+        sigmas, flagged):
+    # 8 sd of the noise on the smallest dwells is 1.8e-3 of |K|: under twice the replay's
+    # resolution, which the tests over all dwells add to the noise, so they do not see it;
+    # among dwells of one frequency the resolution cancels and the noise alone is the floor
+    rows = _rows(*_case(11, error=_friction_like(sigmas), noise_m=QUIET_M))
+    whole = {r["test"]: r for r in rows if r["channel"] == "x" and r["part"] in ("1X", "re")}
+    assert not whole["fundamental"]["structure"] and not whole["amplitude"]["structure"]
+    within = whole["within_frequency"]
+    amp = whole["amplitude_within_frequency"]
+    assert within["structure"] is flagged and amp["structure"] is flagged, (within, amp)
+    if flagged:
+        # the chi-square about each frequency's mean exceeds its dof by the error's own
+        # (noncentrality: the error's weighted spread within each frequency, in noise
+        # variances) within its noise; the log-amplitude slope's change over 13-38 um is the
+        # error's (1/A is not a line in log A: within 25 %)
+        err = _friction_like(sigmas)
+        lam = 0.0
+        for f in FREQS:
+            amps = np.array([a for ff, a in _plan(11) if ff == f])
+            w = (amps / QUIET_M) ** 2  # 1 / sd^2, up to a common factor
+            y = np.array([err(f, a, 0.0) for a in amps])
+            lam += float(np.sum(w * (y - np.sum(w * y) / np.sum(w)) ** 2)) * DWELL_S * FS / 2
+        excess = within["chi2"] - within["dof"]
+        assert excess == pytest.approx(lam, abs=3 * math.sqrt(2 * within["dof"] + 4 * lam))
+        assert within["z"] > 8.0 and amp["z"] > 5.0, (within, amp)
+        sd_13 = QUIET_M * math.sqrt(2 / (DWELL_S * FS)) / AMPS[0]
+        truth = sigmas * sd_13 * (AMPS[0] / AMPS[-1] - 1.0)
+        assert amp["size"] == pytest.approx(truth, rel=0.25)
+        assert "same frequency" in amp["text"]
+    else:
+        assert within["z"] < 4.0 and amp["z"] < 4.0, (within, amp)
+
+
+def test_an_error_that_follows_the_frequency_alone_is_no_structure_within_frequencies():
+    # the replay's own resolution is a function of the frequency: 20 noise sd of the 38 um
+    # dwells, the same at every amplitude, leaves nothing among the dwells of one frequency
+    sd_38 = QUIET_M * math.sqrt(2 / (DWELL_S * FS)) / AMPS[-1]
+    rows = _rows(*_case(12, error=lambda f, a, t: 20 * sd_38 * (f / 60.0) ** 2 * (1 + 0.5j),
+                        noise_m=QUIET_M))
+    within = [r for r in rows if r["test"].endswith("within_frequency")
+              or r["test"] == "repeated_dwell"]
+    assert len(within) >= 7 and max(r["z"] for r in within) < 4.0, within[:3]
