@@ -82,3 +82,14 @@ def test_a_size_is_determined_within_its_tolerance_by_its_sd_and_its_move() -> N
     # a negative size (a softening spring) by its magnitude; an infinite sd never
     assert determined(-1e12, 3e10, 0.0, 0.10)
     assert not determined(1e12, math.inf, 0.0, 0.10)
+
+
+def test_a_finding_gives_each_size_with_its_sd() -> None:
+    from analysis.diagnose.candidates import Finding
+
+    f = Finding("sensor_gain", {"channel": "x", "gain_ratio": 1.0412}, 1.0, 0.5, 2.0,
+                (1.5, 2.5), {"size": {"sd": {"gain_ratio": 0.0013}}}, None, None)  # type: ignore[arg-type]
+    assert f.parameters_text() == "channel=x, gain_ratio=1.041 +- 0.0013"
+    # without a size (the second mode the order chose) the values alone
+    f.evidence = {}
+    assert f.parameters_text() == "channel=x, gain_ratio=1.041"
