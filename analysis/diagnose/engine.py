@@ -739,20 +739,22 @@ def _sizes(pb: Problem, base: Baseline, findings: list[Finding], search: _Search
         eff = LIBRARY[f.effect]
         found = dict(f.parameters)
         f.parameters = parameters_of(f.variant, search.model)
-        value = f.parameters[eff.main]
+        # the effect's main parameter, else the variant's first (cross_coupling fits only the
+        # terms from the driven axis: c_yx where c_xy is the library's main)
+        main = next((p for p in f.variant.params if p.name == eff.main), f.variant.params[0])
+        value = f.parameters[main.name]
         shift = {p.name: f.parameters[p.name] - float(found[p.name]) for p in f.variant.params}
-        sd, per_sample, per_segment = sds[id(next(p for p in f.variant.params
-                                                  if p.name == eff.main))]
-        ok = determined(value, sd, shift[eff.main], eff.tolerance)
+        sd, per_sample, per_segment = sds[id(main)]
+        ok = determined(value, sd, shift[main.name], eff.tolerance)
         f.evidence["size"] = {
-            "sd": {p.name: sds[id(p)][0] for p in f.variant.params},
+            "main": main.name, "sd": {p.name: sds[id(p)][0] for p in f.variant.params},
             "sd_per_sample": per_sample, "sd_per_segment": per_segment,
             "when_found": {p.name: found[p.name] for p in f.variant.params},
             "shift_on_joint_refit": shift,
-            "relative_doubt": doubt(sd, shift[eff.main]) / max(abs(value), 1e-300),
+            "relative_doubt": doubt(sd, shift[main.name]) / max(abs(value), 1e-300),
             "tolerance": eff.tolerance, "determined": ok}
-        say(f"size of {f.effect}: {eff.main} {value:.5g} +- {sd:.3g} (found at "
-            f"{float(found[eff.main]):.5g}): "
+        say(f"size of {f.effect}: {main.name} {value:.5g} +- {sd:.3g} (found at "
+            f"{float(found[main.name]):.5g}): "
             f"{'determined' if ok else 'not determined'} to {eff.tolerance:.0%}")
 
 
