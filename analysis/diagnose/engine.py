@@ -38,8 +38,9 @@ Procedure
    repeated dwell, harmonics, the other axis). Under either, and when a baseline parameter sits
    on a bound, every finding is low-confidence, except beside structure alone when the findings
    removed nearly all of the baseline's (``verdict.STRUCTURE_LEFT``); so is a finding whose
-   runner-up (not found itself in a later round) explains the held-out data nearly as well
-   (held-out MSE within 25 %), and a refinement: a term found once the model already left
+   runner-up (not found itself in a later round) the held-out data do not tell from it (its
+   excess squared error, the replay's resolution taken off, under 5 sd of the noise floor:
+   ``distinguish``), and a refinement: a term found once the model already left
    nothing unexplained (no structure above the noise either), explaining less than 0.5 % of the
    signal and, on dwells, a signature under 5 sd of their own noise (elsewhere less than 3/4
    of what was left; ``verdict.refinement_share``).
@@ -91,6 +92,7 @@ from analysis.diagnose.data import (
     split_by_runs,
     split_segments,
 )
+from analysis.diagnose.distinguish import held_out_difference
 from analysis.diagnose.effects import LIBRARY, Context, Effect, Variant, extended_rig, parameters_of
 from analysis.diagnose.evidence import effect_evidence, sensor_pair_check, swap_check
 from analysis.diagnose.fitting import (
@@ -597,11 +599,15 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
             "signature_sd": signature,
         }
         if runner is not None:
+            # the runner-up is told apart when its held-out squared error stands
+            # ``Z_DISTINCT`` sd of the data's noise above the top's (``distinguish``)
+            diff = held_out_difference(ctx.records, runner.test, top.test, pb.test)
             evidence["runner_up"] = {"effect": runner.effect,
                                      "gain": before / runner.test_rms,
                                      "parameters": parameters_of(runner.variant,
-                                                                 runner.fit.model)}
-            evidence["ambiguous"] = bool(top.test_rms**2 > runner.test_rms**2 / 1.25)
+                                                                 runner.fit.model),
+                                     **diff.to_dict()}
+            evidence["ambiguous"] = not diff.distinct
         evidence.update(effect_evidence(top.effect, ctx.records, pb.test, cur_test, top.test))
         if top.effect == "joint_microslip":
             evidence["describing_function"] = _joint_describing_function(
@@ -765,18 +771,23 @@ def _confidence(pb: Problem, base: Baseline, findings: list[Finding], search: _S
     finding that is no refinement, whose cause is not ambiguous and whose size the data pin
     down to its effect's tolerance (``_sizes``)."""
     for f in findings:
-        # a runner-up as good as the finding leaves the cause ambiguous, unless it was found
-        # too, or, swapped in for the finding next to the other findings, it explains the
-        # held-out data clearly worse than the final model
+        # a runner-up the held-out data do not tell from the finding leaves the cause
+        # ambiguous, unless it was found too, or, swapped in for the finding next to the other
+        # findings, its held-out error stands above the final model's beyond the noise
         found = {g.effect for g in findings}
         if f.evidence.get("ambiguous") and f.runner_up is not None:
             if f.runner_up.effect in found:
                 f.evidence["ambiguous"] = False
             else:
-                swap_rms = swap_check(pb, base.model, base.free, findings, f, search.model)
-                f.evidence["runner_up"]["held_out_error_swapped"] = swap_rms
-                if swap_rms**2 > 1.25 * search.test.rms() ** 2:
-                    f.evidence["ambiguous"] = False
+                swapped = swap_check(pb, base.model, base.free, findings, f, search.model)
+                if swapped is None:
+                    f.evidence["runner_up"]["held_out_error_swapped"] = math.nan
+                else:
+                    diff = held_out_difference(pb.ev.records, swapped, search.test, pb.test)
+                    f.evidence["runner_up"]["held_out_error_swapped"] = swapped.rms()
+                    f.evidence["runner_up"]["swapped"] = diff.to_dict()
+                    if diff.distinct:
+                        f.evidence["ambiguous"] = False
         weak = _weak(verdict, base_on_bound, f)
         # a size the data do not pin down to the effect's tolerance is no confident finding
         vague = not f.evidence.get("size", {}).get("determined", True)
