@@ -56,6 +56,20 @@ class Finding:
     runner_up: Candidate | None = None
     test_residuals: Residuals | None = None  # held-out residuals of the model with it
 
+    def parameters_text(self) -> str:
+        """The parameters as the CLI and the report give them: each fitted size with its
+        standard deviation where it is known (``k3_N_per_m3=2.6e+13 +- 1.7e+12``)."""
+        sd = self.evidence.get("size", {}).get("sd", {})
+        out = []
+        for k, v in self.parameters.items():
+            if not isinstance(v, float):
+                out.append(f"{k}={v}")
+            elif k in sd:
+                out.append(f"{k}={v:.4g} +- {sd[k]:.2g}")
+            else:
+                out.append(f"{k}={v:.4g}")
+        return ", ".join(out)
+
     def to_dict(self) -> dict[str, Any]:
         return {"effect": self.effect, "parameters": self.parameters,
                 "error_before": self.error_before, "error_after": self.error_after,

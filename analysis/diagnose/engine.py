@@ -38,11 +38,19 @@ Procedure
    repeated dwell, harmonics, the other axis). Under either, and when a baseline parameter sits
    on a bound, every finding is low-confidence, except beside structure alone when the findings
    removed nearly all of the baseline's (``verdict.STRUCTURE_LEFT``); so is a finding whose
-   runner-up (not found itself in a later round) explains the held-out data nearly as well
-   (held-out MSE within 25 %), and a refinement: a term found once the model already left
+   runner-up (not found itself in a later round) the held-out data do not tell from it (its
+   excess squared error, the replay's resolution taken off, under 5 sd of the noise floor:
+   ``distinguish``), and a refinement: a term found once the model already left
    nothing unexplained (no structure above the noise either), explaining less than 0.5 % of the
    signal and, on dwells, a signature under 5 sd of their own noise (elsewhere less than 3/4
    of what was left; ``verdict.refinement_share``).
+4. Sizes (``precision``): each finding is reported with its parameters as the final model
+   holds them (every finding refitted jointly in the last round) and their standard
+   deviations from the training residual's own noise (Jacobian at the final model, per sample
+   and per segment, the larger). A finding whose main parameter's doubt (its sd and its move
+   since the round it was found in, in quadrature) exceeds its effect's tolerance
+   (``Effect.tolerance``) is low-confidence: the right cause at an unsure size is not said
+   confidently.
 """
 
 from __future__ import annotations
@@ -86,6 +94,7 @@ from analysis.diagnose.data import (
     split_by_runs,
     split_segments,
 )
+from analysis.diagnose.distinguish import held_out_difference
 from analysis.diagnose.effects import LIBRARY, Context, Effect, Variant, extended_rig, parameters_of
 from analysis.diagnose.evidence import effect_evidence, sensor_pair_check, swap_check
 from analysis.diagnose.fitting import (
@@ -100,6 +109,7 @@ from analysis.diagnose.hysteresis import amplitude_levels, joint_table
 from analysis.diagnose.model import Evaluator, Model, Param, Residuals, residuals
 from analysis.diagnose.modes import Modes, modal_dependence
 from analysis.diagnose.oil import drift_course, mean_temperature
+from analysis.diagnose.precision import determined, doubt, parameter_sd
 from analysis.diagnose.residual_structure import (
     Z_STRUCTURE,
     excess_chi2,
@@ -305,6 +315,7 @@ def diagnose(
         if LIBRARY[f.effect].kind == "measurement":
             f.evidence.update(sensor_pair_check(pb, ctx, base.free, findings, f, search.model))
     _share_of_signal(records, test, base.test, findings)
+    _sizes(pb, base, findings, search, say)
     _confidence(pb, base, findings, search, verdict, bool(on_bound))
     mode = second_mode_finding(pb, ctx, base) if fitted else None
     if mode is not None:
@@ -600,11 +611,15 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
             "signature_sd": signature,
         }
         if runner is not None:
+            # the runner-up is told apart when its held-out squared error stands
+            # ``Z_DISTINCT`` sd of the data's noise above the top's (``distinguish``)
+            diff = held_out_difference(ctx.records, runner.test, top.test, pb.test)
             evidence["runner_up"] = {"effect": runner.effect,
                                      "gain": before / runner.test_rms,
                                      "parameters": parameters_of(runner.variant,
-                                                                 runner.fit.model)}
-            evidence["ambiguous"] = bool(top.test_rms**2 > runner.test_rms**2 / 1.25)
+                                                                 runner.fit.model),
+                                     **diff.to_dict()}
+            evidence["ambiguous"] = not diff.distinct
         evidence.update(effect_evidence(top.effect, ctx.records, pb.test, cur_test, top.test))
         if top.effect == "joint_microslip":
             evidence["describing_function"] = _joint_describing_function(
@@ -766,26 +781,69 @@ def _share_of_signal(records: list[RunRecord], test: list[Segment], base_test: R
         before_res = f.test_residuals
 
 
+def _sizes(pb: Problem, base: Baseline, findings: list[Finding], search: _Search,
+           say: Any) -> None:
+    """Each finding's size as the final model holds it (the baseline and every finding
+    refitted jointly in the last round: the model the extended rig is written from), with its
+    standard deviation from the data's noise (``precision``), how far it moved since the round
+    it was found in, and whether that pins it down to its effect's tolerance
+    (``evidence["size"]``)."""
+    params = list(base.free) + [p for f in findings for p in f.variant.params]
+    prec = parameter_sd(pb.ev, search.model, params, pb.fit_train, pb.scale_m, pb.step)
+    sds = dict(zip(map(id, params), zip(prec.sd, prec.per_sample, prec.per_segment,
+                                        strict=True), strict=True))
+    for f in findings:
+        eff = LIBRARY[f.effect]
+        found = dict(f.parameters)
+        f.parameters = parameters_of(f.variant, search.model)
+        # the effect's main parameter, else the variant's first (cross_coupling fits only the
+        # terms from the driven axis: c_yx where c_xy is the library's main)
+        main = next((p for p in f.variant.params if p.name == eff.main), f.variant.params[0])
+        value = f.parameters[main.name]
+        shift = {p.name: f.parameters[p.name] - float(found[p.name]) for p in f.variant.params}
+        sd, per_sample, per_segment = sds[id(main)]
+        ok = determined(value, sd, shift[main.name], eff.tolerance)
+        f.evidence["size"] = {
+            "main": main.name, "sd": {p.name: sds[id(p)][0] for p in f.variant.params},
+            "sd_per_sample": per_sample, "sd_per_segment": per_segment,
+            "when_found": {p.name: found[p.name] for p in f.variant.params},
+            "shift_on_joint_refit": shift,
+            "relative_doubt": doubt(sd, shift[main.name]) / max(abs(value), 1e-300),
+            "tolerance": eff.tolerance, "determined": ok}
+        say(f"size of {f.effect}: {main.name} {value:.5g} +- {sd:.3g} (found at "
+            f"{float(found[main.name]):.5g}): "
+            f"{'determined' if ok else 'not determined'} to {eff.tolerance:.0%}")
+
+
 def _confidence(pb: Problem, base: Baseline, findings: list[Finding], search: _Search,
                 verdict: Verdict, base_on_bound: bool) -> None:
     """High confidence only on an adequate baseline, a final model that leaves nothing of the
     signal unexplained and no structure beyond a small remainder of the baseline's, for a
-    finding that is no refinement and whose cause is not ambiguous."""
+    finding that is no refinement, whose cause is not ambiguous and whose size the data pin
+    down to its effect's tolerance (``_sizes``)."""
     for f in findings:
-        # a runner-up as good as the finding leaves the cause ambiguous, unless it was found
-        # too, or, swapped in for the finding next to the other findings, it explains the
-        # held-out data clearly worse than the final model
+        # a runner-up the held-out data do not tell from the finding leaves the cause
+        # ambiguous, unless it was found too, or, swapped in for the finding next to the other
+        # findings, its held-out error stands above the final model's beyond the noise
         found = {g.effect for g in findings}
         if f.evidence.get("ambiguous") and f.runner_up is not None:
             if f.runner_up.effect in found:
                 f.evidence["ambiguous"] = False
             else:
-                swap_rms = swap_check(pb, base.model, base.free, findings, f, search.model)
-                f.evidence["runner_up"]["held_out_error_swapped"] = swap_rms
-                if swap_rms**2 > 1.25 * search.test.rms() ** 2:
-                    f.evidence["ambiguous"] = False
+                swapped = swap_check(pb, base.model, base.free, findings, f, search.model)
+                if swapped is None:
+                    f.evidence["runner_up"]["held_out_error_swapped"] = math.nan
+                else:
+                    diff = held_out_difference(pb.ev.records, swapped, search.test, pb.test)
+                    f.evidence["runner_up"]["held_out_error_swapped"] = swapped.rms()
+                    f.evidence["runner_up"]["swapped"] = diff.to_dict()
+                    if diff.distinct:
+                        f.evidence["ambiguous"] = False
         weak = _weak(verdict, base_on_bound, f)
-        f.evidence["confidence"] = "low" if (weak or f.evidence.get("ambiguous")) else "high"
+        # a size the data do not pin down to the effect's tolerance is no confident finding
+        vague = not f.evidence.get("size", {}).get("determined", True)
+        f.evidence["confidence"] = ("low" if (weak or vague or f.evidence.get("ambiguous"))
+                                    else "high")
 
 
 def _weak(verdict: Verdict, base_on_bound: bool, f: Finding) -> bool:

@@ -7,6 +7,9 @@
   tell;
 - `swap_check`: the final model with the finding replaced by its runner-up (is the cause
   ambiguous?).
+
+Two models are told apart by ``distinguish.held_out_difference``: the excess of one's held-out
+squared error over the other's against the noise floor, the replay's resolution taken off.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 from analysis.diagnose import residual_analysis as ra
 from analysis.diagnose.candidates import Finding, Problem
 from analysis.diagnose.data import RunRecord, Segment
+from analysis.diagnose.distinguish import held_out_difference
 from analysis.diagnose.effects import LIBRARY, Context, parameters_of
 from analysis.diagnose.fitting import fit, fit_failure
 from analysis.diagnose.model import Model, Param, Residuals, residuals
@@ -32,8 +36,8 @@ def sensor_pair_check(pb: Problem, ctx: Context, free_base: list[Param],
     (with the baseline's own parameters and the other findings free): a gain error of the probe
     and the inverse gain error of the accelerometer, the structure scaled with it, fit alike on
     a fitted baseline; a configured baseline, or a delay (never negative), tells them apart. A
-    partner within 25 % of the final model's held-out mean square cannot be told from the
-    finding's channel.
+    partner whose held-out squared error does not stand ``Z_DISTINCT`` sd of the noise above
+    the final model's (``distinguish``) cannot be told from the finding's channel.
     """
     ch = f.parameters.get("channel")
     axis_of: dict[str, int] = {}
@@ -45,7 +49,7 @@ def sensor_pair_check(pb: Problem, ctx: Context, free_base: list[Param],
     own = f.variant.params[0]
     cleared = own.set(final, 0.0 if own.name == "delay_s" else 1.0)
     others = [p for g in findings if g is not f for p in g.variant.params]
-    final_ms = residuals(pb.ev, final, pb.fit_train, pb.test).rms() ** 2
+    final_res = residuals(pb.ev, final, pb.fit_train, pb.test)
     out: dict[str, Any] = {"pair_check": {}}
     alike: list[str] = []
     for var in LIBRARY[f.effect].variants(ctx, cleared):
@@ -56,7 +60,7 @@ def sensor_pair_check(pb: Problem, ctx: Context, free_base: list[Param],
             res = fit(pb.ev, var.starts, free_base + others + var.params, pb.fit_train,
                       pb.scale_m, max_nfev=20 * (len(free_base) + len(others) + 2),
                       step=pb.step)
-            ms = residuals(pb.ev, res.model, pb.fit_train, pb.test).rms() ** 2
+            partner_res = residuals(pb.ev, res.model, pb.fit_train, pb.test)
         except Exception as err:
             why = fit_failure(err)
             if why is None:
@@ -65,10 +69,11 @@ def sensor_pair_check(pb: Problem, ctx: Context, free_base: list[Param],
             out["pair_check"][partner] = {"not_fitted": why}
             alike.append(partner)
             continue
+        diff = held_out_difference(pb.ev.records, partner_res, final_res, pb.test)
         out["pair_check"][partner] = {
             **parameters_of(var, res.model),
-            "held_out_error": math.sqrt(ms)}
-        if ms <= 1.25 * final_ms:
+            "held_out_error": partner_res.rms(), **diff.to_dict()}
+        if not diff.distinct:
             alike.append(partner)
     out["cannot_tell_from"] = alike
     if alike:
@@ -80,9 +85,9 @@ def sensor_pair_check(pb: Problem, ctx: Context, free_base: list[Param],
 
 
 def swap_check(pb: Problem, base: Model, free_base: list[Param], findings: list[Finding],
-               f: Finding, final: Model) -> float:
-    """Held-out RMS of the final model with finding ``f`` replaced by its runner-up (NaN: that
-    model could not be fitted)."""
+               f: Finding, final: Model) -> Residuals | None:
+    """Held-out residuals of the final model with finding ``f`` replaced by its runner-up
+    (None: that model could not be fitted)."""
     assert f.runner_up is not None
     m = base
     params = list(free_base)
@@ -101,11 +106,11 @@ def swap_check(pb: Problem, base: Model, free_base: list[Param], findings: list[
     try:
         res = fit(pb.ev, [m], params, pb.fit_train, pb.scale_m,
                   max_nfev=20 * (len(params) + 1), step=pb.step)
-        return residuals(pb.ev, res.model, pb.fit_train, pb.test).rms()
+        return residuals(pb.ev, res.model, pb.fit_train, pb.test)
     except Exception as err:
         if fit_failure(err) is None:
             raise
-        return math.nan  # not fitted: the runner-up is not ruled out, the cause stays ambiguous
+        return None  # not fitted: the runner-up is not ruled out, the cause stays ambiguous
 
 
 def effect_evidence(effect: str, records: list[RunRecord], test: list[Segment],

@@ -414,12 +414,11 @@ def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None
     if diag.findings:
         parts.append(_table([{
             "effect": f.effect,
-            "parameters": ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                                    for k, v in f.parameters.items()),
+            "parameters (+- sd)": f.parameters_text(),
             "error before": f.error_before, "error after": f.error_after, "gain": f.gain,
             "gain 95% interval": f"{f.gain_interval[0]:.3g} .. {f.gain_interval[1]:.3g}",
             "confidence": f.evidence.get("confidence", ""),
-        } for f in diag.findings], ["effect", "parameters", "error before", "error after",
+        } for f in diag.findings], ["effect", "parameters (+- sd)", "error before", "error after",
                                     "gain", "gain 95% interval", "confidence"]))
         for f in diag.findings:
             if f.evidence.get("describing_function"):

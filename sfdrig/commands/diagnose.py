@@ -160,9 +160,7 @@ def _run(args: argparse.Namespace) -> int:
               + (f", held-out {row['held_out_error']:.4g} {u}" if "held_out_error" in row else "")
               + f" ({order_status(row)})")
     for f in diag.findings:
-        params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                           for k, v in f.parameters.items())
-        print(f"found {f.effect} ({params}): held-out {f.error_before:.4g} -> "
+        print(f"found {f.effect} ({f.parameters_text()}): held-out {f.error_before:.4g} -> "
               f"{f.error_after:.4g} {u}, gain {f.gain:.3g} "
               f"[{f.gain_interval[0]:.3g}, {f.gain_interval[1]:.3g}] "
               f"({f.evidence.get('confidence', '')} confidence)")

@@ -240,7 +240,14 @@ def test_cli_json_report_and_extended_model(tmp_path, capsys):
     assert "cubic_stiffness" in page and "dwells.png" in page
     for png in ("time.png", "dwells.png", "harmonics.png", "segments.png", "errors.png"):
         assert (rep / png).read_bytes()[:4] == b"\x89PNG"
-    assert "found cubic_stiffness" in capsys.readouterr().out
+    # its size with its sd from the data's noise, in the JSON, the CLI and the report
+    size = f["evidence"]["size"]
+    sd = size["sd"]["k3_N_per_m3"]
+    assert 0 < sd < 0.02 * abs(k3)
+    assert size["determined"] and f["evidence"]["confidence"] == "high"
+    assert "k3_N_per_m3=" in page and " +- " in page
+    cli = capsys.readouterr().out
+    assert "found cubic_stiffness (k3_N_per_m3=" in cli and " +- " in cli
     # the extended model replays the data to the noise floor: diagnose it again
     rc = main(["diagnose", str(case.paths[0]), "--rig", doc["extended_model"], "--json",
                str(tmp_path / "again.json"), "--quiet", "--effects", "cubic_stiffness",
