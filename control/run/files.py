@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
 import secrets
+import time
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -97,11 +100,23 @@ def close_run_file(job: Any, status: str, reason: str) -> str:
     return ""
 
 
-def recover_interrupted(runs_dir: Path) -> list[dict[str, Any]]:
+#: how long a recovery waits for readers to let go of a run file (a reader holds HDF5's shared
+#: lock only while it reads: the web's run list, a transfer of a long run takes seconds)
+LOCK_WAIT_S = 30.0
+
+
+def _locked(err: BaseException) -> bool:
+    """Whether ``err`` is HDF5's refusal of a file another process holds open (its lock)."""
+    return getattr(err, "errno", None) == errno.EAGAIN or "unable to lock file" in str(err)
+
+
+def recover_interrupted(runs_dir: Path, lock_wait_s: float = LOCK_WAIT_S,
+                        wait: Callable[[float], None] = time.sleep) -> list[dict[str, Any]]:
     """Close the runs a dead writer left "running" in ``runs_dir`` as "interrupted", with the
     last sample on disk, so that every reader opens them. A file whose writer may still be alive
-    (`storage.recovery.writer_gone`) is left alone. Never raises: a file that cannot be
-    recovered is listed with why."""
+    (`storage.recovery.writer_gone`) is left alone; one a reader holds open (a web server
+    listing the runs when the daemon starts again) is tried again, with backoff, for up to
+    ``lock_wait_s``. Never raises: a file that cannot be recovered is listed with why."""
     from storage.reader import open_run
     from storage.recovery import close_interrupted, writer_gone
 
@@ -112,8 +127,21 @@ def recover_interrupted(runs_dir: Path) -> list[dict[str, Any]]:
                 running, attrs = run.status == "running", dict(run.attrs)
             if not running or not writer_gone(attrs, path):
                 continue
-            last = close_interrupted(path, "the writer stopped without closing the run (killed "
-                                           "or crashed); recovered at the next daemon start")
+            waited, delay = 0.0, 0.05
+            while True:
+                try:
+                    last = close_interrupted(path, "the writer stopped without closing the run "
+                                                   "(killed or crashed); recovered at the next "
+                                                   "daemon start")
+                    break
+                except OSError as err:
+                    if not _locked(err) or waited >= lock_wait_s:
+                        raise
+                    log.info("%s is open in another process: recovering it again in %.2f s",
+                             path.name, delay)
+                    wait(delay)
+                    waited += delay
+                    delay = min(2 * delay, 1.0)
             log.warning("run %s was left running by a dead writer: closed as interrupted at "
                         "sample %d", path.name, last)
             out.append({"path": str(path), "status": "interrupted", "last_sample": last})
