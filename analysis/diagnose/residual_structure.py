@@ -85,6 +85,7 @@ class _Dwell:
     n: int  # samples
     block_q: float  # white level of this dwell's noise at 1X (variance x samples), or NaN
     block_dof: int
+    below_nyquist: int = N_HARMONICS  # harmonics 1X.. fitted (those below Nyquist)
 
 
 def _dwell_views(records: list[RunRecord], res: Residuals,
@@ -110,12 +111,16 @@ def _dwell_views(records: list[RunRecord], res: Residuals,
         for ch, r in res.per_segment[seg].items():
             if not np.all(np.isfinite(r)):
                 continue
-            zr, _, _ = harmonics(r, seg.start, fs, seg.freq_hz, N_HARMONICS)
+            # harmonics at or above Nyquist alias onto others (the fit's columns coincide):
+            # only those below it are fitted and tested, the rest stay 0
+            below = max(1, min(N_HARMONICS, math.ceil(fs / (2 * seg.freq_hz)) - 1))
+            zr = np.zeros(N_HARMONICS, dtype=complex)
+            zr[:below] = harmonics(r, seg.start, fs, seg.freq_hz, below)[0]
             q, dof = _block_scatter(r, seg.start, fs, seg.freq_hz)
             driven = abs(meas[ch]) >= UNDRIVEN_SHARE * top[kinds[ch][1]] > 0
             out.append(_Dwell(seg, ch, driven, seg.freq_hz,
                               0.5 * (seg.start + seg.stop) / fs, temp, complex(meas[ch]), zr,
-                              r.size, q, dof))
+                              r.size, q, dof, below))
     return out
 
 
@@ -243,7 +248,7 @@ def _driven_tests(ch: str, dw: list[_Dwell], q: float, n_params: int) -> list[di
                 / (q / v.n / 2 + (RESOLUTION * abs(v.z1)) ** 2) for v in dw)
     hshare = float(np.sqrt(np.mean([np.sum(np.abs(v.r[1:]) ** 2) / abs(v.z1) ** 2
                                      for v in dw])))
-    hdof = 2 * (N_HARMONICS - 1) * len(dw)
+    hdof = max(2 * sum(v.below_nyquist - 1 for v in dw), 1)
     rows.append(_row("harmonics", ch, "2X-5X", z_of_chi2(hchi2, hdof), hshare,
                      f"{ch}: harmonics 2X-5X the model does not predict, "
                      f"{hshare:.3g} of the 1X amplitude (RMS)", hchi2, hdof))

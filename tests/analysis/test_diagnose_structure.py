@@ -263,3 +263,21 @@ def test_an_error_that_follows_the_frequency_alone_is_no_structure_within_freque
     within = [r for r in rows if r["test"].endswith("within_frequency")
               or r["test"] == "repeated_dwell"]
     assert len(within) >= 7 and max(r["z"] for r in within) < 4.0, within[:3]
+
+
+def test_harmonics_above_nyquist_are_not_tested(monkeypatch):
+    """At 250 Hz the 3X-5X of 50 and 60 Hz dwells are at or above Nyquist: a harmonic fit
+    there aliases (its columns coincide with another harmonic's) and gave harmonics "1e8 of
+    the 1X" on noise alone; only the harmonics below Nyquist are tested."""
+    import tests.analysis.test_diagnose_structure as here
+
+    monkeypatch.setattr(here, "FS", 250.0)
+    monkeypatch.setattr(here, "DWELL_S", 2.0)
+    rows = _rows(*_case(3))
+    harm = next(r for r in rows if r["test"] == "harmonics" and r["channel"] == "x")
+    assert not harm["structure"] and harm["z"] < 4.0, harm
+    assert harm["size"] < 0.1, harm
+    # below 125 Hz: 20 Hz dwells test 2X-5X, 30 Hz 2X-4X, 40 Hz 2X-3X, 50 and 60 Hz 2X only
+    plan = here._plan(3)
+    below = {20.0: 4, 30.0: 3, 40.0: 2, 50.0: 1, 60.0: 1}
+    assert harm["dof"] == 2 * sum(below[f] for f, _ in plan)
