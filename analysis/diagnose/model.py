@@ -319,18 +319,18 @@ class Evaluator:
                           xy: np.ndarray) -> np.ndarray:
         """``xy`` with the response of ``model.extra_modes`` added to their axes' rows, driven
         by the force the kernel saw (oversampled where the kernel's was), from the exact
-        periodic steady state of a steady-state dwell's whole periods, else from rest at
-        ``a``."""
+        periodic steady state of a steady-state dwell's whole periods, else over the whole
+        run from its first sample."""
         if not model.extra_modes:
             return xy
         up = self.oversample.get(run, 1)
+        shift = 0 if up <= 1 or hasattr(physics, "S_FPX") else -1
         if not lead:
             # not a steady dwell: the extra modes are linear filters of the measured force, so
             # they run over the whole run and are in their true state at a (from rest at a, a
             # lightly damped mode would not forget its start within the kernel's warm-up: 4.3 s
             # for 0.5 % at 7.3 Hz against a warm-up sized for the kernel's mode)
             whole = self._extra_over_run(model, run, up)
-            shift = 0 if up <= 1 or hasattr(physics, "S_FPX") else -1
             out = xy.copy()
             out += whole[:, np.maximum((a + np.arange(b - a)) * up + shift, 0)]
             return out
@@ -339,7 +339,6 @@ class Evaluator:
         force = force + np.asarray(model.force_offset_n)[:, None]
         # the run's sample a + i is the force's sample first + (lead + i) * up (where the
         # kernel reports it)
-        shift = 0 if up <= 1 or hasattr(physics, "S_FPX") else -1
         idx = np.maximum((lead + np.arange(b - a)) * up + shift, 0)
         fs = self.records[run].sample_rate_hz * up
         out = xy.copy()
