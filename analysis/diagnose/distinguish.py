@@ -35,7 +35,11 @@ import numpy as np
 from analysis.diagnose import residual_analysis as ra
 from analysis.diagnose.data import RunRecord, Segment
 from analysis.diagnose.model import Residuals
-from analysis.diagnose.residual_structure import RESOLUTION, Z_STRUCTURE
+from analysis.diagnose.residual_structure import (
+    RESOLUTION,
+    Z_STRUCTURE,
+    within_frequency_deviations,
+)
 
 #: standard deviations of its noise by which one model's held-out squared error must exceed
 #: another's (the replay's resolution taken off) for the data to tell them apart
@@ -45,11 +49,13 @@ Z_DISTINCT = Z_STRUCTURE
 @dataclass(frozen=True)
 class Difference:
     """The worse model's held-out squared error minus the better's (weighted, as
-    ``Residuals.sse``), the replay's resolution bias on it and its noise sd."""
+    ``Residuals.sse``), the replay's resolution bias on it and its noise sd; and the same
+    excess among dwells of one frequency in noise sd (``within``, `within_frequency_z`)."""
 
     excess: float
     bias: float
     sd: float
+    within: float = 0.0
 
     @property
     def z(self) -> float:
@@ -66,11 +72,12 @@ class Difference:
 
     @property
     def distinct(self) -> bool:
-        """The data prefer the better model beyond the replay's resolution and the noise."""
-        return bool(self.z >= Z_DISTINCT)
+        """The data prefer the better model beyond the replay's resolution and the noise, over
+        the samples or among dwells of one frequency."""
+        return bool(self.z >= Z_DISTINCT or self.within >= Z_DISTINCT)
 
     def to_dict(self) -> dict[str, float]:
-        return {"excess_sd": self.z}
+        return {"excess_sd": self.z, "within_frequency_excess_sd": self.within}
 
 
 def held_out_difference(records: list[RunRecord], worse: Residuals, better: Residuals,
@@ -94,4 +101,27 @@ def held_out_difference(records: list[RunRecord], worse: Residuals, better: Resi
     if not math.isfinite(excess):
         # a diverged replay: worse without measure when it is the worse model's
         return Difference(math.inf if excess == math.inf else math.nan, 0.0, 0.0)
-    return Difference(excess, 2.0 * RESOLUTION * math.sqrt(p2 * d2), math.sqrt(var))
+    return Difference(excess, 2.0 * RESOLUTION * math.sqrt(p2 * d2), math.sqrt(var),
+                      within_frequency_z(records, worse, better, segs))
+
+
+def within_frequency_z(records: list[RunRecord], worse: Residuals, better: Residuals,
+                       segs: list[Segment]) -> float:
+    """The excess of ``worse``'s chi-square among dwells of one frequency over ``better``'s,
+    in sd of the noise: ``(|u_w|^2 - |u_b|^2) / (2 |u_w - u_b|)`` with ``u`` each model's
+    deviations in noise sd (`within_frequency_deviations`, on ``better``'s floor). The replay's
+    resolution, a function of the frequency, cancels there, so no bias is taken off: what one
+    model follows with amplitude or time and the other does not is told at the noise's own
+    level. At most ``|u_w - u_b|``: two models closer than the noise cannot be told apart by
+    it (their difference, a share of the measured 1X, may follow the noise itself). 0 without
+    dwells sharing a frequency."""
+    ub, floor = within_frequency_deviations(records, better, segs)
+    uw, _ = within_frequency_deviations(records, worse, segs, floor)
+    keys = ub.keys() & uw.keys()
+    if not keys:
+        return 0.0
+    excess = sum(abs(uw[k]) ** 2 - abs(ub[k]) ** 2 for k in keys)
+    d = math.sqrt(sum(abs(uw[k] - ub[k]) ** 2 for k in keys))
+    if not math.isfinite(excess) or d == 0.0:
+        return 0.0
+    return float(min(excess / (2.0 * d), d))

@@ -13,9 +13,11 @@ Replay details, stated:
   factor with a band-limited polyphase interpolator, one integration step per oversampled sample:
   a linear or held force between samples 1.6 ms apart would distort a 60 Hz response by percent.
 - Each window starts ``warmup_s`` before its first segment from rest; the transient of starting
-  from rest is not scored (segments start after the warm-up). With ``steady_state_dwells``,
-  a dwell is replayed after whole periods of its own force instead (its initial state is then
-  the steady state the dwell was recorded in, whatever came before it in the file).
+  from rest is not scored (segments start after the warm-up). A model with memory (a sticking
+  seal, a micro-slipping joint: `remembers`) replays from the run's first sample instead.
+  With ``steady_state_dwells``, a dwell is replayed after whole periods of its own force
+  instead (its initial state is then the steady state the dwell was recorded in, whatever came
+  before it in the file).
 - Each response channel's mean offset (probe gap, amplifier offset) is fitted in closed form on
   the training segments and applied unchanged to held-out segments.
 - Every measured response is compared (`RunRecord.objective_channels`): displacement (the
@@ -152,6 +154,7 @@ class Evaluator:
         self._extra_runs: dict[tuple, np.ndarray] = {}
         # per window: its force with the lead (the same for every model)
         self._force_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
+        self._memory_starts: dict[int, int] = {}  # per run: `_memory_start`
         # the replay inputs of the last model asked about (a prediction asks per window)
         self._inputs_of: tuple[Model, dict[int, tuple[np.ndarray, tuple]]] | None = None
         self.simulations = 0
@@ -168,15 +171,26 @@ class Evaluator:
                 return int(round(k * per))
         return 0
 
-    def windows(self, segs: list[Segment]) -> list[tuple[int, int, int, list[Segment]]]:
+    def windows(self, segs: list[Segment],
+                from_run_start: bool = False) -> list[tuple[int, int, int, list[Segment]]]:
         """Merge segments into simulation windows (run, start, stop, segments).
 
-        A dwell replayed in steady state (``periodic_chunk`` > 0) is a window of its own."""
+        A dwell replayed in steady state (``periodic_chunk`` > 0) is a window of its own. The
+        others start ``warmup_s`` before their first segment, or with ``from_run_start`` (a
+        model with memory: `remembers`) where the run's drive starts (`_memory_start`), one
+        window a run up to its last segment asked for."""
         out: list[tuple[int, int, int, list[Segment]]] = []
         for seg in sorted(segs, key=lambda s: (s.run, s.start)):
             self._freq.setdefault((seg.run, seg.start, seg.stop), seg.freq_hz)
             if self.periodic_chunk(seg):
                 out.append((seg.run, seg.start, seg.stop, [seg]))
+                continue
+            if from_run_start:
+                if out and out[-1][0] == seg.run and out[-1][1] == self._memory_start(seg.run):
+                    run, wa, wb, lst = out[-1]
+                    out[-1] = (run, wa, max(wb, seg.stop), [*lst, seg])
+                else:
+                    out.append((seg.run, self._memory_start(seg.run), seg.stop, [seg]))
                 continue
             warm = int(self.warmup_s * self.records[seg.run].sample_rate_hz)
             a = max(0, seg.start - warm)
@@ -187,6 +201,24 @@ class Evaluator:
             else:
                 out.append((seg.run, a, seg.stop, [seg]))
         return out
+
+    def _memory_start(self, run: int) -> int:
+        """Where a model with memory starts its replay of run ``run``: ``warmup_s`` before the
+        force first rises above ``QUIET_FACTOR`` times its level over the run's first
+        ``QUIET_S`` (a rig run's lead-in, the pump filling the film with nothing driven, moves
+        nothing a seal or a joint remembers; the warm-up forgets the rest), else its first
+        sample."""
+        hit = self._memory_starts.get(run)
+        if hit is None:
+            rec = self.records[run]
+            fs = rec.sample_rate_hz
+            f = np.max(np.abs(rec.force_n), axis=0)
+            quiet = float(np.sqrt(np.mean(f[:max(1, int(QUIET_S * fs))] ** 2)))
+            above = np.flatnonzero(f > QUIET_FACTOR * quiet)
+            first = int(above[0]) if above.size else 0
+            hit = max(0, first - int(self.warmup_s * fs))
+            self._memory_starts[run] = hit
+        return hit
 
     def _lead(self, run: int, a: int, b: int) -> int:
         """Samples of periodic lead-in before window [a, b) (0: replay from rest at a)."""
@@ -406,7 +438,7 @@ class Evaluator:
     def predict(self, model: Model, segs: list[Segment]) -> dict[Segment, dict[str, np.ndarray]]:
         """Predicted response channels (without offsets) for each segment [m]."""
         out: dict[Segment, dict[str, np.ndarray]] = {}
-        for run, a, b, lst in self.windows(segs):
+        for run, a, b, lst in self.windows(segs, from_run_start=remembers(model)):
             rec = self.records[run]
             xy = self.truth(model, run, a, b)
             chans: dict[str, np.ndarray] = {}
@@ -480,6 +512,25 @@ class Residuals:
         w = self.weights
         return np.concatenate([w.get(ch, 1.0) * v[::step] for chans in self.per_segment.values()
                                for ch, v in chans.items()])
+
+
+#: the start of a run over which its force's level is taken (`Evaluator._memory_start`) [s]
+QUIET_S = 0.1
+#: how far above that level the force rises where the drive starts
+QUIET_FACTOR = 10.0
+
+
+def remembers(model: Model) -> bool:
+    """Whether ``model``'s state depends on its whole history, not on the last ``warmup_s``:
+    a sticking seal (its slider's position) or a micro-slipping joint (its force) carries
+    the offset of every earlier slip, and a motion smaller than the slip never wipes it out. A
+    window replayed from rest a warm-up before a segment misses that offset: replayed with
+    the true rig 0.5 s before each held-out dwell, the hidden effects' micro-slip (seed 11)
+    left one dwell 4.8x its noise off and a sticking seal (coulomb_friction, seed 21) one 54x
+    (from the run's start: 0.75-0.93x)."""
+    rig = model.rig
+    return bool((rig.seal.enabled and rig.seal.friction_force_n > 0)
+                or rig.effects.joint_microslip.enabled)
 
 
 def residuals(ev: Evaluator, model: Model, train: list[Segment],

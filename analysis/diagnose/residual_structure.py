@@ -287,13 +287,10 @@ def _within_frequency(ch: str, dw: list[_Dwell], e: np.ndarray, sd_noise: np.nda
     replay's resolution, a function of the frequency, cancels; module doc): the chi-square of
     ``e`` about each frequency's weighted mean, and its slopes against ``against``'s
     variables with one offset per frequency. No rows where no frequency holds two dwells."""
-    keys = [(v.freq_hz, v.seg.motion) for v in dw]
-    count = {k: keys.count(k) for k in keys}
-    mine = [i for i, k in enumerate(keys) if count[k] > 1]
+    mine, groups = _shared_frequencies(dw)
     if not mine:
         return []
-    codes = {k: i for i, k in enumerate(dict.fromkeys(keys[i] for i in mine))}
-    groups = np.array([codes[keys[i]] for i in mine])
+    n_groups = int(np.unique(groups).size)
     ee, sd = e[mine], sd_noise[mine]
     w = 1.0 / sd**2
     dev = _centred(ee.real, w, groups) + 1j * _centred(ee.imag, w, groups)
@@ -301,11 +298,11 @@ def _within_frequency(ch: str, dw: list[_Dwell], e: np.ndarray, sd_noise: np.nda
     # no degree of freedom taken for the model's parameters: a linear model moves every dwell
     # of a frequency alike, and counting an effect's (which can follow amplitude) would
     # lower the expected chi-square below the dof: never a false alarm by it
-    dof = 2 * (len(mine) - len(codes))
+    dof = 2 * (len(mine) - n_groups)
     rms = float(np.sqrt(np.mean(np.abs(dev) ** 2)))
     rows = [_row("within_frequency", ch, "1X", z_of_chi2(chi2, dof), rms,
                  f"{ch}: the 1X error of the dynamic stiffness differs between dwells of the "
-                 f"same frequency, {rms:.3g} RMS over {len(mine)} dwells at {len(codes)} "
+                 f"same frequency, {rms:.3g} RMS over {len(mine)} dwells at {n_groups} "
                  f"frequencies, beyond the noise", chi2, dof)]
     for name, (x_all, span) in against.items():
         x = x_all[mine]
@@ -323,6 +320,41 @@ def _within_frequency(ch: str, dw: list[_Dwell], e: np.ndarray, sd_noise: np.nda
                              f"{name.replace('_', ' ')} {where} among dwells of the same "
                              f"frequency: {what} {change:+.3g}"))
     return rows
+
+
+def _shared_frequencies(dw: list[_Dwell]) -> tuple[list[int], np.ndarray]:
+    """The dwells (indices into ``dw``) whose frequency and motion another dwell shares, and
+    the group of each (one per frequency and motion)."""
+    keys = [(v.freq_hz, v.seg.motion) for v in dw]
+    count = {k: keys.count(k) for k in keys}
+    mine = [i for i, k in enumerate(keys) if count[k] > 1]
+    codes = {k: i for i, k in enumerate(dict.fromkeys(keys[i] for i in mine))}
+    return mine, np.array([codes[keys[i]] for i in mine], dtype=int)
+
+
+def within_frequency_deviations(
+        records: list[RunRecord], res: Residuals, segs: list[Segment],
+        levels: dict[str, float] | None = None) -> tuple[dict[tuple[Segment, str], complex],
+                                                         dict[str, float]]:
+    """Each driven dwell's error ``e`` less its frequency's weighted mean, in noise sd (the
+    ``within_frequency`` test's terms: their squares sum to its chi-square), keyed by dwell
+    and channel; and the noise levels used (``levels``, else ``res``'s own): two models'
+    deviations compared on one floor."""
+    views = _dwell_views(records, res, segs)
+    noise = levels if levels is not None else _noise_levels(views)
+    out: dict[tuple[Segment, str], complex] = {}
+    for ch in sorted({v.channel for v in views}):
+        q = noise.get(ch)
+        dw = [v for v in views if v.channel == ch and v.driven]
+        mine, groups = _shared_frequencies(dw)
+        if q is None or not mine:
+            continue
+        e = np.array([-dw[i].r[0] / dw[i].z1 for i in mine])
+        sd = np.array([math.sqrt(q / dw[i].n / 2) / abs(dw[i].z1) for i in mine])
+        w = 1.0 / sd**2
+        dev = (_centred(e.real, w, groups) + 1j * _centred(e.imag, w, groups)) / sd
+        out.update({(dw[i].seg, ch): complex(d) for i, d in zip(mine, dev, strict=True)})
+    return out, noise
 
 
 def _repeated(ch: str, dw: list[_Dwell], e: np.ndarray,
@@ -366,6 +398,16 @@ def excess_chi2(rows: list[dict[str, Any]]) -> float:
 _WHOLE = ("fundamental", "harmonics", "other_axis")
 
 
+def within_excess_chi2(rows: list[dict[str, Any]]) -> float:
+    """What the residual holds beyond its noise among dwells of one frequency, in noise
+    variances: the ``within_frequency`` chi-squares above their degrees of freedom, summed
+    over the channels. Against the noise alone (the replay's resolution cancels there), so an
+    effect that varies with amplitude or time shows in it at its own size, where
+    `excess_chi2`'s floor holds the resolution too."""
+    return float(sum(max(r["chi2"] - r["dof"], 0.0) for r in rows
+                     if r["test"] == "within_frequency" and "chi2" in r))
+
+
 def structure_found(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The rows that show structure."""
     return [r for r in rows if r["structure"]]
@@ -374,9 +416,12 @@ def structure_found(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def signature_sd(records: list[RunRecord], before: Residuals, after: Residuals,
                  segs: list[Segment], n_params: int) -> float:
     """What a term removes of the residual's structure on dwells ``segs``, in noise standard
-    deviations: the square root of the drop of the excess chi-square (`excess_chi2`; a term
-    whose signature stands 5 sd above the noise removes 25 noise variances). 0 without
-    dwells."""
-    drop = (excess_chi2(find_structure(records, before, segs, n_params))
-            - excess_chi2(find_structure(records, after, segs, n_params)))
+    deviations: the square root of the drop of the excess chi-square (a term whose signature
+    stands 5 sd above the noise removes 25 noise variances), over every dwell (`excess_chi2`,
+    the floor with the replay's resolution) or among dwells of one frequency
+    (`within_excess_chi2`, the noise alone), whichever is larger. 0 without dwells."""
+    rows_b = find_structure(records, before, segs, n_params)
+    rows_a = find_structure(records, after, segs, n_params)
+    drop = max(excess_chi2(rows_b) - excess_chi2(rows_a),
+               within_excess_chi2(rows_b) - within_excess_chi2(rows_a))
     return math.sqrt(max(drop, 0.0))

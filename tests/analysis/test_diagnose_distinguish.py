@@ -110,3 +110,71 @@ def test_a_diverged_replay_of_the_worse_model_is_worse_and_of_the_better_unknown
     assert _difference([truth], [np.full(N, np.inf)], [truth]).distinct
     worse_is_finite = _difference([truth], [truth], [np.full(N, np.inf)])
     assert math.isnan(worse_is_finite.z) and not worse_is_finite.distinct
+
+
+# --- among dwells of one frequency (``within_frequency_z``) --------------------------------
+# The records of tests/analysis/test_diagnose_structure.py: 5 frequencies x 3 amplitudes, the
+# residual the measured 1X times a known relative error of the dynamic stiffness plus noise.
+
+def _within_lambda(err, seed: int) -> float:
+    """The noncentrality of an error ``err`` among dwells of one frequency: its weighted
+    spread about each frequency's mean, in noise variances (the quiet record's)."""
+    from tests.analysis.test_diagnose_structure import DWELL_S, FREQS, QUIET_M, _plan
+    lam = 0.0
+    for f in FREQS:
+        amps = np.array([a for ff, a in _plan(seed) if ff == f])
+        w = (amps / QUIET_M) ** 2  # 1 / sd^2 up to a common factor
+        y = np.array([err(f, a, 0.0) for a in amps])
+        lam += float(np.sum(w * (y - np.sum(w * y) / np.sum(w)) ** 2)) * DWELL_S * FS / 2
+    return lam
+
+
+@pytest.mark.parametrize("sigmas", [4.0, 8.0])
+def test_a_model_missing_what_varies_with_amplitude_is_told_apart_at_the_noise(sigmas):
+    # a friction-like error (1/A) under the replay's resolution, missed by the worse model:
+    # among dwells of one frequency the excess is |d|^2 with noise sd 2 |d|, so z = |d| / 2,
+    # |d|^2 the error's noncentrality there (4 sd on the 13 um dwells: 3.1; 8 sd: 6.2)
+    from analysis.diagnose.distinguish import within_frequency_z
+    from tests.analysis.test_diagnose_structure import QUIET_M, _case, _friction_like
+
+    rec, worse, segs = _case(11, error=_friction_like(sigmas), noise_m=QUIET_M)
+    _, better, _ = _case(11, noise_m=QUIET_M)  # the same noise, the error modelled
+    z = within_frequency_z([rec], worse, better, segs)
+    expected = math.sqrt(_within_lambda(_friction_like(sigmas), 11)) / 2
+    assert z == pytest.approx(expected, abs=1.0)
+    assert (z >= Z_DISTINCT) is (sigmas == 8.0)
+
+
+def test_an_error_that_follows_the_frequency_alone_tells_nothing_within_frequencies():
+    # the replay's own kind of error (the same at every amplitude of a frequency), 20 noise sd
+    # of the 38 um dwells: it cancels among the dwells of one frequency, to the noise's share
+    # of the measured 1X (the error is relative to it)
+    from analysis.diagnose.distinguish import within_frequency_z
+    from analysis.diagnose.residual_structure import within_frequency_deviations
+    from tests.analysis.test_diagnose_structure import AMPS, QUIET_M, _case
+
+    sd_38 = QUIET_M * math.sqrt(2 / (0.5 * FS)) / AMPS[-1]
+    rec, worse, segs = _case(12, error=lambda f, a, t: 20 * sd_38 * (f / 60.0) ** 2 * (1 + 0.5j),
+                             noise_m=QUIET_M)
+    _, better, _ = _case(12, noise_m=QUIET_M)
+    ub, floor = within_frequency_deviations([rec], better, segs)
+    uw, _ = within_frequency_deviations([rec], worse, segs, floor)
+    assert len(ub) == 16
+    assert max(abs(uw[k] - ub[k]) for k in ub) < 0.01  # noise sd
+    assert within_frequency_z([rec], worse, better, segs) < Z_DISTINCT
+
+
+def test_two_models_equally_wrong_within_frequencies_scatter_by_one_sd():
+    # the null: each model off by the same friction-like error in the opposite sense
+    from analysis.diagnose.distinguish import within_frequency_z
+    from tests.analysis.test_diagnose_structure import QUIET_M, _case, _friction_like
+
+    err = _friction_like(4.0)
+    z = []
+    for seed in range(40):
+        rec, worse, segs = _case(seed, error=err, noise_m=QUIET_M)
+        _, better, _ = _case(seed, error=lambda f, a, t: -err(f, a, t), noise_m=QUIET_M)
+        z.append(within_frequency_z([rec], worse, better, segs))
+    assert abs(float(np.mean(z))) < 0.4
+    assert 0.7 < float(np.std(z)) < 1.3
+    assert float(np.max(np.abs(z))) < Z_DISTINCT

@@ -60,14 +60,12 @@ MIN_GAIN: dict[str, float] = {
 #: After a lone finding the held-out error is at the noise floor: at most this many noise floors
 #: (measured 0.14-0.77; the joint's Dahl element 0.64-1.52)
 AT_NOISE = {"joint_microslip": 2.0}
-#: Cases judged wrong today (strict xfail, so that a fix shows), with what diagnose does instead
-KNOWN_WRONG: dict[tuple[str, int], str] = {
-    ("coulomb_friction", 21): "named, but low confidence and unexplained (held-out error after "
-                              "7.4 noise floors)",
-    ("coulomb_friction", 43): "named, but low confidence and unexplained (2.6 noise floors after)",
-    ("joint_microslip", 11): "named, but low confidence and unexplained (1.4 noise floors after)",
-    ("joint_microslip", 54): "named, but low confidence and unexplained (1.2 noise floors after)",
-}
+#: Cases judged wrong today (strict xfail, so that a fix shows), with what diagnose does instead.
+#: None since session 13: coulomb_friction 21 and 43 and joint_microslip 11 and 54 were named
+#: with low confidence and "unexplained" (1.2-7.4 noise floors left) because each held-out
+#: dwell was replayed from rest 0.5 s before it, which a sticking seal or a micro-slipping
+#: joint does not forget (`model.remembers`: such models replay from the run's start)
+KNOWN_WRONG: dict[tuple[str, int], str] = {}
 SLOW_CASES = [
     pytest.param(e, s, marks=[pytest.mark.xfail(reason=KNOWN_WRONG[e, s], strict=True)]
                  if (e, s) in KNOWN_WRONG else [])

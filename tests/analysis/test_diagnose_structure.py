@@ -23,6 +23,7 @@ from analysis.diagnose.residual_structure import (
     excess_chi2,
     find_structure,
     signature_sd,
+    within_excess_chi2,
     z_of_chi2,
 )
 from analysis.diagnose.verdict import judge
@@ -281,3 +282,16 @@ def test_harmonics_above_nyquist_are_not_tested(monkeypatch):
     plan = here._plan(3)
     below = {20.0: 4, 30.0: 3, 40.0: 2, 50.0: 1, 60.0: 1}
     assert harm["dof"] == 2 * sum(below[f] for f, _ in plan)
+
+
+def test_a_signature_under_the_replays_resolution_counts_among_dwells_of_one_frequency():
+    # 8 noise sd of a friction-like error on the quiet record's 13 um dwells: under the
+    # resolution the tests over every dwell add to the noise, so what a term modelling it
+    # removes there is small; among dwells of one frequency it stands above 5 sd
+    rec, before, segs = _case(11, error=_friction_like(8.0), noise_m=QUIET_M)
+    _, after, _ = _case(11, noise_m=QUIET_M)  # the same noise, the error modelled
+    rows_b, rows_a = (find_structure([rec], r, segs, 4) for r in (before, after))
+    whole = math.sqrt(max(excess_chi2(rows_b) - excess_chi2(rows_a), 0.0))
+    within = math.sqrt(within_excess_chi2(rows_b) - within_excess_chi2(rows_a))
+    assert whole < 3.0 and within > 10.0, (whole, within)
+    assert signature_sd([rec], before, after, segs, 4) == pytest.approx(within)

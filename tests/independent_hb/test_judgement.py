@@ -31,13 +31,10 @@ SEED = 1
 #: joint's fitted shape); session 12: the large friction and the cubic spring (the joint
 #: refit holds the spring of the axis no dwell moves), the cubic spring and the probe gain (a
 #: runner-up told apart by its held-out excess over the noise floor, the replay's resolution a
-#: bias taken off once, ``distinguish``: the 1.25x factor had left them low))
+#: bias taken off once, ``distinguish``: the 1.25x factor had left them low); session 13: the
+#: threshold friction (a signature counted among dwells of one frequency, against the noise
+#: alone, and a candidate after a non-significant best by the criterion))
 WRONG_TODAY: dict[str, str] = {
-    "friction_threshold": "0.062 N of seal friction (8 sigma on its largest dwell, 17 over the "
-                          "run): no finding, 'unexplained discrepancy' with the structure "
-                          "named (the 1X error differs within frequencies, 11 sd; it varies "
-                          "with amplitude there, 5.4 sd); coulomb_friction fits 0.065 N but "
-                          "ranks behind a replay-level channel_delay on ay",
     "friction_and_cubic": "coulomb_friction 10.004 +- 0.008 N high (the final joint model's; "
                           "10.5 N in its round), cubic_stiffness k3 -10.7 % +- 5.7 % low (its "
                           "size moved from -46 % when the channel delay was refitted with it: "
