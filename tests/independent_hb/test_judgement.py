@@ -38,11 +38,14 @@ WRONG_TODAY: dict[str, str] = {
                           "named (the 1X error differs within frequencies, 11 sd; it varies "
                           "with amplitude there, 5.4 sd); coulomb_friction fits 0.065 N but "
                           "ranks behind a replay-level channel_delay on ay",
-    "friction_and_cubic": "coulomb_friction 10.004 +- 0.008 N high (the final joint model's; "
-                          "10.5 N in its round), cubic_stiffness k3 -10.7 % +- 5.7 % low (its "
-                          "size moved from -46 % when the channel delay was refitted with it: "
-                          "not determined to its 10 % tolerance), channel_delay on ax 40 +- "
-                          "7 us low, 'unexplained discrepancy'",
+    "friction_and_cubic": "coulomb_friction 10.003 +- 0.009 N high, cubic_stiffness k3 -7.4 % "
+                          "+- 5.5 % high (the case's tolerance 1.1 %: 3 / 2202 sd, the "
+                          "friction's, plus 1 %), 'unexplained discrepancy' (ax 1X error "
+                          "12.4 sd). Measured causes: the replayed accelerometer (the "
+                          "kernel's instantaneous acceleration, sampled) carries the friction's "
+                          "jumps, 0.2-2 % of ax's 1X against the recording's band-limited one; "
+                          "the recording's 21 harmonics move the friction's stiffness-like 1X "
+                          "by up to 1.6e-2 K at 13 um (the cubic there: 4.7e-3 K)",
 }
 
 
