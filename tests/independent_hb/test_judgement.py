@@ -38,14 +38,14 @@ WRONG_TODAY: dict[str, str] = {
                           "named (the 1X error differs within frequencies, 11 sd; it varies "
                           "with amplitude there, 5.4 sd); coulomb_friction fits 0.065 N but "
                           "ranks behind a replay-level channel_delay on ay",
-    "friction_and_cubic": "coulomb_friction 10.003 +- 0.009 N high, cubic_stiffness k3 -7.4 % "
-                          "+- 5.5 % high (the case's tolerance 1.1 %: 3 / 2202 sd, the "
-                          "friction's, plus 1 %), 'unexplained discrepancy' (ax 1X error "
-                          "12.4 sd). Measured causes: the replayed accelerometer (the "
-                          "kernel's instantaneous acceleration, sampled) carries the friction's "
-                          "jumps, 0.2-2 % of ax's 1X against the recording's band-limited one; "
-                          "the recording's 21 harmonics move the friction's stiffness-like 1X "
-                          "by up to 1.6e-2 K at 13 um (the cubic there: 4.7e-3 K)",
+    "friction_and_cubic": "coulomb_friction 9.997 +- 0.008 N high, cubic_stiffness k3 -4.9 % "
+                          "+- 6.9 % high (the case's tolerance 1.1 %: 3 / 2202 sd, mostly the "
+                          "friction's, plus 1 %), 'unexplained discrepancy' (x: the 1X error "
+                          "differs within frequencies, 17 sd). Measured: the recording's 21 "
+                          "harmonics move the friction's stiffness-like 1X by up to 1.6e-2 K "
+                          "at 13 um (the cubic there: 4.7e-3 K); on a 91-harmonic recording "
+                          "k3 is -2.6 % +- 2.5 %, -5.0 % with the replay's step 12.5 us, not "
+                          "50 us",
 }
 
 
