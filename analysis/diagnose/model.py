@@ -20,6 +20,13 @@ Replay details, stated:
   before it in the file).
 - Each response channel's mean offset (probe gap, amplifier offset) is fitted in closed form on
   the training segments and applied unchanged to held-out segments.
+- Data from elsewhere (a run without a rig description) come from accelerometers behind an
+  anti-alias filter: with dry friction in the model, whose switching and sticking make the
+  kernel's acceleration jump, a sample of that acceleration at an instant aliases the jumps
+  (its 1X 0.2-2 % off the derivative of its own displacement at 10-35 um, 20-60 Hz, 10 N,
+  5 kS/s) where the instrument's does not; there the replayed acceleration is the second
+  derivative of the replayed displacement, band-limited by the sampling
+  (`sampled_acceleration`).
 - Every measured response is compared (`RunRecord.objective_channels`): displacement (the
   simulated relative displacement), velocity and acceleration (the simulated absolute housing
   acceleration), each through its own gain and delay. Residuals of channels of different
@@ -326,11 +333,7 @@ class Evaluator:
                 force = force + np.asarray(model.force_offset_n)[:, None]
             tr, _ = simulate_response(force, model.rig, rec.sample_rate_hz, self._fill(rec), visc,
                                       kernel=kp)
-            # a copy: a view past the lead would keep the whole replay (lead included) alive
-            # in the cache while counting only its own bytes (a 30 s lead before 1 s dwells
-            # held 31x the cache's limit: 12 GB)
-            xy = np.vstack([tr.x_m[lead:], tr.y_m[lead:], tr.vx_m_per_s[lead:],
-                            tr.vy_m_per_s[lead:], tr.ax_m_per_s2[lead:], tr.ay_m_per_s2[lead:]])
+            idx: slice | np.ndarray = slice(None)
         else:
             fup = self._upsampled(run, a, b, up, lead)
             fup = fup + np.asarray(model.force_offset_n)[:, None]
@@ -341,11 +344,19 @@ class Evaluator:
             # Sample i of the run is oversampled index i*up; the kernel reports the state at
             # the end of each step (linear-force kernel) or after it (held-force kernel).
             shift = 0 if hasattr(physics, "S_FPX") else -1
-            idx = (lead + np.arange(b - a)) * up + shift
+            idx = np.arange(lead + b - a) * up + shift
             idx[idx < 0] = 0
-            xy = np.vstack([tr.x_m[idx], tr.y_m[idx], tr.vx_m_per_s[idx], tr.vy_m_per_s[idx],
-                            tr.ax_m_per_s2[idx], tr.ay_m_per_s2[idx]])
-        return xy
+        # the lead is replayed but not returned; the stack is a copy, so the cache does not keep
+        # the whole replay (lead included) alive while counting only its own bytes (a 30 s lead
+        # before 1 s dwells held 31x the cache's limit: 12 GB)
+        x, y = tr.x_m[idx], tr.y_m[idx]
+        if rec.rig is None and _jumps(model):
+            acc = [sampled_acceleration(x, tr.ax_m_per_s2[idx], rec.sample_rate_hz),
+                   sampled_acceleration(y, tr.ay_m_per_s2[idx], rec.sample_rate_hz)]
+        else:
+            acc = [tr.ax_m_per_s2[idx], tr.ay_m_per_s2[idx]]
+        rows = [x, y, tr.vx_m_per_s[idx], tr.vy_m_per_s[idx], *acc]
+        return np.vstack([r[lead:] for r in rows])
 
     def _plus_extra_modes(self, model: Model, run: int, a: int, b: int, lead: int,
                           xy: np.ndarray) -> np.ndarray:
@@ -474,6 +485,31 @@ class Evaluator:
     def measured(self, seg: Segment) -> dict[str, np.ndarray]:
         rec = self.records[seg.run]
         return {ch: rec.signal(ch)[seg.start:seg.stop] for ch in rec.objective_channels()}
+
+
+def _jumps(model: Model) -> bool:
+    """Whether the kernel's acceleration jumps under ``model``: dry friction switching or
+    sticking, where the absolute acceleration is the relative one's (no frame mode)."""
+    seal = model.rig.seal
+    return (seal.enabled and seal.friction_force_n > 0.0
+            and not model.rig.effects.second_mode.enabled)
+
+
+def sampled_acceleration(z: np.ndarray, at_instants: np.ndarray, fs: float) -> np.ndarray:
+    """The acceleration a sampled instrument behind its anti-alias filter reads of the
+    displacement samples ``z`` (sample rate ``fs``): their fourth-order central second
+    difference, whose gain is ``1 - (w / fs)^4 / 90`` (2.6e-4 at a sixteenth of ``fs``, where
+    60 Hz's 5X lies at 5 kS/s; 4.2e-3 at an eighth); the two samples at each end, which have
+    no neighbours on one side, keep the acceleration at their instants ``at_instants``.
+
+    A displacement is smooth where its acceleration jumps, so its samples hardly alias; the
+    second difference then holds only what lies below Nyquist, as the instrument's samples do.
+    """
+    out = np.array(at_instants, dtype=float, copy=True)
+    if z.size >= 5:
+        out[2:-2] = (-z[4:] + 16 * z[3:-1] - 30 * z[2:-2] + 16 * z[1:-3] - z[:-4]) * (fs * fs
+                                                                                     / 12)
+    return out
 
 
 #: row of `Evaluator.truth` of each quantity's x axis
