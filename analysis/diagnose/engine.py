@@ -16,10 +16,11 @@ Procedure
    jointly with the baseline's own parameters (fitted baseline) and the earlier findings, and
    re-ranked. (An effect that explains nothing alone may matter next to another: a quadratic
    spring beside a cubic one, so every round tries every effect.) The best is a finding only if
-   it is significant:
+   it is significant, else the next in that order that is (`_significance`):
    its criterion beats the current model's, its held-out gain (RMS before / after) is at least
    ``min_gain`` or its signature on the held-out dwells stands ``Z_STRUCTURE`` noise sd above
-   the noise (``residual_structure.signature_sd``), and the lower end of the bootstrap
+   the noise (``residual_structure.signature_sd``: over every dwell, or among dwells of one
+   frequency against the noise alone), and the lower end of the bootstrap
    interval of the gain (held-out segments resampled with replacement, seeded) is at least
    ``min_gain_lo`` (0.999: in 97.5 % of the resamples the effect does not raise the held-out
    error; resamples holding only segments the effect leaves untouched, e.g. dwells that do not
@@ -38,9 +39,11 @@ Procedure
    repeated dwell, harmonics, the other axis). Under either, and when a baseline parameter sits
    on a bound, every finding is low-confidence, except beside structure alone when the findings
    removed nearly all of the baseline's (``verdict.STRUCTURE_LEFT``); so is a finding whose
-   runner-up (not found itself in a later round) the held-out data do not tell from it (its
-   excess squared error, the replay's resolution taken off, under 5 sd of the noise floor:
-   ``distinguish``), and a refinement: a term found once the model already left
+   runner-up (significant itself, not found itself in a later round) the held-out data do
+   not tell from it (its excess squared error, the replay's resolution taken off, under 5 sd
+   of the noise floor, and so among dwells of one frequency: ``distinguish``), one on dwells
+   beside structure left whose own signature is under 5 sd (a stand-in for part of a misfit),
+   and a refinement: a term found once the model already left
    nothing unexplained (no structure above the noise either), explaining less than 0.5 % of the
    signal and, on dwells, a signature under 5 sd of their own noise (elsewhere less than 3/4
    of what was left; ``verdict.refinement_share``).

@@ -14,7 +14,8 @@ Replay details, stated:
   a linear or held force between samples 1.6 ms apart would distort a 60 Hz response by percent.
 - Each window starts ``warmup_s`` before its first segment from rest; the transient of starting
   from rest is not scored (segments start after the warm-up). A model with memory (a sticking
-  seal, a micro-slipping joint: `remembers`) replays from the run's first sample instead.
+  seal, a micro-slipping joint: `remembers`) replays from ``warmup_s`` before the run's drive
+  starts instead (`Evaluator._memory_start`).
   With ``steady_state_dwells``, a dwell is replayed after whole periods of its own force
   instead (its initial state is then the steady state the dwell was recorded in, whatever came
   before it in the file).
