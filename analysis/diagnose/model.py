@@ -491,9 +491,12 @@ class Evaluator:
 def _jumps(model: Model) -> bool:
     """Whether the kernel's acceleration jumps under ``model``: dry friction switching or
     sticking, where the absolute acceleration is the relative one's (no frame mode)."""
-    seal = model.rig.seal
-    return (seal.enabled and seal.friction_force_n > 0.0
-            and not model.rig.effects.second_mode.enabled)
+    return _dry_friction(model.rig) and not model.rig.effects.second_mode.enabled
+
+
+def _dry_friction(rig: RigParams) -> bool:
+    """The seal rubs: its friction switches with the velocity and sticks."""
+    return rig.seal.enabled and rig.seal.friction_force_n > 0.0
 
 
 def sampled_acceleration(z: np.ndarray, at_instants: np.ndarray, fs: float) -> np.ndarray:
@@ -565,9 +568,7 @@ def remembers(model: Model) -> bool:
     the true rig 0.5 s before each held-out dwell, the hidden effects' micro-slip (seed 11)
     left one dwell 4.8x its noise off and a sticking seal (coulomb_friction, seed 21) one 54x
     (from the run's start: 0.75-0.93x)."""
-    rig = model.rig
-    return bool((rig.seal.enabled and rig.seal.friction_force_n > 0)
-                or rig.effects.joint_microslip.enabled)
+    return bool(_dry_friction(model.rig) or model.rig.effects.joint_microslip.enabled)
 
 
 def residuals(ev: Evaluator, model: Model, train: list[Segment],

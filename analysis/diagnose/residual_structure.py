@@ -293,7 +293,7 @@ def _within_frequency(ch: str, dw: list[_Dwell], e: np.ndarray, sd_noise: np.nda
     n_groups = int(np.unique(groups).size)
     ee, sd = e[mine], sd_noise[mine]
     w = 1.0 / sd**2
-    dev = _centred(ee.real, w, groups) + 1j * _centred(ee.imag, w, groups)
+    dev = _about_each_frequency(ee, sd, groups)
     chi2 = float(np.sum(np.abs(dev) ** 2 * w))
     # no degree of freedom taken for the model's parameters: a linear model moves every dwell
     # of a frequency alike, and counting an effect's (which can follow amplitude) would
@@ -332,6 +332,12 @@ def _shared_frequencies(dw: list[_Dwell]) -> tuple[list[int], np.ndarray]:
     return mine, np.array([codes[keys[i]] for i in mine], dtype=int)
 
 
+def _about_each_frequency(e: np.ndarray, sd: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Errors ``e`` (complex) less their group's mean weighted by ``1 / sd^2``."""
+    w = 1.0 / sd**2
+    return _centred(e.real, w, groups) + 1j * _centred(e.imag, w, groups)
+
+
 def within_frequency_deviations(
         records: list[RunRecord], res: Residuals, segs: list[Segment],
         levels: dict[str, float] | None = None) -> tuple[dict[tuple[Segment, str], complex],
@@ -351,8 +357,7 @@ def within_frequency_deviations(
             continue
         e = np.array([-dw[i].r[0] / dw[i].z1 for i in mine])
         sd = np.array([math.sqrt(q / dw[i].n / 2) / abs(dw[i].z1) for i in mine])
-        w = 1.0 / sd**2
-        dev = (_centred(e.real, w, groups) + 1j * _centred(e.imag, w, groups)) / sd
+        dev = _about_each_frequency(e, sd, groups) / sd
         out.update({(dw[i].seg, ch): complex(d) for i, d in zip(mine, dev, strict=True)})
     return out, noise
 
