@@ -597,8 +597,9 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
         # can rank above one whose signature stands above the noise among the dwells
         judged = partial(_significance, pb, ctx, cur_test=cur_test, cur_crit=cur_crit,
                          min_gain=min_gain, min_gain_lo=min_gain_lo, seed=seed + len(findings))
+        seen: dict[int, _Significance] = {}  # a runner-up ranked first was judged here
         for i, top in enumerate(cands):
-            sig = judged(top)
+            sig = seen[id(top)] = judged(top)
             say(f"round {len(rounds)}: {'best' if i == 0 else 'next'} {top.effect} "
                 f"{sig.text()}")
             if sig.significant:
@@ -622,7 +623,7 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
             diff = held_out_difference(ctx.records, runner.test, top.test, pb.test)
             # a runner-up that is not significant itself explains nothing above the noise:
             # no rival cause, however close its held-out error
-            rival = judged(runner).significant
+            rival = (seen.get(id(runner)) or judged(runner)).significant
             evidence["runner_up"] = {"effect": runner.effect,
                                      "gain": before / runner.test_rms,
                                      "parameters": parameters_of(runner.variant,
