@@ -292,6 +292,10 @@ class RigParams(_Model):
     shaker: Shaker = Shaker()
     noise: SensorNoise = SensorNoise()
     effects: Effects = Effects()
+    journal_in: bool = Field(
+        True, description="the journal installed; false: the structure alone (the report's "
+        "static and impact tests, `sfdrig commission`'s drives): no seal, no wall at the "
+        "clearance, no film (the oil loop's gauges still see the pump)")
     max_step_s: float = Field(
         50e-6, gt=0, le=1e-3,
         description="largest integration step (leapfrog); at 50 us the dynamic stiffness is "

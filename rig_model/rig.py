@@ -30,10 +30,11 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
     p[physics.P_DC_Y] = st.residual_damping_y() - st.residual_damping_ns_per_m
     mu0, _ = film.reference_viscosity()
     p[physics.P_C0] = film.eq16_damping_centred(mu0)
-    p[physics.P_FMU] = params.seal.friction_force_n if params.seal.enabled else 0.0
+    seal = params.seal.enabled and params.journal_in
+    p[physics.P_FMU] = params.seal.friction_force_n if seal else 0.0
     p[physics.P_SEAL_KT] = params.seal.contact_stiffness_n_per_m or 0.0
     p[physics.P_SEAL_KTY] = params.seal.contact_stiffness_y_n_per_m or 0.0
-    p[physics.P_FMU_WET] = params.seal.wet_friction_increase_n if params.seal.enabled else 0.0
+    p[physics.P_FMU_WET] = params.seal.wet_friction_increase_n if seal else 0.0
     p[physics.P_CLEAR] = film.clearance_m
     p[physics.P_ECC] = 1.0 if film.eccentricity_law else 0.0
     if eff.cross_coupling.enabled:
@@ -56,7 +57,7 @@ def kernel_params(params: RigParams, sample_rate_hz: float) -> np.ndarray:
         p[physics.P_FRAME_ON] = 1.0
         p[physics.P_FRAME_K] = sm.modal_mass_kg * wn**2
         p[physics.P_FRAME_C] = 2 * sm.damping_ratio * sm.modal_mass_kg * wn
-    p[physics.P_CONTACT_ON] = 1.0 if params.contact.enabled else 0.0
+    p[physics.P_CONTACT_ON] = 1.0 if params.contact.enabled and params.journal_in else 0.0
     p[physics.P_RESTITUTION] = params.contact.restitution
     p[physics.P_CONTACT_MU] = params.contact.friction_coefficient
     jm = eff.joint_microslip
@@ -152,13 +153,11 @@ class RigModel:
 
     def set_journal(self, installed: bool) -> None:
         """Journal in (the seal rubs and the housing meets the journal at the clearance, as
-        configured) or out (the report's structure tests: no seal, no wall), from the next
-        block on."""
-        if not hasattr(self, "_journal_config"):
-            self._journal_config = (self.params.seal.enabled, self.params.contact.enabled)
-        seal, contact = self._journal_config
-        self.params.seal.enabled = bool(installed) and seal
-        self.params.contact.enabled = bool(installed) and contact
+        configured) or out (the report's structure tests: no seal, no wall, and no film: the
+        oil that was in the damper leaves with the journal), from the next block on."""
+        self.params.journal_in = bool(installed)
+        if not installed:
+            self._fill = 0.0
         self._kp = kernel_params(self.params, self.fs)
 
     def schedule_impact(self, axis: str, peak_force_n: float, duration_s: float = 0.002,
@@ -275,6 +274,8 @@ class RigModel:
         fill = np.empty(n)
         physics.fill_track(pressurised, self.dt / oil.fill_time_constant_s,
                            self.dt / oil.drain_time_constant_s, self._fill, fill)
+        if not self.params.journal_in:  # no damper to fill
+            fill[:] = 0.0
         rate = (oil.warming_c_per_hour / 3600.0) if self.pump_on else 0.0
         drift = self.params.effects.viscosity_drift
         if drift.enabled:

@@ -105,22 +105,15 @@ class StandInOperator(OperatorDesk):
 class SimulatedCommissioner:
     """The person at the simulated rig during `sfdrig commission` (a
     `control.commissioning.procedure.Operator`): presses and releases the emergency stop when asked,
-    isolates the pump while the watchdog test switches its relay (as the tool asks: the rig keeps
-    moving between runs, so a pump that ran would leave oil in the damper for the drives), takes
-    the journal out before the drives, and reports the pump relay as the rig has it. ``say``
+    lets the pump run while the tool tests its relay (the damper closed), takes the journal out
+    before the drives (its oil with it), and reports the pump relay as the rig has it. ``say``
     shows what the hands do."""
 
     backend: SimulatedBackend
     say: Callable[[str], None] = print
-    #: the supply pressure while the pump is isolated (None: it is not) [Pa]
-    _isolated_from_pa: float | None = None
 
     def instruct(self, action: str, text: str) -> None:
         self.say(f"operator: {text}")
-        if action == "watch_relay" and self.backend.rig is not None:
-            oil = self.backend.rig.params.oil
-            self._isolated_from_pa, oil.supply_pressure_pa = oil.supply_pressure_pa, 0.0
-            self.say("  (simulated hands: the pump isolated; its relay is watched)")
         if action in ("press_estop", "release_estop"):
             self.backend.press_estop(action == "press_estop")
             done = "pressed" if action == "press_estop" else "released"
@@ -134,8 +127,5 @@ class SimulatedCommissioner:
             self.say(f"operator: {question} yes (simulated hands: journal out)")
             return True
         answer = not rig.pump_on if action == "relay_off" else True
-        if action == "relay_off" and self._isolated_from_pa is not None:
-            rig.params.oil.supply_pressure_pa = self._isolated_from_pa  # the pump back on line
-            self._isolated_from_pa = None
         self.say(f"operator: {question} {'yes' if answer else 'no'}")
         return answer

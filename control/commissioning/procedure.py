@@ -6,9 +6,12 @@ operator in the loop. Nothing is driven before the sensors are known to tell the
    (`control.commissioning.checks.judge_rest`). Any failure ends here.
 2. **Emergency stop** (with an ``[estop]`` in the map): the operator presses the button; the
    tool must see it pressed within ``estop_timeout_s``, then released.
-3. **Watchdog** (``watchdog_s``): the pump relay on, the tool stops feeding the board's watchdog
-   for 1.5x its timeout and must find it expired (relays off, drives 0 V, by the board alone);
-   the operator confirms the relay dropped. The next run's first write clears the expiry.
+3. **The pump relay and the watchdog** (``watchdog_s``): the pump relay on, the inlet pressure
+   and flow (the map's first pressure and flow inputs) must rise within ``pump_s``: a relay that
+   switches nothing names its DO line. Then the tool stops feeding the board's watchdog for
+   1.5x its timeout and must find it expired (relays off, drives 0 V, by the board alone), and
+   the pressure and flow must fall within ``pump_s``; without those inputs the operator
+   confirms the relay dropped. The next run's first write clears the expiry.
 4. **A small drive per shaker** (``drive_n`` <= 2 N at ``freq_hz``, away from the ~45 Hz
    resonance; ramped up, held, ramped down; stopped at once if a probe passes a quarter of the
    clearance or a load cell 25x the drive): each input's 1X against physics
@@ -38,6 +41,7 @@ from control.commissioning.checks import (
     expected_response,
     judge_drives,
     judge_rest,
+    show,
     where,
 )
 from control.signal.lockin import LockIn, cycles_to_samples
@@ -50,6 +54,9 @@ from daq.map_edits import Correction, apply_corrections
 
 MAX_DRIVE_N = 2.0
 LEAD_BLOCKS = 6  # AO written this many blocks ahead of the reads (0.3 s: a busy host, gRPC)
+#: the least rise of an inlet gauge that counts as the pump running (the report's pump: 15.5 kPa
+#: and about 0.5 L/min through the film land, Table 5 and eq. 5)
+PUMP_MIN_RISE = {ChannelKind.PRESSURE_4_20MA: 2e3, ChannelKind.FLOW: 0.05}
 AWAY_FROM_RESONANCE = 0.3  # the test frequency at least this fraction off the natural one
 
 
@@ -77,6 +84,7 @@ class CommissionSpec:
     clearance_m: float = 127e-6
     estop_timeout_s: float = 30.0
     watchdog_s: float | None = None  # the board's watchdog timeout; None: not tested
+    pump_s: float = 2.0  # the pump's pressure and flow must rise (and fall) within this [s]
     plant: Plant = field(default_factory=Plant)
 
     def check(self, cm: ChannelMap) -> None:
@@ -238,23 +246,34 @@ class Commissioning:
                           "released"))
         return True
 
-    # --- 3. the watchdog -----------------------------------------------------------------
+    # --- 3. the pump relay and the watchdog ------------------------------------------------
     def _watchdog(self) -> bool:
         timeout = self.spec.watchdog_s
+        relay = self.cm.do[0] if self.cm.do else None
+        gauges = self._pump_gauges()
+        if relay is not None and gauges and not self._pump_on(relay.name, gauges):
+            return False
         if timeout is None:
+            if relay is not None and gauges:
+                self.backend.set_do(relay.name, False)
+                if not self._pump_off(relay.name, gauges, "switched off"):
+                    return False
             self._say(Finding("warn", "watchdog", "this backend has no watchdog timer: not "
                               "tested"))
             return True
-        relay = self.cm.do[0].name if self.cm.do else None
+        name = relay.name if relay is not None else None
         self.operator.instruct("watch_relay", (
-            f"Watchdog test: the tool switches the {relay} relay on (isolate what it powers, "
-            f"or watch its indicator) and stops feeding the board's watchdog; within "
-            f"{timeout:g} s the board must switch it off by itself."
-            if relay else "Watchdog test: the tool stops feeding the board's watchdog."))
+            (f"Watchdog test: the {name} relay stays on and the tool stops feeding the board's "
+             f"watchdog; within {timeout:g} s the board must switch it off by itself (the "
+             "pressure and flow must fall)." if gauges else
+             f"Watchdog test: the tool switches the {name} relay on (isolate what it powers, or "
+             f"watch its indicator) and stops feeding the board's watchdog; within {timeout:g} s "
+             "the board must switch it off by itself.")
+            if name else "Watchdog test: the tool stops feeding the board's watchdog."))
         self.backend.feed_watchdog()
-        if relay is not None:
-            self.backend.set_do(relay, True)
-            self._event("pump", f"{relay} relay on (watchdog test)")
+        if name is not None and not gauges:
+            self.backend.set_do(name, True)
+            self._event("pump", f"{name} relay on (watchdog test)")
         quiet = 1.5 * timeout
         self.log(f"watchdog: not fed for {quiet:g} s (timeout {timeout:g} s)")
         self._sleep(quiet)
@@ -265,24 +284,112 @@ class Commissioning:
         else:
             expired = False
         if not expired:
-            if relay is not None:
-                self.backend.set_do(relay, False)
+            if name is not None:
+                self.backend.set_do(name, False)
             return self._failed("watchdog", (
                 f"still running after {quiet:g} s without being fed (timeout {timeout:g} s): "
                 "the board would keep a hung PC's drives and pump going"), "the watchdog test")
-        seen = True
-        if relay is not None:
-            seen = self.operator.confirm("relay_off", f"Did the {relay} relay switch off by "
-                                                      "itself?")
-        if not seen:
+        if name is not None and gauges:
+            if not self._pump_off(name, gauges, "the watchdog expired"):
+                return False
+        elif name is not None and not self.operator.confirm(
+                "relay_off", f"Did the {name} relay switch off by itself?"):
             return self._failed("watchdog", (
-                f"the board reports its watchdog expired, but the operator saw the {relay} "
+                f"the board reports its watchdog expired, but the operator saw the {name} "
                 "relay stay on: check the relay's wiring and the watchdog's expiration "
                 "states"), "the watchdog test")
         self._say(Finding("ok", "watchdog", (
             f"expired after {quiet:g} s unfed (timeout {timeout:g} s): "
-            f"{f'the {relay} relay off, ' if relay else ''}drives at 0 V, by the board")))
-        self._acquire(lambda k: None, 2, "clear")  # the first write clears the expiry
+            f"{f'the {name} relay off, ' if name else ''}drives at 0 V, by the board")))
+        if not gauges:
+            self._acquire(lambda k: None, 2, "clear")  # the first write clears the expiry
+        return True
+
+    def _pump_gauges(self) -> list[int]:
+        """The rows of the inputs that prove the pump runs: the inlet pressure and flow (the
+        first pressure and the first flow input of the map)."""
+        rows = []
+        for kind in (ChannelKind.PRESSURE_4_20MA, ChannelKind.FLOW):
+            row = next((i for i, ch in enumerate(self.cm.ai) if ch.kind is kind), None)
+            if row is not None:
+                rows.append(row)
+        return rows
+
+    def _pump_trace(self, what: str) -> np.ndarray:
+        """``pump_s`` of every input, nothing driven (the reads feed the watchdog), in
+        engineering units less their rest; the pump's step recorded."""
+        n = max(int(math.ceil(self.spec.pump_s * self.fs / self.block)), 2)
+        first = self.sample
+        volts, _ = self._acquire(lambda k: None, n, what)
+        self._step({"freq_hz": 0.0, "target_kind": "", "target_value": 0.0, "motion": "",
+                    "first_sample": first, "last_sample": self.sample, "stage": what})
+        return np.asarray(self.cm.to_engineering(volts) - self._rest_mean)
+
+    def _rise(self, gauges: list[int]) -> dict[int, float]:
+        """What each gauge must rise by to count as the pump running: six times its noise at
+        rest, at least `PUMP_MIN_RISE` of its kind (a small pump's few kPa, a trickle of flow)."""
+        rest = self.result.measured.get("rest", {})
+        out = {}
+        for i in gauges:
+            ch = self.cm.ai[i]
+            std = float(rest.get(ch.name, {}).get("std", 0.0))
+            out[i] = max(6 * std, PUMP_MIN_RISE[ch.kind])
+        return out
+
+    def _pump_on(self, relay: str, gauges: list[int]) -> bool:
+        """The relay on: the pressure and the flow must rise within ``pump_s``."""
+        cm, spec = self.cm, self.spec
+        do = cm.relay(relay)
+        self.operator.instruct("pump_on", (
+            f"Pump test: the tool switches the {relay} relay on ({do.physical_channel}) with the "
+            f"damper's oil loop closed; the inlet pressure and flow must rise within "
+            f"{spec.pump_s:g} s."))
+        self.backend.feed_watchdog()
+        self.backend.set_do(relay, True)
+        self._event("pump", f"{relay} relay on (the pump test)")
+        self.log(f"pump: {relay} on ({do.physical_channel}); the pressure and flow must rise "
+                 f"within {spec.pump_s:g} s")
+        trace = self._pump_trace("pump on")
+        tail = trace[:, -max(trace.shape[1] // 10, 1):].mean(axis=1)
+        need = self._rise(gauges)
+        self._pump_level = {i: float(tail[i]) for i in gauges}
+        rose = [i for i in gauges if tail[i] > need[i]]
+        said = ", ".join(f"{cm.ai[i].name} {show(cm.ai[i], float(tail[i]))} (at least "
+                         f"{show(cm.ai[i], need[i])} expected)" for i in gauges)
+        if len(rose) < len(gauges):
+            self.backend.set_do(relay, False)
+            if not rose:
+                return self._failed(f"{do.name} ({do.physical_channel})", (
+                    f"switched on, nothing followed within {spec.pump_s:g} s: {said}: the "
+                    "pump's relay is not on this line (another DO line, its coil unwired) or "
+                    "the pump has no power or no oil"), "the pump test")
+            return self._failed(f"{do.name} ({do.physical_channel})", (
+                f"switched on, only {', '.join(cm.ai[i].name for i in rose)} rose within "
+                f"{spec.pump_s:g} s: {said}: a closed valve, or a gauge not on its line"),
+                "the pump test")
+        self._say(Finding("ok", f"{do.name} ({do.physical_channel})", (
+            f"switched on, the pump ran within {spec.pump_s:g} s: {said.replace(' expected', '')}"
+            .replace("(at least", "(over"))))
+        return True
+
+    def _pump_off(self, relay: str, gauges: list[int], cause: str) -> bool:
+        """After ``cause``: the pressure and the flow must fall below half their pump-on rise
+        within ``pump_s``."""
+        cm = self.cm
+        do = cm.relay(relay)
+        trace = self._pump_trace("pump off")
+        tail = trace[:, -max(trace.shape[1] // 10, 1):].mean(axis=1)
+        stayed = [i for i in gauges if tail[i] > 0.5 * self._pump_level[i]]
+        said = ", ".join(f"{cm.ai[i].name} {show(cm.ai[i], float(tail[i]))} (was "
+                         f"{show(cm.ai[i], self._pump_level[i])})" for i in gauges)
+        if stayed:
+            self.backend.set_do(relay, False)
+            return self._failed(f"{do.name} ({do.physical_channel})", (
+                f"{cause}, but the pump ran on for {self.spec.pump_s:g} s: {said}: the relay "
+                "did not drop (a welded contact, the pump on another switch, the watchdog's "
+                "expiration states)"), "the pump test")
+        self._say(Finding("ok", f"{do.name} ({do.physical_channel})", (
+            f"{cause}: the pump stopped within {self.spec.pump_s:g} s: {said}")))
         return True
 
     # --- 4. the drives -------------------------------------------------------------------

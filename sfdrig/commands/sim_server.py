@@ -23,6 +23,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--channels",
                         help="wiring: channel map TOML saying which sensor is on which terminal "
                              "(default: the report's channel map)")
+    parser.add_argument("--journal", choices=["in", "out"], default="in",
+                        help="in: the rig assembled (the seal's friction, about 26 N, holds the "
+                             "housing under small forces); out: the structure alone, as `sfdrig "
+                             "commission` drives it and the static tests load it (default: "
+                             "%(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed (default: %(default)s)")
     parser.add_argument("--fast", action="store_true",
                         help="generate samples as fast as they are read instead of in real time")
@@ -44,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         params = rig_params_named_or_file(args.rig)
+        if args.journal == "out":
+            params.journal_in = False
         wiring = load_channel_map(args.channels) if args.channels else default_channel_map()
     except (RigParamsError, ChannelConfigError) as err:
         print(f"sim-server: {err}", file=sys.stderr)
@@ -68,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
     server.start()
     mode = "fast" if args.fast else "real time"
     print(f"listening on {server.address}", flush=True)
-    print(f"device {wiring.device.name} ({wiring.device.product}), seed {args.seed}, {mode}; "
+    print(f"device {wiring.device.name} ({wiring.device.product}), seed {args.seed}, {mode}, "
+          f"journal {'in' if params.journal_in else 'out'}; "
           "stop with Ctrl-C or SIGTERM", flush=True)
     if wiring.estop is not None:
         print(f"emergency stop on {wiring.estop.physical_channel}: SIGUSR1 presses it, SIGUSR2 "

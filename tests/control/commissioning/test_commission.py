@@ -55,16 +55,36 @@ def _swap_x1_y1(data: dict[str, Any]) -> None:
         x1["physical_channel"]
 
 
+class ForgetsTheJournal(SimulatedCommissioner):
+    """Allows the drive with the journal still in: the seal's 26 N of friction holds the
+    housing against 2 N."""
+
+    def confirm(self, action: str, question: str) -> bool:
+        return True if action == "drive" else super().confirm(action, question)
+
+
 def commission(tool_map: ChannelMap = EXAMPLE, wiring: ChannelMap | None = None,
                params: RigParams | None = None, watchdog: float | None = WATCHDOG_S,
                spec_watchdog: float | None = WATCHDOG_S, listener: Any = None,
-               operator: Any = None) -> tuple[CommissionResult, list[str], SimulatedBackend]:
+               operator: Any = None, hands: type[SimulatedCommissioner] = SimulatedCommissioner,
+               ao_peaks: list[float] | None = None,
+               ) -> tuple[CommissionResult, list[str], SimulatedBackend]:
+    """Commission ``tool_map`` on the simulated rig wired as ``wiring``; ``ao_peaks`` collects
+    the largest |AO| of every block written."""
     clock = FakeClock(0.0)
     backend = SimulatedBackend(params or RigParams(), seed=4, wiring=wiring, watchdog_s=watchdog,
                                clock=clock, sleep=clock.sleep)
     backend.configure(tool_map)
+    if ao_peaks is not None:
+        write = backend.write_ao
+
+        def recorded(block: np.ndarray, at: int | None = None) -> None:
+            ao_peaks.append(float(np.max(np.abs(block), initial=0.0)))
+            write(block, at)
+
+        backend.write_ao = recorded  # type: ignore[method-assign]
     lines: list[str] = []
-    job = Commissioning(backend, operator or SimulatedCommissioner(backend, say=lines.append),
+    job = Commissioning(backend, operator or hands(backend, say=lines.append),
                         CommissionSpec(watchdog_s=spec_watchdog), listener=listener,
                         log=lines.append, clock=clock, sleep=clock.sleep)
     try:
@@ -98,40 +118,113 @@ def test_the_correct_map_passes_with_the_physics_numbers() -> None:
         assert a / (-w * w * x) == pytest.approx(1.0, abs=0.03)  # a = -w^2 x
     assert any(line.startswith("OK   estop (Dev1/port0/line1)") for line in lines)
     assert any(line.startswith("OK   watchdog: expired after 1.5 s unfed") for line in lines)
+    # the pump proven by its effect: the report's 15.5 kPa, and eq. 5's 0.49 L/min through the
+    # film land at 15.5 - 5.7 kPa; then both gone once the watchdog dropped the relay
+    (on,) = [line for line in lines if line.startswith("OK   pump (Dev1/port0/line0): switched on")]
+    assert re.search(r"p_in 15\.\d kPa .*q_in 0\.4[89]\d L/min", on), on
+    (off,) = [line for line in lines if "the watchdog expired: the pump stopped" in line]
+    assert re.search(r"p_in 0\.[0-4]\d* kPa \(was 15\.\d kPa\)", off), off
 
 
-FAULTS = {
-    "swapped x1/y1": (dict(wiring=changed(_swap_x1_y1)),
-                      r"FAIL x1 \(Dev1/ai2\) and y1 \(Dev1/ai4\): swapped: driving x, y1 moved "
-                      r"3\.\d+ um and x1 0\.00\d+ um; driving y, x1 moved 3\.\d+ um"),
-    "inverted fx": (dict(params=RigParams.model_validate(
-        {"effects": {"reversed_polarity": {"enabled": True, "channels": ["fx"]}}})),
-                    r"FAIL fx \(Dev1/ai0\): inverted: [+-]1[78]\d deg from the x drive"),
-    "load cell 10x off": (dict(tool_map=changed(_ai("fx", gain_v_per_unit=0.2)),
-                               wiring=EXAMPLE),
-                          r"FAIL fx \(Dev1/ai0\): reads 0\.2 N for the x drive where the drive "
-                          r"and the axis's other sensors say 2 N: its gain_v_per_unit 0\.2 is "
-                          r"10x too large \(proposed 0\.02;"),
-    "dead probe": (dict(wiring=changed(lambda d: d["ai"].pop(3))),
-                   r"FAIL x2 \(Dev1/ai3\): reads [+-]0\.000 V where its gap voltage should be "
-                   r"about -8\.50 V: a dead probe"),
-    "gap voltage out of range": (dict(wiring=changed(_ai("x2", offset_v=-9.6))),
-                                 r"FAIL x2 \(Dev1/ai3\): gap voltage -9\.60 V is out of range: "
-                                 r"the clearance's motion needs \+/-0\.97 V"),
-    "e-stop wired open": (dict(wiring=changed(lambda d: d.pop("estop"))),
-                          r"FAIL estop \(Dev1/port0/line1\): reads pressed \(low\) before "
-                          r"anyone pressed it"),
+def _swap(a: str, b: str, group: str = "ai") -> Callable[[dict[str, Any]], None]:
+    def change(data: dict[str, Any]) -> None:
+        ea, eb = (next(e for e in data[group] if e["name"] == n) for n in (a, b))
+        ea["physical_channel"], eb["physical_channel"] = eb["physical_channel"], \
+            ea["physical_channel"]
+    return change
+
+
+def _gaps(data: dict[str, Any]) -> None:
+    """Each probe's own gap voltage, as a lab measures and writes them (section 2)."""
+    for entry, gap in zip(data["ai"][2:6], (-8.3, -8.7, -8.4, -8.6), strict=True):
+        entry["offset_v"] = gap
+
+
+GAPS = changed(_gaps)
+X1_GAIN = 7874.015748031496  # 200 mV/mil, 7.87 V/mm
+#: the FAIL lines each mis-wiring must give, in order (regexes, matched from the start)
+MATRIX: dict[str, tuple[dict[str, Any], list[str]]] = {
+    "x1 and y1 swapped (a sensor on the wrong axis)": (dict(wiring=changed(_swap_x1_y1)), [
+        r"FAIL x1 \(Dev1/ai2\) and y1 \(Dev1/ai4\): swapped: driving x, y1 moved 3\.\d+ um "
+        r"and x1 0\.00\d+ um; driving y, x1 moved 3\.\d+ um"]),
+    "fx and fy swapped": (dict(wiring=changed(_swap("fx", "fy"))), [
+        r"FAIL fx \(Dev1/ai0\) and fy \(Dev1/ai1\): swapped: driving x, fy moved 2 N"]),
+    "the drives swapped between the amplifiers": (
+        dict(wiring=changed(_swap("shaker_x", "shaker_y", "ao"))), [
+            r"FAIL shaker_x \(Dev1/ao0\) and shaker_y \(Dev1/ao1\): the drives are swapped: "
+            r"shaker_x moved every y sensor \(fy 2 N, y1 2\.9\d um, y2 2\.9\d um, ay 0\.04\d+ "
+            r"m/s\^2\) and no x sensor; shaker_y moved every x sensor"]),
+    "x1 and x2 swapped with their cables": (
+        dict(tool_map=GAPS, wiring=changed(_swap("x1", "x2"), GAPS)), [
+            r"FAIL x1 \(Dev1/ai2\) and x2 \(Dev1/ai3\): swapped: x1's terminal reads -8\.70\d V, "
+            r"x2's gap voltage \(offset_v -8\.700 V\), and x2's reads -8\.30\d V, x1's"]),
+    "x1's sensitivity entered 2x (7.87 for 3.94 V/mm)": (
+        dict(tool_map=changed(_ai("x1", gain_v_per_unit=X1_GAIN)),
+             wiring=changed(_ai("x1", gain_v_per_unit=X1_GAIN / 2))), [
+            r"FAIL x1 \(Dev1/ai2\): reads 1\.5\d um for the x drive where x2 and ax \(-a/w\^2\) "
+            r"say 3\.1\d um \(x0\.50; .*\): its sensitivity measures 3\.9\d+ V/mm where "
+            r"gain_v_per_unit says 7\.874 V/mm \(2x too large; proposed 39[34]\d;"]),
+    "ax's gain 10x (1 V/g entered)": (
+        dict(tool_map=changed(_ai("ax", gain_v_per_unit=0.10197162129779284)),
+             wiring=EXAMPLE), [
+            r"FAIL ax \(Dev1/ai6\): reads 0\.00499 m/s\^2 for the x drive where x1 and x2 say "
+            r"0\.049\d m/s\^2 \(x0\.10; .*\): its sensitivity measures 10\d\.?\d* mV/g where "
+            r"gain_v_per_unit says 1000 mV/g \(9\.9x too large; proposed 0\.0102;"]),
+    "fx inverted (AI+ and AI- swapped)": (dict(params=RigParams.model_validate(
+        {"effects": {"reversed_polarity": {"enabled": True, "channels": ["fx"]}}})), [
+            r"FAIL fx \(Dev1/ai0\): inverted: [+-]1[78]\d deg from the x drive"]),
+    "fx's gain 10x": (dict(tool_map=changed(_ai("fx", gain_v_per_unit=0.2)), wiring=EXAMPLE), [
+        r"FAIL fx \(Dev1/ai0\): reads 0\.2 N for the x drive where the drive and the axis's "
+        r"motion x \(K - w\^2 M\) say 2 N: its gain_v_per_unit 0\.2 is 10x too large \(measured "
+        r"20 mV/N; proposed 0\.02;"]),
+    "x2 dead (cable open)": (dict(wiring=changed(lambda d: d["ai"].pop(3))), [
+        r"FAIL x2 \(Dev1/ai3\): reads [+-]0\.000 V where its gap voltage should be about "
+        r"-8\.50 V: a dead probe"]),
+    "x2's gap out of range": (dict(wiring=changed(_ai("x2", offset_v=-9.6))), [
+        r"FAIL x2 \(Dev1/ai3\): gap voltage -9\.60 V is out of range: the clearance's motion "
+        r"needs \+/-0\.97 V"]),
+    "p_in's loop open": (dict(wiring=changed(lambda d: d["ai"].pop(8))), [
+        r"FAIL p_in \(Dev1/ai8\): reads [+-]0\.000 V where the 4 mA of an unpressurised loop "
+        r"is 1 V: the loop is open"]),
+    "the e-stop wired open": (dict(wiring=changed(lambda d: d.pop("estop"))), [
+        r"FAIL estop \(Dev1/port0/line1\): reads pressed \(low\) before anyone pressed it"]),
+    "the pump relay on another DO line": (
+        dict(wiring=changed(lambda d: d["do"][0].update(physical_channel="Dev1/port0/line2"))), [
+            r"FAIL pump \(Dev1/port0/line0\): switched on, nothing followed within 2 s: p_in "
+            r"[+-]?0\.0\d+ kPa \(at least 2 kPa expected\), q_in .* L/min \(at least 0\.05 L/min "
+            r"expected\): the pump's relay is not on this line"]),
+    "the X amplifier not connected": (dict(wiring=changed(lambda d: d["ao"].pop(0))), [
+        r"FAIL shaker_x \(Dev1/ao0\): nothing answers this drive at 20 Hz; fx read 0\.0\d+ N "
+        r"and no sensor moved"]),
+    "the housing held (the journal left in: the seal's friction)": (
+        dict(hands=ForgetsTheJournal), [
+            r"FAIL housing: held: the load cells read the drives \(fx 2 N, fy 2 N\) and none of "
+            r"the 6 motion sensors moved \(x1 0\.0\d+ um where 3\.1\d um is expected"]),
+    "no watchdog on the board": (dict(watchdog=None), [
+        r"FAIL watchdog: still running after 1\.5 s without being fed \(timeout 1 s\)"]),
 }
+#: the mis-wirings found before anything is driven
+AT_REST = {"x1 and x2 swapped with their cables", "x2 dead (cable open)", "x2's gap out of range",
+           "p_in's loop open", "the e-stop wired open", "the pump relay on another DO line",
+           "no watchdog on the board"}
 
 
-@pytest.mark.parametrize("fault", list(FAULTS))
-def test_each_miswiring_is_named_in_one_line(fault: str) -> None:
-    kwargs, pattern = FAULTS[fault]
-    result, lines, _ = commission(**kwargs)  # type: ignore[arg-type]
-    print(f"{fault}: {fails(lines)}")
-    assert len(fails(lines)) == 1, "\n".join(lines)
-    assert re.match(pattern, fails(lines)[0]), fails(lines)[0]
+@pytest.mark.parametrize("fault", list(MATRIX))
+def test_each_miswiring_gives_exactly_the_fail_that_names_it(fault: str) -> None:
+    kwargs, patterns = MATRIX[fault]
+    peaks: list[float] = []
+    result, lines, _ = commission(ao_peaks=peaks, **kwargs)
+    got = fails(lines)
+    print(f"{fault}: {got}")
+    assert len(got) == len(patterns), "\n".join(lines)
+    for line, pattern in zip(got, patterns, strict=True):
+        assert re.match(pattern, line), line
     assert not result.passed
+    if fault in AT_REST:  # nothing driven: every AO block written was 0 V
+        assert max(peaks, default=0.0) == 0.0, max(peaks)
+        assert "drive_x" not in result.measured
+    else:
+        assert max(peaks, default=0.0) == pytest.approx(0.04, rel=1e-6)  # 2 N at 50 N/V, no more
 
 
 def test_nothing_is_driven_when_the_rest_fails() -> None:
@@ -211,7 +304,8 @@ class CtrlC:
 
 
 def test_ctrl_c_ramps_the_drive_down() -> None:
-    listener = CtrlC(at_sample=10_000 + 6_000)  # rest 1 s, watchdog's clearing, then 0.6 s in
+    # rest 1 s, the pump on 2 s and off 2 s (the watchdog's expiry), then 0.6 s into drive x
+    listener = CtrlC(at_sample=10_000 + 20_000 + 20_000 + 6_000)
     clock = FakeClock(0.0)
     backend = SimulatedBackend(RigParams(), seed=4, watchdog_s=WATCHDOG_S, clock=clock,
                                sleep=clock.sleep)
@@ -255,8 +349,9 @@ def test_the_record_holds_the_stages_and_the_findings(tmp_path: Path) -> None:
         backend.close()
     with open_run(tmp_path / "c.h5") as run:
         assert run.kind == "commissioning"
-        assert [s["stage"] for s in run.steps] == ["rest", "drive x", "drive y"]
-        drive_x = run.steps[1]
+        assert [s["stage"] for s in run.steps] == ["rest", "pump on", "pump off", "drive x",
+                                                   "drive y"]
+        drive_x = run.steps[3]
         y1 = run.channel("y1", drive_x["first_sample"], drive_x["last_sample"])
         assert float(np.std(y1)) * math.sqrt(2) == pytest.approx(3.15e-6, rel=0.03)  # x moves
         assert any(e["kind"] == "error" and "swapped" in e["message"] for e in run.events)
@@ -270,7 +365,7 @@ def test_the_command_writes_the_record_the_report_and_the_proposed_map(
     wiring.write_text(changed(_swap_x1_y1).to_toml())
     out = tmp_path / "out"
     example = REPO_ROOT / "examples" / "channels_report_rig.toml"
-    code = main(["commission", str(example), "--wiring", str(wiring), "--watchdog-s", "0.2",
+    code = main(["commission", str(example), "--wiring", str(wiring), "--watchdog-s", "0.5",
                  "--out", str(out)])
     text = capsys.readouterr().out
     assert code == 1
