@@ -154,6 +154,7 @@ class Commissioning:
         self.fs = self.cm.sample_rate_hz
         self.block = max(int(round(spec.block_s * self.fs)), 16)
         self.result = CommissionResult(self.cm)
+        self._pump_level: dict[int, float] = {}  # the gauges with the pump on, over their rest
         self._steps = 0
         self._rest_mean = np.zeros((len(self.cm.ai), 1))
 
@@ -580,14 +581,17 @@ class Commissioning:
 
 
 def report_markdown(result: CommissionResult, map_name: str, record: str, diff: str,
-                    spec: CommissionSpec) -> str:
-    """The commissioning's short report: verdict, every finding, the proposed corrections."""
+                    spec: CommissionSpec, board: str) -> str:
+    """The commissioning's short report: verdict and the board it was reached on (a rehearsal's
+    says "simulated"), every finding, the proposed corrections."""
     verdict = "PASSED" if result.passed else "FAILED"
-    lines = [f"# Commissioning of {map_name}: {verdict}", "",
+    lines = [f"# Commissioning of {map_name} on the {board}: {verdict}", "",
+             f"- verdict: {verdict} on the {board}",
              f"- record: `{record}`",
              f"- drive: {spec.drive_n:g} N per shaker at {spec.freq_hz:g} Hz; rest "
              f"{spec.rest_s:g} s; watchdog "
-             f"{'not tested' if spec.watchdog_s is None else f'{spec.watchdog_s:g} s'}"]
+             f"{'not tested' if spec.watchdog_s is None else f'{spec.watchdog_s:g} s'}; the "
+             f"pump's pressure and flow within {spec.pump_s:g} s"]
     if result.stopped:
         lines.append(f"- stopped early: {result.stopped}")
     lines += ["", "## Findings", "", "| | where | what |", "|---|---|---|"]

@@ -34,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--freq-hz", type=float, default=20.0,
                         help="test frequency, away from the ~45 Hz resonance (default: "
                              "%(default)s)")
+    parser.add_argument("--pump-s", type=float, default=2.0,
+                        help="the pump relay switched on (off), the inlet pressure and flow must "
+                             "rise (fall) within this [s] (default: %(default)s)")
     parser.add_argument("--rest-s", type=float, default=1.0,
                         help="reading at rest [s] (default: %(default)s)")
     parser.add_argument("--out", default="out/commission", metavar="DIR",
@@ -79,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
 
     if not 0 <= args.watchdog_s <= 60 or not 0.1 <= args.rest_s <= 60:
         return bad("--watchdog-s must be in [0, 60] s and --rest-s in [0.1, 60] s")
+    if not 0.2 <= args.pump_s <= 120:
+        return bad(f"--pump-s must be in [0.2, 120] s, got {args.pump_s:g}")
     if args.backend == "sim" and args.grpc_target:
         return bad("--grpc-target needs --backend nidaqmx")
     try:
@@ -86,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         if args.grpc_target:
             cm = cm.model_copy(update={"grpc_target": args.grpc_target})
         spec = CommissionSpec(drive_n=args.drive_n, freq_hz=args.freq_hz, rest_s=args.rest_s,
-                              watchdog_s=args.watchdog_s or None)
+                              watchdog_s=args.watchdog_s or None, pump_s=args.pump_s)
         spec.check(cm)
         backend, operator, rig = _backend(args, cm)
     except ConfigFileError as err:
@@ -95,15 +100,46 @@ def run(args: argparse.Namespace) -> int:
         return bad(str(err).splitlines()[0])
     try:
         try:
+            board = describe_board(args.backend, cm)
             backend.configure(cm)
         except DaqError as err:
             hint = (" (install NI-DAQmx, or give --grpc-target HOST:PORT)"
                     if isinstance(err, DaqConnectionError) and cm.grpc_target is None else "")
             return bad(f"{err}{hint}")
-        return _commission(args, cm, spec, backend, operator, rig)
+        return _commission(args, cm, spec, backend, operator, rig, board)
     finally:
         with contextlib.suppress(DaqError):
             backend.close()
+
+
+def describe_board(backend: str, cm: Any) -> str:
+    """The board commissioning runs on, for its output, report and record: "simulated board
+    (in-process)", or "nidaqmx device NAME" on the local driver or "... at gRPC target
+    HOST:PORT", "simulated" before it when the device says it is (an NI simulated device, or
+    `sfdrig sim-server`). (Local to commissioning; the daemon names its backend elsewhere.)"""
+    if backend == "sim":
+        return "simulated board (in-process)"
+    where = f" at gRPC target {cm.grpc_target}" if cm.grpc_target else " (local driver)"
+    simulated = _device_is_simulated(cm)
+    return f"{'simulated ' if simulated else ''}nidaqmx device {cm.device.name}{where}"
+
+
+def _device_is_simulated(cm: Any) -> bool:
+    """What the device says (DAQmx's DevIsSimulated), asked in a session of its own before the
+    tasks exist; a device or driver that cannot say is taken as a real board."""
+    from daq.errors import DaqError
+    from daq.nidaqmx_session import NidaqmxSession, translate_errors
+
+    session = NidaqmxSession(cm.grpc_target)
+    try:
+        from nidaqmx.system import Device
+
+        with translate_errors(f"asking {cm.device.name}{session.where} whether it is simulated"):
+            return bool(Device(cm.device.name, grpc_options=session.grpc_options()).is_simulated)
+    except (DaqError, ImportError):
+        return False
+    finally:
+        session.close()
 
 
 def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
@@ -129,7 +165,7 @@ def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
 
 
 def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, operator: Any,
-                rig: Any) -> int:
+                rig: Any, board: str) -> int:
     from control.commissioning.procedure import (
         Commissioning,
         CommissionInterrupted,
@@ -145,15 +181,15 @@ def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, oper
         writer = create_run_writer(
             record, "commissioning", backend.channel_map, run_id=f"commission-{stamp}",
             rig_config=rig,
-            test_spec={"map": str(args.map), "drive_n": spec.drive_n, "freq_hz": spec.freq_hz,
-                       "rest_s": spec.rest_s, "watchdog_s": spec.watchdog_s},
+            test_spec={"map": str(args.map), "board": board, "drive_n": spec.drive_n,
+                       "freq_hz": spec.freq_hz, "rest_s": spec.rest_s,
+                       "watchdog_s": spec.watchdog_s, "pump_s": spec.pump_s},
             notes="sfdrig commission: rest, e-stop, watchdog and drives back to back; the "
                   "steps name each stage, the events hold the findings")
     except (OSError, ValueError) as err:
         print(f"commission: {out}: cannot write the record: {err}", file=sys.stderr)
         return 2
-    where = f"{cm.device.name}{' on ' + cm.grpc_target if cm.grpc_target else ''}"
-    print(f"commissioning {args.map} on {where} ({args.backend}); record {record}", flush=True)
+    print(f"commissioning {args.map} on the {board}; record {record}", flush=True)
     job = Commissioning(backend, operator, spec, listener=writer,
                         log=lambda line: print(line, flush=True))
     try:
@@ -169,7 +205,7 @@ def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, oper
     n = len(result.failed)
     verdict = ("passed" if result.passed else "stopped early" if not n else
                f"{n} problem{'s' * (n != 1)}" + (" (stopped early)" if result.stopped else ""))
-    writer.close("completed", f"commissioning {verdict}")
+    writer.close("completed", f"commissioning {verdict} on the {board}")
     diff = ""
     if result.proposed is not None:
         from daq.map_edits import edit_map_text, text_diff
@@ -183,7 +219,7 @@ def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, oper
         print(f"proposed corrections ({proposed_path}; review, then replace the map with it):")
         sys.stdout.write(diff)
     report = out / f"commission-{stamp}.md"
-    report.write_text(report_markdown(result, str(args.map), str(record), diff, spec))
+    report.write_text(report_markdown(result, str(args.map), str(record), diff, spec, board))
     print(f"report {report}")
-    print(f"commissioning {verdict}: {args.map}")
+    print(f"commissioning {verdict} on the {board}: {args.map}")
     return 0 if result.passed else 1

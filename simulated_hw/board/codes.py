@@ -107,6 +107,7 @@ ATTR_SAMP_QUANT_MODE, ATTR_SAMP_QUANT_N = 0x1300, 0x1310  # timing: sample mode,
 
 # device capabilities (nidaqmx system/device.py, system/physical_channel.py)
 ATTR_DEV_PRODUCT_TYPE = 0x0631
+ATTR_DEV_IS_SIMULATED = 0x22CA  # bool: an NI simulated device (this one is)
 ATTR_DEV_AI_PHYSICAL_CHANS, ATTR_DEV_AO_PHYSICAL_CHANS = 0x231E, 0x231F
 ATTR_DEV_DI_LINES, ATTR_DEV_DO_LINES = 0x2320, 0x2322
 ATTR_DEV_AI_VOLTAGE_RNGS, ATTR_DEV_AO_VOLTAGE_RNGS = 0x2990, 0x299B  # [lo, hi, lo, hi, ...]

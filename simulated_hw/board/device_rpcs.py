@@ -19,6 +19,7 @@ from simulated_hw.board.codes import (
     ATTR_DEV_AO_VOLTAGE_RNGS,
     ATTR_DEV_DI_LINES,
     ATTR_DEV_DO_LINES,
+    ATTR_DEV_IS_SIMULATED,
     ATTR_DEV_PRODUCT_TYPE,
     ATTR_PHYS_AI_TERM_CFGS,
     TERM_BITS,
@@ -48,8 +49,8 @@ def attribute(values: dict[int, Any], group: str, attribute_id: int) -> Any:
 
 
 class DeviceRpcs:
-    """GetDeviceAttributeString, GetDeviceAttributeDoubleArray, GetPhysicalChanAttributeInt32.
-    Needs the servicer's ``device``."""
+    """GetDeviceAttributeString, GetDeviceAttributeBool, GetDeviceAttributeDoubleArray,
+    GetPhysicalChanAttributeInt32. Needs the servicer's ``device``."""
 
     device: Any
 
@@ -71,6 +72,14 @@ class DeviceRpcs:
         }
         return pb.GetDeviceAttributeStringResponse(
             value=attribute(values, "device", request.attribute_raw))
+
+    @reports_daq_errors
+    def GetDeviceAttributeBool(self, request, context):  # noqa: N802
+        """Is the device simulated: yes, as an NI simulated device answers (a real board: no),
+        so a client can name the board it is on."""
+        self._check_device(request.device_name)
+        return pb.GetDeviceAttributeBoolResponse(
+            value=attribute({ATTR_DEV_IS_SIMULATED: True}, "device", request.attribute_raw))
 
     @reports_daq_errors
     def GetDeviceAttributeDoubleArray(self, request, context):  # noqa: N802

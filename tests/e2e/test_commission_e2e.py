@@ -1,9 +1,10 @@
 """`sfdrig commission --backend nidaqmx` end to end: a real `sfdrig sim-server` process (fast),
-wired by its own channel map and rig file (the journal out), behind the real nidaqmx package; the
-tool is given the shipped example map. The test is the operator: it presses and releases the
-emergency stop (SIGUSR1 / SIGUSR2 to the server, the button's wires) when the tool asks, and
-answers the tool's questions on its stdin. The correct wiring passes; swapped probes, an inverted
-load cell and an e-stop wired open are each one FAIL line, exit 1."""
+wired by its own channel map and rig file (`--journal out`, as the tool drives it), behind the
+real nidaqmx package; the tool is given the shipped example map. The test is the operator: it
+presses and releases the emergency stop (SIGUSR1 / SIGUSR2 to the server, the button's wires) when
+the tool asks, and answers the tool's questions on its stdin. The correct wiring passes; a few of
+the in-process matrix's mis-wirings (tests/control/commissioning) are each exactly their FAIL
+line here, exit 1; the guide's rehearsal (docs/real-rig.md, section 6) runs as written."""
 
 from __future__ import annotations
 
@@ -27,7 +28,6 @@ from tests.e2e.conftest import REPO_ROOT
 pytestmark = pytest.mark.e2e
 
 EXAMPLE = REPO_ROOT / "examples" / "channels_report_rig.toml"
-JOURNAL_OUT = "[seal]\nenabled = false\n\n[contact]\nenabled = false\n"
 
 
 def _wiring(tmp_path: Path, change: Callable[[dict[str, Any]], None] | None) -> Path:
@@ -49,12 +49,13 @@ def server(tmp_path: Path) -> Iterator[Callable[..., tuple[str, int]]]:
     procs: list[subprocess.Popen[str]] = []
 
     def start(change: Callable[[dict[str, Any]], None] | None = None,
-              rig_extra: str = "") -> tuple[str, int]:
+              rig_extra: str = "", journal: str = "out") -> tuple[str, int]:
         rig = tmp_path / "rig.toml"
-        rig.write_text(JOURNAL_OUT + rig_extra)
+        rig.write_text(rig_extra)
         proc = subprocess.Popen(
             [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "5",
-             "--fast", "--channels", str(_wiring(tmp_path, change)), "--rig", str(rig)],
+             "--fast", "--channels", str(_wiring(tmp_path, change)), "--rig", str(rig),
+             "--journal", journal],
             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO_ROOT)
         procs.append(proc)
         first = proc.stdout.readline().strip()  # type: ignore[union-attr]
@@ -67,11 +68,12 @@ def server(tmp_path: Path) -> Iterator[Callable[..., tuple[str, int]]]:
         proc.communicate(timeout=10)
 
 
-def commission(address: str, server_pid: int, out: Path) -> tuple[int, list[str]]:
+def commission(address: str, server_pid: int, out: Path,
+               tool_map: Path = EXAMPLE) -> tuple[int, list[str], str]:
     """Run the tool as the operator would: the e-stop pressed and released when asked, every
-    question answered yes. Its exit code and stdout lines."""
+    question answered yes. Its exit code, stdout lines and stderr."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sfdrig", "commission", str(EXAMPLE), "--backend", "nidaqmx",
+        [sys.executable, "-m", "sfdrig", "commission", str(tool_map), "--backend", "nidaqmx",
          "--grpc-target", address, "--out", str(out)],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         cwd=REPO_ROOT)
@@ -93,7 +95,7 @@ def commission(address: str, server_pid: int, out: Path) -> tuple[int, list[str]
             proc.kill()
             proc.communicate()
     assert "Traceback" not in err, err
-    return proc.returncode, lines
+    return proc.returncode, lines, err
 
 
 def fails(lines: list[str]) -> list[str]:
@@ -101,7 +103,7 @@ def fails(lines: list[str]) -> list[str]:
 
 
 def test_the_correct_wiring_passes_through_nidaqmx(server: Any, tmp_path: Path) -> None:
-    code, lines = commission(*server(), tmp_path / "out")
+    code, lines, _ = commission(*server(), tmp_path / "out")
     assert code == 0, "\n".join(lines)
     assert lines[-1] == f"commissioning passed: {EXAMPLE}"
     assert "OK   estop (Dev1/port0/line1): read pressed when pressed and released when " \
@@ -116,19 +118,36 @@ def test_the_correct_wiring_passes_through_nidaqmx(server: Any, tmp_path: Path) 
     assert not list((tmp_path / "out").glob("*-proposed.toml"))
 
 
-@pytest.mark.parametrize("fault,change,rig_extra,pattern", [
-    ("swapped x1/y1", _swap_x1_y1, "",
+def _relay_on_line2(data: dict[str, Any]) -> None:
+    data["do"][0]["physical_channel"] = "Dev1/port0/line2"
+
+
+def _drives_swapped(data: dict[str, Any]) -> None:
+    data["ao"][0]["physical_channel"], data["ao"][1]["physical_channel"] = \
+        data["ao"][1]["physical_channel"], data["ao"][0]["physical_channel"]
+
+
+@pytest.mark.parametrize("fault,change,rig_extra,journal,pattern", [
+    ("swapped x1/y1", _swap_x1_y1, "", "out",
      r"FAIL x1 \(Dev1/ai2\) and y1 \(Dev1/ai4\): swapped: driving x, y1 moved 3\.\d+ um and "
      r"x1 0\.00\d+ um"),
     ("inverted fx", None, "\n[effects.reversed_polarity]\nenabled = true\nchannels = [\"fx\"]\n",
-     r"FAIL fx \(Dev1/ai0\): inverted: [+-]1[78]\d deg from the x drive"),
-    ("e-stop wired open", lambda d: d.pop("estop"), "",
+     "out", r"FAIL fx \(Dev1/ai0\): inverted: [+-]1[78]\d deg from the x drive"),
+    ("e-stop wired open", lambda d: d.pop("estop"), "", "out",
      r"FAIL estop \(Dev1/port0/line1\): reads pressed \(low\) before anyone pressed it"),
+    ("drives swapped", _drives_swapped, "", "out",
+     r"FAIL shaker_x \(Dev1/ao0\) and shaker_y \(Dev1/ao1\): the drives are swapped: "
+     r"shaker_x moved every y sensor"),
+    ("pump relay on another line", _relay_on_line2, "", "out",
+     r"FAIL pump \(Dev1/port0/line0\): switched on, nothing followed within 2 s: p_in "),
+    ("held housing (the journal in)", None, "", "in",
+     r"FAIL housing: held: the load cells read the drives \(fx 2 N, fy 2 N\) and none of the 6 "
+     r"motion sensors moved"),
 ])
 def test_a_miswired_rig_is_named_through_nidaqmx(server: Any, tmp_path: Path, fault: str,
-                                                  change: Any, rig_extra: str,
+                                                  change: Any, rig_extra: str, journal: str,
                                                   pattern: str) -> None:
-    code, lines = commission(*server(change, rig_extra), tmp_path / "out")
+    code, lines, _ = commission(*server(change, rig_extra, journal), tmp_path / "out")
     print(f"{fault}: {fails(lines)}")
     assert code == 1, "\n".join(lines)
     assert len(fails(lines)) == 1, "\n".join(lines)
@@ -136,16 +155,33 @@ def test_a_miswired_rig_is_named_through_nidaqmx(server: Any, tmp_path: Path, fa
     assert lines[-1].startswith("commissioning 1 problem")
 
 
+def test_a_terminal_configuration_the_board_lacks_is_one_line_before_anything(
+        server: Any, tmp_path: Path) -> None:
+    """x1 read RSE on a PXIe-6358 (differential only): the board refuses it at configure, one
+    line naming the channel and the property, exit 2; no record, nothing driven."""
+    text = EXAMPLE.read_text().replace(
+        'gain_v_per_unit = 7952.755905511811\noffset_v = -8.5\nrange_v = [-10.0, 10.0]\n'
+        'terminal_config = "differential"',
+        'gain_v_per_unit = 7952.755905511811\noffset_v = -8.5\nrange_v = [-10.0, 10.0]\n'
+        'terminal_config = "rse"')
+    assert text.count('"rse"') == 1
+    tool = tmp_path / "rse.toml"
+    tool.write_text(text)
+    code, lines, err = commission(*server(), tmp_path / "out", tool)
+    assert code == 2, "\n".join(lines) + err
+    (line,) = err.strip().splitlines()
+    assert re.match(r"commission: .*AI\.TermCfg, requested value: RSE.*Dev1/ai2", line), line
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").glob("*.h5"))
+
+
 def test_ctrl_c_during_a_drive_ramps_it_down_and_keeps_the_record(tmp_path: Path) -> None:
     """A paced sim-server (the drive takes 2.1 s of wall time); SIGINT once the X drive is at
     its level: the drive fades to 0 V (recorded), the record closes aborted, exit 130."""
     from storage import open_run
 
-    rig = tmp_path / "rig.toml"
-    rig.write_text(JOURNAL_OUT)
     server = subprocess.Popen(
         [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "5",
-         "--channels", str(EXAMPLE), "--rig", str(rig)],
+         "--channels", str(EXAMPLE), "--journal", "out"],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO_ROOT)
     try:
         first = server.stdout.readline().strip()  # type: ignore[union-attr]

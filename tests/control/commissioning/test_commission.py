@@ -365,20 +365,26 @@ def test_the_command_writes_the_record_the_report_and_the_proposed_map(
     wiring.write_text(changed(_swap_x1_y1).to_toml())
     out = tmp_path / "out"
     example = REPO_ROOT / "examples" / "channels_report_rig.toml"
-    code = main(["commission", str(example), "--wiring", str(wiring), "--watchdog-s", "0.5",
+    code = main(["commission", str(example), "--wiring", str(wiring), "--watchdog-s", "0",
                  "--out", str(out)])
     text = capsys.readouterr().out
     assert code == 1
-    assert text.rstrip().endswith(f"commissioning 1 problem: {example}")
+    assert text.rstrip().endswith(
+        f"commissioning 1 problem on the simulated board (in-process): {example}")
+    assert text.startswith(f"commissioning {example} on the simulated board (in-process); ")
     (record,) = out.glob("commission-*.h5")
     with open_run(record) as run:
         assert run.status == "completed"
-        assert run.attrs["status_reason"] == "commissioning 1 problem"
+        assert run.attrs["status_reason"] == \
+            "commissioning 1 problem on the simulated board (in-process)"
+        assert run.test_spec["board"] == "simulated board (in-process)"
     (proposed,) = out.glob("commission-*-proposed.toml")
     assert load_channel_map(proposed).ai_channel("x1").physical_channel == "Dev1/ai4"
     assert proposed.read_text().count("\n#") == example.read_text().count("\n#")
     (report,) = out.glob("commission-*.md")
-    assert report.read_text().startswith(f"# Commissioning of {example}: FAILED")
+    assert report.read_text().startswith(
+        f"# Commissioning of {example} on the simulated board (in-process): FAILED\n\n"
+        "- verdict: FAILED on the simulated board (in-process)\n")
     assert '-physical_channel = "Dev1/ai2"\n+physical_channel = "Dev1/ai4"' in text
 
 
@@ -391,6 +397,7 @@ def test_the_command_writes_the_record_the_report_and_the_proposed_map(
     (["EXAMPLE", "--rig", "missing.toml"], r"commission: missing\.toml: cannot read"),
     (["EXAMPLE", "--grpc-target", "x:1"], r"commission: --grpc-target needs --backend nidaqmx"),
     (["EXAMPLE", "--watchdog-s", "-1"], r"commission: --watchdog-s must be in \[0, 60\] s"),
+    (["EXAMPLE", "--pump-s", "0"], r"commission: --pump-s must be in \[0\.2, 120\] s, got 0$"),
 ])
 def test_bad_input_is_one_line_exit_2(args: list[str], line: str,
                                       capsys: pytest.CaptureFixture[str]) -> None:
