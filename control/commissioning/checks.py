@@ -297,9 +297,9 @@ def judge_drives(cm: ChannelMap, responses: dict[str, dict[str, Response]],
         responses = {_other(a): r for a, r in responses.items()}  # judge each by what moved it
         forces = {_other(a): f for a, f in forces.items()}
     driven = set(responses)
-    for a in sorted(driven):
-        if _drive_dead(cm, a, sensors, responses, freq_hz, v):
-            done |= {ch.name for ch in sensors if axis_of(ch) == a}
+    for dead in sorted(driven):
+        if _drive_dead(cm, dead, sensors, responses, freq_hz, v):
+            done |= {ch.name for ch in sensors if axis_of(ch) == dead}
     if _housing_held(sensors, responses, done, freq_hz, v):
         done |= {ch.name for ch in sensors if ch.kind is not K.LOAD_CELL}
     for ch in sensors:
