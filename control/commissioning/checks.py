@@ -112,6 +112,13 @@ def where(ch: Any) -> str:
     return f"{ch.name} ({ch.physical_channel})"
 
 
+def exchanged(group: str, a: Any, b: Any, why: str) -> list[Correction]:
+    """The corrections that exchange the ``physical_channel`` of ``a`` and ``b`` (of ``group``,
+    "ai" or "ao"); ``why`` formats each one's name and the terminal it is found on."""
+    return [Correction(group, p.name, "physical_channel", q.physical_channel,
+                       why.format(p.name, q.physical_channel)) for p, q in ((a, b), (b, a))]
+
+
 def axis_of(ch: AnalogInput) -> str | None:
     """The axis a sensor measures, by the software's names (fx, x1, x2, ax; fy, y1, ...)."""
     if ch.kind not in RESPONDING or ch.name == "hammer":
@@ -206,11 +213,7 @@ def _probes_swapped_at_rest(cm: ChannelMap, rest: LiveValues, v: Verdict) -> set
                 f"{gap[q.name]:+.3f} V, {p.name}'s ({p.offset_v:+.3f} V): the two probes (with "
                 "their cables) are on each other's terminals: physical_channel exchanged in "
                 "the proposed map (or swap the cables back); their offsets are right")))
-            v.corrections += [
-                Correction("ai", p.name, "physical_channel", q.physical_channel,
-                           f"{p.name}'s gap voltage is on {q.physical_channel}"),
-                Correction("ai", q.name, "physical_channel", p.physical_channel,
-                           f"{q.name}'s gap voltage is on {p.physical_channel}")]
+            v.corrections += exchanged("ai", p, q, "{}'s gap voltage is on {}")
     return found
 
 
@@ -326,11 +329,7 @@ def judge_drives(cm: ChannelMap, responses: dict[str, dict[str, Response]],
                     f"{show(ch, abs(cross.z))} and {partner.name} "
                     f"{show(ch, abs(responses[b][partner.name].z))}: physical_channel "
                     "exchanged in the proposed map (or swap the cables)")))
-                v.corrections += [
-                    Correction("ai", ch.name, "physical_channel", partner.physical_channel,
-                               f"{ch.name}'s sensor answers on {partner.physical_channel}"),
-                    Correction("ai", partner.name, "physical_channel", ch.physical_channel,
-                               f"{partner.name}'s sensor answers on {ch.physical_channel}")]
+                v.corrections += exchanged("ai", ch, partner, "{}'s sensor answers on {}")
             else:
                 v.findings.append(Finding("fail", where(ch), (
                     f"reads the {b} drive ({show(ch, abs(cross.z))}) and not the {a} one "
@@ -371,11 +370,7 @@ def _drives_swapped(cm: ChannelMap, sensors: list[AnalogInput],
         f"sensor; {ay.name} moved every x sensor ({moved('y', 'x')}): {ax.name}'s output goes "
         f"to the Y shaker's amplifier and {ay.name}'s to the X one: physical_channel exchanged "
         "in the proposed map (or swap the amplifier inputs); the sensors are right")))
-    v.corrections += [
-        Correction("ao", ax.name, "physical_channel", ay.physical_channel,
-                   f"the X shaker's amplifier is on {ay.physical_channel}"),
-        Correction("ao", ay.name, "physical_channel", ax.physical_channel,
-                   f"the Y shaker's amplifier is on {ax.physical_channel}")]
+    v.corrections += exchanged("ao", ax, ay, "{}'s shaker's amplifier is on {}")
     return True
 
 

@@ -70,16 +70,12 @@ def server(tmp_path: Path) -> Iterator[Callable[..., tuple[str, int]]]:
         proc.communicate(timeout=10)
 
 
-def commission(address: str, server_pid: int, out: Path,
-               tool_map: Path = EXAMPLE) -> tuple[int, list[str], str]:
-    """Run the tool as the operator would: the e-stop pressed and released when asked, every
-    question answered yes. Its exit code, stdout lines and stderr."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sfdrig", "commission", str(tool_map), "--backend", "nidaqmx",
-         "--grpc-target", address, "--out", str(out)],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        cwd=REPO_ROOT)
-    assert proc.stdin is not None and proc.stdout is not None
+def operate(proc: subprocess.Popen[str], server_pid: int,
+            also: Callable[[str], None] = lambda line: None) -> tuple[list[str], str]:
+    """Be the operator of a running `sfdrig commission`: the e-stop pressed and released when
+    asked (SIGUSR1 / SIGUSR2 to the server), every question answered yes (with a stdin),
+    ``also`` told every line. Its stdout lines and stderr, once it has ended."""
+    assert proc.stdout is not None
     lines = []
     try:
         for line in proc.stdout:
@@ -88,15 +84,29 @@ def commission(address: str, server_pid: int, out: Path,
                 os.kill(server_pid, signal.SIGUSR1)
             elif line.startswith("OPERATOR: Release the emergency stop"):
                 os.kill(server_pid, signal.SIGUSR2)
-            elif line.rstrip().endswith("[y/n]"):
+            elif line.rstrip().endswith("[y/n]") and proc.stdin is not None:
                 proc.stdin.write("y\n")
                 proc.stdin.flush()
-        _, err = proc.communicate(timeout=60)
+            also(line)
+        _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
     assert "Traceback" not in err, err
+    return lines, err
+
+
+def commission(address: str, server_pid: int, out: Path,
+               tool_map: Path = EXAMPLE) -> tuple[int, list[str], str]:
+    """Run the tool as the operator would (`operate`). Its exit code, stdout lines and
+    stderr."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sfdrig", "commission", str(tool_map), "--backend", "nidaqmx",
+         "--grpc-target", address, "--out", str(out)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=REPO_ROOT)
+    lines, err = operate(proc, server_pid)
     return proc.returncode, lines, err
 
 
@@ -192,17 +202,12 @@ def test_ctrl_c_during_a_drive_ramps_it_down_and_keeps_the_record(tmp_path: Path
              "0", "--pump-s", "0.5", "--yes", "--out", str(out)],
             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
             text=True, cwd=REPO_ROOT)
-        assert proc.stdout is not None
-        lines = []
-        for line in proc.stdout:
-            lines.append(line.rstrip("\n"))
-            if line.startswith("OPERATOR: Press the emergency stop"):
-                os.kill(server.pid, signal.SIGUSR1)
-            elif line.startswith("OPERATOR: Release the emergency stop"):
-                os.kill(server.pid, signal.SIGUSR2)
-            elif line.startswith("drive x: at 2 N"):  # 1.8 s of drive left
+
+        def interrupt(line: str) -> None:
+            if line.startswith("drive x: at 2 N"):  # 1.8 s of drive left
                 proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
+
+        lines, err = operate(proc, server.pid, interrupt)
     finally:
         server.terminate()
         server.communicate(timeout=10)
@@ -260,18 +265,7 @@ def test_the_guides_rehearsal_runs_as_written_and_passes(tmp_path: Path) -> None
         proc = subprocess.Popen([sys.executable, "-m", "sfdrig", *args], stdin=subprocess.PIPE,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 cwd=tmp_path, env=env)
-        assert proc.stdin is not None and proc.stdout is not None
-        lines = []
-        for line in proc.stdout:
-            lines.append(line.rstrip("\n"))
-            if line.startswith("OPERATOR: Press the emergency stop"):
-                os.kill(server.pid, signal.SIGUSR1)
-            elif line.startswith("OPERATOR: Release the emergency stop"):
-                os.kill(server.pid, signal.SIGUSR2)
-            elif line.rstrip().endswith("[y/n]"):
-                proc.stdin.write("y\n")
-                proc.stdin.flush()
-        _, err = proc.communicate(timeout=120)
+        lines, err = operate(proc, server.pid)
     finally:
         server.terminate()
         server.communicate(timeout=10)
