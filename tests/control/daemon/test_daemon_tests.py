@@ -73,7 +73,7 @@ def test_a_test_asks_through_the_status_and_stops_safely_on_abort(daemon: Daemon
         st = until(c, lambda s: s["question"] is not None and s["question"]["id"] > q["id"])
         assert "accept this point?" in st["question"]["prompt"]
         params = daemon.backend.rig.params
-        assert not params.seal.enabled and not params.contact.enabled  # the journal is out
+        assert not params.journal_in  # the journal is out: no seal, no wall, no film
         c.request("answer", question_id=st["question"]["id"], choice="ok")
         st = until(c, lambda s: s["question"] is not None
                    and s["question"]["where"].startswith("static x -40 N"))
@@ -82,7 +82,7 @@ def test_a_test_asks_through_the_status_and_stops_safely_on_abort(daemon: Daemon
     last = st["last_run"]
     assert last["run_id"] == run_id and last["status"] == "aborted"
     params = daemon.backend.rig.params
-    assert params.seal.enabled and params.contact.enabled  # the journal is back
+    assert params.journal_in and params.seal.enabled  # the journal is back, its seal too
     with open_run(Path(last["path"])) as run:
         assert run.kind == "static" and run.attrs["operator"] == "tester"
         assert len(run.steps) == 1
