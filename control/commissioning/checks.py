@@ -60,6 +60,8 @@ MOTION_TOL = 0.10  # probes and accelerometer of one axis against their median (
 MODEL_TOL = 0.30  # the load cell against the motion through K - w^2 M + iwC (K, M to ~10 %)
 DRIVE_TOL = 0.20  # the amplifier against nominal_force_n_per_v: beyond, corrected (a WARN)
 DRIVE_BAND = (1 / 3, 3.0)  # ... beyond this a FAIL (a knob far off)
+SWAP_GAIN_DIFF = 0.02  # two probes' gains this far apart can tell a swap by their readings
+SWAP_RATIO_MATCH = 0.01  # ... when their ratio is the gains' ratio squared to this
 G = 9.80665  # standard gravity [m/s^2]: accelerometer sensitivities in mV/g
 RESPONSE_FRACTION = 0.02  # a response under this fraction of the expected is none (a 10x
 #: or 30x wrong gain still responds)
@@ -469,6 +471,7 @@ def _sign_and_size(cm: ChannelMap, axis: str, group: list[AnalogInput],
     cells = [ch for ch in sized if ch.kind is K.LOAD_CELL]
     forces_ = [size[ch.name] for ch in cells] + [1.0]
     good = _judge_motion(axis, motion, resp, size, float(np.median(forces_)), v)
+    _probes_read_as_swapped(good, size, v)
     m = float(np.median([size[ch.name] for ch in good])) if good else None
     measured = 1.0  # the force the rig feels, over the drive's nominal
     for ch in cells:
@@ -511,6 +514,27 @@ def _sign_and_size(cm: ChannelMap, axis: str, group: list[AnalogInput],
     else:
         v.findings.append(Finding("ok", drive_where, (
             f"{abs(force):.3g} N asked at {freq_hz:g} Hz: the sensors say {measured:.2f}x that")))
+
+
+def _probes_read_as_swapped(motion: list[AnalogInput], size: dict[str, float],
+                            v: Verdict) -> None:
+    """Two probes of one axis with gains g1 != g2 swapped (with their cables) read g2/g1 and
+    g1/g2 of the motion: their ratio is (g2/g1)^2, not 1. Where the gains differ by more than
+    `SWAP_GAIN_DIFF` and the ratio is that to `SWAP_RATIO_MATCH`, a WARN (within the
+    calibrations' few %, so not proof; the gap voltages at rest are, when they differ)."""
+    probes = [ch for ch in motion if ch.kind is K.EDDY_CURRENT_PROBE]
+    for n, p in enumerate(probes):
+        for q in probes[n + 1:]:
+            swapped = (q.gain_v_per_unit / p.gain_v_per_unit) ** 2
+            ratio = size[p.name] / size[q.name]
+            if abs(math.log(swapped)) > 2 * SWAP_GAIN_DIFF and \
+                    abs(math.log(ratio / swapped)) < SWAP_RATIO_MATCH:
+                v.findings.append(Finding("warn", f"{where(p)} and {where(q)}", (
+                    f"read the same motion {ratio:.3f}:1, the square of their gains' ratio "
+                    f"({q.gain_v_per_unit:.5g}/{p.gain_v_per_unit:.5g})^2 = {swapped:.3f}: "
+                    "what two probes on each other's terminals read (within their "
+                    "calibrations' few %, so check their cables: give them different gap "
+                    "voltages and commission again, a swap then shows at rest)")))
 
 
 def _judge_motion(axis: str, motion: list[AnalogInput], resp: dict[str, Response],

@@ -227,6 +227,19 @@ def test_each_miswiring_gives_exactly_the_fail_that_names_it(fault: str) -> None
         assert max(peaks, default=0.0) == pytest.approx(0.04, rel=1e-6)  # 2 N at 50 N/V, no more
 
 
+def test_probes_swapped_with_equal_gap_voltages_are_a_warning_by_their_gains() -> None:
+    """x1 (202 mV/mil) and x2 (195) on each other's terminals, their gap voltages alike: each
+    reads the other's gain over its own, 0.965 and 1.036 of the motion, within the 10 % of a
+    calibration; their ratio (195/202)^2 = 0.932 is the swap's signature: a WARN, no FAIL."""
+    result, lines, _ = commission(wiring=changed(_swap("x1", "x2")))
+    assert result.passed, "\n".join(lines)
+    (warn,) = [line for line in lines if line.startswith("WARN x1 (Dev1/ai2) and x2")]
+    assert re.search(r"read the same motion 0\.93\d:1, the square of their gains' ratio "
+                     r"\(7677\.2/7952\.8\)\^2 = 0\.932", warn), warn
+    _, lines, _ = commission()
+    assert not [line for line in lines if line.startswith("WARN x1")]
+
+
 def test_nothing_is_driven_when_the_rest_fails() -> None:
     result, lines, backend = commission(wiring=changed(_ai("x2", offset_v=-9.6)))
     assert "drive_x" not in result.measured and "drive_y" not in result.measured
