@@ -109,8 +109,7 @@ class CommissionSpec:
 class Operator(Protocol):
     """The person at the rig. ``instruct`` tells them to do something the tool then watches
     for (``action``: press_estop, release_estop, pump_on, watch_relay); ``confirm`` asks yes
-    or no
-    (``action``: drive, relay_off)."""
+    or no (``action``: drive, relay_off)."""
 
     def instruct(self, action: str, text: str) -> None: ...
 

@@ -141,22 +141,22 @@ def _drives_swapped(data: dict[str, Any]) -> None:
         data["ao"][1]["physical_channel"], data["ao"][0]["physical_channel"]
 
 
-@pytest.mark.parametrize("fault,change,rig_extra,journal,pattern", [
-    ("e-stop wired open", lambda d: d.pop("estop"), "", "out",
+@pytest.mark.parametrize("fault,change,journal,pattern", [
+    ("e-stop wired open", lambda d: d.pop("estop"), "out",
      r"FAIL estop \(Dev1/port0/line1\): reads pressed \(low\) before anyone pressed it"),
-    ("drives swapped", _drives_swapped, "", "out",
+    ("drives swapped", _drives_swapped, "out",
      r"FAIL shaker_x \(Dev1/ao0\) and shaker_y \(Dev1/ao1\): the drives are swapped: "
      r"shaker_x moved every y sensor"),
-    ("pump relay on another line", _relay_on_line2, "", "out",
+    ("pump relay on another line", _relay_on_line2, "out",
      r"FAIL pump \(Dev1/port0/line0\): switched on, nothing followed within 2 s: p_in "),
-    ("held housing (the journal in)", None, "", "in",
+    ("held housing (the journal in)", None, "in",
      r"FAIL housing: held: the load cells read the drives \(fx 2 N, fy 2 N\) and none of the 6 "
      r"motion sensors moved"),
 ])
 def test_a_miswired_rig_is_named_through_nidaqmx(server: Any, tmp_path: Path, fault: str,
-                                                  change: Any, rig_extra: str, journal: str,
+                                                  change: Any, journal: str,
                                                   pattern: str) -> None:
-    code, lines, _ = commission(*server(change, rig_extra, journal), tmp_path / "out")
+    code, lines, _ = commission(*server(change, journal=journal), tmp_path / "out")
     print(f"{fault}: {fails(lines)}")
     assert code == 1, "\n".join(lines)
     assert len(fails(lines)) == 1, "\n".join(lines)
