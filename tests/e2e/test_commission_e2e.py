@@ -1,5 +1,5 @@
 """`sfdrig commission --backend nidaqmx` end to end: a real `sfdrig sim-server` process (fast),
-wired by its own channel map and rig file (`--journal out`, as the tool drives it), behind the
+wired by its own channel map, the journal out (`--journal out`, as the tool drives it), behind the
 real nidaqmx package; the tool is given the shipped example map. The test is the operator: it
 presses and releases the emergency stop (SIGUSR1 / SIGUSR2 to the server, the button's wires) when
 the tool asks, and answers the tool's questions on its stdin. The correct wiring passes; a few of
@@ -51,13 +51,10 @@ def server(tmp_path: Path) -> Iterator[Callable[..., tuple[str, int]]]:
     procs: list[subprocess.Popen[str]] = []
 
     def start(change: Callable[[dict[str, Any]], None] | None = None,
-              rig_extra: str = "", journal: str = "out") -> tuple[str, int]:
-        rig = tmp_path / "rig.toml"
-        rig.write_text(rig_extra)
+              journal: str = "out") -> tuple[str, int]:
         proc = subprocess.Popen(
             [sys.executable, "-m", "sfdrig", "sim-server", "--port", "0", "--seed", "5",
-             "--fast", "--channels", str(_wiring(tmp_path, change)), "--rig", str(rig),
-             "--journal", journal],
+             "--fast", "--channels", str(_wiring(tmp_path, change)), "--journal", journal],
             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO_ROOT)
         procs.append(proc)
         first = proc.stdout.readline().strip()  # type: ignore[union-attr]
