@@ -4,7 +4,8 @@ Threads
     - the command thread (the caller of `Daemon.serve`) owns the ROUTER command socket: the
       daemon parses every request (`control.wire.protocol`), checks it against its state machine
       (`control.daemon.state`), carries it out and answers every one; the thread also sends a
-      status heartbeat on the PUB stream every ``heartbeat_s``;
+      status heartbeat on the PUB stream every ``heartbeat_s``, and at each aborts a structure
+      test whose operator's lease lapsed (`control.daemon.lease`);
     - the acquisition thread (`control.daemon.acquisition.AcquisitionLoop`) runs one run at a
       time (`Engine.run`, which owns the DAQ loop and ends with the drives ramped to zero whatever
       happens); every block goes to a fan-out listener: the run file (`storage.RunWriter`, created

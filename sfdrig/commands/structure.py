@@ -67,6 +67,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="test settings: one table per test ([static], [impact], ...)")
     p.add_argument("--set", dest="fields", action="append", default=[], metavar="TEST.KEY=VALUE",
                    help="one setting, e.g. --set static.repeats=2 --set impact.strikes=5")
+    p.epilog = ("A test never outlives this terminal: `a` typed at any moment, Ctrl-C, the "
+                "terminal hanging up or SIGTERM abort it (drives ramped to zero); if this "
+                "process is killed, the daemon aborts it when its operator lease lapses "
+                "(`sfdrig daemon --operator-lease-s`).")
     add_connection_arguments(p)
     u = p.add_argument_group("unattended (simulated rig in this process, stand-in operator)")
     u.add_argument("--unattended", action="store_true",
