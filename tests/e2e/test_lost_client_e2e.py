@@ -124,59 +124,66 @@ def _status_text(d: DaemonProcess) -> str:
     return out.stdout
 
 
-def test_a_hung_up_terminal_aborts_the_held_static_test(daemon_factory) -> None:
+def _lose_the_terminal(daemon_factory: Any, lose: Any) -> tuple[DaemonProcess, Terminal, str,
+                                                                str, float]:
+    """`sfdrig structure` holding -40 N, then ``lose(terminal, daemon)``: (daemon, terminal, run id,
+    the run's end "status: reason", when the signal came)."""
     d = _daemon(daemon_factory)
     with Subscriber(d.data, topics=["event", "status"]) as sub:
         sub.wait_connected()
         t = _holding(d)
         signalled_at = time.time()
-        t.child.ptyproc.fileobj.close()  # the terminal hangs up: the kernel sends SIGHUP
-        t.child.ptyproc.wait()
-        t.child.ptyproc.closed = True
+        lose(t, d)
         run_id, end = _run_end(sub)
+    return d, t, run_id, end, signalled_at
+
+
+def _hang_up(t: Terminal, d: DaemonProcess) -> None:
+    """Close the pty's master, as a terminal window closing does: the kernel sends SIGHUP."""
+    t.child.ptyproc.fileobj.close()
+    t.child.ptyproc.wait()
+    t.child.ptyproc.closed = True
+
+
+def _kill(sig: int) -> Any:
+    def lose(t: Terminal, d: DaemonProcess) -> None:
+        t.child.kill(sig)
+        t.child.expect(pexpect.EOF)
+        t.out = t.child.before
+        t.child.close()
+    return lose
+
+
+def test_a_hung_up_terminal_aborts_the_held_static_test(daemon_factory) -> None:
+    d, t, run_id, end, signalled_at = _lose_the_terminal(daemon_factory, _hang_up)
     assert t.child.ptyproc.exitstatus == 128 + signal.SIGHUP  # its own exit, after the abort
     reason = "the operator's terminal hung up (SIGHUP) in `sfdrig structure` (static)"
     assert end.startswith(f"aborted: {WHERE}: {reason}")
     _check_ramped_down(d, run_id, signalled_at, SIGNAL_BOUND_S, reason)
-    assert f"last run   {run_id}: aborted ({WHERE}: {reason})" \
-        in _status_text(d)
+    assert f"last run   {run_id}: aborted ({WHERE}: {reason})" in _status_text(d)
 
 
 def test_sigterm_to_the_terminal_aborts_the_held_static_test(daemon_factory) -> None:
-    d = _daemon(daemon_factory)
-    with Subscriber(d.data, topics=["event", "status"]) as sub:
-        sub.wait_connected()
-        t = _holding(d)
-        signalled_at = time.time()
-        t.child.kill(signal.SIGTERM)
-        t.child.expect(pexpect.EOF)
-        out = t.child.before
-        t.child.close()
-        run_id, _ = _run_end(sub)
-    assert t.child.exitstatus == 128 + signal.SIGTERM and "Traceback" not in out
-    assert "static: abort sent (drives ramp to zero)" in out
+    d, t, run_id, _, signalled_at = _lose_the_terminal(daemon_factory, _kill(signal.SIGTERM))
+    assert t.child.exitstatus == 128 + signal.SIGTERM and "Traceback" not in t.out
+    assert "static: abort sent (drives ramp to zero)" in t.out
     _check_ramped_down(d, run_id, signalled_at, SIGNAL_BOUND_S,
                        "the client was told to end (SIGTERM) in `sfdrig structure` (static)")
 
 
 def test_a_killed_terminal_loses_its_lease_and_the_test_is_aborted(daemon_factory) -> None:
-    d = _daemon(daemon_factory)
-    with Subscriber(d.data, topics=["event", "status"]) as sub:
-        sub.wait_connected()
-        t = _holding(d)
+    def renewed_then_killed(t: Terminal, d: DaemonProcess) -> None:
         with CommandClient(d.command) as c:
             lease = c.status()["operator_lease"]
         assert lease["lease_s"] == LEASE_S and lease["silent_s"] < LEASE_S * 0.5  # renewed
-        signalled_at = time.time()
-        t.child.kill(signal.SIGKILL)  # nothing can be sent: only the lease tells
-        t.child.expect(pexpect.EOF)
-        t.child.close()
-        run_id, end = _run_end(sub)
+        _kill(signal.SIGKILL)(t, d)  # nothing can be sent: only the lease tells
+
+    d, t, run_id, end, signalled_at = _lose_the_terminal(daemon_factory, renewed_then_killed)
     assert t.child.signalstatus == signal.SIGKILL
-    reason = "operator lost: no heartbeat for"
     assert re.match(re.escape(f"aborted: {WHERE}: operator lost: no heartbeat for ")
                     + r"4\.\d s \(the lease is 4 s", end), end
-    took = _check_ramped_down(d, run_id, signalled_at, LEASE_BOUND_S, reason)
+    took = _check_ramped_down(d, run_id, signalled_at, LEASE_BOUND_S,
+                              "operator lost: no heartbeat for")
     # not before the lease: the last renewal came at most a quarter lease before the kill
     assert took >= LEASE_S * 0.75 - 0.1, took
     assert f"aborted ({WHERE}: operator lost: no heartbeat for 4." in _status_text(d)
@@ -246,14 +253,7 @@ def test_a_sweep_runs_on_when_its_follower_hangs_up(daemon_factory) -> None:
 def _page_holding(browser: Any, url: str) -> tuple[Any, str]:
     """The page started the static test and answered its setup: the shaker holds a load at a
     point's question. Returns (the page, the run id)."""
-    page = test_web_e2e._open(browser, url)
-    page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
-    page.select_option("#test-kind", "static")
-    page.click("#start-test")
-    page.click("#confirm-yes")
-    page.wait_for_function("document.getElementById('message').textContent.includes('run ')")
-    run_id = page.inner_text("#message").removeprefix("start: ok (run ").rstrip(")")
-    page.wait_for_selector("#question:not([hidden])", timeout=60_000)
+    page, run_id = test_web_e2e.start_test_on_page(browser, url, "static")
     assert page.inner_text("#q-where") == "static setup"
     page.click("#q-ok")
     page.wait_for_function("document.getElementById('q-prompt').textContent.includes("
