@@ -179,6 +179,8 @@ def test_a_killed_terminal_loses_its_lease_and_the_test_is_aborted(daemon_factor
         with CommandClient(d.command) as c:
             lease = c.status()["operator_lease"]
         assert lease["lease_s"] == LEASE_S and lease["silent_s"] < LEASE_S * 0.5  # renewed
+        assert re.search(r"\noperator   last heard \d\.\d s ago \(the test is aborted after "
+                         r"4 s without\)\n", _status_text(d))
         _kill(signal.SIGKILL)(t, d)  # nothing can be sent: only the lease tells
 
     d, t, run_id, end, signalled_at = _lose_the_terminal(daemon_factory, renewed_then_killed)
