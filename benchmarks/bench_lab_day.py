@@ -185,6 +185,8 @@ class Session:
         answered: dict[int, int] = defaultdict(int)
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
+            # the operator is here: renew the test's lease (`control.daemon.lease`)
+            self.client.request("alive", check=False, lease=reply.data["lease"])
             msg = self.sub.recv(timeout_s=0.2)
             if msg is not None and msg.topic == "event" and \
                     msg.header["message"].startswith(f"run {run_id} "):

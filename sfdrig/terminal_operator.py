@@ -2,7 +2,12 @@
 question the
 daemon's running test asks, reads what the person types, sends it as an answer and shows the
 daemon's refusal (wrong unit, out of range) until an answer is accepted. The browser view is the
-other front end of the same protocol; neither decides anything the daemon does not check."""
+other front end of the same protocol; neither decides anything the daemon does not check.
+
+While it is the operator, the terminal renews the test's operator lease (`control.daemon.lease`):
+if this process is killed, the daemon aborts the test once the lease lapses. An abort typed at
+any moment is sent: as the answer to the question asked, or as an abort when none is (between
+two questions, or at a question that does not offer it). End of input sends an abort too."""
 
 from __future__ import annotations
 
@@ -11,6 +16,7 @@ import time
 from typing import Any, TextIO
 
 from control.wire.client import CommandClient
+from control.wire.protocol import renew_every_s
 
 POLL_S = 0.2  # how often the daemon's status is read while waiting [s]
 KEYS = {"": "ok", "y": "ok", "ok": "ok", "accept": "ok", "r": "repeat", "repeat": "repeat",
@@ -66,11 +72,18 @@ def run_test(client: CommandClient, test: str, spec: dict[str, Any], operator: s
     reply = client.request("start_test", test=test, spec=spec, operator=operator, notes=notes)
     run_id = reply.data["run_id"]
     print(f"{test}: run {run_id} started: {reply.data['path']}", file=out, flush=True)
+    lease = reply.data.get("lease", "")
+    every_s = renew_every_s(float(reply.data.get("lease_s", 0.0)))
+    renew_at = time.monotonic() + every_s
     shown: dict[str, Any] | None = None
     steps = 0
-    closed = False
+    closed = False  # the abort is sent (or input ended): nothing more is read
     answered = 0  # the last question this terminal answered
     while True:
+        if lease and time.monotonic() >= renew_at:
+            # refused once the test has ended: the status below then says how it ended
+            client.request("alive", check=False, lease=lease)
+            renew_at = time.monotonic() + every_s
         st = client.status()
         if st["run_id"] != run_id:
             last = dict(st.get("last_run") or {})
@@ -99,13 +112,24 @@ def run_test(client: CommandClient, test: str, spec: dict[str, Any], operator: s
             client.abort("the operator's input closed")
             print("\ninput closed: abort sent (drives ramp to zero)", file=out, flush=True)
             continue
+        typed_abort = KEYS.get(line.strip().lower()) == "abort"
+        if typed_abort and (q is None or "abort" not in q["choices"]):
+            closed = True
+            client.abort("the operator typed abort at the terminal"
+                         + ("" if q is None else f" ({q['where']})"))
+            print("  = abort sent (drives ramp to zero)", file=out, flush=True)
+            continue
         if q is None:
             print("  (nothing is asked now)", file=out, flush=True)
             continue
         choice, text = interpret(line, q)
         answer = client.request("answer", check=False, question_id=q["id"], choice=choice,
                                 text=text)
-        if not answer.ok:
+        if not answer.ok and typed_abort:  # the question went meanwhile: abort all the same
+            closed = True
+            client.abort(f"the operator typed abort at the terminal ({q['where']})")
+            print("  = abort sent (drives ramp to zero)", file=out, flush=True)
+        elif not answer.ok:
             print(f"  ! {answer.error}\n> ", end="", file=out, flush=True)
         else:
             answered = q["id"]

@@ -11,6 +11,11 @@ never reaches back to the daemon. Commands
 are POSTs checked against the browser's role (`web.auth`) and sent to the daemon's command
 socket by the `DaemonLink`.
 
+A structure test started from the page holds the rig for the person at a page: the server keeps
+its operator lease (`control.daemon.lease`) only while an operator's page is connected (its
+WebSocket open). Close every operator page, or lose this server, and the lease lapses: the daemon
+aborts the test, drives ramped to zero. A reload is quicker than the lease. A sweep has no lease.
+
 Every request must name an allowed host in its ``Host`` header (`WebConfig.allowed_hosts`: a page
 of another name resolved to this address, DNS rebinding, is refused with 421 before anything
 else), and a POST or WebSocket from a browser must come from this page's own origin. Every answer
@@ -23,6 +28,7 @@ within ``body_timeout_s``; a body that is not a JSON object is answered 400 with
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import logging
 import os
@@ -39,6 +45,7 @@ import orjson
 from aiohttp import WSMsgType, web
 from aiohttp.web_request import FileField
 
+from control.wire.protocol import renew_every_s
 from web import sweep_form
 from web.auth import COOKIE, OPERATOR, LoginRefused, Session, Sessions, role_of_key_file
 from web.feed import DaemonLink
@@ -190,8 +197,12 @@ class WebApp:
             web.static("/static", STATIC),
         ])
         self.app.on_startup.append(self._start_ticker)
+        self.app.on_startup.append(self._start_lease_keeper)
         self.app.on_shutdown.append(self._close_browsers)
         self._ticker: asyncio.Task[None] | None = None
+        self._lease_keeper: asyncio.Task[None] | None = None
+        # the operator lease of the test this page started: its token and length [s]
+        self.lease: tuple[str, float] | None = None
         self.history = RunHistory(config.runs_dir) if config.runs_dir is not None else None
         self._exporting = asyncio.Lock()  # one export at a time: the daemon needs the CPU
         self._identifying = asyncio.Lock()  # and one identification
@@ -385,7 +396,32 @@ class WebApp:
                                       "error": "start_test: spec must be an object"})
         out = await self._daemon(lambda: self.link.try_command(
             "start_test", test=test, spec=spec, operator=s.name, notes="started from sfdrig web"))
-        return web.json_response(out)
+        data = out.get("data") or {}
+        if out.get("ok") and data.get("lease"):
+            self.lease = (str(data["lease"]), float(data["lease_s"]))
+        return web.json_response({**out, "data": {k: v for k, v in data.items()
+                                                  if k != "lease"}})
+
+    def operator_pages(self) -> int:
+        """The connected pages whose login may operate (a viewer's page holds nothing)."""
+        return sum(1 for b in self.browsers
+                   if (s := self._session_of(b.token)) is not None and s.role == OPERATOR)
+
+    async def _keep_lease(self) -> None:
+        """Renew the lease of the test this page started while an operator's page is open;
+        forget it once the daemon refuses it (the test has ended)."""
+        while True:
+            lease = self.lease
+            if lease is None:
+                await asyncio.sleep(0.5)
+                continue
+            token, lease_s = lease
+            if self.operator_pages():
+                out = await self._daemon(functools.partial(self.link.try_command, "alive",
+                                                           lease=token))
+                if not out["ok"] and "lease" in out["error"] and self.lease == lease:
+                    self.lease = None  # the test has ended (or another start replaced it)
+            await asyncio.sleep(renew_every_s(lease_s))
 
     async def command(self, request: web.Request) -> web.Response:
         self._guard(request, need_operator=True)
@@ -606,9 +642,13 @@ class WebApp:
     async def _start_ticker(self, app: web.Application) -> None:
         self._ticker = asyncio.create_task(self._tick())
 
+    async def _start_lease_keeper(self, app: web.Application) -> None:
+        self._lease_keeper = asyncio.create_task(self._keep_lease())
+
     async def _close_browsers(self, app: web.Application) -> None:
-        if self._ticker is not None:
-            self._ticker.cancel()
+        for task in (self._ticker, self._lease_keeper):
+            if task is not None:
+                task.cancel()
         for b in list(self.browsers):
             await b.ws.close()
 

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from control.daemon.lease import OperatorLease
 from control.run.engine import Engine
 from control.run.errors import InterlockError
 from control.run.listener import FanOut
@@ -33,6 +34,7 @@ class RunJob:
     writer: RunWriter  # its own I/O thread keeps the disk out of the loop
     fanout: FanOut
     abort_reason: str = ""
+    lease: OperatorLease | None = None  # a test waiting for a person; a sweep has none
 
 
 class AcquisitionLoop:

@@ -4,7 +4,8 @@ Threads
     - the command thread (the caller of `Daemon.serve`) owns the ROUTER command socket: the
       daemon parses every request (`control.wire.protocol`), checks it against its state machine
       (`control.daemon.state`), carries it out and answers every one; the thread also sends a
-      status heartbeat on the PUB stream every ``heartbeat_s``;
+      status heartbeat on the PUB stream every ``heartbeat_s``, and at each aborts a structure
+      test whose operator's lease lapsed (`control.daemon.lease`);
     - the acquisition thread (`control.daemon.acquisition.AcquisitionLoop`) runs one run at a
       time (`Engine.run`, which owns the DAQ loop and ends with the drives ramped to zero whatever
       happens); every block goes to a fan-out listener: the run file (`storage.RunWriter`, created
@@ -30,6 +31,7 @@ import json
 import logging
 import math
 import os
+import secrets
 import threading
 import time
 from collections.abc import Callable
@@ -41,6 +43,7 @@ import zmq
 from pydantic import ValidationError
 
 from control.daemon.acquisition import AcquisitionLoop, RunJob
+from control.daemon.lease import OperatorLease
 from control.daemon.sockets import bind_sockets
 from control.daemon.state import (
     TRANSITIONS,
@@ -62,6 +65,7 @@ from control.run.listener import FanOut
 from control.wire.errors import TargetError
 from control.wire.protocol import (
     AbortRequest,
+    AliveRequest,
     AnswerRequest,
     DaemonState,
     ErrorKind,
@@ -110,6 +114,9 @@ class DaemonConfig:
     # after the pump goes off, a dry sweep waits this long for the film to drain [s]: its
     # dwells are recorded as dry (the simulated film drains with a 5 s time constant)
     film_drain_s: float = 30.0
+    # a structure test is aborted once the client that started it has not renewed its lease
+    # (`control.daemon.lease`) for this long [s]; a sweep has no lease
+    operator_lease_s: float = 10.0
 
 
 class Daemon:
@@ -199,6 +206,7 @@ class Daemon:
                     self._feed_watchdog_while_idle()
                     self._check_estop_while_idle()
                     self._check_estop_release()
+                    self._check_operator_lease()
                 if self._command.poll(int(max(0.0, next_beat - now) * 1000) + 1):
                     self._handle(self._command.recv_multipart())
         finally:
@@ -242,6 +250,27 @@ class Daemon:
             self._estop_released_logged = True
             self._log_idle_incident("e-stop", "emergency stop released (the fault stays "
                                     "latched until reset)")
+
+    def _check_operator_lease(self) -> None:
+        """A test whose operator's lease lapsed is aborted the safe way (drives ramped to
+        zero, the run file closed "aborted" with the reason): nobody is left to answer it.
+        Requests already queued are handled first: a renewal waiting behind a slow loop is
+        not a lost operator."""
+        job = self.job
+        if job is None or job.lease is None or not job.lease.lapsed():
+            return
+        for _ in range(100):
+            if not self._command.poll(0):
+                break
+            self._handle(self._command.recv_multipart())
+        with self.sm.lock:
+            if self.job is not job or not job.lease.lapsed() or not self.sm.allowed("abort"):
+                return
+            reason = job.lease.reason()
+            log.warning("run %s: %s", job.run_id, reason)
+            self.sm.fire("abort")
+            job.abort_reason = reason
+            job.engine.abort(reason)
 
     def _log_idle_incident(self, incident: str, what: str) -> None:
         """An incident while no run is going is in no run file: the daemon's incident log under
@@ -363,6 +392,8 @@ class Daemon:
                 return self._start_test(req)
             case AnswerRequest():
                 return self._answer(req)
+            case AliveRequest():
+                return self._alive(req)
             case PauseRequest():
                 if self.job is not None and not self.job.engine.can_pause:
                     return self._error(ErrorKind.FORBIDDEN, "pause: a structure test does not "
@@ -511,7 +542,9 @@ class Daemon:
             return self._error(ErrorKind.FAILED, f"start_test: cannot create the run file: "
                                f"{err}", req.cmd, req.request_id)
         fanout.required.append(writer)
-        self.job = RunJob(run_id, path, engine, writer, fanout)
+        # the person at this client answers it: the client renews the lease while it is there
+        lease = OperatorLease(self.cfg.operator_lease_s)
+        self.job = RunJob(run_id, path, engine, writer, fanout, lease=lease)
         self.publisher.set_run(run_id)
         if req.test in DRY_TESTS:
             self.hold_pump(f"the dry {req.test} test {run_id}")
@@ -519,7 +552,18 @@ class Daemon:
             self.hold_pump(f"the {req.test} test {run_id}", owner)
         self.sm.fire("start")
         self.loop.submit(self.job)
-        return self._ok(req, run_id=run_id, path=str(path))
+        return self._ok(req, run_id=run_id, path=str(path), lease=lease.token,
+                        lease_s=lease.seconds)
+
+    def _alive(self, req: AliveRequest) -> Reply:
+        """Renew the running test's operator lease (`control.daemon.lease`)."""
+        lease = self.job.lease if self.job is not None else None
+        if lease is None or not secrets.compare_digest(lease.token, req.lease):
+            return self._error(ErrorKind.FORBIDDEN, "alive: no running test holds this lease "
+                               "(the test has ended, or another client started it)", req.cmd,
+                               req.request_id)
+        lease.renew()
+        return self._ok(req, lease_s=lease.seconds)
 
     def _answer(self, req: AnswerRequest) -> Reply:
         from control.run.programs.operator import EntryError
@@ -655,6 +699,10 @@ class Daemon:
             # what a structure test asks the operator now (control.run.programs.operator.Question),
             # or None
             "question": _question(job),
+            # a test's operator lease: how long it is, how long since the client renewed it
+            "operator_lease": ({"lease_s": job.lease.seconds,
+                                "silent_s": round(job.lease.silent_s(), 2)}
+                               if job is not None and job.lease is not None else None),
             "last_run": self._last_run,
             "recovered_at_start": self.recovered,
             "next_seq": self.publisher.sequence_numbers(),

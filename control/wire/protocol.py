@@ -90,7 +90,9 @@ class StartRequest(_Request):
 
 class StartTestRequest(_Request):
     """Start a structure or instrument test (the report's sections IV-V, Appendix A) with the
-    operator in the loop; ``spec`` holds fields of its spec (`control.run.programs.specs`)."""
+    operator in the loop; ``spec`` holds fields of its spec (`control.run.programs.specs`).
+    The reply's ``lease`` and ``lease_s``: the operator's lease, which the client renews with
+    `AliveRequest` at least every quarter of ``lease_s`` (`control.daemon.lease`)."""
 
     cmd: Literal["start_test"]
     test: Literal["static", "impact", "probe_calibration", "flow"]
@@ -107,6 +109,24 @@ class AnswerRequest(_Request):
     question_id: int = Field(ge=1)
     choice: Text = Field(min_length=1, max_length=32)
     text: Text = Field("", max_length=200)
+
+
+class AliveRequest(_Request):
+    """The operator is still there: renews the lease of the running test (``lease``: the token
+    of its ``start_test`` reply; `control.daemon.lease`). A test whose lease lapses is aborted."""
+
+    cmd: Literal["alive"]
+    lease: Text = Field(min_length=1, max_length=64)
+
+
+#: How often a client renews an operator lease, as a share of the lease: three renewals may be
+#: lost (a loaded PC) before it lapses.
+RENEW_SHARE = 0.25
+
+
+def renew_every_s(lease_s: float) -> float:
+    """How often a client renews an operator lease of ``lease_s`` [s]."""
+    return lease_s * RENEW_SHARE
 
 
 class PauseRequest(_Request):
@@ -149,11 +169,11 @@ class ResetRequest(_Request):
 
 Request = Annotated[
     StartRequest | PauseRequest | ResumeRequest | AbortRequest | PumpRequest | StatusRequest
-    | ListRunsRequest | ResetRequest | StartTestRequest | AnswerRequest,
+    | ListRunsRequest | ResetRequest | StartTestRequest | AnswerRequest | AliveRequest,
     Field(discriminator="cmd"),
 ]
 COMMANDS = ("start", "pause", "resume", "abort", "pump", "status", "list_runs", "reset",
-            "start_test", "answer")
+            "start_test", "answer", "alive")
 _REQUEST_ADAPTER: TypeAdapter[Any] = TypeAdapter(Request)
 
 

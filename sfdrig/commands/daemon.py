@@ -27,6 +27,7 @@ from threadpoolctl import threadpool_limits
 
 from control.daemon.daemon import Daemon, DaemonConfig
 from control.daemon.instance import AlreadyRunning, InstanceLock, device_lock, runs_lock
+from control.daemon.lease import LEASE_RANGE_S
 from control.wire.security import KeyFileError, load_server_keys
 from daq.channels import ChannelMap, default_channel_map, load_channel_map
 from daq.errors import ChannelConfigError, DaqConnectionError, DaqError
@@ -87,6 +88,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the film drains (its dwells are recorded as dry); the simulated "
                              "film drains with a 5 s time constant; measure the real rig's "
                              "(default: %(default)s)")
+    parser.add_argument("--operator-lease-s", type=float, default=10.0, metavar="S",
+                        help="a structure test whose client (the terminal of `sfdrig "
+                             "structure`, the page that started it) has not said it is alive "
+                             "for this long is aborted, drives ramped to zero: its operator is "
+                             "lost (1..60 s; sweeps have no lease; default: %(default)s)")
     parser.add_argument("--priority", choices=LEVELS, default="normal",
                         help="scheduling: high = nice -10, realtime = SCHED_FIFO; refused "
                              "with a reason where the OS does not allow it (default: "
@@ -135,6 +141,11 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if not 0 <= args.film_drain_s <= 3600:
         print(f"daemon: --film-drain-s {args.film_drain_s:g} must be 0..3600 s", file=sys.stderr)
+        return 2
+    low, high = LEASE_RANGE_S
+    if not low <= args.operator_lease_s <= high:
+        print(f"daemon: --operator-lease-s {args.operator_lease_s:g} must be {low:g}..{high:g} s",
+              file=sys.stderr)
         return 2
     ring = ao_ring_s(args)
     if ring is not None and not 0.5 <= ring <= 60:
@@ -187,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
         runs_dir=args.runs_dir, command_endpoint=args.command_endpoint,
         data_endpoint=args.data_endpoint, keys=keys, rig_config=rig, sndhwm=args.sndhwm,
         lossless_publish=args.fast, state_file=args.runs_dir / STATE_FILE_NAME,
-        film_drain_s=args.film_drain_s,
+        film_drain_s=args.film_drain_s, operator_lease_s=args.operator_lease_s,
     )
     try:
         hands = None

@@ -41,6 +41,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"samples    {st['samples']} at {st['sample_rate_hz']:g} S/s")
         if p:
             print("progress   " + "  ".join(f"{k}={v}" for k, v in p.items()))
+        lease = st.get("operator_lease")
+        if lease:  # a structure test: aborted if its client is silent for the lease
+            print(f"operator   last heard {lease['silent_s']:.1f} s ago (the test is aborted "
+                  f"after {lease['lease_s']:g} s without)")
     if st.get("fault_reason") or st["state"] == "fault":
         print(f"fault      {st.get('fault_reason') or '?'} (once its cause is cleared, reset it "
               "with `sfdrig status --reset`)")

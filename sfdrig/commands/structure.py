@@ -5,7 +5,13 @@ pressure), each stored as a run file that `sfdrig identify` reads.
 By default the tests run on the daemon (`sfdrig daemon`, the simulated rig or `--backend nidaqmx`)
 and this terminal is the operator: it shows each question the test asks and sends what is typed
 (`sfdrig.terminal_operator`). ``--unattended`` runs them in this process on the simulated rig with
-a stand-in operator (the demo)."""
+a stand-in operator (the demo).
+
+A test holds the rig for the person at this terminal (a static load, the pump), so it never
+outlives them: Ctrl-C, the terminal hanging up (SIGHUP) and SIGTERM send an abort (the daemon
+ramps the drives to zero and closes the run "aborted" with what happened); if this process is
+killed outright (SIGKILL) the daemon aborts the test once the terminal's lease lapses
+(`control.daemon.lease`, `sfdrig daemon --operator-lease-s`)."""
 
 from __future__ import annotations
 
@@ -32,6 +38,12 @@ from control.wire.client import CommandRefused, DaemonUnavailable
 from daq.channels import default_channel_map, load_channel_map
 from rig_model.params import RigParams, rig_params_named_or_file
 from sfdrig.commands._client_args import add_connection_arguments, command_client
+from sfdrig.commands._lost import (
+    ClientLost,
+    hold_further_signals,
+    raising_when_lost,
+    silence_hung_up_terminal,
+)
 from sfdrig.commands.sweep import sweep_fields
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
 from sfdrig.terminal_operator import run_test
@@ -55,6 +67,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="test settings: one table per test ([static], [impact], ...)")
     p.add_argument("--set", dest="fields", action="append", default=[], metavar="TEST.KEY=VALUE",
                    help="one setting, e.g. --set static.repeats=2 --set impact.strikes=5")
+    p.epilog = ("A test never outlives this terminal: `a` typed at any moment, Ctrl-C, the "
+                "terminal hanging up or SIGTERM abort it (drives ramped to zero); if this "
+                "process is killed, the daemon aborts it when its operator lease lapses "
+                "(`sfdrig daemon --operator-lease-s`).")
     add_connection_arguments(p)
     u = p.add_argument_group("unattended (simulated rig in this process, stand-in operator)")
     u.add_argument("--unattended", action="store_true",
@@ -134,6 +150,19 @@ def _logged_to(writer: Any) -> Callable[[str, str], None]:
     return lambda kind, message: writer.on_event(kind, message, writer.samples_received)
 
 
+def _abort_lost(client: Any, test: str, how: str, hung_up: bool) -> None:
+    """Send the abort first (refused only when no test runs), then say so where the terminal
+    still is."""
+    hold_further_signals()
+    with contextlib.suppress(CommandRefused, DaemonUnavailable):
+        client.request("abort", check=False, reason=f"{how} in `sfdrig structure` ({test})")
+    if hung_up:
+        silence_hung_up_terminal()
+        return
+    with contextlib.suppress(OSError):
+        print(f"\n{test}: abort sent (drives ramp to zero)", flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.load_by and args.only and "static" not in args.only:
         print(f"sfdrig structure: --load-by {args.load_by} sets how the static test is loaded, "
@@ -158,15 +187,17 @@ def run(args: argparse.Namespace) -> int:
         return 2
     failed = False
     try:
-        with command_client(args) as client:
+        with raising_when_lost(), command_client(args) as client:
             for test in args.only or TESTS:
                 try:
                     end = run_test(client, test, dict(specs.get(test, {})), args.operator,
                                    args.notes, sys.stdin, sys.stdout)
                 except KeyboardInterrupt:
-                    client.abort(f"operator pressed Ctrl-C in `sfdrig structure` ({test})")
-                    print(f"\n{test}: abort sent (drives ramp to zero)", flush=True)
+                    _abort_lost(client, test, "operator pressed Ctrl-C", hung_up=False)
                     return 130
+                except ClientLost as lost:
+                    _abort_lost(client, test, lost.how, lost.hung_up)
+                    return lost.exit_code
                 why = f": {end['reason']}" if end.get("reason") else ""
                 print(f"{test}: {end['steps']} steps, {end['status']}{why} -> {end['path']}",
                       flush=True)
@@ -176,4 +207,6 @@ def run(args: argparse.Namespace) -> int:
     except (CommandRefused, DaemonUnavailable) as err:
         print(f"sfdrig structure: {err}", file=sys.stderr)
         return 1
+    except ClientLost as lost:  # before a test started or between two: nothing runs to abort
+        return lost.exit_code
     return 1 if failed else 0

@@ -4,11 +4,19 @@ Plain text that works without a TTY: a line per progress change (step bar and wh
 frequency, controller updates), and a line per finished step with the achieved amplitudes. On a
 TTY the progress line is redrawn in place. Ctrl-C while following aborts the sweep (the daemon
 ramps the drives to zero and closes the run file as aborted); ``--no-follow`` only starts it.
+
+A sweep is a batch job: losing its follower does not stop it. The terminal hanging up (SIGHUP),
+SIGTERM or SIGKILL end the following only; the sweep runs to its plan under the daemon's own
+safety limits (trips, the board's watchdog) and ends with the drives ramped to zero, as a sweep
+started with ``--no-follow`` does. Ctrl-C is a person at the terminal asking to stop: that
+aborts. (A structure test is the other case: it holds a load for a person, so losing its
+terminal aborts it; `sfdrig.commands.structure`.)
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 import tomllib
@@ -20,6 +28,12 @@ import numpy as np
 from control.wire.client import CommandClient, CommandRefused, DaemonUnavailable, Subscriber
 from control.wire.summary_lines import end_line, peak_line
 from sfdrig.commands._client_args import add_connection_arguments, command_client, subscriber
+from sfdrig.commands._lost import (
+    ClientLost,
+    hold_further_signals,
+    raising_when_lost,
+    silence_hung_up_terminal,
+)
 
 NAME = "sweep"
 HELP = "start a sweep (sweep file and/or KEY=VALUE fields) and follow it live"
@@ -39,7 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="start the sweep and return without following it")
     parser.epilog = ("Ctrl-C while following aborts the sweep: the daemon ramps the drives to "
                      "zero and closes the run file as aborted (the steps so far are kept); "
-                     "with --no-follow, stop it with `sfdrig abort`.")
+                     "with --no-follow, stop it with `sfdrig abort`. A hung-up terminal "
+                     "(SIGHUP) or a killed `sfdrig sweep` stops only the following: the sweep "
+                     "runs to its plan under the daemon's safety limits.")
     add_connection_arguments(parser, data=True)
 
 
@@ -211,8 +227,9 @@ def run_summary(client: CommandClient, run_id: str) -> dict[str, Any] | None:
 
 def run(args: argparse.Namespace) -> int:
     spec = sweep_fields(args.sweep_file, args.fields)
+    run_id = ""
     try:
-        with command_client(args) as client:
+        with raising_when_lost(), command_client(args) as client:
             if args.no_follow:
                 reply = client.start_sweep(spec, args.operator, args.notes)
                 print(f"run {reply.data['run_id']} started: {reply.data['path']}")
@@ -238,6 +255,17 @@ def run(args: argparse.Namespace) -> int:
     except DaemonUnavailable as err:
         print(f"sweep: {err}")
         return 1
+    except ClientLost as lost:
+        # the sweep is not aborted: it runs to its plan under the daemon's safety limits
+        hold_further_signals()
+        if lost.hung_up:
+            silence_hung_up_terminal()
+        elif run_id:
+            with contextlib.suppress(OSError):
+                print(f"\nrun {run_id}: no longer followed ({lost.how}); the sweep runs on "
+                      "to its end (`sfdrig status` shows it, `sfdrig abort` stops it)",
+                      flush=True)
+        return lost.exit_code
     if summary is not None:
         print(peak_line(summary))
     # the last line: how it ended; after a trip what tripped, where, the peak, what to do

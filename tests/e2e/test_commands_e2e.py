@@ -16,7 +16,7 @@ pytestmark = pytest.mark.e2e
 
 #: The daemon's commands, as the protocol below describes them
 COMMANDS = ("start", "pause", "resume", "abort", "pump", "status", "list_runs", "reset",
-            "start_test", "answer")
+            "start_test", "answer", "alive")
 
 json_values = st.recursive(
     st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=20),
@@ -78,6 +78,8 @@ PROTOCOL: dict[str, tuple[dict, frozenset[str], str]] = {
     "answer": ({**_RID, "question_id": lambda v: type(v) is int and v >= 1,
                 "choice": _text(32, 1), "text": _text(200)},
                frozenset({"question_id", "choice"}), "never generated"),
+    # a well-formed alive needs a lease, which the strategies never make
+    "alive": ({**_RID, "lease": _text(64, 1)}, frozenset({"lease"}), "never generated"),
 }
 assert tuple(PROTOCOL) == COMMANDS
 

@@ -394,18 +394,25 @@ def test_the_operator_answers_a_structure_test_in_the_page(daemon_factory, web_f
     assert page.errors == [] and viewer.errors == []
 
 
-def test_the_page_starts_the_static_test_by_hand(daemon_factory, web_factory, browser):
-    """The page offers the static test loaded by hand (report IV.1: the force gauge): its
-    questions ask the operator to push, never to stand clear, and the shakers stay at 0 V."""
-    d = daemon_factory()
-    page = _open(browser, web_factory(d))
+def start_test_on_page(browser: Any, url: str, kind: str) -> tuple[Any, str]:
+    """An operator's page that started the structure test ``kind`` (the page's choice) and
+    shows its first question; (the page, the run id)."""
+    page = _open(browser, url)
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
-    page.select_option("#test-kind", "static:hand")
+    page.select_option("#test-kind", kind)
     page.click("#start-test")
     page.click("#confirm-yes")
     page.wait_for_function("document.getElementById('message').textContent.includes('run ')")
     run_id = page.inner_text("#message").removeprefix("start: ok (run ").rstrip(")")
     page.wait_for_selector("#question:not([hidden])", timeout=60_000)
+    return page, run_id
+
+
+def test_the_page_starts_the_static_test_by_hand(daemon_factory, web_factory, browser):
+    """The page offers the static test loaded by hand (report IV.1: the force gauge): its
+    questions ask the operator to push, never to stand clear, and the shakers stay at 0 V."""
+    d = daemon_factory()
+    page, run_id = start_test_on_page(browser, web_factory(d), "static:hand")
     assert page.inner_text("#q-where") == "static setup"
     prompt = page.inner_text("#q-prompt")
     assert "you will push the housing" in prompt and "stand clear" not in prompt

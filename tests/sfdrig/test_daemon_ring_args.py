@@ -44,3 +44,10 @@ def test_a_film_drain_time_out_of_range_is_refused(value, capsys):
     assert daemon.run(_args("--film-drain-s", value)) == 2
     assert capsys.readouterr().err == \
         f"daemon: --film-drain-s {float(value):g} must be 0..3600 s\n"
+
+
+@pytest.mark.parametrize("value", ["0.5", "61", "nan"])
+def test_an_operator_lease_out_of_range_is_refused(value, capsys):
+    assert daemon.run(_args("--operator-lease-s", value)) == 2
+    assert capsys.readouterr().err == \
+        f"daemon: --operator-lease-s {float(value):g} must be 1..60 s\n"

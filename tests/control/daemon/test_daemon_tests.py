@@ -7,6 +7,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from control.daemon.daemon import Daemon, DaemonConfig
@@ -90,3 +91,56 @@ def test_a_test_asks_through_the_status_and_stops_safely_on_abort(daemon: Daemon
         messages = [e["message"] for e in run.events if e["kind"] == "operator"]
     assert any("refused choice 'ok': question #2 is not pending (#1 is)" in m
                for m in messages)
+
+
+def test_a_test_whose_client_stops_renewing_its_lease_is_aborted(tmp_path: Path) -> None:
+    """The operator's lease (`control.daemon.lease`): renewed, the test waits at its question;
+    unrenewed for the lease (1 s here), it is aborted the safe way with the reason."""
+    backend = SimulatedBackend(seed=3)
+    cfg = DaemonConfig(runs_dir=tmp_path / "runs", sndhwm=0, lossless_publish=True,
+                       heartbeat_s=0.05, operator_lease_s=1.0)
+    d = Daemon(backend, default_channel_map(), cfg, hands=SimulatedHands(backend))
+    t = threading.Thread(target=d.serve, name="test-daemon-serve")
+    t.start()
+    try:
+        with CommandClient(d.endpoints["command"]) as c:
+            r = c.request("start_test", test="static", spec={"axes": ["x"], "repeats": 1,
+                                                            "forces_n": [-40.0]})
+            lease = r.data["lease"]
+            assert r.data["lease_s"] == 1.0 and len(lease) == 16
+            other = c.request("alive", check=False, lease="0" * 16)
+            assert not other.ok and other.error_kind == "forbidden"
+            assert other.error == ("alive: no running test holds this lease (the test has "
+                                   "ended, or another client started it)")
+
+            def renewing(what):  # noqa: ANN001, ANN202
+                return lambda s: c.request("alive", lease=lease).ok and what(s)
+
+            st = until(c, renewing(lambda s: s["question"] is not None))
+            c.request("answer", question_id=st["question"]["id"], choice="ok")
+            st = until(c, renewing(lambda s: s["question"] is not None
+                                   and "accept this point?" in s["question"]["prompt"]))
+            # renewed: never silent for longer than a status round trip
+            assert st["operator_lease"]["lease_s"] == 1.0
+            assert st["operator_lease"]["silent_s"] < 0.5
+            silent_from = time.monotonic()  # the client is gone: no more renewals
+            st = until(c, lambda s: s["state"] == "idle")
+            took = time.monotonic() - silent_from
+            late = c.request("alive", check=False, lease=lease)
+    finally:
+        d.stop("test over")
+        t.join(30)
+    assert 1.0 - 0.1 <= took <= 1.0 + 1.5, took  # the lease, then a beat, a block, the fade
+    last = st["last_run"]
+    assert last["status"] == "aborted" and st["operator_lease"] is None
+    assert "operator lost: no heartbeat for 1." in last["reason"]
+    assert "(the lease is 1 s: the client that started the test hung up or was killed)" \
+        in last["reason"]
+    assert not late.ok and "no running test holds this lease" in late.error
+    with open_run(Path(last["path"])) as run:
+        assert run.attrs["status"] == "aborted" and run.attrs["status_reason"] == last["reason"]
+        fx, drive = run.channel("fx"), run.channel("shaker_x")
+        (abort,) = [e for e in run.events if e["kind"] == "abort"]
+    held = fx[abort["sample"] - 1000:abort["sample"]]
+    assert np.mean(held) == pytest.approx(-40.0, abs=4.0)  # it held the load until then
+    assert np.all(drive[-100:] == 0.0)
