@@ -50,6 +50,7 @@ log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
 COMMANDS = ("pause", "resume", "abort", "pump", "reset", "answer")
 MAX_UPLOAD_BYTES = 256 * 1024
+SEND_CHUNK_BYTES = 1024 * 1024  # a download is read and sent this much at a time
 DRAWN = "drawn"  # a browser's answer to each frame: send the next one
 LOOPBACK_NAMES = ("127.0.0.1", "localhost", "::1")
 SECURITY_HEADERS = {
@@ -468,7 +469,9 @@ class WebApp:
 
     async def download(self, request: web.Request) -> web.StreamResponse:
         """The run file (``format=h5``) or `sfdrig export`'s files (mat, csv, tdms; a zip when
-        several), made in a temporary folder that goes when the answer has been sent."""
+        several), made in a temporary folder that goes once the answer has been sent whole
+        (`_send_whole`: aiohttp prepares a returned response again, and a `FileResponse` would
+        then look for its file in the folder already gone)."""
         self._guard(request, need_operator=False)
         run_id = request.match_info["run_id"]
         fmt = request.query.get("format", "h5")
@@ -482,9 +485,7 @@ class WebApp:
             with tempfile.TemporaryDirectory(prefix="sfdrig-web-") as work:
                 path, name = await self._history(
                     request, lambda h: h.download(run_id, fmt, Path(work)))
-                resp = _attachment(path, name)
-                await resp.prepare(request)  # sent whole before the folder goes
-                return resp
+                return await _send_whole(request, path, name)
 
     async def make_report(self, request: web.Request) -> web.Response:
         """Identify the run in a process of its own (`sfdrig identify --no-store`: the run file
@@ -636,6 +637,27 @@ def _refused(status: int, message: str) -> web.HTTPException:
                text=json.dumps({"ok": False, "error": message, "data": {}}))
 
 
+def _attachment_headers(name: str) -> dict[str, str]:
+    return {"Content-Disposition": f'attachment; filename="{name}"',
+            "Content-Type": "application/octet-stream"}
+
+
 def _attachment(path: Path, name: str) -> web.FileResponse:
-    return web.FileResponse(path, headers={"Content-Disposition": f'attachment; filename="{name}"',
-                                           "Content-Type": "application/octet-stream"})
+    return web.FileResponse(path, headers=_attachment_headers(name))
+
+
+async def _send_whole(request: web.Request, path: Path, name: str) -> web.StreamResponse:
+    """Send ``path`` as the attachment ``name`` and return once it is all sent (or the browser
+    went away): the caller may delete the file then. Read in chunks off the event loop."""
+    resp = web.StreamResponse(headers=_attachment_headers(name))
+    resp.content_length = path.stat().st_size
+    await resp.prepare(request)
+    loop = asyncio.get_running_loop()
+    try:
+        with path.open("rb") as f:
+            while chunk := await loop.run_in_executor(None, f.read, SEND_CHUNK_BYTES):
+                await resp.write(chunk)
+        await resp.write_eof()
+    except ConnectionError:  # the browser cancelled the download: nothing to answer
+        log.info("download of %s stopped: the browser went away", name)
+    return resp
