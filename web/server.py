@@ -48,6 +48,7 @@ from web.view import LiveView
 
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
+STATIC_PREFIX = "/static/"
 COMMANDS = ("pause", "resume", "abort", "pump", "reset", "answer")
 MAX_UPLOAD_BYTES = 256 * 1024
 SEND_CHUNK_BYTES = 1024 * 1024  # a download is read and sent this much at a time
@@ -173,6 +174,7 @@ class WebApp:
             web.post("/login", self.login),
             web.post("/logout", self.logout),
             web.get("/ws", self.websocket),
+            web.get("/api/session", self.whoami),
             web.get("/api/examples", self.examples),
             web.post("/api/start", self.start),
             web.post("/api/command", self.command),
@@ -188,7 +190,7 @@ class WebApp:
             web.post("/api/runs/{run_id}/report", self.make_report),
             web.get("/api/runs/{run_id}/report/{name:.+}", self.report_file,
                     name=REPORT_ROUTE),
-            web.static("/static", STATIC),
+            web.static(STATIC_PREFIX.rstrip("/"), STATIC),
         ])
         self.app.on_startup.append(self._start_ticker)
         self.app.on_shutdown.append(self._close_browsers)
@@ -220,6 +222,10 @@ class WebApp:
     @staticmethod
     async def _security_headers(request: web.Request, response: web.StreamResponse) -> None:
         response.headers.update(SECURITY_HEADERS)
+        # the page and every answer are asked for again each time (a cached page of a revoked
+        # key would never reach the login); the static files are checked for a newer version
+        response.headers["Cache-Control"] = (
+            "no-cache" if request.path.startswith(STATIC_PREFIX) else "no-store")
         if request.match_info.route.name == REPORT_ROUTE:  # analysis's page: its own <style>
             response.headers["Content-Security-Policy"] = REPORT_CSP
 
@@ -281,6 +287,12 @@ class WebApp:
         if self.session(request) is None:
             raise web.HTTPFound("/login")
         return web.FileResponse(STATIC / "index.html")
+
+    async def whoami(self, request: web.Request) -> web.Response:
+        """Who this browser is logged in as (401 when not: a page whose WebSocket was refused
+        asks here whether to go to the login)."""
+        s = self._guard(request, need_operator=False)
+        return web.json_response({"ok": True, "name": s.name, "role": s.role})
 
     async def login_page(self, request: web.Request) -> web.StreamResponse:
         return web.FileResponse(STATIC / "login.html")
