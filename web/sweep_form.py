@@ -4,12 +4,14 @@ problem named by its field, and summarised before the start.
 The page builds its form from `SweepSpec`'s JSON schema (`schema`), so every field of a sweep is
 there and a new field appears by itself. Each number field carries its unit (the spec's
 `field_units`, the one table of them) and the unit the form shows it in (`SHOWN`: a length in um,
-the rest as the spec has it), so the page has no unit of its own. `check` validates what the form (or a loaded TOML file)
-gives and answers the problems by field path (``freq_hz``, ``control.window_cycles``; "" for a
-rule between fields), or a summary: steps, frequencies, targets, the time the sweep settles and
-records (a lower bound: each step's approach adds to it), whether the pump must be on, the
-tolerances, the limits the daemon applies, and the sweep as TOML (what `sfdrig sweep` reads).
-The daemon validates the spec again when it is started.
+the rest as the spec has it), so the page has no unit of its own.
+
+`check` validates what the form (or a loaded TOML file) gives and answers the problems by field
+path (``freq_hz``, ``control.window_cycles``; "" for a rule between fields), or a summary: steps,
+frequencies, targets, the time the sweep settles and records (a lower bound: each step's approach
+adds to it), whether the pump must be on, the tolerances, the limits the daemon applies, and the
+sweep as TOML (what `sfdrig sweep` reads). The daemon validates the spec again when it is
+started.
 """
 
 from __future__ import annotations

@@ -22,7 +22,8 @@ the frequencies (``order = "amplitude_major"``) or each frequency runs every val
 (``"frequency_major"``).
 
 The models are strict (a boolean is JSON true/false, a number is a number, never a string) and
-every number is finite. The work a sweep asks for is bounded before anything is enumerated: at
+every number is finite. Every number field states its SI unit once, in its metadata (`unit`;
+`field_units` lists them): the page's form shows each field in it. The work a sweep asks for is bounded before anything is enumerated: at
 most `MAX_STEPS` dwells and `MAX_SWEEP_S` of settling and recording.
 """
 
@@ -34,6 +35,7 @@ from typing import Annotated, Any, Literal, Self
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic.json_schema import JsonDict
 
 from control.signal.controller import Tolerance, motion_shape
 from control.wire.errors import SpecError
@@ -44,11 +46,12 @@ from daq.config_files import read_toml, validate
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
-def unit(symbol: str) -> dict[str, str]:
+def unit(symbol: str) -> JsonDict:
     """A number field's SI unit, kept in its JSON schema as ``"unit"`` (`field_units` reads it): the
     one place a field's unit is written ("" for a pure number: a count, a ratio, a gain). The
     page's sweep form shows and converts each field by it."""
     return {"unit": symbol}
+
 
 #: Most dwells one sweep may have (targets x frequencies); the report's plan has 39.
 MAX_STEPS = 10_000
