@@ -162,7 +162,8 @@ AXES_JS = """() => Object.fromEntries(Object.entries(plots).map(([k, p]) => [k, 
                 ticks: a._values, splits: a._splits}))]))"""
 PREFIX = {"n": 1e-9, "u": 1e-6, "m": 1e-3, "": 1.0, "k": 1e3, "M": 1e6}
 # the y axes plotted in SI with a prefixed unit: the time traces and the amplitude (um or N)
-SI_AXES = {"force": "N", "disp": "m", "acc": "m/s²", "drive": "V", "amp": "m or N"}
+SI_AXES = {"force": "N", "disp": "m", "acc": "m/s²", "drive": "V", "amp": "m or N",
+           "runAmp": "m or N"}
 
 
 def _axes(page: Any) -> dict[str, list[dict[str, Any]]]:
@@ -244,7 +245,7 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     assert axes["force"][0]["label"] == "time [ms]" and axes["force"][1]["label"] == "force [N]"
     assert axes["drive"][1]["label"] == "drive [V]"
     assert axes["disp"][1]["label"] == "displacement [um]"  # tens of um
-    assert axes["amp"][1]["label"] == "load amplitude [N]"  # the sweep holds 40 N
+    assert axes["amp"][1]["label"] == "amplitude [N]"  # the sweep holds 40 N (not "um or N")
     assert axes["acc"][1]["label"].startswith("acceleration [")
     # the displacement's trip (the orbit radius) on the displacement traces once they reach a
     # quarter of it, and in words always
@@ -682,10 +683,14 @@ def test_the_transfer_and_its_coherence_live_and_from_history(daemon_factory, we
     drawn against frequency while a sweep runs (the daemon's own run file, read again at each
     step) and for a run opened from the history, with a step of low coherence greyed and its
     value shown."""
+    from tests.web.test_history import _write as write_history_run
     from tests.web.test_transfer import FREQS, NOISY_STEP, rig_k, write_rig_run
 
     d = daemon_factory()
     write_rig_run(d.runs_dir / "RIG.h5", "RIG")  # a linear rig's sweep, one noisy step
+    # and a run that held displacement: 20 and 20.2 um at 20 and 30 Hz
+    write_history_run(d.runs_dir / "DISP.h5", "DISP", "2026-11-25T10:00:00.000+00:00",
+                      "completed", [20.0, 20.2], 1)
     page = _open(browser, web_factory(d, follow=True))
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
 
@@ -716,11 +721,20 @@ def test_the_transfer_and_its_coherence_live_and_from_history(daemon_factory, we
     page.wait_for_function("document.getElementById('state').textContent === 'idle'",
                            timeout=60_000)
 
-    # from history: the linear rig's run, k - m w^2 + j c w, the noisy step greyed
+    # from history, each run's amplitude axis in its own unit: um of displacement, N of load
+    page.wait_for_selector("#runs tbody tr[data-run='DISP']")
+    page.click("#runs tbody tr[data-run='DISP'] button")
+    page.wait_for_function("document.getElementById('transfer-run').dataset.run === 'DISP'")
+    amp = _axes(page)["runAmp"][1]
+    assert amp["label"] == "amplitude [um]" and 19.0 < float(amp["ticks"][0]) < 21.0, amp
+    # the linear rig's run, k - m w^2 + j c w, the noisy step greyed
     row = "#runs tbody tr[data-run='RIG']"
     page.wait_for_selector(row)
     page.click(f"{row} button")
     page.wait_for_function("document.getElementById('transfer-run').dataset.run === 'RIG'")
+    axes = _axes(page)
+    assert axes["runAmp"][1]["label"] == "amplitude [N]"
+    assert axes["transfer-run-k"][1]["label"] == "F/X [MN/m]"
     rows = page.query_selector_all("#transfer-run .transfer-table tbody tr")
     assert len(rows) == len(FREQS)
     for i, tr in enumerate(rows):

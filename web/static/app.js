@@ -325,8 +325,8 @@ async function followTransfer(fr) {
 // a step's amplitude (um of displacement or N of load) plotted in SI: (factor, axis quantity)
 const AMPLITUDE = { name: "amplitude", unit: "m", prefixed: true };
 function amplitudeAxis(unit) {
-  if (unit === "um") return [1e-6, { name: "displacement amplitude", unit: "m", prefixed: true }];
-  if (unit === "N") return [1, { name: "load amplitude", unit: "N", prefixed: true }];
+  if (unit === "um") return [1e-6, { name: "amplitude", unit: "m", prefixed: true }];
+  if (unit === "N") return [1, { name: "amplitude", unit: "N", prefixed: true }];
   return [1, { name: "amplitude", unit: unit || "um or N", prefixed: false }];
 }
 function drawSteps(steps, status) {
