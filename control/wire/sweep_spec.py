@@ -23,8 +23,9 @@ the frequencies (``order = "amplitude_major"``) or each frequency runs every val
 
 The models are strict (a boolean is JSON true/false, a number is a number, never a string) and
 every number is finite. Every number field states its SI unit once, in its metadata (`unit`;
-`field_units` lists them): the page's form shows each field in it. The work a sweep asks for is bounded before anything is enumerated: at
-most `MAX_STEPS` dwells and `MAX_SWEEP_S` of settling and recording.
+`field_units` lists them): the page's form shows each field in it. The work a sweep asks for is
+bounded before anything is enumerated: at most `MAX_STEPS` dwells and `MAX_SWEEP_S` of settling
+and recording.
 """
 
 from __future__ import annotations
