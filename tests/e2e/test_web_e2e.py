@@ -124,6 +124,10 @@ def web_factory(tmp_path: Path) -> Iterator[Any]:
     for f in sorted(tmp_path.glob("web*.stderr")):
         if f.read_text():
             print(f"--- {f.name} ---\n{f.read_text()}")
+    # nothing the page did may end in an unhandled exception in the server (aiohttp logs it
+    # with its traceback and still answers)
+    for f in sorted(tmp_path.glob("web*.stderr")):
+        assert "Traceback" not in f.read_text(), f"{f.name}: an unhandled exception was logged"
 
 
 def _open(browser: Any, url: str, csp: bool = False) -> Any:

@@ -329,6 +329,7 @@ function amplitudeAxis(unit) {
   if (unit === "N") return [1, { name: "amplitude", unit: "N", prefixed: true }];
   return [1, { name: "amplitude", unit: unit || "um or N", prefixed: false }];
 }
+function times(v, k) { return v === null || v === undefined ? null : v * k; }  // a gap stays a gap
 function drawSteps(steps, status) {
   const sorted = steps.slice().sort((a, b) => a.freq_hz - b.freq_hz);
   const f = sorted.map((s) => s.freq_hz);
@@ -343,7 +344,7 @@ function drawSteps(steps, status) {
     series: [{ label: "f [Hz]" }, pts("achieved", COLORS[0]), pts("target", "#999")],
     axes: [xAxis(FREQ_HZ), yAxis(AMPLITUDE)],
   });
-  ua.setData([f, sorted.map((s) => s.achieved * k), sorted.map((s) => s.target * k)]);
+  ua.setData([f, sorted.map((s) => times(s.achieved, k)), sorted.map((s) => times(s.target, k))]);
   plots.amp.u.series[1].label = `achieved [${unit}]`;
   $("amp-unit").textContent = unit || "um or N";
   const band = steps.length ? steps[steps.length - 1].band_pct : 1;
@@ -865,7 +866,7 @@ async function openRun(id) {
   const u = new uPlot({ width: w, height: 200, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
     series: [{ label: "f [Hz]" }, pts(`achieved [${unit}]`, COLORS[0]), pts(`target [${unit}]`, "#999")],
     axes: [xAxis(FREQ_HZ), yAxis(q)] },
-  [sorted.map((s) => s.freq_hz), sorted.map((s) => s.achieved * k), sorted.map((s) => s.target * k)], $("plot-run-amp"));
+  [sorted.map((s) => s.freq_hz), sorted.map((s) => times(s.achieved, k)), sorted.map((s) => times(s.target, k))], $("plot-run-amp"));
   plots.runAmp = { u, sig: "" };
   drawNotes(run.notes);
   const tf = await getJson(`/api/runs/${encodeURIComponent(id)}/transfer`);
