@@ -55,8 +55,10 @@ from web.view import LiveView
 
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
+STATIC_PREFIX = "/static/"
 COMMANDS = ("pause", "resume", "abort", "pump", "reset", "answer")
 MAX_UPLOAD_BYTES = 256 * 1024
+SEND_CHUNK_BYTES = 1024 * 1024  # a download is read and sent this much at a time
 DRAWN = "drawn"  # a browser's answer to each frame: send the next one
 LOOPBACK_NAMES = ("127.0.0.1", "localhost", "::1")
 SECURITY_HEADERS = {
@@ -179,6 +181,7 @@ class WebApp:
             web.post("/login", self.login),
             web.post("/logout", self.logout),
             web.get("/ws", self.websocket),
+            web.get("/api/session", self.whoami),
             web.get("/api/examples", self.examples),
             web.post("/api/start", self.start),
             web.post("/api/command", self.command),
@@ -194,7 +197,7 @@ class WebApp:
             web.post("/api/runs/{run_id}/report", self.make_report),
             web.get("/api/runs/{run_id}/report/{name:.+}", self.report_file,
                     name=REPORT_ROUTE),
-            web.static("/static", STATIC),
+            web.static(STATIC_PREFIX.rstrip("/"), STATIC),
         ])
         self.app.on_startup.append(self._start_ticker)
         self.app.on_startup.append(self._start_lease_keeper)
@@ -230,6 +233,10 @@ class WebApp:
     @staticmethod
     async def _security_headers(request: web.Request, response: web.StreamResponse) -> None:
         response.headers.update(SECURITY_HEADERS)
+        # the page and every answer are asked for again each time (a cached page of a revoked
+        # key would never reach the login); the static files are checked for a newer version
+        response.headers["Cache-Control"] = (
+            "no-cache" if request.path.startswith(STATIC_PREFIX) else "no-store")
         if request.match_info.route.name == REPORT_ROUTE:  # analysis's page: its own <style>
             response.headers["Content-Security-Policy"] = REPORT_CSP
 
@@ -291,6 +298,12 @@ class WebApp:
         if self.session(request) is None:
             raise web.HTTPFound("/login")
         return web.FileResponse(STATIC / "index.html")
+
+    async def whoami(self, request: web.Request) -> web.Response:
+        """Who this browser is logged in as (401 when not: a page whose WebSocket was refused
+        asks here whether to go to the login)."""
+        s = self._guard(request, need_operator=False)
+        return web.json_response({"ok": True, "name": s.name, "role": s.role})
 
     async def login_page(self, request: web.Request) -> web.StreamResponse:
         return web.FileResponse(STATIC / "login.html")
@@ -504,7 +517,9 @@ class WebApp:
 
     async def download(self, request: web.Request) -> web.StreamResponse:
         """The run file (``format=h5``) or `sfdrig export`'s files (mat, csv, tdms; a zip when
-        several), made in a temporary folder that goes when the answer has been sent."""
+        several), made in a temporary folder that goes once the answer has been sent whole
+        (`_send_whole`: aiohttp prepares a returned response again, and a `FileResponse` would
+        then look for its file in the folder already gone)."""
         self._guard(request, need_operator=False)
         run_id = request.match_info["run_id"]
         fmt = request.query.get("format", "h5")
@@ -518,9 +533,7 @@ class WebApp:
             with tempfile.TemporaryDirectory(prefix="sfdrig-web-") as work:
                 path, name = await self._history(
                     request, lambda h: h.download(run_id, fmt, Path(work)))
-                resp = _attachment(path, name)
-                await resp.prepare(request)  # sent whole before the folder goes
-                return resp
+                return await _send_whole(request, path, name)
 
     async def make_report(self, request: web.Request) -> web.Response:
         """Identify the run in a process of its own (`sfdrig identify --no-store`: the run file
@@ -676,6 +689,27 @@ def _refused(status: int, message: str) -> web.HTTPException:
                text=json.dumps({"ok": False, "error": message, "data": {}}))
 
 
+def _attachment_headers(name: str) -> dict[str, str]:
+    return {"Content-Disposition": f'attachment; filename="{name}"',
+            "Content-Type": "application/octet-stream"}
+
+
 def _attachment(path: Path, name: str) -> web.FileResponse:
-    return web.FileResponse(path, headers={"Content-Disposition": f'attachment; filename="{name}"',
-                                           "Content-Type": "application/octet-stream"})
+    return web.FileResponse(path, headers=_attachment_headers(name))
+
+
+async def _send_whole(request: web.Request, path: Path, name: str) -> web.StreamResponse:
+    """Send ``path`` as the attachment ``name`` and return once it is all sent (or the browser
+    went away): the caller may delete the file then. Read in chunks off the event loop."""
+    resp = web.StreamResponse(headers=_attachment_headers(name))
+    resp.content_length = path.stat().st_size
+    await resp.prepare(request)
+    loop = asyncio.get_running_loop()
+    try:
+        with path.open("rb") as f:
+            while chunk := await loop.run_in_executor(None, f.read, SEND_CHUNK_BYTES):
+                await resp.write(chunk)
+        await resp.write_eof()
+    except ConnectionError:  # the browser cancelled the download: nothing to answer
+        log.info("download of %s stopped: the browser went away", name)
+    return resp

@@ -22,8 +22,10 @@ the frequencies (``order = "amplitude_major"``) or each frequency runs every val
 (``"frequency_major"``).
 
 The models are strict (a boolean is JSON true/false, a number is a number, never a string) and
-every number is finite. The work a sweep asks for is bounded before anything is enumerated: at
-most `MAX_STEPS` dwells and `MAX_SWEEP_S` of settling and recording.
+every number is finite. Every number field states its SI unit once, in its metadata (`unit`;
+`field_units` lists them): the page's form shows each field in it. The work a sweep asks for is
+bounded before anything is enumerated: at most `MAX_STEPS` dwells and `MAX_SWEEP_S` of settling
+and recording.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from typing import Annotated, Any, Literal, Self
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic.json_schema import JsonDict
 
 from control.signal.controller import Tolerance, motion_shape
 from control.wire.errors import SpecError
@@ -42,6 +45,14 @@ from control.wire.text import Text
 from daq.config_files import read_toml, validate
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
+def unit(symbol: str) -> JsonDict:
+    """A number field's SI unit, kept in its JSON schema as ``"unit"`` (`field_units` reads it): the
+    one place a field's unit is written ("" for a pure number: a count, a ratio, a gain). The
+    page's sweep form shows and converts each field by it."""
+    return {"unit": symbol}
+
 
 #: Most dwells one sweep may have (targets x frequencies); the report's plan has 39.
 MAX_STEPS = 10_000
@@ -54,79 +65,97 @@ class ControlSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
-    window_cycles: int = Field(2, ge=1, le=100, description="lock-in window per update [cycles]")
-    wait_cycles: int = Field(2, ge=0, le=100, description="wait after a drive change [cycles]")
-    min_ramp_s: float = Field(0.02, ge=0.0, le=2.0, description="shortest ramp [s]")
+    window_cycles: int = Field(2, ge=1, le=100, description="lock-in window per update",
+                               json_schema_extra=unit("cycles"))
+    wait_cycles: int = Field(2, ge=0, le=100, description="wait after a drive change",
+                             json_schema_extra=unit("cycles"))
+    min_ramp_s: float = Field(0.02, ge=0.0, le=2.0, description="shortest ramp",
+                               json_schema_extra=unit("s"))
     settle_tolerance_pct: float = Field(
-        0.3, gt=0, le=10, description="settled when successive windows agree within this [%]"
+        0.3, gt=0, le=10, description="settled when successive windows agree within this",
+        json_schema_extra=unit("%"),
     )
     max_settle_cycles: int = Field(
         100, ge=1, le=100_000,
-        description="record anyway (with a warning) after this many cycles [cycles]"
+        description="record anyway (with a warning) after this many cycles",
+        json_schema_extra=unit("cycles"),
     )
     initial_stiffness_n_per_m: float = Field(
         1.0e6, ge=1.0e3, le=1.0e10,
         description="first guess of |force / displacement| (first displacement step), and the "
-                    "stiffness of the plant estimate at a new frequency [N/m]",
+                    "stiffness of the plant estimate at a new frequency",
+        json_schema_extra=unit("N/m"),
     )
     aim_fraction: float = Field(
         0.5, gt=0, le=1,
         description="stop correcting once inside this fraction of the tolerance band (the "
                     "recording must be inside the whole band)",
+        json_schema_extra=unit(""),
     )
-    max_growth: float = Field(2.0, gt=0, le=10, description="largest relative drive change")
+    max_growth: float = Field(2.0, gt=0, le=10, description="largest relative drive change",
+                               json_schema_extra=unit(""))
     breakaway_growth: float = Field(
         0.1, gt=0, le=1,
         description="while the housing does not move, largest relative drive raise per "
                     "latency (AO lead plus one cycle): bounds the jump from stick to slip",
+        json_schema_extra=unit(""),
     )
     start_growth: float = Field(
         0.2, gt=0, le=1,
         description="largest relative drive raise per latency when a displacement step starts "
                     "at a new frequency (from 80 % of the predicted drive) or a correction "
                     "raises the drive, watching the response block by block",
+        json_schema_extra=unit(""),
     )
     nominal_mass_kg: float = Field(
         9.7, gt=0, le=1e4,
         description="moving mass of the 1-DOF plant estimate that sets the first drive at a new "
-                    "frequency (the housing; the film's added mass below when lubricated) [kg]",
+                    "frequency (the housing; the film's added mass below when lubricated)",
+        json_schema_extra=unit("kg"),
     )
     lubricated_added_mass_kg: float = Field(
         8.2, ge=0, le=1e4,
         description="the film's added mass in the plant estimate of a lubricated sweep "
-                    "(plenum oil M_f plus eq. 15's D) [kg]",
+                    "(plenum oil M_f plus eq. 15's D)",
+        json_schema_extra=unit("kg"),
     )
     nominal_damping_ns_per_m: float = Field(
         370.0, gt=0, le=1e7,
         description="damping of the plant estimate: the lightest the rig has (dry, no film), so "
-                    "the estimate overstates the orbit near the resonance [N.s/m]",
+                    "the estimate overstates the orbit near the resonance",
+        json_schema_extra=unit("N.s/m"),
     )
     lubricated_damping_ns_per_m: float = Field(
         2500.0, ge=0, le=1e7,
         description="the film's damping counted in the plant estimate of a lubricated sweep: "
                     "half eq. 16's 5,060 N.s/m at the centre (a film not yet full, air "
-                    "entrained) [N.s/m]",
+                    "entrained)",
+        json_schema_extra=unit("N.s/m"),
     )
     plant_uncertainty: float = Field(
         0.3, ge=0, lt=1,
         description="the plant estimate's stiffness and mass may each be off by this fraction: "
-                    "its compliance is the largest over that band (the resonance widened) [-]",
+                    "its compliance is the largest over that band (the resonance widened)",
+        json_schema_extra=unit(""),
     )
     algorithm: Literal["newton_broyden", "proportional"] = Field(
         "newton_broyden",
         description="2x2 Newton-Broyden (default) or a plain per-axis proportional level loop",
     )
     proportional_gain: float = Field(
-        1.0, gt=0, le=1, description="gain of the proportional loop (1: D <- D x target/measured)"
+        1.0, gt=0, le=1, description="gain of the proportional loop (1: D <- D x target/measured)",
+        json_schema_extra=unit(""),
     )
     predict: bool = Field(
         True, description="start each step from the drive predicted by the steps already run "
                           "(else from the previous step's drive)",
     )
-    block_s: float = Field(0.01, ge=0.001, le=0.02, description="AO/AI block length [s]")
+    block_s: float = Field(0.01, ge=0.001, le=0.02, description="AO/AI block length",
+                            json_schema_extra=unit("s"))
     ahead_blocks: int = Field(
         3, ge=1, le=5, description="AO blocks written ahead of the generation (slack for the "
-                                   "loop; block_s x (1 + ahead_blocks) + fade_s <= 100 ms)")
+                                   "loop; block_s x (1 + ahead_blocks) + fade_s <= 100 ms)",
+        json_schema_extra=unit(""))
 
 
 class SweepSpec(BaseModel):
@@ -139,29 +168,37 @@ class SweepSpec(BaseModel):
     lubricated: bool = Field(False, description="needs the pump on and inlet pressure")
     amplitude_m: list[PositiveFloat] | None = Field(
         None, min_length=1, max_length=MAX_STEPS,
-        description="displacement amplitudes to hold (of X; Y for 'y') [m]"
+        description="displacement amplitudes to hold (of X; Y for 'y')",
+        json_schema_extra=unit("m"),
     )
     load_n: list[PositiveFloat] | None = Field(
         None, min_length=1, max_length=MAX_STEPS,
-        description="load amplitudes to hold (of X; Y for 'y') [N]"
+        description="load amplitudes to hold (of X; Y for 'y')",
+        json_schema_extra=unit("N"),
     )
-    ellipse_ratio: PositiveFloat = Field(1.0, description="elliptical: |Y| / |X|")
+    ellipse_ratio: PositiveFloat = Field(1.0, description="elliptical: |Y| / |X|",
+                                         json_schema_extra=unit(""))
     ellipse_phase_deg: float = Field(
-        -90.0, ge=-180, le=180, description="elliptical: phase of Y relative to X [deg]"
+        -90.0, ge=-180, le=180, description="elliptical: phase of Y relative to X",
+        json_schema_extra=unit("deg"),
     )
-    freq_hz: list[PositiveFloat] | None = Field(None, min_length=1, max_length=MAX_STEPS,
-                                                description="[Hz]")
-    freq_start_hz: PositiveFloat | None = None
-    freq_stop_hz: PositiveFloat | None = None
-    freq_step_hz: PositiveFloat | None = None
-    freq_points: int | None = Field(None, ge=2, le=10_000)
+    freq_hz: list[PositiveFloat] | None = Field(
+        None, min_length=1, max_length=MAX_STEPS, description="frequencies, run in this order",
+        json_schema_extra=unit("Hz"))
+    freq_start_hz: PositiveFloat | None = Field(None, json_schema_extra=unit("Hz"))
+    freq_stop_hz: PositiveFloat | None = Field(None, json_schema_extra=unit("Hz"))
+    freq_step_hz: PositiveFloat | None = Field(None, json_schema_extra=unit("Hz"))
+    freq_points: int | None = Field(None, ge=2, le=10_000, json_schema_extra=unit(""))
     spacing: Literal["linear", "log"] = "linear"
     order: Literal["amplitude_major", "frequency_major"] = "amplitude_major"
-    settle_cycles: int = Field(10, ge=1, le=100_000, description="after the last change [cycles]")
-    record_cycles: int = Field(40, ge=1, le=100_000, description="recorded per step [cycles]")
-    tolerance_amplitude_pct: float = Field(1.0, gt=0, le=50, description="[%]")
-    tolerance_phase_deg: float = Field(1.0, gt=0, le=45, description="[deg]")
-    max_updates: int = Field(10, ge=1, le=1000, description="controller updates per step")
+    settle_cycles: int = Field(10, ge=1, le=100_000, description="after the last change",
+                               json_schema_extra=unit("cycles"))
+    record_cycles: int = Field(40, ge=1, le=100_000, description="recorded per step",
+                               json_schema_extra=unit("cycles"))
+    tolerance_amplitude_pct: float = Field(1.0, gt=0, le=50, json_schema_extra=unit("%"))
+    tolerance_phase_deg: float = Field(1.0, gt=0, le=45, json_schema_extra=unit("deg"))
+    max_updates: int = Field(10, ge=1, le=1000, description="controller updates per step",
+                             json_schema_extra=unit(""))
     on_not_converged: Literal["abort", "continue"] = "abort"
     control: ControlSettings = ControlSettings()
 
@@ -258,6 +295,18 @@ class SweepSpec(BaseModel):
     def ideal_step_s(self, freq_hz: float) -> float:
         """Settling plus recording time of one step at ``freq_hz`` [s] (benchmark reference)."""
         return (self.settle_cycles + self.record_cycles) / freq_hz
+
+
+def field_units(model: type[BaseModel] | None = None, prefix: str = "") -> dict[str, str]:
+    """Every number field of the sweep (`SweepSpec`, its ``control`` table by dotted path, e.g.
+    ``control.block_s``) and its unit as `unit` gave it."""
+    out: dict[str, str] = {}
+    for name, f in (model or SweepSpec).model_fields.items():
+        if isinstance(f.annotation, type) and issubclass(f.annotation, BaseModel):
+            out.update(field_units(f.annotation, f"{prefix}{name}."))
+        elif isinstance(f.json_schema_extra, dict) and "unit" in f.json_schema_extra:
+            out[prefix + name] = str(f.json_schema_extra["unit"])
+    return out
 
 
 def sweep_spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> SweepSpec:

@@ -26,6 +26,8 @@ import pytest
 
 from control.wire.client import CommandClient
 from control.wire.security import make_keys
+from control.wire.sweep_spec import field_units
+from daq.config_files import to_toml
 from storage.reader import open_run
 from tests.e2e.conftest import REPO_ROOT, DaemonProcess, start_daemon
 
@@ -45,6 +47,22 @@ settle_cycles = 20
 record_cycles = 400
 """
 LONG_SWEEP = LONG_SWEEP.replace("150.0]", "150.0" + ", 150.0" * 30 + "]")  # never ends first
+# A value of every number field of a sweep (both target kinds and both frequency forms: the form
+# shows what it is given; the model refuses the mix when checked), none of them its default
+EVERY_NUMBER: dict[str, Any] = {
+    "amplitude_m": [13e-6, 25.5e-6], "load_n": [40.0], "ellipse_ratio": 0.7,
+    "ellipse_phase_deg": -45.0, "freq_hz": [20.0, 35.5], "freq_start_hz": 20.0,
+    "freq_stop_hz": 60.0, "freq_step_hz": 10.0, "freq_points": 5, "settle_cycles": 12,
+    "record_cycles": 50, "tolerance_amplitude_pct": 2.5, "tolerance_phase_deg": 1.5,
+    "max_updates": 6,
+    "control": {"window_cycles": 3, "wait_cycles": 1, "min_ramp_s": 0.05,
+                "settle_tolerance_pct": 0.5, "max_settle_cycles": 200,
+                "initial_stiffness_n_per_m": 2.5e6, "aim_fraction": 0.4, "max_growth": 3.0,
+                "breakaway_growth": 0.2, "start_growth": 0.3, "nominal_mass_kg": 10.5,
+                "lubricated_added_mass_kg": 7.5, "nominal_damping_ns_per_m": 400.0,
+                "lubricated_damping_ns_per_m": 3000.0, "plant_uncertainty": 0.25,
+                "proportional_gain": 0.8, "block_s": 0.005, "ahead_blocks": 2},
+}
 
 
 def _chromium() -> str:
@@ -106,6 +124,10 @@ def web_factory(tmp_path: Path) -> Iterator[Any]:
     for f in sorted(tmp_path.glob("web*.stderr")):
         if f.read_text():
             print(f"--- {f.name} ---\n{f.read_text()}")
+    # nothing the page did may end in an unhandled exception in the server (aiohttp logs it
+    # with its traceback and still answers)
+    for f in sorted(tmp_path.glob("web*.stderr")):
+        assert "Traceback" not in f.read_text(), f"{f.name}: an unhandled exception was logged"
 
 
 def _open(browser: Any, url: str, csp: bool = False) -> Any:
@@ -135,6 +157,39 @@ def _upload(page: Any, tmp_path: Path, name: str, text: str) -> str:
     msg = page.inner_text("#message")
     page.evaluate("document.getElementById('message').textContent = ''")
     return msg
+
+
+# Each plot's axes as drawn: the label (a function of the plot: it follows what is plotted) and
+# the tick labels uPlot drew on the canvas at its split values
+AXES_JS = """() => Object.fromEntries(Object.entries(plots).map(([k, p]) => [k, p.u.axes.map(
+    (a, i) => ({label: typeof a.label === 'function' ? a.label(p.u, i) : a.label,
+                ticks: a._values, splits: a._splits}))]))"""
+PREFIX = {"n": 1e-9, "u": 1e-6, "m": 1e-3, "": 1.0, "k": 1e3, "M": 1e6}
+# the y axes plotted in SI with a prefixed unit: the time traces and the amplitude (um or N)
+SI_AXES = {"force": "N", "disp": "m", "acc": "m/s²", "drive": "V", "amp": "m or N",
+           "runAmp": "m or N"}
+
+
+def _axes(page: Any) -> dict[str, list[dict[str, Any]]]:
+    """Every plot's axes (but the harmonics' log axis: 1X-5X and decades), each checked to be
+    readable: at least 3 labelled ticks, no two alike, each tick the split value it stands at in
+    the unit its label names (an SI-prefixed unit on the traces: its ticks read 1 to 999)."""
+    out = page.evaluate(AXES_JS)
+    out.pop("harm", None)
+    for key, axes in out.items():
+        for i, a in enumerate(axes):
+            ticks = [t for t in a["ticks"] or [] if t]
+            assert len(ticks) >= 3 and len(set(ticks)) == len(ticks), (key, i, a)
+            unit = a["label"].rsplit("[", 1)[1].rstrip("]")
+            scale = 1.0
+            if i == 1 and key in SI_AXES:
+                base = next(u for u in SI_AXES[key].split(" or ") if unit.endswith(u))
+                prefix = unit.removesuffix(base)
+                scale = PREFIX[prefix]
+                assert 1.0 <= max(abs(float(t)) for t in ticks) < 1000.0, (key, a)
+            assert [float(t) * scale for t in a["ticks"]] == pytest.approx(
+                a["splits"], rel=1e-9, abs=1e-12 * scale), (key, i, a)
+    return out
 
 
 def _cli_sweep(d: DaemonProcess, path: Path) -> str:
@@ -187,10 +242,15 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     assert scale == pytest.approx(max(1.0, 1.25 * rmax), rel=1e-3) and scale < 80.0
     # the trip levels drawn on the forces (448 N) and the drives (9 V), with units on the axes
     trips = page.evaluate("""() => { const last = (u) => u.data.slice(-2).map((d) => d[0]);
-        return [last(plots.force.u), last(plots.drive.u),
-                plots.force.u.axes.map((a) => a.label), plots.drive.u.axes[1].label]; }""")
+        return [last(plots.force.u), last(plots.drive.u)]; }""")
     assert trips[0] == [448.0, -448.0] and trips[1] == [9.0, -9.0]
-    assert trips[2] == ["time [ms]", "force [N]"] and trips[3] == "drive [V]"
+    # every axis readable: its quantity, the unit its ticks are in, and at least 3 ticks
+    axes = _axes(page)
+    assert axes["force"][0]["label"] == "time [ms]" and axes["force"][1]["label"] == "force [N]"
+    assert axes["drive"][1]["label"] == "drive [V]"
+    assert axes["disp"][1]["label"] == "displacement [um]"  # tens of um
+    assert axes["amp"][1]["label"] == "amplitude [N]"  # the sweep holds 40 N (not "um or N")
+    assert axes["acc"][1]["label"].startswith("acceleration [")
     # the displacement's trip (the orbit radius) on the displacement traces once they reach a
     # quarter of it, and in words always
     disp = page.evaluate("""() => [plots.disp.u.series.map((s) => s.label),
@@ -316,6 +376,15 @@ def test_a_viewer_sees_the_page_and_controls_nothing(daemon_factory, web_factory
     op.click("#confirm-yes")
     op.wait_for_function("document.getElementById('pump').textContent === 'ON'")
     page.wait_for_function("document.getElementById('pump').textContent === 'ON'")
+
+    # the viewer leaves the page, its key is revoked, and the address typed again: the login,
+    # never a page kept by the browser that reconnects for ever
+    page.goto("about:blank")
+    (keys / "readers" / "viewer.key").unlink()
+    page.goto(url)
+    page.wait_for_selector("#key")
+    assert page.url.endswith("/login")
+    assert page.errors == []
 
 
 def test_beyond_loopback_needs_keys_and_tls(tmp_path):
@@ -514,6 +583,12 @@ def test_a_killed_daemon_looks_gone_and_a_restarted_one_is_found(daemon_factory,
         d2.proc.communicate(timeout=10)
 
 
+def _flat(spec: dict[str, Any]) -> dict[str, Any]:
+    """A sweep's fields by dotted path (``control.block_s``)."""
+    return {k: v for k, v in spec.items() if k != "control"} | {
+        f"control.{k}": v for k, v in spec.get("control", {}).items()}
+
+
 def test_a_sweep_defined_on_the_page(daemon_factory, web_factory, browser, tmp_path):
     """The form has every field of the sweep model; problems are shown at their field (the
     model's own messages), a rule between fields above the form; a valid sweep is summarised,
@@ -528,6 +603,32 @@ def test_a_sweep_defined_on_the_page(daemon_factory, web_factory, browser, tmp_p
             "tolerance_amplitude_pct", "on_not_converged", "control.window_cycles",
             "control.algorithm"} <= set(fields)
     assert len(fields) == 20 + 20  # SweepSpec's 20 fields and ControlSettings' 20
+
+    # every number field in its unit: a file with a value of each loaded into the form shows
+    # the field's unit beside it and the value in that unit (lengths in um: x 1e6), and the
+    # form reads back the very numbers of the file
+    (tmp_path / "every.toml").write_text(to_toml(EVERY_NUMBER))
+    page.set_input_files("#sweep-load", str(tmp_path / "every.toml"))
+    page.wait_for_function("document.querySelector(\"[data-field='control.block_s']\").value"
+                           " === '0.005'")
+    shown = {f: (v, u) for f, v, u in page.eval_on_selector_all(
+        "#sweep-form [data-field]", "els => els.map(e => [e.dataset.field, e.value, "
+        "e.nextElementSibling.textContent])")}  # the unit beside the input
+    flat = _flat(EVERY_NUMBER)
+    units = field_units()
+    assert set(flat) == set(units)  # the file holds every number field
+    for path, value in flat.items():
+        unit, scale = ("um", 1e6) if units[path] == "m" else (units[path], 1.0)
+        text, unit_text = shown[path]
+        assert unit_text == (f"[{unit}]" if unit else ""), path
+        values = value if isinstance(value, list) else [value]
+        assert [float(t) for t in text.split(", ")] == pytest.approx(
+            [v * scale for v in values], rel=1e-12), (path, text)
+    assert shown["control.initial_stiffness_n_per_m"] == ("2500000", "[N/m]")
+    assert shown["amplitude_m"] == ("13, 25.5", "[um]")
+    back = _flat(page.evaluate("readForm()"))  # what Check would send
+    assert {k: back[k] for k in flat} == flat
+    page.click("#sweep-defaults")
 
     def error_at(field: str) -> str:
         return page.inner_text(f"#sweep-form [data-error-for='{field}']")
@@ -593,10 +694,14 @@ def test_the_transfer_and_its_coherence_live_and_from_history(daemon_factory, we
     drawn against frequency while a sweep runs (the daemon's own run file, read again at each
     step) and for a run opened from the history, with a step of low coherence greyed and its
     value shown."""
+    from tests.web.test_history import _write as write_history_run
     from tests.web.test_transfer import FREQS, NOISY_STEP, rig_k, write_rig_run
 
     d = daemon_factory()
     write_rig_run(d.runs_dir / "RIG.h5", "RIG")  # a linear rig's sweep, one noisy step
+    # and a run that held displacement: 20 and 20.2 um at 20 and 30 Hz
+    write_history_run(d.runs_dir / "DISP.h5", "DISP", "2026-11-25T10:00:00.000+00:00",
+                      "completed", [20.0, 20.2], 1)
     page = _open(browser, web_factory(d, follow=True))
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
 
@@ -627,11 +732,20 @@ def test_the_transfer_and_its_coherence_live_and_from_history(daemon_factory, we
     page.wait_for_function("document.getElementById('state').textContent === 'idle'",
                            timeout=60_000)
 
-    # from history: the linear rig's run, k - m w^2 + j c w, the noisy step greyed
+    # from history, each run's amplitude axis in its own unit: um of displacement, N of load
+    page.wait_for_selector("#runs tbody tr[data-run='DISP']")
+    page.click("#runs tbody tr[data-run='DISP'] button")
+    page.wait_for_function("document.getElementById('transfer-run').dataset.run === 'DISP'")
+    amp = _axes(page)["runAmp"][1]
+    assert amp["label"] == "amplitude [um]" and 19.0 < float(amp["ticks"][0]) < 21.0, amp
+    # the linear rig's run, k - m w^2 + j c w, the noisy step greyed
     row = "#runs tbody tr[data-run='RIG']"
     page.wait_for_selector(row)
     page.click(f"{row} button")
     page.wait_for_function("document.getElementById('transfer-run').dataset.run === 'RIG'")
+    axes = _axes(page)
+    assert axes["runAmp"][1]["label"] == "amplitude [N]"
+    assert axes["transfer-run-k"][1]["label"] == "F/X [MN/m]"
     rows = page.query_selector_all("#transfer-run .transfer-table tbody tr")
     assert len(rows) == len(FREQS)
     for i, tr in enumerate(rows):

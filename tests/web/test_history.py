@@ -10,8 +10,10 @@ import asyncio
 import hashlib
 import io
 import json
+import logging
 import subprocess
 import sys
+import tempfile
 import zipfile
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -115,8 +117,14 @@ def test_a_run_opened_with_its_step_table(runs_dir):
     assert run["steps"][0]["phase_deg"] == pytest.approx(90.0)
 
 
-def test_downloads_are_the_file_and_the_exports(runs_dir):
+def test_downloads_are_the_file_and_the_exports(runs_dir, tmp_path, monkeypatch, caplog):
+    """Each download is whole, nothing is logged as an error while it is served (the export's
+    folder lives until the answer is sent), and no folder is left behind."""
     app = WebApp(_Daemon(), WebConfig(runs_dir=runs_dir))  # type: ignore[arg-type]
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))  # where the exports are made
+    caplog.set_level(logging.WARNING)
 
     async def test(port: int) -> dict[str, tuple[int, dict[str, str], bytes]]:
         host = f"127.0.0.1:{port}"
@@ -124,6 +132,8 @@ def test_downloads_are_the_file_and_the_exports(runs_dir):
                 for fmt in ("h5", "mat", "csv", "tdms", "exe")}
 
     got = _serve(app, test)
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR] == []
+    assert list(temp.iterdir()) == []
     assert got["h5"][0] == 200 and got["h5"][2] == (runs_dir / "R2.h5").read_bytes()
     assert got["h5"][1]["content-disposition"] == 'attachment; filename="R2.h5"'
     assert got["mat"][0] == 200 and "R2.mat" in got["mat"][1]["content-disposition"]

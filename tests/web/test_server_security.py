@@ -258,6 +258,50 @@ def test_revoking_a_key_ends_its_sessions_at_once(tmp_path):
     assert daemon.sent == [("pump", {"on": True})]
 
 
+def _get_as(path: str, host: str, cookie: str) -> bytes:
+    return (f"GET {path} HTTP/1.1\r\nHost: {host}\r\nCookie: {COOKIE}={cookie}\r\n"
+            "Connection: close\r\n\r\n").encode()
+
+
+def test_the_page_and_its_answers_are_never_cached(tmp_path):
+    """A browser keeps nothing of the page or its API (a cached page of a revoked key would
+    never reach the login): ``no-store`` on the page, the login, each answer and refusal; the
+    static files are checked for a newer version each time (``no-cache``). After the key is
+    revoked the page is the login and /api/session says 401 (the page's cue to go there)."""
+    keys = tmp_path / "keys"
+    make_keys(keys, commanders=["operator"], readers=[])
+    app = WebApp(_Daemon(), WebConfig(key_dir=keys))  # type: ignore[arg-type]
+
+    async def test(server: TestServer, port: int) -> dict[str, Any]:
+        host = f"127.0.0.1:{port}"
+        _, headers, _ = await _raw(port, _login_request(port, keys / "clients" /
+                                                        "operator.key_secret"))
+        cookie = headers["set-cookie"].split(";")[0].split("=", 1)[1]
+        out: dict[str, Any] = {}
+        for path in ("/", "/login", "/api/session", "/api/sweep/schema", "/api/runs",
+                     "/static/app.js", "/static/uPlot.iife.min.js"):
+            status, headers, body = await _raw(port, _get_as(path, host, cookie))
+            out[path] = (status, headers.get("cache-control"))
+        out["session"] = json.loads((await _raw(port, _get_as("/api/session", host, cookie)))[2])
+        (keys / "commanders" / "operator.key").unlink()  # revoked
+        for path in ("/", "/api/session"):
+            status, headers, _ = await _raw(port, _get_as(path, host, cookie))
+            out[f"revoked {path}"] = (status, headers.get("cache-control"),
+                                      headers.get("location"))
+        return out
+
+    out = _serve(app, test)
+    assert out["/"] == (200, "no-store") and out["/login"] == (200, "no-store")
+    assert out["/api/session"] == (200, "no-store")
+    assert out["/api/sweep/schema"] == (200, "no-store")
+    assert out["/api/runs"] == (404, "no-store")  # (no runs directory here): a refusal too
+    assert out["/static/app.js"] == (200, "no-cache")
+    assert out["/static/uPlot.iife.min.js"] == (200, "no-cache")
+    assert out["session"] == {"ok": True, "name": "operator", "role": "operator"}
+    assert out["revoked /"] == (302, "no-store", "/login")
+    assert out["revoked /api/session"] == (401, "no-store", None)
+
+
 def test_a_viewer_is_refused_every_commanding_route():
     daemon = _Daemon()
     app = WebApp(daemon, WebConfig(anonymous_role="viewer"))  # type: ignore[arg-type]

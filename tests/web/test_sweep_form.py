@@ -48,3 +48,43 @@ def test_each_problem_is_named_by_its_field(spec, errors):
     out = check(spec, SAFETY)
     assert not out["ok"] and out["summary"] is None
     assert [(e["field"], e["message"]) for e in out["errors"]] == errors
+
+
+def _number_fields(s: dict, props: dict, prefix: str = "") -> dict[str, dict]:
+    """The properties of the schema ``s`` that hold numbers (alone, optional or in a list), by
+    dotted path, read from the JSON schema itself (the types the page builds its inputs from)."""
+    out = {}
+    for name, prop in props.items():
+        alts = prop.get("anyOf", [prop])
+        if any("$ref" in a for a in alts):
+            ref = next(a["$ref"] for a in alts if "$ref" in a).rsplit("/", 1)[-1]
+            out.update(_number_fields(s, s["$defs"][ref]["properties"], f"{prefix}{name}."))
+            continue
+        types = {a.get("type") for a in alts} | {a.get("items", {}).get("type") for a in alts}
+        if types & {"number", "integer"}:
+            out[prefix + name] = prop
+    return out
+
+
+def test_every_number_field_of_a_sweep_has_its_unit_and_the_form_shows_it_so():
+    """Every number field of the sweep (the model's own schema, 32 of them) has a unit, and the
+    form shows it in the unit an operator reads: lengths in um (value x 1e6), every other in its
+    own unit (a stiffness of 1e6 N/m is 1000000 N/m, never um)."""
+    from control.wire.sweep_spec import field_units
+    from web.sweep_form import schema
+
+    s = schema()
+    numbers = _number_fields(s, s["properties"])
+    assert len(numbers) == 32 and set(numbers) == set(field_units())
+    for path, prop in numbers.items():
+        si = prop["unit"]
+        assert si == field_units()[path]
+        assert (prop["shown_unit"], prop["shown_power"]) == (("um", 6) if si == "m" else (si, 0))
+    units = field_units()
+    assert units["control.initial_stiffness_n_per_m"] == "N/m"
+    assert units["control.nominal_damping_ns_per_m"] == "N.s/m"
+    assert units["control.lubricated_damping_ns_per_m"] == "N.s/m"
+    assert units["amplitude_m"] == "m" and units["load_n"] == "N"
+    assert units["control.block_s"] == "s" and units["freq_points"] == ""
+    # the only lengths are the displacement targets: nothing else is shown x 1e6
+    assert [p for p, u in units.items() if u == "m"] == ["amplitude_m"]

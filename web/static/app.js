@@ -9,15 +9,78 @@ window.sfdrig = { frames: 0, latencies: [], role: null, lastFrame: null, orbitPo
 let role = null;
 const plots = {};
 
-// every axis says its quantity and unit
-function lineOpts(title, names, width, height, yLabel) {
+// --- axes: every axis says its quantity and unit, and its ticks can be read -------------------
+// A quantity q = { name, unit, prefixed }: a prefixed unit (m, N, V, m/s²) is shown with the SI
+// prefix that makes the ticks numbers of 1 to 999 (a 20 um orbit: "displacement [um]", ticks 10,
+// 20; 3 mm/s² of acceleration: "acceleration [mm/s²]"); every tick has the decimals its step
+// needs, so no tick reads "0" for a value that is not and no two read alike. The label says the
+// unit the ticks are in, found from what is plotted now (q may change: an amplitude in um or N).
+const PREFIXES = [[1e-9, "n"], [1e-6, "u"], [1e-3, "m"], [1, ""], [1e3, "k"], [1e6, "M"]];
+function decimalsFor(step) {
+  if (!(step > 0)) return 0;
+  let d = Math.max(0, -Math.floor(Math.log10(step)));
+  const off = (k) => Math.abs(step * 10 ** k - Math.round(step * 10 ** k)) > 1e-6 * step * 10 ** k;
+  while (d < 15 && off(d)) d++;  // a step of 2.5 needs one decimal, 0.25 two
+  return d;
+}
+// 3 to 6 ticks at a step of 1, 2, 2.5 or 5 times a power of ten, whatever the height
+function tickSplits(u, i, min, max) {
+  if (!(max > min)) return [min];
+  const e0 = Math.floor(Math.log10(max - min)) - 1;
+  for (let e = e0; e <= e0 + 3; e++) {
+    for (const m of [1, 2, 2.5, 5]) {
+      const step = m * 10 ** e;
+      const first = Math.ceil(min / step - 1e-9), last = Math.floor(max / step + 1e-9);
+      if (last - first + 1 <= 6) {
+        const out = [];
+        for (let k = first; k <= last; k++) out.push(Number((k * step).toPrecision(12)));
+        return out;
+      }
+    }
+  }
+  return [min, max];
+}
+function tickValues(q) {
+  return (u, splits, i, space, incr) => {
+    const step = splits.length > 1 ? splits[1] - splits[0] : incr;
+    const big = splits.reduce((m, v) => (v == null ? m : Math.max(m, Math.abs(v))), 0);
+    let f = 1, p = "";
+    if (q.prefixed && big > 0) for (const [k, s] of PREFIXES) if (big >= k * (1 - 1e-9)) { f = k; p = s; }
+    if (q.prefixed && big > 0 && big < PREFIXES[0][0]) { f = PREFIXES[0][0]; p = PREFIXES[0][1]; }
+    const ax = u.axes[i];
+    ax._unitShown = p + q.unit;
+    ax._unitOf = q.unit;
+    const d = decimalsFor(step / f);
+    return splits.map((v) => {
+      if (v == null) return "";
+      const x = Math.abs(v) < step * 1e-6 ? 0 : v / f;  // -0.000 is 0
+      return x.toFixed(d);
+    });
+  };
+}
+function axisLabel(q) {
+  return (u, i) => {
+    const ax = u.axes[i];
+    return `${q.name} [${ax._unitOf === q.unit ? ax._unitShown : q.unit}]`;
+  };
+}
+// the x axis (along the bottom) and a y axis wide enough for its longest tick
+function xAxis(q) { return { label: axisLabel(q), splits: tickSplits, values: tickValues(q) }; }
+function yAxis(q) {
+  return { label: axisLabel(q), splits: tickSplits, values: tickValues(q),
+    size: (u, values) => Math.max(50, 20 + 7 * Math.max(0, ...(values || []).map((v) => String(v).length))) };
+}
+const TIME_MS = { name: "time", unit: "ms" };
+const FREQ_HZ = { name: "frequency", unit: "Hz" };
+
+function lineOpts(names, width, height, q) {
   return {
     width, height, legend: { live: false }, cursor: { show: false },
     scales: { x: { time: false } },
-    series: [{ label: title }].concat(names.map((n, i) => n.endsWith(" trip")
+    series: [{ label: "time [ms]" }].concat(names.map((n, i) => n.endsWith(" trip")
       ? { label: n, stroke: "#c53030", width: 1, dash: [6, 4] }  // the safety limit: a trip there
       : { label: n, stroke: COLORS[i % COLORS.length], width: 1.2 })),
-    axes: [{ label: title }, { size: 60, label: yLabel }],
+    axes: [xAxis(TIME_MS), yAxis(q)],
   };
 }
 
@@ -40,11 +103,13 @@ function showMessage(text, error) {
 }
 
 // --- traces --------------------------------------------------------------------------------
+// plotted in SI (m, N, m/s², V): each axis picks its prefix from what it shows
 const GROUPS = [
-  ["force", "plot-force", (n, u) => u === "N" && n !== "hammer", 1, "force [N]"],
-  ["disp", "plot-disp", (n, u) => u === "m", 1e6, "displacement [um]"],
-  ["acc", "plot-acc", (n, u) => u === "m/s^2", 1, "acceleration [m/s²]"],
+  ["force", "plot-force", (n, u) => u === "N" && n !== "hammer", { name: "force", unit: "N", prefixed: true }],
+  ["disp", "plot-disp", (n, u) => u === "m", { name: "displacement", unit: "m", prefixed: true }],
+  ["acc", "plot-acc", (n, u) => u === "m/s^2", { name: "acceleration", unit: "m/s²", prefixed: true }],
 ];
+const DRIVE_V = { name: "drive", unit: "V", prefixed: true };
 
 function drawTraces(tr, status) {
   const units = status.units || {};
@@ -53,7 +118,7 @@ function drawTraces(tr, status) {
   // the trip levels drawn on the traces they apply to: load on the forces, volts on the drives
   // the displacement's (a radius, drawn on each axis's trace) only once a trace reaches a
   // quarter of it: drawn always it would flatten a trace of a few um into a line
-  const dispLimit = safety.displacement_limit_m ? safety.displacement_limit_m * 1e6 : null;
+  const dispLimit = safety.displacement_limit_m || null;  // [m]
   const limits = { force: safety.load_limit_n, drive: safety.drive_limit_v, disp: dispLimit };
   const peakOf = (data) => data.reduce((m, d) => d.reduce((a, v) => Math.max(a, Math.abs(v)), m), 0);
   const withLimit = (key, names, data, peak) => {
@@ -61,22 +126,22 @@ function drawTraces(tr, status) {
     if (!lim || (key === "disp" && peak < 0.25 * lim)) return [names, data];
     return [names.concat(["+ trip", "- trip"]), data.concat([tr.t_ms.map(() => lim), tr.t_ms.map(() => -lim)])];
   };
-  for (const [key, el, pick, scale, yLabel] of GROUPS) {
+  for (const [key, el, pick, q] of GROUPS) {
     const picked = Object.keys(tr.channels).filter((n) => pick(n, units[n]));
-    const traces = picked.map((n) => tr.channels[n].map((v) => v * scale));
+    const traces = picked.map((n) => tr.channels[n]);
     const peak = key === "disp" ? peakOf(traces) : null;  // once a frame, for the line and the words
     const [names, data] = withLimit(key, picked, traces, peak);
-    const u = ensurePlot(key, el, names, lineOpts("time [ms]", names, w, 190, yLabel));
+    const u = ensurePlot(key, el, names, lineOpts(names, w, 190, q));
     u.setData([tr.t_ms].concat(data));
     if (key === "disp") {
       $("disp-info").textContent = dispLimit
-        ? `trip at ${fmt(dispLimit, 1)} um (orbit radius): largest here ${fmt(peak, 2)} um, ` +
+        ? `trip at ${fmt(dispLimit * 1e6, 1)} um (orbit radius): largest here ${fmt(peak * 1e6, 2)} um, ` +
           `${fmt(100 * peak / dispLimit, 0)} % of it` + (peak < 0.25 * dispLimit ? " (trip lines drawn from 25 %)" : "")
         : "";
     }
   }
   const [drives, ddata] = withLimit("drive", tr.drives || [], (tr.drives || []).map((n) => tr.channels[n]));
-  const ud = ensurePlot("drive", "plot-drive", drives, lineOpts("time [ms]", drives, w, 190, "drive [V]"));
+  const ud = ensurePlot("drive", "plot-drive", drives, lineOpts(drives, w, 190, DRIVE_V));
   ud.setData([tr.t_ms].concat(ddata));
 }
 
@@ -155,7 +220,7 @@ function drawDriveAndStiffness(sorted, status, w) {
   const ud = ensurePlot("drivef", "plot-drive-f", ["drive", "limit"], {
     width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
     series: [{ label: "f [Hz]" }, pts("largest drive 1X [V]", COLORS[0]), { label: "drive limit [V]", stroke: "#c53030", dash: [6, 4] }],
-    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "drive [V]" }],
+    axes: [xAxis(FREQ_HZ), yAxis(DRIVE_V)],
   });
   ud.setData([f, sorted.map((s) => s.drive_v), f.map(() => lim)]);
   const worst = sorted.reduce((m, s) => (s.drive_v !== null && s.drive_v > m ? s.drive_v : m), 0);
@@ -164,7 +229,7 @@ function drawDriveAndStiffness(sorted, status, w) {
   const uk = ensurePlot("kf", "plot-k", ["kx re", "kx im", "ky re", "ky im"], {
     width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
     series: [{ label: "f [Hz]" }, pts("Re Kx", COLORS[0]), pts("Im Kx", COLORS[1]), pts("Re Ky", COLORS[2]), pts("Im Ky", COLORS[3])],
-    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "F/X [MN/m]" }],
+    axes: [xAxis(FREQ_HZ), yAxis({ name: "F/X", unit: "MN/m" })],
   });
   uk.setData([f, sorted.map((s) => s.kx_re_mn_per_m), sorted.map((s) => s.kx_im_mn_per_m),
     sorted.map((s) => s.ky_re_mn_per_m), sorted.map((s) => s.ky_im_mn_per_m)]);
@@ -190,12 +255,12 @@ function drawTransfer(panelId, out) {
   const pts = (label, color, size) => ({ label, stroke: color, paths: () => null, points: { show: true, size: size || 7, fill: color } });
   const low = out.coherence_low;
   panel.querySelector(".coh-low").textContent = String(low);
-  const plot = (key, yLabel, series, columns, extra) => {
+  const plot = (key, q, series, columns, extra) => {
     const id = `${panelId}-${key}`;
     if (!$(id)) { const d = document.createElement("div"); d.id = id; holder.appendChild(d); }
     const u = ensurePlot(id, id, series.map((s) => s.label), {
       width: w, height: 190, legend: { show: true, live: false }, cursor: { show: false }, scales: { x: { time: false }, ...(extra || {}) },
-      series: [{ label: "f [Hz]" }].concat(series), axes: [{ label: "frequency [Hz]" }, { size: 60, label: yLabel }] });
+      series: [{ label: "f [Hz]" }].concat(series), axes: [xAxis(FREQ_HZ), yAxis(q)] });
     u.setData([f].concat(columns));
   };
   const greyed = pts("low coherence", LOW_GREY, 9);
@@ -204,13 +269,13 @@ function drawTransfer(panelId, out) {
   const kCols = [];
   for (const a of axes) kCols.push(...transferSeries(points, [a], (p) => p.k_re_mn_per_m).slice(0, 1),
     ...transferSeries(points, [a], (p) => p.k_im_mn_per_m).slice(0, 1));
-  plot("k", "F/X [MN/m]", k.concat([pts("low coh. Re", LOW_GREY, 9), pts("low coh. Im", LOW_GREY, 9)]),
+  plot("k", { name: "F/X", unit: "MN/m" }, k.concat([pts("low coh. Re", LOW_GREY, 9), pts("low coh. Im", LOW_GREY, 9)]),
     kCols.concat([points.map((p) => (p.low_coherence ? p.k_re_mn_per_m : null)), points.map((p) => (p.low_coherence ? p.k_im_mn_per_m : null))]));
-  plot("h", "|X/F| [um/kN]", axes.map((a, i) => pts(`|${a.toUpperCase()}/F${a}|`, COLORS[i])).concat([greyed]),
+  plot("h", { name: "|X/F|", unit: "um/kN" }, axes.map((a, i) => pts(`|${a.toUpperCase()}/F${a}|`, COLORS[i])).concat([greyed]),
     transferSeries(points, axes, (p) => p.h_um_per_kn));
-  plot("phase", "phase X/F [deg]", axes.map((a, i) => pts(`${a} rel. f${a}`, COLORS[i])).concat([greyed]),
+  plot("phase", { name: "phase X/F", unit: "deg" }, axes.map((a, i) => pts(`${a} rel. f${a}`, COLORS[i])).concat([greyed]),
     transferSeries(points, axes, (p) => p.phase_deg));
-  plot("coh", "coherence [-]", axes.map((a, i) => pts(`coherence ${a}`, COLORS[i])).concat([greyed, { label: "threshold", stroke: "#c53030", dash: [5, 4] }]),
+  plot("coh", { name: "coherence", unit: "-" }, axes.map((a, i) => pts(`coherence ${a}`, COLORS[i])).concat([greyed, { label: "threshold", stroke: "#c53030", dash: [5, 4] }]),
     transferSeries(points, axes, (p) => p.coherence).concat([f.map(() => low)]), { y: { range: [0, 1.02] } });
   const lows = points.filter((p) => p.low_coherence);
   panel.querySelector(".transfer-info").textContent = (lows.length
@@ -257,6 +322,14 @@ async function followTransfer(fr) {
   } finally { transferBusy = false; }
 }
 
+// a step's amplitude (um of displacement or N of load) plotted in SI: (factor, axis quantity)
+const AMPLITUDE = { name: "amplitude", unit: "m", prefixed: true };
+function amplitudeAxis(unit) {
+  if (unit === "um") return [1e-6, { name: "amplitude", unit: "m", prefixed: true }];
+  if (unit === "N") return [1, { name: "amplitude", unit: "N", prefixed: true }];
+  return [1, { name: "amplitude", unit: unit || "um or N", prefixed: false }];
+}
+function times(v, k) { return v === null || v === undefined ? null : v * k; }  // a gap stays a gap
 function drawSteps(steps, status) {
   const sorted = steps.slice().sort((a, b) => a.freq_hz - b.freq_hz);
   const f = sorted.map((s) => s.freq_hz);
@@ -264,12 +337,14 @@ function drawSteps(steps, status) {
   drawDriveAndStiffness(sorted, status, w);
   const pts = (label, color) => ({ label, stroke: color, paths: () => null, points: { show: true, size: 7, fill: color } });
   const unit = steps.length ? steps[0].unit : "";
+  const [k, q] = amplitudeAxis(unit);
+  Object.assign(AMPLITUDE, q);  // the plot's axis follows the run's unit
   const ua = ensurePlot("amp", "plot-amp", ["achieved", "target"], {
     width: w, height: 190, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
     series: [{ label: "f [Hz]" }, pts("achieved", COLORS[0]), pts("target", "#999")],
-    axes: [{ label: "frequency [Hz]" }, { size: 60, label: `amplitude [${unit || "um or N"}]` }],
+    axes: [xAxis(FREQ_HZ), yAxis(AMPLITUDE)],
   });
-  ua.setData([f, sorted.map((s) => s.achieved), sorted.map((s) => s.target)]);
+  ua.setData([f, sorted.map((s) => times(s.achieved, k)), sorted.map((s) => times(s.target, k))]);
   plots.amp.u.series[1].label = `achieved [${unit}]`;
   $("amp-unit").textContent = unit || "um or N";
   const band = steps.length ? steps[steps.length - 1].band_pct : 1;
@@ -278,7 +353,7 @@ function drawSteps(steps, status) {
     series: [{ label: "f [Hz]" }, pts("error [%]", COLORS[0]),
       { label: "+tol", stroke: "#c53030", dash: [5, 4] }, { label: "-tol", stroke: "#c53030", dash: [5, 4] }],
     bands: [{ series: [2, 3], fill: "rgba(72,187,120,0.15)" }],
-    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "error [%]" }],
+    axes: [xAxis(FREQ_HZ), yAxis({ name: "error", unit: "%" })],
   });
   ue.setData([f, sorted.map((s) => s.error_pct), f.map(() => band), f.map(() => -band)]);
   const withTarget = sorted.filter((s) => s.phase_target_deg !== null);
@@ -287,7 +362,7 @@ function drawSteps(steps, status) {
     series: [{ label: "f [Hz]" }, pts("phase [deg]", COLORS[1]), { label: "target", stroke: "#999" },
       { label: "+tol", stroke: "#c53030", dash: [5, 4] }, { label: "-tol", stroke: "#c53030", dash: [5, 4] }],
     bands: [{ series: [3, 4], fill: "rgba(72,187,120,0.15)" }],
-    axes: [{ label: "frequency [Hz]" }, { size: 60, label: "phase [deg]" }],
+    axes: [xAxis(FREQ_HZ), yAxis({ name: "phase", unit: "deg" })],
   });
   const tgt = sorted.map((s) => s.phase_target_deg);
   up.setData([f, sorted.map((s) => s.phase_deg), tgt,
@@ -566,15 +641,8 @@ $("pump-off").onclick = () => confirmThen("Switch the oil pump OFF?", () => post
 $("reset").onclick = () => post("/api/command", { cmd: "reset" });
 
 // --- a sweep defined on the page: a form built from the sweep model's schema -----------------
-// Units as the operator thinks: a field in metres is entered in um; the rest as named.
-function unitOf(name) {
-  if (name.endsWith("_m")) return ["um", "e-6"];
-  for (const [suffix, unit] of [["_hz", "Hz"], ["_n_per_m", "N/m"], ["_ns_per_m", "N.s/m"], ["_n", "N"],
-    ["_pct", "%"], ["_deg", "deg"], ["_kg", "kg"], ["_s", "s"], ["_cycles", "cycles"]]) {
-    if (name.endsWith(suffix)) return [unit, ""];
-  }
-  return ["", ""];
-}
+// Each number field's unit comes with the schema (the sweep model's own units): shown_unit, and
+// shown_power, the power of ten the form shows the value times (a length in um: 6).
 function kindOf(prop, defs) {
   const alts = prop.anyOf ? prop.anyOf.filter((a) => a.type !== "null") : [prop];
   const p = alts[0] || {};
@@ -618,10 +686,11 @@ function addFields(parent, props, defs, prefix) {
     input.dataset.field = path;
     input.dataset.kind = kind;
     input.dataset.default = JSON.stringify(prop.default === undefined ? null : prop.default);
+    input.dataset.power = String(prop.shown_power || 0);
     row.appendChild(input);
-    const [unit] = unitOf(name);
     const u = document.createElement("span");
-    u.textContent = unit ? `[${unit}]` : "";
+    u.className = "unit";
+    u.textContent = prop.shown_unit ? `[${prop.shown_unit}]` : "";
     row.appendChild(u);
     const err = document.createElement("span");
     err.className = "field-error";
@@ -631,29 +700,28 @@ function addFields(parent, props, defs, prefix) {
     input.onchange = () => { checked = null; $("sweep-start").disabled = true; $("sweep-save").disabled = true; };
   }
 }
-function shown(name, v) {
-  const [, exp] = unitOf(name);
-  return exp ? String(Number((v * 1e6).toPrecision(12))) : String(v);
+function shown(power, v) {
+  return power ? String(Number((v * 10 ** power).toPrecision(12))) : String(v);
 }
 function setForm(spec) {
   for (const input of document.querySelectorAll("#sweep-form [data-field]")) {
     const path = input.dataset.field;
-    const name = path.split(".").pop();
+    const power = Number(input.dataset.power);
     let v = JSON.parse(input.dataset.default);
     let cur = spec;
     for (const k of path.split(".")) cur = cur && typeof cur === "object" ? cur[k] : undefined;
     if (cur !== undefined) v = cur;
     if (input.dataset.kind === "boolean") input.checked = !!v;
     else if (v === null || v === undefined) input.value = "";
-    else if (Array.isArray(v)) input.value = v.map((x) => shown(name, x)).join(", ");
-    else input.value = typeof v === "number" ? shown(name, v) : String(v);
+    else if (Array.isArray(v)) input.value = v.map((x) => shown(power, x)).join(", ");
+    else input.value = typeof v === "number" ? shown(power, v) : String(v);
   }
 }
 function readForm() {
   const spec = {};
   for (const input of document.querySelectorAll("#sweep-form [data-field]")) {
     const path = input.dataset.field.split(".");
-    const [, exp] = unitOf(path[path.length - 1]);
+    const exp = Number(input.dataset.power) ? `e${-Number(input.dataset.power)}` : "";  // exact: "13e-6"
     const kind = input.dataset.kind;
     const num = (t) => { const x = Number(t.trim() + exp); return t.trim() === "" || Number.isNaN(x) ? t.trim() : x; };
     let v;
@@ -791,13 +859,14 @@ async function openRun(id) {
   }
   const sorted = run.steps.slice().sort((a, b) => a.freq_hz - b.freq_hz);
   const unit = sorted.length ? sorted[0].unit : "";
+  const [k, q] = amplitudeAxis(unit);
   const w = Math.max(380, $("run").clientWidth - 20);
   const pts = (label, color) => ({ label, stroke: color, paths: () => null, points: { show: true, size: 7, fill: color } });
   if (plots.runAmp) plots.runAmp.u.destroy();
   const u = new uPlot({ width: w, height: 200, legend: { live: false }, cursor: { show: false }, scales: { x: { time: false } },
     series: [{ label: "f [Hz]" }, pts(`achieved [${unit}]`, COLORS[0]), pts(`target [${unit}]`, "#999")],
-    axes: [{ label: "frequency [Hz]" }, { size: 60, label: `amplitude [${unit || "um or N"}]` }] },
-  [sorted.map((s) => s.freq_hz), sorted.map((s) => s.achieved), sorted.map((s) => s.target)], $("plot-run-amp"));
+    axes: [xAxis(FREQ_HZ), yAxis(q)] },
+  [sorted.map((s) => s.freq_hz), sorted.map((s) => times(s.achieved, k)), sorted.map((s) => times(s.target, k))], $("plot-run-amp"));
   plots.runAmp = { u, sig: "" };
   drawNotes(run.notes);
   const tf = await getJson(`/api/runs/${encodeURIComponent(id)}/transfer`);
@@ -910,6 +979,9 @@ function followRuns(fr) {
 
 const DRAWN_LATEST_MS = 250;  // the next frame is asked for by then even if not painted
 
+async function loggedOut() {
+  try { return (await fetch("/api/session")).status === 401; } catch (e) { return false; }
+}
 function connect() {
   const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws");
   ws.onmessage = (ev) => {
@@ -931,8 +1003,11 @@ function connect() {
       }
     }
   };
-  ws.onclose = (ev) => {
+  ws.onclose = async (ev) => {
     if (ev.code === 4001) { location.assign("/login"); return; }  // the key was revoked
+    // refused (no close code): a key revoked while the page was closed, or a restarted server
+    // that forgot the login; the page then goes to the login instead of reconnecting for ever
+    if (await loggedOut()) { location.assign("/login"); return; }
     // the web server itself is gone: nothing on the page is live any more
     document.body.classList.add("stale");
     $("link").textContent = "?"; $("link").className = "link lost";
