@@ -388,6 +388,8 @@ class Daemon:
             case PumpRequest():
                 return self._pump(req)
             case ResetRequest():
+                if self.sm.state is S.IDLE:  # no fault to acknowledge: a no-op, not refused
+                    return self._ok(req, nothing_to_reset=True)
                 if self.sm.state is S.FAULT and self.backend.estop_pressed():
                     return self._error(ErrorKind.FORBIDDEN, "reset: the emergency stop is "
                                        "still pressed; release it first", req.cmd,

@@ -142,7 +142,8 @@ class ListRunsRequest(_Request):
 
 
 class ResetRequest(_Request):
-    """Acknowledge a fault: fault -> idle (only when nothing is running)."""
+    """Acknowledge a fault: fault -> idle (refused while a run is going). While idle there is
+    nothing to reset: answered ok with ``data["nothing_to_reset"]`` true, and nothing changes."""
 
     cmd: Literal["reset"]
 

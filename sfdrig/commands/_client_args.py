@@ -5,9 +5,17 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
 from pathlib import Path
 
-from control.wire.client import CommandClient, Subscriber, process_gone
+from control.wire.client import (
+    CommandClient,
+    CommandRefused,
+    DaemonUnavailable,
+    Subscriber,
+    process_gone,
+)
+from control.wire.protocol import Reply
 from control.wire.security import ClientKeys, load_client_keys
 
 DEFAULT_RUNS_DIR = Path("runs")
@@ -61,3 +69,15 @@ def subscriber(args: argparse.Namespace, topics: list[str] | None = None,
                rcvhwm: int = 1000) -> Subscriber:
     endpoint = getattr(args, "data_endpoint", None) or _state(args)["data"]
     return Subscriber(endpoint, topics=topics, rcvhwm=rcvhwm, keys=keys(args))
+
+
+def one_request(args: argparse.Namespace, what: str,
+                send: Callable[[CommandClient], Reply]) -> Reply | None:
+    """Send one request (``send(client)``); its reply, or None after printing why it could not
+    be sent or was refused, led by ``what`` (the command's name)."""
+    try:
+        with command_client(args) as client:
+            return send(client)
+    except (DaemonUnavailable, CommandRefused) as err:
+        print(f"{what}: {err}")
+        return None

@@ -144,6 +144,14 @@ def progress_line(progress: dict[str, Any]) -> str:
     return line + f" | {progress.get('state', '')}"
 
 
+def progress_text(progress: dict[str, Any]) -> str:
+    """A run's progress for people: a sweep's as `progress_line` (steps counted from 1), any
+    other run's (a structure test's) as its fields."""
+    if "step_index" in progress:
+        return progress_line(progress)
+    return "  ".join(f"{k}={v}" for k, v in progress.items())
+
+
 def _fmt(v: Any) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from control.wire.client import DaemonUnavailable
 from sfdrig.commands._client_args import add_connection_arguments, subscriber
-from sfdrig.commands.sweep import step_line
+from sfdrig.commands.sweep import progress_text, step_line
 
 NAME = "watch"
 HELP = "show live per-channel amplitudes and the current step (or follow a run file)"
@@ -98,7 +98,7 @@ def _watch_stream(args: argparse.Namespace) -> int:
             shown += 1
             lost = sum(sub.lost.values())
             head = (f"state {st.get('state', '?')}  run {st.get('run_id') or '-'}  "
-                    + "  ".join(f"{k}={v}" for k, v in progress.items())
+                    + progress_text(progress)
                     + (f"  lost {lost} messages" if lost else "")
                     + (f"  skipped {malformed} malformed" if malformed else ""))
             if blocks:
