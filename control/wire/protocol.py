@@ -31,7 +31,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
-from control.wire.text import SafeReason, SafeRequestId, Text, safe_json, safe_text
+from control.wire.text import RequestId, SafeReason, SafeRequestId, Text, safe_json, safe_text
 
 #: Live-data topics (the first frame of every PUB message).
 TOPIC_BLOCK = b"block"
@@ -74,7 +74,8 @@ class ErrorKind(StrEnum):
 class _Request(BaseModel):
     # strict: "on": "yes" or 1 must not switch a pump; only JSON true/false does.
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
-    request_id: Text = Field("", max_length=128, description="echoed in the reply")
+    request_id: RequestId = Field("", max_length=128, description="echoed in the reply, "
+                                  "exactly as sent")
 
 
 class StartRequest(_Request):
@@ -120,7 +121,8 @@ class ResumeRequest(_Request):
 class AbortRequest(_Request):
     """Abort the run. Never refused for what it carries (only for the state: nothing to abort):
     a reason with NULs, lone surrogates, too long or not text is replaced (`SafeReason`, noted
-    in the reason), a bad request id is made safe and unknown fields are ignored."""
+    in the reason), a request id a reply cannot carry is made safe (`SafeRequestId`) and
+    unknown fields are ignored."""
 
     model_config = ConfigDict(extra="ignore", frozen=True, strict=True)
     cmd: Literal["abort"]

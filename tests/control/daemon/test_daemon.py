@@ -21,6 +21,7 @@ from control.wire.protocol import DaemonState
 from daq.channels import default_channel_map
 from simulated_hw.backend import SimulatedBackend
 from storage.reader import open_run
+from tests.e2e.raw_dealer import RawDealer
 
 
 class ScriptSpec(BaseModel):
@@ -221,6 +222,21 @@ def test_malformed_frames_get_error_replies(daemon: Daemon):
         reply = json.loads(c.send_raw([b"", b"{}", b"{}"]))
         assert reply["error"] == "expected one JSON request frame, got 2 frames"
         assert c.status()["state"] == "idle"
+
+
+@pytest.mark.parametrize("rid", ["\x00nul", "\n\r\t", "a\tb\r\nc\x00"])
+def test_a_request_id_comes_back_exactly_as_sent(daemon: Daemon, rid: str):
+    """Issue 39: "\u0000nul" came back as "\ufffdnul" and "\n\r\t" as "" (from an abort;
+    other requests refused a NUL): a client could not match its reply. A raw DEALER, so that
+    no client library smooths the frame."""
+    import json
+
+    with RawDealer(daemon.endpoints["command"]) as raw:
+        for request in ({"cmd": "status"}, {"cmd": "abort"}, {"cmd": "pause"},
+                        {"cmd": "pump", "on": "maybe"}, {"cmd": "fly"}):
+            reply = raw.request(json.dumps({**request, "request_id": rid}))
+            assert reply["request_id"] == rid, (request, reply)
+        assert raw.request(json.dumps({"cmd": "status", "request_id": rid}))["ok"] is True
 
 
 def test_the_pump_stays_as_the_run_started_it_while_running_and_paused(daemon: Daemon):
