@@ -27,6 +27,7 @@ from control.run.pump import PumpState
 from control.run.safety import AxisSignals, SafetyLimits, SafetyMonitor, validate_targets
 from control.run.stream import DriveStream
 from control.run.summary import RunPeaks
+from control.run.sweep.approach import unreachable_targets
 from control.run.sweep.dwell import StepResult, StepRunner
 from control.run.sweep.dwell_states import DwellState
 from control.run.sweep.states import FINAL, State, StateMachine
@@ -447,7 +448,8 @@ def check_sweep(spec: SweepSpec, limits: SafetyLimits, cm: ChannelMap,
                 plan: list[StepPlan] | None = None) -> None:
     """Everything that must hold before a sweep may write anything: the drive limit within the AO
     ranges, a drive for both axes, the shutdown budget (block_s x (1 + ahead_blocks) + fade_s
-    <= 100 ms) and every target (`validate_targets`).
+    <= 100 ms), every target within the limits (`validate_targets`) and within what the
+    controller reaches (`unreachable_targets`: a share of the limit).
 
     Raises
     ------
@@ -473,7 +475,12 @@ def check_sweep(spec: SweepSpec, limits: SafetyLimits, cm: ChannelMap,
             f"block_s x (1 + ahead_blocks) + fade_s = {latency * 1e3:.0f} ms exceeds the "
             "100 ms shutdown budget"
         )
-    validate_targets(spec.steps() if plan is None else plan, limits, cm)
+    plan = spec.steps() if plan is None else plan
+    validate_targets(plan, limits, cm)
+    unreachable = unreachable_targets(plan, limits, spec.control.algorithm)
+    if unreachable:
+        raise TargetError("sweep refused: a target the controller would never reach (its steps "
+                          "would spend their updates and fail):\n  " + "\n  ".join(unreachable))
 
 
 class _StepFailed(RuntimeError):
