@@ -433,8 +433,11 @@ class Daemon:
         try:
             spec = spec_parser(req.spec)
         except ValidationError as err:
-            return self._error(ErrorKind.INVALID, describe_errors(err, "start.spec"), req.cmd,
-                               req.request_id)
+            # the parser is a model's `model_validate`: the model answers "did you mean"
+            model = getattr(spec_parser, "__self__", None)
+            return self._error(ErrorKind.INVALID, describe_errors(
+                err, "start.spec", model if isinstance(model, type) else None), req.cmd,
+                req.request_id)
         except ValueError as err:
             return self._error(ErrorKind.INVALID, f"start.spec: {err}", req.cmd, req.request_id)
         refusal = self._refusal(spec)

@@ -32,6 +32,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
 from control.wire.text import RequestId, SafeReason, SafeRequestId, Text, safe_json, safe_text
+from daq.config_files import unknown_field_hint
 
 #: Live-data topics (the first frame of every PUB message).
 TOPIC_BLOCK = b"block"
@@ -207,8 +208,10 @@ def parse_request(frame: bytes) -> Any:
                            request_id=rid) from None
 
 
-def describe_errors(err: ValidationError, where: str) -> str:
-    """One clause per problem: ``where.field.path: message (got value)``."""
+def describe_errors(err: ValidationError, where: str,
+                    model: type[BaseModel] | None = None) -> str:
+    """One clause per problem: ``where.field.path: message (got value)``; given the ``model``
+    validated, a field it does not have gets the one it probably means ("did you mean")."""
     parts = []
     for e in err.errors()[:10]:
         loc = ".".join(str(p) for p in e["loc"] if p not in COMMANDS)
@@ -216,7 +219,8 @@ def describe_errors(err: ValidationError, where: str) -> str:
         shown = (repr(value) if isinstance(value, str | float | bool)
                  or isinstance(value, int) and abs(value) < 10**30 else type(value).__name__)
         got = "" if e["type"] == "missing" else f" (got {shown[:80]})"
-        parts.append(f"{where}{'.' + loc if loc else ''}: {e['msg']}{got}")
+        hint = unknown_field_hint(model, e["loc"]) if e["type"] == "extra_forbidden" else ""
+        parts.append(f"{where}{'.' + loc if loc else ''}: {e['msg']}{got}{hint}")
     return "; ".join(parts)
 
 

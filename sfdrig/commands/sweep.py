@@ -37,9 +37,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--notes", default="", help="recorded in the run file")
     parser.add_argument("--no-follow", action="store_true",
                         help="start the sweep and return without following it")
+    parser.add_argument("--check", action="store_true",
+                        help="check the sweep (file and --set fields) offline, no daemon, as "
+                             "the daemon's start would: one line per problem; exit 0 valid, "
+                             "2 invalid")
+    parser.add_argument("--channels", type=Path, metavar="CHANNELS.toml",
+                        help="with --check: the channel map the daemon runs with (default: "
+                             "the daemon's default map)")
     parser.epilog = ("Ctrl-C while following aborts the sweep: the daemon ramps the drives to "
                      "zero and closes the run file as aborted (the steps so far are kept); "
-                     "with --no-follow, stop it with `sfdrig abort`.")
+                     "with --no-follow, stop it with `sfdrig abort`; `sfdrig pause` and "
+                     "`sfdrig resume` hold it at zero drive and go on.")
     add_connection_arguments(parser, data=True)
 
 
@@ -217,8 +225,43 @@ def run_summary(client: CommandClient, run_id: str) -> dict[str, Any] | None:
     return summary if isinstance(summary, dict) and summary else None
 
 
+def _located(problems: list[str], args: argparse.Namespace) -> list[str]:
+    """Each problem led by where its field came from: ``--set`` or the sweep file."""
+    overridden = {a.partition("=")[0].strip().split(".")[0] for a in args.fields}
+    file = str(args.sweep_file) if args.sweep_file is not None else "--set"
+    return [("--set" if line.partition(" = ")[0].split(".")[0] in overridden else file)
+            + f": {line}" for line in problems]
+
+
+def _check(args: argparse.Namespace, spec: dict[str, Any]) -> int:
+    """`--check`: the sweep checked offline (`sfdrig.sweep_check`)."""
+    from daq.errors import ChannelConfigError
+    from sfdrig.sweep_check import limits_line, sweep_problems
+
+    try:
+        model, problems = sweep_problems(spec, args.channels)
+    except ChannelConfigError as err:
+        print(f"sweep: {err}", file=sys.stderr)
+        return 2
+    for line in _located(problems, args):
+        print(line)
+    if problems:
+        return 2
+    assert model is not None
+    freqs = model.frequencies()
+    unit, scale = ("um", 1e6) if model.target_kind == "displacement" else ("N", 1.0)
+    where = args.sweep_file if args.sweep_file is not None else "--set"
+    print(f"{where}: valid: {len(model.steps())} steps, {model.motion}, {model.target_kind} "
+          f"{', '.join(f'{v * scale:g}' for v in model.targets)} {unit} at {len(freqs)} "
+          f"frequencies {min(freqs):g}-{max(freqs):g} Hz; checked against {limits_line()} and "
+          + (f"the channel map {args.channels}" if args.channels else "the default channel map"))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     spec = sweep_fields(args.sweep_file, args.fields)
+    if args.check:
+        return _check(args, spec)
     try:
         with command_client(args) as client:
             if args.no_follow:

@@ -96,14 +96,12 @@ def unreachable_targets(steps: Sequence[StepPlan], limits: SafetyLimits,
         if not asks > ceiling * (1 + 1e-12):
             continue
         largest = ceiling * value / asks  # the response scales with the target
-
-        def shown(v: float) -> str:
-            return f"{v:.4g}" if field == "load_n" else f"{v:.4g} ({v * 1e6:.4g} um)"
-
+        shown = [f"{v:.4g}" if field == "load_n" else f"{v:.4g} ({v * 1e6:.4g} um)"
+                 for v in (value, largest)]
         problems.append(
-            f"{field} = {shown(value)} ({st.motion}, {len(mine)} step{'s' * (len(mine) > 1)} "
+            f"{field} = {shown[0]} ({st.motion}, {len(mine)} step{'s' * (len(mine) > 1)} "
             f"from step {st.number}): asks for {what}, over {limit} ({why}); the largest "
-            f"{field} accepted is {shown(largest)}")
+            f"{field} accepted is {shown[1]}")
     return problems
 
 

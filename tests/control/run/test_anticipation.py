@@ -274,8 +274,8 @@ def test_load_targets_up_to_the_rating_never_glide_through_the_resonance(
     this matrix (X, 100-440 N, 20/80/30/150 Hz, seed 0) tripped in 7 of 8 sweeps (peaks
     88.7-126.1 um). Measured now: no trip, peaks 51.1-52.1 um; 150 Hz converges up to 400 N dry
     (1X 11.5 um at 100 N, 50.5 um at 400 N; 440 N, over the 403 N the controller aims at, is
-    refused at the start now: `test_safety`); 20 and 30 Hz (50-150 um needed) and 80 Hz above 100-250 N
-    are held by the displacement limit at 39-51 um."""
+    refused at the start now: `test_safety`); 20 and 30 Hz (50-150 um needed) and 80 Hz above
+    100-250 N are held by the displacement limit at 39-51 um."""
     spec = SweepSpec(motion="x", lubricated=lubricated, load_n=[load_n], freq_hz=ISSUE_21_FREQS,
                      on_not_converged="continue")
     out, _ = _never_through_the_resonance(spec, watched_frequency)
