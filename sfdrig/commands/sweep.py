@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from control.wire.client import CommandClient, CommandRefused, DaemonUnavailable, Subscriber
-from control.wire.summary_lines import end_line, peak_line
+from control.wire.summary_lines import end_line, lateness_line, peak_line
 from sfdrig.commands._client_args import add_connection_arguments, command_client, subscriber
 
 NAME = "sweep"
@@ -291,6 +291,8 @@ def run(args: argparse.Namespace) -> int:
         return 1
     if summary is not None:
         print(peak_line(summary))
+        if late := lateness_line(summary):
+            print(late)
     # the last line: how it ended; after a trip what tripped, where, the peak, what to do
     print(end_line(run_id, status, reason, len(steps), summary))
     return 0 if status == "completed" else 1

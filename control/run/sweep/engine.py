@@ -182,8 +182,17 @@ class SweepEngine:
 
     @property
     def summary(self) -> dict[str, Any]:
-        """The run's peaks, contact and trip (`RunPeaks.summary`); {} before it started."""
-        return self.peaks.summary if self.peaks is not None else {}
+        """The run's peaks, contact and trip (`RunPeaks.summary`) and, once it streams, how the
+        host kept the AO lead (``host_late``: times late, the drive the ring played meanwhile
+        [s]); {} before it started."""
+        if self.peaks is None:
+            return {}
+        out = self.peaks.summary
+        if self._stream is not None:
+            w, fs = self._stream.writer, self._stream.cm.sample_rate_hz
+            out["host_late"] = {"events": w.late_events, "played_from_ring_s": w.repeated / fs,
+                                "worst_ms": 1e3 * w.max_late / fs}
+        return out
 
     def pause(self) -> None:
         """Ramp the drives to zero and hold (acquisition continues) until `resume`."""
@@ -326,6 +335,7 @@ class SweepEngine:
             cfg.ahead_blocks, keep, self._interrupt,
         )
         self._stream = stream
+        self.peaks.playing = stream.owner_at  # samples belong to the step whose drive plays
         runner = StepRunner(stream, self.spec, self.limits, self._emit)
         runner.on_update = self._on_update
         runner.dwell.on_change = self._on_dwell
@@ -378,7 +388,7 @@ class SweepEngine:
             self._emit_safe("info", peak_line(self.peaks.summary))
             self._machine.to(status)
         return SweepOutcome(_RUN_STATUS[status], reason, list(self.results), stream.sample, fs,
-                            self.peaks.summary)
+                            self.summary)
 
     def _on_dwell(self, state: DwellState) -> None:
         self._progress = replace(self._progress, dwell=state.value, sample=self._sample())
@@ -394,12 +404,14 @@ class SweepEngine:
                 self._progress, step_index=plan.index, freq_hz=plan.freq_hz,
                 target_value=plan.target_value, updates=0, sample=stream.sample,
             )
-            if self.peaks is not None:
-                self.peaks.where = {"step_index": plan.index, "steps_total": len(self.plan),
-                                    "freq_hz": plan.freq_hz, "motion": plan.motion,
-                                    "target": (f"{plan.target_value * 1e6:.4g} um"
-                                               if plan.target_kind == "displacement"
-                                               else f"{plan.target_value:.4g} N")}
+            # the step's drive from its first own command (`DriveStream.claim_drive`): the
+            # last step's drive, still playing through the lead, its fade and ring-down (and on
+            # a ring, a late host's replay of it) are the last step's peaks, not this one's
+            stream.claim_drive({"step_index": plan.index, "steps_total": len(self.plan),
+                                "freq_hz": plan.freq_hz, "motion": plan.motion,
+                                "target": (f"{plan.target_value * 1e6:.4g} um"
+                                           if plan.target_kind == "displacement"
+                                           else f"{plan.target_value:.4g} N")})
             try:
                 result = runner.run(plan)
             except _Pause:

@@ -227,9 +227,9 @@ def test_malformed_frames_get_error_replies(daemon: Daemon):
 def test_a_start_with_a_typo_says_what_it_probably_means(daemon: Daemon):
     """Issue 39: `--set recrod_cycles=40` was "Extra inputs are not permitted", nothing more;
     the daemon's refusal (what the CLI and the page show) names the field it probably means."""
-    with CommandClient(daemon.endpoints["command"]) as c:
-        with pytest.raises(CommandRefused) as refused:
-            c.start_sweep({"blocks": 4, "blok_size": 400})
+    with CommandClient(daemon.endpoints["command"]) as c, \
+            pytest.raises(CommandRefused) as refused:
+        c.start_sweep({"blocks": 4, "blok_size": 400})
     assert refused.value.reply.error == ("start.spec.blok_size: Extra inputs are not permitted "
                                          "(got 400); did you mean 'block_size'?")
 
