@@ -71,13 +71,15 @@ def subscriber(args: argparse.Namespace, topics: list[str] | None = None,
     return Subscriber(endpoint, topics=topics, rcvhwm=rcvhwm, keys=keys(args))
 
 
-def one_request(args: argparse.Namespace, what: str,
-                send: Callable[[CommandClient], Reply]) -> Reply | None:
-    """Send one request (``send(client)``); its reply, or None after printing why it could not
-    be sent or was refused, led by ``what`` (the command's name)."""
+def request_command(args: argparse.Namespace, what: str, send: Callable[[CommandClient], Reply],
+                    done: Callable[[Reply], str]) -> int:
+    """A command that is one request (``send(client)``): exit 0 with ``done(reply)`` printed,
+    or 1 with why it could not be sent or was refused, led by ``what`` (the command's name)."""
     try:
         with command_client(args) as client:
-            return send(client)
+            reply = send(client)
     except (DaemonUnavailable, CommandRefused) as err:
         print(f"{what}: {err}")
-        return None
+        return 1
+    print(done(reply))
+    return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from sfdrig.commands._client_args import add_connection_arguments, one_request
+from sfdrig.commands._client_args import add_connection_arguments, request_command
 
 NAME = "abort"
 HELP = "abort the running sweep: drives ramp to zero, the run is marked aborted"
@@ -17,8 +17,5 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    reply = one_request(args, NAME, lambda client: client.abort(args.reason))
-    if reply is None:
-        return 1
-    print(f"abort sent; daemon state {reply.state.value}")
-    return 0
+    return request_command(args, NAME, lambda client: client.abort(args.reason),
+                           lambda reply: f"abort sent; daemon state {reply.state.value}")

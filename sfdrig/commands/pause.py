@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from sfdrig.commands._client_args import add_connection_arguments, one_request
+from sfdrig.commands._client_args import add_connection_arguments, request_command
 
 NAME = "pause"
 HELP = "pause the running sweep: drives ramp to zero and hold until `sfdrig resume`"
@@ -16,9 +16,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    reply = one_request(args, NAME, lambda client: client.pause())
-    if reply is None:
-        return 1
-    print(f"paused (daemon state {reply.state.value}): the drives ramp to zero; "
-          "`sfdrig resume` repeats the interrupted step, `sfdrig abort` ends the run")
-    return 0
+    return request_command(
+        args, NAME, lambda client: client.pause(),
+        lambda reply: f"paused (daemon state {reply.state.value}): the drives ramp to zero; "
+                      "`sfdrig resume` repeats the interrupted step, `sfdrig abort` ends the run")
