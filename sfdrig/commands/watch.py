@@ -60,7 +60,7 @@ def _watch_stream(args: argparse.Namespace) -> int:
         blocks: deque[np.ndarray] = deque()
         names: list[str] = []
         fs = float(st.get("sample_rate_hz", 1.0))
-        progress: dict[str, Any] = {}
+        progress: dict[str, Any] = dict(st.get("progress") or {})  # from the first heartbeat
         shown, next_table, malformed = 0, time.monotonic() + args.interval, 0
         while args.count == 0 or shown < args.count:
             try:
