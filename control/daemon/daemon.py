@@ -341,11 +341,14 @@ class Daemon:
             message = f"{req.cmd}: {err}"
             if self.sm.state is S.FAULT and self.fault_reason:
                 message += f" (the fault: {self.fault_reason})"
-            return self._error(ErrorKind.FORBIDDEN, message, req.cmd, req.request_id)
+            # the requests allowed now as data too: a client names them in its own words
+            return self._error(ErrorKind.FORBIDDEN, message, req.cmd, req.request_id,
+                               allowed=allowed_commands(self.sm.state))
 
-    def _error(self, kind: ErrorKind, message: str, cmd: str = "", rid: str = "") -> Reply:
+    def _error(self, kind: ErrorKind, message: str, cmd: str = "", rid: str = "",
+               **data: Any) -> Reply:
         return Reply(ok=False, cmd=cmd, request_id=rid, state=self.sm.state, error_kind=kind,
-                     error=message)
+                     error=message, data=data)
 
     def _ok(self, req: Any, **data: Any) -> Reply:
         return Reply(ok=True, cmd=req.cmd, request_id=req.request_id, state=self.sm.state,

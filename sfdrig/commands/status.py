@@ -7,7 +7,7 @@ import json
 
 from control.wire.client import CommandRefused, DaemonUnavailable
 from control.wire.summary_lines import peak_line
-from sfdrig.commands._client_args import add_connection_arguments, command_client
+from sfdrig.commands._client_args import add_connection_arguments, command_client, not_done
 from sfdrig.commands.sweep import progress_text
 
 NAME = "status"
@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
                       else "fault acknowledged")
             st = client.status()
     except (DaemonUnavailable, CommandRefused) as err:
-        print(f"status: {err}")
+        print(f"status: {not_done(err)}")
         return 1
     if args.json:
         print(json.dumps(st, indent=2))

@@ -19,7 +19,12 @@ import numpy as np
 
 from control.wire.client import CommandClient, CommandRefused, DaemonUnavailable, Subscriber
 from control.wire.summary_lines import end_line, lateness_line, peak_line
-from sfdrig.commands._client_args import add_connection_arguments, command_client, subscriber
+from sfdrig.commands._client_args import (
+    add_connection_arguments,
+    command_client,
+    not_done,
+    subscriber,
+)
 
 NAME = "sweep"
 HELP = "start a sweep (sweep file and/or KEY=VALUE fields) and follow it live"
@@ -283,11 +288,8 @@ def run(args: argparse.Namespace) -> int:
                     print(f"\nrun {run_id}: abort sent (drives ramp to zero)", flush=True)
                     status, reason, steps = follow(sub, run_id, steps=steps)
                 summary = run_summary(client, run_id)
-    except CommandRefused as err:
-        print(f"sweep: {err}")
-        return 1
-    except DaemonUnavailable as err:
-        print(f"sweep: {err}")
+    except (CommandRefused, DaemonUnavailable) as err:
+        print(f"sweep: {not_done(err)}")
         return 1
     if summary is not None:
         print(peak_line(summary))

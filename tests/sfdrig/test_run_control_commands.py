@@ -36,7 +36,11 @@ def test_pause_and_resume_from_the_command_line(daemon: Daemon, capsys):
             Subscriber(daemon.endpoints["data"], rcvhwm=0) as sub:
         sub.wait_connected()
         assert main(["pause", *ep]) == 1  # nothing to pause: refused, says what is allowed
-        assert "'pause' is not allowed while idle (allowed now: start" in capsys.readouterr().out
+        out = capsys.readouterr().out
+        assert "'pause' is not allowed while idle (allowed now: start" in out
+        # ... and which commands send that (`start` and `list_runs` are the wire's words)
+        assert out.rstrip().endswith("; from the command line: sfdrig sweep, sfdrig structure, "
+                                     "sfdrig pump on|off, sfdrig status, sfdrig runs"), out
         c.start_sweep({"blocks": 10, "hold_after": 3})
         assert ScriptEngine.last.held.wait(10)
         assert main(["pause", *ep]) == 0
