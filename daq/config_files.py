@@ -4,8 +4,10 @@ parameters and the sweep description."""
 
 from __future__ import annotations
 
+import difflib
 import json
 import tomllib
+import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -16,9 +18,10 @@ from daq.errors import ConfigFileError
 M = TypeVar("M", bound=BaseModel)
 
 
-def validation_problems(err: ValidationError) -> list[str]:
+def validation_problems(err: ValidationError, model: type[BaseModel] | None = None) -> list[str]:
     """One line per problem: the field path, the value and why. A model-wide check (no field
-    path) names its own places, one problem a line."""
+    path) names its own places, one problem a line. Given the ``model``, a field it does not
+    have is answered with the one it probably means (`unknown_field_hint`)."""
     lines = []
     for e in err.errors():
         msg = e["msg"].removeprefix("Value error, ")
@@ -28,14 +31,50 @@ def validation_problems(err: ValidationError) -> list[str]:
         loc = ".".join(str(p) for p in e["loc"])
         value = e.get("input")
         shown = repr(value) if not isinstance(value, dict) else "{...}"
-        lines.append(f"{loc} = {shown}: {msg}")
+        hint = unknown_field_hint(model, e["loc"]) if e["type"] == "extra_forbidden" else ""
+        lines.append(f"{loc} = {shown}: {msg}{hint}")
     return lines
 
 
-def describe_validation_error(err: ValidationError, what: str, source: str) -> str:
+def unknown_field_hint(model: type[BaseModel] | None, loc: tuple[int | str, ...]) -> str:
+    """For a field ``model`` has no place for at ``loc`` (a pydantic error's path): "; did you
+    mean 'record_cycles'?" when one of the fields there is close (difflib), else ""."""
+    fields = _fields_at(model, loc[:-1]) if model is not None else None
+    close = difflib.get_close_matches(str(loc[-1]), fields or [], n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+def _fields_at(model: type[BaseModel], path: tuple[int | str, ...]) -> list[str] | None:
+    """The field names of the model found at ``path`` below ``model`` (list indices and the
+    tables of nested models followed), or None."""
+    for part in path:
+        if isinstance(part, int):
+            continue
+        field = model.model_fields.get(str(part))
+        nested = _model_in(field.annotation) if field is not None else None
+        if nested is None:
+            return None
+        model = nested
+    return list(model.model_fields)
+
+
+def _model_in(annotation: Any) -> type[BaseModel] | None:
+    """The pydantic model an annotation holds (``Settings``, ``Settings | None``,
+    ``list[Entry]``, ``dict[str, Entry]``), or None."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in typing.get_args(annotation):
+        found = _model_in(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def describe_validation_error(err: ValidationError, what: str, source: str,
+                              model: type[BaseModel] | None = None) -> str:
     """One line per problem: where (source and field path), what value, and why."""
     return "\n".join([f"invalid {what} in {source}:"]
-                     + [f"  {line}" for line in validation_problems(err)])
+                     + [f"  {line}" for line in validation_problems(err, model)])
 
 
 def validate(model: type[M], data: dict[str, Any], what: str, source: str,
@@ -45,9 +84,9 @@ def validate(model: type[M], data: dict[str, Any], what: str, source: str,
     try:
         return model.model_validate(data)
     except ValidationError as err:
-        exc = error(describe_validation_error(err, what, source))
+        exc = error(describe_validation_error(err, what, source, model))
         if isinstance(exc, ConfigFileError):
-            exc.problems = tuple(f"{source}: {line}" for line in validation_problems(err))
+            exc.problems = tuple(f"{source}: {line}" for line in validation_problems(err, model))
         raise exc from None
 
 

@@ -20,9 +20,9 @@ from types import ModuleType
 
 # Order is the order shown in --help.
 COMMAND_MODULES = (
-    "demo", "daemon", "sweep", "watch", "pump", "status", "runs", "abort", "keys", "proxy",
-    "sim_server", "channels", "commission", "structure", "identify", "import_data", "export",
-    "diagnose", "calibrate", "web",
+    "demo", "daemon", "sweep", "watch", "pump", "status", "runs", "pause", "resume", "abort",
+    "keys", "proxy", "sim_server", "channels", "commission", "structure", "identify",
+    "import_data", "export", "diagnose", "calibrate", "web",
 )
 # The command name of each module where it differs from the module's name.
 _NAMED = {"import": "import_data", "sim-server": "sim_server"}

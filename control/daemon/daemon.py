@@ -370,11 +370,14 @@ class Daemon:
             message = f"{req.cmd}: {err}"
             if self.sm.state is S.FAULT and self.fault_reason:
                 message += f" (the fault: {self.fault_reason})"
-            return self._error(ErrorKind.FORBIDDEN, message, req.cmd, req.request_id)
+            # the requests allowed now as data too: a client names them in its own words
+            return self._error(ErrorKind.FORBIDDEN, message, req.cmd, req.request_id,
+                               allowed=allowed_commands(self.sm.state))
 
-    def _error(self, kind: ErrorKind, message: str, cmd: str = "", rid: str = "") -> Reply:
+    def _error(self, kind: ErrorKind, message: str, cmd: str = "", rid: str = "",
+               **data: Any) -> Reply:
         return Reply(ok=False, cmd=cmd, request_id=rid, state=self.sm.state, error_kind=kind,
-                     error=message)
+                     error=message, data=data)
 
     def _ok(self, req: Any, **data: Any) -> Reply:
         return Reply(ok=True, cmd=req.cmd, request_id=req.request_id, state=self.sm.state,
@@ -419,6 +422,8 @@ class Daemon:
             case PumpRequest():
                 return self._pump(req)
             case ResetRequest():
+                if self.sm.state is S.IDLE:  # no fault to acknowledge: a no-op, not refused
+                    return self._ok(req, nothing_to_reset=True)
                 if self.sm.state is S.FAULT and self.backend.estop_pressed():
                     return self._error(ErrorKind.FORBIDDEN, "reset: the emergency stop is "
                                        "still pressed; release it first", req.cmd,
@@ -462,8 +467,11 @@ class Daemon:
         try:
             spec = spec_parser(req.spec)
         except ValidationError as err:
-            return self._error(ErrorKind.INVALID, describe_errors(err, "start.spec"), req.cmd,
-                               req.request_id)
+            # the parser is a model's `model_validate`: the model answers "did you mean"
+            model = getattr(spec_parser, "__self__", None)
+            return self._error(ErrorKind.INVALID, describe_errors(
+                err, "start.spec", model if isinstance(model, type) else None), req.cmd,
+                req.request_id)
         except ValueError as err:
             return self._error(ErrorKind.INVALID, f"start.spec: {err}", req.cmd, req.request_id)
         refusal = self._refusal(spec)

@@ -17,6 +17,7 @@ stops it (`DaqBackend.cut_ao`) and the drives are at 0 V from the first sample n
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 from collections import deque
@@ -172,6 +173,52 @@ class DriveStream:
         # ring mode: after a prediction over the whole ring, the slots it could not reach (the
         # lead playing then, and the margin behind it): zeroed once played (absolute samples)
         self._wrap_clear: tuple[int, int] | None = None
+        # whose drive the AO plays (`claim_drive`): change points (first sample, owner) in the
+        # order they play; a claim waiting for its owner's first own command (owner, the
+        # synthesiser's revision when claimed); whether the newest owner's drive has played
+        self._owners: list[tuple[int, object]] = [(0, None)]
+        self._claim: tuple[object, int] | None = None
+        self._owner_heard = True
+
+    # --- whose drive plays --------------------------------------------------------------------
+    def claim_drive(self, owner: object) -> None:
+        """The drive belongs to ``owner`` (a sweep's step) from its first own command on: the
+        first command after this one that asks for a drive (a non-zero target). What plays
+        before it (the drive before, its fade, zero drive while the orbit rings down) and, on a
+        ring, what a late host hears of an earlier drive until ``owner``'s own plays, stays
+        with the owner before (`owner_at`)."""
+        self._claim = (owner, self.synth.revision)
+
+    def owner_at(self, sample: int) -> object:
+        """Whose drive the AO plays at ``sample`` (`claim_drive`; None before any claim)."""
+        k = bisect.bisect_right(self._owners, sample, key=lambda c: c[0]) - 1
+        return self._owners[max(k, 0)][1]
+
+    def _take_claim(self) -> None:
+        """Before a block is synthesised: a waiting claim takes effect at its owner's first
+        own command."""
+        if self._claim is None:
+            return
+        owner, revision = self._claim
+        if self.synth.revision != revision and bool(np.any(self.synth.target_phasors != 0)):
+            self._owners.append((self.synth.sample, owner))
+            self._claim = None
+            self._owner_heard = False
+
+    def _played_block(self, first: int, as_meant: bool) -> None:
+        """The block at ``first`` plays as synthesised (``as_meant``), or the ring plays an
+        earlier drive there: before the newest owner's drive has played, that is still the
+        owner before's drive, and the owner's drive starts after it."""
+        if as_meant:
+            self._owner_heard = True
+        elif not self._owner_heard and self._owners[-1][0] <= first:
+            self._owners[-1] = (first + self.block, self._owners[-1][1])
+
+    def _drop_owners_after(self, sample: int) -> None:
+        """The synthesiser was put back to ``sample``: what was claimed beyond it never
+        played; its claim waits again."""
+        while len(self._owners) > 1 and self._owners[-1][0] > sample:
+            self._claim = (self._owners.pop()[1], self.synth.revision)
 
     @property
     def queued_blocks(self) -> int:
@@ -224,6 +271,7 @@ class DriveStream:
         is short (one block when on time; up to the whole lead after a skip)."""
         self._catch_up()
         while self.writer.wants_write():
+            self._take_claim()
             state = _snapshot(self.synth)
             ao = self.synth.next_block(self.block)
             try:
@@ -231,6 +279,7 @@ class DriveStream:
             except BaseException:
                 _restore(self.synth, state)  # the fade must continue from what was written
                 raise
+            self._played_block(self.synth.sample - ao.shape[1], as_meant=True)
             if not self.writer.regenerating:
                 break
         if self.writer.regenerating:
@@ -474,6 +523,7 @@ class DriveStream:
         self._forget_prediction()
         if index < len(self._fifo):
             _restore(self.synth, self._states[index])
+            self._drop_owners_after(self.synth.sample)
             for _ in range(len(self._fifo) - index):
                 self._fifo.pop()
                 self._states.pop()
@@ -583,10 +633,13 @@ class DriveStream:
     def _skip(self, n: int) -> None:
         """Move past at least ``n`` samples (whole blocks) the ring plays, as a late host does."""
         for _ in range(math.ceil(n / self.block)):
+            self._take_claim()
             self._states.append(_snapshot(self.synth))
             meant = self.synth.next_block(self.block)
             played = self.writer.played(self.block)
-            if not np.allclose(played, meant, rtol=0.0, atol=1e-9):
+            as_meant = bool(np.allclose(played, meant, rtol=0.0, atol=1e-9))
+            self._played_block(self.synth.sample - self.block, as_meant)
+            if not as_meant:
                 self.other_drive_end = self.writer.pos
             self._fifo.append(played)
             # the next block written follows what the ring played, not what was last written
@@ -632,5 +685,6 @@ class DriveStream:
         first = self.synth.sample - self.block * len(self._states)
         index = (at - first) // self.block
         _restore(self.synth, self._states[index])
+        self._drop_owners_after(at)
         if at > self.synth.sample:
             self.synth.next_block(at - self.synth.sample)

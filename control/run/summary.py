@@ -8,6 +8,7 @@ in its status's ``last_run`` and the CLI and the page show (`control.wire.summar
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -31,9 +32,20 @@ class RunPeaks:
         self.where_load: dict[str, Any] = {}
         self.contact = ""
         self.tripped_at: dict[str, Any] | None = None
-        #: where the run is (step index from 0, steps, frequency, target, unit, motion), kept
-        #: up to date by the engine
+        #: where the run is (step index from 0, steps, frequency, target, unit, motion)
         self.where: dict[str, Any] = {}
+        #: whose drive plays at a sample (the stream's `DriveStream.owner_at`: a step's `where`
+        #: from its first own drive command, the fade and ring-down of the drive before and a
+        #: late host's replay of it still the step before's); None: `where`, as the engine
+        #: keeps it up to date
+        self.playing: Callable[[int], Any] | None = None
+
+    def _where(self, sample: int) -> dict[str, Any]:
+        """Where the run was at ``sample``: the step whose drive played it."""
+        if self.playing is None:
+            return self.where
+        owner = self.playing(sample)
+        return owner if isinstance(owner, dict) else {}
 
     def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
         d = self.signals.displacement(ai)
@@ -41,11 +53,12 @@ class RunPeaks:
         k = int(np.argmax(r))
         if float(r[k]) > self.peak_displacement_m:
             self.peak_displacement_m = float(r[k])
-            self.where_displacement = {**self.where, "sample": first_sample + k}
-        load = float(np.max(np.abs(self.signals.load(ai))))
-        if load > self.peak_load_n:
-            self.peak_load_n = load
-            self.where_load = dict(self.where)
+            self.where_displacement = {**self._where(first_sample + k), "sample": first_sample + k}
+        load = np.max(np.abs(self.signals.load(ai)), axis=0)
+        k = int(np.argmax(load))
+        if float(load[k]) > self.peak_load_n:
+            self.peak_load_n = float(load[k])
+            self.where_load = dict(self._where(first_sample + k))
 
     def on_step(self, step: dict[str, Any]) -> None:
         pass
@@ -54,7 +67,7 @@ class RunPeaks:
         if kind in ("fault", "limit_trip") and message.startswith(CONTACT) and not self.contact:
             self.contact = message
         if kind == "limit_trip" and self.tripped_at is None:
-            self.tripped_at = {**self.where, "message": message, "sample": sample}
+            self.tripped_at = {**self._where(sample), "message": message, "sample": sample}
 
     @property
     def summary(self) -> dict[str, Any]:

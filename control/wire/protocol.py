@@ -31,7 +31,8 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
-from control.wire.text import SafeReason, SafeRequestId, Text, safe_json, safe_text
+from control.wire.text import RequestId, SafeReason, SafeRequestId, Text, safe_json, safe_text
+from daq.config_files import unknown_field_hint
 
 #: Live-data topics (the first frame of every PUB message).
 TOPIC_BLOCK = b"block"
@@ -74,7 +75,8 @@ class ErrorKind(StrEnum):
 class _Request(BaseModel):
     # strict: "on": "yes" or 1 must not switch a pump; only JSON true/false does.
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
-    request_id: Text = Field("", max_length=128, description="echoed in the reply")
+    request_id: RequestId = Field("", max_length=128, description="echoed in the reply, "
+                                  "exactly as sent")
 
 
 class StartRequest(_Request):
@@ -140,7 +142,8 @@ class ResumeRequest(_Request):
 class AbortRequest(_Request):
     """Abort the run. Never refused for what it carries (only for the state: nothing to abort):
     a reason with NULs, lone surrogates, too long or not text is replaced (`SafeReason`, noted
-    in the reason), a bad request id is made safe and unknown fields are ignored."""
+    in the reason), a request id a reply cannot carry is made safe (`SafeRequestId`) and
+    unknown fields are ignored."""
 
     model_config = ConfigDict(extra="ignore", frozen=True, strict=True)
     cmd: Literal["abort"]
@@ -162,7 +165,8 @@ class ListRunsRequest(_Request):
 
 
 class ResetRequest(_Request):
-    """Acknowledge a fault: fault -> idle (only when nothing is running)."""
+    """Acknowledge a fault: fault -> idle (refused while a run is going). While idle there is
+    nothing to reset: answered ok with ``data["nothing_to_reset"]`` true, and nothing changes."""
 
     cmd: Literal["reset"]
 
@@ -224,8 +228,10 @@ def parse_request(frame: bytes) -> Any:
                            request_id=rid) from None
 
 
-def describe_errors(err: ValidationError, where: str) -> str:
-    """One clause per problem: ``where.field.path: message (got value)``."""
+def describe_errors(err: ValidationError, where: str,
+                    model: type[BaseModel] | None = None) -> str:
+    """One clause per problem: ``where.field.path: message (got value)``; given the ``model``
+    validated, a field it does not have gets the one it probably means ("did you mean")."""
     parts = []
     for e in err.errors()[:10]:
         loc = ".".join(str(p) for p in e["loc"] if p not in COMMANDS)
@@ -233,7 +239,8 @@ def describe_errors(err: ValidationError, where: str) -> str:
         shown = (repr(value) if isinstance(value, str | float | bool)
                  or isinstance(value, int) and abs(value) < 10**30 else type(value).__name__)
         got = "" if e["type"] == "missing" else f" (got {shown[:80]})"
-        parts.append(f"{where}{'.' + loc if loc else ''}: {e['msg']}{got}")
+        hint = unknown_field_hint(model, e["loc"]) if e["type"] == "extra_forbidden" else ""
+        parts.append(f"{where}{'.' + loc if loc else ''}: {e['msg']}{got}{hint}")
     return "; ".join(parts)
 
 

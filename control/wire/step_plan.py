@@ -19,7 +19,8 @@ class StepPlan:
     Attributes
     ----------
     index : int
-        Position in the sweep (0-based).
+        Position in the sweep (0-based, as in the run file and on the wire; people read
+        ``index + 1``: `describe`).
     freq_hz : float
         Excitation frequency [Hz].
     target_kind : "displacement" | "load"
@@ -30,6 +31,8 @@ class StepPlan:
         "x", "y", "circular_forward", "circular_backward" or "elliptical".
     shape : complex array (2,)
         Target complex amplitudes of X and Y [m or N] (`controller.motion_shape`).
+    steps_total : int
+        Dwells in the sweep (0: not known), for `describe`'s "step 2/5".
     """
 
     index: int
@@ -38,14 +41,21 @@ class StepPlan:
     target_value: float
     motion: str
     shape: np.ndarray
+    steps_total: int = 0
 
     @property
     def unit(self) -> str:
         return "m" if self.target_kind == "displacement" else "N"
+
+    @property
+    def number(self) -> str:
+        """The step as people count it: from 1, of the total when known ("2/5")."""
+        return f"{self.index + 1}" + (f"/{self.steps_total}" if self.steps_total else "")
 
     def describe(self) -> str:
         value = (
             f"{self.target_value * 1e6:.3g} um" if self.target_kind == "displacement"
             else f"{self.target_value:.3g} N"
         )
-        return f"step {self.index} ({self.motion}, {value} {self.target_kind}, {self.freq_hz:g} Hz)"
+        return (f"step {self.number} ({self.motion}, {value} {self.target_kind}, "
+                f"{self.freq_hz:g} Hz)")

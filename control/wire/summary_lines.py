@@ -1,6 +1,7 @@
 """How a run's summary reads (`control.run.summary.RunPeaks.summary`, as the daemon's status
-carries it in ``last_run``): the peak line, the CLI's last line after a trip, and the word for
-a contact. Clients (the CLI, the page) and the sweep engine print the same lines."""
+carries it in ``last_run``): the peak line, the host's lateness, the CLI's last line after a
+trip, and the word for a contact. Clients (the CLI, the page) and the sweep engine print the
+same lines."""
 
 from __future__ import annotations
 
@@ -27,6 +28,19 @@ def peak_line(summary: dict[str, Any]) -> str:
             + (f" ({at_f})" if at_f else ""))
     contact = summary.get("contact") or ""
     return line + (f"; {contact}" if contact else f"; no {CONTACT}")
+
+
+def lateness_line(summary: dict[str, Any] | None) -> str:
+    """When the computer fell behind the AO and that cost the run time, what it cost and what
+    to do (`SweepEngine.summary`'s ``host_late``); "" when it kept up."""
+    late = (summary or {}).get("host_late") or {}
+    played = float(late.get("played_from_ring_s") or 0.0)
+    if not late.get("events") or played <= 0:
+        return ""
+    return (f"the computer fell behind the drive {late['events']} times (at worst "
+            f"{float(late.get('worst_ms') or 0.0):.1f} ms late): {played:.3f} s of drive played "
+            "from the AO ring meanwhile, time the controller waited for the drive it asked for. "
+            "What to do: ease the machine's load, or start the daemon with --priority high.")
 
 
 def _advice(message: str, contact: bool) -> str:

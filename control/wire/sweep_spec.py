@@ -288,7 +288,8 @@ class SweepSpec(BaseModel):
         )
         return [
             StepPlan(i, f, self.target_kind, a, self.motion,
-                     motion_shape(self.motion, a, self.ellipse_ratio, self.ellipse_phase_deg))
+                     motion_shape(self.motion, a, self.ellipse_ratio, self.ellipse_phase_deg),
+                     len(pairs))
             for i, (a, f) in enumerate(pairs)
         ]
 

@@ -2,7 +2,9 @@
 made safe. JSON can carry NULs and lone UTF-16 surrogates; UTF-8, HDF5 strings and C strings
 cannot, so requests refuse them and anything echoed back is made safe. The one exception is the
 reason of an abort (`SafeReason`): an abort is never refused for its text, which is replaced
-instead, with a note saying so."""
+instead, with a note saying so. A request id is only echoed (`RequestId`): a reply carries it
+back exactly, NULs and control characters included; only lone surrogates are refused (an
+abort's are replaced, `SafeRequestId`)."""
 
 from __future__ import annotations
 
@@ -54,6 +56,20 @@ def _printable(text: str) -> str:
 Text = Annotated[str, AfterValidator(_printable)]
 
 
+def _echoable(text: str) -> str:
+    """Refuse what a reply cannot carry back exactly: lone surrogates (UTF-8 has none)."""
+    if _SURROGATE.search(text):
+        raise ValueError("must not contain lone UTF-16 surrogates (\\ud800-\\udfff): a reply "
+                         "cannot carry them back")
+    return text
+
+
+#: A request id: only echoed in the reply, never written to a file or a log, so any text a
+#: reply carries back exactly is taken as it is (NULs, CR, LF, TAB included); lone surrogates
+#: are refused, as `invalid`.
+RequestId = Annotated[str, AfterValidator(_echoable)]
+
+
 def sanitised_reason(value: Any, default: str = "operator abort", max_chars: int = 500) -> str:
     """A reason that every encoder and a run file take, whatever was sent: NULs and lone
     surrogates become U+FFFD, text longer than ``max_chars`` is cut, a value that is not text
@@ -79,11 +95,12 @@ def sanitised_reason(value: Any, default: str = "operator abort", max_chars: int
 
 
 def _lenient_id(value: Any) -> str:
-    return sanitised_reason(value, "", 128).partition(" [reason sanitised")[0][:128] \
-        if isinstance(value, str) else ""
+    return safe_text(value, 128) if isinstance(value, str) else ""
 
 
 #: A reason that is replaced, never refused (`sanitised_reason`): an abort must always happen.
 SafeReason = Annotated[str, BeforeValidator(sanitised_reason)]
-#: A request id that is made safe, never refused (for the requests that must always act).
+#: A request id that is never refused (for the requests that must always act): echoed exactly
+#: (NULs, CR, LF, TAB included) but for what a reply cannot carry: lone surrogates become
+#: U+FFFD, and it is cut to 128 characters; not text, it becomes "".
 SafeRequestId = Annotated[str, BeforeValidator(_lenient_id)]

@@ -5,9 +5,17 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
 from pathlib import Path
 
-from control.wire.client import CommandClient, Subscriber, process_gone
+from control.wire.client import (
+    CommandClient,
+    CommandRefused,
+    DaemonUnavailable,
+    Subscriber,
+    process_gone,
+)
+from control.wire.protocol import Reply
 from control.wire.security import ClientKeys, load_client_keys
 
 DEFAULT_RUNS_DIR = Path("runs")
@@ -61,3 +69,34 @@ def subscriber(args: argparse.Namespace, topics: list[str] | None = None,
                rcvhwm: int = 1000) -> Subscriber:
     endpoint = getattr(args, "data_endpoint", None) or _state(args)["data"]
     return Subscriber(endpoint, topics=topics, rcvhwm=rcvhwm, keys=keys(args))
+
+
+#: How the command line sends each request a refusal names as allowed now.
+CLI_COMMANDS = {"start": "sfdrig sweep", "start_test": "sfdrig structure",
+                "pause": "sfdrig pause", "resume": "sfdrig resume", "abort": "sfdrig abort",
+                "reset": "sfdrig status --reset", "pump": "sfdrig pump on|off",
+                "status": "sfdrig status", "list_runs": "sfdrig runs"}
+
+
+def not_done(err: CommandRefused | DaemonUnavailable) -> str:
+    """Why a request was not done; a refusal for the daemon's state also names the commands
+    that send what it allows now (its words are the wire's: `start`, `list_runs`)."""
+    allowed = err.reply.data.get("allowed") if isinstance(err, CommandRefused) else None
+    if not isinstance(allowed, list):
+        return str(err)
+    cli = [CLI_COMMANDS[c] for c in allowed if c in CLI_COMMANDS]
+    return f"{err}; from the command line: {', '.join(cli)}" if cli else str(err)
+
+
+def request_command(args: argparse.Namespace, what: str, send: Callable[[CommandClient], Reply],
+                    done: Callable[[Reply], str]) -> int:
+    """A command that is one request (``send(client)``): exit 0 with ``done(reply)`` printed,
+    or 1 with why it could not be sent or was refused, led by ``what`` (the command's name)."""
+    try:
+        with command_client(args) as client:
+            reply = send(client)
+    except (DaemonUnavailable, CommandRefused) as err:
+        print(f"{what}: {not_done(err)}")
+        return 1
+    print(done(reply))
+    return 0

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from control.wire.client import CommandRefused, DaemonUnavailable
-from sfdrig.commands._client_args import add_connection_arguments, command_client
+from sfdrig.commands._client_args import add_connection_arguments, request_command
 
 NAME = "abort"
 HELP = "abort the running sweep: drives ramp to zero, the run is marked aborted"
@@ -18,11 +17,5 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        with command_client(args) as client:
-            reply = client.abort(args.reason)
-    except (DaemonUnavailable, CommandRefused) as err:
-        print(f"abort: {err}")
-        return 1
-    print(f"abort sent; daemon state {reply.state.value}")
-    return 0
+    return request_command(args, NAME, lambda client: client.abort(args.reason),
+                           lambda reply: f"abort sent; daemon state {reply.state.value}")

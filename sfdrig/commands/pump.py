@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from control.wire.client import CommandRefused, DaemonUnavailable
-from sfdrig.commands._client_args import add_connection_arguments, command_client
+from sfdrig.commands._client_args import add_connection_arguments, request_command
 
 NAME = "pump"
 HELP = "switch the oil pump on or off (off is refused while the shakers run)"
@@ -17,11 +16,5 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        with command_client(args) as client:
-            reply = client.pump(args.switch == "on")
-    except (DaemonUnavailable, CommandRefused) as err:
-        print(f"pump: {err}")
-        return 1
-    print(f"pump {'on' if reply.data['pump_on'] else 'off'}")
-    return 0
+    return request_command(args, NAME, lambda client: client.pump(args.switch == "on"),
+                           lambda reply: f"pump {'on' if reply.data['pump_on'] else 'off'}")

@@ -7,7 +7,8 @@ import json
 
 from control.wire.client import CommandRefused, DaemonUnavailable
 from control.wire.summary_lines import peak_line
-from sfdrig.commands._client_args import add_connection_arguments, command_client
+from sfdrig.commands._client_args import add_connection_arguments, command_client, not_done
+from sfdrig.commands.sweep import progress_text
 
 NAME = "status"
 HELP = "show the daemon's state, the current run and its progress"
@@ -17,18 +18,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_connection_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the full status as JSON")
     parser.add_argument("--reset", action="store_true",
-                        help="acknowledge a fault (fault -> idle) before showing the status")
+                        help="acknowledge a fault (fault -> idle) before showing the status; "
+                             "when idle there is nothing to reset (exit 0)")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         with command_client(args) as client:
             if args.reset:
-                client.reset()
-                print("fault acknowledged")
+                reply = client.reset()
+                print("nothing to reset: the daemon is idle" if reply.data.get("nothing_to_reset")
+                      else "fault acknowledged")
             st = client.status()
     except (DaemonUnavailable, CommandRefused) as err:
-        print(f"status: {err}")
+        print(f"status: {not_done(err)}")
         return 1
     if args.json:
         print(json.dumps(st, indent=2))
@@ -40,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"run        {st['run_id']}  ({st['run_path']})")
         print(f"samples    {st['samples']} at {st['sample_rate_hz']:g} S/s")
         if p:
-            print("progress   " + "  ".join(f"{k}={v}" for k, v in p.items()))
+            print("progress   " + progress_text(p))
         lease = st.get("operator_lease")
         if lease:  # a structure test: aborted if its client is silent for the lease
             print(f"operator   last heard {lease['silent_s']:.1f} s ago (the test is aborted "

@@ -26,8 +26,13 @@ from typing import Any
 import numpy as np
 
 from control.wire.client import CommandClient, CommandRefused, DaemonUnavailable, Subscriber
-from control.wire.summary_lines import end_line, peak_line
-from sfdrig.commands._client_args import add_connection_arguments, command_client, subscriber
+from control.wire.summary_lines import end_line, lateness_line, peak_line
+from sfdrig.commands._client_args import (
+    add_connection_arguments,
+    command_client,
+    not_done,
+    subscriber,
+)
 from sfdrig.commands._lost import (
     ClientLost,
     hold_further_signals,
@@ -51,9 +56,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--notes", default="", help="recorded in the run file")
     parser.add_argument("--no-follow", action="store_true",
                         help="start the sweep and return without following it")
+    parser.add_argument("--check", action="store_true",
+                        help="check the sweep (file and --set fields) offline, no daemon, as "
+                             "the daemon's start would: one line per problem; exit 0 valid, "
+                             "2 invalid")
+    parser.add_argument("--channels", type=Path, metavar="CHANNELS.toml",
+                        help="with --check: the channel map the daemon runs with (default: "
+                             "the daemon's default map)")
     parser.epilog = ("Ctrl-C while following aborts the sweep: the daemon ramps the drives to "
                      "zero and closes the run file as aborted (the steps so far are kept); "
-                     "with --no-follow, stop it with `sfdrig abort`. A hung-up terminal "
+                     "with --no-follow, stop it with `sfdrig abort`; `sfdrig pause` and "
+                     "`sfdrig resume` hold it at zero drive and go on. A hung-up terminal "
                      "(SIGHUP) or a killed `sfdrig sweep` stops only the following: the sweep "
                      "runs to its plan under the daemon's safety limits.")
     add_connection_arguments(parser, data=True)
@@ -160,6 +173,14 @@ def progress_line(progress: dict[str, Any]) -> str:
     return line + f" | {progress.get('state', '')}"
 
 
+def progress_text(progress: dict[str, Any]) -> str:
+    """A run's progress for people: a sweep's as `progress_line` (steps counted from 1), any
+    other run's (a structure test's) as its fields."""
+    if "step_index" in progress:
+        return progress_line(progress)
+    return "  ".join(f"{k}={v}" for k, v in progress.items())
+
+
 def _fmt(v: Any) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
@@ -225,8 +246,43 @@ def run_summary(client: CommandClient, run_id: str) -> dict[str, Any] | None:
     return summary if isinstance(summary, dict) and summary else None
 
 
+def _located(problems: list[str], args: argparse.Namespace) -> list[str]:
+    """Each problem led by where its field came from: ``--set`` or the sweep file."""
+    overridden = {a.partition("=")[0].strip().split(".")[0] for a in args.fields}
+    file = str(args.sweep_file) if args.sweep_file is not None else "--set"
+    return [("--set" if line.partition(" = ")[0].split(".")[0] in overridden else file)
+            + f": {line}" for line in problems]
+
+
+def _check(args: argparse.Namespace, spec: dict[str, Any]) -> int:
+    """`--check`: the sweep checked offline (`sfdrig.sweep_check`)."""
+    from daq.errors import ChannelConfigError
+    from sfdrig.sweep_check import limits_line, sweep_problems
+
+    try:
+        model, problems = sweep_problems(spec, args.channels)
+    except ChannelConfigError as err:
+        print(f"sweep: {err}", file=sys.stderr)
+        return 2
+    for line in _located(problems, args):
+        print(line)
+    if problems:
+        return 2
+    assert model is not None
+    freqs = model.frequencies()
+    unit, scale = ("um", 1e6) if model.target_kind == "displacement" else ("N", 1.0)
+    where = args.sweep_file if args.sweep_file is not None else "--set"
+    print(f"{where}: valid: {len(model.steps())} steps, {model.motion}, {model.target_kind} "
+          f"{', '.join(f'{v * scale:g}' for v in model.targets)} {unit} at {len(freqs)} "
+          f"frequencies {min(freqs):g}-{max(freqs):g} Hz; checked against {limits_line()} and "
+          + (f"the channel map {args.channels}" if args.channels else "the default channel map"))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     spec = sweep_fields(args.sweep_file, args.fields)
+    if args.check:
+        return _check(args, spec)
     run_id = ""
     try:
         with raising_when_lost(), command_client(args) as client:
@@ -249,11 +305,8 @@ def run(args: argparse.Namespace) -> int:
                     print(f"\nrun {run_id}: abort sent (drives ramp to zero)", flush=True)
                     status, reason, steps = follow(sub, run_id, steps=steps)
                 summary = run_summary(client, run_id)
-    except CommandRefused as err:
-        print(f"sweep: {err}")
-        return 1
-    except DaemonUnavailable as err:
-        print(f"sweep: {err}")
+    except (CommandRefused, DaemonUnavailable) as err:
+        print(f"sweep: {not_done(err)}")
         return 1
     except ClientLost as lost:
         # the sweep is not aborted: it runs to its plan under the daemon's safety limits
@@ -268,6 +321,8 @@ def run(args: argparse.Namespace) -> int:
         return lost.exit_code
     if summary is not None:
         print(peak_line(summary))
+        if late := lateness_line(summary):
+            print(late)
     # the last line: how it ended; after a trip what tripped, where, the peak, what to do
     print(end_line(run_id, status, reason, len(steps), summary))
     return 0 if status == "completed" else 1

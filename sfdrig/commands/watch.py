@@ -19,7 +19,7 @@ import numpy as np
 
 from control.wire.client import DaemonUnavailable
 from sfdrig.commands._client_args import add_connection_arguments, subscriber
-from sfdrig.commands.sweep import step_line
+from sfdrig.commands.sweep import progress_text, step_line
 
 NAME = "watch"
 HELP = "show live per-channel amplitudes and the current step (or follow a run file)"
@@ -60,7 +60,7 @@ def _watch_stream(args: argparse.Namespace) -> int:
         blocks: deque[np.ndarray] = deque()
         names: list[str] = []
         fs = float(st.get("sample_rate_hz", 1.0))
-        progress: dict[str, Any] = {}
+        progress: dict[str, Any] = dict(st.get("progress") or {})  # from the first heartbeat
         shown, next_table, malformed = 0, time.monotonic() + args.interval, 0
         while args.count == 0 or shown < args.count:
             try:
@@ -98,7 +98,7 @@ def _watch_stream(args: argparse.Namespace) -> int:
             shown += 1
             lost = sum(sub.lost.values())
             head = (f"state {st.get('state', '?')}  run {st.get('run_id') or '-'}  "
-                    + "  ".join(f"{k}={v}" for k, v in progress.items())
+                    + progress_text(progress)
                     + (f"  lost {lost} messages" if lost else "")
                     + (f"  skipped {malformed} malformed" if malformed else ""))
             if blocks:

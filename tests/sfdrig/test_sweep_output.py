@@ -6,12 +6,18 @@ from __future__ import annotations
 
 import io
 
+import numpy as np
+import pytest
+
+from control.run.listener import RecordingListener
 from control.run.sweep.engine import SweepEngine, SweepSpec
-from control.wire.summary_lines import end_line, peak_line
+from control.wire.summary_lines import end_line, lateness_line, peak_line
 from daq.channels import default_channel_map
 from rig_model.params import RigParams
 from sfdrig.commands import sweep as sweep_cmd
+from simulated_hw.backend import SimulatedBackend
 from tests.control.conftest import GainJump, make_backend
+from tests.simulated_hw.fake_clock import FakeClock
 
 
 def test_a_completed_run_prints_its_peaks_and_the_usual_last_line():
@@ -77,3 +83,68 @@ def test_an_underflow_says_what_to_do():
                     "written (DAQmx code -200290)", 0, {"tripped_at": None})
     assert last.startswith("run R3 failed: DaqUnderflowError")
     assert "What to do: the AO stream ran dry" in last and "--priority high" in last
+
+
+SPEC_20_80 = SweepSpec(motion="circular_forward", load_n=[40.0], freq_hz=[20.0, 80.0])
+
+
+def test_the_orbit_of_a_drive_still_playing_after_its_step_belongs_to_that_step():
+    """Issue 39: "peak orbit 45.0 um ... (step 2/2, 80.0 Hz)" while step 2 reached 16.3 um: the
+    20 Hz drive, still playing through the AO lead and its fade after step 1's recording ended,
+    was charged to step 2. Here the amplifier's gain rises 10 % 5 ms after that recording ends
+    (seeded, the same run until then): the run's largest orbit comes while the 20 Hz drive still
+    plays, and it is step 1's."""
+    rec = RecordingListener()
+    SweepEngine(make_backend(), SPEC_20_80, listener=rec).run()
+    end = rec.steps[0]["last_sample"]
+    be = GainJump(RigParams(), seed=0, factor=1.1, at_sample=end + 50)
+    be.configure(default_channel_map())
+    rec = RecordingListener()
+    out = SweepEngine(be, SPEC_20_80, listener=rec).run()
+    assert out.status == "completed", out.reason
+    at = out.summary["peak_displacement_at"]
+    ao = rec.ao()[:, end:]
+    playing = np.flatnonzero(np.any(ao != 0, axis=0))
+    drive_20_ends = end + playing[np.flatnonzero(np.diff(playing) > 1)[0]] + 1  # then 0 V
+    assert end < at["sample"] < drive_20_ends  # measured: 43611, the 20 Hz drive ends 43799
+    assert out.summary["peak_displacement_m"] > 1.1 * 45e-6  # measured: 52.9 um (45.1 without)
+    assert (at["step_index"], at["freq_hz"]) == (0, 20.0)
+    assert "(step 1/2, 20.0 Hz)" in peak_line(out.summary)
+
+
+class _StallAfterFirstStep(RecordingListener):
+    """The host stalls 0.6 s once, at the first block after the first step (the clock jumps)."""
+
+    def __init__(self, clock: FakeClock) -> None:
+        super().__init__(keep_blocks=False)
+        self.clock, self.armed = clock, False
+
+    def on_step(self, step: dict) -> None:
+        super().on_step(step)
+        self.armed = step["index"] == 0 or self.armed
+
+    def on_block(self, first: int, ai: np.ndarray, ao: np.ndarray) -> None:
+        super().on_block(first, ai, ao)
+        if self.armed:
+            self.armed, self.clock.t = False, self.clock.t + 0.6
+
+
+def test_the_end_says_what_the_hosts_lateness_cost():
+    """Issue 39: only the run file's last event said "host late 137 times ... 10.460 s played
+    from the ring"; `sfdrig sweep` printed nothing of it. A paced rig with a 2 s AO ring on an
+    injected clock; the host stalls 0.6 s once."""
+    clock = FakeClock()
+    be = SimulatedBackend(RigParams(), seed=5, realtime=True, clock=clock, sleep=clock.sleep,
+                          ao_ring_s=2.0)
+    be.configure(default_channel_map())
+    out = SweepEngine(be, SPEC_20_80, listener=_StallAfterFirstStep(clock)).run()
+    assert out.status == "completed", out.reason
+    late = out.summary["host_late"]
+    assert late["events"] == 1 and late["played_from_ring_s"] == pytest.approx(0.58)
+    assert lateness_line(out.summary) == (
+        "the computer fell behind the drive 1 times (at worst 580.0 ms late): 0.580 s of drive "
+        "played from the AO ring meanwhile, time the controller waited for the drive it asked "
+        "for. What to do: ease the machine's load, or start the daemon with --priority high.")
+    on_time = SweepEngine(make_backend(), SweepSpec(motion="x", load_n=[40.0],
+                                                    freq_hz=[60.0])).run()
+    assert on_time.summary["host_late"]["events"] == 0 and lateness_line(on_time.summary) == ""

@@ -207,7 +207,7 @@ def _impact_axis(stream: Stream, steps: list[dict[str, Any]], spec: ImpactSpec, 
         if len(accepted) >= spec.strikes:
             return
         label = f"impact {axis} hit {hit} ({len(accepted)} of {spec.strikes} accepted)"
-        stream.where = f"impact step {len(steps)} ({axis}, hit {hit})"
+        stream.where = f"impact step {len(steps) + 1} ({axis}, hit {hit})"
         history: deque[tuple[int, np.ndarray]] = deque(maxlen=pre // stream.block + 3)
         _wait_at_rest(stream, axis, spec, history)
         armed = _Armed(stream, spec, history)

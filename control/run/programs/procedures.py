@@ -72,7 +72,7 @@ def _static_levels(stream: Stream, steps: list[dict[str, Any]], spec: StaticSpec
             for force in spec.forces_n:
                 point = len(steps) + 1
                 while True:  # until recorded or skipped
-                    where = f"{kind} step {len(steps)} ({axis}, {force:g} N, pass {p + 1})"
+                    where = f"{kind} step {len(steps) + 1} ({axis}, {force:g} N, pass {p + 1})"
                     stream.where = where
                     step = _one_level(stream, spec, axis, force, gain, checks, where,
                                       f"{kind} {axis} {force:+g} N pass {p + 1}, point "
@@ -249,7 +249,7 @@ def run_flow_test(backend: DaqBackend, listener: Listener, operator: OperatorDes
                 for pa in spec.supply_pressures_pa:
                     step: dict[str, Any] | str = "repeat"
                     while step == "repeat":
-                        stream.where = f"flow step {len(steps)} ({pa:g} Pa, pass {p + 1})"
+                        stream.where = f"flow step {len(steps) + 1} ({pa:g} Pa, pass {p + 1})"
                         step = point(stream, len(steps), pa, f"flow {pa / 1e3:g} kPa pass "
                                      f"{p + 1}, point {len(steps) + 1}/{n_points}")
                     if isinstance(step, dict):

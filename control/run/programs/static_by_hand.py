@@ -39,8 +39,8 @@ def static_levels_by_hand(stream: Stream, steps: list[dict[str, Any]], spec: Sta
                     point = len(steps) + 1
                     step: dict[str, Any] | str = "repeat"
                     while step == "repeat":
-                        stream.where = (f"static step {len(steps)} ({axis}, {force:g} N by hand, "
-                                        f"pass {p + 1})")
+                        stream.where = (f"static step {len(steps) + 1} ({axis}, {force:g} N "
+                                        f"by hand, pass {p + 1})")
                         step = _hand_point(stream, spec, hands, axis, force, len(steps),
                                            f"static {axis} {force:+g} N by hand pass {p + 1}, "
                                            f"point {point}/{n_points}")

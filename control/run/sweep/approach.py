@@ -12,6 +12,8 @@ which provides the attributes declared below and runs the converge-settle-record
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from control.run.safety import AxisSignals, SafetyLimits
@@ -55,6 +57,52 @@ QUIET_MAX_S = 0.5
 #: A watched raise whose orbit passes the displacement margin backs the drive off to this
 #: fraction of the margin, scaled from the orbit measured.
 BACK_OFF = 0.9
+
+
+def target_ceiling(kind: str, limits: SafetyLimits, algorithm: str) -> tuple[float, str]:
+    """(the largest response the controller brings a step to, why) for a target of ``kind``:
+    its orbit radius [m] for "displacement" (within `DISPLACEMENT_MARGIN` of the limit; the
+    proportional loop, which predicts nothing, until the soft limit at `GUARD_FRACTION`), its
+    load on an axis [N] for "load" (within `LOAD_MARGIN` of the load limit, every algorithm)."""
+    margin = "the most the controller aims at, a margin for harmonics, noise and prediction error"
+    if kind == "load":
+        return LOAD_MARGIN * limits.max_load_n, (
+            f"{100 * LOAD_MARGIN:.0f} % of the {limits.max_load_n:g} N load limit, {margin}")
+    lim_um = limits.displacement_limit_m * 1e6
+    if algorithm == "proportional":
+        return GUARD_FRACTION * limits.displacement_limit_m, (
+            f"{100 * GUARD_FRACTION:.0f} % of the {lim_um:.4g} um displacement limit, where the "
+            "soft limit halves the drive")
+    return DISPLACEMENT_MARGIN * limits.displacement_limit_m, (
+        f"{100 * DISPLACEMENT_MARGIN:.0f} % of the {lim_um:.4g} um displacement limit, {margin}")
+
+
+def unreachable_targets(steps: Sequence[StepPlan], limits: SafetyLimits,
+                        algorithm: str) -> list[str]:
+    """One line per target value the controller would never reach (`target_ceiling`): the
+    field, the value, what it asks for, the largest value accepted and why. Its steps would
+    spend their updates held at the margin and fail; refused before the run instead."""
+    problems = []
+    for value in dict.fromkeys(st.target_value for st in steps):
+        mine = [st for st in steps if st.target_value == value]
+        st = mine[0]
+        ceiling, why = target_ceiling(st.target_kind, limits, algorithm)
+        if st.target_kind == "load":
+            field, asks = "load_n", float(np.max(np.abs(st.shape)))
+            what, limit = f"a load of {asks:.4g} N", f"{ceiling:.4g} N"
+        else:
+            field, asks = "amplitude_m", orbit_peak_radius(st.shape)
+            what, limit = f"an orbit radius of {asks * 1e6:.4g} um", f"{ceiling * 1e6:.4g} um"
+        if not asks > ceiling * (1 + 1e-12):
+            continue
+        largest = ceiling * value / asks  # the response scales with the target
+        shown = [f"{v:.4g}" if field == "load_n" else f"{v:.4g} ({v * 1e6:.4g} um)"
+                 for v in (value, largest)]
+        problems.append(
+            f"{field} = {shown[0]} ({st.motion}, {len(mine)} step{'s' * (len(mine) > 1)} "
+            f"from step {st.number}): asks for {what}, over {limit} ({why}); the largest "
+            f"{field} accepted is {shown[1]}")
+    return problems
 
 
 class Approach:

@@ -27,6 +27,7 @@ from control.run.pump import PumpState
 from control.run.safety import AxisSignals, SafetyLimits, SafetyMonitor, validate_targets
 from control.run.stream import DriveStream
 from control.run.summary import RunPeaks
+from control.run.sweep.approach import unreachable_targets
 from control.run.sweep.dwell import StepResult, StepRunner
 from control.run.sweep.dwell_states import DwellState
 from control.run.sweep.states import FINAL, State, StateMachine
@@ -181,8 +182,17 @@ class SweepEngine:
 
     @property
     def summary(self) -> dict[str, Any]:
-        """The run's peaks, contact and trip (`RunPeaks.summary`); {} before it started."""
-        return self.peaks.summary if self.peaks is not None else {}
+        """The run's peaks, contact and trip (`RunPeaks.summary`) and, once it streams, how the
+        host kept the AO lead (``host_late``: times late, the drive the ring played meanwhile
+        [s]); {} before it started."""
+        if self.peaks is None:
+            return {}
+        out = self.peaks.summary
+        if self._stream is not None:
+            w, fs = self._stream.writer, self._stream.cm.sample_rate_hz
+            out["host_late"] = {"events": w.late_events, "played_from_ring_s": w.repeated / fs,
+                                "worst_ms": 1e3 * w.max_late / fs}
+        return out
 
     def pause(self) -> None:
         """Ramp the drives to zero and hold (acquisition continues) until `resume`."""
@@ -325,6 +335,7 @@ class SweepEngine:
             cfg.ahead_blocks, keep, self._interrupt,
         )
         self._stream = stream
+        self.peaks.playing = stream.owner_at  # samples belong to the step whose drive plays
         runner = StepRunner(stream, self.spec, self.limits, self._emit)
         runner.on_update = self._on_update
         runner.dwell.on_change = self._on_dwell
@@ -377,7 +388,7 @@ class SweepEngine:
             self._emit_safe("info", peak_line(self.peaks.summary))
             self._machine.to(status)
         return SweepOutcome(_RUN_STATUS[status], reason, list(self.results), stream.sample, fs,
-                            self.peaks.summary)
+                            self.summary)
 
     def _on_dwell(self, state: DwellState) -> None:
         self._progress = replace(self._progress, dwell=state.value, sample=self._sample())
@@ -393,12 +404,14 @@ class SweepEngine:
                 self._progress, step_index=plan.index, freq_hz=plan.freq_hz,
                 target_value=plan.target_value, updates=0, sample=stream.sample,
             )
-            if self.peaks is not None:
-                self.peaks.where = {"step_index": plan.index, "steps_total": len(self.plan),
-                                    "freq_hz": plan.freq_hz, "motion": plan.motion,
-                                    "target": (f"{plan.target_value * 1e6:.4g} um"
-                                               if plan.target_kind == "displacement"
-                                               else f"{plan.target_value:.4g} N")}
+            # the step's drive from its first own command (`DriveStream.claim_drive`): the
+            # last step's drive, still playing through the lead, its fade and ring-down (and on
+            # a ring, a late host's replay of it) are the last step's peaks, not this one's
+            stream.claim_drive({"step_index": plan.index, "steps_total": len(self.plan),
+                                "freq_hz": plan.freq_hz, "motion": plan.motion,
+                                "target": (f"{plan.target_value * 1e6:.4g} um"
+                                           if plan.target_kind == "displacement"
+                                           else f"{plan.target_value:.4g} N")})
             try:
                 result = runner.run(plan)
             except _Pause:
@@ -447,7 +460,8 @@ def check_sweep(spec: SweepSpec, limits: SafetyLimits, cm: ChannelMap,
                 plan: list[StepPlan] | None = None) -> None:
     """Everything that must hold before a sweep may write anything: the drive limit within the AO
     ranges, a drive for both axes, the shutdown budget (block_s x (1 + ahead_blocks) + fade_s
-    <= 100 ms) and every target (`validate_targets`).
+    <= 100 ms), every target within the limits (`validate_targets`) and within what the
+    controller reaches (`unreachable_targets`: a share of the limit).
 
     Raises
     ------
@@ -473,7 +487,12 @@ def check_sweep(spec: SweepSpec, limits: SafetyLimits, cm: ChannelMap,
             f"block_s x (1 + ahead_blocks) + fade_s = {latency * 1e3:.0f} ms exceeds the "
             "100 ms shutdown budget"
         )
-    validate_targets(spec.steps() if plan is None else plan, limits, cm)
+    plan = spec.steps() if plan is None else plan
+    validate_targets(plan, limits, cm)
+    unreachable = unreachable_targets(plan, limits, spec.control.algorithm)
+    if unreachable:
+        raise TargetError("sweep refused: a target the controller would never reach (its steps "
+                          "would spend their updates and fail):\n  " + "\n  ".join(unreachable))
 
 
 class _StepFailed(RuntimeError):

@@ -21,6 +21,7 @@ from control.wire.protocol import DaemonState
 from daq.channels import default_channel_map
 from simulated_hw.backend import SimulatedBackend
 from storage.reader import open_run
+from tests.e2e.raw_dealer import RawDealer
 
 
 class ScriptSpec(BaseModel):
@@ -178,9 +179,10 @@ def test_forbidden_requests_leave_the_state_unchanged(daemon: Daemon):
     ep = daemon.endpoints
     with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
         sub.wait_connected()
-        for cmd in ("pause", "resume", "abort", "reset"):
+        for cmd in ("pause", "resume", "abort"):
             with pytest.raises(CommandRefused, match=f"'{cmd}' is not allowed while idle"):
                 c.request(cmd)
+        assert c.reset().data == {"nothing_to_reset": True}  # a no-op, not a refusal
         with pytest.raises(CommandRefused, match=r"start\.spec\.blocks: Field required$"):
             c.start_sweep({"block_size": 10})
         assert c.status()["state"] == "idle"
@@ -220,6 +222,31 @@ def test_malformed_frames_get_error_replies(daemon: Daemon):
         reply = json.loads(c.send_raw([b"", b"{}", b"{}"]))
         assert reply["error"] == "expected one JSON request frame, got 2 frames"
         assert c.status()["state"] == "idle"
+
+
+def test_a_start_with_a_typo_says_what_it_probably_means(daemon: Daemon):
+    """Issue 39: `--set recrod_cycles=40` was "Extra inputs are not permitted", nothing more;
+    the daemon's refusal (what the CLI and the page show) names the field it probably means."""
+    with CommandClient(daemon.endpoints["command"]) as c, \
+            pytest.raises(CommandRefused) as refused:
+        c.start_sweep({"blocks": 4, "blok_size": 400})
+    assert refused.value.reply.error == ("start.spec.blok_size: Extra inputs are not permitted "
+                                         "(got 400); did you mean 'block_size'?")
+
+
+@pytest.mark.parametrize("rid", ["\x00nul", "\n\r\t", "a\tb\r\nc\x00"])
+def test_a_request_id_comes_back_exactly_as_sent(daemon: Daemon, rid: str):
+    """Issue 39: "\u0000nul" came back as "\ufffdnul" and "\n\r\t" as "" (from an abort;
+    other requests refused a NUL): a client could not match its reply. A raw DEALER, so that
+    no client library smooths the frame."""
+    import json
+
+    with RawDealer(daemon.endpoints["command"]) as raw:
+        for request in ({"cmd": "status"}, {"cmd": "abort"}, {"cmd": "pause"},
+                        {"cmd": "pump", "on": "maybe"}, {"cmd": "fly"}):
+            reply = raw.request(json.dumps({**request, "request_id": rid}))
+            assert reply["request_id"] == rid, (request, reply)
+        assert raw.request(json.dumps({"cmd": "status", "request_id": rid}))["ok"] is True
 
 
 def test_the_pump_stays_as_the_run_started_it_while_running_and_paused(daemon: Daemon):

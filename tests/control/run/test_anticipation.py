@@ -264,10 +264,8 @@ ISSUE_21_FREQS = [20.0, 80.0, 30.0, 150.0]
     (True, 250.0),
     pytest.param(False, 100.0, marks=pytest.mark.slow),
     pytest.param(False, 250.0, marks=pytest.mark.slow),
-    pytest.param(False, 440.0, marks=pytest.mark.slow),
     pytest.param(True, 100.0, marks=pytest.mark.slow),
     pytest.param(True, 400.0, marks=pytest.mark.slow),
-    pytest.param(True, 440.0, marks=pytest.mark.slow),
 ])
 def test_load_targets_up_to_the_rating_never_glide_through_the_resonance(
         watched_frequency, lubricated: bool, load_n: float):
@@ -275,9 +273,9 @@ def test_load_targets_up_to_the_rating_never_glide_through_the_resonance(
     growing drive: it tripped every time at 87-126 um (once at the journal). Before this change
     this matrix (X, 100-440 N, 20/80/30/150 Hz, seed 0) tripped in 7 of 8 sweeps (peaks
     88.7-126.1 um). Measured now: no trip, peaks 51.1-52.1 um; 150 Hz converges up to 400 N dry
-    (1X 11.5 um at 100 N, 50.5 um at 400 N) and 440 N is held by the displacement limit (dry)
-    or the load limit (lubricated); 20 and 30 Hz (50-150 um needed) and 80 Hz above 100-250 N
-    are held by the displacement limit at 39-51 um."""
+    (1X 11.5 um at 100 N, 50.5 um at 400 N; 440 N, over the 403 N the controller aims at, is
+    refused at the start now: `test_safety`); 20 and 30 Hz (50-150 um needed) and 80 Hz above
+    100-250 N are held by the displacement limit at 39-51 um."""
     spec = SweepSpec(motion="x", lubricated=lubricated, load_n=[load_n], freq_hz=ISSUE_21_FREQS,
                      on_not_converged="continue")
     out, _ = _never_through_the_resonance(spec, watched_frequency)

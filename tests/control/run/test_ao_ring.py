@@ -492,3 +492,26 @@ def test_a_lubricated_sweep_on_a_stalling_host_approaches_every_step_without_a_t
     assert engine.peaks is not None
     assert engine.peaks.peak_displacement_m < SafetyLimits().displacement_limit_m
     assert engine.peaks.contact == ""
+
+
+def test_a_late_hosts_replay_of_the_drive_before_is_that_drives_not_the_new_owners():
+    """Issue 39: samples belong to the step whose drive plays them. A new step claims the
+    drive and raises it; the host stalls before it has written any of the new drive, so the
+    ring replays the old one for the whole stall: those samples are the old step's, and the
+    new step's begin with the first block of its own drive that plays."""
+    clock = FakeClock()
+    be, stream, listener = _stream(clock)
+    stream.start()
+    stream.claim_drive("a")
+    stream.synth.ramp_to(AMP * 0.9, None, 0.0)  # step a's own command
+    stream.advance_to(int(2.5 * FS))  # the whole ring holds step a's drive
+    stream.claim_drive("b")
+    stream.synth.ramp_to(AMP * 1.2, None, BLOCK / FS)  # step b's first command...
+    written = stream.writer.pos
+    clock.t += 0.5  # ... and the host stalls before writing any of it
+    stream.advance_to(stream.sample + int(1.0 * FS))
+    assert stream.writer.repeated >= 0.5 * FS - 4 * BLOCK
+    replayed = [k for k in range(written, written + int(0.45 * FS), BLOCK)]
+    assert {stream.owner_at(k) for k in replayed} == {"a"}
+    assert stream.owner_at(stream.sample - BLOCK) == "b"
+    stream.shutdown(0.04)

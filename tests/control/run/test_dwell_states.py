@@ -32,7 +32,8 @@ def test_every_dwell_of_a_sweep_passes_its_states_in_order(caplog):
     assert out.status == "completed", out.reason
     paths: dict[str, list[tuple[str, int]]] = {}
     for rec in caplog.records:
-        m = re.fullmatch(r"(step \d .*\)): (?:\w+ -> )?(\w+) at sample (\d+)", rec.getMessage())
+        m = re.fullmatch(r"(step \d+/\d+ .*\)): (?:\w+ -> )?(\w+) at sample (\d+)",
+                         rec.getMessage())
         assert m, rec.getMessage()
         paths.setdefault(m[1], []).append((m[2], int(m[3])))
     assert len(paths) == 2

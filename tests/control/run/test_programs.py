@@ -168,7 +168,7 @@ def test_impact_without_strike_stops_safely(tmp_path: Path) -> None:
     out = run_impact_test(b, w, ScriptedDesk(accept_all), ImpactSpec(wait_s=0.5), hands=no_hit)
     w.close()
     assert not out.completed
-    assert "impact step 0 (x, hit 1)" in out.reason and "no strike" in out.reason
+    assert "impact step 1 (x, hit 1)" in out.reason and "no strike" in out.reason
     with open_run(tmp_path / "i.h5") as r:
         assert any(e["kind"] == "abort" and "no strike" in e["message"] for e in r.events)
         assert r.channel("shaker_x")[-1] == 0.0
@@ -180,7 +180,7 @@ def test_static_programme_stops_at_the_force_limit(tmp_path: Path) -> None:
     out = run_static_test(b, w, StaticSpec(forces_n=(20.0, 120.0), max_force_n=100.0))
     w.close()
     assert not out.completed
-    assert "static step 1 (x, 120 N, pass 1)" in out.reason and "over the 100 N limit" in out.reason
+    assert "static step 2 (x, 120 N, pass 1)" in out.reason and "over the 100 N limit" in out.reason
     assert out.steps == 1
     with open_run(tmp_path / "s.h5") as r:
         assert np.all(r.channel("shaker_x")[-100:] == 0.0)

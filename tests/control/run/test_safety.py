@@ -137,6 +137,23 @@ def test_open_loop_is_detected():
          SafetyLimits(), "load 500 N exceeds the shaker rating 448 N"),
         ({"motion": "y", "load_n": [100.0], "freq_hz": [30.0]},
          SafetyLimits(max_load_n=80.0), "load 100 N exceeds the configured limit 80 N"),
+        # issue 39: under the limit, over the share of it the controller aims at: accepted, it
+        # spent its 10 updates held at the margin and aborted
+        ({"motion": "circular_forward", "amplitude_m": [30e-6, 60e-6], "freq_hz": [20.0, 40.0]},
+         SafetyLimits(), "amplitude_m = 6e-05 (60 um) (circular_forward, 2 steps from step 3/4): "
+         "asks for an orbit radius of 60 um, over 50.8 um (80 % of the 63.5 um displacement "
+         "limit, the most the controller aims at, a margin for harmonics, noise and prediction "
+         "error); the largest amplitude_m accepted is 5.08e-05 (50.8 um)"),
+        ({"motion": "elliptical", "ellipse_ratio": 1.5, "amplitude_m": [40e-6],
+          "freq_hz": [30.0]}, SafetyLimits(), "the largest amplitude_m accepted is 3.387e-05"),
+        ({"motion": "x", "amplitude_m": [58e-6], "freq_hz": [30.0],
+          "control": {"algorithm": "proportional"}}, SafetyLimits(),
+         "over 57.15 um (90 % of the 63.5 um displacement limit, where the soft limit halves"),
+        ({"motion": "x", "load_n": [420.0], "freq_hz": [150.0]}, SafetyLimits(),
+         "load_n = 420 (x, 1 step from step 1/1): asks for a load of 420 N, over 403.2 N (90 % "
+         "of the 448 N load limit"),
+        ({"motion": "y", "load_n": [60.0], "freq_hz": [30.0]}, SafetyLimits(max_load_n=60.0),
+         "the largest load_n accepted is 54"),
     ],
 )
 def test_bad_targets_are_refused_before_any_output(spec, limits, message):
