@@ -317,3 +317,30 @@ def test_the_run_files_page_commands_run_on_the_readme_runs(readme_session):
     fitted, stored, units = out.stdout.split()
     assert units == "m" and abs(float(fitted) / float(stored) - 1) < 1e-9, out.stdout
     assert abs(float(stored) - 25e-6) < 0.25e-6
+
+
+def test_pump_off_wait_returns_once_the_film_has_drained(daemon_factory):
+    """`sfdrig pump off --wait` (the README's drain step) against a daemon whose film drains in
+    2 s: it returns once the status says 0 s are left, not before; `--wait` with `on` is bad
+    input."""
+    d = daemon_factory("--film-drain-s", "2")
+    conn = ["--runs-dir", str(d.runs_dir)]
+
+    def sfdrig(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "sfdrig", *args, *conn], text=True,
+                              capture_output=True, timeout=60)
+
+    out = sfdrig("pump", "on", "--wait")
+    assert (out.returncode, out.stdout.strip()) == (
+        2, "pump: --wait goes with `off` (it waits for the film to drain)"), out.stdout
+    assert sfdrig("pump", "on").returncode == 0
+    started = time.monotonic()
+    out = sfdrig("pump", "off", "--wait")
+    waited = time.monotonic() - started
+    assert out.returncode == 0, out.stdout + out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0] == "pump off" and lines[1].startswith("film drains for "), lines
+    assert lines[2].startswith("film drained (") and lines[2].endswith("a dry sweep may start")
+    assert waited >= 1.9, waited
+    status = json.loads(sfdrig("status", "--json").stdout)
+    assert (status["pump_on"], status["film_drains_for_s"]) == (False, 0)
