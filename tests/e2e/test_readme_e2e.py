@@ -226,8 +226,12 @@ def _run_the_readme_block(shell: Shell, block: list[str]) -> None:  # noqa: PLR0
     assert out.returncode == 0, out.stdout + out.stderr
     tables = [ln for ln in out.stdout.splitlines() if ln.startswith("state ")]
     assert len(tables) == 3 and all(f"state running  run {aborted_id}" in t for t in tables)
-    assert all("freq_hz=20.0" in t for t in tables), tables
-    assert out.stdout.count("  fx ") == 3 and out.stdout.count("  x1 ") == 3
+    planned = {20.0, 70.0, 80.0, 90.0, 100.0, 120.0, 140.0, 160.0, 180.0, 200.0}  # the file's
+    for t in tables:
+        fields = dict(f.split("=", 1) for f in t.split() if "=" in f)
+        assert fields["steps_total"] == "20" and float(fields["freq_hz"]) in planned, t
+    rows = [ln.split()[0] for ln in out.stdout.splitlines() if ln.startswith("  ")]
+    assert rows.count("fx") == 3 and rows.count("x1") == 3, out.stdout
     # the drives ramp to zero within 100 ms; the run is marked aborted
     out, _ = shell.run(next(it))
     assert out.returncode == 0 and out.stdout.startswith("abort sent"), out.stdout + out.stderr
@@ -299,7 +303,8 @@ def test_the_run_files_page_commands_run_on_the_readme_runs(readme_session):
         out, _ = shell.run(line)
         assert out.returncode == 0, (line, out.stdout + out.stderr)
     for run_id, row in made.items():
-        header = (shell.cwd / "out" / "csv" / f"{run_id}.csv").open().readline().strip()
+        with (shell.cwd / "out" / "csv" / f"{run_id}.csv").open() as csv:
+            header = csv.readline().strip()
         assert header.split(",")[:3] == ["time_s", "step", "freq_hz"], header
         assert (shell.cwd / "out" / "tdms" / f"{run_id}.tdms").is_file()
         assert row["status"] in ("completed", "aborted")
@@ -315,7 +320,9 @@ def test_the_run_files_page_commands_run_on_the_readme_runs(readme_session):
                          capture_output=True, timeout=120)
     assert out.returncode == 0, out.stderr
     fitted, stored, units = out.stdout.split()
-    assert units == "m" and abs(float(fitted) / float(stored) - 1) < 1e-9, out.stdout
+    # "the two amplitudes agree": the same least squares but for 2X..5X, which a record of whole
+    # cycles (to the sample: 333.3 samples a cycle at 30 Hz) leaves all but orthogonal to the 1X
+    assert units == "m" and abs(float(fitted) / float(stored) - 1) < 1e-4, out.stdout
     assert abs(float(stored) - 25e-6) < 0.25e-6
 
 
