@@ -148,7 +148,9 @@ def sweep_lines(out: subprocess.CompletedProcess[str]) -> tuple[str, list[str], 
     lines = out.stdout.splitlines()
     assert lines[0].startswith("run ") and lines[0].endswith(".h5"), lines[0]
     steps = [ln for ln in lines if re.match(r"step \d+/\d+ ", ln)]
-    return lines[0].split()[1], steps, lines[-2], lines[-1]
+    peaks = [ln for ln in lines if ln.startswith("peak orbit ")]
+    assert len(peaks) == 1, out.stdout
+    return lines[0].split()[1], steps, peaks[0], lines[-1]
 
 
 @pytest.fixture(scope="module")
