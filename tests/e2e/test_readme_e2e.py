@@ -237,14 +237,17 @@ def _run_the_readme_block(shell: Shell, block: list[str]) -> None:  # noqa: PLR0
     # the drives ramp to zero within 100 ms; the run is marked aborted
     out, _ = shell.run(next(it))
     assert out.returncode == 0 and out.stdout.startswith("abort sent"), out.stdout + out.stderr
+    deadline = time.monotonic() + 30  # the ramp and the file's close: the daemon says when done
+    while json.loads(shell.run("sfdrig status --json")[0].stdout)["state"] != "idle":
+        assert time.monotonic() < deadline, "the daemon did not end the aborted run within 30 s"
     # the catalog: id, date, kind, steps, status, file
     out, _ = shell.run(next(it))
     assert out.returncode == 0, out.stdout + out.stderr
-    rows = {ln.split()[0]: ln.split() for ln in out.stdout.splitlines()[1:]}
+    catalog = {ln.split()[0]: ln.split() for ln in out.stdout.splitlines()[1:]}
     assert out.stdout.splitlines()[0].split() == ["id", "date", "kind", "steps", "status",
                                                   "duration", "file"]
-    assert [rows[i][5] for i in (lub_id, dry_id, aborted_id)] == ["completed", "completed",
-                                                                  "aborted"], out.stdout
+    assert [catalog[i][5] for i in (lub_id, dry_id, aborted_id)] == [  # the date is 2 words
+        "completed", "completed", "aborted"], out.stdout
     with open_run(shell.cwd / "runs" / f"{aborted_id}.h5") as run:
         abort_at = next(e["sample"] for e in run.events if e["kind"] == "abort")
         fs = run.sample_rate_hz
