@@ -218,7 +218,7 @@ class Diagnosis:
 # --- main --------------------------------------------------------------------------------
 # The fits' matrix products are small (a Jacobian of a few columns): on one BLAS thread they
 # cost half the CPU and half the wall time that OpenBLAS's spinning threads take on 2 cores
-# (25 dwells: 14.4 s CPU against 31.8 s; README "Measured figures").
+# (25 dwells: 14.4 s CPU against 31.8 s; docs/benchmarks.md).
 @threadpool_limits.wrap(limits=1, user_api="blas")
 def diagnose(
     records: list[RunRecord],

@@ -17,7 +17,7 @@ after run 100, 260 after 200, 262 after 400 (12 kB a run over runs 200-400, 8 ov
 
 `sfdrig web` had the same growth: a transfer-function request (`web.history`) frees segment
 arrays of 800 kB, and the default executor's threads, which also make the frames, then carved
-such arrays from their arenas. Over a 30-min sweep with a request at each new step (README,
+such arrays from their arenas. Over a 30-min sweep with a request at each new step (benchmarks,
 `bench_web --transfer`) its thread arenas grew 8.8 -> 31.1 MB (RSS 104 -> 129 MB); with the
 threshold fixed, 3.0 -> 7.1 MB (RSS 100 -> 106 MB, +0.18 MB/min). What still grew were the
 arenas of the executor's threads: `sfdrig web` also keeps all its threads on glibc's main arena

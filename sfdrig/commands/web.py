@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(err))
     # The frame's lock-in fit is a small matrix product (0.4 ms on one thread). OpenBLAS would
     # spread it over every core and spin-wait there: on a loaded 2-core machine, 20 times the CPU
-    # for the same product, taken from the paced daemon (README "Measured figures").
+    # for the same product, taken from the paced daemon (docs/benchmarks.md).
     threadpool_limits(limits=1, user_api="blas")
     # Freed arrays of 128 KiB or more (a transfer request's segments, the frames' windows) go
     # back to the kernel, and what is smaller stays on one arena, not scattered over the

@@ -286,7 +286,7 @@ def coupling_chosen(doc: dict[str, Any]) -> float | None:
 
 
 #: the rods' cross stiffness taken into the fitted baseline, relative: measured within 0.07 % at
-#: seeds 1-5 (README) and 0.13 % at seed 945; was 10 %
+#: seeds 1-5 (docs/benchmarks.md) and 0.13 % at seed 945; was 10 %
 COUPLING_TOLERANCE = 0.005
 
 

@@ -1,9 +1,9 @@
 """Real measured data: the silverbox (electronic mass-spring-damper with a hardening spring).
 
 Imported with `sfdrig import` and diagnosed with `sfdrig diagnose`, from the data alone, on the
-README's splits: the fitted linear baseline's held-out error on the "arrow" test is about 14 mV
-RMS; the nonlinear stiffness must be found and bring it to 0.5 mV or less. Reads the data where
-it is (``../shared``); skipped with a message where that is absent.
+splits in docs/diagnose.md: the fitted linear baseline's held-out error on the "arrow" test is
+about 14 mV RMS; the nonlinear stiffness must be found and bring it to 0.5 mV or less. Reads
+the data where it is (``../shared``); skipped with a message where that is absent.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def test_silverbox_nonlinear_stiffness_is_found(shared_dir, tmp_path):
     doc = json.loads(out.read_text())
     base = doc["baseline"]["rms_error"]
     assert doc["baseline"]["kind"] == "fitted"
-    assert 0.012 < base < 0.017  # the README's linear model: 14.1 mV
+    assert 0.012 < base < 0.017  # docs/benchmarks.md's linear model: 14.1 mV
     names = [f["effect"] for f in doc["findings"]]
     assert names[0] == "cubic_stiffness"
     assert doc["findings"][0]["evidence"]["confidence"] == "high"

@@ -8,7 +8,7 @@ how fast the replies come is measured by `benchmarks/bench_command_replies.py`, 
 the 1 s this test once held on a busy machine), the daemon alive and idle. At the end: the state
 unchanged by the refusals, no run file, and no drive written (no block numbered, none streamed).
 The CI version sends `CI_EXAMPLES` generated messages plus the fixed hostile ones; the `slow`
-one `LONG_EXAMPLES` (the README gives both counts)."""
+one `LONG_EXAMPLES` (docs/wire-protocol.md gives both counts)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from tests.e2e.raw_dealer import RawDealer
 pytestmark = pytest.mark.e2e
 
 CI_EXAMPLES = 1500
-#: the largest request frame the daemon parses [bytes], as the README states it ("a frame over
+#: the largest request frame the daemon parses [bytes], as docs/wire-protocol.md says ("a frame over
 #: 1 MB is refused unparsed"): written here, not read from `control.wire.protocol`
 MAX_REQUEST_BYTES = 1_000_000
 LONG_EXAMPLES = 20_000

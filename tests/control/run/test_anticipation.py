@@ -316,7 +316,7 @@ def test_a_displacement_target_across_the_resonance_both_ways(watched_frequency)
 
 
 def test_the_readme_40_n_x_example_is_held_at_20_hz_by_the_displacement_limit(watched_frequency):
-    """README's load example on X (`load_n=[40] freq_hz=[20, 80]`): 40 N at 20 Hz moves the
+    """The load example on X (`load_n=[40] freq_hz=[20, 80]`): 40 N at 20 Hz moves the
     dry housing 55.8 um (static compliance 1.27 um/N, x1.3 at 20 Hz, less the seal's friction),
     past the 80 % margin (50.8 um) of the 63.5 um limit: the step is held below it and says so;
     with `on_not_converged = "abort"` (the default) the run then stops there. 80 Hz converges."""
