@@ -72,7 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from daq.board import NIDAQMX, Board
     from daq.errors import ConfigFileError, DaqConnectionError, DaqError
+    from sfdrig.commands._board import AlreadyRunning, busy_line, grpc_target_error, hold_board
 
     local = False  # the local NI-DAQmx driver
     try:
@@ -80,14 +82,28 @@ def run(args: argparse.Namespace) -> int:
             return _write(args)
         if args.action == "calibrate":
             return _calibrate(args)
+        if line := grpc_target_error(f"channels {args.action}", args.grpc_target):
+            print(line, file=sys.stderr)
+            return 2
         cm = _load(args.map, args.grpc_target)
         local = cm.grpc_target is None
+        # one tool per board: refused while another holds it (a daemon, idle or not); held
+        # until this process ends
+        try:
+            hold_board(Board(NIDAQMX, cm.device.name, cm.grpc_target))
+        except OSError as err:
+            print(f"channels {args.action}: cannot use the board's lock file {err.filename}: "
+                  f"{err.strerror or err}", file=sys.stderr)
+            return 2
         if args.action == "check":
             return _check(args, cm)
         return _live(args, cm)
     except ConfigFileError as err:
         for line in err.lines():
             print(f"channels {args.action}: {line}", file=sys.stderr)
+        return 2
+    except AlreadyRunning as err:
+        print(busy_line(f"channels {args.action}", err), file=sys.stderr)
         return 2
     except DaqError as err:
         hint = (" (install NI-DAQmx, or give --grpc-target HOST:PORT of an NI gRPC device "

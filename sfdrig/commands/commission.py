@@ -12,6 +12,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sfdrig.commands._board import AlreadyRunning, busy_line, grpc_target_error, hold_board
+
 NAME = "commission"
 HELP = ("guided first power-up: inputs at rest, the e-stop and the watchdog with the operator, "
         "a small drive per shaker (swapped, dead, inverted, mis-scaled sensors); writes a "
@@ -70,6 +72,7 @@ class TerminalOperator:
 
 def run(args: argparse.Namespace) -> int:
     from control.commissioning.procedure import CommissionError, CommissionSpec
+    from daq.board import NIDAQMX, Board
     from daq.channels import load_channel_map
     from daq.errors import ConfigFileError, DaqConnectionError, DaqError
 
@@ -79,20 +82,34 @@ def run(args: argparse.Namespace) -> int:
 
     if not 0 <= args.watchdog_s <= 60 or not 0.1 <= args.rest_s <= 60:
         return bad("--watchdog-s must be in [0, 60] s and --rest-s in [0.1, 60] s")
-    if args.backend == "sim" and args.grpc_target:
+    if args.backend == "sim" and args.grpc_target is not None:
         return bad("--grpc-target needs --backend nidaqmx")
+    if line := grpc_target_error("commission", args.grpc_target):
+        print(line, file=sys.stderr)
+        return 2
     try:
         cm = load_channel_map(args.map)
-        if args.grpc_target:
+        if args.grpc_target is not None:
             cm = cm.model_copy(update={"grpc_target": args.grpc_target})
         spec = CommissionSpec(drive_n=args.drive_n, freq_hz=args.freq_hz, rest_s=args.rest_s,
                               watchdog_s=args.watchdog_s or None)
         spec.check(cm)
         backend, operator, rig = _backend(args, cm)
     except ConfigFileError as err:
-        return bad(err.lines()[0])
+        for line in err.lines():
+            print(f"commission: {line}", file=sys.stderr)
+        return 2
     except (CommissionError, ValueError) as err:
         return bad(str(err).splitlines()[0])
+    try:
+        # one tool per board: refused while another holds it (a daemon, idle or not)
+        if args.backend == "nidaqmx":
+            hold_board(Board(NIDAQMX, cm.device.name, cm.grpc_target))
+    except AlreadyRunning as err:
+        print(busy_line("commission", err), file=sys.stderr)
+        return 2
+    except OSError as err:
+        return bad(f"cannot use the board's lock file {err.filename}: {err.strerror or err}")
     try:
         try:
             backend.configure(cm)
@@ -122,7 +139,7 @@ def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
         params = rig_params_named_or_file(args.rig)
     except RigParamsError as err:  # the file and the first problem, one line
         raise ValueError(" ".join(str(err).splitlines()[:2])) from None
-    wiring = load_channel_map(args.wiring) if args.wiring else None
+    wiring = load_channel_map(args.wiring, wiring=True) if args.wiring else None
     backend = SimulatedBackend(params, seed=args.seed, wiring=wiring,
                                watchdog_s=args.watchdog_s or None)
     return backend, SimulatedCommissioner(backend), params
@@ -144,7 +161,7 @@ def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, oper
         record = out / f"commission-{stamp}.h5"
         writer = create_run_writer(
             record, "commissioning", backend.channel_map, run_id=f"commission-{stamp}",
-            rig_config=rig,
+            rig_config=rig, board=backend.board,
             test_spec={"map": str(args.map), "drive_n": spec.drive_n, "freq_hz": spec.freq_hz,
                        "rest_s": spec.rest_s, "watchdog_s": spec.watchdog_s},
             notes="sfdrig commission: rest, e-stop, watchdog and drives back to back; the "

@@ -93,7 +93,7 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
         writer = create_run_writer(path, kind, backend.channel_map, run_id=run_id,
                                    rig_config=test_params, test_spec=spec, operator=operator,
                                    lubricated=kind == "flow", overwrite=True,
-                                   paced=backend.realtime)
+                                   paced=backend.realtime, board=backend.board)
         desk = StandInOperator(_logged_to(writer))
         if not quiet:
             print(f"{kind}: running ...", flush=True)

@@ -84,7 +84,7 @@ physical_channel = "Dev1/port0/line0"
         (lambda d: d.update(sample_rate_hz=-1.0), "sample_rate_hz = -1.0"),
         (lambda d: d["ai"][0].update(physical_channel="Dev1/ai99"),
          "'Dev1/ai99' is not a AI channel of device Dev1"),
-        (lambda d: d["ao"][1].update(axis="x"), "two shaker drives on the same axis"),
+        (lambda d: d["ao"][1].update(axis="x"), "ao[1] (shaker_y): axis 'x' is driven by ao[0] (shaker_x) already"),
         (lambda d: d["ai"][4].update(name="X 1"), "ai.4.name = 'X 1'"),
         (lambda d: d["ai"][5].update(kind="relay"), "kind 'relay' is not an analog-input kind"),
     ],

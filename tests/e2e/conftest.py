@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import selectors
+import shlex
 import signal
 import subprocess
 import sys
@@ -65,7 +66,7 @@ def start_daemon(runs_dir: Path, *extra: str, fast: bool = True,
         proc.communicate(timeout=10)
         err = (runs_dir.parent / f"{runs_dir.name}.stderr").read_text()
         raise RuntimeError(f"daemon did not start: {line!r}\n{err}")
-    fields = dict(part.split("=", 1) for part in line.split())
+    fields = dict(part.split("=", 1) for part in shlex.split(line))
     return DaemonProcess(proc, fields["command"], fields["data"], runs_dir)
 
 
