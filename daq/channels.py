@@ -386,7 +386,7 @@ KNOWN_RELAYS = ("pump",)
 #: a sweep refuses it at its start (it drives both axes).
 REQUIRED_PER_AXIS: tuple[tuple[str, str], ...] = (
     ("f{axis}", "the {AXIS} load cell (force control, load trip)"),
-    ("{axis}1|{axis}2", "an {AXIS} eddy-current probe (displacement trip)"),
+    ("{axis}1|{axis}2", "an eddy-current probe on {AXIS} (displacement trip)"),
 )
 REQUIRED_RELAY = ("pump", "the pump relay (the daemon's interlock)")
 
@@ -419,8 +419,8 @@ def rig_map_problems(cm: ChannelMap, wiring: bool = False) -> list[str]:
                 f"{_did_you_mean(ch.name, list(KNOWN_INPUTS), same_kind or missing_inputs)}; "
                 f"the software knows {', '.join(KNOWN_INPUTS)}")
         elif kind is not ch.kind:
-            problems.append(f"{where}: kind {ch.kind.value!r}, but {ch.name} is a "
-                            f"{kind.value}")
+            problems.append(f"{where}: kind {ch.kind.value!r}, but {ch.name} must be kind "
+                            f"{kind.value!r}")
     relays = [d.name for d in cm.do]
     for i, d in enumerate(cm.do):
         if d.name not in KNOWN_RELAYS:

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sfdrig.commands._board import AlreadyRunning, busy_line, grpc_target_error, hold_board
+from sfdrig.commands._board import BoardBusy, board_held, grpc_target_error
 
 NAME = "commission"
 HELP = ("guided first power-up: inputs at rest, the e-stop and the watchdog with the operator, "
@@ -72,7 +72,7 @@ class TerminalOperator:
 
 def run(args: argparse.Namespace) -> int:
     from control.commissioning.procedure import CommissionError, CommissionSpec
-    from daq.board import NIDAQMX, Board
+    from daq.board import NIDAQMX, SIM, Board
     from daq.channels import load_channel_map
     from daq.errors import ConfigFileError, DaqConnectionError, DaqError
 
@@ -101,26 +101,27 @@ def run(args: argparse.Namespace) -> int:
         return 2
     except (CommissionError, ValueError) as err:
         return bad(str(err).splitlines()[0])
+    # one tool per board: refused while another holds it (a daemon, idle or not); the
+    # simulated rig in process is this process's own
+    board = Board(NIDAQMX, cm.device.name, cm.grpc_target) if args.backend == "nidaqmx" \
+        else Board(SIM, cm.device.name)
     try:
-        # one tool per board: refused while another holds it (a daemon, idle or not)
-        if args.backend == "nidaqmx":
-            hold_board(Board(NIDAQMX, cm.device.name, cm.grpc_target))
-    except AlreadyRunning as err:
-        print(busy_line("commission", err), file=sys.stderr)
+        with board_held("commission", board):
+            try:
+                try:
+                    backend.configure(cm)
+                except DaqError as err:
+                    hint = (" (install NI-DAQmx, or give --grpc-target HOST:PORT)"
+                            if isinstance(err, DaqConnectionError) and cm.grpc_target is None
+                            else "")
+                    return bad(f"{err}{hint}")
+                return _commission(args, cm, spec, backend, operator, rig)
+            finally:
+                with contextlib.suppress(DaqError):
+                    backend.close()
+    except BoardBusy as err:
+        print(err, file=sys.stderr)
         return 2
-    except OSError as err:
-        return bad(f"cannot use the board's lock file {err.filename}: {err.strerror or err}")
-    try:
-        try:
-            backend.configure(cm)
-        except DaqError as err:
-            hint = (" (install NI-DAQmx, or give --grpc-target HOST:PORT)"
-                    if isinstance(err, DaqConnectionError) and cm.grpc_target is None else "")
-            return bad(f"{err}{hint}")
-        return _commission(args, cm, spec, backend, operator, rig)
-    finally:
-        with contextlib.suppress(DaqError):
-            backend.close()
 
 
 def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:

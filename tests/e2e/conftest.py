@@ -28,6 +28,7 @@ class DaemonProcess:
     command: str
     data: str
     runs_dir: Path
+    board: str = ""  # what the first line names the board ("simulated rig (in process)", ...)
 
     def terminate(self, sig: int = signal.SIGTERM, timeout_s: float = 30.0) -> int:
         if self.proc.poll() is None:
@@ -67,7 +68,7 @@ def start_daemon(runs_dir: Path, *extra: str, fast: bool = True,
         err = (runs_dir.parent / f"{runs_dir.name}.stderr").read_text()
         raise RuntimeError(f"daemon did not start: {line!r}\n{err}")
     fields = dict(part.split("=", 1) for part in shlex.split(line))
-    return DaemonProcess(proc, fields["command"], fields["data"], runs_dir)
+    return DaemonProcess(proc, fields["command"], fields["data"], runs_dir, fields["board"])
 
 
 @pytest.fixture
