@@ -106,3 +106,22 @@ def test_a_second_holder_is_refused_with_the_first_ones_pid_and_command(tmp_path
         first.release()
     second.acquire()  # free once the first let go (or died: the kernel drops a flock)
     second.release()
+
+
+def test_a_run_file_names_the_board_that_recorded_it(tmp_path):
+    from control.run.files import create_run_writer
+    from storage.reader import open_run
+
+    board = Board(NIDAQMX, "Dev1", "127.0.0.1:31763")
+    writer = create_run_writer(tmp_path / "r.h5", "static", default_channel_map(), run_id="r",
+                               board=board)
+    writer.close("completed", "")
+    with open_run(tmp_path / "r.h5") as run:
+        assert {k: run.attrs[k] for k in ("board", "backend", "device", "grpc_target")} == {
+            "board": "nidaqmx device Dev1 via gRPC 127.0.0.1:31763", "backend": "nidaqmx",
+            "device": "Dev1", "grpc_target": "127.0.0.1:31763"}
+    # without a board (imported data): the attributes are there, empty
+    create_run_writer(tmp_path / "i.h5", "static", default_channel_map(), run_id="i").close(
+        "completed", "")
+    with open_run(tmp_path / "i.h5") as run:
+        assert run.attrs["board"] == run.attrs["backend"] == ""
