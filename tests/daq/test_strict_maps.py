@@ -7,26 +7,17 @@ channel (an empty terminal) but not carry an unknown name."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import pytest
 
 from daq.channels import KNOWN_INPUTS, default_channel_map, load_channel_map, rig_map_problems
-from daq.config_files import to_toml
 from daq.errors import ChannelConfigError
 from tests.conftest import REPO_ROOT
+from tests.e2e.test_channels_e2e import _map as _write  # the example, changed, as TOML
 
 EXAMPLE = REPO_ROOT / "examples" / "channels_report_rig.toml"
 KNOWN = ", ".join(KNOWN_INPUTS)
-
-
-def _write(tmp_path: Path, change: Callable[[dict[str, Any]], Any]) -> Path:
-    data = load_channel_map(EXAMPLE).model_dump(mode="json", exclude_none=True)
-    change(data)
-    path = tmp_path / "map.toml"
-    path.write_text(to_toml(data))
-    return path
 
 
 def _named(which: str, /, **update: Any) -> Callable[[dict[str, Any]], None]:
