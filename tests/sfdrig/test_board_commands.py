@@ -99,17 +99,6 @@ def test_the_daemon_refuses_a_grpc_target_that_is_not_host_port(tmp_path):
                           "'notaport' is not a TCP port 1-65535 (e.g. 127.0.0.1:31763)\n")
 
 
-@pytest.mark.parametrize("command", [
-    ["channels", "check", str(EXAMPLE), "--connect-timeout-s", "0.2"],
-    ["channels", "live", str(EXAMPLE), "--once", "--connect-timeout-s", "0.2"],
-])
-def test_a_target_nobody_answers_is_one_line(capsys, command):
-    assert main([*command, "--grpc-target", DEAD]) == 2
-    out = capsys.readouterr()
-    assert out.err == (f"channels {command[1]}: no NI gRPC device server answers at {DEAD} "
-                       "(waited 0.2 s)\n")
-
-
 def test_the_daemon_on_a_target_nobody_answers_does_not_ask_for_one(tmp_path):
     """It was given HOST:PORT: no hint to give one (the hint is for the local driver)."""
     out = subprocess.run([sys.executable, "-m", "sfdrig", "daemon", "--runs-dir",
