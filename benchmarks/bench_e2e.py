@@ -22,6 +22,7 @@ import json
 import multiprocessing as mp
 import os
 import selectors
+import shlex
 import signal
 import subprocess
 import sys
@@ -234,7 +235,7 @@ def main() -> int:
         daemon.kill()
         raise SystemExit("daemon did not start")
     line = daemon.stdout.readline()  # type: ignore[union-attr]
-    eps = dict(p.split("=", 1) for p in line.split())
+    eps = dict(p.split("=", 1) for p in shlex.split(line))
     print(line.strip())
 
     from control.wire.client import CommandClient

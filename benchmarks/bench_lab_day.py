@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import atexit
 import os
+import shlex
 import shutil
 import signal
 import subprocess
@@ -284,7 +285,7 @@ def main() -> int:
          *(["--priority", args.priority] if args.priority != "normal" else [])],
         cwd=REPO, stdout=subprocess.PIPE, text=True)
     procs.append(daemon)
-    eps = dict(p.split("=", 1) for p in first_line(daemon, "daemon").split())
+    eps = dict(p.split("=", 1) for p in shlex.split(first_line(daemon, "daemon")))
     print(f"daemon pid {daemon.pid} ({args.backend}, priority {args.priority}); {args.busy} busy "
           f"processes; {args.browsers} browser pages; {args.minutes:g} min; load average "
           f"{os.getloadavg()[0]:.1f}", flush=True)

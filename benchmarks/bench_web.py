@@ -31,6 +31,7 @@ import json
 import math
 import os
 import selectors
+import shlex
 import shutil
 import signal
 import subprocess
@@ -192,7 +193,7 @@ def main() -> int:
                                  else [])],
                               cwd=REPO, stdout=subprocess.PIPE,
                               text=True)
-    eps = dict(p.split("=", 1) for p in first_line(daemon, "daemon").split())
+    eps = dict(p.split("=", 1) for p in shlex.split(first_line(daemon, "daemon")))
     web = subprocess.Popen([sys.executable, "-m", "sfdrig", "web", "--port", "0",
                             "--command-endpoint", eps["command"], "--data-endpoint", eps["data"],
                             *(["--runs-dir", str(runs)] if args.transfer else [])],

@@ -25,6 +25,8 @@ Life cycle: ``configure(channel_map)`` -> ``write_ao(prefill)`` -> ``start()`` -
   names (the caller writes a fast fade from there) or are at 0 V from that sample on (the
   generation stopped, AO idle output 0 V). A drive is never left holding a non-zero value: where
   neither can be done, nothing is dropped.
+- ``board`` names the board (`daq.board.Board`: simulated, or the nidaqmx device and its gRPC
+  target), the one description every tool shows; available once configured.
 - ``feed_watchdog`` resets the board's watchdog timer, where the backend has one (`read_ai` feeds
   it too); if nobody feeds it, the board turns the relays off and the drives to 0 V by itself.
 """
@@ -36,6 +38,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from daq.board import Board
 from daq.channels import ChannelMap
 
 
@@ -59,6 +62,10 @@ class DaqBackend(Protocol):
 
     @property
     def sample_rate_hz(self) -> float: ...
+
+    @property
+    def board(self) -> Board:
+        """The board this backend drives (`Board.describe` says it in words); once configured."""
 
     def configure(self, channel_map: ChannelMap) -> None:
         """Create the AI, AO and DO tasks for ``channel_map``; nothing starts yet."""

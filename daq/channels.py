@@ -1,5 +1,14 @@
 """The rig's channel map and sensor calibration: pydantic models loadable from TOML.
 
+Maps read from files are read strictly (`load_channel_map`; `rig_map_problems`): every input
+carries one of the names the software knows (`KNOWN_INPUTS`: the sweep, the safety trips, the
+simulated rig and the analysis find their signals by name), of its kind; the only relay is
+``pump``; and a map the software runs with has what the daemon and the commissioning need to
+drive the rig: a drive, and for each axis driven its load cell and a probe
+(`REQUIRED_PER_AXIS`), and the pump relay.
+A wiring map (the simulated rig's real wiring) may lack any of them: a missing sensor is an
+empty terminal.
+
 Calibration convention, for every analog channel: ``volts = gain_v_per_unit * value + offset_v``,
 so ``value = (volts - offset_v) / gain_v_per_unit``, in the channel's engineering units (SI, except
 flow in L/min and temperature in degC, as the rig's instruments read).
@@ -7,6 +16,7 @@ flow in L/min and temperature in degC, as the rig's instruments read).
 
 from __future__ import annotations
 
+import difflib
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
@@ -14,6 +24,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from daq.board import grpc_target_problem
 from daq.config_files import read_toml, to_toml, validate
 from daq.errors import ChannelConfigError
 
@@ -206,6 +217,13 @@ class ChannelMap(_Strict):
         None, description="optional emergency-stop input: pressed ramps the drives down and "
                           "latches a fault until reset")
 
+    @field_validator("grpc_target")
+    @classmethod
+    def _grpc_target(cls, target: str | None) -> str | None:
+        if target is not None and (problem := grpc_target_problem(target)):
+            raise ValueError(f"{problem}; leave grpc_target out for the local driver")
+        return target
+
     @model_validator(mode="after")
     def _consistent(self) -> ChannelMap:
         dev = self.device
@@ -247,9 +265,12 @@ class ChannelMap(_Strict):
                     problems.append(
                         f"{where}: range_v {ch.range_v} exceeds the board's +/-{rng:g} V"
                     )
-        axes = [ao.axis for ao in self.ao]
-        if len(set(axes)) != len(axes):
-            problems.append(f"ao: two shaker drives on the same axis {axes}")
+        driven: dict[str, str] = {}
+        for i, ao in enumerate(self.ao):
+            if ao.axis in driven:
+                problems.append(f"ao[{i}] ({ao.name}): axis {ao.axis!r} is driven by "
+                                f"{driven[ao.axis]} already: one drive per axis")
+            driven.setdefault(ao.axis, f"ao[{i}] ({ao.name})")
         if problems:
             raise ValueError("\n".join(problems))
         return self
@@ -341,10 +362,108 @@ def default_channel_map() -> ChannelMap:
     )
 
 
-def channel_map_from_dict(data: dict[str, Any], source: str = "<dict>") -> ChannelMap:
-    return validate(ChannelMap, data, "channel map", source, ChannelConfigError)
+_K = ChannelKind
+#: The analog inputs the software knows, and what each is. The sweep's control and trips read
+#: fx, fy and the probes x1, x2, y1, y2 (`control.run.safety.AxisSignals`); the lubricated
+#: sweep waits for p_in; the simulated rig wires each sensor by its name
+#: (`rig_model.rig._source_for`); the analysis reads the rest by name.
+KNOWN_INPUTS: dict[str, ChannelKind] = {
+    "fx": _K.LOAD_CELL, "fy": _K.LOAD_CELL,
+    "x1": _K.EDDY_CURRENT_PROBE, "x2": _K.EDDY_CURRENT_PROBE,
+    "y1": _K.EDDY_CURRENT_PROBE, "y2": _K.EDDY_CURRENT_PROBE,
+    "ax": _K.ACCELEROMETER, "ay": _K.ACCELEROMETER,
+    "p_in": _K.PRESSURE_4_20MA, "p_rec": _K.PRESSURE_4_20MA,
+    "q_in": _K.FLOW, "q_out": _K.FLOW,
+    "t_oil": _K.THERMOCOUPLE,
+    "hammer": _K.LOAD_CELL,
+}
+#: The relays the software switches (`control.run.pump.PumpRelay`).
+KNOWN_RELAYS = ("pump",)
+#: What a map the software runs with must have, per axis it drives (x, y): the axis's load cell
+#: (the force control and the load trip read f<axis>) and a probe (the displacement trip reads
+#: <axis>1, <axis>2); and the pump relay (the daemon holds it: its interlock). A one-axis map
+#: (one drive) is allowed: the daemon, the structure tests and the commissioning run on it, and
+#: a sweep refuses it at its start (it drives both axes).
+REQUIRED_PER_AXIS: tuple[tuple[str, str], ...] = (
+    ("f{axis}", "the {AXIS} load cell (force control, load trip)"),
+    ("{axis}1|{axis}2", "an eddy-current probe on {AXIS} (displacement trip)"),
+)
+REQUIRED_RELAY = ("pump", "the pump relay (the daemon's interlock)")
 
 
-def load_channel_map(path: str | Path) -> ChannelMap:
-    """Load a channel map from TOML; raise `ChannelConfigError` naming the field and value."""
-    return channel_map_from_dict(read_toml(path, ChannelConfigError), str(path))
+def _did_you_mean(name: str, known: list[str], missing: list[str]) -> str:
+    """`` (did you mean 'x2'?)``: the closest known name, those the map lacks first."""
+    for pool in (missing, known):
+        close = difflib.get_close_matches(name, pool, n=1, cutoff=0.5)
+        if close:
+            return f" (did you mean {close[0]!r}?)"
+    return ""
+
+
+def rig_map_problems(cm: ChannelMap, wiring: bool = False) -> list[str]:
+    """What makes ``cm`` unusable as the rig's map, one line per entry: an input name the
+    software does not know (with the closest known name), a known name of another kind, a relay
+    other than ``pump``; and (unless ``wiring``: the simulated rig's real wiring, where a
+    missing sensor is an empty terminal) a required channel missing (`REQUIRED_PER_AXIS`,
+    `REQUIRED_RELAY`)."""
+    problems: list[str] = []
+    names = set(cm.ai_names)
+    missing_inputs = [n for n in KNOWN_INPUTS if n not in names]
+    for i, ch in enumerate(cm.ai):
+        where = f"ai[{i}] ({ch.name})"
+        kind = KNOWN_INPUTS.get(ch.name)
+        if kind is None:
+            same_kind = [n for n in missing_inputs if KNOWN_INPUTS[n] is ch.kind]
+            problems.append(
+                f"{where}: unknown input name {ch.name!r}"
+                f"{_did_you_mean(ch.name, list(KNOWN_INPUTS), same_kind or missing_inputs)}; "
+                f"the software knows {', '.join(KNOWN_INPUTS)}")
+        elif kind is not ch.kind:
+            problems.append(f"{where}: kind {ch.kind.value!r}, but {ch.name} must be kind "
+                            f"{kind.value!r}")
+    relays = [d.name for d in cm.do]
+    for i, d in enumerate(cm.do):
+        if d.name not in KNOWN_RELAYS:
+            problems.append(
+                f"do[{i}] ({d.name}): unknown relay {d.name!r}"
+                f"{_did_you_mean(d.name, list(KNOWN_RELAYS), [])}; the software switches "
+                f"only {', '.join(KNOWN_RELAYS)}")
+    if wiring:
+        return problems
+    if not cm.ao:
+        problems.append("ao: no shaker drive: add one per axis driven ([[ao]] with axis = 'x' "
+                        "or 'y')")
+    for axis in sorted({ao.axis for ao in cm.ao}):
+        drive = next(f"ao[{i}] ({ao.name})" for i, ao in enumerate(cm.ao) if ao.axis == axis)
+        for pattern, what in REQUIRED_PER_AXIS:
+            wanted = pattern.format(axis=axis).split("|")
+            if not names & set(wanted):
+                problems.append(f"ai: missing {what.format(AXIS=axis.upper())} for {drive}: "
+                                f"add an input named {' or '.join(wanted)}")
+    relay, what = REQUIRED_RELAY
+    if relay not in relays:
+        problems.append(f"do: missing {what}: add a relay named {relay}")
+    return problems
+
+
+def channel_map_from_dict(data: dict[str, Any], source: str = "<dict>", *,
+                          strict: bool = False, wiring: bool = False) -> ChannelMap:
+    """The map in ``data``; ``strict``: also `rig_map_problems` (``wiring``: as a wiring map),
+    raising `ChannelConfigError` with one line per problem, each led by ``source``."""
+    cm = validate(ChannelMap, data, "channel map", source, ChannelConfigError)
+    if strict:
+        problems = rig_map_problems(cm, wiring)
+        if problems:
+            err = ChannelConfigError("\n".join([f"invalid channel map in {source}:"]
+                                                + [f"  {p}" for p in problems]))
+            err.problems = tuple(f"{source}: {p}" for p in problems)
+            raise err
+    return cm
+
+
+def load_channel_map(path: str | Path, *, wiring: bool = False) -> ChannelMap:
+    """Load a channel map from TOML, strictly (`rig_map_problems`); raise `ChannelConfigError`
+    naming the file, the entry and the value. ``wiring``: the simulated rig's real wiring (a
+    sim-server's ``--channels``, commission's ``--wiring``), where any channel may be missing."""
+    return channel_map_from_dict(read_toml(path, ChannelConfigError), str(path), strict=True,
+                                 wiring=wiring)

@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from daq.backend import AoCut
+from daq.board import NIDAQMX, Board
 from daq.channels import ChannelMap, TerminalConfig
 from daq.errors import (
     ATTR_NOT_SUPPORTED,
@@ -172,6 +173,11 @@ class NidaqmxBackend:
     @property
     def sample_rate_hz(self) -> float:
         return self.channel_map.sample_rate_hz
+
+    @property
+    def board(self) -> Board:
+        """The map's device, through the local driver or the gRPC device server."""
+        return Board(NIDAQMX, self.channel_map.device.name, self.grpc_target)
 
     @property
     def grpc_target(self) -> str | None:

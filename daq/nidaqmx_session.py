@@ -10,6 +10,7 @@ import uuid
 from collections.abc import Iterator
 from typing import Any
 
+from daq.board import grpc_target_problem
 from daq.errors import ChannelConfigError, DaqConnectionError, DaqError, error_for_code
 
 _log = logging.getLogger(__name__)
@@ -100,8 +101,9 @@ class NidaqmxSession:
         if self._channel is None:
             import grpc
 
-            if target.count(":") < 1 or not target.rsplit(":", 1)[1].isdigit():
-                raise ChannelConfigError(f"grpc_target {target!r} must be 'host:port'")
+            problem = grpc_target_problem(target)
+            if problem:
+                raise ChannelConfigError(f"grpc_target {target!r}: {problem}")
             self._channel = grpc.insecure_channel(target, options=[
                 ("grpc.max_receive_message_length", MAX_MESSAGE_BYTES),
                 ("grpc.max_send_message_length", MAX_MESSAGE_BYTES),

@@ -53,7 +53,7 @@ def _sweep(path: Path, params: RigParams, spec: SweepSpec, seed: int, log: bool)
         pump.set(True)
     writer = create_run_writer(path, "sweep", backend.channel_map, run_id=path.stem,
                                rig_config=params, test_spec=spec, lubricated=spec.lubricated,
-                               overwrite=True, paced=backend.realtime)
+                               overwrite=True, paced=backend.realtime, board=backend.board)
     outcome = SweepEngine(backend, spec, limits=None if spec.lubricated else DRY_LIMITS,
                           listener=writer, pump=pump).run()
     writer.close(outcome.status, outcome.reason)

@@ -43,6 +43,7 @@ from collections.abc import Callable
 import numpy as np
 
 from daq.backend import AoCut
+from daq.board import SIM, Board
 from daq.channels import ChannelMap
 from daq.errors import (
     OUTPUT_UNDERFLOW,
@@ -131,6 +132,11 @@ class SimulatedBackend:
     @property
     def sample_rate_hz(self) -> float:
         return self.channel_map.sample_rate_hz
+
+    @property
+    def board(self) -> Board:
+        """The simulated rig in this process (the map's device name)."""
+        return Board(SIM, self.channel_map.device.name)
 
     @property
     def rig(self) -> RigModel | None:

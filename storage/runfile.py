@@ -51,6 +51,17 @@ from storage.layout import (
 )
 from storage.recovery import writer_identity
 
+#: the root attributes naming the board that recorded a run (`board_attrs`)
+BOARD_ATTRS = ("board", "backend", "device", "grpc_target")
+
+
+def board_attrs(board: Mapping[str, str] | None) -> dict[str, str]:
+    """The run file's board attributes from a ``daq.board.Board.as_dict`` (its
+    ``description`` as ``board``); "" each when no board is given."""
+    board = board or {}
+    return {key: hdf5_text(board.get("description" if key == "board" else key, ""))
+            for key in BOARD_ATTRS}
+
 
 class RunWriter:
     """Writes one run to an HDF5 file in SWMR mode; a sweep listener (contract A).
@@ -91,6 +102,7 @@ class RunWriter:
         swmr: bool = True,
         pool: ThreadPoolExecutor | None = None,
         wait_when_behind: bool = False,
+        board: Mapping[str, str] | None = None,
     ) -> None:
         """Create the run file with every dataset and attribute, then switch SWMR on.
 
@@ -146,6 +158,10 @@ class RunWriter:
             Past ``max_backlog_s``, `on_block` waits for the I/O thread instead of raising: for
             a producer not paced by a clock (the simulated rig's fast mode makes data many
             times faster than real time, faster than any disk takes it), never for a board.
+        board : mapping, optional
+            The board that records the run (``daq.board.Board.as_dict``): written as the root
+            attributes ``board`` (its description, e.g. "simulated rig (in process)"),
+            ``backend``, ``device`` and ``grpc_target``; all "" when not given (imported data).
         overwrite : bool
             Replace an existing file.
         swmr : bool
@@ -244,6 +260,7 @@ class RunWriter:
                     "lubricated": bool(lubricated),
                     "status": "running",
                     "status_reason": "",
+                    **board_attrs(board),
                     **writer_identity(),
                 },
             )

@@ -151,6 +151,8 @@ class Daemon:
         self._engine_factory = engine_factory
         self._spec_parser = spec_parser
         self.backend.configure(channel_map)
+        #: the board, as every place names it (status, daemon.json, run files, the page)
+        self.board = backend.board
         if pump_factory is None:
             from control.run.pump import PumpRelay
 
@@ -499,7 +501,7 @@ class Daemon:
         try:
             writer = create_run_writer(path, "sweep", cm, run_id=run_id, test_spec=spec,
                                        rig_config=self.cfg.rig_config, operator=req.operator,
-                                       notes=req.notes, pool=self.deflate_pool,
+                                       notes=req.notes, pool=self.deflate_pool, board=self.board,
                                        paced=not self.cfg.lossless_publish)
         except Exception as err:  # disk full, permissions: nothing has run
             log.exception("creating %s failed", path)
@@ -542,7 +544,7 @@ class Daemon:
         try:
             writer = create_run_writer(path, req.test, self.channel_map, run_id=run_id,
                                        test_spec=spec, rig_config=self.cfg.rig_config,
-                                       operator=req.operator, notes=req.notes,
+                                       operator=req.operator, notes=req.notes, board=self.board,
                                        lubricated=req.test == "flow", pool=self.deflate_pool,
                                        paced=not self.cfg.lossless_publish)
         except Exception as err:  # disk full, permissions: nothing has run
@@ -724,6 +726,7 @@ class Daemon:
             "input_ranges": {c.name: sorted((v - c.offset_v) / c.gain_v_per_unit
                                             for v in c.range_v) for c in self.channel_map.ai},
             "endpoints": self.endpoints,
+            "board": self.board.as_dict(),
             "pid": os.getpid(),
         }
 
@@ -776,7 +779,8 @@ class Daemon:
             return
         tmp = self.cfg.state_file.with_suffix(".tmp")
         tmp.write_text(json.dumps({**self.endpoints, "pid": os.getpid(),
-                                   "curve": self.cfg.keys is not None}))
+                                   "curve": self.cfg.keys is not None,
+                                   "board": self.board.as_dict()}))
         tmp.replace(self.cfg.state_file)
 
 

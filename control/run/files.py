@@ -12,6 +12,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from daq.board import Board
 from daq.channels import ChannelMap
 
 if TYPE_CHECKING:
@@ -40,14 +41,16 @@ def create_run_writer(path: str | Path, kind: str, channel_map: ChannelMap, *, r
                       test_spec: Any = None, rig_config: Any = None,
                       lubricated: bool | None = None, operator: str = "", notes: str = "",
                       overwrite: bool = False, pool: Any = None,
-                      paced: bool = True) -> RunWriter:
+                      paced: bool = True, board: Board | None = None) -> RunWriter:
     """A new run file of ``kind`` (a sweep, a structure test) and its `storage.RunWriter`, the
     metadata written: the AI and AO channels from ``channel_map``, the test's spec (a pydantic
     model or a dict), the rig. ``lubricated`` None: the spec's own ``lubricated`` (False without
     one). ``pool``: the daemon's compression pool, shared by its runs
     (`storage.runfile.deflate_pool`). ``paced`` False: the data comes from a producer no clock
     paces (the simulated rig's fast mode), and the writer holds it back when it falls behind
-    instead of failing the run."""
+    instead of failing the run. ``board``: the board that records it (`daq.board.Board`; the
+    backend's ``board``), written as the file's ``board``, ``backend``, ``device`` and
+    ``grpc_target`` attributes."""
     from storage.runfile import RunWriter
 
     cm = channel_map
@@ -61,7 +64,7 @@ def create_run_writer(path: str | Path, kind: str, channel_map: ChannelMap, *, r
         lubricated=bool(getattr(test_spec, "lubricated", False)) if lubricated is None
         else lubricated,
         chunk_samples=writer_chunk_samples(cm.sample_rate_hz), pool=pool, overwrite=overwrite,
-        wait_when_behind=not paced,
+        wait_when_behind=not paced, board=board.as_dict() if board is not None else None,
     )
 
 

@@ -72,7 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from daq.board import NIDAQMX, Board
     from daq.errors import ConfigFileError, DaqConnectionError, DaqError
+    from sfdrig.commands._board import BoardBusy, board_held, grpc_target_error
 
     local = False  # the local NI-DAQmx driver
     try:
@@ -80,14 +82,23 @@ def run(args: argparse.Namespace) -> int:
             return _write(args)
         if args.action == "calibrate":
             return _calibrate(args)
+        if line := grpc_target_error(f"channels {args.action}", args.grpc_target):
+            print(line, file=sys.stderr)
+            return 2
         cm = _load(args.map, args.grpc_target)
         local = cm.grpc_target is None
-        if args.action == "check":
-            return _check(args, cm)
-        return _live(args, cm)
+        # one tool per board: refused while another holds it (a daemon, idle or not)
+        with board_held(f"channels {args.action}", Board(NIDAQMX, cm.device.name,
+                                                         cm.grpc_target)):
+            if args.action == "check":
+                return _check(args, cm)
+            return _live(args, cm)
     except ConfigFileError as err:
         for line in err.lines():
             print(f"channels {args.action}: {line}", file=sys.stderr)
+        return 2
+    except BoardBusy as err:
+        print(err, file=sys.stderr)
         return 2
     except DaqError as err:
         hint = (" (install NI-DAQmx, or give --grpc-target HOST:PORT of an NI gRPC device "

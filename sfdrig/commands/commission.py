@@ -7,10 +7,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import sys
 import time
 from pathlib import Path
 from typing import Any
+
+from daq.board import NIDAQMX, SIM, Board
+from sfdrig.commands._board import BoardBusy, board_held, grpc_target_error
 
 NAME = "commission"
 HELP = ("guided first power-up: inputs at rest, the e-stop and the watchdog with the operator, "
@@ -84,44 +88,56 @@ def run(args: argparse.Namespace) -> int:
         return bad("--watchdog-s must be in [0, 60] s and --rest-s in [0.1, 60] s")
     if not 0.2 <= args.pump_s <= 120:
         return bad(f"--pump-s must be in [0.2, 120] s, got {args.pump_s:g}")
-    if args.backend == "sim" and args.grpc_target:
+    if args.backend == "sim" and args.grpc_target is not None:
         return bad("--grpc-target needs --backend nidaqmx")
+    if line := grpc_target_error("commission", args.grpc_target):
+        print(line, file=sys.stderr)
+        return 2
     try:
         cm = load_channel_map(args.map)
-        if args.grpc_target:
+        if args.grpc_target is not None:
             cm = cm.model_copy(update={"grpc_target": args.grpc_target})
         spec = CommissionSpec(drive_n=args.drive_n, freq_hz=args.freq_hz, rest_s=args.rest_s,
                               watchdog_s=args.watchdog_s or None, pump_s=args.pump_s)
         spec.check(cm)
         backend, operator, rig = _backend(args, cm)
     except ConfigFileError as err:
-        return bad(err.lines()[0])
+        for line in err.lines():
+            print(f"commission: {line}", file=sys.stderr)
+        return 2
     except (CommissionError, ValueError) as err:
         return bad(str(err).splitlines()[0])
+    # one tool per board: refused while another holds it (a daemon, idle or not); the
+    # simulated rig in process is this process's own
+    board = Board(NIDAQMX, cm.device.name, cm.grpc_target) if args.backend == "nidaqmx" \
+        else Board(SIM, cm.device.name)
     try:
-        try:
-            board = describe_board(args.backend, cm)
-            backend.configure(cm)
-        except DaqError as err:
-            hint = (" (install NI-DAQmx, or give --grpc-target HOST:PORT)"
-                    if isinstance(err, DaqConnectionError) and cm.grpc_target is None else "")
-            return bad(f"{err}{hint}")
-        return _commission(args, cm, spec, backend, operator, rig, board)
-    finally:
-        with contextlib.suppress(DaqError):
-            backend.close()
+        with board_held("commission", board):
+            try:
+                try:
+                    described = describe_board(board, cm)
+                    backend.configure(cm)
+                except DaqError as err:
+                    hint = (" (install NI-DAQmx, or give --grpc-target HOST:PORT)"
+                            if isinstance(err, DaqConnectionError) and cm.grpc_target is None
+                            else "")
+                    return bad(f"{err}{hint}")
+                return _commission(args, cm, spec, backend, operator, rig, described)
+            finally:
+                with contextlib.suppress(DaqError):
+                    backend.close()
+    except BoardBusy as err:
+        print(err, file=sys.stderr)
+        return 2
 
 
-def describe_board(backend: str, cm: Any) -> str:
-    """The board commissioning runs on, for its output, report and record: "simulated board
-    (in-process)", or "nidaqmx device NAME" on the local driver or "... at gRPC target
-    HOST:PORT", "simulated" before it when the device says it is (an NI simulated device, or
-    `sfdrig sim-server`). (Local to commissioning; the daemon names its backend elsewhere.)"""
-    if backend == "sim":
-        return "simulated board (in-process)"
-    where = f" at gRPC target {cm.grpc_target}" if cm.grpc_target else " (local driver)"
-    simulated = _device_is_simulated(cm)
-    return f"{'simulated ' if simulated else ''}nidaqmx device {cm.device.name}{where}"
+def describe_board(board: Board, cm: Any) -> str:
+    """The board commissioning runs on, for its output, report and record (`daq.board.Board`'s
+    sentence), "simulated" before a device that says it is one (an NI simulated device, or
+    `sfdrig sim-server`): a rehearsal never reads as the rig."""
+    if board.backend == NIDAQMX:
+        board = dataclasses.replace(board, simulated=_device_is_simulated(cm))
+    return board.describe()
 
 
 def _device_is_simulated(cm: Any) -> bool:
@@ -158,7 +174,7 @@ def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
         params = rig_params_named_or_file(args.rig)
     except RigParamsError as err:  # the file and the first problem, one line
         raise ValueError(" ".join(str(err).splitlines()[:2])) from None
-    wiring = load_channel_map(args.wiring) if args.wiring else None
+    wiring = load_channel_map(args.wiring, wiring=True) if args.wiring else None
     backend = SimulatedBackend(params, seed=args.seed, wiring=wiring,
                                watchdog_s=args.watchdog_s or None)
     return backend, SimulatedCommissioner(backend), params
@@ -180,7 +196,7 @@ def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, oper
         record = out / f"commission-{stamp}.h5"
         writer = create_run_writer(
             record, "commissioning", backend.channel_map, run_id=f"commission-{stamp}",
-            rig_config=rig,
+            rig_config=rig, board=backend.board,
             test_spec={"map": str(args.map), "board": board, "drive_n": spec.drive_n,
                        "freq_hz": spec.freq_hz, "rest_s": spec.rest_s,
                        "watchdog_s": spec.watchdog_s, "pump_s": spec.pump_s},

@@ -5,12 +5,13 @@ as possible, or NI-DAQmx through the local driver or a gRPC device server), load
 and rig configuration, and serves `control.daemon.daemon.Daemon` until SIGTERM or Ctrl-C, which shut
 down the safe way (drives ramped to zero, run file closed valid, marked aborted with the reason).
 
-The first line on stdout is ``command=<endpoint> data=<endpoint>``; the same endpoints go to
-``RUNS_DIR/daemon.json`` for the client commands.
+The first line on stdout is ``command=<endpoint> data=<endpoint> board='<the board>'``
+(shell-quoted: `shlex.split` reads it; the board as `daq.board.Board.describe` says it); the same
+endpoints and the board go to ``RUNS_DIR/daemon.json`` for the client commands.
 
-One daemon per runs directory and per board (`control.daemon.instance`): a second one is refused
-with
-the first one's pid and endpoints, before it touches the runs directory or the board.
+One daemon per runs directory (`control.daemon.instance`) and one tool per board
+(`daq.board.board_lock`): a second one is refused with the first one's pid, command line and
+endpoints, before it touches the runs directory or the board.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import shlex
 import signal
 import sys
 from pathlib import Path
@@ -26,11 +28,14 @@ from typing import Any
 from threadpoolctl import threadpool_limits
 
 from control.daemon.daemon import Daemon, DaemonConfig
-from control.daemon.instance import AlreadyRunning, InstanceLock, device_lock, runs_lock
+from control.daemon.instance import runs_lock
 from control.daemon.lease import LEASE_RANGE_S
 from control.wire.security import KeyFileError, load_server_keys
+from daq.board import NIDAQMX, Board
 from daq.channels import ChannelMap, default_channel_map, load_channel_map
 from daq.errors import ChannelConfigError, DaqConnectionError, DaqError
+from daq.locks import AlreadyRunning, InstanceLock
+from sfdrig.commands._board import grpc_target_error, hold_board
 from sfdrig.commands._client_args import DEFAULT_RUNS_DIR, STATE_FILE_NAME
 from sfdrig.commands._native_memory import pin_mmap_threshold
 from sfdrig.commands._priority import LEVELS, PriorityError, apply_priority
@@ -132,8 +137,11 @@ def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[An
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    if args.grpc_target and args.backend != "nidaqmx":
+    if args.grpc_target is not None and args.backend != "nidaqmx":
         print("daemon: --grpc-target needs --backend nidaqmx", file=sys.stderr)
+        return 2
+    if line := grpc_target_error("daemon", args.grpc_target):
+        print(line, file=sys.stderr)
         return 2
     if not (args.watchdog_s == 0 or 0.05 <= args.watchdog_s <= 60):
         print(f"daemon: --watchdog-s {args.watchdog_s:g} must be 0 (none) or 0.05..60 s",
@@ -174,7 +182,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         channel_map = load_channel_map(args.channels) if args.channels else default_channel_map()
         keys = load_server_keys(args.keys) if args.keys else None
-    except (ChannelConfigError, KeyFileError, ValueError, OSError) as err:
+    except ChannelConfigError as err:
+        for line in err.lines():
+            print(f"daemon: {line}", file=sys.stderr)
+        return 2
+    except (KeyFileError, ValueError, OSError) as err:
         print(f"daemon: {err}", file=sys.stderr)
         return 2
     try:
@@ -209,9 +221,9 @@ def run(args: argparse.Namespace) -> int:
         daemon = Daemon(backend, channel_map, config, hands=hands)
     except (PermissionError, DaqError, ChannelConfigError) as err:
         # e.g. --backend nidaqmx without the NI-DAQmx driver: one line, no traceback
+        local = args.backend == "nidaqmx" and (args.grpc_target or channel_map.grpc_target) is None
         hint = (" (install NI-DAQmx, give --grpc-target HOST:PORT of an NI gRPC device server, "
-                "or use --backend sim)" if isinstance(err, DaqConnectionError)
-                and args.backend == "nidaqmx" else "")
+                "or use --backend sim)" if isinstance(err, DaqConnectionError) and local else "")
         print(f"daemon: {' '.join(str(err).split())}{hint}", file=sys.stderr)
         _close_quietly(backend)
         return 2
@@ -222,7 +234,8 @@ def run(args: argparse.Namespace) -> int:
     sys.setswitchinterval(0.001)
     signal.signal(signal.SIGTERM, lambda s, f: daemon.stop("SIGTERM received"))
     signal.signal(signal.SIGINT, lambda s, f: daemon.stop("SIGINT (Ctrl-C) received"))
-    print(f"command={daemon.endpoints['command']} data={daemon.endpoints['data']}", flush=True)
+    print(f"command={daemon.endpoints['command']} data={daemon.endpoints['data']} "
+          f"board={shlex.quote(daemon.board.describe())}", flush=True)
     daemon.serve()  # removes daemon.json on the way out, while the locks are still held
     for lock in locks:
         lock.release()
@@ -230,18 +243,21 @@ def run(args: argparse.Namespace) -> int:
 
 
 def take_locks(args: argparse.Namespace, channel_map: ChannelMap) -> list[InstanceLock]:
-    """The runs directory's lock and, on a board, the device's (`control.daemon.instance`); held for
-    the life of the process (the kernel drops them when it ends, however it ends)."""
+    """The runs directory's lock (`control.daemon.instance`) and, on a board, the board's
+    (`daq.board.board_lock`); held for the life of the process (the kernel drops them when it
+    ends, however it ends)."""
     runs_dir = Path(args.runs_dir)
-    locks = [runs_lock(runs_dir).acquire()]
+    locks = [runs_lock(runs_dir).acquire(daemon=True)]
     if args.backend == "nidaqmx":
-        target = args.grpc_target or channel_map.grpc_target
+        target = args.grpc_target if args.grpc_target is not None else channel_map.grpc_target
         try:
-            locks.append(device_lock(channel_map.device.name, target).acquire(
-                runs_dir=str(runs_dir.resolve())))
+            lock = hold_board(Board(NIDAQMX, channel_map.device.name, target), daemon=True,
+                              runs_dir=str(runs_dir.resolve()))
         except BaseException:
             locks[0].release()
             raise
+        if lock is not None:
+            locks.append(lock)
     return locks
 
 

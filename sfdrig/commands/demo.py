@@ -14,6 +14,7 @@ import argparse
 import math
 import os
 import selectors
+import shlex
 import signal
 import subprocess
 import sys
@@ -74,7 +75,7 @@ def start_daemon(runs_dir: Path, seed: int, fast: bool, rig: str = "nominal"
         proc.kill()
         proc.wait(10)
         raise SystemExit(f"demo: the daemon did not start (said {line!r})")
-    fields = dict(part.split("=", 1) for part in line.split())
+    fields = dict(part.split("=", 1) for part in shlex.split(line))
     return proc, fields["command"], fields["data"]
 
 

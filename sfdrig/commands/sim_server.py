@@ -51,8 +51,13 @@ def run(args: argparse.Namespace) -> int:
         params = rig_params_named_or_file(args.rig)
         if args.journal == "out":
             params.journal_in = False
-        wiring = load_channel_map(args.channels) if args.channels else default_channel_map()
-    except (RigParamsError, ChannelConfigError) as err:
+        wiring = load_channel_map(args.channels, wiring=True) if args.channels \
+            else default_channel_map()
+    except ChannelConfigError as err:
+        for line in err.lines():
+            print(f"sim-server: {line}", file=sys.stderr)
+        return 2
+    except RigParamsError as err:
         print(f"sim-server: {err}", file=sys.stderr)
         return 2
     try:

@@ -36,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(st, indent=2))
         return 0
+    print(f"board      {(st.get('board') or {}).get('description', '?')}")
     print(f"state      {st['state']}")
     print(f"pump       {'on' if st['pump_on'] else 'off'}")
     if st["run_id"]:

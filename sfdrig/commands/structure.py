@@ -36,6 +36,7 @@ from control.run.programs.procedures import (
 )
 from control.wire.client import CommandRefused, DaemonUnavailable
 from daq.channels import default_channel_map, load_channel_map
+from daq.errors import ConfigFileError
 from rig_model.params import RigParams, rig_params_named_or_file
 from sfdrig.commands._client_args import add_connection_arguments, command_client
 from sfdrig.commands._lost import (
@@ -109,7 +110,7 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
         writer = create_run_writer(path, kind, backend.channel_map, run_id=run_id,
                                    rig_config=test_params, test_spec=spec, operator=operator,
                                    lubricated=kind == "flow", overwrite=True,
-                                   paced=backend.realtime)
+                                   paced=backend.realtime, board=backend.board)
         desk = StandInOperator(_logged_to(writer))
         if not quiet:
             print(f"{kind}: running ...", flush=True)
@@ -173,6 +174,10 @@ def run(args: argparse.Namespace) -> int:
             params = rig_params_named_or_file(args.rig) if args.rig else RigParams()
             run_structure_tests(args.out, params, args.channels, args.seed, args.only,
                                 args.operator, load_by=args.load_by)
+        except ConfigFileError as err:  # a channel map: one line per problem
+            for line in err.lines():
+                print(f"sfdrig structure: {line}", file=sys.stderr)
+            return 2
         except (ValueError, OSError) as err:
             print(f"sfdrig structure: {err}", file=sys.stderr)
             return 2

@@ -54,7 +54,10 @@ _finite = st.floats(min_value=-9.0, max_value=9.0, allow_nan=False)
        offsets=st.lists(_finite, min_size=14, max_size=14),
        gains=st.lists(st.floats(min_value=1e-9, max_value=1e9), min_size=14, max_size=14),
        configs=st.lists(st.sampled_from(list(TerminalConfig)), min_size=14, max_size=14),
-       estop=st.booleans(), target=st.none() | st.text(string.ascii_letters, min_size=1))
+       estop=st.booleans(),
+       target=st.none() | st.builds("{}:{}".format, st.text(string.ascii_letters, min_size=1,
+                                                             max_size=20),
+                                    st.integers(1, 65535)))
 def test_generated_maps_round_trip(sensors, offsets, gains, configs, estop, target):
     base = default_channel_map()
     ai = tuple(c.model_copy(update={"sensor": s, "offset_v": o, "gain_v_per_unit": g,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import selectors
+import shlex
 import signal
 import subprocess
 import sys
@@ -27,6 +28,7 @@ class DaemonProcess:
     command: str
     data: str
     runs_dir: Path
+    board: str = ""  # what the first line names the board ("simulated rig (in process)", ...)
 
     def terminate(self, sig: int = signal.SIGTERM, timeout_s: float = 30.0) -> int:
         if self.proc.poll() is None:
@@ -65,8 +67,8 @@ def start_daemon(runs_dir: Path, *extra: str, fast: bool = True,
         proc.communicate(timeout=10)
         err = (runs_dir.parent / f"{runs_dir.name}.stderr").read_text()
         raise RuntimeError(f"daemon did not start: {line!r}\n{err}")
-    fields = dict(part.split("=", 1) for part in line.split())
-    return DaemonProcess(proc, fields["command"], fields["data"], runs_dir)
+    fields = dict(part.split("=", 1) for part in shlex.split(line))
+    return DaemonProcess(proc, fields["command"], fields["data"], runs_dir, fields["board"])
 
 
 @pytest.fixture

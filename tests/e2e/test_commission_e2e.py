@@ -115,8 +115,8 @@ def test_the_correct_wiring_passes_through_nidaqmx(server: Any, tmp_path: Path) 
     address, pid = server()
     code, lines, _ = commission(address, pid, tmp_path / "out")
     assert code == 0, "\n".join(lines)
-    assert lines[-1] == (f"commissioning passed on the simulated nidaqmx device Dev1 at gRPC "
-                         f"target {address}: {EXAMPLE}")
+    assert lines[-1] == (f"commissioning passed on the simulated nidaqmx device Dev1 via gRPC "
+                         f"{address}: {EXAMPLE}")
     assert "OK   estop (Dev1/port0/line1): read pressed when pressed and released when " \
            "released" in lines
     assert any(line.startswith("OK   watchdog: expired after 1.5 s unfed (timeout 1 s): the "
@@ -267,7 +267,7 @@ def test_the_guides_rehearsal_runs_as_written_and_passes(tmp_path: Path) -> None
         server.terminate()
         server.communicate(timeout=10)
     assert proc.returncode == 0, "\n".join(lines) + err
-    board = f"simulated nidaqmx device Dev1 at gRPC target 127.0.0.1:{port}"
+    board = f"simulated nidaqmx device Dev1 via gRPC 127.0.0.1:{port}"
     assert lines[-1] == f"commissioning passed on the {board}: examples/channels_report_rig.toml"
     assert not fails(lines)
     (report,) = (tmp_path / "out" / "commission").glob("commission-*.md")

@@ -35,9 +35,9 @@ def test_a_second_daemon_on_the_same_runs_directory_is_refused(tmp_path):
         assert out.stdout == ""
         lines = out.stderr.splitlines()
         assert len(lines) == 1 and "Traceback" not in out.stderr, out.stderr
-        assert lines[0] == (f"daemon: runs directory {runs} is in use by another daemon (pid "
-                            f"{first.proc.pid}, command={first.command} data={first.data}): "
-                            "stop it first, or give another --runs-dir")
+        assert lines[0] == (f"daemon: runs directory {runs} is in use by pid {first.proc.pid} "
+                            f"(sfdrig daemon --runs-dir {runs} --fast), command={first.command} "
+                            f"data={first.data}: stop it first, or give another --runs-dir")
         # the first daemon is untouched: its state file, its sockets
         assert (runs / "daemon.json").read_text() == state_before
         with CommandClient(first.command, timeout_s=10) as c:
@@ -92,10 +92,11 @@ def test_two_daemons_on_one_board_are_refused(tmp_path, monkeypatch):
                 assert out.returncode == 1, out
                 assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
                 assert out.stderr.startswith(
-                    f"daemon: device Dev1 through the NI gRPC device server {target} is in use "
-                    f"by another daemon (pid {first.proc.pid}, command={first.command} "
-                    f"data={first.data}, runs dir {tmp_path / 'runs_a'}): stop it first"), \
-                    out.stderr
+                    f"daemon: nidaqmx device Dev1 via gRPC {target} is in use by pid "
+                    f"{first.proc.pid} (sfdrig daemon --runs-dir {tmp_path / 'runs_a'} "
+                    f"--backend nidaqmx --grpc-target {server.address} --watchdog-s 0), "
+                    f"command={first.command} data={first.data}, runs dir "
+                    f"{tmp_path / 'runs_a'}: stop it first"), out.stderr
             assert not (tmp_path / "runs_b" / "daemon.json").exists()
             with CommandClient(first.command, timeout_s=10) as c:
                 assert c.status()["state"] == "idle"

@@ -206,6 +206,7 @@ def test_operator_sweeps_watches_and_aborts_from_the_page(daemon_factory, web_fa
     page = _open(browser, web_factory(d))
     page.wait_for_function("window.sfdrig.frames >= 2 && window.sfdrig.role === 'operator'")
     assert page.inner_text("#state") == "idle"
+    assert page.inner_text("#board") == d.board == "simulated rig (in process)"
     assert page.is_visible("#abort") and not page.is_visible("#viewer-note")
     assert page.is_enabled("#pump-on") and page.is_disabled("#pump-off")  # idle, pump off
 

@@ -414,6 +414,7 @@ function drawStatus(fr) {
   const p = st.progress || {};
   const up = linkUp(fr);
   drawLink(fr);
+  $("board").textContent = (st.board && st.board.description) || "?";  // which board (daq.board)
   $("state").textContent = up ? (st.state || "?") : `unknown (was ${st.state || "?"})`;
   $("state").className = "state " + (up ? (st.state || "") : "lost");
   const runText = st.run_id || (st.last_run && st.last_run.run_id ? `(last: ${st.last_run.run_id} ${st.last_run.status})` : "-");

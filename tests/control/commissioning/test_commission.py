@@ -383,21 +383,21 @@ def test_the_command_writes_the_record_the_report_and_the_proposed_map(
     text = capsys.readouterr().out
     assert code == 1
     assert text.rstrip().endswith(
-        f"commissioning 1 problem on the simulated board (in-process): {example}")
-    assert text.startswith(f"commissioning {example} on the simulated board (in-process); ")
+        f"commissioning 1 problem on the simulated rig (in process): {example}")
+    assert text.startswith(f"commissioning {example} on the simulated rig (in process); ")
     (record,) = out.glob("commission-*.h5")
     with open_run(record) as run:
         assert run.status == "completed"
         assert run.attrs["status_reason"] == \
-            "commissioning 1 problem on the simulated board (in-process)"
-        assert run.test_spec["board"] == "simulated board (in-process)"
+            "commissioning 1 problem on the simulated rig (in process)"
+        assert run.test_spec["board"] == "simulated rig (in process)"
     (proposed,) = out.glob("commission-*-proposed.toml")
     assert load_channel_map(proposed).ai_channel("x1").physical_channel == "Dev1/ai4"
     assert proposed.read_text().count("\n#") == example.read_text().count("\n#")
     (report,) = out.glob("commission-*.md")
     assert report.read_text().startswith(
-        f"# Commissioning of {example} on the simulated board (in-process): FAILED\n\n"
-        "- verdict: FAILED on the simulated board (in-process)\n")
+        f"# Commissioning of {example} on the simulated rig (in process): FAILED\n\n"
+        "- verdict: FAILED on the simulated rig (in process)\n")
     assert '-physical_channel = "Dev1/ai2"\n+physical_channel = "Dev1/ai4"' in text
 
 

@@ -147,6 +147,8 @@ def test_sweep_streams_every_block_and_the_file_matches(daemon: Daemon):
     ep = daemon.endpoints
     with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
         sub.wait_connected()
+        assert c.status()["board"] == {"backend": "sim", "device": "Dev1", "grpc_target": "",
+                                       "description": "simulated rig (in process)"}
         reply = c.start_sweep({"blocks": 24, "block_size": 400}, operator="t")
         run_id = reply.data["run_id"]
         blocks, steps = [], []
@@ -169,6 +171,10 @@ def test_sweep_streams_every_block_and_the_file_matches(daemon: Daemon):
     streamed = np.concatenate([m.array for m in blocks], axis=1)
     with open_run(reply.data["path"]) as run:
         assert run.n_samples == 24 * 400
+        # the board that recorded it (daq.board.Board), as status names it
+        assert {k: run.attrs[k] for k in ("board", "backend", "device", "grpc_target")} == {
+            "board": "simulated rig (in process)", "backend": "sim", "device": "Dev1",
+            "grpc_target": ""}
         names = run.channel_names
         for i, name in enumerate(names):
             np.testing.assert_array_equal(run.channel(name), streamed[i])
