@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from analysis.errors import summarise_skipped
 from analysis.identify import ANALYSES, identify, write_results
 from analysis.report import build_report, summary_lines
 
@@ -29,24 +30,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The command; anything unforeseen ends in one line naming the run files, never a
-    traceback (the internals raise their own errors where they know the column or step)."""
+    """The command. What the data lack is said in the skipped lines; a report or table that
+    cannot be written is one line (exit 2); anything else is a defect, for the CLI to name
+    (exit 70), never a traceback."""
     try:
         return _run(args)
-    except Exception as err:  # noqa: BLE001 - the CLI's last line of defence
-        where = ", ".join(str(p) for p in args.runs)
-        print(f"error: {where}: {type(err).__name__}: {err}", file=sys.stderr)
+    except BrokenPipeError:
+        raise  # stdout's reader has gone: the CLI stops quietly
+    except OSError as err:
+        print(f"error: {err}", file=sys.stderr)
         return 2
 
 
 def _run(args: argparse.Namespace) -> int:
     ident = identify(args.runs, args.only, velocity_harmonics=args.velocity_harmonics)
+    stepless = [r for r in ident.runs if r.n_steps == 0]
+    if ident.runs and len(stepless) == len(ident.runs):
+        names = ", ".join(Path(r.path).name for r in stepless)
+        print(f"error: {names}: no steps (dwells) to identify: import the data with its "
+              "frequency (--map freq_hz=COLUMN, --map step=COLUMN or --freq-hz HZ); a record "
+              "without steps is for sfdrig diagnose", file=sys.stderr)
+        return 2
     if not args.no_store:
         ident.skipped.extend(write_results(ident))
     for line in summary_lines(ident):
         print(line)
-    for s in ident.skipped:
-        print(f"skipped: {s.message}", file=sys.stderr)
+    for note in ident.notes:
+        print(f"note: {note}", file=sys.stderr)
+    for line in summarise_skipped(ident.skipped):
+        print(f"skipped: {line}", file=sys.stderr)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(ident.to_json(), indent=1, allow_nan=False))

@@ -32,6 +32,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fs", type=float, default=None, metavar="HZ",
                         help="sample rate [Hz] when the file carries none (time column, MAT Fs, "
                              "TDMS wf_increment)")
+    parser.add_argument("--freq-hz", type=float, default=None, metavar="HZ",
+                        help="excitation frequency of the whole record [Hz], for a file "
+                             "without a frequency (freq_hz) or step column: its dwells are "
+                             "found at HZ")
+    parser.add_argument("--no-steps", action="store_true",
+                        help="import a record without dwells (no frequency or step column, e.g. "
+                             "a system-identification record): it has no steps, so identify "
+                             "cannot use it; diagnose judges it in blocks. Without this, such "
+                             "a file is refused")
     parser.add_argument("--scale", action="append", default=[], metavar="CANONICAL=FACTOR",
                         help="multiply a signal by FACTOR (e.g. x_m=1e-6 for micrometres)")
     oil = parser.add_mutually_exclusive_group()
@@ -83,6 +92,7 @@ def _import_one(args: argparse.Namespace, path: Path, out: Path) -> Path:
         scale=parse_scale(args.scale), kind=args.kind, notes=args.notes,
         operator=args.operator, run_id=args.run_id if len(args.file) == 1 else None,
         overwrite=args.overwrite, conditions=cond, rig_config=rig,
+        dwell_freq_hz=args.freq_hz, require_steps=not args.no_steps,
     )
 
 

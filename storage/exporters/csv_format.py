@@ -44,6 +44,10 @@ def write_csv(exp: ExportSet, out_dir: Path, progress: Progress | None = None,
 
 
 def _cell(value: Any) -> Any:
+    """A cell every CSV reader parses: numpy scalars as the plain numbers they hold (the repr of
+    ``np.float64(2.5)`` is not a number), floats with 17 digits, booleans as 0 and 1."""
+    if isinstance(value, np.generic):
+        value = value.item()
     if isinstance(value, bool):
         return int(value)
     if isinstance(value, float):

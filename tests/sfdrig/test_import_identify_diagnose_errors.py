@@ -57,7 +57,8 @@ def test_emps_with_a_fitted_baseline(shared_dir: Path, tmp_path: Path, capsys) -
     out = tmp_path / "emps.h5"
     emps = shared_dir / "data" / "emps" / "DATA_EMPS.mat"  # read in place
     assert main(["import", str(emps), "--map", "time_s=t", "--map", "fx_N=vir", "--scale",
-                 "fx_N=35.15065188", "--map", "x_m=qm", "--out", str(out), "--dry"]) == 0
+                 "fx_N=35.15065188", "--map", "x_m=qm", "--out", str(out), "--dry",
+                 "--no-steps"]) == 0
     capsys.readouterr()
     rc = main(["diagnose", str(out), "--baseline", "fitted", "--quiet"])
     assert rc == 2

@@ -391,7 +391,7 @@ def test_silverbox_import_via_cli(shared_dir: Path, tmp_path: Path, monkeypatch,
     monkeypatch.chdir(REPO_ROOT)
     out = tmp_path / "sb.h5"
     rc = main(["import", "../shared/data/silverbox/SNLS80mV.csv", "--map", "fx_N=V1",
-               "--map", "x_m=V2", "--fs", "610.3515625", "--out", str(out)])
+               "--map", "x_m=V2", "--fs", "610.3515625", "--no-steps", "--out", str(out)])
     assert rc == 0
     assert "131072 samples at 610.352 Hz" in capsys.readouterr().out
     # independent parse of the file: two numeric columns, header and trailing commas skipped
