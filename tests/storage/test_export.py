@@ -5,10 +5,14 @@ run files that explain themselves (format_version 2) to a reader without our cod
 from __future__ import annotations
 
 import ast
+import csv
 import json
 import math
 import re
+import subprocess
+import sys
 import tempfile
+from datetime import UTC, datetime
 from pathlib import Path
 
 import h5py
@@ -256,8 +260,7 @@ def test_bad_input_is_one_line(runs: dict[str, Path], tmp_path: Path,
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and message in err, err
     assert "Traceback" not in err
-    out = tmp_path / "out"
-    assert not out.exists() or not list(out.iterdir())  # nothing half written
+    assert not (tmp_path / "out").exists()  # nothing half written, not even the folder
 
 
 def test_existing_export_is_kept(runs: dict[str, Path], tmp_path: Path,
@@ -406,3 +409,76 @@ def test_cli_progress_is_a_line_per_tenth(capsys: pytest.CaptureFixture[str]) ->
     assert [ln.split(":")[1].split("%")[0].strip() for ln in lines] == [
         str(10 * k) for k in range(1, 11)]
     assert lines[-1].startswith("  big.h5: 100 % (1,000,000 of 1,000,000 samples")
+
+
+# --- exports every reader takes -----------------------------------------------------------------
+def _csv_rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+#: the numeric columns of a CSV export's tables
+NUMERIC_COLUMNS = {
+    "harmonics": ("step", "harmonic", "freq_hz", "amplitude", "phase_deg", "re", "im"),
+    "steps": ("index", "freq_hz", "target_value", "first_sample", "last_sample", "t_start_s",
+              "t_stop_s", "updates", "converged"),
+    "channels": ("gain_v_per_unit", "offset_v"),
+    "events": ("sample",),
+}
+
+
+def test_csv_tables_hold_numbers_as_numbers(runs: dict[str, Path], tmp_path: Path) -> None:
+    """Python's csv module and float() read every number of every table (once the harmonics'
+    cells read "np.float64(29.9...)")."""
+    export_run(runs["lub"], "csv", tmp_path)
+    tables = {name: _csv_rows(tmp_path / f"lub.{name}.csv") for name in NUMERIC_COLUMNS}
+    for name, columns in NUMERIC_COLUMNS.items():
+        assert tables[name], name
+        for row in tables[name]:
+            for col in columns:
+                float(row[col])  # raises on a cell no reader takes for a number
+            assert not any("np." in cell for cell in row.values()), row
+    with open_run(runs["lub"]) as r:
+        want = r.steps[1]["harmonics"]["x1"][0]
+    (row,) = [h for h in tables["harmonics"] if h["step"] == "1" and h["channel"] == "x1"
+              and h["harmonic"] == "1"]
+    assert (float(row["re"]), float(row["im"])) == tuple(want)  # 17 digits: bit for bit
+    assert float(row["amplitude"]) == abs(complex(*want)) > 0
+
+
+@pytest.mark.parametrize("steps", [None, "0", "1"])
+def test_tdms_time_under_nptdms(runs: dict[str, Path], tmp_path: Path,
+                                steps: str | None) -> None:
+    """npTDMS's time track is the run's time (time_s) and its absolute time track the wall
+    clock, for a whole run and for an export of some steps (once late by the first sample's run
+    time: the start moved to it and the offset added again)."""
+    (path,) = export_run(runs["lub"], "tdms", tmp_path, steps=steps)
+    with open_run(runs["lub"]) as r:
+        first = r.steps[int(steps)]["first_sample"] if steps else 0
+        fs = r.sample_rate_hz
+        start = datetime.fromisoformat(r.start_time).astimezone(UTC).replace(tzinfo=None)
+    assert first > 0 or steps is None
+    ch = TdmsFile.read(path)["channels"]["x1_m"]
+    rel = ch.time_track()
+    assert rel[0] == pytest.approx(first / fs, abs=1e-9)
+    assert rel[-1] - rel[0] == pytest.approx((len(ch) - 1) / fs, abs=1e-9)
+    wall = ch.time_track(absolute_time=True, accuracy="us")
+    want = np.datetime64(start, "us") + np.timedelta64(round(first / fs * 1e6), "us")
+    assert abs((wall[0] - want) / np.timedelta64(1, "us")) <= 1
+
+
+def test_closed_stdout_is_quiet(runs: dict[str, Path], tmp_path: Path) -> None:
+    """`sfdrig export RUN --to csv --out DIR | head -c 10`: the reader gone before the command
+    prints ends quietly with 141 (128 + SIGPIPE, as a shell shows a command the pipe's signal
+    ended), not "BrokenPipeError", exit 2; the export itself is complete."""
+    for args in (["export", str(runs["lub"]), "--to", "csv", "--out", str(tmp_path / "e")],
+                 ["identify", str(runs["lub"]), "--no-store"]):
+        proc = subprocess.Popen([sys.executable, "-m", "sfdrig", *args], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        assert proc.stdout is not None and proc.stderr is not None
+        proc.stdout.close()  # the reader has gone before anything is written
+        err = proc.stderr.read()
+        proc.stderr.close()
+        assert proc.wait(timeout=120) == 141, err
+        assert "BrokenPipe" not in err and "Traceback" not in err, err
+    assert (tmp_path / "e" / "lub.harmonics.csv").is_file()
