@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from analysis.errors import summarise_skipped
-from analysis.identify import ANALYSES, identify, write_results
+from analysis.identify import ANALYSES, RunSummary, identify, write_results
 from analysis.report import build_report, summary_lines
 
 NAME = "identify"
@@ -44,12 +44,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     ident = identify(args.runs, args.only, velocity_harmonics=args.velocity_harmonics)
-    stepless = [r for r in ident.runs if r.n_steps == 0]
-    if ident.runs and len(stepless) == len(ident.runs):
-        names = ", ".join(Path(r.path).name for r in stepless)
-        print(f"error: {names}: no steps (dwells) to identify: import the data with its "
-              "frequency (--map freq_hz=COLUMN, --map step=COLUMN or --freq-hz HZ); a record "
-              "without steps is for sfdrig diagnose", file=sys.stderr)
+    if ident.runs and all(r.n_steps == 0 for r in ident.runs):
+        print(f"error: {_no_steps(ident.runs)}", file=sys.stderr)
         return 2
     if not args.no_store:
         ident.skipped.extend(write_results(ident))
@@ -76,3 +72,14 @@ def _run(args: argparse.Namespace) -> int:
               f"({len(ident.skipped)} item(s) skipped, reasons above)", file=sys.stderr)
         return 1
     return 0
+
+
+def _no_steps(runs: list[RunSummary]) -> str:
+    """Why runs without a step cannot be identified, and what to do."""
+    names = ", ".join(Path(r.path).name for r in runs)
+    if all(r.kind == "imported" for r in runs):
+        return (f"{names}: no steps (dwells) to identify: import the data with its frequency "
+                "(--map freq_hz=COLUMN, --map step=COLUMN or --freq-hz HZ); a record without "
+                "steps is for sfdrig diagnose")
+    how = ", ".join(f"{Path(r.path).name}: {r.kind}, {r.status}" for r in runs)
+    return f"{names}: no steps (dwells) to identify: the runs recorded none ({how})"

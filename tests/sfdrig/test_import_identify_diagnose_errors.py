@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sfdrig.cli import main
-from storage import open_run
+from storage import RunWriter, open_run
 from tests.independent_rig import Generator, RigSpec, Sensors, grid
 
 
@@ -117,6 +117,21 @@ def test_import_refuses_data_it_cannot_make_steps_of(lub_csv: Path, tmp_path: Pa
     assert main(["import", str(lub_csv), "--freq-hz", "40", "--out", str(tmp_path / "b.h5"),
                  "--lubricated"]) == 2
     _one_error_line(capsys, "lub.csv", "--freq-hz 40: the file has a freq_hz column")
+
+
+def test_identify_refuses_a_recorded_run_without_steps(tmp_path: Path, capsys) -> None:
+    """A sweep aborted before its first step: one line naming the run, its kind and status (no
+    advice on importing: it was never imported)."""
+    w = RunWriter.create(tmp_path / "empty.h5", "e-1", "sweep",
+                         [{"name": "fx", "units": "N", "kind": "load_cell"}], [], 1000.0,
+                         swmr=False, flush_interval_s=0)
+    w.on_block(0, np.zeros((1, 100)), None)
+    w.close("aborted", "operator pressed abort")
+    assert main(["identify", str(tmp_path / "empty.h5"), "--no-store"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == (
+        "error: empty.h5: no steps (dwells) to identify: the runs recorded none (empty.h5: "
+        "sweep, aborted)\n")
 
 
 def test_identify_says_each_cause_once(lub_csv: Path, tmp_path: Path, capsys) -> None:
