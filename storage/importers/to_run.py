@@ -18,7 +18,7 @@ from storage.importers.conditions import Conditions
 from storage.importers.csv_format import read_csv
 from storage.importers.mat_format import read_mat
 from storage.importers.restore import export_metadata, restore_export
-from storage.importers.segments import MIN_CYCLES, segment_record
+from storage.importers.segments import segment_record
 from storage.importers.tdms_format import read_tdms
 from storage.layout import KINDS, utc_now_iso
 from storage.runfile import RunWriter
@@ -117,8 +117,9 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
     (frequency, amplitude and motion changes, or the step column); the conditions are stored
     as the daemon stores them (``lubricated`` attribute, ``motion`` per step, ``rig_config``)
     and, with their sources and the evidence of what was inferred, in ``test_spec.conditions``.
-    With ``require_steps``, data of which no step (dwell) and no sweep can be made is refused,
-    naming the column it lacks (`sfdrig import` without ``--no-steps``).
+    With ``require_steps``, data without a frequency or a step column, of which no step (dwell)
+    can be made, is refused, naming the columns it lacks (`sfdrig import` without
+    ``--no-steps``).
     """
     out = Path(out)
     source = Path(source)
@@ -131,8 +132,13 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
     if not out.parent.is_dir():
         raise ImportDataError(f"{out.parent}: output directory does not exist")
     seg = segment_record(data.signals, data.fs_hz, data.freq_hz, data.step, cond.motion)
-    if require_steps and not seg.steps and not seg.sweeps:
-        raise ImportDataError(_no_steps_reason(data, source))
+    if require_steps and data.freq_hz is None and data.step is None:
+        raise ImportDataError(
+            f"{source}: no frequency column (freq_hz) and no step column (step), so no steps "
+            "(dwells) can be made of it: map the excitation frequency with --map "
+            "freq_hz=COLUMN or the dwell number with --map step=COLUMN, give --freq-hz HZ for "
+            "a record at one frequency, or --no-steps to import it without steps (diagnose "
+            "judges it in blocks; identify needs steps)")
     derived = derive_displacement(data, seg.steps)
     channels = []
     order = []
@@ -192,20 +198,6 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
     return out
 
 
-def _no_steps_reason(data: MeasuredData, source: Path) -> str:
-    """Why no step can be made of ``data``, and how to give what is missing."""
-    if data.freq_hz is None and data.step is None:
-        what = "no frequency column (freq_hz) and no step column (step)"
-    else:
-        column = "step" if data.step is not None else "freq_hz"
-        what = (f"its {column} column ({data.sources.get(column, column)}) marks no dwell of "
-                f"{MIN_CYCLES} or more cycles at a positive frequency")
-    return (f"{source}: {what}, so no steps (dwells) can be made of it: map the excitation "
-            "frequency with --map freq_hz=COLUMN or the dwell number with --map step=COLUMN, "
-            "give --freq-hz HZ for a record at one frequency, or --no-steps to import it "
-            "without steps (diagnose judges it in blocks; identify needs steps)")
-
-
 def with_dwell_frequency(data: MeasuredData, freq_hz: float, where: str) -> MeasuredData:
     """``data`` recorded at one excitation frequency ``freq_hz`` throughout (``--freq-hz``):
     its frequency column, from which the dwells are found as from a file's own."""
@@ -252,7 +244,7 @@ def import_file(path: str | Path, out: str | Path, *, mapping: Mapping[str, str]
         The excitation frequency of the whole record [Hz], for a file without a frequency or
         step column (`with_dwell_frequency`).
     require_steps : bool
-        Refuse data of which no step can be made (see `write_imported_run`).
+        Refuse data without a frequency or step column (see `write_imported_run`).
 
     Returns
     -------
