@@ -115,6 +115,7 @@ def _print_summary(out: Path) -> None:
         print(f"{out}: run {run_data.run_id!r}, {run_data.n_samples} samples at "
               f"{run_data.sample_rate_hz:g} Hz ({run_data.duration_s:.3f} s), channels "
               f"{', '.join(run_data.channel_names)}, {len(run_data.steps)} steps")
+        n_steps = len(run_data.steps)
         spec = run_data.test_spec or {}
         restored = run_data.attrs.get("imported_from", "")
         lubricated = bool(run_data.attrs.get("lubricated", False))
@@ -140,6 +141,9 @@ def _print_summary(out: Path) -> None:
         print(f"  motion inferred from the x/y phase (stored as inferred): {desc}")
     elif per_step:
         print(f"  motion: {per_step[0]['motion']} [{src.get('motion')}]")
+    if not n_steps and not spec.get("sweeps"):
+        print("  no steps: sfdrig diagnose judges the record in blocks; sfdrig identify needs "
+              "steps (import with the frequency: --map freq_hz=COLUMN or --freq-hz HZ)")
     for sw in spec.get("sweeps", []):
         print(f"  sine sweep {sw['f_start_hz']:g}-{sw['f_stop_hz']:g} Hz (samples "
               f"{sw['first_sample']}-{sw['last_sample']}), not a dwell")

@@ -106,7 +106,9 @@ def test_import_refuses_data_it_cannot_make_steps_of(lub_csv: Path, tmp_path: Pa
     assert f"{len(run.steps)} steps" in said
 
     assert main([*args, "--no-steps", "--overwrite"]) == 0
-    assert ", 0 steps" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert ", 0 steps" in said
+    assert "\n  no steps: sfdrig diagnose judges the record in blocks" in said
     assert main(["identify", str(out), "--no-store"]) == 2
     captured = capsys.readouterr()
     assert captured.out == ""
