@@ -98,6 +98,9 @@ def _import_one(args: argparse.Namespace, path: Path, out: Path) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     files: list[Path] = args.file
+    if args.no_steps and args.freq_hz is not None:
+        print("error: --no-steps and --freq-hz contradict each other: give one", file=sys.stderr)
+        return 2
     if len(files) > 1 and not args.out.is_dir():
         print(f"error: --out {args.out}: several files need an existing folder", file=sys.stderr)
         return 2

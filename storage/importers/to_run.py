@@ -131,7 +131,6 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
         raise ImportDataError(f"{out}: exists already (choose another --out or overwrite)")
     if not out.parent.is_dir():
         raise ImportDataError(f"{out.parent}: output directory does not exist")
-    seg = segment_record(data.signals, data.fs_hz, data.freq_hz, data.step, cond.motion)
     if require_steps and data.freq_hz is None and data.step is None:
         raise ImportDataError(
             f"{source}: no frequency column (freq_hz) and no step column (step), so no steps "
@@ -139,6 +138,7 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
             "freq_hz=COLUMN or the dwell number with --map step=COLUMN, give --freq-hz HZ for "
             "a record at one frequency, or --no-steps to import it without steps (diagnose "
             "judges it in blocks; identify needs steps)")
+    seg = segment_record(data.signals, data.fs_hz, data.freq_hz, data.step, cond.motion)
     derived = derive_displacement(data, seg.steps)
     channels = []
     order = []

@@ -105,6 +105,8 @@ def test_import_refuses_data_it_cannot_make_steps_of(lub_csv: Path, tmp_path: Pa
         assert run.test_spec["freq_source"] == "--freq-hz 40"
     assert f"{len(run.steps)} steps" in said
 
+    assert main([*args, "--no-steps", "--freq-hz", "40", "--overwrite"]) == 2
+    _one_error_line(capsys, "--no-steps and --freq-hz contradict each other")
     assert main([*args, "--no-steps", "--overwrite"]) == 0
     said = capsys.readouterr().out
     assert ", 0 steps" in said
