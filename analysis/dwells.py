@@ -115,8 +115,10 @@ def read_signal(run: RunData, name: str, start: int, stop: int, analysis: str, s
     label = run_label(run)
     chans = signal_channels(run, name)
     if not chans:
+        present = ", ".join(run.channel_names)
         skipped.append(Skipped(label, analysis, f"signal {name!r} is not in the run "
-                               f"(channels {run.channel_names})", step, name))
+                               f"(channels {present})", step, name,
+                               cause=f"signal not in the run (channels {present})"))
         return None
     good = []
     for ch in chans:

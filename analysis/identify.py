@@ -95,6 +95,8 @@ class Identification:
 
     runs: list[RunSummary] = field(default_factory=list)
     skipped: list[Skipped] = field(default_factory=list)
+    #: what the reader should know that is not a skip (a run aborted: its steps are used)
+    notes: list[str] = field(default_factory=list)
     dwells: dict[str, list[Dwell]] = field(default_factory=dict)
     waterfalls: dict[str, dict[str, Any]] = field(default_factory=dict)
     dry: DryResult | None = None
@@ -184,6 +186,7 @@ class Identification:
             "simulated": self.simulated,
             "runs": [r.to_dict() for r in self.runs],
             "skipped": [s.to_dict() for s in self.skipped],
+            "notes": list(self.notes),
             "synchronous_components": self.synchronous_table(),
             "dry": self.dry_table(),
             "lubricated": self.lubricated_tables(),
@@ -306,10 +309,11 @@ def _identify_runs(runs: list[RunData], ident: Identification, asked: set[str],
         ident.runs.append(RunSummary(str(r.path), label, r.run_id, r.kind,
                                      bool(r.attrs.get("lubricated", False)), r.status,
                                      len(r.steps), want))
-        if r.status in ("aborted", "failed"):
-            ident.skipped.append(Skipped(label, want, f"run status is {r.status!r} "
-                                         f"({r.attrs.get('status_reason', '')}); its completed "
-                                         "dwells are used"))
+        if r.status in ("aborted", "failed") and want in asked:
+            # nothing is left out: the steps it recorded are analysed, so a note, not a skip
+            why = r.attrs.get("status_reason", "") or "no reason recorded"
+            ident.notes.append(f"run {label}: {r.status} ({why}); the {len(r.steps)} step(s) "
+                               "it recorded are analysed")
         if want not in asked:
             ident.skipped.append(Skipped(label, want, f"run of kind {r.kind!r} "
                                          f"(lubricated={r.attrs.get('lubricated')}) calls for "

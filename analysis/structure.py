@@ -46,8 +46,10 @@ def _span_mean(run: RunData, name: str, step: dict[str, Any], analysis: str,
         return None
     if channel:
         if name not in run.channel_names:
+            present = ", ".join(run.channel_names)
             skipped.append(Skipped(run_label(run), analysis, f"channel {name!r} is not in the "
-                                   f"run (channels {run.channel_names})", idx, name))
+                                   f"run (channels {present})", idx, name,
+                                   cause=f"channel not in the run (channels {present})"))
             return None
         data: np.ndarray | None = run.channel(name, first, last)
         assert data is not None

@@ -16,6 +16,8 @@ def run_each(paths: Iterable[Path], action: Callable[[Path], object],
     for path in paths:
         try:
             action(path)
+        except BrokenPipeError:
+            raise  # stdout's reader has gone: the CLI stops quietly (sfdrig.cli)
         except known as err:
             print(f"error: {err}", file=sys.stderr)
             failed += 1

@@ -70,6 +70,8 @@ def table_lines(cal: Calibration | None, rows: list[Comparison]) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     try:
         return _run(args)
+    except BrokenPipeError:
+        raise  # stdout's reader has gone: the CLI stops quietly
     except (AnalysisError, ValueError, OSError, RuntimeError) as err:
         print("sfdrig calibrate: " + " ".join(str(err).split()), file=sys.stderr)
         return 2

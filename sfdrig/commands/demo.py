@@ -148,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
         print("\nstructure and instrument tests (static, impact, probe calibration, flow)")
         try:
             structure_runs = run_structure_tests(runs_dir, rig, seed=args.seed)
+        except BrokenPipeError:
+            raise  # stdout's reader has gone: the CLI stops quietly
         except OSError as err:
             print(f"demo: {err}", file=sys.stderr)
             return 1

@@ -49,17 +49,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The command; anything unforeseen ends in one line naming the run files, never a
-    traceback (the internals raise their own errors where they know the column or step)."""
+    """The command. What the data or the arguments do not allow is one line (exit 2; the
+    internals raise `DiagnoseError` where they know the run, the column or the step), as is a
+    file that cannot be written; anything else is a defect, for the CLI to name (exit 70),
+    never a traceback."""
     try:
         _select_runs(args)
         return _run(args)
     except _BadArguments as err:
         print(f"sfdrig diagnose: {err}", file=sys.stderr)
         return 2
-    except Exception as err:  # noqa: BLE001 - the CLI's last line of defence
-        where = ", ".join(str(p) for p in args.runs)
-        print(f"error: {where}: {type(err).__name__}: {err}", file=sys.stderr)
+    except BrokenPipeError:
+        raise  # stdout's reader has gone: the CLI stops quietly
+    except OSError as err:
+        print(f"sfdrig diagnose: {err}", file=sys.stderr)
         return 2
 
 

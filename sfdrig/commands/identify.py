@@ -7,7 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from analysis.identify import ANALYSES, identify, write_results
+from analysis.errors import summarise_skipped
+from analysis.identify import ANALYSES, RunSummary, identify, write_results
 from analysis.report import build_report, summary_lines
 
 NAME = "identify"
@@ -29,24 +30,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The command; anything unforeseen ends in one line naming the run files, never a
-    traceback (the internals raise their own errors where they know the column or step)."""
+    """The command. What the data lack is said in the skipped lines; a report or table that
+    cannot be written is one line (exit 2); anything else is a defect, for the CLI to name
+    (exit 70), never a traceback."""
     try:
         return _run(args)
-    except Exception as err:  # noqa: BLE001 - the CLI's last line of defence
-        where = ", ".join(str(p) for p in args.runs)
-        print(f"error: {where}: {type(err).__name__}: {err}", file=sys.stderr)
+    except BrokenPipeError:
+        raise  # stdout's reader has gone: the CLI stops quietly
+    except OSError as err:
+        print(f"error: {err}", file=sys.stderr)
         return 2
 
 
 def _run(args: argparse.Namespace) -> int:
     ident = identify(args.runs, args.only, velocity_harmonics=args.velocity_harmonics)
+    if ident.runs and all(r.n_steps == 0 for r in ident.runs):
+        print(f"error: {_no_steps(ident.runs)}", file=sys.stderr)
+        return 2
     if not args.no_store:
         ident.skipped.extend(write_results(ident))
     for line in summary_lines(ident):
         print(line)
-    for s in ident.skipped:
-        print(f"skipped: {s.message}", file=sys.stderr)
+    for note in ident.notes:
+        print(f"note: {note}", file=sys.stderr)
+    for line in summarise_skipped(ident.skipped):
+        print(f"skipped: {line}", file=sys.stderr)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(ident.to_json(), indent=1, allow_nan=False))
@@ -64,3 +72,14 @@ def _run(args: argparse.Namespace) -> int:
               f"({len(ident.skipped)} item(s) skipped, reasons above)", file=sys.stderr)
         return 1
     return 0
+
+
+def _no_steps(runs: list[RunSummary]) -> str:
+    """Why runs without a step cannot be identified, and what to do."""
+    names = ", ".join(Path(r.path).name for r in runs)
+    if all(r.kind == "imported" for r in runs):
+        return (f"{names}: no steps (dwells) to identify: import the data with its frequency "
+                "(--map freq_hz=COLUMN, --map step=COLUMN or --freq-hz HZ); a record without "
+                "steps is for sfdrig diagnose")
+    how = ", ".join(f"{Path(r.path).name}: {r.kind}, {r.status}" for r in runs)
+    return f"{names}: no steps (dwells) to identify: the runs recorded none ({how})"

@@ -32,6 +32,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fs", type=float, default=None, metavar="HZ",
                         help="sample rate [Hz] when the file carries none (time column, MAT Fs, "
                              "TDMS wf_increment)")
+    parser.add_argument("--freq-hz", type=float, default=None, metavar="HZ",
+                        help="excitation frequency of the whole record [Hz], for a file "
+                             "without a frequency (freq_hz) or step column: its dwells are "
+                             "found at HZ")
+    parser.add_argument("--no-steps", action="store_true",
+                        help="import a record without dwells (no frequency or step column, e.g. "
+                             "a system-identification record): it has no steps, so identify "
+                             "cannot use it; diagnose judges it in blocks. Without this, such "
+                             "a file is refused")
     parser.add_argument("--scale", action="append", default=[], metavar="CANONICAL=FACTOR",
                         help="multiply a signal by FACTOR (e.g. x_m=1e-6 for micrometres)")
     oil = parser.add_mutually_exclusive_group()
@@ -83,11 +92,15 @@ def _import_one(args: argparse.Namespace, path: Path, out: Path) -> Path:
         scale=parse_scale(args.scale), kind=args.kind, notes=args.notes,
         operator=args.operator, run_id=args.run_id if len(args.file) == 1 else None,
         overwrite=args.overwrite, conditions=cond, rig_config=rig,
+        dwell_freq_hz=args.freq_hz, require_steps=not args.no_steps,
     )
 
 
 def run(args: argparse.Namespace) -> int:
     files: list[Path] = args.file
+    if args.no_steps and args.freq_hz is not None:
+        print("error: --no-steps and --freq-hz contradict each other: give one", file=sys.stderr)
+        return 2
     if len(files) > 1 and not args.out.is_dir():
         print(f"error: --out {args.out}: several files need an existing folder", file=sys.stderr)
         return 2
@@ -105,6 +118,7 @@ def _print_summary(out: Path) -> None:
         print(f"{out}: run {run_data.run_id!r}, {run_data.n_samples} samples at "
               f"{run_data.sample_rate_hz:g} Hz ({run_data.duration_s:.3f} s), channels "
               f"{', '.join(run_data.channel_names)}, {len(run_data.steps)} steps")
+        n_steps = len(run_data.steps)
         spec = run_data.test_spec or {}
         restored = run_data.attrs.get("imported_from", "")
         lubricated = bool(run_data.attrs.get("lubricated", False))
@@ -130,6 +144,9 @@ def _print_summary(out: Path) -> None:
         print(f"  motion inferred from the x/y phase (stored as inferred): {desc}")
     elif per_step:
         print(f"  motion: {per_step[0]['motion']} [{src.get('motion')}]")
+    if not n_steps and not spec.get("sweeps"):
+        print("  no steps: sfdrig diagnose judges the record in blocks; sfdrig identify needs "
+              "steps (import with the frequency: --map freq_hz=COLUMN or --freq-hz HZ)")
     for sw in spec.get("sweeps", []):
         print(f"  sine sweep {sw['f_start_hz']:g}-{sw['f_stop_hz']:g} Hz (samples "
               f"{sw['first_sample']}-{sw['last_sample']}), not a dwell")

@@ -55,10 +55,30 @@ def export_run(path: str | Path, to: str, out_dir: str | Path, *, steps: str | N
     """
     if to not in WRITERS:
         raise ExportError(f"--to {to!r}: one of {', '.join(WRITERS)}")
-    out = check_out_dir(Path(out_dir))
+    out = Path(out_dir)
     with open_run(path) as run:
-        exp = select(run, steps, channels)
-        return WRITERS[to](exp, out, progress=progress, overwrite=overwrite)
+        exp = select(run, steps, channels)  # a refused selection creates no folder
+        made = _missing_folders(out)
+        try:
+            check_out_dir(out)
+            return WRITERS[to](exp, out, progress=progress, overwrite=overwrite)
+        except BaseException:
+            for folder in made:  # nothing written: leave no empty folder behind
+                try:
+                    folder.rmdir()
+                except OSError:
+                    break
+            raise
+
+
+def _missing_folders(out: Path) -> list[Path]:
+    """The folders ``out`` would create, deepest first."""
+    missing = []
+    for folder in (out, *out.parents):
+        if folder.exists():
+            break
+        missing.append(folder)
+    return missing
 
 
 __all__ = ["EXPORT_FORMAT", "EXPORT_VERSION", "WRITERS", "ExportError", "ExportSet",

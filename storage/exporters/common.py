@@ -239,6 +239,7 @@ class ExportSet:
         out: dict[str, Any] = {k: attrs[k] for k in RUN_ATTRS if k in attrs}
         out["lubricated"] = bool(attrs.get("lubricated", False))
         out["seal"] = self.seal()
+        out["seal_friction_N"] = self.seal_friction_n()
         motions = sorted({st["motion"] for st in self.steps if st["motion"]})
         out["motion"] = motions[0] if len(motions) == 1 else ",".join(motions)
         out.update(source_file=str(self.run.path.resolve()), first_sample=self.first,
@@ -262,6 +263,16 @@ class ExportSet:
         if not seal.get("enabled", True) or not force:
             return "none"
         return repr(float(force))
+
+    def seal_friction_n(self) -> float:
+        """The seal's friction force F_mu [N]: 0 for no seal, NaN when unknown or not stated."""
+        seal = self.seal()
+        if seal == "none":
+            return 0.0
+        try:
+            return float(seal)
+        except ValueError:
+            return math.nan
 
     def metadata(self) -> dict[str, Any]:
         """Everything `sfdrig import` needs to restore the run, and the conventions, as JSON."""

@@ -13,7 +13,7 @@ import numpy as np
 
 from storage.exporters.common import ExportSet, Progress
 from storage.exporters.files import AtomicFiles
-from storage.importers.conditions import MOTIONS
+from storage.importers.conditions import MOTIONS, RECORD_TABLE
 
 #: Files of a CSV export of run file RUN.h5, beside each other in the output folder.
 SUFFIXES = (".csv", ".steps.csv", ".harmonics.csv", ".channels.csv", ".events.csv",
@@ -44,6 +44,10 @@ def write_csv(exp: ExportSet, out_dir: Path, progress: Progress | None = None,
 
 
 def _cell(value: Any) -> Any:
+    """A cell every CSV reader parses: numpy scalars as the plain numbers they hold (the repr of
+    ``np.float64(2.5)`` is not a number), floats with 17 digits, booleans as 0 and 1."""
+    if isinstance(value, np.generic):
+        value = value.item()
     if isinstance(value, bool):
         return int(value)
     if isinstance(value, float):
@@ -61,15 +65,34 @@ def _table(path: Path, cols: dict[str, list[Any]]) -> None:
 
 def conditions_toml(exp: ExportSet) -> str:
     """The conditions in the importer's conditions-file form (``lubricated``, ``motion`` when
-    every step has one, ``seal`` when stated): `sfdrig import` of the CSV reads them."""
+    every step has one, ``seal`` when stated: `sfdrig import` of the CSV reads them), then every
+    other condition of the run in the table ``[run]`` (kind, status, times, the sample rate...),
+    which the importer does not read."""
     cond = exp.conditions()
     lines = [f"# conditions of run {cond.get('run_id', '')} (sfdrig export), read by "
-             "sfdrig import", f"lubricated = {'true' if cond['lubricated'] else 'false'}"]
+             "sfdrig import; [run] is a record of the run, not read",
+             f"lubricated = {'true' if cond['lubricated'] else 'false'}"]
     if cond["motion"] in MOTIONS:
         lines.append(f'motion = "{cond["motion"]}"')
     seal = cond["seal"]
     if seal in ("none", "unknown"):
         lines.append(f'seal = "{seal}"')
     elif seal:
-        lines.append(f"seal = {float(seal)!r}")
+        lines.append(f"seal = {float(seal)!r}  # the seal's friction force F_mu [N]")
+    lines += ["", f"[{RECORD_TABLE}]"]
+    for key, value in cond.items():
+        if key not in ("lubricated", "motion", "seal"):
+            lines.append(f"{key} = {_toml_value(value)}")
     return "\n".join(lines) + "\n"
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return repr(value) if math.isfinite(value) else "nan"
+    return json.dumps(str(value))  # a TOML basic string: JSON's escapes are TOML's

@@ -23,14 +23,18 @@ from storage.exporters.files import AtomicFiles
 
 
 def _start_time(exp: ExportSet) -> np.datetime64 | None:
-    """wf_start_time of the first exported sample (UTC, as TDMS stores it), if the run says."""
+    """wf_start_time: the run's start (UTC, as TDMS stores it), if the run says. Sample k of the
+    export is at wf_start_time + wf_start_offset + k * wf_increment, and wf_start_offset is the
+    run time of its first sample: so npTDMS's time track is the run's time (``time_s`` of the
+    other formats) and its absolute time track the wall-clock time, for a whole run and for an
+    export of some steps alike."""
     try:
         t0 = datetime.fromisoformat(str(exp.run.attrs.get("start_time", "")))
     except ValueError:
         return None
     if t0.tzinfo is not None:
         t0 = t0.astimezone(UTC).replace(tzinfo=None)
-    return np.datetime64(t0, "us") + np.timedelta64(round(exp.first / exp.fs * 1e6), "us")
+    return np.datetime64(t0, "us")
 
 
 def _prop(value: Any) -> Any:

@@ -8,6 +8,9 @@ or ``conditions.toml`` in the same folder, for batch imports)::
     seal = "none"                 # "none", "unknown" (fit or take F_mu from a dry run), or F_mu [N]
     rig = "rig-no-seal.toml"      # the rig description, stored as the run's rig_config
 
+A ``[run]`` table (what `sfdrig export` writes: kind, times, sample rate...) is a record for the
+reader; the importer does not read it.
+
 Every condition is stored with where it came from (``given``, ``conditions file``, ``inferred``,
 ``not stated``); nothing is guessed silently.
 """
@@ -24,6 +27,9 @@ from storage.errors import ImportDataError
 
 MOTIONS = ("x", "y", "circular_forward", "circular_backward", "elliptical")
 KEYS = ("lubricated", "motion", "seal", "rig")
+#: A table of what the run was (kind, times, sample rate...), which `sfdrig export` writes for
+#: the reader and the importer does not read: the run file keeps its own.
+RECORD_TABLE = "run"
 
 
 @dataclass
@@ -110,9 +116,10 @@ def read_conditions_file(path: Path) -> dict[str, Any]:
         raise ImportDataError(f"{path}: cannot read: {err.strerror}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise ImportDataError(f"{path}: not valid TOML: {err}") from None
-    unknown = sorted(set(doc) - set(KEYS))
+    unknown = sorted(set(doc) - set(KEYS) - {RECORD_TABLE})
     if unknown:
-        raise ImportDataError(f"{path}: unknown key(s) {unknown} (known: {', '.join(KEYS)})")
+        raise ImportDataError(f"{path}: unknown key(s) {unknown} (known: {', '.join(KEYS)}, "
+                              f"and the table [{RECORD_TABLE}], not read)")
     out: dict[str, Any] = {}
     where = str(path)
     if "lubricated" in doc:

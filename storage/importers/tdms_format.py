@@ -77,7 +77,8 @@ def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
             increments[label] = float(inc)
         t0 = ch.properties.get("wf_start_time")
         if t0 is not None and not start_time:
-            start_time = _tdms_time(t0)
+            # the first sample is wf_start_offset after wf_start_time (as npTDMS's time track)
+            start_time = _tdms_time(t0, float(ch.properties.get("wf_start_offset", 0.0) or 0.0))
     stated = None
     if increments:
         vals = list(increments.values())
@@ -89,9 +90,9 @@ def read_tdms(path: str | Path, mapping: Mapping[str, str] | None = None,
                                      start_time=start_time), where, fs_hz, scale)
 
 
-def _tdms_time(value: Any) -> str:
+def _tdms_time(value: Any, offset_s: float = 0.0) -> str:
     try:
-        ts = np.datetime64(value, "us")
+        ts = np.datetime64(value, "us") + np.timedelta64(round(offset_s * 1e6), "us")
         return datetime.fromisoformat(str(ts)).replace(tzinfo=UTC).isoformat(
             timespec="milliseconds")
     except (ValueError, TypeError):

@@ -109,13 +109,17 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
                        run_id: str | None = None, overwrite: bool = False,
                        extra_spec: Mapping[str, Any] | None = None,
                        conditions: Conditions | None = None,
-                       rig_config: Mapping[str, Any] | None = None) -> Path:
+                       rig_config: Mapping[str, Any] | None = None,
+                       require_steps: bool = False) -> Path:
     """Write measured data as a run file, atomically (temporary file, then rename).
 
     Channels are those of `CANONICAL` present (SI units); steps come from `segment_record`
     (frequency, amplitude and motion changes, or the step column); the conditions are stored
     as the daemon stores them (``lubricated`` attribute, ``motion`` per step, ``rig_config``)
     and, with their sources and the evidence of what was inferred, in ``test_spec.conditions``.
+    With ``require_steps``, data without a frequency or a step column, of which no step (dwell)
+    can be made, is refused, naming the columns it lacks (`sfdrig import` without
+    ``--no-steps``).
     """
     out = Path(out)
     source = Path(source)
@@ -127,6 +131,13 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
         raise ImportDataError(f"{out}: exists already (choose another --out or overwrite)")
     if not out.parent.is_dir():
         raise ImportDataError(f"{out.parent}: output directory does not exist")
+    if require_steps and data.freq_hz is None and data.step is None:
+        raise ImportDataError(
+            f"{source}: no frequency column (freq_hz) and no step column (step), so no steps "
+            "(dwells) can be made of it: map the excitation frequency with --map "
+            "freq_hz=COLUMN or the dwell number with --map step=COLUMN, give --freq-hz HZ for "
+            "a record at one frequency, or --no-steps to import it without steps (diagnose "
+            "judges it in blocks; identify needs steps)")
     seg = segment_record(data.signals, data.fs_hz, data.freq_hz, data.step, cond.motion)
     derived = derive_displacement(data, seg.steps)
     channels = []
@@ -187,12 +198,30 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
     return out
 
 
+def with_dwell_frequency(data: MeasuredData, freq_hz: float, where: str) -> MeasuredData:
+    """``data`` recorded at one excitation frequency ``freq_hz`` throughout (``--freq-hz``):
+    its frequency column, from which the dwells are found as from a file's own."""
+    if not (math.isfinite(freq_hz) and freq_hz > 0):
+        raise ImportDataError(f"--freq-hz {freq_hz:g}: must be a positive frequency [Hz]")
+    if data.freq_hz is not None or data.step is not None:
+        column = "freq_hz" if data.freq_hz is not None else "step"
+        raise ImportDataError(f"{where}: --freq-hz {freq_hz:g}: the file has a {column} column "
+                              f"({data.sources.get(column, column)}); give one or the other")
+    if freq_hz >= 0.5 * data.fs_hz:
+        raise ImportDataError(f"{where}: --freq-hz {freq_hz:g}: at or above half the sample "
+                              f"rate ({data.fs_hz:g} Hz)")
+    data.freq_hz = np.full(data.n_samples, float(freq_hz))
+    data.sources["freq_hz"] = f"--freq-hz {freq_hz:g}"
+    return data
+
+
 def import_file(path: str | Path, out: str | Path, *, mapping: Mapping[str, str] | None = None,
                 fs_hz: float | None = None, scale: Mapping[str, float] | None = None,
                 kind: str = "imported", notes: str = "", operator: str = "",
                 run_id: str | None = None, overwrite: bool = False,
                 conditions: Conditions | None = None,
-                rig_config: Mapping[str, Any] | None = None) -> Path:
+                rig_config: Mapping[str, Any] | None = None,
+                dwell_freq_hz: float | None = None, require_steps: bool = False) -> Path:
     """Import a measured-data file (CSV, .mat, .tdms) into run file ``out``, all or nothing.
 
     Parameters
@@ -211,6 +240,11 @@ def import_file(path: str | Path, out: str | Path, *, mapping: Mapping[str, str]
         Lubricated or dry, motion, seal (see `storage.importers.conditions`).
     rig_config : dict, optional
         The rig description (validated by the caller), stored as the run's rig_config.
+    dwell_freq_hz : float, optional
+        The excitation frequency of the whole record [Hz], for a file without a frequency or
+        step column (`with_dwell_frequency`).
+    require_steps : bool
+        Refuse data without a frequency or step column (see `write_imported_run`).
 
     Returns
     -------
@@ -226,14 +260,18 @@ def import_file(path: str | Path, out: str | Path, *, mapping: Mapping[str, str]
     """
     meta = export_metadata(Path(path))
     if meta is not None:
-        if mapping or scale or fs_hz is not None:
-            raise ImportDataError(f"{path}: an sfdrig export names its own columns, sample rate "
-                                  "and units; --map, --scale and --fs do not apply")
+        if mapping or scale or fs_hz is not None or dwell_freq_hz is not None:
+            raise ImportDataError(f"{path}: an sfdrig export names its own columns, sample rate, "
+                                  "steps and units; --map, --scale, --fs and --freq-hz do not "
+                                  "apply")
         return restore_export(path, out, meta, run_id=run_id, overwrite=overwrite,
                               conditions=conditions)
     data = read_measured(path, mapping, fs_hz, scale)
+    if dwell_freq_hz is not None:
+        data = with_dwell_frequency(data, dwell_freq_hz, str(path))
     return write_imported_run(data, out, path, kind=kind, notes=notes, operator=operator,
                               run_id=run_id, overwrite=overwrite,
                               extra_spec={"mapping": dict(mapping or {}),
                                           "scale": dict(scale or {})},
-                              conditions=conditions, rig_config=rig_config)
+                              conditions=conditions, rig_config=rig_config,
+                              require_steps=require_steps)

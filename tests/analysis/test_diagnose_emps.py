@@ -24,7 +24,8 @@ def test_emps_coulomb_friction_is_named_first(shared_dir, tmp_path, name):
     assert mat.is_file(), f"{mat} is missing from ../shared (present: a broken copy)"
     run = tmp_path / "emps.h5"
     assert main(["import", str(mat), "--map", "fx_N=vir", "--map", "x_m=qm", "--map",
-                 "time_s=t", "--scale", f"fx_N={GTAU_N_PER_V}", "--out", str(run)]) == 0
+                 "time_s=t", "--scale", f"fx_N={GTAU_N_PER_V}", "--no-steps", "--out",
+                 str(run)]) == 0
     out = tmp_path / "emps.json"
     assert main(["diagnose", str(run), "--judge", "force", "--json", str(out)]) == 0
     doc = json.loads(out.read_text())

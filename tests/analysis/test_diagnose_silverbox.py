@@ -23,7 +23,7 @@ def test_silverbox_nonlinear_stiffness_is_found(shared_dir, tmp_path):
     assert csv.is_file(), f"{csv} is missing from ../shared (present: a broken copy)"
     sb = tmp_path / "sb.h5"
     assert main(["import", str(csv), "--map", "fx_N=V1", "--map", "x_m=V2",
-                 "--fs", "610.3515625", "--out", str(sb)]) == 0
+                 "--fs", "610.3515625", "--no-steps", "--out", str(sb)]) == 0
     out = tmp_path / "sb.json"
     assert main(["diagnose", str(sb), "--baseline", "fitted", "--train", "40650:105712",
                  "--test", "100:40575", "--json", str(out), "--quiet"]) == 0

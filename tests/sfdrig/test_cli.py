@@ -101,3 +101,28 @@ def test_an_error_no_command_answers_is_one_line_and_a_kept_traceback(monkeypatc
         assert "Traceback" in text and "raise KeyError" in text
     finally:
         kept.unlink()
+
+
+@pytest.mark.parametrize("command, inner, argv", [
+    ("calibrate", "_run", ["calibrate"]),
+    ("identify", "_run", ["identify", "r.h5"]),
+    ("diagnose", "_run", ["diagnose", "r.h5"]),
+    ("export", "export_run", ["export", "r.h5", "--to", "csv", "--out", "o"]),
+    ("import_data", "_import_one", ["import", "d.csv", "--out", "r.h5"]),
+])
+def test_a_closed_stdout_is_never_an_error_of_the_command(monkeypatch, capsys, command: str,
+                                                          inner: str, argv: list[str]) -> None:
+    """Commands that answer their own errors (OSError among them, or one line per file) let a
+    closed stdout through to the CLI: quietly, 141 (once "error: r.h5: BrokenPipeError", 2)."""
+    import importlib
+
+    mod = importlib.import_module(f"sfdrig.commands.{command}")
+
+    def reader_gone(*args, **kwargs):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(mod, inner, reader_gone)
+    if command == "export":
+        monkeypatch.setattr(mod, "_size", lambda path: 0)
+    assert main(argv) == 141
+    assert capsys.readouterr().err == ""

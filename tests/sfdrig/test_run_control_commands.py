@@ -57,4 +57,5 @@ def test_reset_while_idle_is_a_no_op_not_a_refusal(daemon: Daemon, capsys):
     """Issue 39: `sfdrig status --reset` while idle said "reset refused (forbidden)", exit 1."""
     assert main(["status", "--reset", "--command-endpoint", daemon.endpoints["command"]]) == 0
     out = capsys.readouterr().out
-    assert out.startswith("nothing to reset: the daemon is idle\nstate      idle\n"), out
+    assert out.startswith("nothing to reset: the daemon is idle\n"
+                          "board      simulated rig (in process)\nstate      idle\n"), out

@@ -112,5 +112,5 @@ def test_import_command_reports_errors(tmp_path: Path, capsys) -> None:
     assert not out.exists()
     src.write_text("a,b\n1,2\n1,3\n")
     assert main(["import", str(src), "--out", str(out), "--map", "fx_N=a", "--map", "x_m=b",
-                 "--fs", "10", "--notes", "rig B", "--scale", "x_m=1e-6"]) == 0
+                 "--fs", "10", "--notes", "rig B", "--scale", "x_m=1e-6", "--no-steps"]) == 0
     assert "2 samples at 10 Hz" in capsys.readouterr().out

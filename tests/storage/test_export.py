@@ -5,10 +5,16 @@ run files that explain themselves (format_version 2) to a reader without our cod
 from __future__ import annotations
 
 import ast
+import csv
 import json
 import math
 import re
+import shlex
+import subprocess
+import sys
 import tempfile
+import tomllib
+from datetime import UTC, datetime
 from pathlib import Path
 
 import h5py
@@ -256,8 +262,7 @@ def test_bad_input_is_one_line(runs: dict[str, Path], tmp_path: Path,
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and message in err, err
     assert "Traceback" not in err
-    out = tmp_path / "out"
-    assert not out.exists() or not list(out.iterdir())  # nothing half written
+    assert not (tmp_path / "out").exists()  # nothing half written, not even the folder
 
 
 def test_existing_export_is_kept(runs: dict[str, Path], tmp_path: Path,
@@ -406,3 +411,241 @@ def test_cli_progress_is_a_line_per_tenth(capsys: pytest.CaptureFixture[str]) ->
     assert [ln.split(":")[1].split("%")[0].strip() for ln in lines] == [
         str(10 * k) for k in range(1, 11)]
     assert lines[-1].startswith("  big.h5: 100 % (1,000,000 of 1,000,000 samples")
+
+
+# --- exports every reader takes -----------------------------------------------------------------
+def _csv_rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+#: the numeric columns of a CSV export's tables
+NUMERIC_COLUMNS = {
+    "harmonics": ("step", "harmonic", "freq_hz", "amplitude", "phase_deg", "re", "im"),
+    "steps": ("index", "freq_hz", "target_value", "first_sample", "last_sample", "t_start_s",
+              "t_stop_s", "updates", "converged"),
+    "channels": ("gain_v_per_unit", "offset_v"),
+    "events": ("sample",),
+}
+
+
+def test_csv_tables_hold_numbers_as_numbers(runs: dict[str, Path], tmp_path: Path) -> None:
+    """Python's csv module and float() read every number of every table (once the harmonics'
+    cells read "np.float64(29.9...)")."""
+    export_run(runs["lub"], "csv", tmp_path)
+    tables = {name: _csv_rows(tmp_path / f"lub.{name}.csv") for name in NUMERIC_COLUMNS}
+    for name, columns in NUMERIC_COLUMNS.items():
+        assert tables[name], name
+        for row in tables[name]:
+            for col in columns:
+                float(row[col])  # raises on a cell no reader takes for a number
+            assert not any("np." in cell for cell in row.values()), row
+    with open_run(runs["lub"]) as r:
+        want = r.steps[1]["harmonics"]["x1"][0]
+    (row,) = [h for h in tables["harmonics"] if h["step"] == "1" and h["channel"] == "x1"
+              and h["harmonic"] == "1"]
+    assert (float(row["re"]), float(row["im"])) == tuple(want)  # 17 digits: bit for bit
+    assert float(row["amplitude"]) == abs(complex(*want)) > 0
+
+
+@pytest.mark.parametrize("steps", [None, "0", "1"])
+def test_tdms_time_under_nptdms(runs: dict[str, Path], tmp_path: Path,
+                                steps: str | None) -> None:
+    """npTDMS's time track is the run's time (time_s) and its absolute time track the wall
+    clock, for a whole run and for an export of some steps (once late by the first sample's run
+    time: the start moved to it and the offset added again)."""
+    (path,) = export_run(runs["lub"], "tdms", tmp_path, steps=steps)
+    with open_run(runs["lub"]) as r:
+        first = r.steps[int(steps)]["first_sample"] if steps else 0
+        fs = r.sample_rate_hz
+        start = datetime.fromisoformat(r.start_time).astimezone(UTC).replace(tzinfo=None)
+    assert first > 0 or steps is None
+    ch = TdmsFile.read(path)["channels"]["x1_m"]
+    rel = ch.time_track()
+    assert rel[0] == pytest.approx(first / fs, abs=1e-9)
+    assert rel[-1] - rel[0] == pytest.approx((len(ch) - 1) / fs, abs=1e-9)
+    wall = ch.time_track(absolute_time=True, accuracy="us")
+    want = np.datetime64(start, "us") + np.timedelta64(round(first / fs * 1e6), "us")
+    assert abs((wall[0] - want) / np.timedelta64(1, "us")) <= 1
+
+
+def test_closed_stdout_is_quiet(runs: dict[str, Path], tmp_path: Path) -> None:
+    """`sfdrig export RUN --to csv --out DIR | head -c 10`: the reader gone before the command
+    prints ends quietly with 141 (128 + SIGPIPE, as a shell shows a command the pipe's signal
+    ended), not "BrokenPipeError", exit 2; the export itself is complete. (The other commands
+    that answer their own errors: tests/sfdrig/test_cli.py.)"""
+    args = ["export", str(runs["lub"]), "--to", "csv", "--out", str(tmp_path / "e")]
+    proc = subprocess.Popen([sys.executable, "-m", "sfdrig", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # the reader has gone before anything is written
+    err = proc.stderr.read()
+    proc.stderr.close()
+    assert proc.wait(timeout=120) == 141, err
+    assert "BrokenPipe" not in err and "Traceback" not in err, err
+    assert (tmp_path / "e" / "lub.harmonics.csv").is_file()
+
+
+# --- docs/run-files.md, read as a newcomer would: its tables and its examples, nothing else ----
+DOC = Path(__file__).resolve().parents[2] / "docs" / "run-files.md"
+_ROW = re.compile(r"^\| `([^`]+)` \| ([^|]+) \|")
+
+
+def _doc_tables() -> dict[str, list[tuple[str, str]]]:
+    """Heading (e.g. "`/steps` columns") -> the (name, kind) rows of the table under it."""
+    tables: dict[str, list[tuple[str, str]]] = {}
+    heading = ""
+    for line in DOC.read_text().splitlines():
+        if line.startswith("#"):
+            heading = line.lstrip("#").strip()
+        elif heading and (m := _ROW.match(line)):
+            tables.setdefault(heading, []).append((m[1], m[2].strip()))
+    return tables
+
+
+def _doc_code(lang: str) -> list[str]:
+    return re.findall(rf"```{lang}\n(.*?)```", DOC.read_text(), re.S)
+
+
+def _names(text: str) -> list[str]:
+    return re.findall(r"`([A-Za-z_][A-Za-z0-9_]*)`", text)
+
+
+def _doc_paragraph(start: str) -> str:
+    """The doc's paragraph or list item starting with ``start``."""
+    text = DOC.read_text()
+    i = text.index(start)
+    ends = [j for j in (text.find("\n- ", i), text.find("\n\n", i)) if j > 0]
+    return text[i:min(ends)]
+
+
+def _is_kind(value: object, kind: str) -> bool:
+    if kind.startswith("JSON text"):
+        return isinstance(value, str) and json.loads(value) is not None
+    return {"text": isinstance(value, str), "float": isinstance(value, np.floating),
+            "integer": isinstance(value, np.integer),
+            "boolean": isinstance(value, np.bool_)}[kind.split(",")[0]]
+
+
+def _check_attrs(obj: h5py.HLObject, rows: list[tuple[str, str]], where: str,
+                 columns: tuple[str, ...] = ()) -> None:
+    """Every attribute ``obj`` has is in the doc's table, every one the doc lists (but those
+    for some runs only) is there, each of the kind the doc says."""
+    documented: dict[str, str] = {}
+    for name, kind in rows:
+        for col in columns if "<column>" in name else ("",):
+            documented[name.replace("<column>", col)] = kind
+    have = set(obj.attrs)
+    assert have <= set(documented), f"{where}: not in the doc: {sorted(have - set(documented))}"
+    needed = {n for n, k in documented.items() if "only" not in k}
+    assert needed <= have, f"{where}: the doc lists {sorted(needed - have)}"
+    for name in have:
+        assert _is_kind(obj.attrs[name], documented[name]), (where, name, obj.attrs[name])
+
+
+def test_the_run_file_is_as_the_doc_says(runs: dict[str, Path]) -> None:
+    """Every object, attribute and column of a run file, with its kind of value, is the doc's
+    (so the page cannot drift from the files): text columns are bytes, the JSON texts parse."""
+    tables = _doc_tables()
+    layout = DOC.read_text().split("## Layout")[1].split("###")[0]
+    with h5py.File(runs["lub"], "r") as f:
+        for obj in re.findall(r"^\| `(/[^`<]*)", layout, re.M):
+            assert (obj.rstrip("/") or "/") in f, obj
+        _check_attrs(f, tables["`/` attributes"], "/")
+        for group in ("channels", "drive"):
+            for ds in f[group].values():
+                _check_attrs(ds, tables[f"`/{group}/<name>` attributes"], ds.name)
+        for table in ("steps", "events"):
+            ds = f[table]
+            cols = tables[f"`/{table}` columns"]
+            assert [n for n, _ in cols] == list(ds.dtype.names)
+            dtype_kind = {"bytes": "S", "integer": "i", "float": "f", "boolean": "b"}
+            for name, kind in cols:
+                assert ds.dtype[name].kind == dtype_kind[kind], (table, name)
+                if kind == "bytes":  # as the doc says: h5py gives bytes
+                    assert isinstance(ds[0][name], bytes), (table, name)
+            _check_attrs(ds, tables[f"`/{table}` attributes"], table, ds.dtype.names)
+        for table in ("step_harmonics", "step_drive_v"):
+            _check_attrs(f[table], tables[f"`/{table}` attributes"], table)
+
+
+def test_the_docs_examples_run_as_written(runs: dict[str, Path], tmp_path: Path,
+                                          monkeypatch: pytest.MonkeyPatch,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """The page's export commands and its Python examples, run word for word in a folder holding
+    runs/lub.h5, read what the run file holds (checked here with sfdrig's own reader)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "lub.h5").write_bytes(runs["lub"].read_bytes())
+    commands = [ln for block in _doc_code("bash") for ln in block.splitlines()
+                if ln.startswith("sfdrig export runs/lub.h5")]  # "Try it": test_readme_e2e
+    assert len(commands) == 3
+    for line in commands:
+        assert main(shlex.split(line)[1:]) == 0, line
+    examples: dict[str, dict[str, object]] = {}
+    for code in _doc_code("python"):
+        ns: dict[str, object] = {}
+        exec(compile(code, str(DOC), "exec"), ns)  # noqa: S102 - the doc's own example
+        examples[code.splitlines()[0].split(":")[0].lstrip("# ")] = ns
+    assert len(examples) == 4 and "out/export/lub.csv" in capsys.readouterr().out
+    with open_run(runs["lub"]) as r:
+        fs, step = r.sample_rate_hz, r.steps[1]
+        z = complex(*step["harmonics"]["x1"][0])
+        x1 = r.channel("x1")
+        start = datetime.fromisoformat(r.start_time).astimezone(UTC).replace(tzinfo=None)
+        events = [(e["sample"], e["kind"], e["message"]) for e in r.events]
+        drives = r.drive_names
+        seal_n = r.rig_config["seal"]["friction_force_n"]
+    h5 = examples["h5py"]
+    assert (h5["fs"], h5["motion"], h5["target"]) == (fs, step["motion"],
+                                                      f"{step['target_value']:g} m")
+    assert h5["amp_stored"] == abs(z) and h5["amp_fitted"] == pytest.approx(abs(z), rel=1e-6)
+    assert list(h5["drive_1x"]) == drives and h5["events"] == events
+    assert h5["t"][1] == pytest.approx(1 / fs, rel=1e-12)  # type: ignore[index]
+    csv_ns = examples["CSV export"]
+    assert (csv_ns["fs"], csv_ns["t0"], csv_ns["x1_0"]) == (fs, 0.0, x1[0])
+    assert csv_ns["z_1x"] == z and csv_ns["amp_1x"] == abs(z)
+    assert csv_ns["seal_n"] == seal_n > 0
+    tdms = examples["TDMS export"]
+    assert tdms["fs"] == fs and tdms["t"][0] == 0.0  # type: ignore[index]
+    assert tdms["wall"][0] == np.datetime64(start, "us")  # type: ignore[index]
+    assert np.array_equal(tdms["x1"][:], x1)  # type: ignore[index]
+    mat = examples["MAT export"]
+    assert mat["fs"] == fs and mat["seal_n"] == seal_n
+    assert np.array_equal(mat["x1"], x1) and mat["t"][1] == 1 / fs  # type: ignore[index]
+
+
+def test_every_export_names_what_the_doc_says(runs: dict[str, Path], tmp_path: Path) -> None:
+    """The CSV files' columns, the TDMS groups and properties, the MAT variables and the
+    conditions (in all three, the CSV's conditions file too) are those the page lists."""
+    for fmt in FORMATS:
+        export_run(runs["lub"], fmt, tmp_path)
+    tables = _doc_tables()["CSV (`RUN.csv` and its tables beside it)"]
+    csv_cols = {file: _names(cols) for file, cols in tables}
+    assert len(csv_cols) == 5 and csv_cols["RUN.csv"] == ["time_s", "step", "freq_hz"]
+    for file, cols in csv_cols.items():
+        header = (tmp_path / file.replace("RUN", "lub")).read_text().splitlines()[0].split(",")
+        assert header[:len(cols)] == cols, file
+    t = TdmsFile.read(tmp_path / "lub.tdms")
+    groups = [name for name, _ in _doc_tables()["TDMS (`RUN.tdms`)"]]
+    assert [g.name for g in t.groups()] == groups
+    assert [c.name for c in t["per_sample"].channels()] == ["step", "freq_hz"]
+    for group, file in (("steps", "RUN.steps.csv"), ("harmonics", "RUN.harmonics.csv"),
+                        ("events", "RUN.events.csv"), ("channel_table", "RUN.channels.csv")):
+        assert [c.name for c in t[group].channels()] == csv_cols[file], group
+    props = set(_names(_doc_paragraph("A waveform's properties")))
+    for group in ("channels", "drive"):
+        for ch in t[group].channels():
+            assert set(ch.properties) <= props, (ch.name, set(ch.properties) - props)
+    conditions = _names(_doc_paragraph("- **Conditions**"))
+    conditions = [c for c in conditions if c not in ("none", "unknown", "conditions")]
+    assert {"lubricated", "seal", "seal_friction_N", "sample_rate_hz", "kind"} <= set(conditions)
+    assert set(conditions) <= set(t.properties)
+    mat = scipy.io.loadmat(tmp_path / "lub.mat", squeeze_me=True)
+    assert set(conditions) == set(mat["conditions"].dtype.names)
+    mat_vars = _names(_doc_paragraph("v5 for `scipy.io.loadmat`"))
+    assert {"Fs", "time_s", "steps", "harmonics", "conditions", "README"} <= set(mat_vars)
+    struct_fields = {"amplitude", "phase_deg", "columns", "units", "convention"}
+    assert set(mat_vars) - struct_fields <= set(mat), set(mat_vars) - set(mat)
+    toml = tomllib.loads((tmp_path / "lub.csv.conditions.toml").read_text())
+    assert set(conditions) == {k for k in toml if k != "run"} | set(toml["run"])

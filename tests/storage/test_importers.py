@@ -333,11 +333,15 @@ def _write_tdms(path: Path, channels: list[tuple[str, str, np.ndarray, dict]]) -
                            for g, c, data, props in channels])
 
 
-def test_tdms_labview_layout(tmp_path: Path) -> None:
+@pytest.mark.parametrize("offset_s, first_sample_at", [(0.0, "2019-05-03T10:20:30.250"),
+                                                       (1.5, "2019-05-03T10:20:31.750")])
+def test_tdms_labview_layout(tmp_path: Path, offset_s: float, first_sample_at: str) -> None:
+    """The run starts at its first sample: wf_start_time + wf_start_offset (npTDMS's time
+    track)."""
     n = 300
     rng = np.random.default_rng(5)
     fx, x1 = rng.normal(size=n), rng.normal(size=n) * 1e-5
-    props = {"wf_increment": 1 / 5000.0, "wf_start_offset": 0.0,
+    props = {"wf_increment": 1 / 5000.0, "wf_start_offset": offset_s,
              "wf_start_time": np.datetime64("2019-05-03T10:20:30.250")}
     path = tmp_path / "lv.tdms"
     _write_tdms(path, [("Forces", "Load X", fx, props), ("Probes", "X1", x1, props),
@@ -348,7 +352,7 @@ def test_tdms_labview_layout(tmp_path: Path) -> None:
         np.testing.assert_array_equal(run.signal("fx"), fx)
         np.testing.assert_array_equal(run.signal("fy"), fx * 2)
         np.testing.assert_array_equal(run.signal("x"), x1)
-        assert run.start_time.startswith("2019-05-03T10:20:30.250")
+        assert run.start_time.startswith(first_sample_at)
         assert run.test_spec["signals"]["x_m"] == "channel 'Probes/X1'"
 
 
@@ -391,7 +395,7 @@ def test_silverbox_import_via_cli(shared_dir: Path, tmp_path: Path, monkeypatch,
     monkeypatch.chdir(REPO_ROOT)
     out = tmp_path / "sb.h5"
     rc = main(["import", "../shared/data/silverbox/SNLS80mV.csv", "--map", "fx_N=V1",
-               "--map", "x_m=V2", "--fs", "610.3515625", "--out", str(out)])
+               "--map", "x_m=V2", "--fs", "610.3515625", "--no-steps", "--out", str(out)])
     assert rc == 0
     assert "131072 samples at 610.352 Hz" in capsys.readouterr().out
     # independent parse of the file: two numeric columns, header and trailing commas skipped
