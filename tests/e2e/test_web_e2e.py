@@ -27,6 +27,7 @@ import pytest
 from control.wire.client import CommandClient
 from control.wire.security import make_keys
 from storage.reader import open_run
+from tests.ci import on_ci
 from tests.e2e.conftest import REPO_ROOT, DaemonProcess, start_daemon
 
 pytestmark = pytest.mark.e2e
@@ -49,7 +50,7 @@ LONG_SWEEP = LONG_SWEEP.replace("150.0]", "150.0" + ", 150.0" * 30 + "]")  # nev
 
 def _chromium() -> str:
     if not Path(CHROMIUM).exists():
-        if os.environ.get("CI"):
+        if on_ci():
             pytest.fail(f"{CHROMIUM} missing on CI: ./dev test installs the chromium package")
         pytest.skip(f"{CHROMIUM} is not installed (./dev test installs it when run as root)")
     return CHROMIUM
