@@ -14,6 +14,7 @@ samples, propagated to the ratio). ``Signature.per_dwell_max`` is the largest dw
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -69,6 +70,12 @@ class Case:
 
 def cases(seed: int = 1) -> dict[str, Case]:
     """Every case; the threshold friction sized to ``THRESHOLD_SIGMAS`` on ``seed``'s plan."""
+    return {c.name: c for c in _cases(seed)}
+
+
+@functools.cache
+def _cases(seed: int) -> tuple[Case, ...]:
+    """`cases`, built once per process and seed (each test and the collection ask for them)."""
     small = threshold_friction(seed)
     bw = BoucWen(force_n=20.0, stiffness_n_per_m=2e6)
     out = [
@@ -101,7 +108,7 @@ def cases(seed: int = 1) -> dict[str, Case]:
              (Expected("coulomb_friction", "friction_force_N", 10.0),
               Expected("cubic_stiffness", "k3_N_per_m3", K3_N_PER_M3))),
     ]
-    return {c.name: c for c in out}
+    return tuple(out)
 
 
 @dataclass(frozen=True)
