@@ -143,7 +143,7 @@ def record(rig: Rig, dwells: list[Dwell], seed: int,
             cols[name][sl] = sensors.record(name, t_local, harmonics, w, rng)
         cols["freq_hz"][sl] = r.dwell.freq_hz
     # the oil temperature drifts continuously (the film's damping follows it per dwell)
-    temp = np.array([rig.oil_temp_c(float(t) / (n_total / FS_HZ)) for t in time_s])
+    temp = rig.oil_temp_c(time_s / (n_total / FS_HZ))  # linear in the run's fraction
     cols["oil_temp_C"] = sensors.finish("oil_temp_C", temp, rng)
     return Recording(cols, solved, rig, sensors)
 
