@@ -116,8 +116,9 @@ def test_the_generators_step_harmonics_follow_the_run_file_convention():
     t = (first + np.arange(1000)) / fs  # three whole cycles, starting mid-run
     w = 2 * math.pi * f_hz
     sig = 0.5 + 3.0 * np.cos(w * t) + 4.0 * np.sin(2 * w * t) - 2.0 * np.sin(5 * w * t)
-    assert np.allclose(step_harmonics(sig, first, fs, f_hz), [3.0, -4.0j, 0.0, 0.0, 2.0j],
-                       atol=1e-12)
+    got = step_harmonics(np.vstack([sig, 2 * sig]), first, fs, f_hz)
+    want = np.array([3.0, -4.0j, 0.0, 0.0, 2.0j])
+    assert got.shape == (2, 5) and np.allclose(got, [want, 2 * want], atol=1e-12)
 
 
 def test_every_library_effect_has_its_criteria_here():
