@@ -8,12 +8,15 @@ Tests against the wall clock, and the pytest-xdist workers (`./dev test` runs on
   (issue 21) is that a busy PC makes the host late, never the AO underflow (the regenerating
   ring), so these tests check it on a machine whose both cores are busy. The paced tests form
   one group (one worker, one after the other), so no two of them compete with each other.
+- a test marked ``busy_pc`` loads the machine on purpose (busy loops beside a paced daemon): it
+  is marked ``paced`` too, so it runs in that group's sequence, never beside a paced test
+  whose wall clock its busy loops would take.
 - the tests of a module that use a module-scoped fixture form one group, so that fixture is
   built once (by one worker), not once per worker.
 
 Markers tell the truth: collection fails on a test under tests/e2e without ``e2e`` or on a test
-reading ../shared (``shared_dir``) without ``needs_shared``; ``held_out`` tests run only when the
-``-m`` expression names them.
+reading ../shared (``shared_dir``) without ``needs_shared`` or on a ``busy_pc`` test without
+``paced``; ``held_out`` tests run only when the ``-m`` expression names them.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, settings
 from threadpoolctl import threadpool_limits
+
+from tests.ci import on_ci
 
 # One BLAS thread in the test process and the processes it starts (as the daemon, `sfdrig web`
 # and diagnose already limit themselves): the workers already fill the cores, and OpenBLAS's
@@ -103,12 +108,16 @@ def _deselect_held_out(config: pytest.Config, items: list[pytest.Item]) -> None:
 
 def _untruthful_markers(items: list[pytest.Item]) -> list[str]:
     """Tests whose markers do not say what they do: one under tests/e2e (real processes and
-    sockets) without ``e2e``, one reading ../shared (``shared_dir``) without ``needs_shared``."""
+    sockets) without ``e2e``, one reading ../shared (``shared_dir``) without ``needs_shared``,
+    a ``busy_pc`` one without ``paced``."""
     wrong = []
     for item in items:
         parts = Path(str(item.path)).parts
         if "e2e" in parts and "tests" in parts and item.get_closest_marker("e2e") is None:
             wrong.append(f"{item.nodeid}: under tests/e2e without the e2e marker")
+        if item.get_closest_marker("busy_pc") and item.get_closest_marker("paced") is None:
+            wrong.append(f"{item.nodeid}: busy_pc without paced (it would run beside the "
+                         "paced tests)")
         uses_shared = "shared_dir" in getattr(item, "fixturenames", ())
         if uses_shared != (item.get_closest_marker("needs_shared") is not None):
             wrong.append(f"{item.nodeid}: the shared_dir fixture and the needs_shared marker "
@@ -189,7 +198,7 @@ def shared_dir() -> Path:
     but fail on CI (CI=true), where a missing ../shared is a broken set-up, not a reason to skip."""
     if not SHARED.is_dir():
         why = f"{SHARED} is absent: the measured-data tests need ../shared beside the repo"
-        if os.environ.get("CI", "").lower() in ("true", "1"):
+        if on_ci():
             pytest.fail(f"{why} (CI=true: required on CI)", pytrace=False)
         pytest.skip(why)
     return SHARED

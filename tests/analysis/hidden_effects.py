@@ -35,7 +35,6 @@ from typing import Any
 
 import numpy as np
 
-from analysis.diagnose.residual_analysis import harmonics
 from daq.channels import default_channel_map
 from rig_model import RigParams
 from rig_model.params import VISCOSITY_SLOPE_PER_C
@@ -44,6 +43,22 @@ from storage.runfile import RunWriter
 
 PROBES = ("x1", "x2", "y1", "y2")
 LEAD_IN_S = 5.0  # pump running, no drive: the film fills and pressurises before the dwells
+STEP_HARMONICS = 5  # 1X..5X per channel, as a run file's /step_harmonics holds (run-files.md)
+
+
+def step_harmonics(record: np.ndarray, first: int, fs: float, freq_hz: float) -> np.ndarray:
+    """A dwell record's complex peak amplitudes 1X..5X (channels, 5) of each row of ``record``
+    (channels, samples) as docs/run-files.md defines them: ``z = z0 + sum_h Re(Z_h exp(i h w
+    t))`` by least squares with ``t`` counted from the run's sample 0, so ``Z = c - i s`` for
+    ``c cos + s sin``. Written here, not taken from the code under test, so the file diagnose
+    reads is not made by diagnose."""
+    t = (first + np.arange(record.shape[-1])) / fs
+    w = 2 * math.pi * freq_hz
+    basis = [np.ones_like(t)]
+    for h in range(1, STEP_HARMONICS + 1):
+        basis += [np.cos(h * w * t), np.sin(h * w * t)]
+    coef = np.linalg.lstsq(np.column_stack(basis), np.atleast_2d(record).T, rcond=None)[0]
+    return (coef[1::2] - 1j * coef[2::2]).T
 
 
 @dataclass
@@ -239,10 +254,9 @@ def _record(path: Path, config: RigParams, truth: RigParams, plan: list, per_dwe
             ai = push(ao)
             a = int(round((ramp_s + settle_s) * fs))
             b = a + int(round(math.ceil(record_s * f) / f * fs))
-            harm = {}
-            for row, name in enumerate(cm.ai_names):
-                z, _, _ = harmonics(ai[row, a:b], first + a, fs, f)
-                harm[name] = [[float(v.real), float(v.imag)] for v in z]
+            z = step_harmonics(ai[:, a:b], first + a, fs, f)
+            harm = {name: [[float(v.real), float(v.imag)] for v in z[row]]
+                    for row, name in enumerate(cm.ai_names)}
             writer.on_step({
                 "index": index, "freq_hz": f, "target_kind": "load", "target_value": force,
                 "motion": motion, "first_sample": first + a, "last_sample": first + b,

@@ -61,9 +61,11 @@ def test_the_bouc_wen_benchmark_is_unexplained_with_its_hardening_reported(
     for lv, force in zip(levels, FORCES_N, strict=True):
         assert math.isclose(lv["force_amplitude_N"], force, rel_tol=0.01), lv
         (f_lo, f_hi), (z_lo, z_hi) = spans[force]
-        fn, fn_sd = lv["natural_frequency_hz"], lv["natural_frequency_sd_hz"]
-        ze, ze_sd = lv["damping_ratio"], lv["damping_ratio_sd"]
+        fn, ze = lv["natural_frequency_hz"], lv["damping_ratio"]
         # a level's equivalent linear oscillator is a weighted mean of its dwells': within
-        # their span, give or take three of diagnose's own standard deviations
-        assert f_lo - 3 * fn_sd <= fn <= f_hi + 3 * fn_sd, (force, fn, fn_sd, f_lo, f_hi)
-        assert z_lo - 3 * ze_sd <= ze <= z_hi + 3 * ze_sd, (force, ze, ze_sd, z_lo, z_hi)
+        # their span (from the noiseless dwells, not from diagnose's standard deviations; the
+        # noise, 0.1 % of each channel's RMS over 5,000 samples, moves a dwell's fundamental
+        # by about 1.4e-5 of it). Measured (seed 3): 36.32, 37.05, 39.11 Hz in spans whose
+        # upper ends are 36.40, 37.37, 39.62 Hz; damping 2.6, 4.0, 8.2 % below 2.8, 4.9, 8.6 %
+        assert f_lo <= fn <= f_hi, (force, fn, f_lo, f_hi)
+        assert z_lo <= ze <= z_hi, (force, ze, z_lo, z_hi)

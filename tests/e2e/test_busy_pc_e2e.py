@@ -17,7 +17,9 @@ from storage.reader import open_run
 
 from .test_stream_e2e import collect_run
 
-pytestmark = pytest.mark.e2e
+# busy_pc: it loads the machine on purpose (three busy loops), so it runs in the paced group's
+# sequence (tests/conftest.py): never beside a paced test, whose wall clock it would take
+pytestmark = [pytest.mark.e2e, pytest.mark.paced, pytest.mark.busy_pc]
 
 #: a seeded busy loop that ends by itself after argv[2] seconds (bounded if the test dies)
 BUSY = ("import random, sys, time\n"

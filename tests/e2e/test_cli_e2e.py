@@ -148,6 +148,7 @@ def test_proxy_relays_every_block_in_sequence(daemon_factory):
         proxy.communicate(timeout=10)
 
 
+@pytest.mark.paced  # a paced daemon: the sweep must still be running when Ctrl-C comes
 def test_ctrl_c_on_sweep_aborts_and_counts_the_steps_the_file_holds(daemon_factory, tmp_path):
     """Issue 21: after Ctrl-C the last line said "(0 steps)" when the file held 2; and
     `sfdrig pump on` during a dry sweep was accepted (the run stays recorded dry)."""

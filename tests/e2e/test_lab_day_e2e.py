@@ -29,7 +29,8 @@ import pytest
 from control.wire.client import CommandClient, Subscriber
 from storage.reader import open_run
 
-pytestmark = pytest.mark.e2e
+# paced: each sweep's wall time is a criterion (within 20 % of the first's)
+pytestmark = [pytest.mark.e2e, pytest.mark.paced]
 
 SWEEPS = 15
 RECORD_S = 4.0  # 15 x 4 s = 60 s of recording in all

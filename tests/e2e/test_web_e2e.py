@@ -29,6 +29,7 @@ from control.wire.security import make_keys
 from control.wire.sweep_spec import field_units
 from daq.config_files import to_toml
 from storage.reader import open_run
+from tests.ci import on_ci
 from tests.e2e.conftest import REPO_ROOT, DaemonProcess, start_daemon
 
 pytestmark = pytest.mark.e2e
@@ -67,7 +68,7 @@ EVERY_NUMBER: dict[str, Any] = {
 
 def _chromium() -> str:
     if not Path(CHROMIUM).exists():
-        if os.environ.get("CI"):
+        if on_ci():
             pytest.fail(f"{CHROMIUM} missing on CI: ./dev test installs the chromium package")
         pytest.skip(f"{CHROMIUM} is not installed (./dev test installs it when run as root)")
     return CHROMIUM

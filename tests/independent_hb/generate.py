@@ -90,11 +90,24 @@ def sensors_for(rig: Rig, base: SensorModel | None = None) -> SensorModel:
                        anti_alias_delay_s=base.anti_alias_delay_s, gain=gain, delay_s=delay)
 
 
+#: balances solved in this process, by (rig, dwells, harmonics): the detectability checks, the
+#: threshold friction and the diagnose cases solve the same rig's plan (the rig, its hidden
+#: effects and the dwells are frozen, so the key is the whole input; a DwellRecord is read only)
+_SOLVED: dict[tuple[Rig, tuple[Dwell, ...], int], tuple[DwellRecord, ...]] = {}
+
+
 def solve_plan(rig: Rig, dwells: list[Dwell], n_harmonics: int = 21) -> list[DwellRecord]:
     """Each dwell's balance, the controller holding the x probe's reading. 21 harmonics: a
     seal that sticks at low speed (15 N against 10 N of spring at 13 um) makes the balance
     converge slowly in the harmonics (7 -> 45 moves the force's fundamental by 1.5 %, 21 -> 45
-    by < 0.5 %; ``test_generator``)."""
+    by < 0.5 %; ``test_generator``). Solved once per process for the same input."""
+    key = (rig, tuple(dwells), n_harmonics)
+    if key not in _SOLVED:
+        _SOLVED[key] = tuple(_solve_plan(rig, dwells, n_harmonics))
+    return list(_SOLVED[key])
+
+
+def _solve_plan(rig: Rig, dwells: list[Dwell], n_harmonics: int) -> list[DwellRecord]:
     n = int(round(DWELL_S * FS_HZ))
     out = []
     for k, d in enumerate(dwells):
@@ -130,7 +143,7 @@ def record(rig: Rig, dwells: list[Dwell], seed: int,
             cols[name][sl] = sensors.record(name, t_local, harmonics, w, rng)
         cols["freq_hz"][sl] = r.dwell.freq_hz
     # the oil temperature drifts continuously (the film's damping follows it per dwell)
-    temp = np.array([rig.oil_temp_c(float(t) / (n_total / FS_HZ)) for t in time_s])
+    temp = rig.oil_temp_c(time_s / (n_total / FS_HZ))  # linear in the run's fraction
     cols["oil_temp_C"] = sensors.finish("oil_temp_C", temp, rng)
     return Recording(cols, solved, rig, sensors)
 

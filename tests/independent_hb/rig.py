@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -102,7 +103,8 @@ class Rig:
     #: regularised so the balance is smooth; 0.2 % of the peak changes the dissipation < 0.1 %)
     friction_smoothing: float = 2e-3
 
-    def oil_temp_c(self, fraction: float) -> float:
+    def oil_temp_c(self, fraction: Any) -> Any:
+        """The oil temperature [C] at a fraction of the run (a float or an array of them)."""
         return OIL_TEMP_C + self.hidden.warming_c * fraction
 
     def film_damping_at(self, fraction: float) -> float:

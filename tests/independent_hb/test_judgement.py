@@ -80,3 +80,19 @@ def test_diagnose_names_what_the_hb_generator_hid(name: str, tmp_path: Path,
                 f"{name}: describing-function row {row} not in the CLI's text"
     ok, said = judge(case, said_json, total)
     assert ok, f"{name} (signature {total:.0f} sigma over the run): {said}"
+
+
+def test_a_sensor_fault_is_right_only_named_on_its_channel_and_told_apart() -> None:
+    """The judgement itself (no diagnose): a probe's gain named on another channel, or on the
+    probe but with partners it "cannot tell it from" where the data can, is wrong."""
+    case = cases(SEED)["probe_gain"]
+
+    def said(named: str, alike: list[str]) -> dict:
+        return {"findings": [{"effect": "sensor_gain", "parameters": {"channel": named,
+                                                                      "gain_ratio": 1.04},
+                              "evidence": {"confidence": "high", "cannot_tell_from": alike}}],
+                "unexplained": False, "verdict": {"verdict": "explained"}, "candidates": []}
+
+    assert judge(case, said("x", []), 1e4)[0]
+    assert not judge(case, said("fx", ["x"]), 1e4)[0]
+    assert not judge(case, said("x", ["fx", "ax"]), 1e4)[0]

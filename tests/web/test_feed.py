@@ -12,6 +12,8 @@ import os
 import subprocess
 from pathlib import Path
 
+import pytest
+
 from control.wire.protocol import encode_header
 from tests.fake_daemon import block_message, until
 from web.feed import LOST_AFTER_S, DaemonLink
@@ -57,6 +59,7 @@ def _gone_pid() -> int:
     return p.pid
 
 
+@pytest.mark.paced  # a timing bound: lost within 2 s
 def test_a_dead_daemon_is_lost_within_2_s_and_a_restarted_one_is_found(fakes, tmp_path: Path):
     state = tmp_path / "daemon.json"
     a = fakes("A")
@@ -87,6 +90,7 @@ def test_a_dead_daemon_is_lost_within_2_s_and_a_restarted_one_is_found(fakes, tm
         link.close()
 
 
+@pytest.mark.paced  # a timing bound: lost within 2 s
 def test_a_late_stream_with_an_answering_daemon_is_late_not_lost(fakes):
     """Heartbeats stop but the daemon answers status (a loaded machine, a stuck proxy): the
     page says late, keeps the state; a daemon that answers nothing either is lost."""

@@ -164,6 +164,7 @@ def test_malformed_bodies_are_answered_400_with_a_message(body, caplog):
                                                   if r.levelno >= logging.ERROR]
 
 
+@pytest.mark.paced  # a timing bound: closed between 0.4 and 5 s
 def test_half_open_requests_are_closed_at_the_header_timeout():
     """1,000 half-open requests held for 60 s (issue 25): here 50 heads that never end and 50
     connections that send nothing are all closed by the server at its 0.5-s header timeout."""
@@ -188,6 +189,7 @@ def test_half_open_requests_are_closed_at_the_header_timeout():
     assert min(t for t, _ in closed) > 0.4 and max(t for t, _ in closed) < 5.0
 
 
+@pytest.mark.paced  # a timing bound: answered between 0.4 and 5 s
 def test_a_body_that_does_not_arrive_is_answered_408():
     daemon = _Daemon()
     app = WebApp(daemon, WebConfig(body_timeout_s=0.5))  # type: ignore[arg-type]
@@ -212,6 +214,7 @@ def _login_request(port: int, key_file: Path) -> bytes:
             ).encode() + body
 
 
+@pytest.mark.paced  # a timing bound: the page closed within 2 s
 def test_revoking_a_key_ends_its_sessions_at_once(tmp_path):
     """The commander's key file removed: its cookie is refused at the next request (before:
     200 for up to 12 h) and its open page is closed (code 4001) within about a second; a key
