@@ -33,6 +33,11 @@ A swept sine is not stationary (each window sees its own band), so its coherence
 noise: its runs are left out with a reason. The level of broadband data is its force's RMS
 times sqrt(2) (the amplitude of a sine of the same power).
 
+A mode is one in the band only where its natural frequency lies among the points' frequencies
+and its damping is within the fit's bounds (``LevelModes.in_band``); any other pole is reported
+as no mode, with its frequency, damping and their sd, and why (extrapolated beyond the points,
+damping on the bound: an overdamped film over 20-60 Hz put one at 115 +- 49 Hz, 70 %).
+
 Modes are followed over the levels by frequency (nearest within ``MATCH_RATIO``), from the
 level with the most modes; the natural frequency and damping ratio of each against the level
 are judged with `amplitude`'s trend rule.
@@ -118,10 +123,6 @@ class LevelModes:
         return (self.band_hz[0] <= mode.natural_hz <= self.band_hz[1]
                 and not _on_bound(mode.damping_ratio))
 
-
-def _on_bound(zeta: float) -> bool:
-    return not ZETA_BOUNDS[0] * (1 + 1e-6) < zeta < ZETA_BOUNDS[1] * (1 - 1e-6)
-
     @property
     def chi2_per_dof(self) -> float:
         row = next(r for r in self.orders if r["modes"] == len(self.modes))
@@ -132,6 +133,10 @@ def _on_bound(zeta: float) -> bool:
                 "points": self.points, "band_hz": list(self.band_hz),
                 "modes": [{**m.to_dict(), "in_band": self.in_band(m)} for m in self.modes],
                 "chi2_per_dof": self.chi2_per_dof, "orders": self.orders}
+
+
+def _on_bound(zeta: float) -> bool:
+    return not ZETA_BOUNDS[0] * (1 + 1e-6) < zeta < ZETA_BOUNDS[1] * (1 - 1e-6)
 
 
 @dataclass
