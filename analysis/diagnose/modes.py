@@ -34,9 +34,9 @@ noise: its runs are left out with a reason. The level of broadband data is its f
 times sqrt(2) (the amplitude of a sine of the same power).
 
 A mode is one in the band only where its natural frequency lies among the points' frequencies
-and its damping is within the fit's bounds (``LevelModes.in_band``); any other pole is reported
-as no mode, with its frequency, damping and their sd, and why (extrapolated beyond the points,
-damping on the bound: an overdamped film over 20-60 Hz put one at 115 +- 49 Hz, 70 %).
+(``LevelModes.in_band``); a pole beyond them is reported as no mode, with its frequency, damping
+and their sd (an overdamped film over 20-60 Hz put one at 115 +- 49 Hz). A damping on the fit's
+upper bound is written ">= 70 %": the data say it is at least that.
 
 Modes are followed over the levels by frequency (nearest within ``MATCH_RATIO``), from the
 level with the most modes; the natural frequency and damping ratio of each against the level
@@ -117,11 +117,10 @@ class LevelModes:
     band_hz: tuple[float, float] = (0.0, math.inf)
 
     def in_band(self, mode: Mode) -> bool:
-        """A mode the points show: its natural frequency among them and its damping within
-        the fit's bounds (a pole on a bound is no mode of a structure: an overdamped
-        response's fit puts one there)."""
-        return (self.band_hz[0] <= mode.natural_hz <= self.band_hz[1]
-                and not _on_bound(mode.damping_ratio))
+        """A mode the points show: its natural frequency among them (a pole beyond them is
+        an extrapolation: an overdamped film's points over 20-60 Hz put one at 115 +- 49 Hz,
+        its damping on the fit's bound)."""
+        return self.band_hz[0] <= mode.natural_hz <= self.band_hz[1]
 
     @property
     def chi2_per_dof(self) -> float:
@@ -206,7 +205,9 @@ class Modes:
             rows = []
             for tr in (t for t in self.tracks if t.axis == ax and t.in_band):
                 f = " -> ".join(f"{v:.4g}" for v in tr.natural_hz)
-                z = " -> ".join(f"{100 * v:.2g}" for v in tr.damping_ratio)
+                # damping on the fit's bound: the data say it is at least that
+                z = " -> ".join(f"{'>= ' if _on_bound(v) else ''}{100 * v:.2g}"
+                                for v in tr.damping_ratio)
                 rows.append(f"{f} Hz (damping {z} %)")
             outside = [t.extrapolation_text for t in self.tracks if t.axis == ax
                        and not t.in_band]
@@ -506,9 +507,10 @@ def fit_modes(w: np.ndarray, h: np.ndarray, sd: np.ndarray,
 
 # --- over the levels ---------------------------------------------------------------------
 def _track(axis: str, fits: list[LevelModes]) -> list[ModeTrack]:
-    """Each mode of the reference level (most modes; the lowest level among equals) followed
+    """Each mode of the reference level (most modes in the band, then most modes; the lowest
+    level among equals) followed
     over the levels: the nearest mode within ``MATCH_RATIO`` in frequency, each used once."""
-    ref = max(fits, key=lambda lv: len(lv.modes))
+    ref = max(fits, key=lambda lv: (sum(map(lv.in_band, lv.modes)), len(lv.modes)))
     tracks = []
     for i, m in enumerate(ref.modes):
         labs, fn, zt, fsd, zsd, lvl = [], [], [], [], [], []
