@@ -99,12 +99,12 @@ class Context:
 def responds(rec: RunRecord, ch: str) -> bool:
     """Whether channel ``ch`` shows the drive: its 1X stands above its own noise in some dwell
     (`start.stands_above_noise`). A run without dwells is not judged (True)."""
-    dwells = [s for s in rec.segments if s.freq_hz]
+    dwells = [(s, s.freq_hz) for s in rec.segments if s.freq_hz]
     if not dwells:
         return True
     sig = rec.signal(ch)
-    for s in dwells:
-        z, _, rest = harmonics(sig[s.start:s.stop], s.start, rec.sample_rate_hz, s.freq_hz, 1)
+    for s, f_hz in dwells:
+        z, _, rest = harmonics(sig[s.start:s.stop], s.start, rec.sample_rate_hz, f_hz, 1)
         if stands_above_noise(abs(z[0]), rest, s.stop - s.start):
             return True
     return False
