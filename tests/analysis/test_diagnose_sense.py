@@ -22,12 +22,8 @@ from analysis.diagnose.effects import Context
 from analysis.diagnose.modes import modal_dependence
 from analysis.diagnose.residual_analysis import harmonics
 from analysis.diagnose.residual_structure import Z_STRUCTURE
-from control.run.pump import PumpRelay
-from control.run.sweep.engine import SweepEngine
-from daq.channels import default_channel_map
 from rig_model import RigParams
-from simulated_hw import SimulatedBackend
-from storage.runfile import RunWriter
+from tests.analysis.recorded import record_sweep
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "lubricated_x.toml"
 
@@ -36,20 +32,8 @@ EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "lubricated_x.toml"
 def lubricated_x(tmp_path_factory) -> RunRecord:
     spec = tomllib.loads(EXAMPLE.read_text())
     spec.update(amplitude_m=spec["amplitude_m"][::2], record_cycles=20, settle_cycles=5)
-    rig = RigParams()
-    backend = SimulatedBackend(rig, seed=0)
-    cm = default_channel_map()
-    backend.configure(cm)
-    pump = PumpRelay(backend)
-    pump.set(True)
     path = tmp_path_factory.mktemp("sense") / "lubricated_x.h5"
-    writer = RunWriter.create(path, "lubricated-x", "sweep", cm.to_json_dict()["ai"],
-                              cm.ao_names, cm.sample_rate_hz, channel_map=cm.to_json_dict(),
-                              rig_config=rig.model_dump(mode="json"), lubricated=True,
-                              flush_interval_s=0, swmr=False)
-    outcome = SweepEngine(backend, spec, pump=pump, listener=writer).run()
-    writer.close()
-    assert outcome.status == "completed"
+    assert record_sweep(RigParams(), spec, path, seed=0) == "completed"
     rec = load_run(path)
     assert len(rec.segments) == 15
     return rec
