@@ -17,7 +17,8 @@ harmonic / segment numbers), ``report`` (JSON, TOML, HTML + PNG).
 Limits, stated:
 - ``sensor_gain`` and ``channel_delay`` need two sensors on the axis (two probes, or a probe and
   an accelerometer or velocity sensor: every response sensor is in the fitted objective, weighted
-  by its noise). Which of the pair is wrong is told by refitting the effect on the other one; a
+  by its noise), each responding (its 1X above its noise in some dwell). Which of the pair is
+  wrong is told by refitting the effect on the other one; a
   gain error on a fitted baseline cannot be told from the partner's inverse gain error with the
   structure scaled, and the finding says so (``cannot_tell_from``).
 - The fitted baseline fits one mass and one damping for both axes and a stiffness per axis

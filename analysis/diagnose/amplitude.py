@@ -19,7 +19,12 @@ at that level: the film's mass and damping included.
 The verdict regresses the natural frequency and the damping ratio on log(level) (weighted by
 their variances) and calls a trend where the change over the levels is at least
 ``FREQ_CHANGE`` (1 %) of the natural frequency, or ``DAMP_CHANGE`` (10 %) of the damping ratio,
-and at least ``T_MIN`` (3) standard errors. ``EFFECTS_BY_TREND`` ties each pattern to the
+and at least ``T_MIN`` (3) standard errors. No trend is "level-independent" only where the
+levels resolve the least change called one (``T_MIN`` sd of the change within it); otherwise it
+is "not resolved", with the change and its sd. A level's natural frequency is shown as a figure
+only where it lies among its points' frequencies (not extrapolated) and stands ``T_MIN`` sd from
+zero, its damping ratio likewise (an overdamped film's one-mode fit over 20-60 Hz gave
+16.8 +- 18 Hz). ``EFFECTS_BY_TREND`` ties each pattern to the
 library's effects; a finding of diagnose that a significant trend beyond the baseline
 contradicts (level-independent terms alone, or a cubic spring of the wrong sign) is named in
 ``contradicted``.
@@ -80,10 +85,36 @@ class LevelFit:
     mass_kg: float
     damping_ns_per_m: float
     stiffness_n_per_m: float
+    band_hz: tuple[float, float] = (0.0, math.inf)  # lowest and highest point [Hz]
 
     @property
     def level(self) -> float:
         return self.force_n if self.level_by == "force" else self.response_m
+
+    @property
+    def frequency_determined(self) -> bool:
+        """The natural frequency lies among the points (not extrapolated) and stands
+        ``T_MIN`` standard deviations from zero: a figure an engineer can read."""
+        lo, hi = self.band_hz
+        return lo <= self.natural_hz <= hi and T_MIN * self.natural_hz_sd <= self.natural_hz
+
+    @property
+    def damping_determined(self) -> bool:
+        return T_MIN * self.damping_ratio_sd <= self.damping_ratio
+
+    @property
+    def text(self) -> str:
+        """``natural frequency, damping ratio`` with their sd, or why they are not given."""
+        f = f"{self.natural_hz:.4g} +/- {self.natural_hz_sd:.2g} Hz"
+        if not self.frequency_determined:
+            lo, hi = self.band_hz
+            where = (f"outside the points' {lo:.4g}-{hi:.4g} Hz, " if not lo <= self.natural_hz
+                     <= hi else "")
+            f = f"natural frequency not determined ({where}{f})"
+        z = f"damping ratio {self.damping_ratio:.3g} +/- {self.damping_ratio_sd:.2g}"
+        if not self.damping_determined:
+            z = f"damping ratio not determined ({z[14:]})"
+        return f"{f}, {z}"
 
     def to_dict(self) -> dict[str, Any]:
         return {"level": self.label, "axis": self.axis, "level_by": self.level_by,
@@ -91,7 +122,9 @@ class LevelFit:
                 "segments": self.segments, "points": self.points,
                 "natural_frequency_hz": self.natural_hz, "natural_frequency_sd_hz":
                 self.natural_hz_sd, "damping_ratio": self.damping_ratio,
-                "damping_ratio_sd": self.damping_ratio_sd, "mass_kg": self.mass_kg,
+                "damping_ratio_sd": self.damping_ratio_sd, "band_hz": list(self.band_hz),
+                "natural_frequency_determined": self.frequency_determined,
+                "damping_ratio_determined": self.damping_determined, "mass_kg": self.mass_kg,
                 "damping_Ns_per_m": self.damping_ns_per_m,
                 "stiffness_N_per_m": self.stiffness_n_per_m}
 
@@ -103,9 +136,26 @@ class Trend:
     change: float
     t: float
     verdict: str  # "softening"/"hardening"/"none" or "rising"/"falling"/"none"
+    sd: float = 0.0  # of the change, from the levels' own uncertainties
+    min_change: float = 0.0  # the least change called a trend
+
+    @property
+    def resolved(self) -> bool:
+        """A trend was called, or the levels would have shown the least change called one
+        (``T_MIN`` sd of the change within it): only then is "none" level-independence."""
+        return self.verdict != "none" or T_MIN * self.sd <= self.min_change
+
+    def words(self, noun: str, trend_fmt: str) -> str:
+        if self.verdict != "none":
+            return f"{self.verdict} ({self.change:{trend_fmt}})"
+        if self.resolved:
+            return f"{noun} level-independent"
+        return (f"{noun} not resolved by the levels ({self.change:+.0%} +/- {self.sd:.0%} "
+                "over them)")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"relative_change": self.change, "t": self.t, "verdict": self.verdict}
+        return {"relative_change": self.change, "relative_change_sd": self.sd, "t": self.t,
+                "verdict": self.verdict, "resolved": self.resolved}
 
 
 @dataclass
@@ -128,14 +178,14 @@ class AmplitudeDependence:
         for ax in self.frequency:
             f, d = self.frequency[ax], self.damping[ax]
             stiff = (f"{f.verdict} ({f.change:+.1%} in natural frequency)"
-                     if f.verdict != "none" else "natural frequency level-independent")
+                     if f.verdict != "none" else f.words("natural frequency", "+.1%"))
             damp = (f"damping {d.verdict} with level ({d.change:+.0%})" if d.verdict != "none"
-                    else "damping level-independent")
+                    else d.words("damping", "+.0%"))
             more = ""
             if ax in self.excess_frequency:
                 ef, ed = self.excess_frequency[ax], self.excess_damping[ax]
-                more = (f" (beyond the baseline: {ef.verdict} stiffness {ef.change:+.1%}, "
-                        f"damping {ed.verdict} {ed.change:+.0%})")
+                more = (f" (beyond the baseline: stiffness {ef.words('', '+.1%').strip()}, "
+                        f"damping {ed.words('', '+.0%').strip()})")
             parts.append(f"{ax}: {stiff}, {damp}{more}")
         return "; ".join(parts)
 
@@ -238,7 +288,8 @@ def fit_level(records: list[RunRecord], segs: list[Segment], axis: int, label: s
     return LevelFit(label, "xy"[axis], level_by, float(np.median(amps[:, 0])),
                     float(np.median(amps[:, 1])), len(segs), int(w.size), fn,
                     float(math.sqrt(max(g_f @ cov @ g_f, 0.0))), zeta,
-                    float(math.sqrt(max(g_z @ cov @ g_z, 0.0))), float(m), float(c), float(k))
+                    float(math.sqrt(max(g_z @ cov @ g_z, 0.0))), float(m), float(c), float(k),
+                    (float(w.min()) / (2 * math.pi), float(w.max()) / (2 * math.pi)))
 
 
 def trend(x: np.ndarray, y: np.ndarray, sd: np.ndarray, min_change: float,
@@ -250,7 +301,7 @@ def trend(x: np.ndarray, y: np.ndarray, sd: np.ndarray, min_change: float,
     xm = float(np.sum(wts * x) / np.sum(wts))
     sxx = float(np.sum(wts * (x - xm) ** 2))
     if sxx <= 0:
-        return Trend(0.0, 0.0, "none")
+        return Trend(0.0, 0.0, "none", math.inf, min_change)
     slope = float(np.sum(wts * (x - xm) * y) / sxx)
     # the levels' own uncertainties (each from its fit's residual); no scatter-about-the-line
     # term: a trend that is monotonic but not linear in log(level) is still a trend
@@ -261,7 +312,8 @@ def trend(x: np.ndarray, y: np.ndarray, sd: np.ndarray, min_change: float,
     verdict = "none"
     if abs(change) >= min_change and t >= T_MIN:
         verdict = words[0] if change > 0 else words[1]
-    return Trend(change, t, verdict)
+    sd_change = se * float(x.max() - x.min()) / abs(mean) if mean else math.inf
+    return Trend(change, t, verdict, sd_change, min_change)
 
 
 def with_predictions(records: list[RunRecord], res: Residuals) -> list[RunRecord]:

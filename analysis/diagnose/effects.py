@@ -46,7 +46,9 @@ from analysis.diagnose.data import RunRecord, driven_axes
 from analysis.diagnose.hysteresis import joint_describing_function
 from analysis.diagnose.model import Model, Param, get_path, set_path
 from analysis.diagnose.oil import drift_course
+from analysis.diagnose.residual_analysis import harmonics
 from analysis.diagnose.residual_structure import Z_STRUCTURE
+from analysis.diagnose.start import stands_above_noise
 from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
 
 
@@ -80,15 +82,32 @@ class Context:
 
     def redundant_channels(self) -> list[str]:
         """Objective channels (probes, accelerometers, velocity sensors) that share their axis
-        with another one in the same run: the pairs whose disagreement is a sensor fault."""
+        with another one in the same run, and respond (`responds`): the pairs whose
+        disagreement is a sensor fault. A channel at its noise holds nothing of its gain or
+        delay (a fit of either only scales or shifts noise)."""
         out: list[str] = []
         for r in self.records:
-            chans = r.objective_channels()
-            axes = [a for a, _ in chans.values()]
-            for ch, (ax, _) in chans.items():
+            chans = {ch: ax for ch, (ax, _) in r.objective_channels().items()
+                     if responds(r, ch)}
+            axes = list(chans.values())
+            for ch, ax in chans.items():
                 if axes.count(ax) > 1 and ch not in out:
                     out.append(ch)
         return out
+
+
+def responds(rec: RunRecord, ch: str) -> bool:
+    """Whether channel ``ch`` shows the drive: its 1X stands above its own noise in some dwell
+    (`start.stands_above_noise`). A run without dwells is not judged (True)."""
+    dwells = [(s, s.freq_hz) for s in rec.segments if s.freq_hz]
+    if not dwells:
+        return True
+    sig = rec.signal(ch)
+    for s, f_hz in dwells:
+        z, _, rest = harmonics(sig[s.start:s.stop], s.start, rec.sample_rate_hz, f_hz, 1)
+        if stands_above_noise(abs(z[0]), rest, s.stop - s.start):
+            return True
+    return False
 
 
 @dataclass

@@ -33,6 +33,11 @@ A swept sine is not stationary (each window sees its own band), so its coherence
 noise: its runs are left out with a reason. The level of broadband data is its force's RMS
 times sqrt(2) (the amplitude of a sine of the same power).
 
+A mode is one in the band only where its natural frequency lies among the points' frequencies
+(``LevelModes.in_band``); a pole beyond them is reported as no mode, with its frequency, damping
+and their sd (an overdamped film over 20-60 Hz put one at 115 +- 49 Hz). A damping on the fit's
+upper bound is written ">= 70 %": the data say it is at least that.
+
 Modes are followed over the levels by frequency (nearest within ``MATCH_RATIO``), from the
 level with the most modes; the natural frequency and damping ratio of each against the level
 are judged with `amplitude`'s trend rule.
@@ -108,6 +113,14 @@ class LevelModes:
     modes: list[Mode]
     #: per order tried: modes, chi2 (weighted by the points' noise), BIC
     orders: list[dict[str, float]] = field(default_factory=list)
+    #: the lowest and highest frequency of the points [Hz]: a mode outside is extrapolated
+    band_hz: tuple[float, float] = (0.0, math.inf)
+
+    def in_band(self, mode: Mode) -> bool:
+        """A mode the points show: its natural frequency among them (a pole beyond them is
+        an extrapolation: an overdamped film's points over 20-60 Hz put one at 115 +- 49 Hz,
+        its damping on the fit's bound)."""
+        return self.band_hz[0] <= mode.natural_hz <= self.band_hz[1]
 
     @property
     def chi2_per_dof(self) -> float:
@@ -116,9 +129,13 @@ class LevelModes:
 
     def to_dict(self) -> dict[str, Any]:
         return {"level": self.label, "axis": self.axis, "force_amplitude_N": self.force_n,
-                "points": self.points,
-                "modes": [m.to_dict() for m in self.modes],
+                "points": self.points, "band_hz": list(self.band_hz),
+                "modes": [{**m.to_dict(), "in_band": self.in_band(m)} for m in self.modes],
                 "chi2_per_dof": self.chi2_per_dof, "orders": self.orders}
+
+
+def _on_bound(zeta: float) -> bool:
+    return not ZETA_BOUNDS[0] * (1 + 1e-6) < zeta < ZETA_BOUNDS[1] * (1 - 1e-6)
 
 
 @dataclass
@@ -132,9 +149,30 @@ class ModeTrack:
     damping_ratio: list[float]
     frequency: Trend | None = None
     damping: Trend | None = None
+    #: the reference level's band [Hz] and whether the mode lies in it there
+    band_hz: tuple[float, float] = (0.0, math.inf)
+    in_band: bool = True
+    reference: Mode | None = None  # the mode at the reference level
+
+    @property
+    def extrapolation_text(self) -> str:
+        """A pole that is no mode in the band, with its uncertainty and why it is none."""
+        lo, hi = self.band_hz
+        m = self.reference or Mode(self.natural_hz[0], math.nan, self.damping_ratio[0],
+                                   math.nan, 0j)
+        f, z = m.natural_hz, m.damping_ratio
+        why = []
+        if not lo <= f <= hi:
+            why.append(f"extrapolated {'above' if f > hi else 'below'} the points' "
+                       f"{lo:.4g}-{hi:.4g} Hz")
+        if _on_bound(z):
+            why.append("its damping on the fit's bound")
+        return (f"{f:.4g} +- {m.natural_hz_sd:.2g} Hz, damping {100 * z:.2g} +- "
+                f"{100 * m.damping_ratio_sd:.2g} % ({', '.join(why)})")
 
     def to_dict(self) -> dict[str, Any]:
         return {"axis": self.axis, "mode": self.index, "levels": self.levels,
+                "in_band": self.in_band, "band_hz": list(self.band_hz),
                 "natural_frequency_hz": self.natural_hz, "damping_ratio": self.damping_ratio,
                 "natural_frequency_trend": self.frequency.to_dict() if self.frequency else None,
                 "damping_trend": self.damping.to_dict() if self.damping else None}
@@ -151,10 +189,11 @@ class Modes:
     cautions: list[str] = field(default_factory=list)  # modes the estimate may bias, and why
 
     def per_axis(self) -> dict[str, int]:
-        """The most modes found at any level, per axis."""
+        """The most modes found in the band (within the points' frequencies) at any level,
+        per axis."""
         out: dict[str, int] = {}
         for lv in self.levels:
-            out[lv.axis] = max(out.get(lv.axis, 0), len(lv.modes))
+            out[lv.axis] = max(out.get(lv.axis, 0), sum(map(lv.in_band, lv.modes)))
         return out
 
     @property
@@ -164,11 +203,17 @@ class Modes:
         parts = []
         for ax, n in self.per_axis().items():
             rows = []
-            for tr in (t for t in self.tracks if t.axis == ax):
+            for tr in (t for t in self.tracks if t.axis == ax and t.in_band):
                 f = " -> ".join(f"{v:.4g}" for v in tr.natural_hz)
-                z = " -> ".join(f"{100 * v:.2g}" for v in tr.damping_ratio)
+                # damping on the fit's bound: the data say it is at least that
+                z = " -> ".join(f"{'>= ' if _on_bound(v) else ''}{100 * v:.2g}"
+                                for v in tr.damping_ratio)
                 rows.append(f"{f} Hz (damping {z} %)")
-            parts.append(f"{ax}: {n} mode{'s' if n > 1 else ''} ({'; '.join(rows)})")
+            outside = [t.extrapolation_text for t in self.tracks if t.axis == ax
+                       and not t.in_band]
+            parts.append(f"{ax}: {n} mode{'' if n == 1 else 's'}"
+                         + (f" ({'; '.join(rows)})" if rows else "")
+                         + "".join(f"; no mode: a pole at {why}" for why in outside))
         return "; ".join(parts + [f"not fitted: {why}" for why in self.skipped]
                          + [f"caution: {why}" for why in self.cautions])
 
@@ -462,9 +507,10 @@ def fit_modes(w: np.ndarray, h: np.ndarray, sd: np.ndarray,
 
 # --- over the levels ---------------------------------------------------------------------
 def _track(axis: str, fits: list[LevelModes]) -> list[ModeTrack]:
-    """Each mode of the reference level (most modes; the lowest level among equals) followed
+    """Each mode of the reference level (most modes in the band, then most modes; the lowest
+    level among equals) followed
     over the levels: the nearest mode within ``MATCH_RATIO`` in frequency, each used once."""
-    ref = max(fits, key=lambda lv: len(lv.modes))
+    ref = max(fits, key=lambda lv: (sum(map(lv.in_band, lv.modes)), len(lv.modes)))
     tracks = []
     for i, m in enumerate(ref.modes):
         labs, fn, zt, fsd, zsd, lvl = [], [], [], [], [], []
@@ -481,7 +527,8 @@ def _track(axis: str, fits: list[LevelModes]) -> list[ModeTrack]:
             fsd.append(md.natural_hz_sd)
             zsd.append(md.damping_ratio_sd)
             lvl.append(lv.force_n)
-        tr = ModeTrack(axis, i + 1, labs, fn, zt)
+        tr = ModeTrack(axis, i + 1, labs, fn, zt, band_hz=ref.band_hz, in_band=ref.in_band(m),
+                       reference=m)
         if len(labs) >= 2 and all(np.isfinite(fsd)) and all(np.isfinite(zsd)):
             x = np.log(lvl)
             tr.frequency = trend(x, np.array(fn), np.array(fsd), FREQ_CHANGE,
@@ -522,8 +569,9 @@ def modal_dependence(records: list[RunRecord], segs: list[Segment]) -> Modes:
             f_amp = [abs(harmonics(records[s.run].force_n[axis, s.start:s.stop], s.start,
                                    records[s.run].sample_rate_hz, s.freq_hz, 1)[0][0])
                      for s in ss if s.freq_hz] or [bb.force_n]
+            band = (float(w.min()) / (2 * math.pi), float(w.max()) / (2 * math.pi))
             fits.append(LevelModes(lab, "xy"[axis], float(np.median(f_amp)), int(w.size),
-                                   modes, rows))
+                                   modes, rows, band))
             narrow = [md.natural_hz for md in modes
                       if 2 * md.damping_ratio * md.natural_hz < WINDOW_LINES * bb.window_hz]
             if narrow:

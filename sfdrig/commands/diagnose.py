@@ -191,8 +191,7 @@ def _run(args: argparse.Namespace) -> int:
     if diag.amplitude is not None:
         print(f"amplitude dependence: {diag.amplitude.text}")
         for lv in diag.amplitude.levels:
-            print(f"  {lv.axis} {lv.label:>14s}: {lv.natural_hz:.4g} +/- {lv.natural_hz_sd:.2g} "
-                  f"Hz, damping ratio {lv.damping_ratio:.3g} +/- {lv.damping_ratio_sd:.2g}")
+            print(f"  {lv.axis} {lv.label:>14s}: {lv.text}")
         for eff, why in diag.amplitude.contradicted.items():
             print(f"  {eff}: contradicted by the levels: {why}")
     if diag.baseline_kind == "fitted":
@@ -200,7 +199,7 @@ def _run(args: argparse.Namespace) -> int:
               + baseline_modes_text(baseline_modes(diag.baseline_model, diag.records)))
     if diag.modes is not None:
         print(f"modes in the band: {diag.modes.text}")
-        for tr in diag.modes.tracks:
+        for tr in (t for t in diag.modes.tracks if t.in_band):
             trends = (f": {tr.frequency.verdict} ({tr.frequency.change:+.1%}), damping "
                       f"{tr.damping.verdict} ({tr.damping.change:+.0%})"
                       if tr.frequency and tr.damping else "")

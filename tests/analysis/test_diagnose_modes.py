@@ -226,7 +226,7 @@ def test_every_mode_is_found_in_multisine_data_at_every_level(tmp_path):
                                          made.responses["x"]]),
                    delimiter=",", header="time_s,fx_N,x_m", comments="", fmt="%.9g")
         assert main(["import", str(csv), "--out", str(csv.with_suffix(".h5")), "--dry",
-                     "--motion", "x", "--seal", "none"]) == 0
+                     "--motion", "x", "--seal", "none", "--no-steps"]) == 0
         runs.append(load_run(csv.with_suffix(".h5"), i))
     train, test = split_segments(runs)
     # as diagnose gives them: each run's first 130 samples not scored (its initial state is

@@ -6,14 +6,10 @@ from __future__ import annotations
 import pytest
 
 from analysis.diagnose import diagnose, load_run
-from control.run.pump import PumpRelay
-from control.run.sweep.engine import SweepEngine
-from daq.channels import default_channel_map
 from rig_model import RigParams
 from sfdrig.cli import main
-from simulated_hw import SimulatedBackend
-from storage.runfile import RunWriter
 from tests.analysis.hidden_effects import config_rig
+from tests.analysis.recorded import record_sweep
 from tests.independent_rig import Generator, RigSpec, Sensors, Sweep
 
 
@@ -21,22 +17,12 @@ def test_sweep_engine_run_with_hidden_cubic_spring(tmp_path):
     config = config_rig()
     data = config.model_dump(mode="python")
     data["effects"]["cubic_stiffness"] = {"enabled": True, "k3_n_per_m3": 3e13}
-    backend = SimulatedBackend(RigParams.model_validate(data), seed=3)
-    cm = default_channel_map()
-    backend.configure(cm)
-    pump = PumpRelay(backend)
-    pump.set(True)
     spec = {"motion": "circular_forward", "lubricated": True,
             "amplitude_m": [15e-6, 30e-6, 45e-6], "freq_hz": [20.0, 30.0, 40.0, 50.0],
             "record_cycles": 10, "settle_cycles": 5, "on_not_converged": "continue"}
     path = tmp_path / "sweep.h5"
-    writer = RunWriter.create(path, "sweep-1", "sweep", cm.to_json_dict()["ai"], cm.ao_names,
-                              cm.sample_rate_hz, channel_map=cm.to_json_dict(),
-                              rig_config=config.model_dump(mode="json"), lubricated=True,
-                              flush_interval_s=0, swmr=False)
-    outcome = SweepEngine(backend, spec, pump=pump, listener=writer).run()
-    writer.close()
-    assert outcome.status == "completed"
+    assert record_sweep(RigParams.model_validate(data), spec, path, seed=3,
+                        described=config) == "completed"
     record = load_run(path)
     assert len(record.segments) == 12
     diag = diagnose([record], seed=1)
