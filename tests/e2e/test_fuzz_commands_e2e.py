@@ -97,14 +97,15 @@ FIXED = [
 
 
 def is_harmless_valid(frames: list[bytes]) -> bool:
-    """A valid status/list_runs request (answered ok) or a valid pump switch (acts: skipped)."""
+    """A valid status/list_runs request or a reset while idle (answered ok, nothing to reset) or a
+    valid pump switch (acts: skipped)."""
     if len(frames) != 1:
         return False
     try:
         d = json.loads(frames[0])
     except (ValueError, RecursionError):
         return False
-    return isinstance(d, dict) and d.get("cmd") in ("status", "list_runs", "pump")
+    return isinstance(d, dict) and d.get("cmd") in ("status", "list_runs", "reset", "pump")
 
 
 def fuzz(daemon_factory, n_examples: int) -> None:

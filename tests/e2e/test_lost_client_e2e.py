@@ -46,7 +46,7 @@ SIGNAL_BOUND_S = 2.0
 # when nothing is sent (SIGKILL, a closed page): the lease, the command loop's beat (0.25 s), and
 # the same as above
 LEASE_BOUND_S = LEASE_S + 0.25 + SIGNAL_BOUND_S
-WHERE = "static step 0 (x, -40 N, pass 1)"  # what the run's reason says it was doing
+WHERE = "static step 1 (x, -40 N, pass 1)"  # the run's reason: what it was doing (steps from 1)
 HOLD = ["--set", 'static.axes=["x"]', "--set", "static.forces_n=[-40.0]",
         "--set", "static.repeats=1"]
 
