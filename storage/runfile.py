@@ -17,6 +17,7 @@ about one second lost).
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import threading
@@ -50,6 +51,8 @@ from storage.layout import (
     utc_now_iso,
 )
 from storage.recovery import writer_identity
+from storage.run_index import record_run
+from storage.run_row import RunRow, motion_of, seal_of
 
 #: the root attributes naming the board that recorded a run (`board_attrs`)
 BOARD_ATTRS = ("board", "backend", "device", "grpc_target")
@@ -228,6 +231,7 @@ class RunWriter:
         self.status: str | None = None
         self.flush_error: Exception | None = None
 
+        self._motions: set[str] = set()  # the steps' motions, for the run index's row
         mode = "w" if overwrite else "w-"
         try:
             f = h5py.File(path, mode, libver=LIBVER)
@@ -241,6 +245,9 @@ class RunWriter:
             raise OSError(f"{path}: cannot create run file: {err}") from None
         self._file = f
         try:
+            self._conditions = (start_time or utc_now_iso(), bool(lubricated),
+                                json_attr(test_spec, "test_spec"),
+                                json_attr(rig_config, "rig_config"))
             layout = create_layout(
                 f, chans, ao_list, self.chunk_samples, compression,
                 attrs={
@@ -248,15 +255,15 @@ class RunWriter:
                     "format_version": FORMAT_VERSION,
                     "run_id": run_id,
                     "kind": kind,
-                    "start_time": start_time or utc_now_iso(),
+                    "start_time": self._conditions[0],
                     "stop_time": "",
                     "operator": hdf5_text(operator),
                     "notes": hdf5_text(notes),
                     "software_version": software_version or installed_software_version(),
                     "sample_rate_hz": float(sample_rate_hz),
                     "channel_map": json_attr(channel_map, "channel_map"),
-                    "rig_config": json_attr(rig_config, "rig_config"),
-                    "test_spec": json_attr(test_spec, "test_spec"),
+                    "rig_config": self._conditions[3],
+                    "test_spec": self._conditions[2],
                     "lubricated": bool(lubricated),
                     "status": "running",
                     "status_reason": "",
@@ -285,6 +292,7 @@ class RunWriter:
                 target=self._io_loop, name=f"RunWriter-io-{run_id}", daemon=True
             )
             self._io_thread.start()
+        self._record("running")
 
     # --- contract A ---------------------------------------------------------------------------
     def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray | None) -> None:
@@ -354,6 +362,7 @@ class RunWriter:
             rows = step_rows(step, index, self.ai_names, self.ao_names)
         except ValueError as err:
             raise ValueError(f"{self.path}: {err}") from None
+        self._motions.add(str(step.get("motion") or ""))
         self._hand_over("step", rows)
 
     def on_event(self, kind: str, message: str, sample: int) -> None:
@@ -545,8 +554,23 @@ class RunWriter:
         except Exception as err:
             error = error or err
         self.status = status
+        if error is None:  # (else the file may hold less than this writer knows: read it)
+            self._record(status)
         if error is not None:
             raise OSError(f"{self.path}: run closed with errors: {error}") from error
+
+    def _record(self, status: str) -> None:
+        """The run's row in its directory's run index (`storage.run_index.record_run`): when
+        it starts, and when it has ended (the file changes no more)."""
+        start, lubricated, spec_text, rig_text = self._conditions
+        spec = json.loads(spec_text) if spec_text else None
+        rig = json.loads(rig_text) if rig_text else None
+        steps = self._n_steps if status != "running" else 0
+        record_run(self.path, RunRow(
+            id=self.run_id, date=start, kind=self.kind, steps=steps, status=status,
+            duration_s=round(self._samples_flushed / self.sample_rate_hz, 6),
+            file=str(self.path), lubricated=lubricated, seal=seal_of(spec, rig),
+            motion=motion_of(self._motions, spec)), final=status != "running")
 
     @property
     def closed(self) -> bool:

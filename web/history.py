@@ -20,12 +20,14 @@ count and length.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import tempfile
 import threading
 import time
 import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -34,12 +36,14 @@ from web.trips import idle_rows, incidents_of_run, select
 from web.view import finite, step_point
 
 FORMATS = ("h5", "mat", "csv", "tdms")
-MAX_RUNS = 300  # newest first, on the page
+PAGE_RUNS = 100  # a page of the run list, newest first
+MAX_RUNS = 1000  # the longest page asked
 MAX_NOTES = 200  # per run
 MAX_NOTE_CHARS = 4000
 NOTES_SUFFIX = ".notes.json"
 REPORTS_DIR = "reports"
 REPORT_PAGE = "index.html"
+log = logging.getLogger(__name__)
 MAX_CACHED_STEPS = 20_000  # transfer results kept (a recorded step never changes)
 
 
@@ -69,26 +73,40 @@ class RunHistory:
         self._incidents: dict[str, tuple[tuple[int, int], list[dict[str, Any]]]] = {}
 
     # --- the list -------------------------------------------------------------------------
-    def _rows(self) -> list[Any]:
-        from storage.catalog import scan_runs
+    def _page(self, **fixed: Any) -> Any:
+        """The catalog's rows of the files directly in the directory (`storage.catalog`:
+        from the run index, brought in line with the files first), as ``fixed`` filters them."""
+        return self._select({}, **fixed)
+
+    def _select(self, query: Mapping[str, str], **fixed: Any) -> Any:
+        from storage.catalog import parse_filter, select_runs
 
         try:
-            rows = scan_runs(self.runs_dir, recursive=False)
+            flt = parse_filter(query, top_only=True, **fixed)
+        except ValueError as err:
+            raise HistoryError(str(err)) from None
+        try:
+            return select_runs(self.runs_dir, flt, notice=_notice)
         except (FileNotFoundError, NotADirectoryError) as err:
             raise HistoryError(str(err), 404) from None
-        rows.reverse()  # newest first
-        return rows
 
-    def runs(self) -> dict[str, Any]:
-        """Every run (newest first, at most `MAX_RUNS`) with its status and notes count."""
-        rows = self._rows()
+    def runs(self, query: Mapping[str, str] | None = None) -> dict[str, Any]:
+        """A page of the runs (newest first; `PAGE_RUNS` unless ``limit`` says, at most
+        `MAX_RUNS`) with their status, conditions and notes count; ``query``: the filters of
+        `storage.catalog.FILTERS` as the page's request gives them (400 for a bad one)."""
+        query = dict(query or {})
+        limit = query.get("limit") or str(PAGE_RUNS)
+        if limit.isdigit() and int(limit) > MAX_RUNS:
+            raise HistoryError(f"limit={limit!r}: at most {MAX_RUNS} runs a page")
+        page = self._select({**query, "limit": limit}, newest_first=True)
         out = []
-        for r in rows[:MAX_RUNS]:
+        for r in page.rows:
             d = r.to_dict()
             d["file"] = Path(r.file).name  # the page needs no path
             d["notes"] = len(self._read_notes(Path(r.file))) if r.id else 0
             out.append(d)
-        return {"runs_dir": str(self.runs_dir), "runs": out, "total": len(rows)}
+        return {"runs_dir": str(self.runs_dir), "runs": out, "total": page.total,
+                "offset": page.offset, "limit": page.limit}
 
     def path_of(self, run_id: str) -> Path:
         """The file the catalog found for ``run_id`` (404 for any other string); remembered
@@ -96,8 +114,8 @@ class RunHistory:
         known = self._paths.get(run_id)
         if known is not None and known.is_file():
             return known
-        for r in self._rows():
-            if r.id and r.id == run_id:
+        if run_id:
+            for r in self._page(run_id=run_id, limit=1).rows:
                 self._paths[run_id] = Path(r.file)
                 return Path(r.file)
         raise HistoryError(f"no run {run_id!r} in {self.runs_dir}", 404)
@@ -195,9 +213,7 @@ class RunHistory:
         rows: list[dict[str, Any]] = []
         unreadable = 0
         seen = set()
-        for r in self._rows():
-            if r.status not in ("aborted", "failed", "interrupted"):
-                continue
+        for r in self._page(statuses=("aborted", "failed", "interrupted")).rows:
             seen.add(r.file)
             try:
                 st = os.stat(r.file)
@@ -338,6 +354,11 @@ def _step_transfer(run: Any, step: dict[str, Any], fs: float) -> list[dict[str, 
                                      for k, v in t.items()},
                     "low_coherence": coh is not None and coh < COHERENCE_LOW})
     return out
+
+
+def _notice(message: str) -> None:
+    """The run index's one-line notices (made again, cannot be written) into the web log."""
+    log.warning("%s", message)
 
 
 def _status(status: str, attrs: Any, path: Path) -> str:

@@ -464,9 +464,13 @@ class WebApp:
             raise _refused(err.status, str(err)) from None
 
     async def runs(self, request: web.Request) -> web.Response:
+        """A page of the run history (`web.history.RunHistory.runs`): the filters of
+        `storage.catalog.FILTERS` (``kind``, ``status``, ``since``, ``until``,
+        ``lubricated``, ``seal``, ``motion``) and ``limit``/``offset``; a bad one is a 400."""
         self._guard(request, need_operator=False)
+        query = dict(request.query)
         return web.json_response({"ok": True, **await self._history(
-            request, lambda h: h.runs())})
+            request, lambda h: h.runs(query))})
 
     async def trips(self, request: web.Request) -> web.Response:
         """The trips, e-stops, watchdogs and interrupted runs of the runs directory

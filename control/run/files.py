@@ -119,12 +119,24 @@ def recover_interrupted(runs_dir: Path, lock_wait_s: float = LOCK_WAIT_S,
     last sample on disk, so that every reader opens them. A file whose writer may still be alive
     (`storage.recovery.writer_gone`) is left alone; one a reader holds open (a web server
     listing the runs when the daemon starts again) is tried again, with backoff, for up to
-    ``lock_wait_s``. Never raises: a file that cannot be recovered is listed with why."""
+    ``lock_wait_s``. Never raises: a file that cannot be recovered is listed with why.
+
+    The candidates come from the run index (`storage.catalog.select_runs`, made here when the
+    directory has none, so that the daemon's run writers record their runs in it): only the
+    files it lists as running or interrupted are opened, not a year of runs at every start."""
+    from storage.catalog import RunFilter, read_row, select_runs
     from storage.reader import open_run
     from storage.recovery import close_interrupted, writer_gone
+    from storage.run_index import record_run
 
     out: list[dict[str, Any]] = []
-    for path in sorted(runs_dir.glob("*.h5")):
+    try:
+        candidates = select_runs(runs_dir, RunFilter(statuses=("running", "interrupted"),
+                                                     top_only=True)).rows
+    except OSError as err:
+        log.warning("could not list the runs in %s: %s", runs_dir, err)
+        return out
+    for path in sorted(Path(r.file) for r in candidates if r.file.endswith(".h5")):
         try:
             with open_run(path) as run:
                 running, attrs = run.status == "running", dict(run.attrs)
@@ -147,6 +159,7 @@ def recover_interrupted(runs_dir: Path, lock_wait_s: float = LOCK_WAIT_S,
                     delay = min(2 * delay, 1.0)
             log.warning("run %s was left running by a dead writer: closed as interrupted at "
                         "sample %d", path.name, last)
+            record_run(path, read_row(path), final=True)
             out.append({"path": str(path), "status": "interrupted", "last_sample": last})
         except Exception as err:  # a damaged file stays as it is, listed as such
             log.warning("could not recover %s: %s", path, err)

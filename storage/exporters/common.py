@@ -39,6 +39,7 @@ from storage.layout import (
     utc_now_iso,
 )
 from storage.reader import RunData
+from storage.run_row import seal_friction_n, seal_of
 
 #: Samples read and written per block.
 BLOCK_SAMPLES = 1 << 18
@@ -249,30 +250,12 @@ class ExportSet:
         return out
 
     def seal(self) -> str:
-        """The end seal as the importer states it: none, unknown, F_mu in N, or "" (not
-        stated): an imported run's stated condition, else the rig description's seal."""
-        spec = self.run.test_spec if isinstance(self.run.test_spec, dict) else {}
-        stated = (spec.get("conditions") or {}).get("seal")
-        if stated:
-            return str(stated)
-        seal = (self.run.rig_config or {}).get("seal") if isinstance(self.run.rig_config,
-                                                                     dict) else None
-        if not isinstance(seal, dict):
-            return ""
-        force = seal.get("friction_force_n")
-        if not seal.get("enabled", True) or not force:
-            return "none"
-        return repr(float(force))
+        """The end seal as the importer states it (`storage.run_row.seal_of`)."""
+        return seal_of(self.run.test_spec, self.run.rig_config)
 
     def seal_friction_n(self) -> float:
         """The seal's friction force F_mu [N]: 0 for no seal, NaN when unknown or not stated."""
-        seal = self.seal()
-        if seal == "none":
-            return 0.0
-        try:
-            return float(seal)
-        except ValueError:
-            return math.nan
+        return seal_friction_n(self.seal())
 
     def metadata(self) -> dict[str, Any]:
         """Everything `sfdrig import` needs to restore the run, and the conventions, as JSON."""

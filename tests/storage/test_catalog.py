@@ -65,7 +65,7 @@ def test_scan_rows(runs_dir: Path) -> None:
     assert "junk.h5: not an HDF5 file" in rows[3].error
     table = format_table(rows)
     assert table.splitlines()[0].split() == ["id", "date", "kind", "steps", "status",
-                                             "duration", "file"]
+                                             "duration", "conditions", "file"]
     assert "2026-01-02 10:00:00" in table and "unreadable: " in table
 
 
@@ -83,7 +83,7 @@ def test_runs_command_json_and_env(runs_dir: Path, monkeypatch, capsys) -> None:
     rows = json.loads(capsys.readouterr().out)
     assert [r["id"] for r in rows] == ["static-a", "sweep-b", "sweep-c", ""]
     assert set(rows[0]) == {"id", "date", "kind", "steps", "status", "duration_s", "file",
-                            "error"}
+                            "error", "lubricated", "seal", "motion"}
     monkeypatch.setenv("SFDRIG_RUNS_DIR", str(runs_dir))
     assert main(["runs"]) == 0
     out = capsys.readouterr().out

@@ -100,6 +100,37 @@ def test_the_runs_with_their_status_newest_first(runs_dir):
     assert body["runs"][-1]["duration_s"] == 1.0  # 1,000 samples at 1 kS/s
 
 
+def test_the_history_pages_and_filters(runs_dir):
+    """Pages of the list, newest first, from the run index; filters as `sfdrig runs` takes
+    them; a bad filter or page is a 400 naming it, never a 500."""
+    app = WebApp(_Daemon(), WebConfig(runs_dir=runs_dir))  # type: ignore[arg-type]
+    asks = ["/api/runs?limit=2", "/api/runs?limit=2&offset=2", "/api/runs?offset=3",
+            "/api/runs?status=aborted,interrupted", "/api/runs?kind=sweep&until=2026-11-25T11:30",
+            "/api/runs?motion=x&lubricated=no", "/api/runs?kind=swep", "/api/runs?limit=x",
+            "/api/runs?limit=5000", "/api/runs?since=%00", "/api/runs?nope=1",
+            "/api/runs?seal=" + "w" * 5000]
+
+    async def test(port: int) -> list[tuple[int, Any]]:
+        return [_json(await _raw(port, _get(a, f"127.0.0.1:{port}"))) for a in asks]
+
+    out = _serve(app, test)
+    assert [s for s, _ in out] == [200] * 6 + [400] * 6
+    pages = [([r["file"] for r in b["runs"]], b["total"], b["offset"]) for _, b in out[:6]]
+    assert pages == [(["junk.h5", "R3.h5"], 4, 0), (["R2.h5", "R1.h5"], 4, 2),
+                     (["R1.h5"], 4, 3), (["R3.h5", "R2.h5"], 2, 0), (["R2.h5", "R1.h5"], 2, 0),
+                     (["R3.h5", "R2.h5", "R1.h5"], 3, 0)]
+    errors = [b["error"] for _, b in out[6:]]
+    assert errors[:5] == [
+        "kind='swep' is not one of sweep, static, impact, probe_calibration, flow, imported, "
+        "commissioning (did you mean 'sweep'?)",
+        "limit='x': a whole number above 0",
+        "limit='5000': at most 1000 runs a page",
+        "since='\\x00' is not an ISO 8601 date or time (e.g. 2026-03-01 or 2026-03-01T08:00)",
+        "unknown filter 'nope': the filters are kind, status, since, until, lubricated, seal, "
+        "motion, limit, offset"]
+    assert errors[5].startswith("seal='wwww") and len(errors[5]) < 200
+
+
 def test_a_run_opened_with_its_step_table(runs_dir):
     app = WebApp(_Daemon(), WebConfig(runs_dir=runs_dir))  # type: ignore[arg-type]
 

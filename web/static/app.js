@@ -818,15 +818,20 @@ async function getJson(url) {
 }
 let openRunId = null;
 let runsAsked = 0;
+let runsOffset = 0;  // the page of the run list shown (newest first)
+const RUNS_PAGE = 100;
 async function loadRuns() {
   const mine = ++runsAsked;
-  const out = await getJson("/api/runs");
+  const out = await getJson(`/api/runs?limit=${RUNS_PAGE}&offset=${runsOffset}`);
   if (mine !== runsAsked) return;  // a newer reload was asked meanwhile: its answer is drawn
   window.sfdrig.runsLoaded = (window.sfdrig.runsLoaded || 0) + 1;
   const body = $("runs").tBodies[0];
   body.innerHTML = "";
   if (!out.ok) { $("runs-info").textContent = out.error; return; }
-  $("runs-info").textContent = `${out.total} in ${out.runs_dir}` + (out.total > out.runs.length ? ` (newest ${out.runs.length} shown)` : "");
+  $("runs-info").textContent = `${out.total} in ${out.runs_dir}` + (out.total > out.runs.length
+    ? ` (${out.offset + 1}-${out.offset + out.runs.length} shown, newest first)` : "");
+  $("runs-newer").disabled = out.offset <= 0;
+  $("runs-older").disabled = out.offset + out.runs.length >= out.total;
   for (const r of out.runs) {
     const tr = body.insertRow();
     tr.dataset.run = r.id;
@@ -950,6 +955,8 @@ async function loadIncidents() {
 $("incident-filter").onchange = loadIncidents;
 $("incident-since").onchange = loadIncidents;
 $("runs-refresh").onclick = () => { loadRuns(); loadIncidents(); };
+$("runs-newer").onclick = () => { runsOffset = Math.max(0, runsOffset - RUNS_PAGE); loadRuns(); };
+$("runs-older").onclick = () => { runsOffset += RUNS_PAGE; loadRuns(); };
 $("run-close").onclick = () => { $("run").hidden = true; openRunId = null; };
 $("note-add").onclick = async () => {
   if (!openRunId) return;
