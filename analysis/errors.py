@@ -17,6 +17,7 @@ class Skipped:
     run: str
     analysis: str
     reason: str
+    #: the step's index in the run file (from 0); `message` counts from 1, as people do
     step: int | None = None
     channel: str | None = None
     #: the reason without the step and the channel it is about, where the reason names them
@@ -26,8 +27,8 @@ class Skipped:
     @property
     def message(self) -> str:
         where = [f"run {self.run}"]
-        if self.step is not None:
-            where.append(f"step {self.step}")
+        if self.step is not None:  # people count steps from 1; ``step`` is the file's index
+            where.append(f"step {self.step + 1}")
         if self.channel:
             where.append(f"channel {self.channel}")
         return f"{', '.join(where)} [{self.analysis}]: {self.reason}"
@@ -50,7 +51,7 @@ def summarise_skipped(skipped: list[Skipped]) -> list[str]:
         if len(items) == 1:
             lines.append(items[0].message)
             continue
-        steps = sorted({s.step for s in items if s.step is not None})
+        steps = sorted({s.step + 1 for s in items if s.step is not None})  # counted from 1
         channels = sorted({s.channel for s in items if s.channel})
         where = f"run {run}"
         if channels:
@@ -63,7 +64,7 @@ def summarise_skipped(skipped: list[Skipped]) -> list[str]:
 
 
 def _ranges(values: list[int]) -> str:
-    """[0, 1, 2, 5] -> "0-2, 5"."""
+    """[1, 2, 3, 6] -> "1-3, 6"."""
     out: list[str] = []
     start = prev = values[0]
     for v in [*values[1:], None]:

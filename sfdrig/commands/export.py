@@ -25,8 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="folder for the exported files (created if missing); each run "
                              "becomes RUN.mat, RUN.tdms or RUN.csv with its tables beside it")
     parser.add_argument("--steps", default=None, metavar="N|N-M",
-                        help="only these steps (inclusive, as numbered in the run) and the "
-                             "samples of their records; time_s stays the run's time")
+                        help="only these steps (counted from 1 as sweep's table and watch "
+                             "count them, inclusive) and the samples of their records; time_s "
+                             "stays the run's time")
     parser.add_argument("--channels", action="append", default=None, metavar="NAME[,NAME]",
                         help="only these input channels (repeatable); the drives are always "
                              "exported")

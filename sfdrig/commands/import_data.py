@@ -115,10 +115,11 @@ def run(args: argparse.Namespace) -> int:
 
 def _print_summary(out: Path) -> None:
     with open_run(out) as run_data:
+        n_steps = len(run_data.steps)
         print(f"{out}: run {run_data.run_id!r}, {run_data.n_samples} samples at "
               f"{run_data.sample_rate_hz:g} Hz ({run_data.duration_s:.3f} s), channels "
-              f"{', '.join(run_data.channel_names)}, {len(run_data.steps)} steps")
-        n_steps = len(run_data.steps)
+              f"{', '.join(run_data.channel_names)}, {n_steps} "
+              f"step{'' if n_steps == 1 else 's'}")
         spec = run_data.test_spec or {}
         restored = run_data.attrs.get("imported_from", "")
         lubricated = bool(run_data.attrs.get("lubricated", False))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -87,7 +88,21 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
                         seed: int = 0, only: list[str] | None = None,
                         operator: str = "", quiet: bool = False,
                         load_by: str | None = None) -> list[Path]:
-    """Run the tests and return the run files written, in order."""
+    """Run the tests and return the run files written, in order.
+
+    A closed stdout (`sfdrig structure --unattended | head -1`) does not stop the tests: they
+    run to the end quietly, then `BrokenPipeError` tells the CLI (exit 141, as `export`)."""
+    pipe_closed = False
+
+    def say(text: str) -> None:
+        nonlocal pipe_closed
+        if quiet or pipe_closed:
+            return
+        try:
+            print(text, flush=True)
+        except BrokenPipeError:  # the reader has gone; said at the end, when the files are
+            pipe_closed = True   # complete
+
     out_dir.mkdir(parents=True, exist_ok=True)
     cm = load_channel_map(channels_path) if channels_path else default_channel_map()
     written: list[Path] = []
@@ -107,13 +122,12 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
                 "flow": FlowSpec}[kind]()
         if isinstance(spec, StaticSpec) and load_by:
             spec = spec.model_copy(update={"load_by": load_by})
+        say(f"{kind}: running ...")
         writer = create_run_writer(path, kind, backend.channel_map, run_id=run_id,
                                    rig_config=test_params, test_spec=spec, operator=operator,
                                    lubricated=kind == "flow", overwrite=True,
                                    paced=backend.realtime, board=backend.board)
         desk = StandInOperator(_logged_to(writer))
-        if not quiet:
-            print(f"{kind}: running ...", flush=True)
         try:
             if isinstance(spec, StaticSpec):
                 outcome = run_static_test(backend, writer, spec, operator=desk, hands=hands)
@@ -133,9 +147,10 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
         writer.close(status, outcome.reason)
         backend.close()
         why = f": {outcome.reason}" if outcome.reason else ""
-        if not quiet:
-            print(f"{kind}: {outcome.steps} steps, {status}{why} -> {path}", flush=True)
+        say(f"{kind}: {outcome.steps} steps, {status}{why} -> {path}")
         written.append(path)
+    if pipe_closed:
+        raise BrokenPipeError(errno.EPIPE, "stdout's reader has gone")
     return written
 
 
@@ -178,6 +193,8 @@ def run(args: argparse.Namespace) -> int:
             for line in err.lines():
                 print(f"sfdrig structure: {line}", file=sys.stderr)
             return 2
+        except BrokenPipeError:
+            raise  # stdout's reader has gone: the CLI ends quietly, 141 (sfdrig.cli)
         except (ValueError, OSError) as err:
             print(f"sfdrig structure: {err}", file=sys.stderr)
             return 2

@@ -70,22 +70,25 @@ def column_name(channel: str, units: str) -> str:
 
 
 def parse_steps(text: str | None, n_steps: int, where: str) -> tuple[int, int] | None:
-    """``--steps N`` or ``N-M`` (inclusive step indices) -> (first, last), or None for all."""
+    """``--steps N`` or ``N-M``: steps as people count them, from 1 (as `sfdrig sweep`'s table
+    and `watch` show them), inclusive -> (first, last) as the file's step indices (from 0), or
+    None for all."""
     if text is None:
         return None
     m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", text)
     if not m:
-        raise ExportError(f"--steps {text!r}: expected N or N-M (step indices, inclusive, "
-                          "e.g. 2-5)")
+        raise ExportError(f"--steps {text!r}: expected N or N-M (steps counted from 1, "
+                          "inclusive, e.g. 2-5)")
     a = int(m[1])
     b = int(m[2]) if m[2] is not None else a
     if b < a:
         raise ExportError(f"--steps {text}: the range runs backwards ({a} > {b})")
     if n_steps == 0:
         raise ExportError(f"{where}: --steps {text}: the run has no steps")
-    if b >= n_steps:
-        raise ExportError(f"{where}: --steps {text}: the run has steps 0-{n_steps - 1}")
-    return a, b
+    if a < 1 or b > n_steps:
+        raise ExportError(f"{where}: --steps {text}: the run has steps 1-{n_steps} (counted "
+                          "from 1)")
+    return a - 1, b - 1
 
 
 @dataclass
@@ -324,7 +327,8 @@ def jsonable(value: Any) -> Any:
 
 def select(run: RunData, steps: str | None = None,
            channels: Sequence[str] | None = None) -> ExportSet:
-    """The export of ``run``: the steps ``steps`` (``N`` or ``N-M``, None: the whole run) and the
+    """The export of ``run``: the steps ``steps`` (``N`` or ``N-M`` counted from 1, None: the
+    whole run) and the
     input channels ``channels`` (None: all); the drives always.
 
     Raises

@@ -77,7 +77,7 @@ def test_missing_channel_names_run_step_and_channel(source: dict[str, Path],
     bad = rewrite(source["lub"], tmp_path / "nofx.h5", drop=("fx",))
     ident = identify([bad, source["dry"]])
     msgs = messages(ident)
-    assert any("lub-edited" in m and "step 0" in m and "channel fx" in m
+    assert any("lub-edited" in m and "step 1, channel fx" in m  # the file's step 0
                and "not in the run" in m for m in msgs), msgs
     assert ident.lubricated is None  # nothing left to identify the film with
     assert any("no usable unidirectional dwell" in m for m in msgs)
@@ -102,8 +102,8 @@ def test_too_few_cycles(source: dict[str, Path], tmp_path: Path) -> None:
     bad = rewrite(source["lub"], tmp_path / "short.h5", edit_steps=shorten)
     ident = identify([bad])
     msgs = messages(ident)
-    assert any("lub-edited" in m and "step 1" in m and "only 2 whole cycle(s) at 45 Hz" in m
-               for m in msgs), msgs
+    assert any("lub-edited" in m and "step 2 [" in m and "only 2 whole cycle(s) at 45 Hz" in m
+               for m in msgs), msgs  # the file's step 1, counted from 1
     assert sorted(p.step for p in ident.lubricated.points) == [0, 2]
     doc = build_report(ident, tmp_path / "r").parent.joinpath("report.json").read_text()
     assert "only 2 whole cycle(s)" in json.loads(doc)["skipped"][0]["message"]
@@ -118,8 +118,8 @@ def test_nan_samples(source: dict[str, Path], tmp_path: Path) -> None:
     bad = rewrite(source["lub"], tmp_path / "nan.h5", edit=nan_in_fx)
     ident = identify([bad])
     msgs = messages(ident)
-    assert any("step 2" in m and "channel fx" in m and "3 NaN/inf sample(s)" in m
-               for m in msgs), msgs
+    assert any("step 3, channel fx" in m and "3 NaN/inf sample(s)" in m
+               for m in msgs), msgs  # the file's step 2, counted from 1
     assert sorted(p.step for p in ident.lubricated.points) == [0, 1]
 
 
@@ -136,8 +136,8 @@ def test_saturated_probe(source: dict[str, Path], tmp_path: Path) -> None:
     bad = rewrite(source["lub"], tmp_path / "sat.h5", edit=clip_x2)
     ident = identify([bad])
     msgs = messages(ident)
-    assert any("step 0" in m and "channel x2" in m and "saturated: 50 sample(s)" in m
-               for m in msgs), msgs
+    assert any("step 1, channel x2" in m and "saturated: 50 sample(s)" in m
+               for m in msgs), msgs  # the file's step 0, counted from 1
     # x1 still measures the motion: the dwell is kept
     assert sorted(p.step for p in ident.lubricated.points) == [0, 1, 2]
 

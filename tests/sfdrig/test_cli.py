@@ -56,6 +56,20 @@ def test_help_into_a_closed_pipe_ends_quietly(args: list[str]) -> None:
     assert out.returncode in (0, 141) and out.stderr == ""
 
 
+def test_structure_into_a_closed_pipe_completes_its_tests_and_ends_quietly(tmp_path) -> None:
+    """`sfdrig structure --unattended | head -0`: the test runs to its end and its file is
+    closed, then exit 141 with nothing on stderr, as `export` (once "sfdrig structure: [Errno
+    32] Broken pipe", exit 2, and the run file left "running")."""
+    import h5py
+
+    out = run_into_a_closed_pipe("structure", "--unattended", "--only", "impact", "--out",
+                                 str(tmp_path))
+    assert (out.returncode, out.stderr) == (141, "")
+    (run,) = tmp_path.glob("*.h5")
+    with h5py.File(run, "r") as f:
+        assert f.attrs["status"] == "completed" and f.attrs["kind"] == "impact"
+
+
 def test_default_outputs_go_where_git_ignores_them() -> None:
     """Issue 21: `sfdrig demo` and `sfdrig calibrate` wrote into the repository root, not
     ignored. Every command's default --out (and run directory) must be ignored by git."""

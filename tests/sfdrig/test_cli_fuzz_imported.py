@@ -114,4 +114,4 @@ def test_very_long_file_imports(tmp_path: Path) -> None:
     proc = _sfdrig("import", str(src), "--out", str(tmp_path / "long.h5"), "--dry", cwd=tmp_path)
     _clean(proc, src)
     assert proc.returncode == 0, proc.stderr
-    assert "1 steps" in proc.stdout  # one dwell of 1000 s, found in linear time
+    assert ", 1 step\n" in proc.stdout  # one dwell of 1000 s, found in linear time

@@ -103,7 +103,7 @@ def test_import_refuses_data_it_cannot_make_steps_of(lub_csv: Path, tmp_path: Pa
     with open_run(out) as run:
         assert len(run.steps) >= 1 and {s["freq_hz"] for s in run.steps} == {40.0}
         assert run.test_spec["freq_source"] == "--freq-hz 40"
-    assert f"{len(run.steps)} steps" in said
+    assert len(run.steps) == 1 and ", 1 step\n" in said  # (once "1 steps")
 
     assert main([*args, "--no-steps", "--freq-hz", "40", "--overwrite"]) == 2
     _one_error_line(capsys, "--no-steps and --freq-hz contradict each other")
@@ -150,7 +150,7 @@ def test_identify_says_each_cause_once(lub_csv: Path, tmp_path: Path, capsys) ->
     skipped = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("skipped:")]
     assert len(skipped) == 1, skipped
     assert "channels ax, ay, fy, t_oil, y [lubricated]: signal not in the run (channels fx, " \
-           "x) (15 items in steps 0-2)" in skipped[0]
+           "x) (15 items in steps 1-3)" in skipped[0]  # counted from 1
 
 
 def test_an_aborted_run_is_said_once_as_used(lub_csv: Path, tmp_path: Path, capsys) -> None:

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import pytest
+
 from control.wire.sweep_spec import SweepSpec
 from sfdrig.cli import main
 from tests.fake_daemon import FakeDaemon
@@ -45,3 +47,23 @@ def test_watch_and_status_show_the_step_counted_from_one(capsys):
                             "  80.0 Hz updates [##......] 3/10 | running"], progress
     finally:
         daemon.stop()
+
+
+def test_identify_skip_lines_and_export_steps_count_from_one():
+    """`identify`'s skip lines and `export --steps` once counted from 0: the file's index 0 is
+    "step 1" to a person, and `--steps 2-3` the file's steps 1 and 2."""
+    from analysis.errors import Skipped, summarise_skipped
+    from storage.exporters.common import ExportError, parse_steps
+
+    one = Skipped("R", "lubricated", "only 2 whole cycle(s)", step=0, channel="fx")
+    assert one.message == "run R, step 1, channel fx [lubricated]: only 2 whole cycle(s)"
+    assert one.to_dict()["step"] == 0  # the JSON keeps the file's index beside the message
+    many = [Skipped("R", "dry", f"signal 'ay' missing in {i}", i, "ay", cause="no ay")
+            for i in (0, 1, 2, 5)]
+    assert summarise_skipped(many) == ["run R, channel ay [dry]: no ay (4 items in steps "
+                                       "1-3, 6)"]
+    assert parse_steps("1", 3, "r.h5") == (0, 0) and parse_steps("2-3", 3, "r.h5") == (1, 2)
+    for bad in ("0", "3-4"):
+        with pytest.raises(ExportError) as err:
+            parse_steps(bad, 3, "r.h5")
+        assert str(err.value) == f"r.h5: --steps {bad}: the run has steps 1-3 (counted from 1)"

@@ -132,7 +132,7 @@ def test_round_trip_of_one_step_and_two_channels(runs: dict[str, Path], tmp_path
                                                  fmt: str) -> None:
     """The restored run starts at the step's first sample; its harmonics are re-referred to that
     time and still describe its samples (fitted here without our code)."""
-    files = export_run(runs["lub"], fmt, tmp_path / "out", steps="1", channels=["fx,x1"])
+    files = export_run(runs["lub"], fmt, tmp_path / "out", steps="2", channels=["fx,x1"])
     back = import_file(files[0], tmp_path / "back.h5")
     with open_run(runs["lub"]) as a, open_run(back) as b:
         step = a.steps[1]
@@ -245,7 +245,10 @@ def test_cli_export_then_import(runs: dict[str, Path], tmp_path: Path,
     (["missing.h5", "--to", "csv"], "missing.h5: no such file"),
     (["LUB", "--to", "csv", "--channels", "x9"], "no channel 'x9' (channels fx, fy, x1"),
     (["LUB", "--to", "csv", "--channels", "shaker_x"], "--channels names no input channel"),
-    (["LUB", "--to", "mat", "--steps", "2-5"], "--steps 2-5: the run has steps 0-1"),
+    (["LUB", "--to", "mat", "--steps", "2-5"], "--steps 2-5: the run has steps 1-2 (counted "
+                                               "from 1)"),
+    (["LUB", "--to", "mat", "--steps", "0"], "--steps 0: the run has steps 1-2 (counted from 1)"),
+    (["LUB", "--to", "mat", "--steps", "0-1"], "--steps 0-1: the run has steps 1-2"),
     (["LUB", "--to", "mat", "--steps", "1-0"], "--steps 1-0: the range runs backwards"),
     (["LUB", "--to", "tdms", "--steps", "one"], "--steps 'one': expected N or N-M"),
     (["LUB", "--to", "csv", "--out", "LUB"], "is a file, not a folder"),
@@ -448,7 +451,7 @@ def test_csv_tables_hold_numbers_as_numbers(runs: dict[str, Path], tmp_path: Pat
     assert float(row["amplitude"]) == abs(complex(*want)) > 0
 
 
-@pytest.mark.parametrize("steps", [None, "0", "1"])
+@pytest.mark.parametrize("steps", [None, "1", "2"])
 def test_tdms_time_under_nptdms(runs: dict[str, Path], tmp_path: Path,
                                 steps: str | None) -> None:
     """npTDMS's time track is the run's time (time_s) and its absolute time track the wall
@@ -456,7 +459,7 @@ def test_tdms_time_under_nptdms(runs: dict[str, Path], tmp_path: Path,
     time: the start moved to it and the offset added again)."""
     (path,) = export_run(runs["lub"], "tdms", tmp_path, steps=steps)
     with open_run(runs["lub"]) as r:
-        first = r.steps[int(steps)]["first_sample"] if steps else 0
+        first = r.steps[int(steps) - 1]["first_sample"] if steps else 0  # counted from 1
         fs = r.sample_rate_hz
         start = datetime.fromisoformat(r.start_time).astimezone(UTC).replace(tzinfo=None)
     assert first > 0 or steps is None
