@@ -145,8 +145,8 @@ def _when(key: str, text: str) -> tuple[datetime, bool]:
     try:
         when = datetime.fromisoformat(text.replace("Z", "+00:00"))
     except ValueError:
-        raise ValueError(f"{key}={_shown(text)} is not an ISO 8601 date or time (e.g. 2026-03-01 or "
-                         "2026-03-01T08:00)") from None
+        raise ValueError(f"{key}={_shown(text)} is not an ISO 8601 date or time (e.g. "
+                         "2026-03-01 or 2026-03-01T08:00)") from None
     return when, len(text) <= 10
 
 
