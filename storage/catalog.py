@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import difflib
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from datetime import datetime, timedelta
 from pathlib import Path
 
@@ -16,8 +17,8 @@ from storage.run_index import INDEX_NAME, RunFilter, RunIndex, RunPage
 from storage.run_row import RunRow, read_row
 
 __all__ = ["FILTERS", "INDEX_NAME", "STALE_AFTER_S", "RunFilter", "RunPage", "RunRow",
-           "default_runs_dir", "format_table", "parse_filter", "read_row", "scan_runs",
-           "select_runs"]
+           "default_runs_dir", "format_table", "open_catalog", "parse_filter", "read_row",
+           "scan_runs", "select_runs"]
 
 #: Environment variable naming the default runs directory (else ./runs).
 RUNS_DIR_ENV = "SFDRIG_RUNS_DIR"
@@ -44,10 +45,12 @@ def default_runs_dir() -> Path:
     return Path(os.environ.get(RUNS_DIR_ENV) or "runs")
 
 
-def select_runs(directory: str | Path, flt: RunFilter | None = None,
-                notice: Callable[[str], None] | None = None) -> RunPage:
-    """The rows of the run files under ``directory`` that ``flt`` asks for, from the run index
-    brought in line with the files first. ``notice``: see `RunIndex`.
+@contextmanager
+def open_catalog(directory: str | Path,
+                 notice: Callable[[str], None] | None = None) -> Iterator[RunIndex]:
+    """The run index of ``directory`` brought in line with the files, open: for a reader that
+    asks it more than one thing (the page's trips table: the runs that did not complete, then
+    the incidents it kept of them, `RunIndex.derived`). ``notice``: see `RunIndex`.
 
     Raises
     ------
@@ -63,6 +66,14 @@ def select_runs(directory: str | Path, flt: RunFilter | None = None,
         raise NotADirectoryError(f"{directory}: not a directory")
     with RunIndex(directory, notice) as index:
         index.sync()
+        yield index
+
+
+def select_runs(directory: str | Path, flt: RunFilter | None = None,
+                notice: Callable[[str], None] | None = None) -> RunPage:
+    """The rows of the run files under ``directory`` that ``flt`` asks for, from the run index
+    brought in line with the files first. Raises as `open_catalog`."""
+    with open_catalog(directory, notice) as index:
         return index.select(flt or RunFilter())
 
 

@@ -18,6 +18,7 @@ transactions (a rebuild commits every `BATCH` rows, read before the transaction)
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sqlite3
@@ -35,7 +36,7 @@ log = logging.getLogger("sfdrig.storage")
 #: the index's file name in the runs directory (hidden: no listing shows it)
 INDEX_NAME = ".sfdrig-runs.sqlite"
 #: the table's layout; an index of another layout is made again
-SCHEMA = "1"
+SCHEMA = "2"
 #: a row read less than this after its file's last change is read again at the next look [ns]
 RACY_NS = 2_000_000_000
 #: rows written per transaction while (re)building
@@ -64,6 +65,9 @@ CREATE TABLE IF NOT EXISTS runs (
         strict=True))});
 CREATE INDEX IF NOT EXISTS runs_date ON runs (date_key);
 CREATE INDEX IF NOT EXISTS runs_id ON runs (id);
+CREATE TABLE IF NOT EXISTS derived (  -- what a reader made of a file (`RunIndex.derived`)
+    file TEXT NOT NULL, name TEXT NOT NULL, mtime_ns INTEGER NOT NULL, size INTEGER NOT NULL,
+    value TEXT NOT NULL, PRIMARY KEY (file, name));
 """
 
 
@@ -193,6 +197,7 @@ class RunIndex:
         if gone:
             with self._db:
                 self._db.executemany("DELETE FROM runs WHERE file = ?", gone)
+                self._db.executemany("DELETE FROM derived WHERE file = ?", gone)
         if len(todo) > NOTICE_AT:
             self._notice(f"indexing {len(todo):,} run files in {self.directory} (once: later "
                          "looks read only the files that changed)")
@@ -230,6 +235,34 @@ class RunIndex:
             f"ORDER BY (date_key = '') {way}, date_key {way}, file {way}{page}", params)
         rows = [_row(self.directory, r) for r in cur.fetchall()]
         return RunPage(rows=rows, total=total, offset=flt.offset, limit=flt.limit)
+
+
+    # --- what readers made of the files ---------------------------------------------------------
+    def derived(self, name: str) -> dict[str, tuple[tuple[int, int], Any]]:
+        """The values ``name`` kept for files (`put_derived`), by the file's path, with the
+        (change time [ns], size) they were made from: only those made from the file as its row
+        (call `sync` first) has it, a row trusted (not running, unreadable or racy)."""
+        return self._guarded(lambda: {
+            str(self.directory / f): ((m, n), json.loads(v)) for f, m, n, v in self._db.execute(
+                "SELECT d.file, d.mtime_ns, d.size, d.value FROM derived d JOIN runs r "
+                "ON r.file = d.file WHERE d.name = ? AND d.mtime_ns = r.mtime_ns AND "
+                "d.size = r.size AND r.racy = 0 AND r.status NOT IN ('running', 'unreadable')",
+                (name,))})
+
+    def put_derived(self, name: str, values: list[tuple[Path, tuple[int, int], Any]]) -> None:
+        """Keep what a reader made of files (JSON values) under ``name``, each with the
+        (change time [ns], size) of the file it was made from: a file changed since is read
+        again by its reader (e.g. the page's trips table: a run's incidents)."""
+        rows = []
+        for path, (mtime_ns, size), value in values:
+            rel = Path(path).relative_to(self.directory).as_posix()
+            rows.append((rel, name, mtime_ns, size, json.dumps(value)))
+        if rows:
+            def put() -> None:
+                with self._db:
+                    self._db.executemany("INSERT OR REPLACE INTO derived VALUES (?, ?, ?, ?, ?)",
+                                         rows)
+            self._guarded(put)
 
 
 def record_run(path: Path, row: RunRow, final: bool) -> None:

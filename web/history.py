@@ -19,6 +19,7 @@ count and length.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -27,7 +28,7 @@ import tempfile
 import threading
 import time
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +45,7 @@ NOTES_SUFFIX = ".notes.json"
 REPORTS_DIR = "reports"
 REPORT_PAGE = "index.html"
 log = logging.getLogger(__name__)
+INCIDENTS_KEPT = "web.trips/1"  # a run's incidents in the run index (a new layout: a new name)
 MAX_CACHED_STEPS = 20_000  # transfer results kept (a recorded step never changes)
 
 
@@ -69,8 +71,6 @@ class RunHistory:
         self._notes_lock = threading.Lock()
         self._paths: dict[str, Path] = {}  # run id -> the file the catalog found for it
         self._transfers: dict[tuple[str, int], list[dict[str, Any]]] = {}
-        # a run file's incidents, by (file, its change time and size): read again once changed
-        self._incidents: dict[str, tuple[tuple[int, int], list[dict[str, Any]]]] = {}
 
     # --- the list -------------------------------------------------------------------------
     def _page(self, **fixed: Any) -> Any:
@@ -79,14 +79,17 @@ class RunHistory:
         return self._select({}, **fixed)
 
     def _select(self, query: Mapping[str, str], **fixed: Any) -> Any:
-        from storage.catalog import parse_filter, select_runs
+        with self._catalog() as index:
+            return index.select(_filter(query, **fixed))
+
+    @contextlib.contextmanager
+    def _catalog(self) -> Iterator[Any]:
+        """The run index of the directory, in line with its files (`storage.catalog`)."""
+        from storage.catalog import open_catalog
 
         try:
-            flt = parse_filter(query, top_only=True, **fixed)
-        except ValueError as err:
-            raise HistoryError(str(err)) from None
-        try:
-            return select_runs(self.runs_dir, flt, notice=_notice)
+            with open_catalog(self.runs_dir, notice=_notice) as index:
+                yield index
         except (FileNotFoundError, NotADirectoryError) as err:
             raise HistoryError(str(err), 404) from None
 
@@ -204,24 +207,28 @@ class RunHistory:
     # --- trips, e-stops, watchdogs and interrupted runs across runs ---------------------------
     def trips(self, incidents: set[str] | None = None, since: Any = None) -> dict[str, Any]:
         """Every incident (`web.trips`) of the runs that did not complete, read from their
-        files (a file is read again only when it has changed), and those of no run, from the
-        daemon's incident log: newest first."""
+        files, and those of no run, from the daemon's incident log: newest first. A run's
+        incidents are kept in the run index (`RunIndex.derived`, by the file's change time and
+        size): a file is read again only when it has changed, also by the next web process."""
         from storage.errors import RunFileError
         from storage.incident_log import LOG_NAME, read_incidents
         from storage.reader import open_run
 
         rows: list[dict[str, Any]] = []
         unreadable = 0
-        seen = set()
-        for r in self._page(statuses=("aborted", "failed", "interrupted")).rows:
-            seen.add(r.file)
-            try:
-                st = os.stat(r.file)
-            except OSError:
-                continue
-            stamp = (st.st_mtime_ns, st.st_size)
-            cached = self._incidents.get(r.file)
-            if cached is None or cached[0] != stamp:
+        with self._catalog() as index:
+            page = index.select(_filter(statuses=("aborted", "failed", "interrupted")))
+            kept = index.derived(INCIDENTS_KEPT)
+            made: list[tuple[Path, tuple[int, int], Any]] = []
+            for r in page.rows:
+                try:
+                    st = os.stat(r.file)
+                except OSError:
+                    continue
+                stamp = (st.st_mtime_ns, st.st_size)
+                if r.file in kept and kept[r.file][0] == stamp:
+                    rows.extend(kept[r.file][1])
+                    continue
                 try:
                     with open_run(r.file) as run:
                         found = incidents_of_run(run, r.status, Path(r.file).name,
@@ -231,14 +238,10 @@ class RunHistory:
                     # (h5py's errors on a file a daemon is closing right now: asked again)
                     unreadable += 1
                     continue
-                if not closed:  # a dead writer's file, still to be closed by a daemon: its
-                    rows.extend(found)  # change may share the file's time stamp; read again
-                    continue
-                self._incidents[r.file] = (stamp, found)
-                cached = self._incidents[r.file]
-            rows.extend(cached[1])
-        for gone in set(self._incidents) - seen:
-            del self._incidents[gone]
+                rows.extend(found)
+                if closed:  # (a dead writer's file, still to be closed by a daemon: its
+                    made.append((Path(r.file), stamp, found))  # change may keep its stamp)
+            index.put_derived(INCIDENTS_KEPT, made)
         logged, skipped = read_incidents(self.runs_dir)
         rows.extend(idle_rows(logged, LOG_NAME))
         shown = select(rows, incidents, since)
@@ -354,6 +357,16 @@ def _step_transfer(run: Any, step: dict[str, Any], fs: float) -> list[dict[str, 
                                      for k, v in t.items()},
                     "low_coherence": coh is not None and coh < COHERENCE_LOW})
     return out
+
+
+def _filter(query: Mapping[str, str] | None = None, **fixed: Any) -> Any:
+    """The catalog's filter of the files directly in the directory (400 for a bad value)."""
+    from storage.catalog import parse_filter
+
+    try:
+        return parse_filter(query or {}, top_only=True, **fixed)
+    except ValueError as err:
+        raise HistoryError(str(err)) from None
 
 
 def _notice(message: str) -> None:

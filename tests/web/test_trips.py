@@ -195,6 +195,38 @@ def test_incidents_between_runs_come_from_the_daemons_log(runs_dir):
     assert table[4][1:5] == ["", "e-stop", "emergency stop released", IDLE_WHERE]
 
 
+def test_a_runs_incidents_are_kept_in_the_run_index(runs_dir, monkeypatch):
+    """The next web process (a new `RunHistory`) answers the trips table from the run index:
+    it opens only the killed run (its file may still change when a daemon closes it) and a run
+    whose file changed since; the answer is the same."""
+    import os
+
+    import storage.reader
+    from web.history import RunHistory
+
+    for p in runs_dir.glob("*.h5"):  # written an hour ago: past the index's racy window
+        t = p.stat().st_mtime_ns - 3600 * 10**9
+        os.utime(p, ns=(t, t))
+    first = RunHistory(runs_dir).trips()
+    opened: list[str] = []
+    real = storage.reader.open_run
+
+    def counted(path):
+        opened.append(Path(path).name)
+        return real(path)
+
+    monkeypatch.setattr(storage.reader, "open_run", counted)
+    assert RunHistory(runs_dir).trips() == first
+    assert opened == ["I1.h5"]
+    with h5py.File(runs_dir / "W1.h5", "r+") as f:
+        f.attrs["status_reason"] = "the watchdog, as the operator noted"
+    t = (runs_dir / "W1.h5").stat().st_mtime_ns - 600 * 10**9
+    os.utime(runs_dir / "W1.h5", ns=(t, t))
+    opened.clear()
+    again = RunHistory(runs_dir).trips()
+    assert sorted(opened) == ["I1.h5", "W1.h5"] and again["total"] == first["total"]
+
+
 def test_bad_parameters_are_refused_with_the_reason(runs_dir):
     app = WebApp(_Daemon(), WebConfig(runs_dir=runs_dir))  # type: ignore[arg-type]
     none = WebApp(_Daemon(), WebConfig())  # type: ignore[arg-type]
