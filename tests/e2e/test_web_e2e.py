@@ -927,3 +927,44 @@ def test_an_e_stop_between_runs_is_in_the_history_across_a_restart(tmp_path, web
                 daemon.terminate()
                 daemon.proc.communicate(timeout=10)
         server.stop()
+
+
+def test_the_history_pages_and_filters_in_the_browser(tmp_path, browser, daemon_factory,
+                                                      web_factory):
+    """101 runs: the page shows the newest 100, Older the oldest one, Newer back; the status
+    filter asks the run index for the aborted runs only."""
+    import h5py
+
+    from storage.layout import LIBVER
+    from tests.web.test_history import _write
+
+    runs = tmp_path / "runs0"  # the runs directory of daemon_factory's first daemon
+    runs.mkdir()
+    _write(runs / "R000.h5", "R000", "2026-03-01T00:00:00.000+00:00", "completed", [20.0], 1)
+    for i in range(1, 101):
+        p = runs / f"R{i:03d}.h5"
+        p.write_bytes((runs / "R000.h5").read_bytes())
+        with h5py.File(p, "r+", libver=LIBVER) as f:
+            f.attrs["run_id"] = f"R{i:03d}"
+            f.attrs["start_time"] = f"2026-03-01T{i // 60:02d}:{i % 60:02d}:00.000+00:00"
+            f.attrs["status"] = "aborted" if i % 25 == 0 else "completed"
+    url = web_factory(daemon_factory(), follow=True)  # a daemon on that runs directory
+    page = _open(browser, url)
+    rows = "#runs tbody tr"
+    page.wait_for_function(f"document.querySelectorAll('{rows}').length === 100")
+    first = page.eval_on_selector(rows, "r => r.dataset.run")
+    assert first == "R100"
+    assert "101 in" in page.inner_text("#runs-info") and "1-100 shown" in page.inner_text(
+        "#runs-info")
+    assert page.is_disabled("#runs-newer") and not page.is_disabled("#runs-older")
+    page.click("#runs-older")
+    page.wait_for_function(f"document.querySelectorAll('{rows}').length === 1")
+    assert page.eval_on_selector(rows, "r => r.dataset.run") == "R000"
+    assert "101-101 shown" in page.inner_text("#runs-info") and page.is_disabled("#runs-older")
+    page.click("#runs-newer")
+    page.wait_for_function(f"document.querySelectorAll('{rows}').length === 100")
+    page.select_option("#runs-status", "aborted,failed,interrupted")
+    page.wait_for_function(f"document.querySelectorAll('{rows}').length === 4")
+    got = page.eval_on_selector_all(rows, "rs => rs.map(r => r.dataset.run)")
+    assert got == ["R100", "R075", "R050", "R025"]
+    assert page.errors == []

@@ -822,7 +822,10 @@ let runsOffset = 0;  // the page of the run list shown (newest first)
 const RUNS_PAGE = 100;
 async function loadRuns() {
   const mine = ++runsAsked;
-  const out = await getJson(`/api/runs?limit=${RUNS_PAGE}&offset=${runsOffset}`);
+  const ask = new URLSearchParams({ limit: RUNS_PAGE, offset: runsOffset });
+  for (const [key, id] of [["kind", "runs-kind"], ["status", "runs-status"], ["lubricated", "runs-oil"], ["since", "runs-since"]])
+    if ($(id).value) ask.set(key, $(id).value);  // the run index's filters (sfdrig runs')
+  const out = await getJson(`/api/runs?${ask}`);
   if (mine !== runsAsked) return;  // a newer reload was asked meanwhile: its answer is drawn
   window.sfdrig.runsLoaded = (window.sfdrig.runsLoaded || 0) + 1;
   const body = $("runs").tBodies[0];
@@ -957,6 +960,7 @@ $("incident-since").onchange = loadIncidents;
 $("runs-refresh").onclick = () => { loadRuns(); loadIncidents(); };
 $("runs-newer").onclick = () => { runsOffset = Math.max(0, runsOffset - RUNS_PAGE); loadRuns(); };
 $("runs-older").onclick = () => { runsOffset += RUNS_PAGE; loadRuns(); };
+for (const id of ["runs-kind", "runs-status", "runs-oil", "runs-since"]) $(id).onchange = () => { runsOffset = 0; loadRuns(); };
 $("run-close").onclick = () => { $("run").hidden = true; openRunId = null; };
 $("note-add").onclick = async () => {
   if (!openRunId) return;
