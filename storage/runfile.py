@@ -563,14 +563,17 @@ class RunWriter:
         """The run's row in its directory's run index (`storage.run_index.record_run`): when
         it starts, and when it has ended (the file changes no more)."""
         start, lubricated, spec_text, rig_text = self._conditions
-        spec = json.loads(spec_text) if spec_text else None
-        rig = json.loads(rig_text) if rig_text else None
-        steps = self._n_steps if status != "running" else 0
-        record_run(self.path, RunRow(
-            id=self.run_id, date=start, kind=self.kind, steps=steps, status=status,
-            duration_s=round(self._samples_flushed / self.sample_rate_hz, 6),
-            file=str(self.path), lubricated=lubricated, seal=seal_of(spec, rig),
-            motion=motion_of(self._motions, spec)), final=status != "running")
+        try:
+            spec = json.loads(spec_text) if spec_text else None
+            rig = json.loads(rig_text) if rig_text else None
+            row = RunRow(id=self.run_id, date=start, kind=self.kind,
+                         steps=self._n_steps if status != "running" else 0, status=status,
+                         duration_s=round(self._samples_flushed / self.sample_rate_hz, 6),
+                         file=str(self.path), lubricated=lubricated, seal=seal_of(spec, rig),
+                         motion=motion_of(self._motions, spec))
+        except (ValueError, TypeError):  # a spec the index cannot state: the next look reads
+            return  # the file (an index never fails a run)
+        record_run(self.path, row, final=status != "running")
 
     @property
     def closed(self) -> bool:
