@@ -251,7 +251,7 @@ def _run_the_readme_block(shell: Shell, block: list[str]) -> None:  # noqa: PLR0
     assert out.returncode == 0, out.stdout + out.stderr
     catalog = {ln.split()[0]: ln.split() for ln in out.stdout.splitlines()[1:]}
     assert out.stdout.splitlines()[0].split() == ["id", "date", "kind", "steps", "status",
-                                                  "duration", "file"]
+                                                  "duration", "conditions", "file"]
     assert [catalog[i][5] for i in (lub_id, dry_id, aborted_id)] == [  # the date is 2 words
         "completed", "completed", "aborted"], out.stdout
     with open_run(shell.cwd / "runs" / f"{aborted_id}.h5") as run:
