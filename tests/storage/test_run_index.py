@@ -319,3 +319,15 @@ def test_the_runs_command_filters_and_pages(lab: Path, capsys: pytest.CaptureFix
     err = capsys.readouterr().err
     assert err.startswith("error: sfdrig runs: since='tomorrow' is not an ISO 8601 date")
     assert err.count("\n") == 1
+
+
+def test_the_runs_command_says_in_one_line_that_it_made_a_damaged_index_again(
+        lab: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scan_runs(lab)
+    (lab / INDEX_NAME).write_bytes(b"\x00" * 4096)
+    assert main(["runs", "--runs-dir", str(lab), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert len(captured.out.split('"id"')) == 7  # six runs
+    assert captured.err == (f"run index {lab / INDEX_NAME} is not a database this version "
+                            "reads (file is not a database): deleted, made again from the run "
+                            "files\n")
