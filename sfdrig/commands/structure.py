@@ -129,12 +129,11 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
             backend.close()
             raise OSError(f"{kind} test failed: {err} (what it recorded is in {path}, "
                           "closed as failed)") from err
-        status = "completed" if outcome.completed else "aborted"
-        writer.close(status, outcome.reason)
+        writer.close(outcome.status, outcome.reason)
         backend.close()
         why = f": {outcome.reason}" if outcome.reason else ""
         if not quiet:
-            print(f"{kind}: {outcome.steps} steps, {status}{why} -> {path}", flush=True)
+            print(f"{kind}: {outcome.steps} steps, {outcome.status}{why} -> {path}", flush=True)
         written.append(path)
     return written
 

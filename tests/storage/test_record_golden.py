@@ -17,7 +17,6 @@ from typing import Any
 
 import h5py
 import numpy as np
-import pytest
 import zmq
 
 from control.run.sweep.step_result import StepResult
@@ -91,7 +90,7 @@ def _sweep_step(index: int) -> StepResult:
 
 
 def _write_run(path: Path) -> None:
-    from storage.records import StepRecord, step_of_result
+    from storage.records import StepRecord
     w = RunWriter(path, "golden-1", "sweep",
                   [{"name": "fx", "units": "N", "kind": "load_cell", "sensor": "PCB 208",
                     "gain_v_per_unit": 0.01, "offset_v": 0.0, "physical_channel": "Dev1/ai0"},
@@ -102,9 +101,9 @@ def _write_run(path: Path) -> None:
                   board={"backend": "simulated", "device": "Dev1", "description": "sim"})
     rng = np.random.default_rng(7)
     w.on_block(0, rng.normal(size=(2, 300)), rng.normal(size=(1, 300)))
-    w.on_step(step_of_result(_sweep_step(0)))
+    w.on_step(_sweep_step(0).to_record())
     w.on_event("limit_trip", "x1 over the limit", 120)
-    w.on_step(step_of_result(_sweep_step(1)))
+    w.on_step(_sweep_step(1).to_record())
     w.on_event("operator", "a note", 250)
     w.on_step(StepRecord.from_wire(IMPACT_STEP))
     w.close("aborted", "operator abort")
@@ -164,11 +163,8 @@ def _wire_headers() -> dict[str, Any]:
                 topic, header, _ = sub.recv_multipart()
                 got[topic.decode()] = json.loads(header)
         pub.set_run("golden-1")
-        try:
-            from storage.records import step_of_result
-            step: Any = step_of_result(_sweep_step(1))
-        except ImportError:
-            step = _sweep_step(1).to_dict()
+        step: Any = (_sweep_step(1).to_record() if hasattr(StepResult, "to_record")
+                     else _sweep_step(1).to_dict())
         pub.on_block(0, np.zeros((2, 4)), np.zeros((1, 4)))
         pub.on_step(step)
         pub.on_event("limit_trip", "x1 over the limit", 120)

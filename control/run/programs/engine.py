@@ -16,6 +16,7 @@ from control.run.programs.procedures import run_flow_test, run_probe_calibration
 from control.run.programs.specs import FlowSpec, ImpactSpec, ProbeCalSpec, StaticSpec
 from control.run.programs.stream import ProgramOutcome, RigHands
 from daq.backend import DaqBackend
+from storage.records import StepRecord
 
 SPECS: dict[str, type[BaseModel]] = {"static": StaticSpec, "impact": ImpactSpec,
                           "probe_calibration": ProbeCalSpec, "flow": FlowSpec}
@@ -32,7 +33,7 @@ class _Counting:
     def on_block(self, first_sample: int, ai: Any, ao: Any) -> None:
         self.listener.on_block(first_sample, ai, ao)
 
-    def on_step(self, step: dict[str, Any]) -> None:
+    def on_step(self, step: StepRecord) -> None:
         self.steps += 1
         self.listener.on_step(step)
 

@@ -420,7 +420,7 @@ class SweepEngine:
             self.results.append(result)
             self._progress = replace(self._progress, steps_done=len(self.results),
                                      updates=result.updates)
-            self.listener.on_step(result.to_dict())
+            self.listener.on_step(result.to_record())
             if not result.converged:
                 msg = f"{plan.describe()}: {result.reason}"
                 if self.spec.on_not_converged == "abort":
