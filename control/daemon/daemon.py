@@ -37,10 +37,10 @@ import time
 from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zmq
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from control.daemon.acquisition import AcquisitionLoop, RunJob
 from control.daemon.lease import OperatorLease
@@ -52,7 +52,7 @@ from control.daemon.state import (
     allowed_commands,
     refusal,
 )
-from control.run.engine import Engine
+from control.run.engine import Engine, RunSpec, SpecParser
 from control.run.errors import InterlockError
 from control.run.files import (
     close_run_file,
@@ -67,6 +67,7 @@ from control.wire.protocol import (
     AbortRequest,
     AliveRequest,
     AnswerRequest,
+    AnyRequest,
     DaemonState,
     ErrorKind,
     ListRunsRequest,
@@ -88,6 +89,11 @@ from daq.backend import DaqBackend
 from daq.channels import ChannelMap
 from daq.errors import DaqWatchdogExpiredError
 
+if TYPE_CHECKING:  # imported at first use (the daemon starts without them)
+    from control.run.programs.stream import RigHands
+    from control.run.pump import PumpRelay
+    from control.run.safety import SafetyLimits
+
 __all__ = ["TRANSITIONS", "Daemon", "DaemonConfig", "StateMachine", "TransitionError"]
 
 log = logging.getLogger("sfdrig.daemon")
@@ -103,8 +109,8 @@ class DaemonConfig:
     command_endpoint: str = "tcp://127.0.0.1:0"
     data_endpoint: str = "tcp://127.0.0.1:0"
     keys: ServerKeys | None = None
-    rig_config: Any = None  # RigParams of a simulated rig, or None on hardware
-    limits: Any = None  # control.run.safety.SafetyLimits, or None for the defaults
+    rig_config: BaseModel | None = None  # RigParams of a simulated rig, or None on hardware
+    limits: SafetyLimits | None = None  # None: the defaults
     sndhwm: int = 1000  # PUB send high-water mark [messages]; 0 = unlimited
     # fast sim only: wait for the publisher (instead of dropping) and for the run writer (instead
     # of failing the run when it falls 30 s of data behind a producer no clock paces)
@@ -139,9 +145,9 @@ class Daemon:
 
     def __init__(self, backend: DaqBackend, channel_map: ChannelMap, config: DaemonConfig,
                  engine_factory: Callable[..., Engine] | None = None,
-                 pump_factory: Callable[..., Any] | None = None,
-                 spec_parser: Callable[[dict[str, Any]], Any] | None = None,
-                 hands: Any = None) -> None:
+                 pump_factory: Callable[..., PumpRelay] | None = None,
+                 spec_parser: SpecParser | None = None,
+                 hands: RigHands | None = None) -> None:
         self.backend = backend
         self.hands = hands  # control.run.programs.stream.RigHands on the simulated rig, else None
         self.channel_map = channel_map
@@ -363,7 +369,7 @@ class Daemon:
             log.exception("request failed")
             return self._error(ErrorKind.FAILED, f"{type(err).__name__}: {err}")
 
-    def execute(self, req: Any) -> Reply:
+    def execute(self, req: AnyRequest) -> Reply:
         """Carry out one validated request; refusals come back as error replies."""
         try:
             with self.sm.lock:
@@ -377,15 +383,15 @@ class Daemon:
                                allowed=allowed_commands(self.sm.state))
 
     def _error(self, kind: ErrorKind, message: str, cmd: str = "", rid: str = "",
-               **data: Any) -> Reply:
+               **data: object) -> Reply:
         return Reply(ok=False, cmd=cmd, request_id=rid, state=self.sm.state, error_kind=kind,
                      error=message, data=data)
 
-    def _ok(self, req: Any, **data: Any) -> Reply:
+    def _ok(self, req: AnyRequest, **data: object) -> Reply:
         return Reply(ok=True, cmd=req.cmd, request_id=req.request_id, state=self.sm.state,
                      data=data)
 
-    def _dispatch(self, req: Any) -> Reply:
+    def _dispatch(self, req: AnyRequest) -> Reply:
         match req:
             case StatusRequest():
                 return self._ok(req, **self.status())
@@ -510,7 +516,7 @@ class Daemon:
         fanout.required.append(writer)
         self.job = RunJob(run_id, path, engine, writer, fanout)
         self.publisher.set_run(run_id)
-        lubricated = bool(getattr(spec, "lubricated", False))
+        lubricated = spec.lubricated
         self.hold_pump(f"the {'lubricated' if lubricated else 'dry'} sweep {run_id}")
         self.sm.fire("start")
         self.loop.submit(self.job)
@@ -588,9 +594,9 @@ class Daemon:
             return self._error(ErrorKind.INVALID, f"answer: {err}", req.cmd, req.request_id)
         return self._ok(req, answer=answer.model_dump(mode="json"))
 
-    def _refusal(self, spec: Any) -> tuple[ErrorKind, str] | None:
+    def _refusal(self, spec: RunSpec) -> tuple[ErrorKind, str] | None:
         """Why a valid sweep must not start now (before a run file exists), or None."""
-        lubricated = bool(getattr(spec, "lubricated", False))
+        lubricated = spec.lubricated
         if lubricated and not self.pump.is_on:
             return ErrorKind.FORBIDDEN, "start: a lubricated sweep needs the pump on " \
                 "(send pump on first)"
@@ -605,7 +611,7 @@ class Daemon:
                 f"recorded as dry; the daemon waits {self.pump.drain_s:g} s, --film-drain-s)"
         return None
 
-    def sweep_factories(self) -> tuple[Callable[[dict[str, Any]], Any], Callable[..., Engine]]:
+    def sweep_factories(self) -> tuple[SpecParser, Callable[..., Engine]]:
         """(spec parser, engine factory): the injected ones, else `SweepSpec`, `SweepEngine`."""
         if self._spec_parser is None or self._engine_factory is None:
             from control.run.sweep.engine import SweepEngine, SweepSpec  # resolved at first use

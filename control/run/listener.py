@@ -10,7 +10,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from storage.records import EVENT_KINDS, StepRecord
+from storage.records import EVENT_KINDS, JsonValue, StepRecord
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +109,11 @@ class RecordingListener:
 
     def on_event(self, kind: str, message: str, sample: int) -> None:
         self.events.append((kind, message, sample))
+
+    @property
+    def wire_steps(self) -> list[dict[str, JsonValue]]:
+        """The steps as a subscriber or a reader of the file sees them (`StepRecord.to_wire`)."""
+        return [s.to_wire() for s in self.steps]
 
     def ai(self) -> np.ndarray:
         return np.concatenate([b[1] for b in self.blocks], axis=1)

@@ -26,6 +26,7 @@ from control.run.ao_writer import AoWriter
 from control.run.engine import RunStatus
 from control.run.listener import Listener
 from control.run.programs.operator import Answer, OperatorDesk, Question
+from control.run.programs.specs import ProgramSpec
 from control.run.stream import DriveStream
 from control.signal.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
@@ -123,7 +124,7 @@ class Stream:
         self.operator = operator
         # a simulated rig running faster than real time is paced while a person is asked, so a
         # minute at the prompt is a minute of record, not an hour
-        self.pace_waits = getattr(backend, "realtime", True) is False
+        self.pace_waits = not backend.realtime
         self.max_force_n = max_force_n
         self.where = ""  # what the programme is doing, for the trip message
         self.listener = listener
@@ -251,7 +252,7 @@ def point_step(index: int, target_kind: str, target_value: float, motion: str, f
                       reason=reason, extra=dict(extra or {}))
 
 
-def run_program(kind: str, backend: DaqBackend, listener: Listener, spec: Any,
+def run_program(kind: str, backend: DaqBackend, listener: Listener, spec: ProgramSpec,
                 body: Callable[[Stream, list[StepRecord]], None],
                 operator: OperatorDesk | None = None) -> ProgramOutcome:
     """Run ``body`` on a started stream; whatever happens, the drives end ramped to zero (fast

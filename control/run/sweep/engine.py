@@ -442,7 +442,7 @@ class SweepEngine:
         # keep acquiring with zero drive until resumed or aborted; a backend that runs faster
         # than real time (the fast simulator) is paced to the wall clock while paused, so that
         # a pause does not fill the run file as fast as the machine can compute
-        fast = getattr(self.backend, "realtime", True) is False
+        fast = not self.backend.realtime
         while True:
             with self._lock:
                 if self._abort_reason is not None:
