@@ -89,8 +89,7 @@ def _sweep_step(index: int) -> StepResult:
                       ai_names=["fx", "x1"], ao_names=["drive_x"], start_sample=100 * index)
 
 
-def _write_run(path: Path) -> None:
-    from storage.records import StepRecord
+def _writer_with_a_block(path: Path) -> RunWriter:
     w = RunWriter(path, "golden-1", "sweep",
                   [{"name": "fx", "units": "N", "kind": "load_cell", "sensor": "PCB 208",
                     "gain_v_per_unit": 0.01, "offset_v": 0.0, "physical_channel": "Dev1/ai0"},
@@ -101,6 +100,12 @@ def _write_run(path: Path) -> None:
                   board={"backend": "simulated", "device": "Dev1", "description": "sim"})
     rng = np.random.default_rng(7)
     w.on_block(0, rng.normal(size=(2, 300)), rng.normal(size=(1, 300)))
+    return w
+
+
+def _write_run(path: Path) -> None:
+    from storage.records import StepRecord
+    w = _writer_with_a_block(path)
     w.on_step(_sweep_step(0).to_record())
     w.on_event("limit_trip", "x1 over the limit", 120)
     w.on_step(_sweep_step(1).to_record())
@@ -111,16 +116,7 @@ def _write_run(path: Path) -> None:
 
 def _write_run_before_records(path: Path) -> None:
     """The same run through the dict the writer took before the typed records."""
-    w = RunWriter(path, "golden-1", "sweep",
-                  [{"name": "fx", "units": "N", "kind": "load_cell", "sensor": "PCB 208",
-                    "gain_v_per_unit": 0.01, "offset_v": 0.0, "physical_channel": "Dev1/ai0"},
-                   "x1"],
-                  ["drive_x"], 2000.0, operator="ana", notes="golden", software_version="x",
-                  rig_config={"m": 1.0}, test_spec={"freqs": [40, 41]}, lubricated=True,
-                  start_time="2026-01-01T00:00:00.000+00:00", flush_interval_s=0.0,
-                  board={"backend": "simulated", "device": "Dev1", "description": "sim"})
-    rng = np.random.default_rng(7)
-    w.on_block(0, rng.normal(size=(2, 300)), rng.normal(size=(1, 300)))
+    w = _writer_with_a_block(path)
     w.on_step(_sweep_step(0).to_dict())  # type: ignore[arg-type]
     w.on_event("limit_trip", "x1 over the limit", 120)
     w.on_step(_sweep_step(1).to_dict())  # type: ignore[arg-type]
