@@ -19,7 +19,7 @@ raw (int16) reads and writes; mixed into the servicer (needs ``device``, ``_task
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from nidaqmx._stubs import nidaqmx_pb2 as pb
@@ -38,9 +38,6 @@ from simulated_hw.board.device_rpcs import attribute
 from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.wire import reports_daq_errors
-
-if TYPE_CHECKING:  # the device imports this part's hooks
-    from simulated_hw.board.device import SimDevice
 
 ATTR_AI_MAX, ATTR_AI_MIN, ATTR_AO_MAX, ATTR_AO_MIN = 0x17DD, 0x17DE, 0x1186, 0x1187
 ATTR_AI_RNG_HIGH, ATTR_AI_RNG_LOW = 0x1815, 0x1816  # the device range the channel uses
@@ -254,7 +251,7 @@ class ChannelAttrRpcs(ServicerParts):
         return pb.WriteBinaryI16Response(samps_per_chan_written=written)
 
 
-def task_devices(device: SimDevice, task: SimTask) -> str:
+def task_devices(device: Any, task: SimTask) -> str:
     """DAQmx_Task_Devices: the devices of the task's channels (one board here)."""
     return device.spec.name if task.channels else ""
 

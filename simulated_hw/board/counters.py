@@ -28,7 +28,7 @@ import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from nidaqmx._stubs import nidaqmx_pb2 as pb
@@ -48,9 +48,6 @@ from simulated_hw.board.codes import (
 from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.wire import reports_daq_errors
-
-if TYPE_CHECKING:  # the device imports this part's hooks
-    from simulated_hw.board.device import SimDevice
 
 COUNTERS = 4  # a PXIe-6358 has ctr0..ctr3
 #: the counter timebases [Hz], fastest first: a pulse time is a whole number of ticks of the
@@ -106,7 +103,7 @@ class Counter:
         return self.high_s + self.low_s
 
 
-def counter_names(device: SimDevice, name: str, where: str) -> list[str]:
+def counter_names(device: Any, name: str, where: str) -> list[str]:
     """The canonical counters (``Dev1/ctr0``) in a channel string; -200220 for another device,
     -200170 for a counter the board lacks."""
     out = []
@@ -217,7 +214,7 @@ def _create_handler(rpc: str) -> Callable[..., Any]:
 
 
 # --- the device's hooks ---------------------------------------------------------------------
-def start(device: SimDevice, task: SimTask) -> None:
+def start(device: Any, task: SimTask) -> None:
     """A counter task starts: a generation's pulses count from now; an edge count sampled on
     the AI sample clock samples from the AI task's start (`SimDevice._start_ai` sets it when
     that comes later). Another sample clock (the onboard clock): -201380."""
@@ -245,7 +242,7 @@ def end_time(task: SimTask) -> float | None:
             + c.high_s)
 
 
-def generation_done(device: SimDevice, task: SimTask) -> bool:
+def generation_done(device: Any, task: SimTask) -> bool:
     """DAQmx IsTaskDone of a counter output task."""
     end = end_time(task)
     if end is not None and device.now() >= end - 1e-12:

@@ -15,7 +15,7 @@ task reads back what it drives.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from nidaqmx._stubs import nidaqmx_pb2 as pb
@@ -33,16 +33,13 @@ from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.wire import reports_daq_errors
 
-if TYPE_CHECKING:  # the device imports this part's hooks
-    from simulated_hw.board.device import SimDevice
-
 
 def line_bit(physical: str) -> int:
     """The bit of a line in its port: ``Dev1/port0/line3`` -> 3."""
     return int(physical.rsplit("line", 1)[1])
 
 
-def channel_value(device: SimDevice, task: SimTask, ch: SimChannel) -> int:
+def channel_value(device: Any, task: SimTask, ch: SimChannel) -> int:
     value = 0
     for p in ch.physical:
         if device.line_level_for(task, p):
@@ -55,7 +52,7 @@ def lines_of(ch: SimChannel, value: int) -> dict[str, bool]:
 
 
 # --- the device side ------------------------------------------------------------------------
-def read(device: SimDevice, task: SimTask, n: int, timeout_s: float, others: list[SimTask]
+def read(device: Any, task: SimTask, n: int, timeout_s: float, others: list[SimTask]
          ) -> np.ndarray:
     """``n`` samples of every channel's port value, shape (n_ch, n) (``n < 0``: what is there,
     at least one)."""
@@ -101,7 +98,7 @@ def read(device: SimDevice, task: SimTask, n: int, timeout_s: float, others: lis
     return np.repeat(values, n, axis=1)
 
 
-def write(device: SimDevice, task: SimTask, block: np.ndarray, auto_start: bool, timeout_s: float,
+def write(device: Any, task: SimTask, block: np.ndarray, auto_start: bool, timeout_s: float,
           others: list[SimTask]) -> int:
     """Write port values (n_ch, n): software-timed, the lines take the last sample now;
     sample-clocked, the samples are queued for the clock (see the module doc)."""

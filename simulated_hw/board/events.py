@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from nidaqmx._stubs import nidaqmx_pb2 as pb
 
@@ -33,9 +33,6 @@ from simulated_hw.board.codes import (
     daq_error,
 )
 from simulated_hw.board.tasks import SimTask
-
-if TYPE_CHECKING:  # the device imports this part's hooks
-    from simulated_hw.board.device import SimDevice
 
 ACQUIRED_INTO_BUFFER, TRANSFERRED_FROM_BUFFER = 1, 2  # EveryNSamplesEventType
 _POLL_S = 0.02  # longest wait between looks at the task (a stop, a cancelled stream)
@@ -55,7 +52,7 @@ def check_every_n(task: SimTask, event_type: int, n: int) -> None:
                         "a buffered (sample-clocked) output task and N > 0")
 
 
-def every_n_samples(device: SimDevice, task: SimTask, event_type: int, n: int,
+def every_n_samples(device: Any, task: SimTask, event_type: int, n: int,
                     alive: Callable[[], bool]) -> Iterator[Any]:
     """The event stream's messages (see the module doc); ends when ``alive()`` is false."""
     fired = 0
@@ -74,7 +71,7 @@ def every_n_samples(device: SimDevice, task: SimTask, event_type: int, n: int,
         _wait(device, due_at)
 
 
-def _progress(device: SimDevice, task: SimTask, event_type: int, want: int) -> tuple[int, float]:
+def _progress(device: Any, task: SimTask, event_type: int, want: int) -> tuple[int, float]:
     """(samples acquired or transferred so far, device time the ``want``-th is due or inf)."""
     if not task.running or task.error is not None:
         return 0, math.inf
@@ -99,14 +96,14 @@ def _progress(device: SimDevice, task: SimTask, event_type: int, want: int) -> t
     return count, math.inf
 
 
-def _wait(device: SimDevice, due_at: float) -> None:
+def _wait(device: Any, due_at: float) -> None:
     if device.fast or not math.isfinite(due_at):
         device.pause(_POLL_S)
         return
     device.pause(min(max(due_at - device.now(), 0.0), _POLL_S))
 
 
-def done(device: SimDevice, task: SimTask, alive: Callable[[], bool]) -> Iterator[Any]:
+def done(device: Any, task: SimTask, alive: Callable[[], bool]) -> Iterator[Any]:
     """The done event's messages: status 0 at the end of a finite task, the error's code when
     an error stops one."""
     told = -1
@@ -131,7 +128,7 @@ def done(device: SimDevice, task: SimTask, alive: Callable[[], bool]) -> Iterato
         _wait(device, end if end is not None else math.inf)
 
 
-def _ended(device: SimDevice, task: SimTask) -> bool:
+def _ended(device: Any, task: SimTask) -> bool:
     if task.kind == "co":  # a pulse generation ends on the counter's timebase
         return bool(device.is_done(task))
     if task is device.ai_task:

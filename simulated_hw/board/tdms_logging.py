@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from nidaqmx._stubs import nidaqmx_pb2 as pb
@@ -29,9 +29,6 @@ from simulated_hw.board.codes import daq_error
 from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimTask
 from simulated_hw.board.wire import reports_daq_errors
-
-if TYPE_CHECKING:  # the device imports this part's hooks
-    from simulated_hw.board.device import SimDevice
 
 LOG_OFF, LOG_ONLY, LOG_AND_READ = 10231, 15844, 15842  # LoggingMode
 OPEN, OPEN_OR_CREATE, CREATE_OR_REPLACE, CREATE = 10437, 15846, 15847, 15848  # LoggingOperation
@@ -62,7 +59,7 @@ def check_read(task: SimTask) -> None:
                         "reads (logging mode LOG); use LOG_AND_READ to read as well")
 
 
-def write(device: SimDevice, task: SimTask, data: np.ndarray, t_first: float) -> None:
+def write(device: Any, task: SimTask, data: np.ndarray, t_first: float) -> None:
     """Append the samples ``data`` (n_ch, n), whose first was taken at device time
     ``t_first``, to the task's log file."""
     log: TdmsLog | None = task.tdms_log
@@ -97,7 +94,7 @@ def _open(log: TdmsLog, task_name: str) -> None:
     log.opened = True
 
 
-def flush(device: SimDevice, task: SimTask, others: list[SimTask]) -> None:
+def flush(device: Any, task: SimTask, others: list[SimTask]) -> None:
     """A task that only logs: write what it has acquired and nobody read (at its stop, its
     end, its clearing)."""
     log: TdmsLog | None = task.tdms_log
@@ -105,7 +102,6 @@ def flush(device: SimDevice, task: SimTask, others: list[SimTask]) -> None:
         return
     n = device.available(task)
     if n > 0:
-        assert task.rate_hz is not None  # the acquisition's task is clocked
         t_first = device.t0 + device.read_pos / task.rate_hz  # the first sample not read
         log.mode = LOG_AND_READ  # this read is the board's own
         try:

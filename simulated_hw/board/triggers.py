@@ -13,7 +13,7 @@ finite one -200560. Sources the board drives itself (``/Dev1/ai/StartTrigger``,
 from __future__ import annotations
 
 import re
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 from nidaqmx._stubs import nidaqmx_pb2 as pb
@@ -24,9 +24,6 @@ from simulated_hw.board.device_rpcs import _unsupported
 from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimTask
 from simulated_hw.board.wire import reports_daq_errors
-
-if TYPE_CHECKING:  # the device imports this part's hooks
-    from simulated_hw.board.device import SimDevice
 
 #: the external lines of a PXIe-6358 in a PXIe chassis (terminal names as DAQmx spells them)
 _EXTERNAL = re.compile(r"/?(?P<dev>[^/]+)/(PFI(?:[0-9]|1[0-5])|PXI_Trig[0-7]|PXI_Star)",
@@ -40,13 +37,13 @@ TIMEOUT_TEXT = ("Some or all of the samples requested have not yet been acquired
                 "external timing, and no clock was supplied.")
 
 
-def external_line(device: SimDevice, source: str) -> bool:
+def external_line(device: Any, source: str) -> bool:
     """Whether ``source`` is one of the board's external lines (``/Dev1/PFI0``, ``Dev1/PFI8``)."""
     found = _EXTERNAL.fullmatch(source.strip())
     return found is not None and found["dev"].lower() == device.spec.name.lower()
 
 
-def check_external(device: SimDevice, source: str, where: str, role: str) -> str:
+def check_external(device: Any, source: str, where: str, role: str) -> str:
     """``source`` as the board names it, if it is an external line; else DAQmx -200040."""
     if not external_line(device, source):
         raise daq_error(
@@ -76,7 +73,7 @@ def arm(task: SimTask) -> None:
     task.run_id += 1
 
 
-def wait_out(device: SimDevice, task: SimTask, timeout_s: float) -> None:
+def wait_out(device: Any, task: SimTask, timeout_s: float) -> None:
     """Wait a read's ``timeout_s`` on the device clock (-1: until the task stops) for what
     never comes."""
     if device.fast:
@@ -88,7 +85,7 @@ def wait_out(device: SimDevice, task: SimTask, timeout_s: float) -> None:
         device.pause(0.05)
 
 
-def read_times_out(device: SimDevice, task: SimTask, n: int, timeout_s: float) -> np.ndarray:
+def read_times_out(device: Any, task: SimTask, n: int, timeout_s: float) -> np.ndarray:
     """A read of a task armed on an external line: no samples, or what is available of a
     continuous task (nothing) at once; else the wait of ``timeout_s`` (-1: until the task
     stops) and DAQmx -200284."""

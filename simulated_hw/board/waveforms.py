@@ -13,7 +13,7 @@ length; their timing is not used (the task's clock generates them), as on the bo
 from __future__ import annotations
 
 from datetime import UTC, datetime, timedelta
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from ni.protobuf.types.waveform_conversion import (
@@ -31,15 +31,12 @@ from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimTask
 from simulated_hw.board.wire import reports_daq_errors
 
-if TYPE_CHECKING:  # the device imports this part's hooks
-    from simulated_hw.board.device import SimDevice
-
 MODE_TIMING, MODE_EXTENDED_PROPERTIES = 1, 2  # WaveformAttributeMode bits
 #: NI's unit descriptions of the channels the board reads (TemperatureUnits -> text)
 TEMPERATURE_UNITS = {10143: "Deg C", 10144: "Deg F", 10325: "Kelvins", 10145: "Deg R"}
 
 
-def first_sample_time(device: SimDevice, task: SimTask) -> float:
+def first_sample_time(device: Any, task: SimTask) -> float:
     """Device time of the next sample a read of ``task`` returns (a task the read starts: now)."""
     with device.lock:
         if task.kind == "ai" and task is device.ai_task and task.rate_hz is not None:
@@ -50,7 +47,7 @@ def first_sample_time(device: SimDevice, task: SimTask) -> float:
         return float(device.now())
 
 
-def _timing(device: SimDevice, task: SimTask, t_device: float, mode: int) -> Timing[Any, Any, Any]:
+def _timing(device: Any, task: SimTask, t_device: float, mode: int) -> Timing[Any, Any, Any]:
     if not mode & MODE_TIMING:
         return Timing.empty
     # the board stamps t0 on the wall clock: device time maps to it through now
