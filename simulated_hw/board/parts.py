@@ -5,22 +5,20 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Protocol
+from typing import Any, Protocol
 
 from session_pb2 import Session
 
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.watchdog import Watchdog
 
-if TYPE_CHECKING:  # the device imports the parts' hooks
-    from simulated_hw.board.device import SimDevice
-
 
 class ServicerParts(Protocol):
     """The servicer as its RPC parts see it."""
 
-    #: the board every RPC acts on
-    device: SimDevice
+    #: the board every RPC acts on, a `SimDevice` (not imported: the device calls the parts'
+    #: hooks, and an import back would close a circle)
+    device: Any
     #: task -> (reference clock source, rate [Hz])
     ref_clock: dict[str, tuple[str, float]]
 
