@@ -63,6 +63,7 @@ from control.run.files import (
 )
 from control.run.listener import FanOut
 from control.wire.errors import TargetError
+from control.wire.heartbeat import Heartbeat
 from control.wire.protocol import (
     AbortRequest,
     AliveRequest,
@@ -683,7 +684,7 @@ class Daemon:
         self.publisher.on_event("state", f"{old.value} -> {new.value} ({event})", sample)
 
     # --- status -----------------------------------------------------------------------------
-    def status(self) -> dict[str, Any]:
+    def status(self) -> Heartbeat:
         """What a late joiner needs: state, run, progress, pump, sequence numbers, endpoints."""
         job = self.job
         progress = job.engine.progress_fields() if job is not None else {}
@@ -692,30 +693,21 @@ class Daemon:
         limits = self.cfg.limits or SafetyLimits()
         return {
             "state": self.sm.state.value,
-            # the requests taken now (a front end's buttons follow them)
             "allowed": allowed_commands(self.sm.state),
             "run_id": job.run_id if job is not None else "",
             "run_path": str(job.path) if job is not None else "",
             "progress": progress,
             "samples": job.fanout.last_sample if job is not None else 0,
-            # durable in the run file (a reader, or a crash, sees at least these)
             "samples_flushed": job.writer.samples_flushed if job is not None else 0,
             "pump_on": bool(self.pump.is_on),
-            # dry sweeps wait [s]; rounded up: 0 only once a dry start is allowed
             "film_drains_for_s": math.ceil(10 * self.pump.drains_for_s()) / 10,
-            # what a display draws the orbit and the step table against
             "safety": {"radial_clearance_m": limits.radial_clearance_m,
                        "displacement_limit_m": limits.displacement_limit_m,
                        "load_limit_n": limits.max_load_n, "drive_limit_v": limits.max_drive_v},
             "tolerance": job.engine.tolerance() if job is not None else None,
             "fault_reason": self.fault_reason,
-            # incidents of no run written to the incident log since start (a display reads
-            # the log again when it changes)
             "idle_incidents": self._idle_incidents,
-            # what a structure test asks the operator now (control.run.programs.operator.Question),
-            # or None
             "question": _question(job),
-            # a test's operator lease: how long it is, how long since the client renewed it
             "operator_lease": ({"lease_s": job.lease.seconds,
                                 "silent_s": round(job.lease.silent_s(), 2)}
                                if job is not None and job.lease is not None else None),
@@ -728,7 +720,6 @@ class Daemon:
             "units": {**{c.name: c.units for c in self.channel_map.ai},
                       **{c.name: c.units for c in self.channel_map.ao}},
             "drives": self.channel_map.ao_names,
-            # each input's range in its units (a display shows how much of it is used)
             "input_ranges": {c.name: sorted((v - c.offset_v) / c.gain_v_per_unit
                                             for v in c.range_v) for c in self.channel_map.ai},
             "endpoints": self.endpoints,

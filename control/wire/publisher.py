@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import zmq
 
+from control.wire.heartbeat import Heartbeat
 from control.wire.protocol import (
     PAYLOAD_DTYPE,
     TOPIC_BLOCK,
@@ -100,7 +101,7 @@ class Publisher:
         self._put(TOPIC_EVENT, EventRecord(kind, message, sample).to_wire(time.time()), None)
 
     # --- from the command thread --------------------------------------------------------------
-    def publish_status(self, status: dict[str, Any]) -> None:
+    def publish_status(self, status: Heartbeat) -> None:
         """Queue a status heartbeat (never waits: a heartbeat is worth dropping)."""
         self._put(TOPIC_STATUS, {"status": status}, None, wait=False)
 
