@@ -142,7 +142,7 @@ def test_publisher_frames_carry_run_id_and_consecutive_seq():
             assert [m.header["first_sample"] for m in got] == [50 * i for i in range(20)]
             for m, a in zip(got, sent, strict=True):
                 np.testing.assert_array_equal(m.array, a)
-            assert step == {"index": 0, "freq_hz": 20.0}
+            assert (step["index"], step["freq_hz"], step["converged"]) == (0, 20.0, False)
             assert sub.lost == {}
             assert json.loads(json.dumps(pub.sequence_numbers()))["block"] == 20
     finally:
