@@ -178,12 +178,15 @@ class BlockHeader:
 
 # --- checks of what arrives from outside ------------------------------------------------------
 def _int(value: object, what: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | float) or (
-            isinstance(value, float) and not value.is_integer()):
-        if hasattr(value, "__index__"):  # numpy integers
-            return int(value)  # type: ignore[call-overload]
-        raise ValueError(f"{what} must be a whole number, not {value!r}")
-    return int(value)
+    if not isinstance(value, bool):  # True is no sample number
+        if isinstance(value, int):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        index = getattr(value, "__index__", None)  # numpy integers
+        if index is not None:
+            return int(index())
+    raise ValueError(f"{what} must be a whole number, not {value!r}")
 
 
 def _real(value: object, what: str) -> float:

@@ -24,6 +24,7 @@ STEP = StepRecord(index=3, freq_hz=42.5, target_kind="load", target_value=120.0,
     ({"freq_hz": "fast"}, "step 3: freq_hz must be a number, not 'fast'"),
     ({"first_sample": 1.5}, "step 3: first_sample must be a whole number, not 1.5"),
     ({"motion": 7}, "step 3: motion must be text, not 7"),
+    ({"last_sample": True}, "step 3: last_sample must be a whole number, not True"),
     ({"harmonics": {"fx": [[1.0]]}}, "step 3: harmonics.fx must be [re, im], not [1.0]"),
     ({"drive_v": [1, 2]}, "step 3: drive_v must be a mapping of names, not [1, 2]"),
 ])
