@@ -4,7 +4,9 @@ the same keys (`CommandClient.status`, the page, ``sfdrig watch``)."""
 
 from __future__ import annotations
 
-from typing import Any, TypedDict
+from typing import TypedDict
+
+from pydantic import JsonValue
 
 
 class SafetyEnvelope(TypedDict):
@@ -32,7 +34,7 @@ class Heartbeat(TypedDict):
     run_id: str
     run_path: str
     #: the engine's progress (`control.run.engine.Engine.progress_fields`)
-    progress: dict[str, Any]
+    progress: dict[str, JsonValue]
     samples: int
     #: durable in the run file (a reader, or a crash, sees at least these)
     samples_flushed: int
@@ -45,10 +47,10 @@ class Heartbeat(TypedDict):
     #: incidents of no run written to the incident log since start
     idle_incidents: int
     #: what a structure test asks the operator now (`control.run.programs.operator.Question`)
-    question: dict[str, Any] | None
+    question: dict[str, JsonValue] | None
     operator_lease: LeaseStatus | None
-    last_run: dict[str, Any]
-    recovered_at_start: list[dict[str, Any]]
+    last_run: dict[str, JsonValue]
+    recovered_at_start: list[dict[str, JsonValue]]
     next_seq: dict[str, int]
     dropped_in_daemon: int
     sample_rate_hz: float
