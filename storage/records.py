@@ -176,6 +176,14 @@ class BlockHeader:
                    _real(header.get("t_acquired", 0.0), "t_acquired"))
 
 
+def run_file_status(text: str) -> RunFileStatus:
+    """``text`` as a run file's status; ValueError if it is none."""
+    for status in get_args(RunFileStatus):
+        if text == status:
+            return status  # type: ignore[no-any-return]
+    raise ValueError(f"run status {text!r} is not one of {', '.join(STATUSES)}")
+
+
 # --- checks of what arrives from outside ------------------------------------------------------
 def _int(value: object, what: str) -> int:
     if not isinstance(value, bool):  # True is no sample number

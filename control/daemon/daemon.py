@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import zmq
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel, JsonValue, ValidationError
 
 from control.daemon.acquisition import AcquisitionLoop, RunJob
 from control.daemon.lease import OperatorLease
@@ -168,7 +168,7 @@ class Daemon:
 
         self.sm = StateMachine(self._state_changed)
         self.job: RunJob | None = None
-        self._last_run: dict[str, Any] = {}
+        self._last_run: dict[str, JsonValue] = {}
         self.fault_reason = ""
         self._stop_reason = ""
         self._stop = threading.Event()
@@ -641,7 +641,7 @@ class Daemon:
         # job is gone: in between (closing the file, the collection below) this thread does,
         # or a loaded PC lets the watchdog expire (issue 21: 1 s, bench_lab_day at load 12)
         self._feed_watchdog_between()
-        problem = close_run_file(job, status, reason)
+        problem = close_run_file(job.writer, status, reason)
         if problem:
             status, reason = "failed", f"{reason}; {problem}".lstrip("; ")
         with self.sm.lock:
@@ -781,7 +781,7 @@ class Daemon:
         tmp.replace(self.cfg.state_file)
 
 
-def _question(job: RunJob | None) -> dict[str, Any] | None:
+def _question(job: RunJob | None) -> dict[str, JsonValue] | None:
     desk = job.engine.desk if job is not None else None
     q = desk.pending() if desk is not None else None
     return q.model_dump(mode="json") if q is not None else None

@@ -268,12 +268,12 @@ class Reply(BaseModel):
 
     @field_validator("cmd", "error", mode="before")
     @classmethod
-    def _safe_str(cls, v: Any) -> str:
+    def _safe_str(cls, v: object) -> str:
         return safe_text(v, 20_000)
 
     @field_validator("request_id", mode="before")
     @classmethod
-    def _safe_request_id(cls, v: Any) -> str:
+    def _safe_request_id(cls, v: object) -> str:
         return safe_text(v, 128)
 
     @field_validator("data", mode="before")
