@@ -22,7 +22,7 @@ import numpy as np
 from control.wire.client import Message
 from control.wire.harmonics import LockIn
 from control.wire.summary_lines import CONTACT, peak_line
-from storage.records import StepRecord
+from storage.records import BlockHeader, EventRecord, StepRecord
 
 UM = 1e-6
 STALE_AFTER_S = 1.0  # traces older than this are drawn grey, with the time of their data
@@ -176,7 +176,7 @@ class LiveView:
             if h.get("run_id") and h["run_id"] != self.run_id:
                 self._new_run(h["run_id"])
             if msg.topic == "block" and msg.array is not None:
-                self._on_block(h, msg.array)
+                self._on_block(BlockHeader.from_wire(h), int(h["seq"]), msg.array)
             elif msg.topic == "step":
                 # JSON-safe once, not per frame
                 point = step_point(StepRecord.from_wire(h["step"]), *self.tolerance)
@@ -184,11 +184,12 @@ class LiveView:
                                    for k, v in point.items()})
                 self._step_times.append(msg.received_at)
             elif msg.topic == "event":
-                self.events.append({"time": h.get("time", msg.received_at), "kind": h["kind"],
-                                    "message": h["message"], "run_id": h.get("run_id", "")})
-                if (h["kind"] in ("fault", "limit_trip") and h["message"].startswith(CONTACT)
+                ev = EventRecord.from_wire(h)
+                self.events.append({"time": h.get("time", msg.received_at), "kind": ev.kind,
+                                    "message": ev.message, "run_id": h.get("run_id", "")})
+                if (ev.kind in ("fault", "limit_trip") and ev.message.startswith(CONTACT)
                         and not self._contact):
-                    self._contact = h["message"]
+                    self._contact = ev.message
             elif msg.topic == "status":
                 self._on_status(h["status"], msg.received_at)
                 self._heartbeat_at = msg.received_at
@@ -247,21 +248,21 @@ class LiveView:
         if status.get("run_id") and self._run_started is None:
             self._run_started = now
 
-    def _on_block(self, h: dict[str, Any], block: np.ndarray) -> None:
+    def _on_block(self, h: BlockHeader, seq: int, block: np.ndarray) -> None:
         rows, n = block.shape
-        fs = float(h["sample_rate_hz"])
+        fs = h.sample_rate_hz
         if self._buf is None or self._buf.shape[0] != rows or fs != self._fs:
             size = max(int(self.buffer_s * fs), n)
             self._buf = np.zeros((rows, size))
-            self._channels = list(h["channels"])
-            self._n_ai = int(h["n_ai"])
+            self._channels = list(h.channels)
+            self._n_ai = h.n_ai
             self._fs = fs
             self._write = 0
             # a frame's window (whole cycles between two crossings) is a new n as the sweep
             # moves on: keep the current step's few windows only; 32 of them at low frequency
             # held about 26 MB, the web process's slow growth over a long sweep
             self._lockin = LockIn(fs, cache_size=4)
-        first = int(h["first_sample"])
+        first = h.first_sample
         if first != self._last_sample + 1:
             self._write = 0  # a lost block or a new run: traces start afresh
         size = self._buf.shape[1]
@@ -275,8 +276,8 @@ class LiveView:
             self._buf[:, :n - k] = block[:, k:]
             self._write += n
         self._last_sample = first + n - 1
-        self._t_acquired = float(h.get("t_acquired", 0.0))
-        self._block_seq = int(h["seq"])
+        self._t_acquired = h.t_acquired
+        self._block_seq = seq
         self._note_peaks(block)
 
     def _note_peaks(self, block: np.ndarray) -> None:
