@@ -17,6 +17,7 @@ import numpy as np
 from storage import RunWriter, open_run
 from storage.exporters import export_run
 from storage.importers import import_file
+from storage.records import StepRecord
 
 N_AI = 16
 FS_HZ = 62_500.0
@@ -37,11 +38,12 @@ def make_run(path: Path, seconds: float, seed: int = 0) -> int:
                   + 0.01 * rng.standard_normal((N_AI, block)))
             ao = np.stack([np.sin(2 * np.pi * 80.0 * t), np.cos(2 * np.pi * 80.0 * t)])
             w.on_block(a, ai, ao)
-            w.on_step({"index": a // block, "freq_hz": 80.0, "target_kind": "load",
+            w.on_step(StepRecord.from_wire({
+                "index": a // block, "freq_hz": 80.0, "target_kind": "load",
                        "target_value": 40.0, "motion": "x", "first_sample": a,
                        "last_sample": a + block, "updates": 1, "converged": True, "reason": "",
                        "harmonics": {f"ch{i:02d}": [[1.0, 0.0]] * 5 for i in range(N_AI)},
-                       "drive_v": {"shaker_x": [1.0, 0.0]}})
+                       "drive_v": {"shaker_x": [1.0, 0.0]}}))
     return n
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from storage import RunWriter, open_run
+from storage.records import StepRecord
 
 N_AI = 16
 N_AO = 2
@@ -62,8 +63,9 @@ def bench(directory: Path, compression: str, seconds: float, block: int,
         first += block
         k += 1
         if k % 50 == 0:  # a dwell every 5 s of data at the default block: one step flush
-            w.on_step({"index": k // 50, "freq_hz": 80.0, "first_sample": first - 50 * block,
-                       "last_sample": first})
+            w.on_step(StepRecord.from_wire({
+                "index": k // 50, "freq_hz": 80.0, "first_sample": first - 50 * block,
+                       "last_sample": first}))
     w.close()
     elapsed = time.perf_counter() - t0
     cpu_s = time.process_time() - cpu0

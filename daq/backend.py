@@ -29,6 +29,11 @@ Life cycle: ``configure(channel_map)`` -> ``write_ao(prefill)`` -> ``start()`` -
   target), the one description every tool shows; available once configured.
 - ``feed_watchdog`` resets the board's watchdog timer, where the backend has one (`read_ai` feeds
   it too); if nobody feeds it, the board turns the relays off and the drives to 0 V by itself.
+- ``realtime``: the samples come at the board's clock (a board, a paced simulation), or as fast
+  as they are read (the simulated rig's fast mode: a caller then never waits for the clock).
+
+`BackendBase` holds what every backend does the same way (the map, the e-stop that ``read_ai``
+raises once per press, the ring's length).
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ import numpy as np
 
 from daq.board import Board
 from daq.channels import ChannelMap
+from daq.errors import DaqError, EmergencyStopError
 
 
 @dataclass(frozen=True)
@@ -66,6 +72,10 @@ class DaqBackend(Protocol):
     @property
     def board(self) -> Board:
         """The board this backend drives (`Board.describe` says it in words); once configured."""
+
+    @property
+    def realtime(self) -> bool:
+        """Samples come at the board's clock (True), or as fast as they are read (False)."""
 
     def configure(self, channel_map: ChannelMap) -> None:
         """Create the AI, AO and DO tasks for ``channel_map``; nothing starts yet."""
@@ -120,3 +130,49 @@ class DaqBackend(Protocol):
 
     def close(self) -> None:
         """Release every task; safe to call twice."""
+
+
+def ring_samples(ring_s: float, sample_rate_hz: float) -> int:
+    """The AO ring of ``ring_s`` seconds in samples (at least one)."""
+    return max(int(round(ring_s * sample_rate_hz)), 1)
+
+
+class BackendBase:
+    """What the backends share: the channel map once configured, and the emergency stop that
+    `read_ai` raises once per press (`check_estop`). A subclass sets ``_map`` in ``configure``
+    and says how the e-stop reads (``estop_pressed``)."""
+
+    #: a board's samples come at its clock; the simulated rig's fast mode says False
+    realtime: bool = True
+
+    def __init__(self) -> None:
+        self._map: ChannelMap | None = None
+        self._estop_latched = False  # read_ai has raised for this press already
+
+    @property
+    def channel_map(self) -> ChannelMap:
+        if self._map is None:
+            raise DaqError("backend not configured: call configure(channel_map) first")
+        return self._map
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return self.channel_map.sample_rate_hz
+
+    def estop_pressed(self) -> bool:
+        raise NotImplementedError
+
+    def check_estop(self) -> None:
+        """Raise `EmergencyStopError` if the e-stop reads pressed, once per press (the reads
+        of the ramp-down go on); a run's first write re-arms it (`rearm_estop`)."""
+        if not self._estop_latched and self.estop_pressed():
+            self._estop_latched = True
+            raise EmergencyStopError(f"emergency stop pressed ({self.estop_where()})")
+
+    def rearm_estop(self) -> None:
+        self._estop_latched = False
+
+    def estop_where(self) -> str:
+        """The e-stop input in words, for its messages."""
+        estop = self.channel_map.estop
+        return f"input {estop.name} on {estop.physical_channel}" if estop else "none"

@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from daq.backend import AoCut
+from daq.backend import AoCut, BackendBase, ring_samples
 from daq.board import NIDAQMX, Board
 from daq.channels import ChannelMap, TerminalConfig
 from daq.errors import (
@@ -83,7 +83,7 @@ AI_CATCH_UP_S = 0.25
 GEN_QUERY_S = 0.05
 GEN_OFFSET_WINDOW_S = 1.0
 
-class NidaqmxBackend:
+class NidaqmxBackend(BackendBase):
     """Hardware-timed AI, streaming AO on the AI clock and relay lines, through nidaqmx.
 
     Parameters
@@ -143,7 +143,7 @@ class NidaqmxBackend:
         self.buffer_s = buffer_s
         self.connect_timeout_s = connect_timeout_s
         self._grpc_override = grpc_target
-        self._map: ChannelMap | None = None
+        super().__init__()
         self._ai_started_at = 0.0  # host monotonic time of the AI start
         self._ai_taken = 0  # AI samples handed out since the start
         self._ai_ahead: np.ndarray | None = None  # read from the board, not yet handed out
@@ -155,7 +155,6 @@ class NidaqmxBackend:
         self._do: Any = None
         self._estop_task: Any = None
         self._estop_reader: Any = None
-        self._estop_latched = False  # read_ai has raised for this press already
         self._reader: Any = None
         self._writer: Any = None
         self._do_writer: Any = None
@@ -164,16 +163,6 @@ class NidaqmxBackend:
         self._running = False
 
     # --- protocol -------------------------------------------------------------------------
-    @property
-    def channel_map(self) -> ChannelMap:
-        if self._map is None:
-            raise DaqError("backend not configured: call configure(channel_map) first")
-        return self._map
-
-    @property
-    def sample_rate_hz(self) -> float:
-        return self.channel_map.sample_rate_hz
-
     @property
     def board(self) -> Board:
         """The map's device, through the local driver or the gRPC device server."""
@@ -190,7 +179,7 @@ class NidaqmxBackend:
         """The regenerating ring in use [samples] (None: non-regenerating; before configure:
         what ``ao_ring_s`` asks for)."""
         if self._ao is None and self._map is not None and self.ao_ring_s is not None:
-            return max(int(round(self.ao_ring_s * self._map.sample_rate_hz)), 1)
+            return ring_samples(self.ao_ring_s, self._map.sample_rate_hz)
         return self._ring
 
     @property
@@ -273,9 +262,9 @@ class NidaqmxBackend:
             raise DaqError("write_ao: no AO task (configure a channel map with AO channels)")
         if not self._running and self._ao_written == 0:  # a new run's prefill
             if self.estop_pressed():
-                raise EmergencyStopError(f"the emergency stop ({self._estop_where()}) is "
+                raise EmergencyStopError(f"the emergency stop ({self.estop_where()}) is "
                                          "pressed: release it before starting")
-            self._estop_latched = False
+            self.rearm_estop()
             self._clear_expired_watchdog()  # the operator's decision
         if self._ring is None:
             if at is not None and at != self._ao_written:
@@ -313,10 +302,8 @@ class NidaqmxBackend:
         ahead = self._ai_ahead
         have = 0 if ahead is None else ahead.shape[1]
         if have < n:  # a read from the board (the e-stop is read with each)
-            if self._estop_task is not None and not self._estop_latched and \
-                    self.estop_pressed():
-                self._estop_latched = True  # once: the reads of the ramp-down go on
-                raise EmergencyStopError(f"emergency stop pressed ({self._estop_where()})")
+            if self._estop_task is not None:
+                self.check_estop()
             m = self._ai_read_size(n - have, have)
             fresh = np.empty((len(self.channel_map.ai), m))
             with translate_errors(f"reading {m} AI samples"):
@@ -367,14 +354,10 @@ class NidaqmxBackend:
         """Whether the emergency-stop input reads pressed (False when there is none)."""
         if self._estop_task is None or self._map is None or self._map.estop is None:
             return False
-        with translate_errors(f"reading the emergency stop ({self._estop_where()})"):
+        with translate_errors(f"reading the emergency stop ({self.estop_where()})"):
             level = bool(self._estop_reader.read_one_sample_one_line(
                 timeout=self.connect_timeout_s))
         return level == self._map.estop.pressed_level
-
-    def _estop_where(self) -> str:
-        estop = self.channel_map.estop
-        return f"input {estop.name} on {estop.physical_channel}" if estop else "none"
 
     def feed_watchdog(self) -> None:
         """Reset the board's watchdog timer (no-op without one). Raises
@@ -566,7 +549,7 @@ class NidaqmxBackend:
         ring = None
         if self.ao_ring_s is not None:
             if self.watchdog_sets_ao:
-                ring = max(int(round(self.ao_ring_s * cm.sample_rate_hz)), 1)
+                ring = ring_samples(self.ao_ring_s, cm.sample_rate_hz)
             else:
                 _log.warning("the watchdog cannot set the drives to 0 V on this device: a "
                              "ring would repeat for as long as a hung host left it, so the AO "

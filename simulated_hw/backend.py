@@ -42,7 +42,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from daq.backend import AoCut
+from daq.backend import AoCut, BackendBase, ring_samples
 from daq.board import SIM, Board
 from daq.channels import ChannelMap
 from daq.errors import (
@@ -74,7 +74,7 @@ FAST_AI_BUFFER_S = 0.1
 WRITE_TIMEOUT_S = 10.0
 
 
-class SimulatedBackend:
+class SimulatedBackend(BackendBase):
     """The simulated rig behind the `daq.DaqBackend` protocol: the sim-server's board, in
     process."""
 
@@ -105,7 +105,7 @@ class SimulatedBackend:
         self.watchdog_s = watchdog_s
         self._clock = clock
         self._sleep = sleep
-        self._map: ChannelMap | None = None
+        super().__init__()
         #: the board (built at the first `configure`; again for another map without a wiring)
         self.device: SimDevice | None = None
         self._ai: SimTask | None = None
@@ -115,7 +115,6 @@ class SimulatedBackend:
         self._written_end = 0  # the end of the samples written this run
         self._running = False
         self._cut_at: int | None = None  # a stopping cut: the drives are at 0 V from here
-        self._estop_latched = False  # read_ai raised for this press already
         self._read = 0  # samples handed to the reader this run
         self._closed = False
         #: what the AO terminals showed at the samples not yet read (map rows), per block
@@ -123,16 +122,6 @@ class SimulatedBackend:
         self._ao_terminals: list[int] = []  # the map's AO rows among the board's terminals
 
     # --- protocol -------------------------------------------------------------------------
-    @property
-    def channel_map(self) -> ChannelMap:
-        if self._map is None:
-            raise DaqError("backend not configured: call configure(channel_map) first")
-        return self._map
-
-    @property
-    def sample_rate_hz(self) -> float:
-        return self.channel_map.sample_rate_hz
-
     @property
     def board(self) -> Board:
         """The simulated rig in this process (the map's device name)."""
@@ -202,7 +191,7 @@ class SimulatedBackend:
     def ao_ring_samples(self) -> int | None:
         if self.ao_ring_s is None:
             return None
-        return max(int(round(self.ao_ring_s * self.sample_rate_hz)), 1)
+        return ring_samples(self.ao_ring_s, self.sample_rate_hz)
 
     @property
     def ao_min_lead(self) -> int:
@@ -243,7 +232,7 @@ class SimulatedBackend:
         if not self._running:  # a run's first write: the operator's decision to drive
             if self.estop_pressed():
                 raise EmergencyStopError("the emergency stop is pressed: nothing is driven")
-            self._estop_latched = False
+            self.rearm_estop()
             self._clear_watchdog()
         for row, ch in enumerate(cm.ao):
             lo, hi = ch.range_v
@@ -282,9 +271,7 @@ class SimulatedBackend:
             raise DaqError("read_ai before start()")
         if n <= 0:
             raise ValueError(f"read_ai: n must be positive, got {n}")
-        if not self._estop_latched and self.estop_pressed():
-            self._estop_latched = True  # once: the reads of the ramp-down go on
-            raise EmergencyStopError(f"emergency stop pressed ({self._estop_where()})")
+        self.check_estop()
         with dev.lock:
             dev.watchdog_timer.check()
         out = dev.read(ai, n, timeout_s, [ao])
@@ -398,10 +385,6 @@ class SimulatedBackend:
         with dev.lock:
             level = dev.inputs.get(cm.estop.physical_channel, False)
         return level == cm.estop.pressed_level
-
-    def _estop_where(self) -> str:
-        estop = self.channel_map.estop
-        return f"input {estop.name} on {estop.physical_channel}" if estop else "none"
 
     def stop(self) -> None:
         """Stop both tasks: what was written and not generated is dropped (a board's buffer

@@ -38,6 +38,10 @@ from typing import Any
 import h5py
 import numpy as np
 
+from storage.records import EVENT_KINDS, STATUSES, STEP_KEYS, EventRecord, StepRecord
+
+__all__ = ["EVENT_KINDS", "STATUSES", "STEP_KEYS"]  # said in storage.records, laid out here
+
 FORMAT = "sfdrig-run"
 #: HDF5 file-format bounds: the 1.10 format is the oldest that supports SWMR, and capping it
 #: there keeps run files readable by HDF5 1.10-1.14 tools (HDFView, MATLAB, h5dump) even when
@@ -46,14 +50,7 @@ LIBVER = ("v110", "v110")
 #: 2: descriptions added (layout, time-axis recipe, column units and conventions); data as in 1.
 FORMAT_VERSION = 2
 KINDS = ("sweep", "static", "impact", "probe_calibration", "flow", "imported", "commissioning")
-STATUSES = ("running", "completed", "aborted", "failed")
-EVENT_KINDS = ("state", "limit_trip", "abort", "fault", "pump", "operator", "warning", "error",
-               "info")
 N_HARMONICS = 5
-STEP_KEYS = (
-    "index", "freq_hz", "target_kind", "target_value", "motion", "first_sample", "last_sample",
-    "updates", "converged", "reason",
-)
 CHANNEL_ATTRS = ("units", "kind", "sensor", "gain_v_per_unit", "offset_v", "physical_channel")
 
 _REASON_BYTES = 512
@@ -343,43 +340,44 @@ def create_layout(f: h5py.File, chans: Sequence[Mapping[str, Any]], ao_names: Se
     return RunDatasets(samples, steps, harm, drive_v, events)
 
 
-def step_rows(step: Mapping[str, Any], index: int, ai_names: Sequence[str],
+def step_rows(step: StepRecord, ai_names: Sequence[str],
               ao_names: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One dwell's result (contract A step dict) as its rows of ``/steps``,
-    ``/step_harmonics`` and ``/step_drive_v``; keys beyond contract A go to ``extra`` (JSON).
-    ``index`` is used when the step has none. Raises ValueError on a malformed dict."""
+    """One step as its rows of ``/steps``, ``/step_harmonics`` and ``/step_drive_v``: the
+    record's further keys, and harmonics or drives of names the file does not have, go to
+    ``extra`` (JSON). Raises ValueError on a value the columns cannot hold."""
     row = np.zeros((), dtype=STEP_DTYPE)
     harm = np.full((len(ai_names), N_HARMONICS), np.nan + 1j * np.nan)
     drive = np.full(len(ao_names), np.nan + 1j * np.nan)
-    extra: dict[str, Any] = {k: v for k, v in step.items()
-                             if k not in STEP_KEYS and k not in ("harmonics", "drive_v")}
+    extra: dict[str, Any] = dict(step.extra)
     try:
-        row["index"] = int(step.get("index", index))
-        row["freq_hz"] = _float(step.get("freq_hz"))
-        row["target_kind"] = fit_utf8(step.get("target_kind") or "", 16)
-        row["target_value"] = _float(step.get("target_value"))
-        row["motion"] = fit_utf8(step.get("motion") or "", 24)
-        row["first_sample"] = int(step.get("first_sample", -1))
-        row["last_sample"] = int(step.get("last_sample", -1))
-        row["updates"] = int(step.get("updates", 0))
-        row["converged"] = bool(step.get("converged", False))
-        row["reason"] = fit_utf8(step.get("reason") or "", _REASON_BYTES)
-        unknown: dict[str, Any] = {}
-        for name, values in (step.get("harmonics") or {}).items():
-            if name not in ai_names:
-                unknown[name] = values
-                continue
-            for k, reim in enumerate(list(values)[:N_HARMONICS]):
-                harm[list(ai_names).index(name), k] = complex(reim[0], reim[1])
-        if unknown:
-            extra["harmonics"] = unknown
-        for name, reim in (step.get("drive_v") or {}).items():
-            if name in ao_names:
-                drive[list(ao_names).index(name)] = complex(reim[0], reim[1])
-            else:
-                extra.setdefault("drive_v", {})[name] = reim
-    except (TypeError, ValueError, IndexError) as err:
-        raise ValueError(f"malformed step dict: {err}") from None
+        row["index"] = int(step.index)
+        row["freq_hz"] = float(step.freq_hz)
+        row["target_kind"] = fit_utf8(step.target_kind, 16)
+        row["target_value"] = float(step.target_value)
+        row["motion"] = fit_utf8(step.motion, 24)
+        row["first_sample"] = int(step.first_sample)
+        row["last_sample"] = int(step.last_sample)
+        row["updates"] = int(step.updates)
+        row["converged"] = bool(step.converged)
+        row["reason"] = fit_utf8(step.reason, _REASON_BYTES)
+    except (TypeError, ValueError, OverflowError) as err:
+        raise ValueError(f"malformed step {step.index!r}: {err}") from None
+    ai_index = {name: i for i, name in enumerate(ai_names)}
+    ao_index = {name: i for i, name in enumerate(ao_names)}
+    unknown: dict[str, Any] = {}
+    for name, zs in step.harmonics.items():
+        if name not in ai_index:
+            unknown[name] = [[z.real, z.imag] for z in zs]
+            continue
+        for k, z in enumerate(list(zs)[:N_HARMONICS]):
+            harm[ai_index[name], k] = z
+    if unknown:
+        extra["harmonics"] = unknown
+    for name, z in step.drive_v.items():
+        if name in ao_index:
+            drive[ao_index[name]] = z
+        else:
+            extra.setdefault("drive_v", {})[name] = [z.real, z.imag]
     text = json.dumps(extra, default=_jsonable) if extra else ""
     if len(text.encode()) > _EXTRA_BYTES:
         text = json.dumps({"_dropped": f"extra keys too long ({len(text)} chars)"})
@@ -387,13 +385,59 @@ def step_rows(step: Mapping[str, Any], index: int, ai_names: Sequence[str],
     return row, harm, drive
 
 
-def event_row(kind: str, message: str, sample: int) -> np.ndarray:
+def step_of_rows(row: np.void, harm: np.ndarray, drive: np.ndarray, ai_names: Sequence[str],
+                 ao_names: Sequence[str]) -> StepRecord:
+    """The step a row of ``/steps`` and its ``/step_harmonics`` and ``/step_drive_v`` rows hold
+    (the inverse of `step_rows`): a channel's harmonics where they are not NaN, ``extra`` merged
+    back (an ``extra`` that is not JSON is kept as its text under ``extra``)."""
+    harmonics: dict[str, tuple[complex, ...]] = {}
+    for c, name in enumerate(ai_names):
+        h = harm[c, :N_HARMONICS]
+        if not np.all(np.isnan(h.real)):
+            harmonics[name] = tuple(complex(z) for z in h)
+    drive_v = {name: complex(drive[c]) for c, name in enumerate(ao_names)
+               if not np.isnan(drive[c].real)}
+    names = row.dtype.names or ()
+    extra_text = text_of(row["extra"]) if "extra" in names else ""
+    extra: dict[str, Any] = {}
+    if extra_text:
+        try:
+            extra = json.loads(extra_text)
+        except json.JSONDecodeError:
+            extra = {"extra": extra_text}
+        beyond = {"harmonics": extra.pop("harmonics", {}), "drive_v": extra.pop("drive_v", {})}
+        try:
+            more = StepRecord.from_wire(beyond)
+        except ValueError:  # not [re, im] pairs: kept as they are
+            extra.update(beyond)
+        else:
+            harmonics.update(more.harmonics)
+            drive_v.update(more.drive_v)
+    return StepRecord(
+        index=int(row["index"]), freq_hz=float(row["freq_hz"]),
+        target_kind=text_of(row["target_kind"]), target_value=float(row["target_value"]),
+        motion=text_of(row["motion"]), first_sample=int(row["first_sample"]),
+        last_sample=int(row["last_sample"]), updates=int(row["updates"]),
+        converged=bool(row["converged"]), reason=text_of(row["reason"]),
+        harmonics=harmonics, drive_v=drive_v, extra=extra)
+
+
+def text_of(value: Any) -> str:
+    """A fixed-length string cell (or a string attribute) as text."""
+    if isinstance(value, bytes):
+        return value.decode("utf-8", errors="replace")
+    if isinstance(value, np.ndarray) and value.shape == ():
+        return text_of(value[()])
+    return str(value)
+
+
+def event_row(event: EventRecord) -> np.ndarray:
     """One event as its row of ``/events``, stamped with the time now."""
     row = np.zeros((), dtype=EVENT_DTYPE)
     row["time"] = utc_now_iso().encode()
-    row["sample"] = int(sample)
-    row["kind"] = fit_utf8(kind, 16)
-    row["message"] = fit_utf8(message, _MESSAGE_BYTES)
+    row["sample"] = int(event.sample)
+    row["kind"] = fit_utf8(event.kind, 16)
+    row["message"] = fit_utf8(event.message, _MESSAGE_BYTES)
     return row
 
 
@@ -403,6 +447,3 @@ def _jsonable(value: Any) -> Any:
         return value.tolist()
     return str(value)
 
-
-def _float(value: Any) -> float:
-    return float("nan") if value is None else float(value)

@@ -7,7 +7,6 @@ an sfdrig run, or is broken, raises `RunFileError` naming the file and the fault
 
 from __future__ import annotations
 
-import copy
 import json
 import re
 import struct
@@ -19,7 +18,8 @@ import h5py
 import numpy as np
 
 from storage.errors import MissingSignalError, RunFileError
-from storage.layout import FORMAT, FORMAT_VERSION, N_HARMONICS, STEP_KEYS
+from storage.layout import FORMAT, FORMAT_VERSION, STEP_KEYS, step_of_rows, text_of
+from storage.records import StepRecord
 
 #: Canonical signals and where they come from.
 CANONICAL_SIGNALS = ("fx", "fy", "x", "y", "ax", "ay", "t_oil")
@@ -29,12 +29,7 @@ _H5_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError)
 _REQUIRED_OBJECTS = ("channels", "drive", "steps", "step_harmonics", "step_drive_v", "events")
 
 
-def _text(value: Any) -> str:
-    if isinstance(value, bytes):
-        return value.decode("utf-8", errors="replace")
-    if isinstance(value, np.ndarray) and value.shape == ():
-        return _text(value[()])
-    return str(value)
+_text = text_of
 
 
 _SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -117,7 +112,7 @@ class RunData:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self._steps_cache: list[dict[str, Any]] | None = None
+        self._steps_cache: list[StepRecord] | None = None
         # the datasets' lengths change only at a refresh (SWMR): asked once per channel read,
         # they were a sixth of a transfer-function request's time in `sfdrig web` (issue 25)
         self._n_samples_cache: int | None = None
@@ -341,9 +336,13 @@ class RunData:
 
     @property
     def steps(self) -> list[dict[str, Any]]:
-        """One dict per dwell, as contract A's step dict (harmonics and drive_v included).
+        """One dict per step, as the wire carries it (`StepRecord.to_wire`: harmonics and
+        drive_v included, the further keys beside the columns); a fresh list each time."""
+        return [step.to_wire() for step in self.step_records]
 
-        Read once and cached (until `refresh`); the list is a fresh copy each time."""
+    @property
+    def step_records(self) -> list[StepRecord]:
+        """One `StepRecord` per step. Read once and cached (until `refresh`)."""
         if self._steps_cache is None:
             try:
                 self._steps_cache = self._read_steps()
@@ -351,9 +350,9 @@ class RunData:
                 raise
             except _H5_ERRORS as err:
                 raise self._fail(f"cannot read /steps: {err}") from None
-        return copy.deepcopy(self._steps_cache)
+        return list(self._steps_cache)
 
-    def _read_steps(self) -> list[dict[str, Any]]:
+    def _read_steps(self) -> list[StepRecord]:
         f = self._file
         rows = f["steps"][()]
         harm = f["step_harmonics"][()]
@@ -363,42 +362,12 @@ class RunData:
         missing = [k for k in STEP_KEYS if k not in (rows.dtype.names or ())]
         if missing:
             raise self._fail(f"/steps lacks field(s) {missing}")
-        out = []
-        for i in range(n):
-            r = rows[i]
-            step: dict[str, Any] = {
-                "index": int(r["index"]),
-                "freq_hz": float(r["freq_hz"]),
-                "target_kind": _text(r["target_kind"]),
-                "target_value": float(r["target_value"]),
-                "motion": _text(r["motion"]),
-                "first_sample": int(r["first_sample"]),
-                "last_sample": int(r["last_sample"]),
-                "updates": int(r["updates"]),
-                "converged": bool(r["converged"]),
-                "reason": _text(r["reason"]),
-                "harmonics": {},
-                "drive_v": {},
-            }
-            for c, name in enumerate(self.channel_names):
-                h = harm[i, c, :N_HARMONICS]
-                if not np.all(np.isnan(h.real)):
-                    step["harmonics"][name] = [[float(z.real), float(z.imag)] for z in h]
-            for c, name in enumerate(self.drive_names):
-                z = drive[i, c]
-                if not np.isnan(z.real):
-                    step["drive_v"][name] = [float(z.real), float(z.imag)]
-            extra_text = _text(r["extra"]) if "extra" in rows.dtype.names else ""
-            if extra_text:
-                try:
-                    extra = json.loads(extra_text)
-                except json.JSONDecodeError:
-                    extra = {"extra": extra_text}
-                step["harmonics"].update(extra.pop("harmonics", {}))
-                step["drive_v"].update(extra.pop("drive_v", {}))
-                step.update(extra)
-            out.append(step)
-        return out
+        no_drive = np.zeros(0, dtype=complex)
+        try:
+            return [step_of_rows(rows[i], harm[i], drive[i] if self.drive_names else no_drive,
+                                 self.channel_names, self.drive_names) for i in range(n)]
+        except ValueError as err:
+            raise self._fail(f"/steps: {err}") from None
 
     @property
     def events(self) -> list[dict[str, Any]]:

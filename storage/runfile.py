@@ -50,6 +50,7 @@ from storage.layout import (
     step_rows,
     utc_now_iso,
 )
+from storage.records import EventRecord, RunFileStatus, StepRecord
 from storage.recovery import writer_identity
 from storage.run_index import record_run
 from storage.run_row import RunRow, motion_of, seal_of
@@ -353,13 +354,11 @@ class RunWriter:
             self._check_open()
             self._write_pending(whole_chunks_only=True)
 
-    def on_step(self, step: Mapping[str, Any]) -> None:
-        """Append one dwell's result (contract A step dict) and flush the file (its rows are
-        checked here; `ValueError` names what is wrong)."""
-        with self._buf_lock:
-            index = self._n_steps + sum(kind == "step" for kind, _ in self._records)
+    def on_step(self, step: StepRecord) -> None:
+        """Append one step and flush the file (its rows are checked here; `ValueError` names
+        what is wrong)."""
         try:
-            rows = step_rows(step, index, self.ai_names, self.ao_names)
+            rows = step_rows(step, self.ai_names, self.ao_names)
         except ValueError as err:
             raise ValueError(f"{self.path}: {err}") from None
         self._motions.add(str(step.get("motion") or ""))
@@ -367,7 +366,7 @@ class RunWriter:
 
     def on_event(self, kind: str, message: str, sample: int) -> None:
         """Log one event (kind from `EVENT_KINDS`; others are kept as given) and flush."""
-        self._hand_over("event", event_row(kind, message, sample))
+        self._hand_over("event", event_row(EventRecord(kind, message, sample)))
 
     def _hand_over(self, kind: str, record: Any) -> None:
         """A step's or an event's rows, checked: to the I/O thread, which writes them after the
@@ -495,7 +494,7 @@ class RunWriter:
         if self.flush_error is not None:
             raise OSError(f"{self.path}: background flush failed: {self.flush_error}")
 
-    def close(self, status: str = "completed", reason: str = "") -> None:
+    def close(self, status: RunFileStatus = "completed", reason: str = "") -> None:
         """Flush everything, end the SWMR session, and record the final status and stop time.
 
         Parameters

@@ -136,7 +136,7 @@ class RunHistory:
                 tol = (float(spec.get("tolerance_amplitude_pct") or 1.0),
                        float(spec.get("tolerance_phase_deg") or 1.0))
                 steps = [{k: finite(v) if isinstance(v, float) else v
-                          for k, v in step_point(s, *tol).items()} for s in run.steps]
+                          for k, v in step_point(s, *tol).items()} for s in run.step_records]
                 a = run.attrs
                 return {
                     "run_id": run_id, "file": path.name, "kind": run.kind,

@@ -14,6 +14,7 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,7 @@ import numpy as np
 from control.wire.client import Message
 from control.wire.harmonics import LockIn
 from control.wire.summary_lines import CONTACT, peak_line
+from storage.records import BlockHeader, EventRecord, StepRecord
 
 UM = 1e-6
 STALE_AFTER_S = 1.0  # traces older than this are drawn grey, with the time of their data
@@ -28,12 +30,13 @@ TWO_AXIS = ("circular_forward", "circular_backward", "elliptical")
 TRACE_UNITS = ("N", "m", "m/s^2")  # drawn as traces; the rest (pressure, flow, oil) as means
 
 
-def _mean_z(harmonics: dict[str, list[list[float]]], names: tuple[str, ...]) -> complex | None:
-    zs = [complex(*harmonics[n][0]) for n in names if n in harmonics]
+def _mean_z(harmonics: Mapping[str, tuple[complex, ...]],
+            names: tuple[str, ...]) -> complex | None:
+    zs = [harmonics[n][0] for n in names if n in harmonics and harmonics[n]]
     return sum(zs) / len(zs) if zs else None
 
 
-def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
+def step_point(step: StepRecord, tolerance_amplitude_pct: float,
                tolerance_phase_deg: float) -> dict[str, Any]:
     """One row of the step table and one point of the plots against frequency.
 
@@ -43,16 +46,16 @@ def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
     reference displacement relative to its load (not controlled: no target). Also the largest
     drive's 1X amplitude [V] and each axis's direct dynamic stiffness F/X [MN/m, re and im].
     """
-    h = step.get("harmonics", {})
-    axis = "y" if step.get("motion") == "y" else "x"
+    h = step.harmonics
+    axis = "y" if step.motion == "y" else "x"
     other = "x" if axis == "y" else "y"
     disp = {a: _mean_z(h, (f"{a}1", f"{a}2")) or _mean_z(h, (a,)) for a in ("x", "y")}
     force = {a: _mean_z(h, (f"f{a}",)) for a in ("x", "y")}
-    load = step.get("target_kind") == "load"
+    load = step.target_kind == "load"
     ref = force[axis] if load else disp[axis]
     scale = 1.0 if load else 1 / UM
-    target = float(step.get("target_value", math.nan)) * scale
-    motion = step.get("motion", "")
+    target = step.target_value * scale
+    motion = step.motion
     phase_target: float | None = None
     if motion in TWO_AXIS:
         zx, zy = (force["x"], force["y"]) if load else (disp["x"], disp["y"])
@@ -63,8 +66,7 @@ def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
         z, f = disp[axis], force[axis]
         phase = math.degrees(np.angle(z / f)) if z and f else math.nan
     achieved = abs(ref) * scale if ref is not None else math.nan
-    drives = [abs(complex(*v)) for v in (step.get("drive_v") or {}).values()
-              if isinstance(v, list | tuple) and len(v) == 2]
+    drives = [abs(v) for v in step.drive_v.values()]
     # the direct dynamic stiffness F/X of each axis [MN/m] (1X; for two-axis orbits it holds
     # the cross-coupled terms too): what the rig looks like across the sweep
     k: dict[str, complex | None] = {}
@@ -72,8 +74,8 @@ def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
         fa, za = force[a], disp[a]
         k[a] = fa / za / 1e6 if fa and za else None
     return {
-        "index": int(step.get("index", 0)),
-        "freq_hz": float(step.get("freq_hz", math.nan)),
+        "index": step.index,
+        "freq_hz": step.freq_hz,
         "motion": motion,
         "unit": "N" if load else "um",
         "target": target,
@@ -94,9 +96,9 @@ def step_point(step: dict[str, Any], tolerance_amplitude_pct: float,
         "kx_im_mn_per_m": k["x"].imag if k["x"] is not None else math.nan,
         "ky_re_mn_per_m": k["y"].real if k["y"] is not None else math.nan,
         "ky_im_mn_per_m": k["y"].imag if k["y"] is not None else math.nan,
-        "updates": int(step.get("updates", 0)),
-        "converged": bool(step.get("converged", False)),
-        "reason": str(step.get("reason", "")),
+        "updates": step.updates,
+        "converged": step.converged,
+        "reason": step.reason,
     }
 
 
@@ -174,18 +176,20 @@ class LiveView:
             if h.get("run_id") and h["run_id"] != self.run_id:
                 self._new_run(h["run_id"])
             if msg.topic == "block" and msg.array is not None:
-                self._on_block(h, msg.array)
+                self._on_block(BlockHeader.from_wire(h), int(h["seq"]), msg.array)
             elif msg.topic == "step":
-                point = step_point(h["step"], *self.tolerance)  # JSON-safe once, not per frame
+                # JSON-safe once, not per frame
+                point = step_point(StepRecord.from_wire(h["step"]), *self.tolerance)
                 self.steps.append({k: finite(v) if isinstance(v, float) else v
                                    for k, v in point.items()})
                 self._step_times.append(msg.received_at)
             elif msg.topic == "event":
-                self.events.append({"time": h.get("time", msg.received_at), "kind": h["kind"],
-                                    "message": h["message"], "run_id": h.get("run_id", "")})
-                if (h["kind"] in ("fault", "limit_trip") and h["message"].startswith(CONTACT)
+                ev = EventRecord.from_wire(h)
+                self.events.append({"time": h.get("time", msg.received_at), "kind": ev.kind,
+                                    "message": ev.message, "run_id": h.get("run_id", "")})
+                if (ev.kind in ("fault", "limit_trip") and ev.message.startswith(CONTACT)
                         and not self._contact):
-                    self._contact = h["message"]
+                    self._contact = ev.message
             elif msg.topic == "status":
                 self._on_status(h["status"], msg.received_at)
                 self._heartbeat_at = msg.received_at
@@ -244,21 +248,21 @@ class LiveView:
         if status.get("run_id") and self._run_started is None:
             self._run_started = now
 
-    def _on_block(self, h: dict[str, Any], block: np.ndarray) -> None:
+    def _on_block(self, h: BlockHeader, seq: int, block: np.ndarray) -> None:
         rows, n = block.shape
-        fs = float(h["sample_rate_hz"])
+        fs = h.sample_rate_hz
         if self._buf is None or self._buf.shape[0] != rows or fs != self._fs:
             size = max(int(self.buffer_s * fs), n)
             self._buf = np.zeros((rows, size))
-            self._channels = list(h["channels"])
-            self._n_ai = int(h["n_ai"])
+            self._channels = list(h.channels)
+            self._n_ai = h.n_ai
             self._fs = fs
             self._write = 0
             # a frame's window (whole cycles between two crossings) is a new n as the sweep
             # moves on: keep the current step's few windows only; 32 of them at low frequency
             # held about 26 MB, the web process's slow growth over a long sweep
             self._lockin = LockIn(fs, cache_size=4)
-        first = int(h["first_sample"])
+        first = h.first_sample
         if first != self._last_sample + 1:
             self._write = 0  # a lost block or a new run: traces start afresh
         size = self._buf.shape[1]
@@ -272,8 +276,8 @@ class LiveView:
             self._buf[:, :n - k] = block[:, k:]
             self._write += n
         self._last_sample = first + n - 1
-        self._t_acquired = float(h.get("t_acquired", 0.0))
-        self._block_seq = int(h["seq"])
+        self._t_acquired = h.t_acquired
+        self._block_seq = seq
         self._note_peaks(block)
 
     def _note_peaks(self, block: np.ndarray) -> None:

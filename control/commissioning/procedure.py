@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -51,6 +51,8 @@ from daq.channels import ChannelKind, ChannelMap
 from daq.device_check import LiveValues
 from daq.errors import DaqError, DaqWatchdogExpiredError, EmergencyStopError
 from daq.map_edits import Correction, apply_corrections
+from storage import RunWriter
+from storage.records import StepRecord
 
 MAX_DRIVE_N = 2.0
 LEAD_BLOCKS = 6  # AO written this many blocks ahead of the reads (0.3 s: a busy host, gRPC)
@@ -138,7 +140,7 @@ class Commissioning:
     """One commissioning of ``backend`` (configured with the map under test)."""
 
     def __init__(self, backend: DaqBackend, operator: Operator, spec: CommissionSpec,
-                 listener: Any = None, log: Callable[[str], None] = print,
+                 listener: RunWriter | None = None, log: Callable[[str], None] = print,
                  clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep) -> None:
         self.backend = backend
@@ -209,8 +211,7 @@ class Commissioning:
         self.result.measured["rest"] = {
             ch.name: {"mean": float(rest.mean[i]), "std": float(rest.std[i]),
                       "mean_v": float(rest.mean_v[i])} for i, ch in enumerate(cm.ai)}
-        self._step({"freq_hz": 0.0, "target_kind": "", "target_value": 0.0, "motion": "",
-                    "first_sample": first, "last_sample": self.sample, "stage": "rest"})
+        self._step("rest", 0.0, first, self.sample)
         verdict = judge_rest(cm, rest, spec.clearance_m)
         for f in verdict.findings:
             self._say(f)
@@ -322,8 +323,7 @@ class Commissioning:
         n = max(int(math.ceil(self.spec.pump_s * self.fs / self.block)), 2)
         first = self.sample
         volts, _ = self._acquire(lambda k: None, n, what)
-        self._step({"freq_hz": 0.0, "target_kind": "", "target_value": 0.0, "motion": "",
-                    "first_sample": first, "last_sample": self.sample, "stage": what})
+        self._step(what, 0.0, first, self.sample)
         return np.asarray(self.cm.to_engineering(volts) - self._rest_mean)
 
     def _rise(self, gauges: list[int]) -> dict[int, float]:
@@ -467,13 +467,10 @@ class Commissioning:
             "channels": {n: {"re": r.z.real, "im": r.z.imag, "sigma": r.sigma,
                              "expected_re": r.expected.real, "expected_im": r.expected.imag}
                          for n, r in resp.items()}}
-        self._step({"freq_hz": spec.freq_hz, "target_kind": "load",
-                    "target_value": spec.drive_n, "motion": axis,
-                    "first_sample": first + start, "last_sample": first + start + record,
-                    "converged": True, "stage": f"drive {axis}",
-                    "harmonics": {ch.name: [[float(z[i].real), float(z[i].imag)]]
-                                  for i, ch in enumerate(cm.ai)},
-                    "drive_v": {ao.name: [d.real, d.imag]}})
+        self._step(f"drive {axis}", spec.freq_hz, first + start, first + start + record,
+                   "load", spec.drive_n, axis, converged=True,
+                   harmonics={ch.name: (complex(z[i]),) for i, ch in enumerate(cm.ai)},
+                   drive_v={ao.name: complex(d)})
         return resp, abs(force)
 
     # --- acquisition ----------------------------------------------------------------------
@@ -569,8 +566,14 @@ class Commissioning:
         return ""
 
     # --- the record ----------------------------------------------------------------------
-    def _step(self, step: dict[str, Any]) -> None:
-        step["index"] = self._steps
+    def _step(self, stage: str, freq_hz: float, first: int, last: int, target_kind: str = "",
+              target_value: float = 0.0, motion: str = "", converged: bool = False,
+              harmonics: Mapping[str, tuple[complex, ...]] | None = None,
+              drive_v: Mapping[str, complex] | None = None) -> None:
+        step = StepRecord(index=self._steps, freq_hz=freq_hz, target_kind=target_kind,
+                          target_value=target_value, motion=motion, first_sample=first,
+                          last_sample=last, converged=converged, harmonics=dict(harmonics or {}),
+                          drive_v=dict(drive_v or {}), extra={"stage": stage})
         self._steps += 1
         if self.listener is not None:
             self.listener.on_step(step)

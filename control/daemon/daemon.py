@@ -37,10 +37,10 @@ import time
 from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zmq
-from pydantic import ValidationError
+from pydantic import BaseModel, JsonValue, ValidationError
 
 from control.daemon.acquisition import AcquisitionLoop, RunJob
 from control.daemon.lease import OperatorLease
@@ -52,7 +52,7 @@ from control.daemon.state import (
     allowed_commands,
     refusal,
 )
-from control.run.engine import Engine
+from control.run.engine import Engine, RunSpec, SpecParser
 from control.run.errors import InterlockError
 from control.run.files import (
     close_run_file,
@@ -63,10 +63,12 @@ from control.run.files import (
 )
 from control.run.listener import FanOut
 from control.wire.errors import TargetError
+from control.wire.heartbeat import Heartbeat
 from control.wire.protocol import (
     AbortRequest,
     AliveRequest,
     AnswerRequest,
+    AnyRequest,
     DaemonState,
     ErrorKind,
     ListRunsRequest,
@@ -88,6 +90,11 @@ from daq.backend import DaqBackend
 from daq.channels import ChannelMap
 from daq.errors import DaqWatchdogExpiredError
 
+if TYPE_CHECKING:  # imported at first use (the daemon starts without them)
+    from control.run.programs.stream import RigHands
+    from control.run.pump import PumpRelay
+    from control.run.safety import SafetyLimits
+
 __all__ = ["TRANSITIONS", "Daemon", "DaemonConfig", "StateMachine", "TransitionError"]
 
 log = logging.getLogger("sfdrig.daemon")
@@ -103,8 +110,8 @@ class DaemonConfig:
     command_endpoint: str = "tcp://127.0.0.1:0"
     data_endpoint: str = "tcp://127.0.0.1:0"
     keys: ServerKeys | None = None
-    rig_config: Any = None  # RigParams of a simulated rig, or None on hardware
-    limits: Any = None  # control.run.safety.SafetyLimits, or None for the defaults
+    rig_config: BaseModel | None = None  # RigParams of a simulated rig, or None on hardware
+    limits: SafetyLimits | None = None  # None: the defaults
     sndhwm: int = 1000  # PUB send high-water mark [messages]; 0 = unlimited
     # fast sim only: wait for the publisher (instead of dropping) and for the run writer (instead
     # of failing the run when it falls 30 s of data behind a producer no clock paces)
@@ -139,9 +146,9 @@ class Daemon:
 
     def __init__(self, backend: DaqBackend, channel_map: ChannelMap, config: DaemonConfig,
                  engine_factory: Callable[..., Engine] | None = None,
-                 pump_factory: Callable[..., Any] | None = None,
-                 spec_parser: Callable[[dict[str, Any]], Any] | None = None,
-                 hands: Any = None) -> None:
+                 pump_factory: Callable[..., PumpRelay] | None = None,
+                 spec_parser: SpecParser | None = None,
+                 hands: RigHands | None = None) -> None:
         self.backend = backend
         self.hands = hands  # control.run.programs.stream.RigHands on the simulated rig, else None
         self.channel_map = channel_map
@@ -161,7 +168,7 @@ class Daemon:
 
         self.sm = StateMachine(self._state_changed)
         self.job: RunJob | None = None
-        self._last_run: dict[str, Any] = {}
+        self._last_run: dict[str, JsonValue] = {}
         self.fault_reason = ""
         self._stop_reason = ""
         self._stop = threading.Event()
@@ -363,7 +370,7 @@ class Daemon:
             log.exception("request failed")
             return self._error(ErrorKind.FAILED, f"{type(err).__name__}: {err}")
 
-    def execute(self, req: Any) -> Reply:
+    def execute(self, req: AnyRequest) -> Reply:
         """Carry out one validated request; refusals come back as error replies."""
         try:
             with self.sm.lock:
@@ -377,15 +384,15 @@ class Daemon:
                                allowed=allowed_commands(self.sm.state))
 
     def _error(self, kind: ErrorKind, message: str, cmd: str = "", rid: str = "",
-               **data: Any) -> Reply:
+               **data: object) -> Reply:
         return Reply(ok=False, cmd=cmd, request_id=rid, state=self.sm.state, error_kind=kind,
                      error=message, data=data)
 
-    def _ok(self, req: Any, **data: Any) -> Reply:
+    def _ok(self, req: AnyRequest, **data: object) -> Reply:
         return Reply(ok=True, cmd=req.cmd, request_id=req.request_id, state=self.sm.state,
                      data=data)
 
-    def _dispatch(self, req: Any) -> Reply:
+    def _dispatch(self, req: AnyRequest) -> Reply:
         match req:
             case StatusRequest():
                 return self._ok(req, **self.status())
@@ -510,7 +517,7 @@ class Daemon:
         fanout.required.append(writer)
         self.job = RunJob(run_id, path, engine, writer, fanout)
         self.publisher.set_run(run_id)
-        lubricated = bool(getattr(spec, "lubricated", False))
+        lubricated = spec.lubricated
         self.hold_pump(f"the {'lubricated' if lubricated else 'dry'} sweep {run_id}")
         self.sm.fire("start")
         self.loop.submit(self.job)
@@ -588,9 +595,9 @@ class Daemon:
             return self._error(ErrorKind.INVALID, f"answer: {err}", req.cmd, req.request_id)
         return self._ok(req, answer=answer.model_dump(mode="json"))
 
-    def _refusal(self, spec: Any) -> tuple[ErrorKind, str] | None:
+    def _refusal(self, spec: RunSpec) -> tuple[ErrorKind, str] | None:
         """Why a valid sweep must not start now (before a run file exists), or None."""
-        lubricated = bool(getattr(spec, "lubricated", False))
+        lubricated = spec.lubricated
         if lubricated and not self.pump.is_on:
             return ErrorKind.FORBIDDEN, "start: a lubricated sweep needs the pump on " \
                 "(send pump on first)"
@@ -605,7 +612,7 @@ class Daemon:
                 f"recorded as dry; the daemon waits {self.pump.drain_s:g} s, --film-drain-s)"
         return None
 
-    def sweep_factories(self) -> tuple[Callable[[dict[str, Any]], Any], Callable[..., Engine]]:
+    def sweep_factories(self) -> tuple[SpecParser, Callable[..., Engine]]:
         """(spec parser, engine factory): the injected ones, else `SweepSpec`, `SweepEngine`."""
         if self._spec_parser is None or self._engine_factory is None:
             from control.run.sweep.engine import SweepEngine, SweepSpec  # resolved at first use
@@ -634,7 +641,7 @@ class Daemon:
         # job is gone: in between (closing the file, the collection below) this thread does,
         # or a loaded PC lets the watchdog expire (issue 21: 1 s, bench_lab_day at load 12)
         self._feed_watchdog_between()
-        problem = close_run_file(job, status, reason)
+        problem = close_run_file(job.writer, status, reason)
         if problem:
             status, reason = "failed", f"{reason}; {problem}".lstrip("; ")
         with self.sm.lock:
@@ -677,7 +684,7 @@ class Daemon:
         self.publisher.on_event("state", f"{old.value} -> {new.value} ({event})", sample)
 
     # --- status -----------------------------------------------------------------------------
-    def status(self) -> dict[str, Any]:
+    def status(self) -> Heartbeat:
         """What a late joiner needs: state, run, progress, pump, sequence numbers, endpoints."""
         job = self.job
         progress = job.engine.progress_fields() if job is not None else {}
@@ -686,30 +693,21 @@ class Daemon:
         limits = self.cfg.limits or SafetyLimits()
         return {
             "state": self.sm.state.value,
-            # the requests taken now (a front end's buttons follow them)
             "allowed": allowed_commands(self.sm.state),
             "run_id": job.run_id if job is not None else "",
             "run_path": str(job.path) if job is not None else "",
             "progress": progress,
             "samples": job.fanout.last_sample if job is not None else 0,
-            # durable in the run file (a reader, or a crash, sees at least these)
             "samples_flushed": job.writer.samples_flushed if job is not None else 0,
             "pump_on": bool(self.pump.is_on),
-            # dry sweeps wait [s]; rounded up: 0 only once a dry start is allowed
             "film_drains_for_s": math.ceil(10 * self.pump.drains_for_s()) / 10,
-            # what a display draws the orbit and the step table against
             "safety": {"radial_clearance_m": limits.radial_clearance_m,
                        "displacement_limit_m": limits.displacement_limit_m,
                        "load_limit_n": limits.max_load_n, "drive_limit_v": limits.max_drive_v},
             "tolerance": job.engine.tolerance() if job is not None else None,
             "fault_reason": self.fault_reason,
-            # incidents of no run written to the incident log since start (a display reads
-            # the log again when it changes)
             "idle_incidents": self._idle_incidents,
-            # what a structure test asks the operator now (control.run.programs.operator.Question),
-            # or None
             "question": _question(job),
-            # a test's operator lease: how long it is, how long since the client renewed it
             "operator_lease": ({"lease_s": job.lease.seconds,
                                 "silent_s": round(job.lease.silent_s(), 2)}
                                if job is not None and job.lease is not None else None),
@@ -722,7 +720,6 @@ class Daemon:
             "units": {**{c.name: c.units for c in self.channel_map.ai},
                       **{c.name: c.units for c in self.channel_map.ao}},
             "drives": self.channel_map.ao_names,
-            # each input's range in its units (a display shows how much of it is used)
             "input_ranges": {c.name: sorted((v - c.offset_v) / c.gain_v_per_unit
                                             for v in c.range_v) for c in self.channel_map.ai},
             "endpoints": self.endpoints,
@@ -784,7 +781,7 @@ class Daemon:
         tmp.replace(self.cfg.state_file)
 
 
-def _question(job: RunJob | None) -> dict[str, Any] | None:
+def _question(job: RunJob | None) -> dict[str, JsonValue] | None:
     desk = job.engine.desk if job is not None else None
     q = desk.pending() if desk is not None else None
     return q.model_dump(mode="json") if q is not None else None

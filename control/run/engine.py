@@ -4,13 +4,29 @@ every run ends with. The daemon asks an engine only what this protocol says."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Literal, Protocol
 
-from pydantic import BaseModel
+from pydantic import BaseModel, JsonValue
 
 #: how a run ended: "failed" when the rig or the software failed, "aborted" when a trip, an
 #: interlock or a person stopped it
 RunStatus = Literal["completed", "aborted", "failed"]
+
+
+class RunSpec(Protocol):
+    """A run request's spec once validated (`SweepSpec`, the programmes' specs): a pydantic
+    model, written whole into the run file, that says whether the run has the oil film."""
+
+    @property
+    def lubricated(self) -> bool: ...
+
+    def model_dump_json(self) -> str: ...
+
+
+#: turns a request's spec (its JSON object) into the validated spec, or raises
+#: `pydantic.ValidationError` / `ValueError` naming the field
+SpecParser = Callable[[dict[str, JsonValue]], RunSpec]
 
 
 class RunOutcome(Protocol):

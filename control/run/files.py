@@ -7,13 +7,18 @@ import logging
 import math
 import secrets
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from pydantic import BaseModel
+
+from control.run.engine import RunSpec
 from daq.board import Board
 from daq.channels import ChannelMap
+from storage.records import run_file_status
 
 if TYPE_CHECKING:
     from storage.runfile import RunWriter
@@ -38,9 +43,10 @@ def writer_chunk_samples(sample_rate_hz: float) -> int:
 
 
 def create_run_writer(path: str | Path, kind: str, channel_map: ChannelMap, *, run_id: str,
-                      test_spec: Any = None, rig_config: Any = None,
+                      test_spec: RunSpec | BaseModel | Mapping[str, object] | None = None,
+                      rig_config: BaseModel | None = None,
                       lubricated: bool | None = None, operator: str = "", notes: str = "",
-                      overwrite: bool = False, pool: Any = None,
+                      overwrite: bool = False, pool: ThreadPoolExecutor | None = None,
                       paced: bool = True, board: Board | None = None) -> RunWriter:
     """A new run file of ``kind`` (a sweep, a structure test) and its `storage.RunWriter`, the
     metadata written: the AI and AO channels from ``channel_map``, the test's spec (a pydantic
@@ -59,7 +65,7 @@ def create_run_writer(path: str | Path, kind: str, channel_map: ChannelMap, *, r
         channels=cm.to_json_dict()["ai"], ao_names=cm.ao_names,
         sample_rate_hz=cm.sample_rate_hz, operator=operator, notes=notes,
         channel_map=cm.to_json_dict(), rig_config=rig_config,
-        test_spec=(test_spec.model_dump(mode="json") if hasattr(test_spec, "model_dump")
+        test_spec=(test_spec.model_dump(mode="json") if isinstance(test_spec, BaseModel)
                    else test_spec),
         lubricated=bool(getattr(test_spec, "lubricated", False)) if lubricated is None
         else lubricated,
@@ -92,13 +98,13 @@ def list_runs(runs_dir: Path, active: Path | None, limit: int = 500) -> list[dic
     return out
 
 
-def close_run_file(job: Any, status: str, reason: str) -> str:
-    """Write out what is queued for ``job``'s run file and close it with ``status`` and
-    ``reason``; never raises. Returns "" or what went wrong (the file keeps what was flushed)."""
+def close_run_file(writer: RunWriter, status: str, reason: str) -> str:
+    """Write out what is queued for a run file and close it with ``status`` and ``reason``;
+    never raises. Returns "" or what went wrong (the file keeps what was flushed)."""
     try:
-        job.writer.close(status, reason)
+        writer.close(run_file_status(status), reason)
     except Exception as err:
-        log.exception("closing %s failed", job.path)
+        log.exception("closing %s failed", writer.path)
         return f"run file close failed: {err}"
     return ""
 

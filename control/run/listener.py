@@ -1,5 +1,6 @@
 """Contract A: the one stream of a run (a sweep or a structure test), consumed by the run writer,
-the publisher and others: the `Listener` protocol and the one fan-out to several of them."""
+the publisher and others: the `Listener` protocol and the one fan-out to several of them. Its
+records (`StepRecord`, the event kinds) are said once, in `storage.records`."""
 
 from __future__ import annotations
 
@@ -9,10 +10,11 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from storage.records import EVENT_KINDS, JsonValue, StepRecord
+
 log = logging.getLogger(__name__)
 
-EVENT_KINDS = ("state", "limit_trip", "abort", "fault", "pump", "operator", "warning", "error",
-               "info")
+__all__ = ["EVENT_KINDS", "FanOut", "Listener", "NullListener", "RecordingListener"]
 
 
 @runtime_checkable
@@ -21,13 +23,13 @@ class Listener(Protocol):
 
     ``on_block(first_sample, ai, ao)``: ``ai`` engineering units, float64 (n_ai, n) in channel-map
     order; ``ao`` the drive volts written for those same samples (n_ao, n); ``first_sample``
-    counts from 0 at the start of the run; blocks are contiguous. ``on_step(step)``:
-    ``StepResult.to_dict()``. ``on_event(kind, message, sample)``: kind in `EVENT_KINDS`.
+    counts from 0 at the start of the run; blocks are contiguous. ``on_step(step)``: a
+    `StepRecord`. ``on_event(kind, message, sample)``: kind in `EVENT_KINDS`.
     """
 
     def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None: ...
 
-    def on_step(self, step: dict[str, Any]) -> None: ...
+    def on_step(self, step: StepRecord) -> None: ...
 
     def on_event(self, kind: str, message: str, sample: int) -> None: ...
 
@@ -38,7 +40,7 @@ class NullListener:
     def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
         return None
 
-    def on_step(self, step: dict[str, Any]) -> None:
+    def on_step(self, step: StepRecord) -> None:
         return None
 
     def on_event(self, kind: str, message: str, sample: int) -> None:
@@ -64,7 +66,7 @@ class FanOut:
         for b in self.best_effort:
             self._try(b.on_block, first_sample, ai, ao)
 
-    def on_step(self, step: dict[str, Any]) -> None:
+    def on_step(self, step: StepRecord) -> None:
         for r in self.required:
             r.on_step(step)
         for b in self.best_effort:
@@ -90,7 +92,7 @@ class RecordingListener:
     def __init__(self, keep_blocks: bool = True) -> None:
         self.keep_blocks = keep_blocks
         self.blocks: list[tuple[int, np.ndarray, np.ndarray]] = []
-        self.steps: list[dict[str, Any]] = []
+        self.steps: list[StepRecord] = []
         self.events: list[tuple[str, str, int]] = []
         self.samples = 0
 
@@ -102,11 +104,16 @@ class RecordingListener:
         if self.keep_blocks:
             self.blocks.append((first_sample, ai.copy(), ao.copy()))
 
-    def on_step(self, step: dict[str, Any]) -> None:
+    def on_step(self, step: StepRecord) -> None:
         self.steps.append(step)
 
     def on_event(self, kind: str, message: str, sample: int) -> None:
         self.events.append((kind, message, sample))
+
+    @property
+    def wire_steps(self) -> list[dict[str, JsonValue]]:
+        """The steps as a subscriber or a reader of the file sees them (`StepRecord.to_wire`)."""
+        return [s.to_wire() for s in self.steps]
 
     def ai(self) -> np.ndarray:
         return np.concatenate([b[1] for b in self.blocks], axis=1)

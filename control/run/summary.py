@@ -15,6 +15,7 @@ import numpy as np
 
 from control.run.safety import AxisSignals
 from control.wire.summary_lines import CONTACT
+from storage.records import StepRecord
 
 
 class RunPeaks:
@@ -60,7 +61,7 @@ class RunPeaks:
             self.peak_load_n = float(load[k])
             self.where_load = dict(self._where(first_sample + k))
 
-    def on_step(self, step: dict[str, Any]) -> None:
+    def on_step(self, step: StepRecord) -> None:
         pass
 
     def on_event(self, kind: str, message: str, sample: int) -> None:

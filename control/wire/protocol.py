@@ -29,7 +29,15 @@ from enum import StrEnum
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    JsonValue,
+    TypeAdapter,
+    ValidationError,
+    field_validator,
+)
 
 from control.wire.text import RequestId, SafeReason, SafeRequestId, Text, safe_json, safe_text
 from daq.config_files import unknown_field_hint
@@ -85,7 +93,7 @@ class StartRequest(_Request):
     e.g. a sweep TOML file parsed by the client); the daemon validates it."""
 
     cmd: Literal["start"]
-    spec: dict[str, Any]
+    spec: dict[str, JsonValue]
     operator: Text = Field("", max_length=200)
     notes: Text = Field("", max_length=10_000)
 
@@ -98,7 +106,7 @@ class StartTestRequest(_Request):
 
     cmd: Literal["start_test"]
     test: Literal["static", "impact", "probe_calibration", "flow"]
-    spec: dict[str, Any] = Field(default_factory=dict)
+    spec: dict[str, JsonValue] = Field(default_factory=dict)
     operator: Text = Field("", max_length=200)
     notes: Text = Field("", max_length=10_000)
 
@@ -171,14 +179,14 @@ class ResetRequest(_Request):
     cmd: Literal["reset"]
 
 
-Request = Annotated[
-    StartRequest | PauseRequest | ResumeRequest | AbortRequest | PumpRequest | StatusRequest
-    | ListRunsRequest | ResetRequest | StartTestRequest | AnswerRequest | AliveRequest,
-    Field(discriminator="cmd"),
-]
+#: every request the daemon takes
+AnyRequest = (StartRequest | PauseRequest | ResumeRequest | AbortRequest | PumpRequest
+              | StatusRequest | ListRunsRequest | ResetRequest | StartTestRequest | AnswerRequest
+              | AliveRequest)
+Request = Annotated[AnyRequest, Field(discriminator="cmd")]
 COMMANDS = ("start", "pause", "resume", "abort", "pump", "status", "list_runs", "reset",
             "start_test", "answer", "alive")
-_REQUEST_ADAPTER: TypeAdapter[Any] = TypeAdapter(Request)
+_REQUEST_ADAPTER: TypeAdapter[AnyRequest] = TypeAdapter(Request)
 
 
 class RequestError(ValueError):
@@ -191,7 +199,7 @@ class RequestError(ValueError):
         self.request_id = request_id
 
 
-def parse_request(frame: bytes) -> Any:
+def parse_request(frame: bytes) -> AnyRequest:
     """Validate one request frame; return the request model or raise `RequestError`.
 
     The message of the error names the field and the problem, e.g.
@@ -260,12 +268,12 @@ class Reply(BaseModel):
 
     @field_validator("cmd", "error", mode="before")
     @classmethod
-    def _safe_str(cls, v: Any) -> str:
+    def _safe_str(cls, v: object) -> str:
         return safe_text(v, 20_000)
 
     @field_validator("request_id", mode="before")
     @classmethod
-    def _safe_request_id(cls, v: Any) -> str:
+    def _safe_request_id(cls, v: object) -> str:
         return safe_text(v, 128)
 
     @field_validator("data", mode="before")

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import zmq
 
+from control.wire.heartbeat import Heartbeat
 from control.wire.protocol import (
     PAYLOAD_DTYPE,
     TOPIC_BLOCK,
@@ -31,6 +32,7 @@ from control.wire.protocol import (
     TOPIC_STEP,
     encode_header,
 )
+from storage.records import BlockHeader, EventRecord, StepRecord
 
 _STOP = object()
 
@@ -64,7 +66,7 @@ class Publisher:
         block_when_full: bool = False,
     ) -> None:
         self._socket = socket
-        self.channels = list(channels)
+        self.channels = tuple(channels)
         self.n_ai = n_ai
         self.sample_rate_hz = float(sample_rate_hz)
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
@@ -86,29 +88,20 @@ class Publisher:
         payload = np.empty((ai.shape[0] + ao.shape[0], n), dtype=PAYLOAD_DTYPE)
         payload[: ai.shape[0]] = ai
         payload[ai.shape[0]:] = ao
-        header = {
-            "first_sample": int(first_sample),
-            "n_samples": int(n),
-            "shape": [int(payload.shape[0]), int(n)],
-            "dtype": "<f8",
-            "n_ai": self.n_ai,
-            "channels": self.channels,
-            "sample_rate_hz": self.sample_rate_hz,
-            "t_acquired": t_acquired,
-        }
+        header = BlockHeader(int(first_sample), int(n), self.n_ai, self.channels,
+                             self.sample_rate_hz, t_acquired).to_wire()
         self._put(TOPIC_BLOCK, header, payload)
 
-    def on_step(self, step: dict[str, Any]) -> None:
-        """Queue one step result (contract A's step dict)."""
-        self._put(TOPIC_STEP, {"step": step}, None)
+    def on_step(self, step: StepRecord) -> None:
+        """Queue one step (its JSON dict under ``step``)."""
+        self._put(TOPIC_STEP, {"step": step.to_wire()}, None)
 
     def on_event(self, kind: str, message: str, sample: int) -> None:
         """Queue one log event."""
-        self._put(TOPIC_EVENT, {"kind": kind, "message": message, "sample": int(sample),
-                                "time": time.time()}, None)
+        self._put(TOPIC_EVENT, EventRecord(kind, message, sample).to_wire(time.time()), None)
 
     # --- from the command thread --------------------------------------------------------------
-    def publish_status(self, status: dict[str, Any]) -> None:
+    def publish_status(self, status: Heartbeat) -> None:
         """Queue a status heartbeat (never waits: a heartbeat is worth dropping)."""
         self._put(TOPIC_STATUS, {"status": status}, None, wait=False)
 

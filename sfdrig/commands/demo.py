@@ -96,18 +96,18 @@ def run_sweep(client: CommandClient, sub: Subscriber, spec: dict[str, Any]) -> d
 def summary(runs: list[dict[str, Any]]) -> str:
     lines = []
     for r in runs:
-        conv = sum(1 for s in r["steps"] if s.get("converged"))
+        conv = sum(1 for s in r["steps"] if s.converged)
         lines.append(f"\n{r['name']}\n  run {r['run_id']}  {r['status']}  "
                      f"{conv}/{len(r['steps'])} steps converged  {r['path']}")
         lines.append(f"  {'f [Hz]':>7} {'target':>10} {'|x| [um]':>9} {'|y| [um]':>9} "
                      f"{'|Fx| [N]':>9} {'|Fy| [N]':>9} {'updates':>7}  converged")
         for s in r["steps"]:
             a = achieved(s)
-            tgt = (f"{s['target_value'] / UM:.1f} um" if s["target_kind"] == "displacement"
-                   else f"{s['target_value']:.1f} N")
-            lines.append(f"  {s['freq_hz']:7.1f} {tgt:>10} {a['x_m'] / UM:9.2f} "
+            tgt = (f"{s.target_value / UM:.1f} um" if s.target_kind == "displacement"
+                   else f"{s.target_value:.1f} N")
+            lines.append(f"  {s.freq_hz:7.1f} {tgt:>10} {a['x_m'] / UM:9.2f} "
                          f"{a['y_m'] / UM:9.2f} {a['fx_n']:9.1f} {a['fy_n']:9.1f} "
-                         f"{s['updates']:7d}  {'yes' if s['converged'] else 'no: ' + s['reason']}")
+                         f"{s.updates:7d}  {'yes' if s.converged else 'no: ' + s.reason}")
     return "\n".join(lines)
 
 
@@ -156,8 +156,8 @@ def run(args: argparse.Namespace) -> int:
         html = write_report([Path(r["path"]) for r in runs] + structure_runs,
                             args.out / "report")
         print(f"identification report: {html}")
-    worst = max((abs(achieved(s)["x_m"] / s["target_value"] - 1) for r in runs
-                 for s in r["steps"] if s["target_kind"] == "displacement"), default=math.nan)
+    worst = max((abs(achieved(s)["x_m"] / s.target_value - 1) for r in runs
+                 for s in r["steps"] if s.target_kind == "displacement"), default=math.nan)
     if math.isfinite(worst):
         print(f"\nlargest displacement error against target: {100 * worst:.2f} %")
     return 0 if ok and code == 0 else 1

@@ -143,11 +143,10 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
             backend.close()
             raise OSError(f"{kind} test failed: {err} (what it recorded is in {path}, "
                           "closed as failed)") from err
-        status = "completed" if outcome.completed else "aborted"
-        writer.close(status, outcome.reason)
+        writer.close(outcome.status, outcome.reason)
         backend.close()
         why = f": {outcome.reason}" if outcome.reason else ""
-        say(f"{kind}: {outcome.steps} steps, {status}{why} -> {path}")
+        say(f"{kind}: {outcome.steps} steps, {outcome.status}{why} -> {path}")
         written.append(path)
     if pipe_closed:
         raise BrokenPipeError(errno.EPIPE, "stdout's reader has gone")

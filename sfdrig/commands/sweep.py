@@ -20,6 +20,7 @@ import contextlib
 import sys
 import time
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +40,7 @@ from sfdrig.commands._lost import (
     raising_when_lost,
     silence_hung_up_terminal,
 )
+from storage.records import StepRecord
 
 NAME = "sweep"
 HELP = "start a sweep (sweep file and/or KEY=VALUE fields) and follow it live"
@@ -118,15 +120,15 @@ def sweep_fields(path: Path | None, assignments: list[str], who: str = "sweep",
 
 
 # --- formatting shared with `watch` and `demo` ----------------------------------------------
-def amplitude(harmonics: dict[str, list[list[float]]], *names: str) -> float:
+def amplitude(harmonics: Mapping[str, tuple[complex, ...]], *names: str) -> float:
     """|1X| of the complex mean of the named channels (NaN if none is present)."""
-    zs = [complex(*harmonics[n][0]) for n in names if n in harmonics]
+    zs = [harmonics[n][0] for n in names if n in harmonics]
     return abs(sum(zs) / len(zs)) if zs else float("nan")
 
 
-def achieved(step: dict[str, Any]) -> dict[str, float]:
+def achieved(step: StepRecord) -> dict[str, float]:
     """Achieved 1X amplitudes of a step: x, y [m] (mean of the probes), fx, fy [N]."""
-    h = step.get("harmonics", {})
+    h = step.harmonics
     return {
         "x_m": amplitude(h, "x1", "x2") if "x1" in h else amplitude(h, "x"),
         "y_m": amplitude(h, "y1", "y2") if "y1" in h else amplitude(h, "y"),
@@ -135,18 +137,16 @@ def achieved(step: dict[str, Any]) -> dict[str, float]:
     }
 
 
-def step_line(step: dict[str, Any], total: int | None = None) -> str:
+def step_line(step: StepRecord, total: int | None = None) -> str:
     a = achieved(step)
-    unit = "um" if step.get("target_kind") == "displacement" else "N"
-    target = step.get("target_value", float("nan"))
-    target = target / UM if unit == "um" else target
+    unit = "um" if step.target_kind == "displacement" else "N"
+    target = step.target_value / UM if unit == "um" else step.target_value
     of = f"/{total}" if total else ""
-    verdict = ("converged" if step.get("converged")
-               else f"NOT converged: {step.get('reason') or '?'}")
-    return (f"step {step.get('index', 0) + 1}{of}  {step.get('freq_hz', float('nan')):6.1f} Hz  "
-            f"{step.get('motion', '')} target {target:.3g} {unit}  achieved x {a['x_m'] / UM:6.2f}"
+    verdict = "converged" if step.converged else f"NOT converged: {step.reason or '?'}"
+    return (f"step {step.index + 1}{of}  {step.freq_hz:6.1f} Hz  "
+            f"{step.motion} target {target:.3g} {unit}  achieved x {a['x_m'] / UM:6.2f}"
             f" um  y {a['y_m'] / UM:6.2f} um  fx {a['fx_n']:6.1f} N  fy {a['fy_n']:6.1f} N  "
-            f"{step.get('updates', 0)} updates, {verdict}")
+            f"{step.updates} updates, {verdict}")
 
 
 def bar(fraction: float, width: int = 20) -> str:
@@ -186,11 +186,11 @@ def _fmt(v: Any) -> str:
 
 
 def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: float = 30.0,
-           total: int | None = None, steps: list[dict[str, Any]] | None = None,
-           ) -> tuple[str, str, list[dict[str, Any]]]:
+           total: int | None = None, steps: list[StepRecord] | None = None,
+           ) -> tuple[str, str, list[StepRecord]]:
     """Print progress and step results of ``run_id`` until it ends.
 
-    ``steps`` collects the step dicts as they come (pass the same list again to go on after an
+    ``steps`` collects the steps as they come (pass the same list again to go on after an
     interruption: the steps before it still count).
 
     Returns
@@ -223,8 +223,9 @@ def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: 
                     print(("\r" + line + "\x1b[K") if tty else line, end="" if tty else "\n",
                           file=out, flush=True)
         elif msg.topic == "step" and h["run_id"] == run_id:
-            steps.append(h["step"])
-            print(("\r\x1b[K" if tty else "") + step_line(h["step"], total), file=out, flush=True)
+            step = StepRecord.from_wire(h["step"])
+            steps.append(step)
+            print(("\r\x1b[K" if tty else "") + step_line(step, total), file=out, flush=True)
         elif msg.topic == "event" and h["run_id"] in (run_id, ""):
             if h["kind"] in ("limit_trip", "fault", "abort", "error", "warning", "pump",
                              "operator"):
@@ -295,7 +296,7 @@ def run(args: argparse.Namespace) -> int:
                 reply = client.start_sweep(spec, args.operator, args.notes)
                 run_id = reply.data["run_id"]
                 print(f"run {run_id} started: {reply.data['path']}", flush=True)
-                steps: list[dict[str, Any]] = []  # those before a Ctrl-C count too
+                steps: list[StepRecord] = []  # those before a Ctrl-C count too
                 try:
                     status, reason, steps = follow(sub, run_id, steps=steps,
                                                    total=reply.data.get("steps_total"))

@@ -20,6 +20,7 @@ import numpy as np
 from control.wire.client import DaemonUnavailable
 from sfdrig.commands._client_args import add_connection_arguments, subscriber
 from sfdrig.commands.sweep import progress_text, step_line
+from storage.records import StepRecord
 
 NAME = "watch"
 HELP = "show live per-channel amplitudes and the current step (or follow a run file)"
@@ -84,7 +85,7 @@ def _watch_stream(args: argparse.Namespace) -> int:
                         units = dict(new_st.get("units", units))
                         st = new_st
                     elif msg.topic == "step":
-                        print(step_line(msg.header["step"]), flush=True)
+                        print(step_line(StepRecord.from_wire(msg.header["step"])), flush=True)
             except (ValueError, KeyError, TypeError, AttributeError) as err:
                 # a message this watch cannot use (another sender, a damaged frame): skipped
                 # and counted, never the end of the watch
@@ -120,7 +121,7 @@ def _watch_file(args: argparse.Namespace) -> int:
         while args.count == 0 or shown < args.count:
             run.refresh()
             n = run.n_samples
-            steps = run.steps
+            steps = run.step_records
             for s in steps[n_steps:]:
                 print(step_line(s), flush=True)
             n_steps = len(steps)

@@ -35,6 +35,7 @@ from simulated_hw.board.codes import (
     daq_error,
 )
 from simulated_hw.board.device_rpcs import attribute
+from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.wire import reports_daq_errors
 
@@ -77,19 +78,8 @@ def _range_for(ch: SimChannel, lo: float, hi: float) -> tuple[float, float]:
                     f"(+/-{', +/-'.join(f'{r:g}' for r in ranges)} V)")
 
 
-class ChannelAttrRpcs:
-    device: Any
-    ref_clock: dict[str, tuple[str, float]]
-    _check_device: Any  # DeviceRpcs._check_device
-
-    def _task(self, session: Any) -> SimTask:
-        raise NotImplementedError
-
-    def _others(self) -> list[SimTask]:
-        raise NotImplementedError
-
-    def _channels(self, task: SimTask, names: str) -> list[SimChannel]:
-        raise NotImplementedError
+class ChannelAttrRpcs(ServicerParts):
+    """Channel, device and timing attributes, analog scalars and raw reads."""
 
     @reports_daq_errors
     def GetChanAttributeDouble(self, request, context):  # noqa: N802

@@ -45,6 +45,7 @@ from simulated_hw.board.codes import (
     WRITE_NUM_CHANS_MISMATCH,
     daq_error,
 )
+from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.wire import reports_daq_errors
 
@@ -268,20 +269,8 @@ def chan_int32(ch: SimChannel, attr: int) -> int | None:
 
 
 # --- the RPCs -------------------------------------------------------------------------------
-class CounterRpcs:
-    """Counter channels, their terminals, implicit timing, reads and writes. Expects the
-    servicer's ``device``, ``_task``, ``_others`` and ``_channels``."""
-
-    device: Any
-
-    def _task(self, session: Any) -> SimTask:
-        raise NotImplementedError
-
-    def _others(self) -> list[SimTask]:
-        raise NotImplementedError
-
-    def _channels(self, task: SimTask, names: str) -> list[SimChannel]:
-        raise NotImplementedError
+class CounterRpcs(ServicerParts):
+    """Counter channels, their terminals, implicit timing, reads and writes."""
 
     @reports_daq_errors
     def SetChanAttributeString(self, request, context):  # noqa: N802

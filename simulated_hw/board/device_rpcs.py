@@ -25,6 +25,7 @@ from simulated_hw.board.codes import (
     TERM_BITS,
     daq_error,
 )
+from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.wire import reports_daq_errors
 
 
@@ -48,11 +49,9 @@ def attribute(values: dict[int, Any], group: str, attribute_id: int) -> Any:
     return values[attribute_id]
 
 
-class DeviceRpcs:
+class DeviceRpcs(ServicerParts):
     """GetDeviceAttributeString, GetDeviceAttributeBool, GetDeviceAttributeDoubleArray,
-    GetPhysicalChanAttributeInt32. Needs the servicer's ``device``."""
-
-    device: Any
+    GetPhysicalChanAttributeInt32."""
 
     def _check_device(self, name: str) -> None:
         if name.lower() != self.device.spec.name.lower():

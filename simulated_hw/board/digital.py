@@ -29,6 +29,7 @@ from simulated_hw.board.codes import (
     WRITE_NUM_CHANS_MISMATCH,
     daq_error,
 )
+from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.wire import reports_daq_errors
 
@@ -118,17 +119,8 @@ def write(device: Any, task: SimTask, block: np.ndarray, auto_start: bool, timeo
 
 
 # --- the RPCs -------------------------------------------------------------------------------
-class DigitalRpcs:
-    """Read/WriteDigitalLines, Read/WriteDigitalU8/U16/U32 and their scalars. Needs the
-    servicer's ``device``, ``_task`` and ``_others``."""
-
-    device: Any
-
-    def _task(self, session: Any) -> SimTask:
-        raise NotImplementedError
-
-    def _others(self) -> list[SimTask]:
-        raise NotImplementedError
+class DigitalRpcs(ServicerParts):
+    """Read/WriteDigitalLines, Read/WriteDigitalU8/U16/U32 and their scalars."""
 
     def _read_ports(self, request: Any, per_value: int) -> tuple[SimTask, np.ndarray]:
         task = self._task(request.task)

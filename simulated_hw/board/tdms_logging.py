@@ -26,6 +26,7 @@ from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
 
 from daq.errors import INVALID_ATTRIBUTE_VALUE
 from simulated_hw.board.codes import daq_error
+from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimTask
 from simulated_hw.board.wire import reports_daq_errors
 
@@ -109,13 +110,8 @@ def flush(device: Any, task: SimTask, others: list[SimTask]) -> None:
             log.mode = LOG_ONLY
 
 
-class LoggingRpcs:
-    """ConfigureLogging. Expects the servicer's ``device`` and ``_task``."""
-
-    device: Any
-
-    def _task(self, session: Any) -> SimTask:
-        raise NotImplementedError
+class LoggingRpcs(ServicerParts):
+    """ConfigureLogging."""
 
     @reports_daq_errors
     def ConfigureLogging(self, request, context):  # noqa: N802

@@ -21,6 +21,7 @@ from nidaqmx._stubs import nidaqmx_pb2 as pb
 from daq.errors import ATTR_NOT_SUPPORTED_IN_TASK, INVALID_ATTRIBUTE_VALUE, READ_TIMEOUT, DaqError
 from simulated_hw.board.codes import INVALID_ROUTING_SOURCE, daq_error
 from simulated_hw.board.device_rpcs import _unsupported
+from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimTask
 from simulated_hw.board.wire import reports_daq_errors
 
@@ -113,15 +114,9 @@ ATTR_TRIG_SYNC_TYPE = 0x2F80
 SYNC_TYPES = {10230: "None", 15888: "Master", 15889: "Slave"}
 
 
-class TriggerRpcs:
+class TriggerRpcs(ServicerParts):
     """The trigger RPCs beyond the start trigger's (which the servicer serves): reference
-    triggers, disabling triggers, retriggering. Expects the servicer's ``device`` and
-    ``_task``."""
-
-    device: Any
-
-    def _task(self, session: Any) -> SimTask:
-        raise NotImplementedError
+    triggers, disabling triggers, retriggering."""
 
     @reports_daq_errors
     def CfgDigEdgeRefTrig(self, request, context):  # noqa: N802

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from nidaqmx._stubs import nidaqmx_pb2 as pb
 from nidaqmx.utils import unflatten_channel_string
@@ -24,18 +22,15 @@ from simulated_hw.board.codes import (
     WDT_RESET_TIMER,
     daq_error,
 )
+from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimTask
 from simulated_hw.board.watchdog import Watchdog
 from simulated_hw.board.wire import reports_daq_errors
 
 
-class WatchdogRpcs:
+class WatchdogRpcs(ServicerParts):
     """CreateWatchdogTimerTaskEx, the expiration states, ControlWatchdogTask and the watchdog
-    attributes. Needs the servicer's ``device``, ``_task`` and ``_create``."""
-
-    device: Any
-    _task: Any
-    _create: Any
+    attributes."""
 
     def _watchdog(self, session: Session) -> tuple[SimTask, Watchdog]:
         task = self._task(session)

@@ -27,6 +27,7 @@ from nitypes.waveform import AnalogWaveform, DigitalWaveform, Timing
 
 from simulated_hw.board import digital, tdms_logging
 from simulated_hw.board.codes import WRITE_NUM_CHANS_MISMATCH, daq_error
+from simulated_hw.board.parts import ServicerParts
 from simulated_hw.board.tasks import SimTask
 from simulated_hw.board.wire import reports_daq_errors
 
@@ -65,16 +66,8 @@ def _check_counts(task: SimTask, lengths: list[int]) -> int:
     return lengths[0]
 
 
-class WaveformRpcs:
-    """Expects the servicer's ``device``, ``_task`` and ``_others``."""
-
-    device: Any
-
-    def _task(self, session: Any) -> SimTask:
-        raise NotImplementedError
-
-    def _others(self) -> list[SimTask]:
-        raise NotImplementedError
+class WaveformRpcs(ServicerParts):
+    """The waveform reads and writes, analog and digital (t0, dt and the channels' names)."""
 
     @reports_daq_errors
     def ReadAnalogWaveforms(self, request, context):  # noqa: N802

@@ -28,6 +28,7 @@ from storage.errors import ImportDataError
 from storage.importers.common import file_sha256
 from storage.importers.conditions import Conditions
 from storage.layout import KINDS, STATUSES, hdf5_text, utc_now_iso
+from storage.records import StepRecord
 from storage.runfile import RunWriter
 
 #: The metadata's format name and version.
@@ -226,8 +227,8 @@ def restore_export(path: str | Path, out: str | Path, meta: Mapping[str, Any], *
                 b = min(a + block, n)
                 w.on_block(a, np.stack([signals[c["column"]][a:b] for c in ai]),
                            np.stack([signals[c["column"]][a:b] for c in ao]) if ao else None)
-            for step in meta.get("steps", []):
-                w.on_step(_rebased_step(step, s0, t0))
+            for i, step in enumerate(meta.get("steps", [])):
+                w.on_step(StepRecord.from_wire(_rebased_step(step, s0, t0), i))
             events = meta.get("events", [])
             for e in events:
                 w.on_event(str(e["kind"]), str(e["message"]), int(e["sample"]) - s0)

@@ -21,6 +21,7 @@ from storage.importers.restore import export_metadata, restore_export
 from storage.importers.segments import segment_record
 from storage.importers.tdms_format import read_tdms
 from storage.layout import KINDS, utc_now_iso
+from storage.records import StepRecord
 from storage.runfile import RunWriter
 
 READERS = {".csv": read_csv, ".txt": read_csv, ".mat": read_mat, ".tdms": read_tdms}
@@ -185,8 +186,8 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
             for a in range(0, n, block):
                 b = min(a + block, n)
                 w.on_block(a, np.stack([data.signals[c][a:b] for c in order]), None)
-            for step in seg.steps:
-                w.on_step(step)
+            for i, step in enumerate(seg.steps):
+                w.on_step(StepRecord.from_wire(step, i))
             w.on_event("info", f"imported from {source} ({data.source_format})", 0)
             for sw in seg.sweeps:
                 w.on_event("info", f"sine sweep {sw['f_start_hz']:g} to {sw['f_stop_hz']:g} Hz "

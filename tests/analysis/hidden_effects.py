@@ -39,6 +39,7 @@ from daq.channels import default_channel_map
 from rig_model import RigParams
 from rig_model.params import VISCOSITY_SLOPE_PER_C
 from simulated_hw import SimulatedBackend
+from storage.records import StepRecord
 from storage.runfile import RunWriter
 
 PROBES = ("x1", "x2", "y1", "y2")
@@ -257,12 +258,12 @@ def _record(path: Path, config: RigParams, truth: RigParams, plan: list, per_dwe
             z = step_harmonics(ai[:, a:b], first + a, fs, f)
             harm = {name: [[float(v.real), float(v.imag)] for v in z[row]]
                     for row, name in enumerate(cm.ai_names)}
-            writer.on_step({
+            writer.on_step(StepRecord.from_wire({
                 "index": index, "freq_hz": f, "target_kind": "load", "target_value": force,
                 "motion": motion, "first_sample": first + a, "last_sample": first + b,
                 "updates": 0, "converged": True, "reason": "", "harmonics": harm,
                 "drive_v": {nm: [0.0, 0.0] for nm in cm.ao_names},
-            })
+            }))
     finally:
         writer.close()
     return path, sample / fs

@@ -18,6 +18,7 @@ from analysis.identify import identify
 from analysis.report import build_report
 from control.run.sweep.engine import SweepSpec
 from storage import RunWriter, open_run
+from storage.records import StepRecord
 from tests.analysis.test_identify_acceptance import DRY_LIMITS, run_sweep
 
 
@@ -56,7 +57,7 @@ def rewrite(src: Path, dst: Path, drop: tuple[str, ...] = (),
     ao = np.vstack([drives[n] for n in w.ao_names])
     w.on_block(0, ai, ao)
     for st in steps:
-        w.on_step(st)
+        w.on_step(StepRecord.from_wire(st))
     w.close()
     return dst
 

@@ -16,6 +16,7 @@ from daq.channels import default_channel_map
 from rig_model.params import RigParams
 from sfdrig.commands import sweep as sweep_cmd
 from simulated_hw.backend import SimulatedBackend
+from storage.records import StepRecord
 from tests.control.conftest import GainJump, make_backend
 from tests.simulated_hw.fake_clock import FakeClock
 
@@ -96,7 +97,7 @@ def test_the_orbit_of_a_drive_still_playing_after_its_step_belongs_to_that_step(
     plays, and it is step 1's."""
     rec = RecordingListener()
     SweepEngine(make_backend(), SPEC_20_80, listener=rec).run()
-    end = rec.steps[0]["last_sample"]
+    end = rec.wire_steps[0]["last_sample"]
     be = GainJump(RigParams(), seed=0, factor=1.1, at_sample=end + 50)
     be.configure(default_channel_map())
     rec = RecordingListener()
@@ -119,9 +120,9 @@ class _StallAfterFirstStep(RecordingListener):
         super().__init__(keep_blocks=False)
         self.clock, self.armed = clock, False
 
-    def on_step(self, step: dict) -> None:
+    def on_step(self, step: StepRecord) -> None:
         super().on_step(step)
-        self.armed = step["index"] == 0 or self.armed
+        self.armed = step.index == 0 or self.armed
 
     def on_block(self, first: int, ai: np.ndarray, ao: np.ndarray) -> None:
         super().on_block(first, ai, ao)

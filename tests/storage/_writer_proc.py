@@ -13,6 +13,7 @@ import sys
 import numpy as np
 
 from storage import RunWriter, open_run
+from storage.records import StepRecord
 
 N_AI = 4
 N_AO = 2
@@ -40,8 +41,8 @@ def run_writer(path: str) -> None:
         w.on_block(first, ai, ao)
         first += BLOCK
         if first % (20 * BLOCK) == 0:
-            w.on_step({"index": first // (20 * BLOCK) - 1, "freq_hz": 10.0,
-                       "first_sample": first - 20 * BLOCK, "last_sample": first})
+            w.on_step(StepRecord.from_wire({"index": first // (20 * BLOCK) - 1, "freq_hz": 10.0,
+                       "first_sample": first - 20 * BLOCK, "last_sample": first}))
             # the I/O thread would write and flush the step soon; this unpaced writer flushes it
             # now, so that a flush report implies the steps before it and it cannot outrun the
             # disk (a paced acquisition never needs to)

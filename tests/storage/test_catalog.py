@@ -16,6 +16,7 @@ import pytest
 from sfdrig.cli import main
 from storage import RunWriter
 from storage.catalog import STALE_AFTER_S, format_table, scan_runs
+from storage.records import StepRecord
 
 
 def _run(path: Path, run_id: str, kind: str, start: str, n: int, steps: int,
@@ -24,7 +25,7 @@ def _run(path: Path, run_id: str, kind: str, start: str, n: int, steps: int,
                          start_time=start, flush_interval_s=0)
     w.on_block(0, np.zeros((2, n)), np.zeros((1, n)))
     for i in range(steps):
-        w.on_step({"index": i, "freq_hz": 10.0 * (i + 1)})
+        w.on_step(StepRecord.from_wire({"index": i, "freq_hz": 10.0 * (i + 1)}))
     if status is not None:
         w.close(status, reason)
     return w

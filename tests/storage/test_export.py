@@ -40,6 +40,7 @@ from storage.exporters.common import select
 from storage.exporters.mat_format import write_mat
 from storage.importers import import_file
 from storage.importers.conditions import read_conditions_file, resolve_conditions
+from storage.records import StepRecord
 from tests.storage import doc_reader
 
 FORMATS = ("csv", "mat", "tdms")
@@ -385,11 +386,12 @@ def test_any_run_round_trips(fmt: str, names: list[str], units: list[str], value
             w.on_block(0, np.stack([np.roll(data, i) for i in range(len(names))]),
                        data[None, ::-1].copy() if n_ao else None)
             for i, (a, length, f, reason) in enumerate(steps):
-                w.on_step({"index": i, "freq_hz": f, "target_kind": "load", "target_value": f,
+                w.on_step(StepRecord.from_wire({
+                    "index": i, "freq_hz": f, "target_kind": "load", "target_value": f,
                            "motion": "x", "first_sample": min(a, n - 1),
                            "last_sample": min(a + length, n), "updates": 1, "converged": False,
                            "reason": reason, "note": reason,
-                           "harmonics": {names[0]: [[f, -f]] * 5}})
+                           "harmonics": {names[0]: [[f, -f]] * 5}}))
             for sample, text in events:
                 w.on_event("info", text, sample)
         try:

@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 
 from storage import MissingSignalError, RunFileError, RunWriter, open_run
 from storage.reader import _superblock_problem
+from storage.records import StepRecord
 from storage.runfile import FORMAT_VERSION
 from tests.storage import _writer_proc as proc
 
@@ -65,7 +66,8 @@ def test_metadata_blocks_steps_events_round_trip(tmp_path: Path, flush_interval_
     with _make(path, chunk_samples=1024, flush_interval_s=flush_interval_s) as w:
         w.on_event("state", "running", 0)
         w.on_block(0, ai[:, :5000], ao[:, :5000])
-        w.on_step(_step(0, 0, 5000, ["fx", "x1"], ["shaker_x", "shaker_y"]))
+        w.on_step(StepRecord.from_wire(_step(0, 0, 5000, ["fx", "x1"],
+                                             ["shaker_x", "shaker_y"])))
         w.on_block(5000, ai[:, 5000:], ao[:, 5000:])
         w.on_event("limit_trip", "force fx 460 N > 448 N", 12_000)
     with open_run(path) as run:
@@ -159,7 +161,7 @@ def test_round_trip_property(n_ai: int, n_ao: int, chunk: int, ops: list, seed: 
                     ao_all.append(ao)
                 elif op == "step":
                     s = _step(len(steps), max(0, first - arg), first, names[: arg + 1], ao_names)
-                    w.on_step(s)
+                    w.on_step(StepRecord.from_wire(s))
                     steps.append(s)
                 elif op == "event":
                     w.on_event("operator", arg, first)
@@ -186,9 +188,10 @@ def test_extra_step_keys_and_unknown_harmonics_are_kept(tmp_path: Path) -> None:
     step["harmonics"]["hammer"] = [[1.0, 2.0]] * 5
     with _make(tmp_path / "e.h5") as w:
         w.on_block(0, np.zeros((4, 10)), np.zeros((2, 10)))
-        w.on_step(step)
-        w.on_step({"index": np.int64(1), "freq_hz": np.float64(12.5), "rms_n": np.float64(1.5),
-                   "phases_deg": np.array([1.0, 2.0]), "converged": np.bool_(True)})
+        w.on_step(StepRecord.from_wire(step))
+        w.on_step(StepRecord.from_wire({
+            "index": np.int64(1), "freq_hz": np.float64(12.5), "rms_n": np.float64(1.5),
+            "phases_deg": np.array([1.0, 2.0]), "converged": np.bool_(True)}))
     with open_run(tmp_path / "e.h5") as run:
         steps = run.steps
         assert steps[0] == step
@@ -356,7 +359,7 @@ def test_swmr_reader_in_same_process_sees_growth(tmp_path: Path) -> None:
         with open_run(path) as run:
             assert run.n_samples == 300 and run.status == "running"
             w.on_block(300, np.full((4, 200), 2.0), np.zeros((2, 200)))
-            w.on_step(_step(0, 0, 500, ["fx"], []))
+            w.on_step(StepRecord.from_wire(_step(0, 0, 500, ["fx"], [])))
             run.refresh()
             assert run.n_samples == 500 and len(run.steps) == 1
             assert run.channel("x2")[-1] == 2.0
@@ -388,7 +391,7 @@ def test_swmr_reader_in_another_process_while_writing(tmp_path: Path) -> None:
             w.on_block(first, *proc.expected_block(first, 2500))
             first += 2500
             w.on_event("info", f"round {round_}", first)
-            w.on_step({"index": round_, "freq_hz": 5.0})
+            w.on_step(StepRecord.from_wire({"index": round_, "freq_hz": 5.0}))
         w.close()
         to_reader.write("read\nquit\n")
         to_reader.flush()
@@ -446,7 +449,7 @@ def good_run(tmp_path: Path) -> Path:
     path = tmp_path / "good.h5"
     with _make(path, chunk_samples=512) as w:
         w.on_block(0, np.ones((4, 20_000)), np.zeros((2, 20_000)))
-        w.on_step(_step(0, 0, 100, ["fx"], ["shaker_x"]))
+        w.on_step(StepRecord.from_wire(_step(0, 0, 100, ["fx"], ["shaker_x"])))
     return path
 
 
@@ -489,7 +492,7 @@ def test_truncated_file_of_a_live_or_dead_writer_fails_fast(tmp_path: Path) -> N
     w = _make(tmp_path / "live.h5")
     try:
         w.on_block(0, np.ones((4, 5000)), np.zeros((2, 5000)))
-        w.on_step(_step(0, 0, 5000, ["fx"], []))
+        w.on_step(StepRecord.from_wire(_step(0, 0, 5000, ["fx"], [])))
         data = (tmp_path / "live.h5").read_bytes()
     finally:
         w.close()

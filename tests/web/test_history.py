@@ -27,6 +27,7 @@ from aiohttp.test_utils import TestServer
 
 from storage import RunWriter
 from storage.reader import open_run
+from storage.records import StepRecord
 from tests.web.test_server_security import _Daemon, _get, _post, _raw
 from web.history import MAX_NOTE_CHARS
 from web.server import WebApp, WebConfig
@@ -44,11 +45,12 @@ def _write(path: Path, run_id: str, start: str, status: str | None, amps_um: lis
     n = 500
     w.on_block(0, rng.normal(size=(2, n * len(amps_um))), rng.normal(size=(1, n * len(amps_um))))
     for i, a in enumerate(amps_um):
-        w.on_step({"index": i, "freq_hz": 20.0 + 10 * i, "target_kind": "amplitude",
+        w.on_step(StepRecord.from_wire({
+            "index": i, "freq_hz": 20.0 + 10 * i, "target_kind": "amplitude",
                    "target_value": 20e-6, "motion": "x", "first_sample": i * n,
                    "last_sample": (i + 1) * n - 1, "updates": 3, "converged": True,
                    "harmonics": {"x1": [[a * 1e-6, 0.0]] + [[0.0, 0.0]] * 4,
-                                 "fx": [[0.0, -40.0]] + [[0.0, 0.0]] * 4}})
+                                 "fx": [[0.0, -40.0]] + [[0.0, 0.0]] * 4}}))
     if status is not None:
         w.close(status, "operator abort" if status == "aborted" else "")
     return w

@@ -19,6 +19,7 @@ import pytest
 from aiohttp.test_utils import TestServer
 
 from storage import RunWriter
+from storage.records import StepRecord
 from tests.web.test_server_security import _Daemon, _get, _raw
 from web.history import RunHistory
 from web.server import WebApp, WebConfig
@@ -114,10 +115,11 @@ def write_rig_run(path: Path, run_id: str, motion: str = "x") -> None:
         f, x = record(freq, noise_for(freq, 0.5) if i == NOISY_STEP else 0.0, seed=i)
         n = len(f)
         w.on_block(first, np.stack([f, x - 1e-6, x + 1e-6]), np.zeros((1, n)))
-        w.on_step({"index": i, "freq_hz": freq, "target_kind": "load", "target_value": F0_N,
+        w.on_step(StepRecord.from_wire({
+            "index": i, "freq_hz": freq, "target_kind": "load", "target_value": F0_N,
                    "motion": motion, "first_sample": first, "last_sample": first + n,
                    "updates": 2, "converged": True,
-                   "harmonics": {"fx": [[F0_N, 0.0]] + [[0.0, 0.0]] * 4}})
+                   "harmonics": {"fx": [[F0_N, 0.0]] + [[0.0, 0.0]] * 4}}))
         first += n
     w.close("completed", "")
 

@@ -18,6 +18,7 @@ import pytest
 from aiohttp.test_utils import TestServer
 
 from storage import RunWriter
+from storage.records import StepRecord
 from tests.web.test_server_security import _Daemon, _get, _raw
 from web.server import WebApp, WebConfig
 from web.trips import incident_of, where_of
@@ -49,10 +50,10 @@ def _run(path: Path, run_id: str, day_time: str, steps: int,
                                     "freq_hz": [50.0, 60.0, 70.0]})
     w.on_block(0, ai, np.zeros((1, n)))
     for i in range(steps):
-        w.on_step({"index": i, "freq_hz": 50.0 + 10 * i, "target_kind": "load",
+        w.on_step(StepRecord.from_wire({"index": i, "freq_hz": 50.0 + 10 * i, "target_kind": "load",
                    "target_value": 40.0, "motion": "x", "first_sample": i * N_STEP,
                    "last_sample": (i + 1) * N_STEP, "updates": 2, "converged": True,
-                   "harmonics": {"fx": [[40.0, 0.0]] + [[0.0, 0.0]] * 4}})
+                   "harmonics": {"fx": [[40.0, 0.0]] + [[0.0, 0.0]] * 4}}))
     for kind, message, sample in events:
         w.on_event(kind, message, sample)
     if status is None:  # killed: the writer vanished without closing the file

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from control.wire.client import Message
+from storage.records import StepRecord
 from web.view import LiveView, step_point, upward_crossings
 
 FS = 10_000.0
@@ -103,7 +104,7 @@ def circular_step(index: int, freq: float, ax: float, phase_deg: float) -> dict:
 
 
 def test_step_point_of_a_load_held_circular_step():
-    p = step_point(circular_step(0, 50.0, 10e-6, -88.5), 1.0, 1.0)
+    p = step_point(StepRecord.from_wire(circular_step(0, 50.0, 10e-6, -88.5)), 1.0, 1.0)
     assert p["unit"] == "N" and p["target"] == 40.0
     assert p["achieved"] == pytest.approx(40.2) and p["error_pct"] == pytest.approx(0.5)
     assert p["phase_deg"] == pytest.approx(-90.0)  # fy relative to fx for a load target
@@ -114,8 +115,8 @@ def test_step_point_of_a_load_held_circular_step():
 def test_step_point_of_a_displacement_x_step_has_the_frf_phase_and_no_phase_target():
     h = {"fx": [[0.0, 30.0]] + [[0, 0]] * 4, "x1": [[25e-6, 0]] + [[0, 0]] * 4,
          "x2": [[25.5e-6, 0]] + [[0, 0]] * 4}
-    p = step_point({"index": 3, "freq_hz": 40.0, "target_kind": "displacement",
-                    "target_value": 25e-6, "motion": "x", "harmonics": h}, 2.0, 1.0)
+    p = step_point(StepRecord.from_wire({"index": 3, "freq_hz": 40.0, "target_kind": "displacement",
+                    "target_value": 25e-6, "motion": "x", "harmonics": h}), 2.0, 1.0)
     assert p["unit"] == "um" and p["achieved"] == pytest.approx(25.25)
     assert p["error_pct"] == pytest.approx(1.0) and p["band_pct"] == 2.0
     assert p["phase_deg"] == pytest.approx(-90.0)  # x lags fx by 90 deg
@@ -129,7 +130,7 @@ def test_step_point_of_a_displacement_x_step_has_the_frf_phase_and_no_phase_targ
 def test_step_point_drive_level_and_stiffness_of_a_circular_step():
     step = {**circular_step(0, 50.0, 10e-6, -90.0),
             "drive_v": {"shaker_x": [3.0, 4.0], "shaker_y": [0.0, -2.0]}}
-    p = step_point(step, 1.0, 1.0)
+    p = step_point(StepRecord.from_wire(step), 1.0, 1.0)
     assert p["drive_v"] == pytest.approx(5.0)  # |3 + 4j| V, the larger drive
     assert p["kx_re_mn_per_m"] == pytest.approx(40.2 / 10e-6 / 1e6)  # 4.02 MN/m
     # fy = -40.2j over y = -10.2j um: 3.94 MN/m in phase

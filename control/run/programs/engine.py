@@ -7,18 +7,19 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from pydantic import BaseModel
+import numpy as np
 
 from control.run.listener import Listener
 from control.run.programs.impact import run_impact_test
 from control.run.programs.operator import OperatorDesk
 from control.run.programs.procedures import run_flow_test, run_probe_calibration, run_static_test
-from control.run.programs.specs import FlowSpec, ImpactSpec, ProbeCalSpec, StaticSpec
+from control.run.programs.specs import FlowSpec, ImpactSpec, ProbeCalSpec, ProgramSpec, StaticSpec
 from control.run.programs.stream import ProgramOutcome, RigHands
 from daq.backend import DaqBackend
+from storage.records import StepRecord
 
-SPECS: dict[str, type[BaseModel]] = {"static": StaticSpec, "impact": ImpactSpec,
-                          "probe_calibration": ProbeCalSpec, "flow": FlowSpec}
+SPECS: dict[str, type[ProgramSpec]] = {"static": StaticSpec, "impact": ImpactSpec,
+                                       "probe_calibration": ProbeCalSpec, "flow": FlowSpec}
 DRY_TESTS = ("static", "impact", "probe_calibration")
 
 
@@ -29,10 +30,10 @@ class _Counting:
         self.listener = listener
         self.steps = 0
 
-    def on_block(self, first_sample: int, ai: Any, ao: Any) -> None:
+    def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
         self.listener.on_block(first_sample, ai, ao)
 
-    def on_step(self, step: dict[str, Any]) -> None:
+    def on_step(self, step: StepRecord) -> None:
         self.steps += 1
         self.listener.on_step(step)
 
@@ -46,7 +47,7 @@ class ProgramEngine:
     can_pause = False  # a person is in the loop: they answer, repeat, skip or abort
     steps_total = None  # the operator decides: repeat, skip, abort
 
-    def __init__(self, kind: str, backend: DaqBackend, spec: Any, listener: Listener,
+    def __init__(self, kind: str, backend: DaqBackend, spec: ProgramSpec, listener: Listener,
                  desk: OperatorDesk, hands: RigHands | None = None,
                  set_pump: Callable[[bool], None] | None = None) -> None:
         self.kind, self.backend, self.spec = kind, backend, spec
@@ -56,13 +57,15 @@ class ProgramEngine:
     def run(self) -> ProgramOutcome:
         b, lst, d, h = self.backend, self.listener, self.desk, self.hands
         try:
-            if self.kind == "static":
-                return run_static_test(b, lst, self.spec, operator=d, hands=h)
-            if self.kind == "impact":
-                return run_impact_test(b, lst, d, self.spec, hands=h)
-            if self.kind == "probe_calibration":
-                return run_probe_calibration(b, lst, d, self.spec, hands=h)
-            return run_flow_test(b, lst, d, self.spec, hands=h, set_pump=self.set_pump)
+            match self.spec:
+                case StaticSpec():
+                    return run_static_test(b, lst, self.spec, operator=d, hands=h)
+                case ImpactSpec():
+                    return run_impact_test(b, lst, d, self.spec, hands=h)
+                case ProbeCalSpec():
+                    return run_probe_calibration(b, lst, d, self.spec, hands=h)
+                case FlowSpec():
+                    return run_flow_test(b, lst, d, self.spec, hands=h, set_pump=self.set_pump)
         finally:
             if h is not None and self.kind in DRY_TESTS:
                 h.set_journal(True)  # the simulated rig's next sweep has its seal again

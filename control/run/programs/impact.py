@@ -29,11 +29,12 @@ from control.run.programs.stream import (
     ai_row,
     ask,
     journal_out,
+    point_step,
     run_program,
     signal,
-    step_dict,
 )
 from daq.backend import DaqBackend
+from storage.records import JsonValue, StepRecord
 
 REST_DISPLACEMENT_M = 5e-6  # peak-to-peak over 0.1 s below which the housing is at rest
 REST_TIMEOUT_S = 20.0
@@ -134,7 +135,7 @@ def run_impact_test(backend: DaqBackend, listener: Listener, operator: Any,
     """
     spec = spec or ImpactSpec()
 
-    def body(stream: Stream, steps: list[dict[str, Any]]) -> None:
+    def body(stream: Stream, steps: list[StepRecord]) -> None:
         cm = stream.cm
         if spec.hammer_channel not in cm.ai_names:
             raise ProgramError(f"impact: no hammer channel {spec.hammer_channel!r} in the "
@@ -195,7 +196,7 @@ class _Armed:
         return False
 
 
-def _impact_axis(stream: Stream, steps: list[dict[str, Any]], spec: ImpactSpec, axis: str,
+def _impact_axis(stream: Stream, steps: list[StepRecord], spec: ImpactSpec, axis: str,
                  hands: RigHands | None) -> None:
     cm, fs = stream.cm, stream.fs
     zero = np.zeros(stream.n_ao)
@@ -242,7 +243,7 @@ def _impact_axis(stream: Stream, steps: list[dict[str, Any]], spec: ImpactSpec, 
         start = max(t - pre, h0)
         record = record_all[:, start - h0:t + post - h0]
         check = check_hit(cm, record, t - start, fs, spec)
-        base: dict[str, Any] = {"trigger_sample": t, "hit": hit,
+        base: dict[str, JsonValue] = {"trigger_sample": t, "hit": hit,
                                 "pulse_ms": round(check.pulse_s * 1e3, 3)}
         force, resp = ai_row(cm, record, spec.hammer_channel), signal(cm, record, axis)
         if check.rejection:
@@ -257,8 +258,8 @@ def _impact_axis(stream: Stream, steps: list[dict[str, Any]], spec: ImpactSpec, 
             assert review is not None
             decision = review.choice == "ok"
             why = "" if decision else "rejected by the operator"
-        step = step_dict(len(steps), "load", check.peak_n, axis, start, t + post,
-                         accepted=decision, rejection=why, **base)
+        step = point_step(len(steps), "load", check.peak_n, axis, start, t + post,
+                          extra={**base, "accepted": decision, "rejection": why})
         stream.listener.on_step(step)
         steps.append(step)
         if decision:

@@ -37,17 +37,20 @@ from control.run.programs.stream import (
     ask_unsteady,
     hold_steady,
     journal_out,
+    point_step,
     run_program,
     signal,
-    step_dict,
 )
 from daq.backend import DaqBackend
+from storage.records import JsonValue, StepRecord
 
 DIAL_GAUGE_RANGE_M = 2.5e-3  # a dial gauge reading beyond +/-0.1 in is a typing error here
 SUPPLY_PRESSURE_RANGE_PA = (0.0, 500e3)  # the regulator's gauge
 
 
-AfterHold = Callable[[str, float, str], "dict[str, Any] | str | None"]
+#: what a held point adds: its target value and further keys
+Held = tuple[float, dict[str, JsonValue]]
+AfterHold = Callable[[str, float, str], "Held | str | None"]
 
 
 def _drive_for(cm: Any, axis: str, force_n: float, gain: Mapping[str, float]) -> np.ndarray:
@@ -56,12 +59,12 @@ def _drive_for(cm: Any, axis: str, force_n: float, gain: Mapping[str, float]) ->
     return v
 
 
-def _static_levels(stream: Stream, steps: list[dict[str, Any]], spec: StaticSpec | ProbeCalSpec,
+def _static_levels(stream: Stream, steps: list[StepRecord], spec: StaticSpec | ProbeCalSpec,
                    passes: int, kind: str, target_kind: str,
                    after_hold: AfterHold | None = None) -> None:
     """Shared by the static and the calibration programmes: hold DC forces, record each once
-    steady; ``after_hold(axis, force, label)`` adds to the step (a dict), or says "repeat" or
-    None (skip the point)."""
+    steady; ``after_hold(axis, force, label)`` gives the step's target value and further keys,
+    or says "repeat" or None (skip the point)."""
     cm = stream.cm
     gain = {ao.axis: ao.nominal_force_n_per_v for ao in cm.ao}
     n_points = len(spec.axes) * passes * len(spec.forces_n)
@@ -79,7 +82,7 @@ def _static_levels(stream: Stream, steps: list[dict[str, Any]], spec: StaticSpec
                                       f"{point}/{n_points}", after_hold, target_kind, steps)
                     if step != "repeat":
                         break
-                if isinstance(step, dict):
+                if isinstance(step, StepRecord):
                     stream.listener.on_step(step)
                     steps.append(step)
 
@@ -87,7 +90,7 @@ def _static_levels(stream: Stream, steps: list[dict[str, Any]], spec: StaticSpec
 def _one_level(stream: Stream, spec: StaticSpec | ProbeCalSpec, axis: str, force: float,
                gain: Mapping[str, float], checks: list[Steadiness], where: str, label: str,
                after_hold: AfterHold | None,
-               target_kind: str, steps: list[dict[str, Any]]) -> dict[str, Any] | str:
+               target_kind: str, steps: list[StepRecord]) -> StepRecord | str:
     """One static point: the step dict, "repeat" or "skip"."""
     cm = stream.cm
     drive = _drive_for(cm, axis, force, gain)
@@ -114,11 +117,12 @@ def _one_level(stream: Stream, spec: StaticSpec | ProbeCalSpec, axis: str, force
         return ask_unsteady(stream, label, moving, spec.steady_timeout_s, drive, spec.ramp_s,
                             [measured_text])
     last = stream.sample
-    extra = after_hold(axis, force, label) if after_hold else {}
-    if extra is None:
+    held = after_hold(axis, force, label) if after_hold else (force, {})
+    if held is None:
         return "skip"
-    if isinstance(extra, str):
-        return extra
+    if isinstance(held, str):
+        return held
+    value, extra = held
     if after_hold is None and stream.operator is not None and spec.confirm_points:
         answer = ask(stream, Question(
             id=0, where=label, prompt=f"Load {force:+g} N along {axis} held by the shaker, "
@@ -127,9 +131,8 @@ def _one_level(stream: Stream, spec: StaticSpec | ProbeCalSpec, axis: str, force
         assert answer is not None
         if answer.choice != "ok":
             return answer.choice
-    value = extra.pop("target_value", force)
-    return step_dict(len(steps), target_kind, value, axis, first, last, updates,
-                     force_n=force, **extra)
+    return point_step(len(steps), target_kind, value, axis, first, last, updates,
+                      extra={"force_n": force, **extra})
 
 
 def run_static_test(backend: DaqBackend, listener: Listener, spec: StaticSpec | None = None, *,
@@ -145,7 +148,7 @@ def run_static_test(backend: DaqBackend, listener: Listener, spec: StaticSpec | 
     """
     spec = spec or StaticSpec()
 
-    def body(stream: Stream, steps: list[dict[str, Any]]) -> None:
+    def body(stream: Stream, steps: list[StepRecord]) -> None:
         journal_out(stream, hands, "static",
                     "hand" if spec.load_by == "hand" else "shakers")
         if spec.load_by == "hand":
@@ -168,7 +171,7 @@ def run_probe_calibration(backend: DaqBackend, listener: Listener, operator: Ope
     spec = spec or ProbeCalSpec()
     gauge_unit = spec.gauge_unit
 
-    def read(axis: str, force: float, label: str) -> dict[str, Any] | str | None:
+    def read(axis: str, force: float, label: str) -> Held | str | None:
         stream = current[0]
         hold = stream.level_v.copy()
         k_nominal = 800e3  # only to say roughly where the housing is [N/m]
@@ -187,12 +190,11 @@ def run_probe_calibration(backend: DaqBackend, listener: Listener, operator: Ope
         if answer.choice != "ok":
             return None if answer.choice == "skip" else answer.choice  # "repeat"
         assert answer.value_si is not None
-        return {"target_value": answer.value_si, "reference_m": answer.value_si,
-                "gauge_text": answer.text}
+        return answer.value_si, {"reference_m": answer.value_si, "gauge_text": answer.text}
 
     current: list[Stream] = []
 
-    def body(stream: Stream, steps: list[dict[str, Any]]) -> None:
+    def body(stream: Stream, steps: list[StepRecord]) -> None:
         current.append(stream)
         journal_out(stream, hands, "probe_calibration", "shakers")
         _static_levels(stream, steps, spec, 1, "probe_calibration", "displacement",
@@ -214,7 +216,7 @@ def run_flow_test(backend: DaqBackend, listener: Listener, operator: OperatorDes
     spec = spec or FlowSpec()
     pump = set_pump or (lambda on: backend.set_do(spec.pump_relay, on))
 
-    def point(stream: Stream, n_steps: int, pa: float, label: str) -> dict[str, Any] | str:
+    def point(stream: Stream, n_steps: int, pa: float, label: str) -> StepRecord | str:
         """One pressure: the step dict, "repeat" or "skip"."""
         zero = np.zeros(stream.n_ao)
         entry = Entry(name="pressure", label="supply pressure", unit="kPa", quantity="pressure",
@@ -237,22 +239,23 @@ def run_flow_test(backend: DaqBackend, listener: Listener, operator: OperatorDes
                                        spec.steady_timeout_s)
         if moving:
             return ask_unsteady(stream, label, moving, spec.steady_timeout_s, zero, spec.ramp_s)
-        return step_dict(n_steps, "pressure", setting, "", first, stream.sample,
-                         supply_pressure_pa=setting, supply_pressure_asked_pa=pa)
+        return point_step(n_steps, "pressure", setting, "", first, stream.sample,
+                          extra={"supply_pressure_pa": setting,
+                                 "supply_pressure_asked_pa": pa})
 
-    def body(stream: Stream, steps: list[dict[str, Any]]) -> None:
+    def body(stream: Stream, steps: list[StepRecord]) -> None:
         pump(True)
         listener.on_event("pump", "pump on", stream.sample)
         n_points = spec.repeats * len(spec.supply_pressures_pa)
         try:
             for p in range(spec.repeats):
                 for pa in spec.supply_pressures_pa:
-                    step: dict[str, Any] | str = "repeat"
+                    step: StepRecord | str = "repeat"
                     while step == "repeat":
                         stream.where = f"flow step {len(steps) + 1} ({pa:g} Pa, pass {p + 1})"
                         step = point(stream, len(steps), pa, f"flow {pa / 1e3:g} kPa pass "
                                      f"{p + 1}, point {len(steps) + 1}/{n_points}")
-                    if isinstance(step, dict):
+                    if isinstance(step, StepRecord):
                         listener.on_step(step)
                         steps.append(step)
         finally:

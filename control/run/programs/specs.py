@@ -95,4 +95,7 @@ class FlowSpec(_Spec):
     pump_relay: str = "pump"
 
 
-__all__ = ["FlowSpec", "ImpactSpec", "ProbeCalSpec", "StaticSpec"]
+#: every programme's spec
+ProgramSpec = StaticSpec | ImpactSpec | ProbeCalSpec | FlowSpec
+
+__all__ = ["FlowSpec", "ImpactSpec", "ProbeCalSpec", "ProgramSpec", "StaticSpec"]

@@ -6,8 +6,6 @@ uses instead of the load cell). On the simulated rig ``hands`` push (`RigHands.p
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from control.run.programs.operator import UNITS, Entry, Question
@@ -20,12 +18,13 @@ from control.run.programs.stream import (
     ask,
     ask_unsteady,
     hold_steady,
+    point_step,
     signal,
-    step_dict,
 )
+from storage.records import StepRecord
 
 
-def static_levels_by_hand(stream: Stream, steps: list[dict[str, Any]], spec: StaticSpec,
+def static_levels_by_hand(stream: Stream, steps: list[StepRecord], spec: StaticSpec,
                           hands: RigHands | None) -> None:
     """Every planned load on every axis, ``repeats`` passes; each point once recorded, or
     skipped by the operator."""
@@ -37,14 +36,14 @@ def static_levels_by_hand(stream: Stream, steps: list[dict[str, Any]], spec: Sta
             for p in range(spec.repeats):
                 for force in spec.forces_n:
                     point = len(steps) + 1
-                    step: dict[str, Any] | str = "repeat"
+                    step: StepRecord | str = "repeat"
                     while step == "repeat":
                         stream.where = (f"static step {len(steps) + 1} ({axis}, {force:g} N "
                                         f"by hand, pass {p + 1})")
                         step = _hand_point(stream, spec, hands, axis, force, len(steps),
                                            f"static {axis} {force:+g} N by hand pass {p + 1}, "
                                            f"point {point}/{n_points}")
-                    if isinstance(step, dict):
+                    if isinstance(step, StepRecord):
                         stream.listener.on_step(step)
                         steps.append(step)
         finally:
@@ -53,7 +52,7 @@ def static_levels_by_hand(stream: Stream, steps: list[dict[str, Any]], spec: Sta
 
 
 def _hand_point(stream: Stream, spec: StaticSpec, hands: RigHands | None, axis: str,
-                force: float, index: int, label: str) -> dict[str, Any] | str:
+                force: float, index: int, label: str) -> StepRecord | str:
     """One load: the step dict, "repeat" or "skip"."""
     zero = np.zeros(stream.n_ao)
     r = spec.force_gauge_range_n
@@ -91,5 +90,6 @@ def _hand_point(stream: Stream, spec: StaticSpec, hands: RigHands | None, axis: 
     if answer.choice != "ok":
         return answer.choice
     assert answer.value_si is not None
-    return step_dict(index, "load", force, axis, first, last, force_n=force,
-                     gauge_force_n=answer.value_si, gauge_text=answer.text, load_by="hand")
+    return point_step(index, "load", force, axis, first, last, extra={
+        "force_n": force, "gauge_force_n": answer.value_si, "gauge_text": answer.text,
+        "load_by": "hand"})

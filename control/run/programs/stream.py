@@ -16,7 +16,7 @@ optional `RigHands`, given only for the simulated rig by the composition root.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -26,10 +26,12 @@ from control.run.ao_writer import AoWriter
 from control.run.engine import RunStatus
 from control.run.listener import Listener
 from control.run.programs.operator import Answer, OperatorDesk, Question
+from control.run.programs.specs import ProgramSpec
 from control.run.stream import DriveStream
 from control.signal.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
 from daq.errors import EmergencyStopError
+from storage.records import JsonValue, StepRecord
 
 FAULT_RAMP_S = 0.04  # drive fade on a fault [s]
 
@@ -78,7 +80,7 @@ class ProgramOutcome:
     completed: bool
     reason: str = ""
     samples: int = 0
-    step_dicts: list[dict[str, Any]] = field(default_factory=list)
+    step_records: list[StepRecord] = field(default_factory=list)
 
     @property
     def status(self) -> RunStatus:
@@ -122,7 +124,7 @@ class Stream:
         self.operator = operator
         # a simulated rig running faster than real time is paced while a person is asked, so a
         # minute at the prompt is a minute of record, not an hour
-        self.pace_waits = getattr(backend, "realtime", True) is False
+        self.pace_waits = not backend.realtime
         self.max_force_n = max_force_n
         self.where = ""  # what the programme is doing, for the trip message
         self.listener = listener
@@ -239,27 +241,25 @@ def signal(cm: Any, ai: np.ndarray, name: str) -> np.ndarray:
     return ai[rows].mean(axis=0)
 
 
-def step_dict(index: int, target_kind: str, target_value: float, motion: str, first: int,
+def point_step(index: int, target_kind: str, target_value: float, motion: str, first: int,
                last: int, updates: int = 0, converged: bool = True, reason: str = "",
-               **extra: Any) -> dict[str, Any]:
-    d: dict[str, Any] = {
-        "index": index, "freq_hz": 0.0, "target_kind": target_kind,
-        "target_value": float(target_value), "motion": motion, "first_sample": int(first),
-        "last_sample": int(last), "updates": int(updates), "converged": bool(converged),
-        "reason": reason, "harmonics": {}, "drive_v": {},
-    }
-    d.update(extra)
-    return d
+               extra: Mapping[str, JsonValue] | None = None) -> StepRecord:
+    """One point of a structure test (no excitation: freq_hz 0, no harmonics); ``extra`` its
+    further keys."""
+    return StepRecord(index=index, freq_hz=0.0, target_kind=target_kind,
+                      target_value=float(target_value), motion=motion, first_sample=int(first),
+                      last_sample=int(last), updates=int(updates), converged=bool(converged),
+                      reason=reason, extra=dict(extra or {}))
 
 
-def run_program(kind: str, backend: DaqBackend, listener: Listener, spec: Any,
-                body: Callable[[Stream, list[dict[str, Any]]], None],
+def run_program(kind: str, backend: DaqBackend, listener: Listener, spec: ProgramSpec,
+                body: Callable[[Stream, list[StepRecord]], None],
                 operator: OperatorDesk | None = None) -> ProgramOutcome:
     """Run ``body`` on a started stream; whatever happens, the drives end ramped to zero (fast
     on a fault or an abort) and the outcome says how many steps were recorded and why it stopped.
     """
     stream = Stream(backend, listener, spec.block_samples, spec.max_force_n, operator)
-    steps: list[dict[str, Any]] = []
+    steps: list[StepRecord] = []
     listener.on_event("state", f"{kind} programme started: {spec.model_dump_json()}", 0)
     outcome = ProgramOutcome(kind, 0, True)
     clean = cut = False
@@ -282,7 +282,7 @@ def run_program(kind: str, backend: DaqBackend, listener: Listener, spec: Any,
         stream.finish(spec.ramp_s if clean else FAULT_RAMP_S, cut=cut)
     state = "completed" if outcome.completed else "aborted"
     listener.on_event("state", f"{kind} programme {state}", stream.sample)
-    outcome.steps, outcome.samples, outcome.step_dicts = len(steps), stream.sample, steps
+    outcome.steps, outcome.samples, outcome.step_records = len(steps), stream.sample, steps
     return outcome
 
 
@@ -392,5 +392,5 @@ def hold_steady(stream: Stream, target_v: np.ndarray, record_s: float, ramp_s: f
 __all__: Sequence[str] = [
     "FAULT_RAMP_S", "ForceTrip", "ProgramAborted", "ProgramError", "ProgramOutcome",
     "RigHands", "Steadiness", "Stream", "ai_row", "ask", "ask_unsteady", "hold_steady",
-    "journal_out", "run_program", "signal", "step_dict", "unsteady",
+    "journal_out", "run_program", "signal", "point_step", "unsteady",
 ]

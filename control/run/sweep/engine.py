@@ -420,7 +420,7 @@ class SweepEngine:
             self.results.append(result)
             self._progress = replace(self._progress, steps_done=len(self.results),
                                      updates=result.updates)
-            self.listener.on_step(result.to_dict())
+            self.listener.on_step(result.to_record())
             if not result.converged:
                 msg = f"{plan.describe()}: {result.reason}"
                 if self.spec.on_not_converged == "abort":
@@ -442,7 +442,7 @@ class SweepEngine:
         # keep acquiring with zero drive until resumed or aborted; a backend that runs faster
         # than real time (the fast simulator) is paced to the wall clock while paused, so that
         # a pause does not fill the run file as fast as the machine can compute
-        fast = getattr(self.backend, "realtime", True) is False
+        fast = not self.backend.realtime
         while True:
             with self._lock:
                 if self._abort_reason is not None:

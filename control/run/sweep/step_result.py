@@ -1,19 +1,19 @@
-"""What one dwell achieved: `StepResult` (the run file's and the wire's step record)."""
+"""What one dwell achieved: `StepResult`, and the step the run records of it (`to_record`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from control.signal.controller import Assessment
 from control.wire.step_plan import StepPlan
+from storage.records import StepRecord
 
 
 @dataclass
 class StepResult:
-    """What a dwell achieved (contract A's step dict, via `to_dict`).
+    """What a dwell achieved (recorded as a `StepRecord`: `to_record`).
 
     Attributes
     ----------
@@ -48,26 +48,14 @@ class StepResult:
     assessment: Assessment | None = field(default=None, repr=False)
     controlled: np.ndarray | None = field(default=None, repr=False)
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-safe dict in the layout of contract A."""
+    def to_record(self) -> StepRecord:
+        """The step as the run records it (file and wire)."""
         p = self.plan
-        return {
-            "index": int(p.index),
-            "freq_hz": float(p.freq_hz),
-            "target_kind": p.target_kind,
-            "target_value": float(p.target_value),
-            "motion": p.motion,
-            "first_sample": int(self.first_sample),
-            "last_sample": int(self.last_sample),
-            "updates": int(self.updates),
-            "converged": bool(self.converged),
-            "reason": self.reason,
-            "harmonics": {
-                name: [[float(z.real), float(z.imag)] for z in self.harmonics[i]]
-                for i, name in enumerate(self.ai_names)
-            },
-            "drive_v": {
-                name: [float(self.drive_v[i].real), float(self.drive_v[i].imag)]
-                for i, name in enumerate(self.ao_names)
-            },
-        }
+        return StepRecord(
+            index=int(p.index), freq_hz=float(p.freq_hz), target_kind=p.target_kind,
+            target_value=float(p.target_value), motion=p.motion,
+            first_sample=int(self.first_sample), last_sample=int(self.last_sample),
+            updates=int(self.updates), converged=bool(self.converged), reason=self.reason,
+            harmonics={name: tuple(complex(z) for z in self.harmonics[i])
+                       for i, name in enumerate(self.ai_names)},
+            drive_v={name: complex(self.drive_v[i]) for i, name in enumerate(self.ao_names)})

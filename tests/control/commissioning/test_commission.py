@@ -28,6 +28,7 @@ from rig_model.params import RigParams
 from sfdrig.simulated_operator import SimulatedCommissioner
 from simulated_hw.backend import SimulatedBackend
 from storage import open_run
+from storage.records import StepRecord
 from tests.conftest import REPO_ROOT
 from tests.simulated_hw.fake_clock import FakeClock
 
@@ -309,7 +310,7 @@ class CtrlC:
             self.at = 1 << 62
             raise KeyboardInterrupt
 
-    def on_step(self, step: dict[str, Any]) -> None:
+    def on_step(self, step: StepRecord) -> None:
         pass
 
     def on_event(self, kind: str, message: str, sample: int) -> None:

@@ -21,6 +21,7 @@ from control.wire.protocol import DaemonState
 from daq.channels import default_channel_map
 from simulated_hw.backend import SimulatedBackend
 from storage.reader import open_run
+from storage.records import StepRecord
 from tests.e2e.raw_dealer import RawDealer
 
 
@@ -79,7 +80,7 @@ class ScriptEngine:
                 self.listener.on_block(i * n, ai, ao)
                 self.progress = {"block": i + 1, "blocks": self.spec.blocks}
                 if i % 4 == 3:
-                    self.listener.on_step({"index": i // 4, "freq_hz": 20.0})
+                    self.listener.on_step(StepRecord.from_wire({"index": i // 4, "freq_hz": 20.0}))
             return SimpleNamespace(status="completed", reason="")
         finally:
             b.stop()

@@ -488,7 +488,7 @@ def test_a_lubricated_sweep_on_a_stalling_host_approaches_every_step_without_a_t
     engine = SweepEngine(be, spec, listener=rec, pump=pump)
     out = engine.run()
     assert out.status == "completed", out.reason
-    assert len(rec.steps) == 9 and all(s["converged"] for s in rec.steps)
+    assert len(rec.wire_steps) == 9 and all(s["converged"] for s in rec.wire_steps)
     assert engine.peaks is not None
     assert engine.peaks.peak_displacement_m < SafetyLimits().displacement_limit_m
     assert engine.peaks.contact == ""

@@ -33,7 +33,7 @@ def test_sweep_into_a_run_file(tmp_path):
     run = reader.open_run(path)
     steps = run.steps
     assert [s["freq_hz"] for s in steps] == [30.0, 50.0]
-    for st, mine in zip(steps, rec.steps, strict=True):
+    for st, mine in zip(steps, rec.wire_steps, strict=True):
         assert st["first_sample"] == mine["first_sample"] and st["converged"]
         x = run.signal("x", st["first_sample"], st["last_sample"])
         t = np.arange(st["first_sample"], st["last_sample"]) / cm.sample_rate_hz

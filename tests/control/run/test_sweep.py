@@ -35,14 +35,14 @@ def test_lubricated_x_sweep_holds_displacement_within_1_percent():
                      freq_start_hz=20, freq_stop_hz=60, freq_step_hz=10)
     out = SweepEngine(be, spec, listener=rec, pump=pump).run()
     assert out.status == "completed", out.reason
-    assert len(rec.steps) == 10
-    for step in rec.steps:
+    assert len(rec.wire_steps) == 10
+    for step in rec.wire_steps:
         assert step["converged"], step["reason"]
         x = _amp(step, ["x1", "x2"])
         assert abs(abs(x) / step["target_value"] - 1) <= 0.01, (step["freq_hz"], abs(x))
         assert step["drive_v"]["shaker_y"] == [0.0, 0.0]
         assert step["last_sample"] - step["first_sample"] == round(40 * 10_000 / step["freq_hz"])
-    assert [s["target_value"] for s in rec.steps[:5]] == [13e-6] * 5
+    assert [s["target_value"] for s in rec.wire_steps[:5]] == [13e-6] * 5
     assert rec.events_of("pump")
     assert not pump.shakers_active
 
@@ -58,8 +58,8 @@ def test_dry_circular_load_orbit_40n_20_to_200_hz_off_resonance(second_mode: boo
     spec = SweepSpec(motion="circular_forward", load_n=[40.0], freq_hz=DRY_FREQS_HZ)
     out = SweepEngine(be, spec, limits=DRY_LIMITS, listener=rec).run()
     assert out.status == "completed", out.reason
-    assert [s["freq_hz"] for s in rec.steps] == DRY_FREQS_HZ
-    for step in rec.steps:
+    assert [s["freq_hz"] for s in rec.wire_steps] == DRY_FREQS_HZ
+    for step in rec.wire_steps:
         fx, fy = complex(*step["harmonics"]["fx"][0]), complex(*step["harmonics"]["fy"][0])
         assert abs(abs(fx) / 40.0 - 1) <= 0.01
         assert abs(abs(fy) / 40.0 - 1) <= 0.01
@@ -77,7 +77,7 @@ def test_lubricated_circular_displacement_orbit_through_seal_coupling():
                      freq_hz=[20.0, 35.0, 50.0])
     out = SweepEngine(be, spec, listener=rec, pump=pump).run()
     assert out.status == "completed", out.reason
-    for step in rec.steps:
+    for step in rec.wire_steps:
         x, y = _amp(step, ["x1", "x2"]), _amp(step, ["y1", "y2"])
         assert abs(abs(x) / 25e-6 - 1) <= 0.01 and abs(abs(y) / 25e-6 - 1) <= 0.01
         assert np.degrees(np.angle(y / x)) == pytest.approx(90.0, abs=1.0)
@@ -88,7 +88,7 @@ def test_step_dict_follows_contract_a_and_blocks_are_contiguous(backend):
     spec = SweepSpec(motion="y", load_n=[30.0], freq_hz=[80.0, 60.0], record_cycles=20)
     out = SweepEngine(backend, spec, listener=rec).run()
     assert out.status == "completed"
-    step = rec.steps[0]
+    step = rec.wire_steps[0]
     assert set(step) == {"index", "freq_hz", "target_kind", "target_value", "motion",
                          "first_sample", "last_sample", "updates", "converged", "reason",
                          "harmonics", "drive_v"}
@@ -122,8 +122,8 @@ def test_not_converging_aborts_with_the_reason(backend):
     out = SweepEngine(backend, spec, listener=rec).run()
     assert out.status == "aborted"
     assert "did not converge in 1 updates" in out.reason
-    assert rec.steps and rec.steps[0]["converged"] is False
-    assert rec.steps[0]["reason"].startswith("did not converge")
+    assert rec.wire_steps and rec.wire_steps[0]["converged"] is False
+    assert rec.wire_steps[0]["reason"].startswith("did not converge")
     assert rec.events_of("abort")
     assert np.all(backend.ao_written()[:, -100:] == 0)
 
@@ -214,7 +214,7 @@ def test_paced_backend_keeps_up_with_the_clock():
                      record_cycles=30)
     out = SweepEngine(be, spec, limits=DRY_LIMITS, listener=rec).run()
     assert out.status == "completed", out.reason
-    assert all(s["converged"] for s in rec.steps)
+    assert all(s["converged"] for s in rec.wire_steps)
     # against the clock the AO is generated while the loop works: the lead left is below the
     # 30 ms written (negative if the host was late and the ring played on)
     (report,) = [e[1] for e in rec.events_of("info") if e[1].startswith("AO ring 2 s")]
@@ -233,8 +233,8 @@ def test_lubricated_elliptical_orbit_downwards():
                      freq_stop_hz=25, freq_step_hz=15)
     out = SweepEngine(be, spec, listener=rec, pump=pump).run()
     assert out.status == "completed", out.reason
-    assert [s["freq_hz"] for s in rec.steps] == [55.0, 40.0, 25.0]
-    for step in rec.steps:
+    assert [s["freq_hz"] for s in rec.wire_steps] == [55.0, 40.0, 25.0]
+    for step in rec.wire_steps:
         x, y = _amp(step, ["x1", "x2"]), _amp(step, ["y1", "y2"])
         assert abs(abs(x) / 30e-6 - 1) <= 0.01 and abs(abs(y) / 18e-6 - 1) <= 0.01
         assert np.degrees(np.angle(y / x)) == pytest.approx(40.0, abs=1.0)

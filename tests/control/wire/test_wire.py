@@ -23,6 +23,7 @@ from control.wire.protocol import (
     parse_request,
 )
 from control.wire.publisher import Publisher
+from storage.records import StepRecord
 
 
 @pytest.mark.parametrize(("frame", "kind", "message"), [
@@ -126,7 +127,7 @@ def test_publisher_frames_carry_run_id_and_consecutive_seq():
                 ai, ao = rng.normal(size=(2, 50)), rng.normal(size=(1, 50))
                 sent.append(np.vstack([ai, ao]))
                 pub.on_block(50 * i, ai, ao)
-            pub.on_step({"index": 0, "freq_hz": 20.0})
+            pub.on_step(StepRecord.from_wire({"index": 0, "freq_hz": 20.0}))
             got, step = [], None
             while step is None:
                 msg = sub.recv(timeout_s=10)
@@ -141,7 +142,7 @@ def test_publisher_frames_carry_run_id_and_consecutive_seq():
             assert [m.header["first_sample"] for m in got] == [50 * i for i in range(20)]
             for m, a in zip(got, sent, strict=True):
                 np.testing.assert_array_equal(m.array, a)
-            assert step == {"index": 0, "freq_hz": 20.0}
+            assert (step["index"], step["freq_hz"], step["converged"]) == (0, 20.0, False)
             assert sub.lost == {}
             assert json.loads(json.dumps(pub.sequence_numbers()))["block"] == 20
     finally:
