@@ -32,6 +32,7 @@ import numpy as np
 from storage import RunWriter
 from storage.catalog import RunFilter, parse_filter, scan_runs, select_runs
 from storage.layout import LIBVER
+from storage.records import StepRecord
 from storage.run_index import INDEX_NAME
 
 KINDS = ("sweep", "static", "imported")
@@ -49,8 +50,8 @@ def _template(path: Path, kind: str, status: str, lubricated: bool, seal: float 
                           swmr=False, flush_interval_s=0, overwrite=True) as w:
         w.on_block(0, np.zeros((2, 1000)), np.zeros((1, 1000)))
         for i in range(3):
-            w.on_step({"index": i, "freq_hz": 20.0 * (i + 1), "motion": motion,
-                       "first_sample": 300 * i, "last_sample": 300 * (i + 1)})
+            w.on_step(StepRecord.from_wire({"index": i, "freq_hz": 20.0 * (i + 1), "motion": motion,
+                       "first_sample": 300 * i, "last_sample": 300 * (i + 1)}))
         if status != "completed":
             w.close(status, "bench")
 

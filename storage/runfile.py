@@ -361,7 +361,7 @@ class RunWriter:
             rows = step_rows(step, self.ai_names, self.ao_names)
         except ValueError as err:
             raise ValueError(f"{self.path}: {err}") from None
-        self._motions.add(str(step.get("motion") or ""))
+        self._motions.add(step.motion or "")
         self._hand_over("step", rows)
 
     def on_event(self, kind: str, message: str, sample: int) -> None:

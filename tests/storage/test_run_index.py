@@ -20,6 +20,7 @@ import storage.run_index as run_index
 from sfdrig.cli import main
 from storage import RunWriter
 from storage.catalog import INDEX_NAME, parse_filter, read_row, scan_runs, select_runs
+from storage.records import StepRecord
 
 HOUR_NS = 3600 * 10**9
 
@@ -34,8 +35,8 @@ def _run(path: Path, run_id: str, kind: str, start: str, *, status: str = "compl
                          rig_config=rig, test_spec={"motion": motion})
     w.on_block(0, np.zeros((2, 100 * steps)), np.zeros((1, 100 * steps)))
     for i in range(steps):
-        w.on_step({"index": i, "freq_hz": 20.0 + i, "motion": motion, "first_sample": 100 * i,
-                   "last_sample": 100 * (i + 1)})
+        w.on_step(StepRecord.from_wire({"index": i, "freq_hz": 20.0 + i, "motion": motion,
+                                        "first_sample": 100 * i, "last_sample": 100 * (i + 1)}))
     w.close(status, "" if status == "completed" else "test")
 
 
@@ -154,8 +155,8 @@ def test_the_writer_records_its_run_when_it_starts_and_ends(tmp_path: Path,
         assert db.execute("SELECT id, status, lubricated, motion FROM runs").fetchall() == [
             ("LIVE", "running", 1, "y")]
     w.on_block(0, np.zeros((2, 500)), np.zeros((1, 500)))
-    w.on_step({"index": 0, "freq_hz": 30.0, "motion": "y", "first_sample": 0,
-               "last_sample": 500})
+    w.on_step(StepRecord.from_wire({"index": 0, "freq_hz": 30.0, "motion": "y", "first_sample": 0,
+               "last_sample": 500}))
     w.close("aborted", "operator")
     rows = scan_runs(tmp_path)
     assert reads == []  # the writer's row at the end: no file read
