@@ -6,7 +6,9 @@
 
 from __future__ import annotations
 
+import functools
 import math
+from typing import Any
 
 import numpy as np
 
@@ -111,6 +113,17 @@ NOISE_TABLE_SIZE = 1 << 20  # standard normal draws reused with random offsets (
 REST_HORIZON_S = 120.0  # `RigModel.rest` follows the oil this long (24 drain time constants)
 
 
+@functools.lru_cache(maxsize=4)
+def _noise_table(seed: int) -> tuple[np.ndarray, dict[str, Any]]:
+    """The seed's table of standard normal draws (read-only, shared by the rigs of that seed:
+    drawing it takes ~50 ms, and a test or a diagnosis builds many rigs) and the generator's
+    state after drawing it."""
+    rng = np.random.default_rng(seed)
+    table = rng.standard_normal(NOISE_TABLE_SIZE, dtype=np.float32)
+    table.flags.writeable = False
+    return table, rng.bit_generator.state
+
+
 class RigModel:
     """The whole simulated rig behind a channel map: AO volts in, AI volts out."""
 
@@ -119,8 +132,9 @@ class RigModel:
         self.channel_map = channel_map
         self.fs = channel_map.sample_rate_hz
         self.dt = 1.0 / self.fs
+        self._noise, after = _noise_table(seed)
         self._rng = np.random.default_rng(seed)
-        self._noise = self._rng.standard_normal(NOISE_TABLE_SIZE, dtype=np.float32)
+        self._rng.bit_generator.state = after  # as if it had drawn the table itself
         self._kp = kernel_params(params, self.fs)
         self._state = np.zeros(physics.N_STATE)
         self.sample_index = 0

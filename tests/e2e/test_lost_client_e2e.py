@@ -35,7 +35,8 @@ from tests.e2e import test_web_e2e
 from tests.e2e.conftest import REPO_ROOT, DaemonProcess
 from tests.e2e.test_structure_operator_e2e import Terminal
 
-pytestmark = pytest.mark.e2e
+# paced: the bounds are wall time (the abort within 2 s of a signal, the operator's 4 s lease)
+pytestmark = [pytest.mark.e2e, pytest.mark.paced]
 browser = test_web_e2e.browser  # the fixtures of the page's tests: headless Chromium
 web_factory = test_web_e2e.web_factory
 
