@@ -38,7 +38,9 @@ from tests.e2e.test_structure_operator_e2e import Terminal
 
 # paced: the bounds are wall time (the abort within 2 s of a signal, the operator's 4 s lease)
 pytestmark = [pytest.mark.e2e, pytest.mark.paced]
-browser = test_web_e2e.browser  # the fixtures of the page's tests: headless Chromium
+# the fixtures of the page's tests: headless Chromium (one for the module), the web servers
+chromium = test_web_e2e.chromium
+browser = test_web_e2e.browser
 web_factory = test_web_e2e.web_factory
 
 LEASE_S = 4.0  # the daemons' operator lease here (`sfdrig daemon --operator-lease-s`)
