@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -114,7 +115,7 @@ REST_HORIZON_S = 120.0  # `RigModel.rest` follows the oil this long (24 drain ti
 
 
 @functools.lru_cache(maxsize=4)
-def _noise_table(seed: int) -> tuple[np.ndarray, dict[str, Any]]:
+def _noise_table(seed: int) -> tuple[np.ndarray, Mapping[str, Any]]:
     """The seed's table of standard normal draws (read-only, shared by the rigs of that seed:
     drawing it takes ~50 ms, and a test or a diagnosis builds many rigs) and the generator's
     state after drawing it."""
@@ -160,7 +161,8 @@ class RigModel:
         # a hand pushing with a force gauge: held force per axis, ramped: rows of (from [N],
         # to [N], start sample, width in samples)
         self._push = np.array([(0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0, 1.0)])
-        self._t = self._decay = np.empty(0)  # `_times`
+        self._t: np.ndarray = np.empty(0)  # `_times`
+        self._decay: np.ndarray = np.empty(0)
         self._decay_tau = 0.0
         film = params.film
         self._flow_numerator = math.pi * film.diameter_m * film.clearance_m**3  # eq. 5
