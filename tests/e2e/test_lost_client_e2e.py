@@ -262,11 +262,11 @@ def test_a_sweep_runs_on_when_its_follower_hangs_up(daemon) -> None:
     ends the following (exit 129, no traceback), and the sweep runs to its last step (no
     operator lease holds it: the daemon's lease is `LEASE_S`)."""
     d = daemon
-    freqs = [70.0, 80.0, 90.0, 100.0, 110.0, 120.0]  # about 8 s of rig time
+    freqs = [70.0, 80.0, 90.0, 100.0, 110.0, 120.0]  # about 14 s of rig time
     follower = pexpect.spawn(
         sys.executable, ["-m", "sfdrig", "sweep", "--set", "motion='x'", "--set",
                          "load_n=[40.0]", "--set", f"freq_hz={freqs}", "--set",
-                         "settle_cycles=20", "--set", "record_cycles=100",
+                         "settle_cycles=20", "--set", "record_cycles=200",
                          "--runs-dir", str(d.runs_dir)],
         cwd=str(REPO_ROOT), encoding="utf-8", timeout=120, dimensions=(50, 400))
     follower.expect(r"run (\S+) started: ")
