@@ -300,13 +300,16 @@ class RigModel:
             self._decay, self._decay_tau = np.exp(-self._t / tau), tau
         return self._t, self._decay
 
-    def _oil_block(self, n: int, sig: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    def _oil_block(self, n: int, rows: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
         """The oil system over ``n`` samples (`physics.oil_block`): the pressures, the film's
-        fill, the temperature and the viscosity scale. With ``sig`` (`process`) the pressures
-        and the temperature go to its rows; returns (fill, visc, p_in, p_rec, temp)."""
+        fill, the temperature and the viscosity scale. The pressures and the temperature go to
+        rows `_P_IN`, `_P_REC` and `_T_OIL` of ``rows`` (`process`'s signals; None: arrays of
+        their own); returns (fill, visc, p_in, p_rec, temp)."""
         oil = self.params.oil
-        if sig is None:
-            sig = np.empty((_N_BASE, n))
+        if rows is None:
+            p_in, p_rec, temp = np.empty((3, n))
+        else:
+            p_in, p_rec, temp = rows[_P_IN], rows[_P_REC], rows[_T_OIL]
         t, decay = self._times(n)
         on = self.pump_on
         targets = np.array([oil.supply_pressure_pa if on else 0.0,
@@ -316,7 +319,6 @@ class RigModel:
         if drift.enabled:
             rate += drift.warming_c_per_s
         fill, visc = np.empty(n), np.empty(n)
-        p_in, p_rec, temp = sig[_P_IN], sig[_P_REC], sig[_T_OIL]
         physics.oil_block(decay, t, np.array([self._p_in, self._p_rec]), targets,
                           0.5 * oil.supply_pressure_pa, self.dt / oil.fill_time_constant_s,
                           self.dt / oil.drain_time_constant_s, self._fill,
