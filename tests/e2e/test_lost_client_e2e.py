@@ -73,15 +73,20 @@ def lease_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonPro
 
 @pytest.fixture
 def daemon(lease_daemon: DaemonProcess) -> DaemonProcess:
-    """The module's daemon, idle: what a failed test left running is aborted first."""
-    with CommandClient(lease_daemon.command) as c:
-        deadline = time.monotonic() + 30.0
-        while (st := c.status())["state"] != "idle":
-            assert time.monotonic() < deadline, f"the daemon stayed {st['state']}"
-            if st["state"] == "running":
-                c.abort("the previous test left a run going")
-            c.status()  # a round trip, no sleep: the run ends within a few blocks
-    return lease_daemon
+    """The module's daemon, idle: what a failed test left running is aborted first (and its
+    end waited for on the daemon's status heartbeats)."""
+    d = lease_daemon
+    with CommandClient(d.command) as c:
+        if c.status()["state"] == "idle":
+            return d
+        with Subscriber(d.data, topics=["status"]) as beats:
+            beats.wait_connected()
+            c.abort("the previous test left a run going")
+            deadline = time.monotonic() + 30.0
+            while (st := beats.recv(timeout_s=1.0)) is None or \
+                    st.header["status"]["state"] != "idle":
+                assert time.monotonic() < deadline, "the daemon did not get back to idle"
+    return d
 
 
 def _holding(d: DaemonProcess, *extra: str) -> Terminal:
