@@ -504,51 +504,101 @@ def integrate(
 
 
 @numba.njit(cache=True)
-def shaker_force(cmd: np.ndarray, pole: float, max_force: float, state: np.ndarray,
-                 out: np.ndarray) -> None:
-    """Commanded force (2, n) through the drive's first-order lag, clipped at the rating."""
-    for a in range(cmd.shape[0]):
+def block_forces(ao: np.ndarray, drive_row: np.ndarray, force_per_volt: float, pole: float,
+                 max_force: float, state: np.ndarray, hammer: np.ndarray, push: np.ndarray,
+                 first: int, force: np.ndarray, external: np.ndarray,
+                 hammer_n: np.ndarray) -> None:
+    """One block's forces on the housing, in one pass.
+
+    The shakers' force ``force`` (2, n): the AO row ``drive_row[a]`` of each axis (-1: none,
+    no drive) times the amplifier's gain through the drive's first-order lag, clipped at the
+    rating. The external force ``external`` = shakers + ``hammer`` (2, n) + a hand's push
+    (``push[a]`` = from, to, start sample, ramp width: linear from ``from`` to ``to`` over the
+    ramp, held after), at samples ``first..``; ``hammer_n`` (n,) the hammer's |force| (the
+    hammer channel reads it)."""
+    n = ao.shape[1]
+    for a in range(2):
         y = state[a]
-        for i in range(cmd.shape[1]):
-            y = pole * y + (1.0 - pole) * cmd[a, i]
-            out[a, i] = min(max(y, -max_force), max_force)
+        row = drive_row[a]
+        p0, p1, start, width = push[a, 0], push[a, 1], push[a, 2], push[a, 3]
+        for i in range(n):
+            cmd = force_per_volt * ao[row, i] if row >= 0 else 0.0
+            y = pole * y + (1.0 - pole) * cmd
+            f = min(max(y, -max_force), max_force)
+            force[a, i] = f
+            ramp = min(max((first + i - start) / width, 0.0), 1.0)
+            external[a, i] = f + hammer[a, i] + (p0 + (p1 - p0) * ramp)
         state[a] = y
+    for i in range(n):
+        hammer_n[i] = abs(hammer[0, i]) + abs(hammer[1, i])
 
 
 @numba.njit(cache=True)
-def sensor_volts(true: np.ndarray, gain: np.ndarray, offset: np.ndarray, noise: np.ndarray,
-                 starts: np.ndarray, sigma: np.ndarray, lsb: float, lo: np.ndarray,
-                 hi: np.ndarray, out: np.ndarray) -> None:
+def eq5_flow(p_in: np.ndarray, p_rec: np.ndarray, visc: np.ndarray, numerator: float,
+             viscosity: float, length: float, out: np.ndarray) -> None:
+    """Eq. 5's flow through the film [L/min]: ``numerator`` max(p_in - p_rec, 0) /
+    (12 ``viscosity`` visc ``length``) x 60,000, with numerator = pi D c^3, ``viscosity`` the
+    reference viscosity and ``visc`` its scale per sample."""
+    den = 12.0 * viscosity
+    for i in range(p_in.size):
+        out[i] = numerator * max(p_in[i] - p_rec[i], 0.0) / (den * visc[i] * length) * 60_000.0
+
+
+@numba.njit(cache=True)
+def sensor_volts(true: np.ndarray, source: np.ndarray, gain: np.ndarray, offset: np.ndarray,
+                 noise: np.ndarray, starts: np.ndarray, sigma: np.ndarray, lsb: float,
+                 lo: np.ndarray, hi: np.ndarray, out: np.ndarray) -> None:
     """Sensor output: gain, offset, noise, ADC quantisation and range clipping, in volts.
 
-    ``noise`` is a table of standard normal draws; channel c reads it from ``starts[c]`` on
-    (wrapping), a fresh random start per channel and block: as good as new draws for a sensor's
-    white noise, at a fraction of the cost of drawing 14 channels x 10 kS/s anew."""
+    Channel c measures the true signal in row ``source[c]`` of ``true``. ``noise`` is a table of
+    standard normal draws; channel c reads it from ``starts[c]`` on (wrapping), a fresh random
+    start per channel and block: as good as new draws for a sensor's white noise, at a fraction
+    of the cost of drawing 14 channels x 10 kS/s anew."""
     m = noise.size
-    for c in range(true.shape[0]):
+    n = out.shape[1]
+    for c in range(out.shape[0]):
+        row = true[source[c]]
+        g, o, sd, low, high = gain[c], offset[c], sigma[c], lo[c], hi[c]
+        i = 0
         j = starts[c]
-        for i in range(true.shape[1]):
-            v = true[c, i] * gain[c] + offset[c] + noise[j] * sigma[c]
-            j += 1
-            if j == m:
-                j = 0
-            v = np.round(v / lsb) * lsb
-            out[c, i] = min(max(v, lo[c]), hi[c])
+        while i < n:  # up to the table's end, then on from its start: loops without a branch
+            k = min(n - i, m - j)
+            for q in range(k):
+                v = row[i + q] * g + o + noise[j + q] * sd
+                v = np.round(v / lsb) * lsb
+                out[c, i + q] = min(max(v, low), high)
+            i += k
+            j = 0
 
 
 @numba.njit(cache=True)
-def fill_track(pressurised: np.ndarray, k_fill: float, k_drain: float, f0: float,
-               out: np.ndarray) -> None:
-    """Film fill fraction: first order towards 1 while pressurised, towards 0 otherwise."""
-    f = f0
+def oil_block(decay: np.ndarray, t: np.ndarray, pressures: np.ndarray, targets: np.ndarray,
+              threshold: float, k_fill: float, k_drain: float, f0: float,
+              journal_in: bool, temp0: float, rate: float, t_ref: float, neg_slope: float,
+              p_in: np.ndarray, p_rec: np.ndarray, fill: np.ndarray, temp: np.ndarray,
+              exponent: np.ndarray) -> None:
+    """The oil system over a block, at the instants ``t`` after its start.
+
+    The inlet and recirculation pressures go from ``pressures`` towards ``targets`` with the
+    factor ``decay`` (= exp(-t / tau)); the film fills (first
+    order, ``k_fill`` = dt / tau_fill) while the inlet is over ``threshold`` (0: never) and
+    drains otherwise, from ``f0`` (no journal: no film, 0); the temperature rises at ``rate``
+    from ``temp0``; ``exponent`` = -slope (T - T_ref), the viscosity scale's logarithm."""
     a_fill = 1.0 - np.exp(-k_fill)
     a_drain = 1.0 - np.exp(-k_drain)
-    for i in range(pressurised.size):
-        if pressurised[i]:
+    f = f0
+    for i in range(t.size):
+        pi = targets[0] + (pressures[0] - targets[0]) * decay[i]
+        pr = targets[1] + (pressures[1] - targets[1]) * decay[i]
+        p_in[i] = pi
+        p_rec[i] = pr
+        if threshold > 0.0 and pi > threshold:
             f += a_fill * (1.0 - f)
         else:
             f -= a_drain * f
-        out[i] = f
+        fill[i] = f if journal_in else 0.0
+        temp[i] = temp0 + rate * t[i]
+        exponent[i] = neg_slope * (temp[i] - t_ref)
 
 
 def warm_up() -> None:
@@ -558,11 +608,16 @@ def warm_up() -> None:
     out = np.empty((N_OUT, n))
     integrate(np.zeros((2, n)), np.ones(n), np.ones(n), np.full(N_PARAMS, 1.0), np.zeros(N_STATE),
               out)
-    shaker_force(np.zeros((2, n)), 0.5, 1.0, np.zeros(2), np.empty((2, n)))
-    sensor_volts(np.zeros((1, n)), np.ones(1), np.zeros(1), np.zeros(8, dtype=np.float32),
-                 np.zeros(1, dtype=np.int64), np.ones(1), 1e-3, -np.ones(1), np.ones(1),
-                 np.empty((1, n)))
-    fill_track(np.zeros(n, dtype=np.bool_), 0.1, 0.1, 0.0, np.empty(n))
+    block_forces(np.zeros((2, n)), np.array([0, -1]), 1.0, 0.5, 1.0, np.zeros(2),
+                 np.zeros((2, n)), np.ones((2, 4)), 0, np.empty((2, n)), np.empty((2, n)),
+                 np.empty(n))
+    eq5_flow(np.ones(n), np.zeros(n), np.ones(n), 1.0, 1.0, 1.0, np.empty(n))
+    sensor_volts(np.zeros((1, n)), np.zeros(1, dtype=np.int64), np.ones(1), np.zeros(1),
+                 np.zeros(8, dtype=np.float32), np.zeros(1, dtype=np.int64), np.ones(1), 1e-3,
+                 -np.ones(1), np.ones(1), np.empty((1, n)))
+    oil_block(np.ones(n), np.ones(n), np.ones(2), np.zeros(2), 0.5, 0.1, 0.1, 0.0, True,
+              20.0, 0.0, 20.0, -0.02, np.empty(n), np.empty(n), np.empty(n), np.empty(n),
+              np.empty(n))
 
 
 @dataclass

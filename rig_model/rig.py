@@ -6,7 +6,10 @@
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -111,6 +114,17 @@ NOISE_TABLE_SIZE = 1 << 20  # standard normal draws reused with random offsets (
 REST_HORIZON_S = 120.0  # `RigModel.rest` follows the oil this long (24 drain time constants)
 
 
+@functools.lru_cache(maxsize=4)
+def _noise_table(seed: int) -> tuple[np.ndarray, Mapping[str, Any]]:
+    """The seed's table of standard normal draws (read-only, shared by the rigs of that seed:
+    drawing it takes ~50 ms, and a test or a diagnosis builds many rigs) and the generator's
+    state after drawing it."""
+    rng = np.random.default_rng(seed)
+    table = rng.standard_normal(NOISE_TABLE_SIZE, dtype=np.float32)
+    table.flags.writeable = False
+    return table, rng.bit_generator.state
+
+
 class RigModel:
     """The whole simulated rig behind a channel map: AO volts in, AI volts out."""
 
@@ -119,8 +133,9 @@ class RigModel:
         self.channel_map = channel_map
         self.fs = channel_map.sample_rate_hz
         self.dt = 1.0 / self.fs
+        self._noise, after = _noise_table(seed)
         self._rng = np.random.default_rng(seed)
-        self._noise = self._rng.standard_normal(NOISE_TABLE_SIZE, dtype=np.float32)
+        self._rng.bit_generator.state = after  # as if it had drawn the table itself
         self._kp = kernel_params(params, self.fs)
         self._state = np.zeros(physics.N_STATE)
         self.sample_index = 0
@@ -128,7 +143,10 @@ class RigModel:
         a = math.exp(-2 * math.pi * params.shaker.bandwidth_hz * self.dt)
         self._shaker_pole = a
         self._shaker_state = np.zeros(2)
-        self._ao_axis = [ao.axis for ao in channel_map.ao]
+        # the AO row that drives each axis's shaker (-1: none; the last of two on one axis)
+        self._drive_row = np.full(2, -1, dtype=np.int64)
+        for row, ao in enumerate(channel_map.ao):
+            self._drive_row[0 if ao.axis == "x" else 1] = row
         # oil system
         self.pump_on = False
         self._relay_names = {d.name for d in channel_map.do}
@@ -140,8 +158,14 @@ class RigModel:
         self._mu_ref, self._t_ref = params.film.reference_viscosity()
         # impact hammer: pending half-sine pulses (start sample, axis, peak N, duration samples)
         self._impacts: list[tuple[int, int, float, int]] = []
-        # a hand pushing with a force gauge: held force per axis, ramped (from, to, start, width)
-        self._push = [(0.0, 0.0, 0, 1), (0.0, 0.0, 0, 1)]
+        # a hand pushing with a force gauge: held force per axis, ramped: rows of (from [N],
+        # to [N], start sample, width in samples)
+        self._push = np.array([(0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0, 1.0)])
+        self._t: np.ndarray = np.empty(0)  # `_times`
+        self._decay: np.ndarray = np.empty(0)
+        self._decay_tau = 0.0
+        film = params.film
+        self._flow_numerator = math.pi * film.diameter_m * film.clearance_m**3  # eq. 5
         self._build_sensor_tables()
         self.last_truth: physics.Truth | None = None
 
@@ -219,28 +243,34 @@ class RigModel:
 
     # --- one block ------------------------------------------------------------------------
     def process(self, ao_volts: np.ndarray) -> np.ndarray:
-        """Advance the rig by one block. ``ao_volts`` (n_ao, n) -> AI volts (n_ai, n)."""
+        """Advance the rig by one block. ``ao_volts`` (n_ao, n) -> AI volts (n_ai, n).
+
+        Every true signal of the block is a row of one array (`_SIGNAL_ROWS`): the kernel's
+        outputs, the shakers' force, the oil's and the hammer's; each sensor reads its row
+        (`physics.sensor_volts`), so a block costs a few calls whatever the channel count."""
         ao = np.asarray(ao_volts, dtype=np.float64)
         n = ao.shape[1]
-        # shaker force along each axis
+        sig = np.empty((self._n_signals, n))
+        force = sig[_FX:_FY + 1]
+        external = np.empty((2, n))
         sh = self.params.shaker
-        cmd = np.zeros((2, n))
-        for row, axis in enumerate(self._ao_axis):
-            cmd[0 if axis == "x" else 1] = sh.force_per_volt_n * ao[row]
-        force = np.empty_like(cmd)
-        physics.shaker_force(cmd, self._shaker_pole, sh.max_force_n, self._shaker_state, force)
-        hammer = self._hammer_block(n)
-        idx = self.sample_index + np.arange(n)
-        external = force + hammer + np.stack([self._push_at(0, idx), self._push_at(1, idx)])
-        fill, visc, p_in, p_rec, temp = self._oil_block(n)
-        out = np.empty((physics.N_OUT, n))
-        physics.integrate(external, fill, visc, self._kp, self._state, out)
-        truth = physics.Truth.from_kernel(out, force, np.abs(hammer).sum(axis=0))
-        self.last_truth = truth
-        flow = self._eq5_flow_l_per_min(p_in - p_rec, visc)
-        signals = self._true_signals(truth, p_in, p_rec, flow, temp)
+        physics.block_forces(ao, self._drive_row, sh.force_per_volt_n, self._shaker_pole,
+                             sh.max_force_n, self._shaker_state, self._hammer_block(n),
+                             self._push, self.sample_index, force, external, sig[_HAMMER])
+        fill, visc, *_ = self._oil_block(n, sig)
+        physics.integrate(external, fill, visc, self._kp, self._state, sig[:physics.N_OUT])
+        self.last_truth = physics.Truth.from_kernel(sig[:physics.N_OUT], force, sig[_HAMMER])
+        film = self.params.film
+        physics.eq5_flow(sig[_P_IN], sig[_P_REC], visc, self._flow_numerator, self._mu_ref,
+                         film.length_m, sig[_FLOW])
+        for j, (i, d) in enumerate(self._delays.items()):
+            sig[_N_BASE + j] = self._delay(i, sig[self._source_rows[i]], d)
         self.sample_index += n
-        return self._sensors(signals, n)
+        starts = self._rng.integers(0, self._noise.size, size=len(self._source))
+        volts = np.empty((len(self._source), n))
+        physics.sensor_volts(sig, self._source, self._gain, self._offset, self._noise, starts,
+                             self._sigma, self._lsb, self._lo, self._hi, volts)
+        return volts
 
     # --- internals ------------------------------------------------------------------------
     def _hammer_block(self, n: int) -> np.ndarray:
@@ -257,62 +287,57 @@ class RigModel:
         return hammer
 
     def _push_at(self, axis: int, idx: np.ndarray) -> np.ndarray:
+        """The hand's force along ``axis`` at samples ``idx`` (as `physics.block_forces`)."""
         start_n, end_n, start, width = self._push[axis]
         return start_n + (end_n - start_n) * np.clip((idx - start) / width, 0.0, 1.0)
 
-    def _oil_block(self, n: int) -> tuple[np.ndarray, ...]:
+    def _times(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(1..n) dt, the block's sample instants after its start [s], and the pressures'
+        decay over them (kept for the last n)."""
+        tau = self.params.oil.pressure_time_constant_s
+        if self._t.size != n or self._decay_tau != tau:
+            self._t = (np.arange(n) + 1) * self.dt
+            self._decay, self._decay_tau = np.exp(-self._t / tau), tau
+        return self._t, self._decay
+
+    def _oil_block(self, n: int, rows: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+        """The oil system over ``n`` samples (`physics.oil_block`): the pressures, the film's
+        fill, the temperature and the viscosity scale. The pressures and the temperature go to
+        rows `_P_IN`, `_P_REC` and `_T_OIL` of ``rows`` (`process`'s signals; None: arrays of
+        their own); returns (fill, visc, p_in, p_rec, temp)."""
         oil = self.params.oil
-        t = (np.arange(n) + 1) * self.dt
-        target_in = oil.supply_pressure_pa if self.pump_on else 0.0
-        target_rec = oil.recirculation_pressure_pa if self.pump_on else 0.0
-        decay = np.exp(-t / oil.pressure_time_constant_s)
-        p_in = target_in + (self._p_in - target_in) * decay
-        p_rec = target_rec + (self._p_rec - target_rec) * decay
-        # the film fills while the inlet is pressurised and drains otherwise, sample by sample
-        pressurised = p_in > 0.5 * oil.supply_pressure_pa if oil.supply_pressure_pa > 0 else (
-            np.zeros(n, dtype=bool))
-        fill = np.empty(n)
-        physics.fill_track(pressurised, self.dt / oil.fill_time_constant_s,
-                           self.dt / oil.drain_time_constant_s, self._fill, fill)
-        if not self.params.journal_in:  # no damper to fill
-            fill[:] = 0.0
-        rate = (oil.warming_c_per_hour / 3600.0) if self.pump_on else 0.0
+        if rows is None:
+            p_in, p_rec, temp = np.empty((3, n))
+        else:
+            p_in, p_rec, temp = rows[_P_IN], rows[_P_REC], rows[_T_OIL]
+        t, decay = self._times(n)
+        on = self.pump_on
+        targets = np.array([oil.supply_pressure_pa if on else 0.0,
+                            oil.recirculation_pressure_pa if on else 0.0])
+        rate = (oil.warming_c_per_hour / 3600.0) if on else 0.0
         drift = self.params.effects.viscosity_drift
         if drift.enabled:
             rate += drift.warming_c_per_s
-        temp = self._temp_c + rate * t
-        visc = np.exp(-VISCOSITY_SLOPE_PER_C * (temp - self._t_ref))
+        fill, visc = np.empty(n), np.empty(n)
+        physics.oil_block(decay, t, np.array([self._p_in, self._p_rec]), targets,
+                          0.5 * oil.supply_pressure_pa, self.dt / oil.fill_time_constant_s,
+                          self.dt / oil.drain_time_constant_s, self._fill,
+                          self.params.journal_in, self._temp_c, rate, self._t_ref,
+                          -VISCOSITY_SLOPE_PER_C, p_in, p_rec, fill, temp, visc)
+        np.exp(visc, out=visc)
         self._p_in, self._p_rec = float(p_in[-1]), float(p_rec[-1])
         self._fill, self._temp_c = float(fill[-1]), float(temp[-1])
         return fill, visc, p_in, p_rec, temp
 
-    def _eq5_flow_l_per_min(self, dp: np.ndarray, visc_scale: np.ndarray) -> np.ndarray:
-        film = self.params.film
-        q = math.pi * film.diameter_m * film.clearance_m**3 * np.maximum(dp, 0.0) / (
-            12 * self._mu_ref * visc_scale * film.length_m
-        )
-        return q * 60_000.0
-
-    def _true_signals(self, tr: physics.Truth, p_in: np.ndarray, p_rec: np.ndarray,
-                      flow: np.ndarray, temp: np.ndarray) -> dict[str, np.ndarray]:
-        return {
-            "fx": tr.fx_n, "fy": tr.fy_n,
-            "x": tr.x_m, "y": tr.y_m,
-            "ax": tr.ax_m_per_s2, "ay": tr.ay_m_per_s2,
-            "p_in": p_in, "p_rec": p_rec,
-            "q_in": flow, "q_out": flow,  # the sealed damper does not leak (section V)
-            "t_oil": temp, "hammer": tr.hammer_n,
-        }
-
     def _build_sensor_tables(self) -> None:
-        """Which true signal each AI channel sees, with which gain, noise and delay."""
+        """Which true signal (a row of `process`'s signals) each AI channel sees, with which
+        gain, noise and delay."""
         cm, eff, noise = self.channel_map, self.params.effects, self.params.noise
-        self._sources: list[str] = []
+        sources: list[int] = []
         gains, offsets, sigmas, lo, hi = [], [], [], [], []
         delays: list[float] = []
         for ch in cm.ai:
-            src = _source_for(ch.name, ch.kind)
-            self._sources.append(src)
+            sources.append(_SIGNAL_ROWS[_source_for(ch.name, ch.kind)])
             g = ch.gain_v_per_unit
             if eff.probe_gain_error.enabled and eff.probe_gain_error.channel == ch.name:
                 g *= eff.probe_gain_error.gain_ratio
@@ -334,21 +359,15 @@ class RigModel:
         self._hi = np.array(hi)
         bits = cm.device.ai_bits
         self._lsb = (2 * cm.device.ai_range_v) / 2**bits
-        # fractional delays: keep enough history per delayed channel
+        # fractional delays: keep enough history per delayed channel; a delayed channel reads
+        # a row of its own after the shared ones
         self._delays = {i: d * self.fs for i, d in enumerate(delays) if d > 0}
         self._history = {i: np.zeros(int(math.ceil(d)) + 2) for i, d in self._delays.items()}
-
-    def _sensors(self, signals: dict[str, np.ndarray], n: int) -> np.ndarray:
-        true = np.empty((len(self._sources), n))
-        for i, src in enumerate(self._sources):
-            true[i] = signals[src]
-        for i, d in self._delays.items():
-            true[i] = self._delay(i, true[i], d)
-        starts = self._rng.integers(0, self._noise.size, size=len(self._sources))
-        volts = np.empty_like(true)
-        physics.sensor_volts(true, self._gain, self._offset, self._noise, starts, self._sigma,
-                             self._lsb, self._lo, self._hi, volts)
-        return volts
+        self._source_rows = list(sources)  # the undelayed rows
+        for j, i in enumerate(self._delays):
+            sources[i] = _N_BASE + j
+        self._source = np.array(sources, dtype=np.int64)
+        self._n_signals = _N_BASE + len(self._delays)
 
     def _delay(self, i: int, sig: np.ndarray, d: float) -> np.ndarray:
         hist = self._history[i]
@@ -357,6 +376,17 @@ class RigModel:
         out = np.interp(idx, np.arange(ext.size), ext)
         self._history[i] = ext[-hist.size:]
         return out
+
+
+# The rows of `RigModel.process`'s true signals: the kernel's outputs (physics.O_*), then these.
+_FX, _FY, _P_IN, _P_REC, _FLOW, _T_OIL, _HAMMER = range(physics.N_OUT, physics.N_OUT + 7)
+_N_BASE = physics.N_OUT + 7
+_SIGNAL_ROWS = {
+    "fx": _FX, "fy": _FY, "x": physics.O_X, "y": physics.O_Y,
+    "ax": physics.O_AX, "ay": physics.O_AY, "p_in": _P_IN, "p_rec": _P_REC,
+    "q_in": _FLOW, "q_out": _FLOW,  # the sealed damper does not leak (section V)
+    "t_oil": _T_OIL, "hammer": _HAMMER,
+}
 
 
 def _source_for(name: str, kind: ChannelKind) -> str:

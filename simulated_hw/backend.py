@@ -234,12 +234,13 @@ class SimulatedBackend(BackendBase):
                 raise EmergencyStopError("the emergency stop is pressed: nothing is driven")
             self.rearm_estop()
             self._clear_watchdog()
-        for row, ch in enumerate(cm.ao):
-            lo, hi = ch.range_v
-            if arr.size and (arr[row].min() < lo or arr[row].max() > hi):
-                raise error_for_code(
-                    f"{ch.name}: AO sample outside the channel range {ch.range_v} V", -200561
-                )
+        if arr.size:  # each row's extremes, in two passes over the block
+            low, high = arr.min(axis=1), arr.max(axis=1)
+            for row, ch in enumerate(cm.ao):
+                if low[row] < ch.range_v[0] or high[row] > ch.range_v[1]:
+                    raise error_for_code(
+                        f"{ch.name}: AO sample outside the channel range {ch.range_v} V", -200561
+                    )
         if self._cut_at is not None or arr.shape[1] == 0:
             return  # the generation has stopped: nothing written now plays
         ring = self.ao_ring_samples

@@ -155,6 +155,7 @@ class SimDevice:
         self.read_pos = 0
         self.ring: AiRing | None = None
         self._rows: list[tuple[str, int] | None] = []  # per AI channel: ("rig"|"ao", row)
+        self._in_order: list[tuple[str, int] | None] = []  # `_rig_rows_in_order`
         self.floating_rng = np.random.default_rng(self.seed + 1)
 
     def shutdown(self) -> None:
@@ -603,12 +604,15 @@ class SimDevice:
             if self.on_terminals is not None:
                 self.on_terminals(self.generated, terminals)
             rig_out = rig.process(terminals[wired])
-            out = np.empty((len(self._rows), n))
-            for i, source in enumerate(self._rows):
-                if source is None:  # an unwired terminal: floating input
-                    out[i] = floating(self.spec, self.floating_rng, n)
-                else:
-                    out[i] = (rig_out if source[0] == "rig" else terminals)[source[1]]
+            if self._rows == self._rig_rows_in_order(rig_out.shape[0]):
+                out = rig_out  # every channel the rig's row of the same index
+            else:
+                out = np.empty((len(self._rows), n))
+                for i, source in enumerate(self._rows):
+                    if source is None:  # an unwired terminal: floating input
+                        out[i] = floating(self.spec, self.floating_rng, n)
+                    else:
+                        out[i] = (rig_out if source[0] == "rig" else terminals)[source[1]]
             self.generated += n
             ring.put(out)
             behind = self.generated - self.read_pos
@@ -620,6 +624,12 @@ class SimDevice:
                     f"{self.read_pos}..{self.generated - ring.capacity - 1} were overwritten)",
                     samps_per_chan_read=0,
                 )
+
+    def _rig_rows_in_order(self, n: int) -> list[tuple[str, int] | None]:
+        """The sources of an acquisition whose channels are the rig's ``n`` rows in order."""
+        if len(self._in_order) != n:
+            self._in_order = [("rig", i) for i in range(n)]
+        return self._in_order
 
     def terminal_value(self, physical: str) -> float:
         """What an AO terminal shows when no generation drives it [V]."""
@@ -759,14 +769,16 @@ class SimDevice:
     # --- writing --------------------------------------------------------------------------
     def write_ao(self, task: SimTask, block: np.ndarray, auto_start: bool, timeout_s: float,
                  others: list[SimTask]) -> int:
-        for row, ch in enumerate(task.channels if task.kind == "ao" else []):
-            if block.size and (block[row].min() < ch.min_v or block[row].max() > ch.max_v):
-                raise daq_error(
-                    INVALID_AO_DATA_WRITE,
-                    f"write to {task.name!r}: channel {ch.name} ({ch.physical[0]}) sample "
-                    f"range [{block[row].min():g}, {block[row].max():g}] V is outside its range "
-                    f"[{ch.min_v:g}, {ch.max_v:g}] V",
-                )
+        if task.kind == "ao" and block.size:  # each row's extremes, in two passes
+            low, high = block.min(axis=1), block.max(axis=1)
+            for row, ch in enumerate(task.channels):
+                if low[row] < ch.min_v or high[row] > ch.max_v:
+                    raise daq_error(
+                        INVALID_AO_DATA_WRITE,
+                        f"write to {task.name!r}: channel {ch.name} ({ch.physical[0]}) sample "
+                        f"range [{low[row]:g}, {high[row]:g}] V is outside its range "
+                        f"[{ch.min_v:g}, {ch.max_v:g}] V",
+                    )
         with self.lock:
             self.catch_up()
             self.safe.refuse_locked(f"write to {task.name!r}",

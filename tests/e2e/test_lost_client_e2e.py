@@ -21,6 +21,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from datetime import datetime
 from typing import Any
 
@@ -32,11 +33,14 @@ from control.run.programs.stream import FAULT_RAMP_S
 from control.wire.client import CommandClient, Subscriber
 from storage import open_run
 from tests.e2e import test_web_e2e
-from tests.e2e.conftest import REPO_ROOT, DaemonProcess
+from tests.e2e.conftest import REPO_ROOT, DaemonProcess, start_daemon
 from tests.e2e.test_structure_operator_e2e import Terminal
 
-pytestmark = pytest.mark.e2e
-browser = test_web_e2e.browser  # the fixtures of the page's tests: headless Chromium
+# paced: the bounds are wall time (the abort within 2 s of a signal, the operator's 4 s lease)
+pytestmark = [pytest.mark.e2e, pytest.mark.paced]
+# the fixtures of the page's tests: headless Chromium (one for the module), the web servers
+chromium = test_web_e2e.chromium
+browser = test_web_e2e.browser
 web_factory = test_web_e2e.web_factory
 
 LEASE_S = 4.0  # the daemons' operator lease here (`sfdrig daemon --operator-lease-s`)
@@ -51,8 +55,38 @@ HOLD = ["--set", 'static.axes=["x"]', "--set", "static.forces_n=[-40.0]",
         "--set", "static.repeats=1"]
 
 
-def _daemon(daemon_factory: Any) -> DaemonProcess:
-    return daemon_factory("--operator-lease-s", f"{LEASE_S:g}")
+@pytest.fixture(scope="module")
+def lease_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+    """One daemon (`LEASE_S` operator lease) for the module: each test leaves it idle, and a
+    daemon's start is seconds of a loaded machine's time."""
+    runs = tmp_path_factory.mktemp("lost_client") / "runs"
+    d = start_daemon(runs, "--operator-lease-s", f"{LEASE_S:g}")
+    try:
+        yield d
+    finally:
+        d.terminate()
+        d.proc.communicate(timeout=10)
+        err = (runs.parent / f"{runs.name}.stderr").read_text()
+        if err:
+            print(f"--- daemon stderr ---\n{err}")
+
+
+@pytest.fixture
+def daemon(lease_daemon: DaemonProcess) -> DaemonProcess:
+    """The module's daemon, idle: what a failed test left running is aborted first (and its
+    end waited for on the daemon's status heartbeats)."""
+    d = lease_daemon
+    with CommandClient(d.command) as c:
+        if c.status()["state"] == "idle":
+            return d
+        with Subscriber(d.data, topics=["status"]) as beats:
+            beats.wait_connected()
+            c.abort("the previous test left a run going")
+            deadline = time.monotonic() + 30.0
+            while (st := beats.recv(timeout_s=1.0)) is None or \
+                    st.header["status"]["state"] != "idle":
+                assert time.monotonic() < deadline, "the daemon did not get back to idle"
+    return d
 
 
 def _holding(d: DaemonProcess, *extra: str) -> Terminal:
@@ -124,11 +158,10 @@ def _status_text(d: DaemonProcess) -> str:
     return out.stdout
 
 
-def _lose_the_terminal(daemon_factory: Any, lose: Any) -> tuple[DaemonProcess, Terminal, str,
-                                                                str, float]:
+def _lose_the_terminal(d: DaemonProcess, lose: Any) -> tuple[DaemonProcess, Terminal, str, str,
+                                                              float]:
     """`sfdrig structure` holding -40 N, then ``lose(terminal, daemon)``: (daemon, terminal, run id,
     the run's end "status: reason", when the signal came)."""
-    d = _daemon(daemon_factory)
     with Subscriber(d.data, topics=["event", "status"]) as sub:
         sub.wait_connected()
         t = _holding(d)
@@ -154,8 +187,8 @@ def _kill(sig: int) -> Any:
     return lose
 
 
-def test_a_hung_up_terminal_aborts_the_held_static_test(daemon_factory) -> None:
-    d, t, run_id, end, signalled_at = _lose_the_terminal(daemon_factory, _hang_up)
+def test_a_hung_up_terminal_aborts_the_held_static_test(daemon) -> None:
+    d, t, run_id, end, signalled_at = _lose_the_terminal(daemon, _hang_up)
     assert t.child.ptyproc.exitstatus == 128 + signal.SIGHUP  # its own exit, after the abort
     reason = "the operator's terminal hung up (SIGHUP) in `sfdrig structure` (static)"
     assert end.startswith(f"aborted: {WHERE}: {reason}")
@@ -164,8 +197,8 @@ def test_a_hung_up_terminal_aborts_the_held_static_test(daemon_factory) -> None:
     assert f"last run   {run_id}: aborted ({WHERE}: {reason})" in _status_text(d)
 
 
-def test_sigterm_to_the_terminal_aborts_the_held_static_test(daemon_factory) -> None:
-    d, t, run_id, _, signalled_at = _lose_the_terminal(daemon_factory, _kill(signal.SIGTERM))
+def test_sigterm_to_the_terminal_aborts_the_held_static_test(daemon) -> None:
+    d, t, run_id, _, signalled_at = _lose_the_terminal(daemon, _kill(signal.SIGTERM))
     assert t.child.exitstatus == 128 + signal.SIGTERM and "Traceback" not in t.out
     assert "static: abort sent (drives ramp to zero)" in t.out
     took = _check_ramped_down(d, run_id, signalled_at, SIGNAL_BOUND_S,
@@ -174,7 +207,7 @@ def test_sigterm_to_the_terminal_aborts_the_held_static_test(daemon_factory) -> 
     print(f"SIGTERM: the drive at 0 V and the run closed {took:.3f} s after the signal")
 
 
-def test_a_killed_terminal_loses_its_lease_and_the_test_is_aborted(daemon_factory) -> None:
+def test_a_killed_terminal_loses_its_lease_and_the_test_is_aborted(daemon) -> None:
     def renewed_then_killed(t: Terminal, d: DaemonProcess) -> None:
         with CommandClient(d.command) as c:
             lease = c.status()["operator_lease"]
@@ -183,7 +216,7 @@ def test_a_killed_terminal_loses_its_lease_and_the_test_is_aborted(daemon_factor
                          r"4 s without\)\n", _status_text(d))
         _kill(signal.SIGKILL)(t, d)  # nothing can be sent: only the lease tells
 
-    d, t, run_id, end, signalled_at = _lose_the_terminal(daemon_factory, renewed_then_killed)
+    d, t, run_id, end, signalled_at = _lose_the_terminal(daemon, renewed_then_killed)
     assert t.child.signalstatus == signal.SIGKILL
     assert re.match(re.escape(f"aborted: {WHERE}: operator lost: no heartbeat for ")
                     + r"4\.\d s \(the lease is 4 s", end), end
@@ -196,10 +229,10 @@ def test_a_killed_terminal_loses_its_lease_and_the_test_is_aborted(daemon_factor
     assert f"aborted ({WHERE}: operator lost: no heartbeat for 4." in _status_text(d)
 
 
-def test_an_abort_typed_between_two_questions_is_sent(daemon_factory) -> None:
+def test_an_abort_typed_between_two_questions_is_sent(daemon) -> None:
     """Between the setup and the first point (the shaker settling at -40 N for a long settle:
     no question pending), `a` aborts; it used to print "(nothing is asked now)" and drop it."""
-    d = _daemon(daemon_factory)
+    d = daemon
     t = Terminal(d.command, "--only", "static", *HOLD, "--set", "static.settle_s=600",
                  "--runs-dir", str(d.runs_dir))
     where, _ = t.next()
@@ -229,10 +262,11 @@ def test_an_abort_typed_between_two_questions_is_sent(daemon_factory) -> None:
     print(f"'a' between questions: the drive at 0 V and the run closed {took:.3f} s later")
 
 
-def test_a_sweep_runs_on_when_its_follower_hangs_up(daemon_factory) -> None:
+def test_a_sweep_runs_on_when_its_follower_hangs_up(daemon) -> None:
     """A sweep is a batch job under the daemon's own limits: its follower's terminal hanging up
-    ends the following (exit 129, no traceback), and the sweep runs to its last step."""
-    d = daemon_factory()
+    ends the following (exit 129, no traceback), and the sweep runs to its last step (no
+    operator lease holds it: the daemon's lease is `LEASE_S`)."""
+    d = daemon
     freqs = [70.0, 80.0, 90.0, 100.0, 110.0, 120.0]  # about 14 s of rig time
     follower = pexpect.spawn(
         sys.executable, ["-m", "sfdrig", "sweep", "--set", "motion='x'", "--set",
@@ -282,10 +316,9 @@ def _page_ramped_down(d: DaemonProcess, run_id: str, lost_at: float) -> float:
     return took
 
 
-def test_the_page_holds_its_test_while_open_and_loses_it_when_closed(daemon_factory,
-                                                                      web_factory,
+def test_the_page_holds_its_test_while_open_and_loses_it_when_closed(daemon, web_factory,
                                                                       browser) -> None:
-    d = _daemon(daemon_factory)
+    d = daemon
     with Subscriber(d.data, topics=["event", "status"]) as sub:
         sub.wait_connected()
         page, run_id = _page_holding(browser, web_factory(d))
@@ -307,8 +340,8 @@ def test_the_page_holds_its_test_while_open_and_loses_it_when_closed(daemon_fact
     print(f"page closed: the drive at 0 V and the run closed {took:.3f} s later")
 
 
-def test_a_killed_web_server_loses_the_pages_test(daemon_factory, browser) -> None:
-    d = _daemon(daemon_factory)
+def test_a_killed_web_server_loses_the_pages_test(daemon, browser) -> None:
+    d = daemon
     web = subprocess.Popen(
         [sys.executable, "-m", "sfdrig", "web", "--port", "0", "--command-endpoint", d.command,
          "--data-endpoint", d.data], cwd=REPO_ROOT, stdout=subprocess.PIPE,

@@ -74,8 +74,9 @@ def _chromium() -> str:
     return CHROMIUM
 
 
-@pytest.fixture
-def browser() -> Iterator[Any]:
+@pytest.fixture(scope="module")
+def chromium() -> Iterator[Any]:
+    """Headless Chromium, launched once for a module (seconds on a loaded machine)."""
     exe = _chromium()
     from playwright import sync_api  # a test dependency (pyproject): missing is a failure
     with sync_api.sync_playwright() as p:
@@ -85,6 +86,16 @@ def browser() -> Iterator[Any]:
             yield b
         finally:
             b.close()
+
+
+@pytest.fixture
+def browser(chromium: Any) -> Iterator[Any]:
+    """The module's Chromium for one test: each page opens in a context of its own (`_open`),
+    and every context the test opened is closed after it (no page of an earlier test left
+    reconnecting to a server that is gone)."""
+    yield chromium
+    for context in chromium.contexts:
+        context.close()
 
 
 @pytest.fixture
