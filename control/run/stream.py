@@ -39,9 +39,10 @@ log = logging.getLogger(__name__)
 GUARD_CUT = 0.5
 #: The stop budget: an abort has the drives at 0 V this long after it is handled [s].
 STOP_S = 0.1
-#: Ring mode: blocks of the predicted drive written at once beyond the lead, until the ring
-#: holds the current command's continuation up to a ring ahead (8: a 2 s ring in 0.25 s); then
-#: extended by this many at a time (through gRPC each write is a round trip or two).
+#: Ring mode: a command that has lasted this many blocks has its prediction extended over the
+#: rest of the ring at once (commands that come every few blocks, a raise's, are not: the
+#: restart's blocks reach far enough), and from then on this many blocks at a time (through
+#: gRPC each write is two round trips).
 PREDICT_BLOCKS = 8
 #: Ring mode: blocks written at once when a new command restarts the prediction. Commands come
 #: every block while a step is approached, so the 8 a cycle never got further than 80 ms into
@@ -164,6 +165,7 @@ class DriveStream:
         # so a late host hears the drive it would have written, not the drive of a ring ago
         self._pred: SineSynthesizer | None = None
         self._pred_end = 0
+        self._pred_start = 0  # where the prediction was last restarted (a new command)
         self._pred_prev: np.ndarray | None = None  # the drive before the next predicted block
         # ring mode: what the ring may hold beyond the prediction (earlier commands' drives, or
         # zeros): at most `_ring_amp_v` per channel [V], at `_ring_freq_hz` (NaN: unknown).
@@ -312,8 +314,9 @@ class DriveStream:
 
     def _predict(self, with_block: bool = False) -> None:
         """Ring mode: extend the prediction (the synthesiser's continuation without a new
-        command) by up to `PREDICT_BLOCKS` blocks, up to a ring ahead of the generation less a
-        block and the margin. A new command restarts it from the position with
+        command) up to a ring ahead of the generation less a block and the margin: once the
+        command has lasted `PREDICT_BLOCKS` blocks, over the rest of the ring at once, then
+        `PREDICT_BLOCKS` blocks at a time. A new command restarts it from the position with
         `PREDICT_RESTART_BLOCKS` at once (one more ``with_block``: the block about to be
         written, which the prediction's write then carries); a predicted block
         over a drive limit ends it until the next command."""
@@ -327,7 +330,7 @@ class DriveStream:
                 return  # over a limit: nothing more until the next command
             self._pred = SineSynthesizer(self.synth.n_channels, self.synth.fs)
             _restore(self._pred, _snapshot(self.synth))
-            self._pred_end = w.pos
+            self._pred_end = self._pred_start = w.pos
             self._pred_prev = self.monitor.last_ao
             target_v = np.abs(self.synth.target_phasors)
             # a ramp's continuation holds the ramp too: its start, its end, or between
@@ -343,11 +346,15 @@ class DriveStream:
                 and bool(np.all(self._ring_amp_v <= target_v * (1 + 1e-9) + 1e-12)))
             most = PREDICT_RESTART_BLOCKS + with_block if stale_ok else w.ring // self.block
         else:
+            if w.pos - self._pred_start < PREDICT_BLOCKS * self.block:
+                return  # a command that may not last: the restart's blocks reach far enough
             most = PREDICT_BLOCKS
             amp_v, freq_hz, stale_ok = self._ring_amp_v, self._ring_freq_hz, True
         limit = w.generated + w.ring - self.block - w.margin
-        if most == PREDICT_BLOCKS and limit - self._pred_end < PREDICT_BLOCKS * self.block:
-            return  # extended by whole chunks: one write per chunk, not one per block
+        if most == PREDICT_BLOCKS:
+            if limit - self._pred_end < PREDICT_BLOCKS * self.block:
+                return  # extended by whole chunks: one write per chunk, not one per block
+            most = (limit - self._pred_end) // self.block  # the rest of the ring at once
         start = self._pred_end
         n = min(most, (limit - start) // self.block) * self.block
         if n > 0:
