@@ -144,9 +144,9 @@ def main() -> int:
             Subscriber(eps["data"], topics=["step", "event"], rcvhwm=0) as sub:
         sub.wait_connected()
         for name, spec in sweeps.items():
-            if spec.get("lubricated"):
-                client.pump(True)
             for busy in levels:
+                if spec.get("lubricated") and not client.status().get("pump_on"):
+                    client.pump(True)  # again after a fault, which switches it off
                 loops = [subprocess.Popen([sys.executable, "-c", BUSY_LOOP])
                          for _ in range(busy)]
                 try:

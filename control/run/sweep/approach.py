@@ -254,7 +254,8 @@ class Approach:
             # here is known only once it is measured here (with a drive on here it is: the
             # raise goes on from it)
             start_n = (START_MARGIN * self._response_cap("displacement")
-                       / self._plant_compliance(plan.freq_hz, measured_only=known))
+                       / self._plant_compliance(plan.freq_hz,
+                                                measured_only=known and self.spec.lubricated))
             low = min(low, start_n / float(np.max(self.gain_n_per_v)))
         now = float(np.max(np.abs(synth.phasors)))
         if now > low:
@@ -298,10 +299,13 @@ class Approach:
         mass each anywhere within ``plant_uncertainty`` (the film's added mass too when
         lubricated), with the lightest damping (dry; lubricated, half the film's at the centre
         added); or the compliance measured within 10 % of this
-        frequency in this run, if that is larger. ``measured_only`` (a step at this very
-        frequency converged): the largest measured here, the model's worst case aside (it
-        started every step of the report's lubricated X programme at a tenth of its target:
-        0.4-0.9 s of raise a step)."""
+        frequency in this run, if that is larger. ``measured_only`` (a lubricated step at
+        this very frequency converged): the largest measured here, the model's worst case
+        aside (it started every step of the report's lubricated X programme at a tenth of its
+        target: 0.4-0.9 s of raise a step). Lubricated only: the film's damping keeps the orbit
+        near proportional to the load, where dry friction makes a larger orbit grow faster
+        than its load (a compliance measured at 10 um understates the one at 40 um: a dry
+        circular 40 um step started from it tripped at 64.1 um)."""
         measured_here = self._compliance.get(freq_hz, 0.0)
         if measured_only and measured_here > 0:
             return max(c for f, c in self._compliance.items() if abs(f - freq_hz) <= 0.1 * freq_hz)
