@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import atexit
 import os
-import shlex
 import shutil
 import subprocess
 import sys
@@ -40,6 +39,8 @@ from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
+from bench_lab_day import start_daemon  # noqa: E402  (same directory)
 
 BUSY_LOOP = "while True: pass"
 TICKS = os.sysconf("SC_CLK_TCK")
@@ -58,14 +59,6 @@ def cpu_s(pid: int) -> float:
     """User + system CPU of a live process [s]."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / TICKS
-
-
-def first_line(proc: subprocess.Popen[str], what: str) -> str:
-    assert proc.stdout is not None
-    line = proc.stdout.readline().strip()
-    if not line:
-        raise SystemExit(f"{what} did not start (exit {proc.poll()})")
-    return line
 
 
 @dataclass
@@ -122,18 +115,7 @@ def main() -> int:
     atexit.register(shutil.rmtree, work, True)
     procs: list[subprocess.Popen[str]] = []
     atexit.register(lambda: [p.kill() for p in procs if p.poll() is None])
-    backend: list[str] = []
-    if args.backend == "nidaqmx":
-        server = subprocess.Popen([sys.executable, "-m", "sfdrig", "sim-server", "--port", "0"],
-                                  cwd=REPO, stdout=subprocess.PIPE, text=True)
-        procs.append(server)
-        address = first_line(server, "sim-server").removeprefix("listening on ")
-        backend = ["--backend", "nidaqmx", "--grpc-target", address]
-    daemon = subprocess.Popen(
-        [sys.executable, "-m", "sfdrig", "daemon", "--runs-dir", str(work / "runs"), *backend],
-        cwd=REPO, stdout=subprocess.PIPE, text=True)
-    procs.append(daemon)
-    eps = dict(p.split("=", 1) for p in shlex.split(first_line(daemon, "daemon")))
+    daemon, eps = start_daemon(work, args.backend, procs, [])
     print(f"daemon pid {daemon.pid} ({args.backend}, normal priority); load average "
           f"{os.getloadavg()[0]:.1f} at the start; {os.cpu_count()} cores", flush=True)
 
