@@ -295,12 +295,16 @@ class DriveStream:
         self._read_one(check=self.check_limits)
         if self.interrupt is not None:
             self.interrupt()
-        # a host behind the board (it read ahead, `ai_on_host`) takes up to a quarter second
-        # of blocks in this cycle: each block still checked, published and recorded, but the
-        # AO and the caller's per-cycle work once (through gRPC a cycle costs round trips)
+        # a host behind the board (it read ahead, `ai_on_host`, or the ring's generation is
+        # blocks past the reading: the board holds them) takes up to a quarter second of
+        # blocks in this cycle: each block still checked, published and recorded, but the AO
+        # and the caller's per-cycle work once (through gRPC a cycle costs round trips). One
+        # block a cycle never caught up with a host that stalls as often as it reads (the AI
+        # buffer overflowed, -200279), and the raises, slowed by the lag, took minutes
         extra = 0
-        while extra < CATCH_UP_BLOCKS and len(self._fifo) > 1 and \
-                self.backend.ai_on_host() >= self.block:
+        while extra < CATCH_UP_BLOCKS and len(self._fifo) > 1 and (
+                self.backend.ai_on_host() >= self.block
+                or self.writer.generated - self.sample >= 2 * self.block):
             self._read_one(check=self.check_limits)
             if self.interrupt is not None:
                 self.interrupt()

@@ -565,3 +565,24 @@ def test_a_command_costs_one_ao_write_and_a_held_one_none_a_block(every, most_pe
     assert per_block <= most_per_block + 0.01, per_block  # 2.0 and 1.25 before
     assert stream.writer.late_events == 0
     stream.shutdown(0.04)
+
+
+def test_a_host_behind_the_board_reads_what_the_board_holds_in_one_cycle():
+    """After a 0.3 s stall the board holds 30 blocks the host has not read. A cycle reads the
+    blocks the ring's generation is past (up to a quarter second), not one: at one a cycle a
+    host that stalls as often as it reads never caught up (the simulated daemon's AI buffer
+    overflowed, -200279), and every raise, slowed by the lag it sees, took that much longer.
+    Every block is still read, checked and recorded in order."""
+    clock = FakeClock()
+    be, stream, listener = _stream(clock)
+    stream.taps.append(Stall(clock, int(0.5 * FS), 0.3))
+    stream.start()
+    stream.advance_to(int(0.5 * FS) + BLOCK)  # the stall happened at the read of 0.5 s
+    assert be.ao_generated() - stream.sample >= 25 * BLOCK  # the board is that far ahead
+    cycles = 0
+    while be.ao_generated() - stream.sample >= 2 * BLOCK:
+        stream.cycle()
+        cycles += 1
+    assert cycles <= 2, cycles  # 30 before: one block a cycle
+    assert listener.samples == stream.sample  # gapless, in order (RecordingListener checks)
+    stream.shutdown(0.04)
