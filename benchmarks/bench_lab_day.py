@@ -250,6 +250,25 @@ class Churn:
         self._thread.join(10)
 
 
+def start_daemon(work: Path, backend: str, procs: list[subprocess.Popen[str]],
+                 options: list[str]) -> tuple[subprocess.Popen[str], dict[str, str]]:
+    """A paced daemon process with its run files in ``work`` and ``options``: the simulated rig
+    (``backend`` "sim"), or the nidaqmx backend against a `sfdrig sim-server` started for it
+    ("nidaqmx"); (the daemon, its endpoints). Both processes go into ``procs``."""
+    cli: list[str] = []
+    if backend == "nidaqmx":
+        server = subprocess.Popen([sys.executable, "-m", "sfdrig", "sim-server", "--port", "0"],
+                                  cwd=REPO, stdout=subprocess.PIPE, text=True)
+        procs.append(server)
+        address = first_line(server, "sim-server").removeprefix("listening on ")
+        cli = ["--backend", "nidaqmx", "--grpc-target", address]
+    daemon = subprocess.Popen(
+        [sys.executable, "-m", "sfdrig", "daemon", "--runs-dir", str(work / "runs"), *cli,
+         *options], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    procs.append(daemon)
+    return daemon, dict(p.split("=", 1) for p in shlex.split(first_line(daemon, "daemon")))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=30.0, help="session length [min]")
@@ -273,19 +292,8 @@ def main() -> int:
     end_s = 60.0 * args.minutes
     for _ in range(args.busy):
         procs.append(subprocess.Popen([sys.executable, "-c", BUSY_LOOP, str(end_s + 600)]))
-    backend: list[str] = []
-    if args.backend == "nidaqmx":
-        server = subprocess.Popen([sys.executable, "-m", "sfdrig", "sim-server", "--port", "0"],
-                                  cwd=REPO, stdout=subprocess.PIPE, text=True)
-        procs.append(server)
-        address = first_line(server, "sim-server").removeprefix("listening on ")
-        backend = ["--backend", "nidaqmx", "--grpc-target", address]
-    daemon = subprocess.Popen(
-        [sys.executable, "-m", "sfdrig", "daemon", "--runs-dir", str(work / "runs"), *backend,
-         *(["--priority", args.priority] if args.priority != "normal" else [])],
-        cwd=REPO, stdout=subprocess.PIPE, text=True)
-    procs.append(daemon)
-    eps = dict(p.split("=", 1) for p in shlex.split(first_line(daemon, "daemon")))
+    daemon, eps = start_daemon(work, args.backend, procs,
+                               ["--priority", args.priority] if args.priority != "normal" else [])
     print(f"daemon pid {daemon.pid} ({args.backend}, priority {args.priority}); {args.busy} busy "
           f"processes; {args.browsers} browser pages; {args.minutes:g} min; load average "
           f"{os.getloadavg()[0]:.1f}", flush=True)

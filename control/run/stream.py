@@ -39,9 +39,10 @@ log = logging.getLogger(__name__)
 GUARD_CUT = 0.5
 #: The stop budget: an abort has the drives at 0 V this long after it is handled [s].
 STOP_S = 0.1
-#: Ring mode: blocks of the predicted drive written at once beyond the lead, until the ring
-#: holds the current command's continuation up to a ring ahead (8: a 2 s ring in 0.25 s); then
-#: extended by this many at a time (through gRPC each write is a round trip or two).
+#: Ring mode: a command that has lasted this many blocks has its prediction extended over the
+#: rest of the ring at once (commands that come every few blocks, a raise's, are not: the
+#: restart's blocks reach far enough), and from then on this many blocks at a time (through
+#: gRPC each write is two round trips).
 PREDICT_BLOCKS = 8
 #: Ring mode: blocks written at once when a new command restarts the prediction. Commands come
 #: every block while a step is approached, so the 8 a cycle never got further than 80 ms into
@@ -164,6 +165,7 @@ class DriveStream:
         # so a late host hears the drive it would have written, not the drive of a ring ago
         self._pred: SineSynthesizer | None = None
         self._pred_end = 0
+        self._pred_start = 0  # where the prediction was last restarted (a new command)
         self._pred_prev: np.ndarray | None = None  # the drive before the next predicted block
         # ring mode: what the ring may hold beyond the prediction (earlier commands' drives, or
         # zeros): at most `_ring_amp_v` per channel [V], at `_ring_freq_hz` (NaN: unknown).
@@ -270,9 +272,15 @@ class DriveStream:
         ring plays (or is about to) and record what it plays there; then write while the lead
         is short (one block when on time; up to the whole lead after a skip)."""
         self._catch_up()
+        restarted = False
         while self.writer.wants_write():
             self._take_claim()
             state = _snapshot(self.synth)
+            if self.writer.regenerating and not self._predicted(self.block):
+                # a new command: its prediction starts with this block, in the same write
+                # (through gRPC a write is two round trips; commands come every block)
+                self._predict(with_block=True)
+                restarted = True
             ao = self.synth.next_block(self.block)
             try:
                 self._write(ao, state, check=True)
@@ -282,17 +290,21 @@ class DriveStream:
             self._played_block(self.synth.sample - ao.shape[1], as_meant=True)
             if not self.writer.regenerating:
                 break
-        if self.writer.regenerating:
-            self._predict()
+        if self.writer.regenerating and not restarted:
+            self._predict()  # extended once a command has lasted a cycle
         self._read_one(check=self.check_limits)
         if self.interrupt is not None:
             self.interrupt()
-        # a host behind the board (it read ahead, `ai_on_host`) takes up to a quarter second
-        # of blocks in this cycle: each block still checked, published and recorded, but the
-        # AO and the caller's per-cycle work once (through gRPC a cycle costs round trips)
+        # a host behind the board (it read ahead, `ai_on_host`, or the ring's generation is
+        # blocks past the reading: the board holds them) takes up to a quarter second of
+        # blocks in this cycle: each block still checked, published and recorded, but the AO
+        # and the caller's per-cycle work once (through gRPC a cycle costs round trips). One
+        # block a cycle never caught up with a host that stalls as often as it reads (the AI
+        # buffer overflowed, -200279), and the raises, slowed by the lag, took minutes
         extra = 0
-        while extra < CATCH_UP_BLOCKS and len(self._fifo) > 1 and \
-                self.backend.ai_on_host() >= self.block:
+        while extra < CATCH_UP_BLOCKS and len(self._fifo) > 1 and (
+                self.backend.ai_on_host() >= self.block
+                or self.writer.generated - self.sample >= 2 * self.block):
             self._read_one(check=self.check_limits)
             if self.interrupt is not None:
                 self.interrupt()
@@ -304,11 +316,13 @@ class DriveStream:
         return (self._pred is not None and self._pred.revision == self.synth.revision
                 and self._pred_end >= self.writer.pos + n)
 
-    def _predict(self) -> None:
+    def _predict(self, with_block: bool = False) -> None:
         """Ring mode: extend the prediction (the synthesiser's continuation without a new
-        command) by up to `PREDICT_BLOCKS` blocks, up to a ring ahead of the generation less a
-        block and the margin. A new command restarts it from the position with
-        `PREDICT_RESTART_BLOCKS` at once; a predicted block
+        command) up to a ring ahead of the generation less a block and the margin: once the
+        command has lasted `PREDICT_BLOCKS` blocks, over the rest of the ring at once, then
+        `PREDICT_BLOCKS` blocks at a time. A new command restarts it from the position with
+        `PREDICT_RESTART_BLOCKS` at once (one more ``with_block``: the block about to be
+        written, which the prediction's write then carries); a predicted block
         over a drive limit ends it until the next command."""
         w = self.writer
         assert w.ring is not None
@@ -320,7 +334,7 @@ class DriveStream:
                 return  # over a limit: nothing more until the next command
             self._pred = SineSynthesizer(self.synth.n_channels, self.synth.fs)
             _restore(self._pred, _snapshot(self.synth))
-            self._pred_end = w.pos
+            self._pred_end = self._pred_start = w.pos
             self._pred_prev = self.monitor.last_ao
             target_v = np.abs(self.synth.target_phasors)
             # a ramp's continuation holds the ramp too: its start, its end, or between
@@ -334,26 +348,26 @@ class DriveStream:
             stale_ok = (not np.any(self._ring_amp_v > 0)) or (
                 freq_hz == self._ring_freq_hz and self.synth.freq_hz == freq_hz
                 and bool(np.all(self._ring_amp_v <= target_v * (1 + 1e-9) + 1e-12)))
-            most = PREDICT_RESTART_BLOCKS if stale_ok else w.ring // self.block
+            most = PREDICT_RESTART_BLOCKS + with_block if stale_ok else w.ring // self.block
         else:
+            if w.pos - self._pred_start < PREDICT_BLOCKS * self.block:
+                return  # a command that may not last: the restart's blocks reach far enough
             most = PREDICT_BLOCKS
             amp_v, freq_hz, stale_ok = self._ring_amp_v, self._ring_freq_hz, True
         limit = w.generated + w.ring - self.block - w.margin
-        if most == PREDICT_BLOCKS and limit - self._pred_end < PREDICT_BLOCKS * self.block:
-            return  # extended by whole chunks: one write per chunk, not one per block
-        start, parts = self._pred_end, list[np.ndarray]()
-        while len(parts) < most and self._pred_end + self.block <= limit:
-            blk = self._pred.next_block(self.block)
-            try:
-                self.monitor.check_ao_after(blk, self._pred_end, self._pred_prev)
-            except LimitTrip:
-                self._pred_end = -1
-                break
-            self._pred_prev = blk[:, -1:]
-            parts.append(blk)
-            self._pred_end += self.block
-        if parts:
-            w.write_at(start, np.concatenate(parts, axis=1))
+        if most == PREDICT_BLOCKS:
+            if limit - self._pred_end < PREDICT_BLOCKS * self.block:
+                return  # extended by whole chunks: one write per chunk, not one per block
+            most = (limit - self._pred_end) // self.block  # the rest of the ring at once
+        start = self._pred_end
+        n = min(most, (limit - start) // self.block) * self.block
+        if n > 0:
+            chunk = self._pred.next_blocks(n // self.block, self.block)
+            good = self._checked_length(chunk, start)
+            if good:
+                w.write_at(start, chunk[:, :good])
+                self._pred_prev = chunk[:, good - 1:good]
+            self._pred_end = start + good if good == n else -1
         whole = self._pred_end >= 0 and self._pred_end + self.block > limit
         if whole and not stale_ok:
             # the ring holds this command's continuation all round but for the slots of the
@@ -369,6 +383,26 @@ class DriveStream:
         else:
             self._ring_amp_v = np.maximum(self._ring_amp_v, amp_v)
             self._ring_freq_hz = freq_hz if stale_ok else math.nan
+
+    def _checked_length(self, chunk: np.ndarray, start: int) -> int:
+        """How many samples of a predicted ``chunk`` (whole blocks, from ``start``) pass the
+        drive limits, block by block as the stream writes them: all of it, or the blocks before
+        the first one over a limit. Checked whole first (one check for the chunk, not one a
+        block: the prediction is most of a paced daemon's CPU while a step is approached)."""
+        try:
+            self.monitor.check_ao_after(chunk, start, self._pred_prev)
+            return chunk.shape[1]
+        except LimitTrip:
+            pass
+        prev = self._pred_prev
+        for k in range(0, chunk.shape[1], self.block):
+            blk = chunk[:, k:k + self.block]
+            try:
+                self.monitor.check_ao_after(blk, start + k, prev)
+            except LimitTrip:
+                return k
+            prev = blk[:, -1:]
+        return chunk.shape[1]  # pragma: no cover - the whole chunk failed, so a block does
 
     def _clear_wrap(self) -> None:
         """Ring mode: zero what a prediction over the whole ring left of the drive before it

@@ -156,6 +156,33 @@ class SineSynthesizer:
         self._freq_left = 0
         return self.ramp_to(np.zeros(self.n_channels, dtype=np.complex128), None, ramp_s)
 
+    def next_blocks(self, count: int, n: int) -> np.ndarray:
+        """``count`` blocks of ``n`` samples at once, shape (n_channels, count * n) [V]: the
+        samples of ``count`` calls of `next_block` (``n``), bit for bit, with the blocks after
+        the ramps in one array operation (a stream's ring prediction is tens of blocks)."""
+        if count < 1:
+            raise ValueError(f"count must be positive, got {count}")
+        parts = []
+        while count and self.is_ramping:
+            parts.append(self.next_block(n))
+            count -= 1
+        if count:
+            # steady: every block's phase increments are the same array, so its phase offsets
+            # from the block's start are too; the start goes on block by block as in next_block
+            incr = np.full(n, self._freq) / self.fs
+            offsets = np.concatenate(([0.0], np.cumsum(incr[:-1])))
+            step = float(incr.sum())
+            starts = np.empty(count)
+            c = self._cycles
+            for k in range(count):
+                starts[k] = c
+                c = math.fmod(c + step, 1.0)
+            self._cycles = c
+            carrier = np.exp(2j * np.pi * (starts[:, None] + offsets[None, :])).reshape(-1)
+            self.sample += count * n
+            parts.append(np.ascontiguousarray((self._phasor[:, None] * carrier[None, :]).real))
+        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
+
     def next_block(self, n: int) -> np.ndarray:
         """Synthesise the next ``n`` samples, shape (n_channels, n) [V]."""
         if n <= 0:

@@ -54,6 +54,10 @@ START_MARGIN = 0.5
 #: orbit has rung down under this fraction of the displacement limit.
 QUIET_FRACTION = 0.05
 QUIET_MAX_S = 0.5
+#: A watched raise commands the drive for this many blocks at a time (a straight ramp, no
+#: faster in any block than the raise allows), not every block: each command rewrites the AO
+#: ring's prediction.
+RAISE_COMMAND_BLOCKS = 4
 #: A watched raise whose orbit passes the displacement margin backs the drive off to this
 #: fraction of the margin, scaled from the orbit measured.
 BACK_OFF = 0.9
@@ -250,7 +254,8 @@ class Approach:
             # here is known only once it is measured here (with a drive on here it is: the
             # raise goes on from it)
             start_n = (START_MARGIN * self._response_cap("displacement")
-                       / self._plant_compliance(plan.freq_hz))
+                       / self._plant_compliance(plan.freq_hz,
+                                                measured_only=known and self.spec.lubricated))
             low = min(low, start_n / float(np.max(self.gain_n_per_v)))
         now = float(np.max(np.abs(synth.phasors)))
         if now > low:
@@ -288,13 +293,22 @@ class Approach:
                     break
         synth.ramp_to(None, freq_hz, 0.0)
 
-    def _plant_compliance(self, freq_hz: float) -> float:
+    def _plant_compliance(self, freq_hz: float, measured_only: bool = False) -> float:
         """The largest orbit per newton of load [m/N] the rig may have at ``freq_hz``: a 1-DOF
         mass-spring-damper from the nominal parameters (`ControlSettings`), its stiffness and
         mass each anywhere within ``plant_uncertainty`` (the film's added mass too when
         lubricated), with the lightest damping (dry; lubricated, half the film's at the centre
         added); or the compliance measured within 10 % of this
-        frequency in this run, if that is larger."""
+        frequency in this run, if that is larger. ``measured_only`` (a lubricated step at
+        this very frequency converged): the largest measured here, the model's worst case
+        aside (it started every step of the report's lubricated X programme at a tenth of its
+        target: 0.4-0.9 s of raise a step). Lubricated only: the film's damping keeps the orbit
+        near proportional to the load, where dry friction makes a larger orbit grow faster
+        than its load (a compliance measured at 10 um understates the one at 40 um: a dry
+        circular 40 um step started from it tripped at 64.1 um)."""
+        measured_here = self._compliance.get(freq_hz, 0.0)
+        if measured_only and measured_here > 0:
+            return max(c for f, c in self._compliance.items() if abs(f - freq_hz) <= 0.1 * freq_hz)
         cfg = self.cfg
         u = cfg.plant_uncertainty
         w2 = (2 * np.pi * freq_hz) ** 2
@@ -341,30 +355,14 @@ class Approach:
         self.ceiling_v = np.inf
         radius = 0.0
         watch_end = -1  # a load target's final raise is watched for one latency
+        final = False
+        commanded_lag = -1  # the read lag the present ramp's rate was set for
         while True:
-            # towards top (magnitude and phase), the drive vector growing by per_block at most;
-            # for a load target (no orbit to stop at) slower as the orbit nears the displacement
-            # margin: near break-away a small raise makes a large jump, seen a latency later
-            now = synth.phasors
-            # a late host reads blocks older than the lead: a raise is seen that much later, so
-            # the raise per block slows in proportion (at the full rate, a 20 um step at 25 Hz
-            # reached 58 um on a loaded PC: the break-away jump of raises it had not seen)
-            lag = stream.read_lag
-            slow = latency / (latency + lag)
-            if plan.target_kind == "load":
-                slow *= max(0.1, 1.0 - radius / cap_d)
-            room = (per_block ** slow - 1.0) * float(np.linalg.norm(now))
-            dist = float(np.linalg.norm(top - now))
-            final = (dist <= room or room == 0.0
-                     or float(np.linalg.norm(top)) <= float(np.linalg.norm(now)))
-            rows = top if final else now + (top - now) * (room / dist)
-            nominal = float(np.max(np.abs(self._axis_drive(rows)) * self.gain_n_per_v))
-            if float(np.max(np.abs(rows))) > self.limits.max_drive_v + 1e-12:
-                self.limited_by = f"the drive limit ({self.limits.max_drive_v:g} V)"
-            elif nominal > cap_f:
-                self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
-            else:
-                synth.ramp_to(rows, None, stream.block / fs)
+            if not synth.is_ramping or stream.read_lag > commanded_lag:
+                final = self._raise_command(plan, top, latency, per_block, radius, cap_d,
+                                            cap_f)
+                commanded_lag = stream.read_lag
+            raising = synth.revision  # the raise's own command (not the soft limit's, ...)
             stream.cycle()
             if stream.guard_event is not None:
                 self.limited_by = f"the soft limit ({stream.guard_event[1]})"
@@ -388,14 +386,62 @@ class Approach:
             elif float(np.max(np.abs(self.signals.load(ai)))) > cap_f:
                 self.limited_by = f"the load limit ({self.limits.max_load_n:g} N)"
             if radius >= stop_at or self.limited_by:
+                if synth.revision == raising:
+                    self._hold_drive()  # a back-off or the soft limit is a command of its own
                 return
-            if final:
+            if final and not synth.is_ramping:
                 if plan.target_kind != "load":
                     return
                 if watch_end < 0:
-                    watch_end = stream.sample + latency + lag
+                    watch_end = stream.sample + latency + stream.read_lag
                 elif stream.sample >= watch_end:
                     return
+
+    def _raise_command(self, plan: StepPlan, top: np.ndarray, latency: int, per_block: float,
+                       radius: float, cap_d: float, cap_f: float) -> bool:
+        """The next command of a watched raise: towards ``top`` (magnitude and phase) over up
+        to `RAISE_COMMAND_BLOCKS` blocks, the drive vector growing by at most one block's
+        ``per_block`` (less for a late host) in every block, a straight ramp (whose relative
+        growth per block only falls as it goes); where that ramp's end is over the drive or
+        load limit, one block's raise as before, which may be stopped there (`limited_by`).
+        Whether the command reaches ``top``. One command for several blocks, not one a block:
+        each command rewrites the AO ring's prediction, through gRPC two round trips."""
+        stream, synth = self.stream, self.stream.synth
+        now = synth.phasors
+        # a late host reads blocks older than the lead: a raise is seen that much later, so
+        # the raise per block slows in proportion (at the full rate, a 20 um step at 25 Hz
+        # reached 58 um on a loaded PC: the break-away jump of raises it had not seen)
+        slow = latency / (latency + stream.read_lag)
+        if plan.target_kind == "load":
+            # for a load target (no orbit to stop at) slower as the orbit nears the
+            # displacement margin: near break-away a small raise makes a large jump, seen a
+            # latency later
+            slow *= max(0.1, 1.0 - radius / cap_d)
+        step = (per_block ** slow - 1.0) * float(np.linalg.norm(now))  # one block's raise
+        dist = float(np.linalg.norm(top - now))
+        lowering = float(np.linalg.norm(top)) <= float(np.linalg.norm(now))
+        for blocks in (RAISE_COMMAND_BLOCKS, 1):
+            room = step * blocks
+            final = dist <= room or room == 0.0 or lowering
+            rows = top if final else now + (top - now) * (room / dist)
+            n = 1 if lowering or room == 0.0 else max(1, min(blocks, int(np.ceil(dist / step))))
+            nominal = float(np.max(np.abs(self._axis_drive(rows)) * self.gain_n_per_v))
+            if float(np.max(np.abs(rows))) > self.limits.max_drive_v + 1e-12:
+                why = f"the drive limit ({self.limits.max_drive_v:g} V)"
+            elif nominal > cap_f:
+                why = f"the load limit ({self.limits.max_load_n:g} N)"
+            else:
+                synth.ramp_to(rows, None, n * stream.block / self.fs)
+                return final
+        self._hold_drive()
+        self.limited_by = why
+        return final
+
+    def _hold_drive(self) -> None:
+        """A raise stopped: the drive stays where it is (a ramp still under way ends here)."""
+        synth = self.stream.synth
+        if synth.is_ramping:
+            synth.ramp_to(synth.phasors, None, 0.0)
 
     def _break_away(self, plan: StepPlan, ctl: AmplitudeController, drive: np.ndarray,
                     response: np.ndarray) -> tuple[int, int]:

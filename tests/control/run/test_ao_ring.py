@@ -515,3 +515,74 @@ def test_a_late_hosts_replay_of_the_drive_before_is_that_drives_not_the_new_owne
     assert {stream.owner_at(k) for k in replayed} == {"a"}
     assert stream.owner_at(stream.sample - BLOCK) == "b"
     stream.shutdown(0.04)
+
+
+class CountingWrites(Played):
+    """`Played`, counting the AO writes (through gRPC each is two round trips)."""
+
+    def __init__(self, clock: FakeClock) -> None:
+        super().__init__(clock)
+        self.writes = 0
+
+    def write_ao(self, block: np.ndarray, at: int | None = None) -> None:
+        self.writes += 1
+        super().write_ao(block, at)
+
+
+class RaiseEvery:
+    """A new command after every ``k`` blocks read: the amplitude up by ``step`` V."""
+
+    def __init__(self, synth: SineSynthesizer, k: int, step: float) -> None:
+        self.synth, self.k, self.step, self.seen = synth, k, step, 0
+
+    def __call__(self, first: int, ai: np.ndarray, ao: np.ndarray) -> None:
+        self.seen += 1
+        if self.seen % self.k == 0:
+            amp = abs(self.synth.target_phasors[0]) + self.step
+            self.synth.ramp_to(np.array([amp, 0.0]), None, self.k * BLOCK / FS)
+
+
+@pytest.mark.parametrize(("every", "most_per_block"), [(1, 1.0), (4, 0.25)])
+def test_a_command_costs_one_ao_write_and_a_held_one_none_a_block(every, most_per_block):
+    """A paced daemon's CPU went mostly to the ring's AO writes: a new command wrote its block
+    and then its prediction (two writes), and each cycle it lasted extended the prediction by
+    another write. Now the prediction carries the command's first block, and a command is
+    extended over the ring only once it has lasted 8 blocks: one write per command."""
+    clock = FakeClock()
+    be = CountingWrites(clock)
+    be.configure(CM)
+    synth = SineSynthesizer(len(CM.ao), FS)
+    synth.ramp_to(np.array([0.5, 0.0]), 40.0, 0.0)
+    stream = DriveStream(be, synth, SafetyMonitor(SafetyLimits(), CM), RecordingListener(False),
+                         BLOCK, ahead_blocks=3)
+    stream.check_limits = False
+    stream.taps.append(RaiseEvery(synth, every, 0.01))
+    stream.start()
+    stream.advance_to(20 * BLOCK)  # past the start's writes
+    before, first = be.writes, stream.sample
+    stream.advance_to(first + 200 * BLOCK)  # 2 s of commands
+    per_block = (be.writes - before) / ((stream.sample - first) / BLOCK)
+    assert per_block <= most_per_block + 0.01, per_block  # 2.0 and 1.25 before
+    assert stream.writer.late_events == 0
+    stream.shutdown(0.04)
+
+
+def test_a_host_behind_the_board_reads_what_the_board_holds_in_one_cycle():
+    """After a 0.3 s stall the board holds 30 blocks the host has not read. A cycle reads the
+    blocks the ring's generation is past (up to a quarter second), not one: at one a cycle a
+    host that stalls as often as it reads never caught up (the simulated daemon's AI buffer
+    overflowed, -200279), and every raise, slowed by the lag it sees, took that much longer.
+    Every block is still read, checked and recorded in order."""
+    clock = FakeClock()
+    be, stream, listener = _stream(clock)
+    stream.taps.append(Stall(clock, int(0.5 * FS), 0.3))
+    stream.start()
+    stream.advance_to(int(0.5 * FS) + BLOCK)  # the stall happened at the read of 0.5 s
+    assert be.ao_generated() - stream.sample >= 25 * BLOCK  # the board is that far ahead
+    cycles = 0
+    while be.ao_generated() - stream.sample >= 2 * BLOCK:
+        stream.cycle()
+        cycles += 1
+    assert cycles <= 2, cycles  # 30 before: one block a cycle
+    assert listener.samples == stream.sample  # gapless, in order (RecordingListener checks)
+    stream.shutdown(0.04)

@@ -118,3 +118,22 @@ def test_no_command_sequence_makes_a_step(commands):
     v = np.concatenate(out, axis=1)
     bound = 2 * np.pi * 200.0 * 3.0 / FS + rate / FS
     assert np.abs(np.diff(v, axis=1)).max() <= bound * (1 + 1e-9)
+
+
+@pytest.mark.parametrize("ramp_s", [0.0, 0.025, 0.3])
+def test_many_blocks_at_once_are_the_blocks_one_by_one_bit_for_bit(ramp_s):
+    """`next_blocks` (the AO ring's prediction, tens of blocks in one piece) makes exactly the
+    samples of that many `next_block` calls: the ring plays them and the record holds the
+    synthesiser's blocks, so they must be the same numbers, not nearly (a 30-block sine in
+    one `next_block` differs by 1e-12 V)."""
+    one, many = SineSynthesizer(2, FS), SineSynthesizer(2, FS)
+    for s in (one, many):
+        s.ramp_to(np.array([0.6, 0.3j]), 37.3, 0.0)
+        s.next_block(100)
+        s.ramp_to(np.array([0.2, 0.1 + 0.1j]), 70.0, ramp_s)
+    blocks = np.concatenate([one.next_block(100) for _ in range(30)], axis=1)
+    np.testing.assert_array_equal(many.next_blocks(30, 100), blocks)
+    assert (many.sample, many.freq_hz) == (one.sample, one.freq_hz)
+    np.testing.assert_array_equal(many.next_block(100), one.next_block(100))  # goes on alike
+    with pytest.raises(ValueError, match="count must be positive"):
+        many.next_blocks(0, 100)
