@@ -199,7 +199,10 @@ def test_cli_train_runs_test_runs(level_runs, tmp_path, capsys):
     out_text = capsys.readouterr().out
     assert "amplitude dependence: x: natural frequency level-independent" in out_text
     assert "modes in the band: x: 1 mode (33.4" in out_text
-    assert f"  best candidate: {best['effect']} (" in out_text
+    # a gain that rounds to 1 lowers nothing: then no candidate is called best
+    lead = ("best candidate" if round(best["gain"], 3) > 1.0
+            else "no candidate lowers the held-out error; the nearest")
+    assert f"  {lead}: {best['effect']} (" in out_text
 
 
 @pytest.mark.parametrize(("args", "message"), [
