@@ -487,8 +487,8 @@ def _swept_h(f: np.ndarray, z: np.ndarray, fs: float) -> tuple[np.ndarray, np.nd
     freqs = np.fft.rfftfreq(n, 1.0 / fs)
     pf = np.abs(ff) ** 2
     cum = np.cumsum(pf) / max(float(np.sum(pf)), 1e-300)
-    lo = freqs[np.searchsorted(cum, SWEEP_TAIL)]
-    hi = freqs[min(np.searchsorted(cum, 1.0 - SWEEP_TAIL), freqs.size - 1)]
+    lo = float(freqs[int(np.searchsorted(cum, SWEEP_TAIL))])
+    hi = float(freqs[min(int(np.searchsorted(cum, 1.0 - SWEEP_TAIL)), freqs.size - 1)])
     # the noise's white level beyond the band (a margin of a quarter of the band: the median
     # of an exponential variable is ln 2 of its mean; rare harmonics pass under the median)
     out = freqs > hi + 0.25 * (hi - lo)
