@@ -524,8 +524,8 @@ class BroadbandPoints:
 
 def broadband_points(records: list[RunRecord], segs: list[Segment], axis: int,
                      why_not: list[str] | None = None) -> BroadbandPoints:
-    """The receptance of the segments that are not dwells (see the module doc). A swept run is
-    left out (with a reason in ``why_not``)."""
+    """The receptance of the segments that are not dwells (see the module doc). A swept run
+    that does not start and end at rest is left out (with a reason in ``why_not``)."""
     w_all: list[np.ndarray] = []
     h_all: list[np.ndarray] = []
     sd_all: list[np.ndarray] = []
@@ -545,7 +545,12 @@ def broadband_points(records: list[RunRecord], segs: list[Segment], axis: int,
         if period and f.size // period >= 4:  # whole periods: no leakage, the periods average
             w, h, sd = _periodic_h(f, z, fs, period)
         elif _swept(f, fs, f.size // BROADBAND_AVERAGES):
-            whole = _swept_h(f, z, fs)
+            # a run's first samples are no segment's (the replay's start is unknown there):
+            # the sweep's transform wants them, its rest before the sweep
+            a0 = 0 if a == min(s.start for s in segs if s.run == run) else a
+            f0 = rec.force_n[axis, a0:b] - np.mean(rec.force_n[axis, a0:b])
+            z0 = np.mean(chans, axis=0)[a0:b]
+            whole = _swept_h(f0, z0 - np.mean(z0), fs)
             if whole is None:
                 if why_not is not None:
                     why_not.append(f"{rec.name} [{a}:{b}]: a swept sine (its spectrum moves) "
@@ -559,8 +564,8 @@ def broadband_points(records: list[RunRecord], segs: list[Segment], axis: int,
             h_all.append(h)
             sd_all.append(sd)
             # its level: the amplitude while it plays, as the power of a sine of it
-            power += 0.5 * amp**2 * f.size
-            count += f.size
+            power += 0.5 * amp**2 * f0.size
+            count += f0.size
             continue
         else:
             w, h, sd = _welch_h(f, z, fs)

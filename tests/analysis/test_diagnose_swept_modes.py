@@ -48,9 +48,11 @@ def _import(kind: str, tmp: Path, seed: int) -> list[RunRecord]:
 
 def _modes(runs: list[RunRecord]) -> Modes:
     train, test = split_segments(runs)
-    # as diagnose gives them: each run's first 130 samples not scored
-    train = [replace(s, start=130) if s.start == 0 else s for s in train]
-    return modal_dependence(runs, train + test)
+    # as diagnose gives them: each run's first samples not scored (the replay's warm-up: 3 s
+    # where its start is the slowest mode, longer than the sweep's 2 s of rest)
+    warm = 600
+    segs = [replace(s, start=max(s.start, warm)) for s in train + test if s.stop > warm]
+    return modal_dependence(runs, segs)
 
 
 def _check(modes: Modes) -> None:
