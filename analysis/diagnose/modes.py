@@ -34,9 +34,9 @@ nothing of its noise: a sweep that starts and ends at rest (the response decayed
 record ends) is taken whole instead (`_swept_h`): the record's own transform, ``H = Z / F`` on
 every line of the swept band, exact for a linear structure (the response of a force that is
 zero outside the record is the record's circular convolution), each line's standard deviation
-from the noise's spectrum beyond the sweep's band (white over the record: force and response
-noise are the channels' own). A sweep cut off while it plays (or before its response decays)
-is left out with the reason. The level of broadband data is its force's RMS
+from the channels' noise in the record's quiet tail (white: a noise of sd s puts N s^2 on each
+line of N samples). A sweep cut off while it plays (or before its response decays) is left out
+with the reason. The level of broadband data is its force's RMS
 times sqrt(2) (the amplitude of a sine of the same power); of a sweep, its amplitude while it
 plays (the median of the force's envelope where it is half its largest or more).
 
