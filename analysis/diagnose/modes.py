@@ -546,12 +546,18 @@ def broadband_points(records: list[RunRecord], segs: list[Segment], axis: int,
         if period and f.size // period >= 4:  # whole periods: no leakage, the periods average
             w, h, sd = _periodic_h(f, z, fs, period)
         elif _swept(f, fs, f.size // BROADBAND_AVERAGES):
-            # a run's first samples are no segment's (the replay's start is unknown there):
-            # the sweep's transform wants them, its rest before the sweep
-            a0 = 0 if a == min(s.start for s in segs if s.run == run) else a
-            f0 = rec.force_n[axis, a0:b] - np.mean(rec.force_n[axis, a0:b])
-            z0 = np.mean(chans, axis=0)[a0:b]
-            whole = _swept_h(f0, z0 - np.mean(z0), fs)
+            # diagnose does not score an imported run's first samples (the replay's start is
+            # unknown there): the sweep's transform wants them, its rest before the sweep.
+            # From the last dwell's end before it (or the run's start) where it is not whole
+            a0 = max((s.stop for s in segs if s.run == run and s.freq_hz and s.stop <= a),
+                     default=0)
+            whole = None
+            for start in dict.fromkeys((a, a0)):
+                f0 = rec.force_n[axis, start:b] - np.mean(rec.force_n[axis, start:b])
+                z0 = np.mean(chans, axis=0)[start:b]
+                whole = _swept_h(f0, z0 - np.mean(z0), fs)
+                if whole is not None:
+                    break
             if whole is None:
                 if why_not is not None:
                     why_not.append(f"{rec.name} [{a}:{b}]: a swept sine (its spectrum moves) "

@@ -48,10 +48,12 @@ def _import(kind: str, tmp: Path, seed: int) -> list[RunRecord]:
 
 def _modes(runs: list[RunRecord]) -> Modes:
     train, test = split_segments(runs)
-    # as diagnose gives them: each run's first samples not scored (the replay's warm-up: 3 s
-    # where its start is the slowest mode, longer than the sweep's 2 s of rest)
+    # as diagnose gives them (engine._settled): each run's first samples not scored, up to
+    # the replay's warm-up (3 s where its start is the slowest mode, longer than the sweep's 2 s
+    # of rest), at most half of each 2 s block
     warm = 600
-    segs = [replace(s, start=max(s.start, warm)) for s in train + test if s.stop > warm]
+    segs = [replace(s, start=max(s.start, min(warm, s.stop - (s.stop - s.start) // 2)))
+            for s in train + test]
     return modal_dependence(runs, segs)
 
 
