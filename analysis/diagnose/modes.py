@@ -287,8 +287,7 @@ class Modes:
         for ax, n in self.per_axis().items():
             rows = []
             for tr in (t for t in self.tracks if t.axis == ax and t.shown):
-                # four digits kept (12.00 and 12.20 Hz, not 12 and 12.2)
-                f = " -> ".join(f"{v:#.4g}" for v in tr.natural_hz)
+                f = " -> ".join(f"{v:.4g}" for v in tr.natural_hz)
                 z = " -> ".join(f"{100 * v:.2g}" for v in tr.damping_ratio)
                 rows.append(f"{f} Hz (damping {z} %)")
             text = (f"{ax}: {n or 'no'} mode{'' if n <= 1 else 's'}"
