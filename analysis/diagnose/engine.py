@@ -162,10 +162,13 @@ class Diagnosis:
     def best_candidate(self) -> dict[str, Any] | None:
         """The first round's candidate of least held-out error, with its size and gain, when
         nothing was found (None otherwise, or when none could be fitted): what comes nearest,
-        though not a finding (a rejected one carries why)."""
+        though not a finding (a rejected one carries why). A candidate with a parameter on a
+        bound of its fit is none (the dry circular run's best was a micro-slip joint on its
+        bounds, gain 1.000): its size says where the fit stopped, not what the data hold."""
         if self.findings or not self.rounds:
             return None
-        fitted = [c for c in self.rounds[0] if "held_out_error" in c]
+        fitted = [c for c in self.rounds[0] if "held_out_error" in c
+                  and "on a bound" not in c.get("not_a_finding", "")]
         if not fitted:
             return None
         best = min(fitted, key=lambda c: c["held_out_error"])

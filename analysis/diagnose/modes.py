@@ -29,14 +29,28 @@ a line's standard deviation per real component ``|H| sqrt(1 - g2) / (|g| sqrt(2 
 (Bendat & Piersol's random error; ``g2`` the coherence, ``n_d`` the independent averages), a
 line a point only where its coherence stands above what uncorrelated noise reaches with
 ``n_d`` averages at ``Z_STRUCTURE`` standard deviations' probability (``1 - p^(1/(n_d - 1))``).
-A swept sine is not stationary (each window sees its own band), so its coherence says nothing of its
-noise: its runs are left out with a reason. The level of broadband data is its force's RMS
-times sqrt(2) (the amplitude of a sine of the same power).
+A swept sine is not stationary (each window sees its own band), so Welch's coherence says
+nothing of its noise: a sweep that starts and ends at rest (the response decayed before the
+record ends) is taken whole instead (`_swept_h`): the record's own transform, ``H = Z / F`` on
+every line of the swept band, exact for a linear structure (the response of a force that is
+zero outside the record is the record's circular convolution), each line's standard deviation
+from the channels' noise in the record's quiet tail (white: a noise of sd s puts N s^2 on each
+line of N samples). A sweep cut off while it plays (or before its response decays) is left out
+with the reason. The level of broadband data is its force's RMS
+times sqrt(2) (the amplitude of a sine of the same power); of a sweep, its amplitude while it
+plays (the median of the force's envelope where it is half its largest or more).
 
-A mode is one in the band only where its natural frequency lies among the points' frequencies
-(``LevelModes.in_band``); a pole beyond them is reported as no mode, with its frequency, damping
-and their sd (an overdamped film over 20-60 Hz put one at 115 +- 49 Hz). A damping on the fit's
-upper bound is written ">= 70 %": the data say it is at least that.
+A pole the fit finds is said to be a mode (``LevelModes.shown``) only where the points show it:
+its damping ratio below 1 (from 1 on its poles are real: the response is overdamped, no
+vibration, and is said as that; between 1/sqrt 2 and 1 the receptance has no peak, but the
+pole pair still oscillates: a mode), its natural frequency among the
+points' frequencies (a pole beyond them is an extrapolation: an overdamped film over 20-60 Hz
+put one at 115 +- 49 Hz), a point within ``EVIDENCE_WIDTHS`` half-power half-widths of it (a
+mode in a gap of the plan is the fit's guess of what lies between the points: the dry circular
+programme's 20 Hz and 70-200 Hz put two at 22 and 41 Hz), and its frequency and damping
+determined by the points (sd of its frequency under its half-power half-width, of its damping
+under a third of it: ``T_MIN``). Every other pole is reported as no mode, with its frequency,
+damping, their sd and the reason.
 
 Modes are followed over the levels by frequency (nearest within ``MATCH_RATIO``), from the
 level with the most modes; the natural frequency and damping ratio of each against the level
@@ -51,13 +65,14 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.signal import csd, welch
+from scipy.signal import csd, hilbert, welch
 from scipy.special import erfc
 from threadpoolctl import threadpool_limits
 
 from analysis.diagnose.amplitude import (
     DAMP_CHANGE,
     FREQ_CHANGE,
+    T_MIN,
     Trend,
     levels,
     trend,
@@ -82,8 +97,25 @@ BROADBAND_AVERAGES = 8
 WINDOW_LINES = 4
 #: starts tried for each new pole (the largest peaks of the residual)
 NEW_POLE_TRIES = 3
-#: damping ratios fitted between these (a pole outside is no mode of a structure)
-ZETA_BOUNDS = (1e-4, 0.7)
+#: damping ratios fitted between these. The upper bound is above what this rig shows: lubricated,
+#: it is overdamped (the report's VI.3: "highly over damped"; C_t / (2 sqrt(K M_t)) with the
+#: film's eq. 16 5.1 kN.s/m, C_rv 370 N.s/m, the seal's 4 F_mu / (pi w |z|) and M_t = M + M_f + D
+#: = 17.9 kg is 1.0 at 38 um and 60 Hz, 3.4 at 13 um and 20 Hz). A bound at 0.7 pinned such a
+#: pole on it and called it a mode ("56.37 Hz (damping >= 70 %)"); fitted up to 10, the pole
+#: says what the response is: no resonance
+ZETA_BOUNDS = (1e-4, 10.0)
+#: the damping ratios the order search starts and fits poles within: a pole it puts on this
+#: bound is then refitted within ``ZETA_BOUNDS`` (a search over the wider range left a
+#: five-mode random record's greedy path in a local minimum, with three spurious poles)
+SEARCH_ZETA = 0.7
+#: from this damping ratio on, a pole pair is two real poles: no vibration, an overdamped
+#: response, no mode (below it, down to 1/sqrt 2, the receptance has no peak but the free
+#: response still oscillates: the independent rig's linear film, 72 %, is a mode at 33.4 Hz)
+OVERDAMPED_ZETA = 1.0
+#: a mode is shown by the points only where one lies within this many half-power half-widths
+#: (zeta f_n) of its natural frequency: there the mode's resonant part is at least 1/sqrt 5 of
+#: its peak (a mode further from every point is the fit's guess of a gap)
+EVIDENCE_WIDTHS = 2.0
 
 
 @dataclass
@@ -115,22 +147,62 @@ class LevelModes:
     orders: list[dict[str, float]] = field(default_factory=list)
     #: the lowest and highest frequency of the points [Hz]: a mode outside is extrapolated
     band_hz: tuple[float, float] = (0.0, math.inf)
+    #: the points' frequencies [Hz] (the evidence a mode needs near it)
+    freqs_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def in_band(self, mode: Mode) -> bool:
-        """A mode the points show: its natural frequency among them (a pole beyond them is
-        an extrapolation: an overdamped film's points over 20-60 Hz put one at 115 +- 49 Hz,
-        its damping on the fit's bound)."""
+        """The mode's natural frequency lies among the points' frequencies."""
         return self.band_hz[0] <= mode.natural_hz <= self.band_hz[1]
+
+    def why_not(self, mode: Mode) -> list[str]:
+        """Why the points do not show ``mode`` as a mode (empty: they do); see the module
+        doc."""
+        f, z = mode.natural_hz, mode.damping_ratio
+        lo, hi = self.band_hz
+        if z >= OVERDAMPED_ZETA:
+            return ["overdamped: no resonance"]
+        why = []
+        if not self.in_band(mode):
+            why.append(f"extrapolated {'above' if f > hi else 'below'} the points' "
+                       f"{lo:.4g}-{hi:.4g} Hz")
+        elif self.freqs_hz.size and not np.any(
+                np.abs(self.freqs_hz - f) <= EVIDENCE_WIDTHS * z * f):
+            below = self.freqs_hz[self.freqs_hz < f]
+            above = self.freqs_hz[self.freqs_hz > f]
+            why.append(f"between the points at {below.max():.4g} and {above.min():.4g} Hz, "
+                       f"none within its half-power band")
+        if _on_bound(z):
+            why.append("its damping on the fit's bound")
+        if not (mode.natural_hz_sd < z * f and mode.damping_ratio_sd < z / T_MIN):
+            why.append("not determined by the points")
+        return why
+
+    def shown(self, mode: Mode) -> bool:
+        """The points show ``mode``: resonant, among them, near one and determined."""
+        return not self.why_not(mode)
+
+    @property
+    def dof(self) -> float:
+        return max(1.0, 2 * self.points - 4 * len(self.modes))
 
     @property
     def chi2_per_dof(self) -> float:
         row = next(r for r in self.orders if r["modes"] == len(self.modes))
-        return row["chi2"] / max(1.0, 2 * self.points - 4 * len(self.modes))
+        return row["chi2"] / self.dof
+
+    @property
+    def linear(self) -> bool:
+        """The fit leaves the points at their noise: its chi2 per degree of freedom within
+        ``Z_STRUCTURE`` of its sd (sqrt(2 / dof)) of 1. Where it does not (a nonlinear force:
+        the dry seal's friction left 2e6 x the noise over 20-200 Hz), no order of modes
+        describes the points, and their poles' sd say so."""
+        return self.chi2_per_dof <= 1.0 + Z_STRUCTURE * math.sqrt(2.0 / self.dof)
 
     def to_dict(self) -> dict[str, Any]:
         return {"level": self.label, "axis": self.axis, "force_amplitude_N": self.force_n,
                 "points": self.points, "band_hz": list(self.band_hz),
-                "modes": [{**m.to_dict(), "in_band": self.in_band(m)} for m in self.modes],
+                "modes": [{**m.to_dict(), "in_band": self.in_band(m), "shown": self.shown(m),
+                           "why_not": self.why_not(m)} for m in self.modes],
                 "chi2_per_dof": self.chi2_per_dof, "orders": self.orders}
 
 
@@ -138,9 +210,14 @@ def _on_bound(zeta: float) -> bool:
     return not ZETA_BOUNDS[0] * (1 + 1e-6) < zeta < ZETA_BOUNDS[1] * (1 - 1e-6)
 
 
+def _pole_text(m: Mode, why: list[str]) -> str:
+    return (f"{m.natural_hz:.4g} +- {m.natural_hz_sd:.2g} Hz, damping ratio "
+            f"{m.damping_ratio:.2g} +- {m.damping_ratio_sd:.2g} ({', '.join(why)})")
+
+
 @dataclass
 class ModeTrack:
-    """One mode followed over the levels of one axis."""
+    """One pole of the reference level followed over the levels of one axis."""
 
     axis: str
     index: int  # 1 = lowest frequency at the reference level
@@ -149,30 +226,31 @@ class ModeTrack:
     damping_ratio: list[float]
     frequency: Trend | None = None
     damping: Trend | None = None
-    #: the reference level's band [Hz] and whether the mode lies in it there
+    #: the reference level's band [Hz]
     band_hz: tuple[float, float] = (0.0, math.inf)
-    in_band: bool = True
-    reference: Mode | None = None  # the mode at the reference level
+    #: why the reference level's points do not show the pole as a mode (empty: a mode)
+    why_not: list[str] = field(default_factory=list)
+    reference: Mode | None = None  # the pole at the reference level
+
+    @property
+    def shown(self) -> bool:
+        return not self.why_not
+
+    @property
+    def in_band(self) -> bool:
+        return self.band_hz[0] <= self.natural_hz[0] <= self.band_hz[1] if self.natural_hz \
+            else False
 
     @property
     def extrapolation_text(self) -> str:
-        """A pole that is no mode in the band, with its uncertainty and why it is none."""
-        lo, hi = self.band_hz
+        """A pole that is no mode, with its uncertainty and why it is none."""
         m = self.reference or Mode(self.natural_hz[0], math.nan, self.damping_ratio[0],
                                    math.nan, 0j)
-        f, z = m.natural_hz, m.damping_ratio
-        why = []
-        if not lo <= f <= hi:
-            why.append(f"extrapolated {'above' if f > hi else 'below'} the points' "
-                       f"{lo:.4g}-{hi:.4g} Hz")
-        if _on_bound(z):
-            why.append("its damping on the fit's bound")
-        return (f"{f:.4g} +- {m.natural_hz_sd:.2g} Hz, damping {100 * z:.2g} +- "
-                f"{100 * m.damping_ratio_sd:.2g} % ({', '.join(why)})")
+        return _pole_text(m, self.why_not)
 
     def to_dict(self) -> dict[str, Any]:
         return {"axis": self.axis, "mode": self.index, "levels": self.levels,
-                "in_band": self.in_band, "band_hz": list(self.band_hz),
+                "shown": self.shown, "why_not": self.why_not, "band_hz": list(self.band_hz),
                 "natural_frequency_hz": self.natural_hz, "damping_ratio": self.damping_ratio,
                 "natural_frequency_trend": self.frequency.to_dict() if self.frequency else None,
                 "damping_trend": self.damping.to_dict() if self.damping else None}
@@ -189,12 +267,17 @@ class Modes:
     cautions: list[str] = field(default_factory=list)  # modes the estimate may bias, and why
 
     def per_axis(self) -> dict[str, int]:
-        """The most modes found in the band (within the points' frequencies) at any level,
-        per axis."""
+        """The most modes the points show (``LevelModes.shown``) at any level, per axis."""
         out: dict[str, int] = {}
         for lv in self.levels:
-            out[lv.axis] = max(out.get(lv.axis, 0), sum(map(lv.in_band, lv.modes)))
+            out[lv.axis] = max(out.get(lv.axis, 0), sum(map(lv.shown, lv.modes)))
         return out
+
+    def damped(self, axis: str) -> list[tuple[LevelModes, Mode]]:
+        """The levels of ``axis`` whose fit holds a pole with no resonance (damping ratio
+        1 or more: overdamped), with that pole."""
+        return [(lv, m) for lv in self.levels if lv.axis == axis for m in lv.modes
+                if m.damping_ratio >= OVERDAMPED_ZETA]
 
     @property
     def text(self) -> str:
@@ -203,17 +286,31 @@ class Modes:
         parts = []
         for ax, n in self.per_axis().items():
             rows = []
-            for tr in (t for t in self.tracks if t.axis == ax and t.in_band):
+            for tr in (t for t in self.tracks if t.axis == ax and t.shown):
                 f = " -> ".join(f"{v:.4g}" for v in tr.natural_hz)
-                # damping on the fit's bound: the data say it is at least that
-                z = " -> ".join(f"{'>= ' if _on_bound(v) else ''}{100 * v:.2g}"
-                                for v in tr.damping_ratio)
+                z = " -> ".join(f"{100 * v:.2g}" for v in tr.damping_ratio)
                 rows.append(f"{f} Hz (damping {z} %)")
-            outside = [t.extrapolation_text for t in self.tracks if t.axis == ax
-                       and not t.in_band]
-            parts.append(f"{ax}: {n} mode{'' if n == 1 else 's'}"
-                         + (f" ({'; '.join(rows)})" if rows else "")
-                         + "".join(f"; no mode: a pole at {why}" for why in outside))
+            text = (f"{ax}: {n or 'no'} mode{'' if n <= 1 else 's'}"
+                    + (f" ({'; '.join(rows)})" if rows else ""))
+            damped = self.damped(ax)
+            if damped:
+                n_lv = len({id(lv) for lv in self.levels if lv.axis == ax})
+                zs = ", ".join(f"{m.damping_ratio:.2g} +- {m.damping_ratio_sd:.2g}"
+                               + (f" ({lv.label})" if n_lv > 1 else "") for lv, m in damped)
+                text += ("; overdamped, no resonance in "
+                         f"the band at {len({id(lv) for lv, _ in damped})} of {n_lv} "
+                         f"level{'' if n_lv == 1 else 's'} (a pole's damping ratio {zs})")
+            text += "".join(f"; no mode: a pole at {t.extrapolation_text}"
+                            for t in self.tracks if t.axis == ax and not t.shown
+                            and t.reference is not None
+                            and t.reference.damping_ratio < OVERDAMPED_ZETA)
+            worst = max((lv for lv in self.levels if lv.axis == ax),
+                        key=lambda lv: lv.chi2_per_dof)
+            if not worst.linear:
+                text += (f"; the fit leaves {worst.chi2_per_dof:.2g} x the points' noise "
+                         f"(chi2 per degree of freedom, {worst.label}): the receptance is not "
+                         "a linear structure's")
+            parts.append(text)
         return "; ".join(parts + [f"not fitted: {why}" for why in self.skipped]
                          + [f"caution: {why}" for why in self.cautions])
 
@@ -359,6 +456,61 @@ def _welch_h(f: np.ndarray, z: np.ndarray, fs: float) -> tuple[np.ndarray, np.nd
     return 2 * math.pi * fa[good], h, np.abs(h) * err
 
 
+#: the share of a sweep's force power outside which its band lies (each side)
+SWEEP_TAIL = 0.005
+#: a sweep is taken whole only where it starts at rest and its response has decayed by the
+#: record's end (what is left there wraps into the transform): the response's RMS over the first
+#: ``SWEEP_QUIET`` of the stretch, and the force's and the response's over the last
+#: ``NOISE_TAIL``, within ``QUIET_RATIO`` times their noise beyond the sweep's band. That tail,
+#: where nothing plays, gives the channels' noise (the spectrum beyond the band holds the
+#: sweep's own side lobes: it put a 6 N sweep's force noise 13 % high, its chi2 at 0.5 per
+#: degree of freedom)
+SWEEP_QUIET = 0.005
+NOISE_TAIL = 0.05
+QUIET_RATIO = 3.0
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x**2)))
+
+
+def _swept_h(f: np.ndarray, z: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray,
+                                                              np.ndarray, float] | None:
+    """H of a sweep taken whole: the record's transforms' ratio on the lines of the band that
+    holds all but ``SWEEP_TAIL`` of the force's power at each side, where the force stands
+    ``Z_STRUCTURE`` sd above its noise; each line's sd per real component from the force's
+    and the response's noise in the record's quiet tail (white: a noise of sd s puts n s^2 on
+    each line of n samples); and the sweep's amplitude. None where the sweep or its response
+    does not start and end at the noise (not a whole sweep)."""
+    n = f.size
+    ff, zz = np.fft.rfft(f), np.fft.rfft(z)
+    freqs = np.fft.rfftfreq(n, 1.0 / fs)
+    pf = np.abs(ff) ** 2
+    cum = np.cumsum(pf) / max(float(np.sum(pf)), 1e-300)
+    lo = float(freqs[int(np.searchsorted(cum, SWEEP_TAIL))])
+    hi = float(freqs[min(int(np.searchsorted(cum, 1.0 - SWEEP_TAIL)), freqs.size - 1)])
+    # the noise's white level beyond the band (a margin of a quarter of the band: the median
+    # of an exponential variable is ln 2 of its mean; rare harmonics pass under the median)
+    out = freqs > hi + 0.25 * (hi - lo)
+    tail = max(16, int(NOISE_TAIL * n))
+    if np.count_nonzero(out) < 32 or tail > n // 4:
+        return None
+    sd_f = math.sqrt(float(np.median(pf[out])) / math.log(2.0) / n)
+    sd_z = math.sqrt(float(np.median(np.abs(zz[out]) ** 2)) / math.log(2.0) / n)
+    head = max(16, int(SWEEP_QUIET * n))
+    if not (_rms(z[:head]) <= QUIET_RATIO * sd_z and _rms(z[-tail:]) <= QUIET_RATIO * sd_z
+            and _rms(f[-tail:]) <= QUIET_RATIO * sd_f):
+        return None
+    var_f = n * float(np.var(f[-tail:]))  # per line, both components
+    var_z = n * float(np.var(z[-tail:]))
+    good = (freqs >= lo) & (freqs <= hi) & (np.abs(ff) > Z_STRUCTURE * math.sqrt(var_f / 2.0))
+    h = zz[good] / ff[good]
+    sd = np.sqrt((var_z + np.abs(h) ** 2 * var_f) / 2.0) / np.abs(ff[good])
+    env = np.abs(hilbert(f))
+    amp = float(np.median(env[env >= 0.5 * env.max()]))
+    return 2 * math.pi * freqs[good], h, sd, amp
+
+
 @dataclass
 class BroadbandPoints:
     """Receptance points of broadband data."""
@@ -372,8 +524,8 @@ class BroadbandPoints:
 
 def broadband_points(records: list[RunRecord], segs: list[Segment], axis: int,
                      why_not: list[str] | None = None) -> BroadbandPoints:
-    """The receptance of the segments that are not dwells (see the module doc). A swept run is
-    left out (with a reason in ``why_not``)."""
+    """The receptance of the segments that are not dwells (see the module doc). A swept run
+    that does not start and end at rest is left out (with a reason in ``why_not``)."""
     w_all: list[np.ndarray] = []
     h_all: list[np.ndarray] = []
     sd_all: list[np.ndarray] = []
@@ -393,9 +545,33 @@ def broadband_points(records: list[RunRecord], segs: list[Segment], axis: int,
         if period and f.size // period >= 4:  # whole periods: no leakage, the periods average
             w, h, sd = _periodic_h(f, z, fs, period)
         elif _swept(f, fs, f.size // BROADBAND_AVERAGES):
-            if why_not is not None:
-                why_not.append(f"{rec.name} [{a}:{b}]: a swept sine (its spectrum moves), whose "
-                               "coherence says nothing of its noise: not in the modal fit")
+            # diagnose does not score an imported run's first samples (the replay's start is
+            # unknown there): the sweep's transform wants them, its rest before the sweep.
+            # From the last dwell's end before it (or the run's start) where it is not whole
+            a0 = max((s.stop for s in segs if s.run == run and s.freq_hz and s.stop <= a),
+                     default=0)
+            whole = None
+            for start in dict.fromkeys((a, a0)):
+                f0 = rec.force_n[axis, start:b] - np.mean(rec.force_n[axis, start:b])
+                z0 = np.mean(chans, axis=0)[start:b]
+                whole = _swept_h(f0, z0 - np.mean(z0), fs)
+                if whole is not None:
+                    break
+            if whole is None:
+                if why_not is not None:
+                    why_not.append(f"{rec.name} [{a}:{b}]: a swept sine (its spectrum moves) "
+                                   "that does not start and end at rest (force and response at "
+                                   "their noise): its transform is not the structure's, and "
+                                   "its coherence says nothing of its noise: not in the modal "
+                                   "fit")
+                continue
+            w, h, sd, amp = whole
+            w_all.append(w)
+            h_all.append(h)
+            sd_all.append(sd)
+            # its level: the amplitude while it plays, as the power of a sine of it
+            power += 0.5 * amp**2 * f0.size
+            count += f0.size
             continue
         else:
             w, h, sd = _welch_h(f, z, fs)
@@ -427,13 +603,13 @@ def _residues(w: np.ndarray, h: np.ndarray, sd: np.ndarray, wr: np.ndarray,
 
 
 def _fit_poles(w: np.ndarray, h: np.ndarray, sd: np.ndarray, wr0: np.ndarray,
-               zr0: np.ndarray, w_lim: tuple[float, float]) -> tuple[np.ndarray, float,
-                                                                     np.ndarray | None]:
+               zr0: np.ndarray, w_lim: tuple[float, float],
+               zeta_hi: float = SEARCH_ZETA) -> tuple[np.ndarray, float, np.ndarray | None]:
     """Poles (log w_r, log zeta_r) refined from the start, chi2, and their covariance."""
     lo = np.concatenate([np.full(wr0.size, math.log(w_lim[0])),
                          np.full(zr0.size, math.log(ZETA_BOUNDS[0]))])
     hi = np.concatenate([np.full(wr0.size, math.log(w_lim[1])),
-                         np.full(zr0.size, math.log(ZETA_BOUNDS[1]))])
+                         np.full(zr0.size, math.log(zeta_hi))])
     x0 = np.clip(np.concatenate([np.log(wr0), np.log(zr0)]), lo + 1e-9, hi - 1e-9)
     m = wr0.size
 
@@ -488,6 +664,11 @@ def fit_modes(w: np.ndarray, h: np.ndarray, sd: np.ndarray,
         fits = [_fit_poles(w, h, sd, np.append(wr, w_new), np.append(zr, 0.02), w_lim)
                 for w_new in _new_poles(w, h, sd, wr, zr)]
         x, chi2, cov = min(fits, key=lambda fit: fit[1])
+        if np.any(np.exp(x[n:]) >= SEARCH_ZETA * (1 - 1e-6)):
+            # a pole on the search's bound: free to say it is overdamped
+            wide = _fit_poles(w, h, sd, np.exp(x[:n]), np.exp(x[n:]), w_lim, ZETA_BOUNDS[1])
+            if wide[1] <= chi2:
+                x, chi2, cov = wide
         wr, zr = np.exp(x[:n]), np.exp(x[n:])
         bic = chi2 + 4 * n * math.log(n_eq)
         rows.append({"modes": n, "chi2": chi2, "bic": bic})
@@ -507,10 +688,10 @@ def fit_modes(w: np.ndarray, h: np.ndarray, sd: np.ndarray,
 
 # --- over the levels ---------------------------------------------------------------------
 def _track(axis: str, fits: list[LevelModes]) -> list[ModeTrack]:
-    """Each mode of the reference level (most modes in the band, then most modes; the lowest
-    level among equals) followed
-    over the levels: the nearest mode within ``MATCH_RATIO`` in frequency, each used once."""
-    ref = max(fits, key=lambda lv: (sum(map(lv.in_band, lv.modes)), len(lv.modes)))
+    """Each pole of the reference level (most modes shown, then most poles; the lowest level
+    among equals) followed over the levels: the nearest pole within ``MATCH_RATIO`` in
+    frequency."""
+    ref = max(fits, key=lambda lv: (sum(map(lv.shown, lv.modes)), len(lv.modes)))
     tracks = []
     for i, m in enumerate(ref.modes):
         labs, fn, zt, fsd, zsd, lvl = [], [], [], [], [], []
@@ -527,8 +708,8 @@ def _track(axis: str, fits: list[LevelModes]) -> list[ModeTrack]:
             fsd.append(md.natural_hz_sd)
             zsd.append(md.damping_ratio_sd)
             lvl.append(lv.force_n)
-        tr = ModeTrack(axis, i + 1, labs, fn, zt, band_hz=ref.band_hz, in_band=ref.in_band(m),
-                       reference=m)
+        tr = ModeTrack(axis, i + 1, labs, fn, zt, band_hz=ref.band_hz,
+                       why_not=ref.why_not(m), reference=m)
         if len(labs) >= 2 and all(np.isfinite(fsd)) and all(np.isfinite(zsd)):
             x = np.log(lvl)
             tr.frequency = trend(x, np.array(fn), np.array(fsd), FREQ_CHANGE,
@@ -571,7 +752,7 @@ def modal_dependence(records: list[RunRecord], segs: list[Segment]) -> Modes:
                      for s in ss if s.freq_hz] or [bb.force_n]
             band = (float(w.min()) / (2 * math.pi), float(w.max()) / (2 * math.pi))
             fits.append(LevelModes(lab, "xy"[axis], float(np.median(f_amp)), int(w.size),
-                                   modes, rows, band))
+                                   modes, rows, band, np.unique(w) / (2 * math.pi)))
             narrow = [md.natural_hz for md in modes
                       if 2 * md.damping_ratio * md.natural_hz < WINDOW_LINES * bb.window_hz]
             if narrow:

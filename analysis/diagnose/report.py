@@ -278,20 +278,21 @@ def _modes_html(diag: Diagnosis) -> list[str]:
            "<h2>Modes in the band (modal fit per level, order by the points' noise)</h2>",
            f"<p><b>{html.escape(modes.text)}</b></p>"]
     rows = [{"level": lv.label, "axis": lv.axis, "force_amplitude_N": lv.force_n,
-             "points": lv.points, "mode": i + 1, **m.to_dict(), "in_band": lv.in_band(m),
+             "points": lv.points, "mode": i + 1, **m.to_dict(), "shown": lv.shown(m),
+             "why_not": "; ".join(lv.why_not(m)),
              "chi2_per_dof": lv.chi2_per_dof}
             for lv in modes.levels for i, m in enumerate(lv.modes)]
     if rows:
         out.append(_table(rows, ["level", "axis", "force_amplitude_N", "points", "mode",
                                  "natural_frequency_hz", "natural_frequency_sd_hz",
-                                 "damping_ratio", "damping_ratio_sd", "in_band",
+                                 "damping_ratio", "damping_ratio_sd", "shown", "why_not",
                                  "chi2_per_dof"]))
     trends = [{"axis": t.axis, "mode": t.index, "levels": len(t.levels),
                "frequency": t.frequency.verdict if t.frequency else "",
                "frequency_change": t.frequency.change if t.frequency else "",
                "damping": t.damping.verdict if t.damping else "",
                "damping_change": t.damping.change if t.damping else ""}
-              for t in modes.tracks if t.in_band]
+              for t in modes.tracks if t.shown]
     if trends:
         out.append("<p>Each mode against the level:</p>")
         out.append(_table(trends, ["axis", "mode", "levels", "frequency", "frequency_change",

@@ -176,8 +176,11 @@ def _run(args: argparse.Namespace) -> int:
             params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                for k, v in best["parameters"].items())
             why = best.get("not_a_finding", "not significant")
-            print(f"  best candidate: {best['effect']} ({params}), held-out "
-                  f"{best['held_out_error']:.4g} {u}, gain {best['gain']:.3g} ({why})")
+            # a gain that rounds to 1 lowers nothing: no candidate is better than the baseline
+            lead = ("best candidate" if round(best["gain"], 3) > 1.0 else
+                    "no candidate lowers the held-out error; the nearest")
+            print(f"  {lead}: {best['effect']} ({params}), held-out "
+                  f"{best['held_out_error']:.4g} {u}, gain {best['gain']:.4g} ({why})")
     if diag.unexplained:
         print("unexplained: a structured discrepancy remains that the library does not explain")
     if diag.verdict is not None:
@@ -199,7 +202,7 @@ def _run(args: argparse.Namespace) -> int:
               + baseline_modes_text(baseline_modes(diag.baseline_model, diag.records)))
     if diag.modes is not None:
         print(f"modes in the band: {diag.modes.text}")
-        for tr in (t for t in diag.modes.tracks if t.in_band):
+        for tr in (t for t in diag.modes.tracks if t.shown):
             trends = (f": {tr.frequency.verdict} ({tr.frequency.change:+.1%}), damping "
                       f"{tr.damping.verdict} ({tr.damping.change:+.0%})"
                       if tr.frequency and tr.damping else "")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -198,8 +199,15 @@ def test_cli_train_runs_test_runs(level_runs, tmp_path, capsys):
     assert (rep / "amplitude.png").read_bytes()[:4] == b"\x89PNG"
     out_text = capsys.readouterr().out
     assert "amplitude dependence: x: natural frequency level-independent" in out_text
-    assert "modes in the band: x: 1 mode (33.4" in out_text
-    assert f"  best candidate: {best['effect']} (" in out_text
+    # 33.4 Hz at a damping ratio of 72 % (5.43 kN.s/m over 2 sqrt(788 kN/m x 17.9 kg)): the
+    # pole no longer pinned on a bound at 70 %
+    said = re.search(r"modes in the band: x: 1 mode \(([\d.]+)[^(]*\(damping (\d+) ", out_text)
+    assert said and float(said[1]) == pytest.approx(33.40, rel=0.01), out_text
+    assert int(said[2]) == 72, out_text
+    # a gain that rounds to 1 lowers nothing: then no candidate is called best
+    lead = ("best candidate" if round(best["gain"], 3) > 1.0
+            else "no candidate lowers the held-out error; the nearest")
+    assert f"  {lead}: {best['effect']} (" in out_text
 
 
 @pytest.mark.parametrize(("args", "message"), [
