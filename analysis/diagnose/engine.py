@@ -121,8 +121,15 @@ from analysis.diagnose.residual_structure import (
     signature_sd,
 )
 from analysis.diagnose.start import stands_above_noise
-from analysis.diagnose.verdict import Verdict, excited_band, judge, refinement_share, signal_fit
-from analysis.diagnose.whole_record import account
+from analysis.diagnose.verdict import (
+    STRUCTURE_LEFT,
+    Verdict,
+    excited_band,
+    judge,
+    refinement_share,
+    signal_fit,
+)
+from analysis.diagnose.whole_record import account, fundamental_excess
 from rig_model.params import RigParams
 
 __all__ = ["Diagnosis", "Finding", "diagnose"]
@@ -318,6 +325,14 @@ def diagnose(
     verdict = judge(records, base.test, search.test, test, ra.channel_noise(records, test),
                     findings[0].test_residuals if findings else None, structure,
                     excess_chi2(base_structure), record)
+    if findings and any(r["structure"] for r in record if r["test"] == "fundamental_at_noise"):
+        # the 1X the findings leave against the baseline's: a finding beside a 1X pattern
+        # it did not mostly remove may stand in for part of it
+        base_all = residuals(pb.ev, base.model, pb.fit_train, every)
+        before = account(records, base_all, every,
+                         _finer_replay(pb, base.model, every, base_all))
+        had = fundamental_excess(before)
+        verdict.record_1x_left_share = fundamental_excess(record) / had if had > 0 else 1.0
     for row in verdict.structure + verdict.record:
         say(f"structure: {row['text']}")
     on_bound = _what_the_baseline_misses(verdict, base, findings, notes)
@@ -966,8 +981,10 @@ def _confidence(pb: Problem, base: Baseline, findings: list[Finding], search: _S
 def _weak(verdict: Verdict, base_on_bound: bool, f: Finding) -> bool:
     """Whether the final model leaves too much for ``f`` to be named with confidence: the
     signal not explained, an inadequate baseline or one on a bound, a refinement, or structure
-    left in the residual unless the findings explain nearly all of the baseline's
+    left in the residual (or a 1X pattern in the whole record, ``whole_record``'s
+    ``fundamental_at_noise``) unless the findings explain nearly all of the baseline's
     (``verdict.STRUCTURE_LEFT``)."""
     return (verdict.signal_unexplained or not verdict.adequate or base_on_bound
             or f.evidence.get("refinement", False)
-            or (bool(verdict.structure) and not verdict.structure_mostly_explained))
+            or (bool(verdict.structure) and not verdict.structure_mostly_explained)
+            or verdict.record_1x_left_share > STRUCTURE_LEFT)

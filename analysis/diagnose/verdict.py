@@ -216,6 +216,9 @@ class Verdict:
     #: the whole record's tests (``whole_record.account``: harmonics to 10X, lines between
     #: them, the 1X against the noise and the replay's own error), largest first
     record_tests: list[dict[str, Any]] = field(default_factory=list)
+    #: the 1X pattern the whole record shows beyond the noise (``fundamental_at_noise``'s
+    #: excess chi-square) that the findings leave of the baseline's; 0 where none is left
+    record_1x_left_share: float = 0.0
 
     @property
     def record(self) -> list[dict[str, Any]]:
@@ -249,6 +252,7 @@ class Verdict:
                 "structure_tests": self.structure_tests,
                 "structure_threshold_sd": Z_STRUCTURE,
                 "record": self.record, "record_tests": self.record_tests,
+                "record_1x_left_share": self.record_1x_left_share,
                 "structure_left_share": self.structure_left_share}
 
 

@@ -361,6 +361,13 @@ def _fundamental_rows(ch: str, dw: list[_Dwell], spectra: list,
                                               for p in picked if p.fine_r1 is not None])))]
 
 
+def fundamental_excess(rows: list[dict[str, Any]]) -> float:
+    """What the ``fundamental_at_noise`` rows hold beyond their noise, in noise variances (the
+    chi-square above its degrees of freedom, summed over the channels)."""
+    return float(sum(max(r["chi2"] - r["dof"], 0.0) for r in rows
+                     if r["test"] == "fundamental_at_noise"))
+
+
 def _row(test: str, ch: str, z: float, size: float, text: str, threshold: float = Z_STRUCTURE,
          **more: Any) -> dict[str, Any]:
     return {"test": test, "channel": ch, "part": "", "z": float(z), "size": float(size),
