@@ -3,8 +3,10 @@
 above the band and an Iwan joint (hysteresis outside the library's family), each recorded,
 imported with the minimal conditions and diagnosed with ``--baseline fitted`` as an operator
 does; judged by ``record_cases.judge_record`` (never a confident wrong cause; the finding
-named where the record shows it). Each is one diagnose of 16 dwells (20-40 s CPU): CI runs
-the floor's input, the other three are ``slow``."""
+named where the record shows it). Each is one diagnose of 16 dwells (40-90 s CPU): ``slow``
+(CI runs the whole record's checks on residuals made with a known content,
+``tests/analysis/test_diagnose_whole_record.py``, and prints them on every harmonic-balance
+case of ``test_judgement``)."""
 
 from __future__ import annotations
 
@@ -18,12 +20,10 @@ from tests.independent_hb.generate import import_run
 from tests.independent_hb.record_cases import RECORD_CASES, judge_record
 
 SEED = 1
-IN_CI = ("floor_input",)
 
 
-@pytest.mark.parametrize("name", [
-    pytest.param(n, marks=() if n in IN_CI else (pytest.mark.slow,), id=n)
-    for n in RECORD_CASES])
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(RECORD_CASES))
 def test_diagnose_accounts_for_the_whole_record(name: str, tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     from sfdrig.cli import main
