@@ -49,7 +49,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
+from scipy.stats import f as f_dist
 from scipy.stats import norm
 
 from analysis.diagnose.data import RunRecord, Segment
@@ -62,6 +62,12 @@ MAX_ORDER = 10
 #: bins either side of a harmonic left out of the line search: the Hann window's main lobe
 #: (its harmonics are taken out by least squares first, so nothing leaks further)
 GUARD_BINS = 2
+#: bins either side of a bin, beyond its main lobe, whose mean power over the dwells is its
+#: level in the line search (3: 6 bins x the dwells, a level to about 10 % over 15 dwells,
+#: the F distribution taking its scatter in; close enough to follow the coloured spectrum of
+#: the model's response to the load cell's noise, 5x over 20 Hz on the independent rig's y
+#: probe; not sized on data)
+SIDE_BINS = 3
 #: bins either side of a bin over which its dwell's noise level is the median: 51 bins, a
 #: level to about 18 % per dwell (1.25 / sqrt(51) of an exponential's median), averaged over
 #: the dwells; wide enough that a line (one or two bins) does not raise its own floor, narrow
@@ -261,23 +267,45 @@ def _line_rows(ch: str, dw: list[_Dwell], spectra: list, lo_hz: float, top_hz: f
         return []
     (n, fs), idx = max(groups.items(), key=lambda kv: len(kv[1]))
     f = spectra[idx[0]][0]
-    band = (f >= max(lo_hz, 2 * f[1])) & (f <= min(top_hz, 0.8 * fs / 2))
-    norm_p = np.array([spectra[i][1] for i in idx])[:, band]
-    seen = np.isfinite(norm_p)
-    dof = 2 * seen.sum(axis=0)
-    stat = 2 * np.nansum(norm_p, axis=0)
-    ok = dof > 0
+    # each bin against the dwells' mean power on the bins beside it (``SIDE_BINS`` either side
+    # beyond its own main lobe): the residual's spectrum is coloured (the model's response to
+    # the load cell's noise, a low-pass), so its level is read locally, over every dwell of
+    # the group at once; a bin is searched only where bins on both sides give that level
+    raw = np.array([spectra[i][1] * spectra[i][2] for i in idx])  # NaN near harmonics
+    lo_bin = 2 * GUARD_BINS + SIDE_BINS + 1
+    hi_bin = f.size - 1 - GUARD_BINS - SIDE_BINS
+    band = np.zeros(f.size, dtype=bool)
+    band[lo_bin:hi_bin + 1] = True
+    band &= (f >= lo_hz) & (f <= min(top_hz, 0.8 * fs / 2))
+    offsets = [o for o in range(GUARD_BINS + 1, GUARD_BINS + SIDE_BINS + 1)]
+    cols = np.flatnonzero(band)
+    beside = np.stack([raw[:, cols + sgn * o] for o in offsets for sgn in (-1, 1)], axis=0)
+    counts = np.sum(np.isfinite(beside), axis=(0, 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        level = np.nanmean(beside, axis=(0, 1))
+    here = raw[:, cols]
+    seen = np.isfinite(here)
+    m = seen.sum(axis=0)
+    ok = (m > 0) & (counts > 0) & np.isfinite(level) & (level > 0)
     if not np.any(ok):
         return []
+    # the mean power of m dwells over a level from ``counts`` others: F-distributed on
+    # (2 m, 2 counts) where the noise is locally white (the level's own scatter included);
+    # neighbouring Hann bins are correlated (their powers by about 1/4), so two thirds of the
+    # level's bins count
+    ratio = np.where(ok, np.nansum(here, axis=0) / np.where(ok, m * level, 1.0), 0.0)
     with np.errstate(divide="ignore"):
-        logp = np.where(ok, chi2_dist.logsf(stat, np.maximum(dof, 1)), 0.0)
+        logp = np.where(ok, f_dist.logsf(ratio, 2 * np.maximum(m, 1),
+                                         np.maximum(4 * counts / 3, 2)), 0.0)
+    norm_p = here / np.where(ok, level, np.nan)[None, :]
+    band_f = f[cols]
     n_bins = int(ok.sum())
     # one Z_STRUCTURE test's tail shared over the bins searched (Bonferroni)
     z_line = float(norm.isf(norm.sf(Z_STRUCTURE) / n_bins))
     best = int(np.argmin(logp))
     z = _z_of_log_tail(float(logp[best]))
-    fb = f[band]
-    hz = float(fb[best])
+    hz = float(band_f[best])
     # between bins: the peak of a parabola through the log powers about it
     total = np.nansum(norm_p, axis=0)
     if 0 < best < total.size - 1 and np.all(total[best - 1:best + 2] > 0):
@@ -289,18 +317,16 @@ def _line_rows(ch: str, dw: list[_Dwell], spectra: list, lo_hz: float, top_hz: f
     # the line's amplitude per dwell where it was seen: what it adds above the dwell's level
     # (the Hann periodogram of a sine of amplitude a on a bin over n samples: a^2 n / 6)
     excess = []
-    for j, i in enumerate(idx):
+    for j in range(len(idx)):
         if seen[j, best]:
-            spec = spectra[i]
-            level = float(spec[2][band][best])
-            excess.append(max(float(norm_p[j, best]) - 1.0, 0.0) * level)
+            excess.append(max(float(norm_p[j, best]) - 1.0, 0.0) * float(level[best]))
     amp = float(math.sqrt(6.0 * float(np.mean(excess)) / n)) if excess else 0.0
     structure = z >= z_line
     text = (f"{ch}: a line at {hz:.4g} Hz, neither the drive's frequency nor a harmonic of it, "
             f"in {len(excess)} dwells, about {amp:.3g} {unit}: an input the record did not "
             f"measure (not fitted)" if structure else
-            f"{ch}: no line between the harmonics from {max(lo_hz, 2 * f[1]):.4g} to "
-            f"{min(top_hz, 0.8 * fs / 2):.4g} Hz (the largest at {hz:.4g} Hz)")
+            f"{ch}: no line between the harmonics from {float(band_f[0]):.4g} to "
+            f"{float(band_f[-1]):.4g} Hz (the largest at {hz:.4g} Hz)")
     return [_row("unmeasured_input", ch, z, amp, text, threshold=z_line, freq_hz=hz,
                  amplitude=amp, unit=unit, bins_searched=n_bins)]
 
