@@ -116,25 +116,23 @@ def _harmonic_fit(sigs: np.ndarray, start: int, fs: float, freq_hz: float,
 def _views(records: list[RunRecord], res: Residuals, segs: list[Segment], top_hz: float,
            finer: Residuals | None) -> list[_Dwell]:
     out: list[_Dwell] = []
-    for seg in segs:
-        if not seg.freq_hz or seg.freq_hz <= 0 or seg not in res.per_segment:
-            continue
-        rec = records[seg.run]
+    # dwells of four periods or more (the harmonics' columns near orthogonal)
+    for seg in (s for s in segs if s.freq_hz and s in res.per_segment
+                and s.n * s.freq_hz >= 4 * records[s.run].sample_rate_hz):
+        rec, hz = records[seg.run], float(seg.freq_hz or 0.0)
         fs = rec.sample_rate_hz
-        if seg.n < 4 * fs / seg.freq_hz:
-            continue
         # every harmonic below the search's top and Nyquist's 0.8 (the line search's band)
-        orders = max(1, int(min(top_hz, 0.8 * fs / 2) / seg.freq_hz))
+        orders = max(1, int(min(top_hz, 0.8 * fs / 2) / hz))
         start = len(out)
         for ch, r in res.per_segment[seg].items():
             if not np.all(np.isfinite(r)):
                 continue
             meas = rec.signal(ch)[seg.start:seg.stop]
-            z, rest = _harmonic_fit(np.column_stack([r, meas]), seg.start, fs, seg.freq_hz,
+            z, rest = _harmonic_fit(np.column_stack([r, meas]), seg.start, fs, hz,
                                     orders)
             zr, zm = z[:, 0], z[:, 1]
             # the model's own harmonics: measured less residual
-            out.append(_Dwell(seg, ch, fs, seg.freq_hz, r, zr, zm - zr, complex(zm[0]),
+            out.append(_Dwell(seg, ch, fs, hz, r, zr, zm - zr, complex(zm[0]),
                               rest[:, 0]))
         kinds = rec.objective_channels()
         top: dict[str, float] = {}
@@ -148,11 +146,11 @@ def _views(records: list[RunRecord], res: Residuals, segs: list[Segment], top_hz
             # the 1X replayed at twice the rate, and the dwell's dynamic stiffness seen by
             # this channel (its 1X as a displacement: velocity / i w, acceleration / -w^2)
             d.fine_r1 = complex(_harmonic_fit(finer.per_segment[seg][d.channel][:, None],
-                                              seg.start, fs, seg.freq_hz, 1)[0][0, 0])
+                                              seg.start, fs, hz, 1)[0][0, 0])
             ax, q = kinds[d.channel]
             f1 = _harmonic_fit(rec.force_n[ax, seg.start:seg.stop][:, None], seg.start, fs,
-                               seg.freq_hz, 1)[0][0, 0]
-            w = 2 * math.pi * seg.freq_hz
+                               hz, 1)[0][0, 0]
+            w = 2 * math.pi * hz
             x1 = d.z1 / {"velocity": 1j * w, "acceleration": -w * w}.get(q, 1.0)
             d.stiffness = complex(f1 / x1) if abs(f1) > 0 else 0j
     return out
