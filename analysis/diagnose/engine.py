@@ -121,7 +121,15 @@ from analysis.diagnose.residual_structure import (
     signature_sd,
 )
 from analysis.diagnose.start import stands_above_noise
-from analysis.diagnose.verdict import Verdict, excited_band, judge, refinement_share, signal_fit
+from analysis.diagnose.verdict import (
+    STRUCTURE_LEFT,
+    Verdict,
+    excited_band,
+    judge,
+    refinement_share,
+    signal_fit,
+)
+from analysis.diagnose.whole_record import account, fundamental_excess
 from rig_model.params import RigParams
 
 __all__ = ["Diagnosis", "Finding", "diagnose"]
@@ -312,10 +320,23 @@ def diagnose(
     # the baseline's structure: how much of it the findings explain
     base_structure = (find_structure(records, residuals(pb.ev, base.model, pb.fit_train, every),
                                      every, len(base.free)) if findings else structure)
+    # the whole record: harmonics beyond 5X, lines between them, the 1X against the noise
+    # and the replay's own error (``whole_record``)
+    record = account(records, final_all, every,
+                     _finer_replay(pb, search.model, every, final_all))
+    _try_even_term(pb, ctx, lib, findings, search.model, every, record, say)
     verdict = judge(records, base.test, search.test, test, ra.channel_noise(records, test),
                     findings[0].test_residuals if findings else None, structure,
-                    excess_chi2(base_structure))
-    for row in verdict.structure:
+                    excess_chi2(base_structure), record)
+    if findings and any(r["structure"] for r in record if r["test"] == "fundamental_at_noise"):
+        # the 1X the findings leave against the baseline's: a finding beside a 1X pattern
+        # it did not mostly remove may stand in for part of it
+        base_all = residuals(pb.ev, base.model, pb.fit_train, every)
+        before = account(records, base_all, every,
+                         _finer_replay(pb, base.model, every, base_all))
+        had = fundamental_excess(before)
+        verdict.record_1x_left_share = fundamental_excess(record) / had if had > 0 else 1.0
+    for row in verdict.structure + verdict.record:
         say(f"structure: {row['text']}")
     on_bound = _what_the_baseline_misses(verdict, base, findings, notes)
     for f in findings:
@@ -349,6 +370,67 @@ def diagnose(
         elapsed_s=time.perf_counter() - t_start, notes=notes, verdict=verdict,
         amplitude=amplitude, modes=modes, order=base.order,
     )
+
+
+def _try_even_term(pb: Problem, ctx: Context, lib: list[Effect], findings: list[Finding],
+                   model: Model, segs: list[Segment], record: list[dict[str, Any]],
+                   say: Any) -> None:
+    """Where even harmonics stand out in the record (``whole_record``'s 2X, 4X, ... rows) and
+    no finding is the library's even term, that term (``quadratic_stiffness``) fitted on top
+    of the final model, and what it leaves of each such harmonic, entered in its row
+    (``even_term_tried``; the verdict is not changed by it: a term tried after the rounds is no
+    finding)."""
+    even = [r for r in record if r["structure"] and r["test"] == "harmonic"
+            and r["order"] % 2 == 0]
+    eff = next((e for e in lib if e.id == "quadratic_stiffness"), None)
+    if not even or eff is None or any(f.effect == eff.id for f in findings):
+        return
+    best: tuple[FitResult, Variant] | None = None
+    try:
+        for var in eff.variants(ctx, model):
+            res = fit(pb.ev, var.starts, var.params, pb.fit_train, pb.scale_m, step=pb.step,
+                      keep=var.keep)
+            if best is None or res.train_sse < best[0].train_sse:
+                best = (res, var)
+    except Exception as err:
+        if fit_failure(err) is None:
+            raise
+        return
+    if best is None:
+        return
+    res, var = best
+    params = parameters_of(var, res.model)
+    after = account(pb.ev.records, residuals(pb.ev, res.model, pb.fit_train, segs), segs)
+    for row in even:
+        left = next((a for a in after if a["test"] == "harmonic" and a["channel"]
+                     == row["channel"] and a["order"] == row["order"]), None)
+        if left is None:
+            continue
+        row["even_term_tried"] = {"effect": eff.id, "parameters": params,
+                                  "z_after": left["z"]}
+        k2 = next(iter(v for v in params.values() if isinstance(v, float)), math.nan)
+        row["text"] += (f"; the library's even term tried (quadratic_stiffness, k2 = "
+                        f"{k2:.4g}): {'it takes' if left['z'] < Z_STRUCTURE else 'it leaves'} "
+                        f"this harmonic ({left['z']:.1f} sd after)")
+        say(f"even term tried: {row['text']}")
+
+
+def _finer_replay(pb: Problem, model: Model, segs: list[Segment],
+                  res: Residuals) -> Residuals | None:
+    """``model``'s residuals on the dwells of ``segs`` replayed in steady state, replayed
+    again at twice the rate (the force band-limited between samples: a discretisation error
+    falls at least fourfold), with ``res``'s offsets: what ``whole_record`` reads the replay's
+    own error from. None where no dwell is replayed in steady state (a rig's own runs: their
+    replay from rest keeps `residual_structure.RESOLUTION`)."""
+    ev = pb.ev
+    steady = [s for s in segs if ev.periodic_chunk(s)]
+    if not steady:
+        return None
+    fine = Evaluator(ev.records, warmup_s=ev.warmup_s, steady_state_dwells=True,
+                     oversample={i: 2 * ev.oversample.get(i, 1)
+                                 for i in range(len(ev.records))},
+                     weights=ev.weights, drift=ev.drift)
+    return residuals(fine, model, pb.fit_train, steady, offsets=res.offsets)
 
 
 def _more_modes_than_the_baseline(modes: Modes, baseline: Model, notes: list[str]) -> None:
@@ -902,8 +984,10 @@ def _confidence(pb: Problem, base: Baseline, findings: list[Finding], search: _S
 def _weak(verdict: Verdict, base_on_bound: bool, f: Finding) -> bool:
     """Whether the final model leaves too much for ``f`` to be named with confidence: the
     signal not explained, an inadequate baseline or one on a bound, a refinement, or structure
-    left in the residual unless the findings explain nearly all of the baseline's
+    left in the residual (or a 1X pattern in the whole record, ``whole_record``'s
+    ``fundamental_at_noise``) unless the findings explain nearly all of the baseline's
     (``verdict.STRUCTURE_LEFT``)."""
     return (verdict.signal_unexplained or not verdict.adequate or base_on_bound
             or f.evidence.get("refinement", False)
-            or (bool(verdict.structure) and not verdict.structure_mostly_explained))
+            or (bool(verdict.structure) and not verdict.structure_mostly_explained)
+            or verdict.record_1x_left_share > STRUCTURE_LEFT)

@@ -343,6 +343,7 @@ def _verdict_html(diag: Diagnosis) -> list[str]:
             out.append("<p>Baseline parameters on a bound of the fit: "
                        f"{html.escape(str(v.missing['baseline_parameters_on_bound']))}.</p>")
     out += _structure_html(v.structure_tests)
+    out += _record_html(v.record_tests)
     if not v.adequate:
         out.append("<p><b>The baseline does not describe the data; no cause is named with "
                    "confidence on top of it.</b></p>")
@@ -363,6 +364,24 @@ def _structure_html(tests: list[dict[str, Any]]) -> list[str]:
     return [f"<p><b>Structure above the noise in the final model's residual</b> ({len(found)} "
             f"tests at {Z_STRUCTURE:g} sd or more: the verdict cannot be \"explained\"):</p>",
             _table(rows, ["test", "channel", "part", "size", "sd", "what"])]
+
+
+def _record_html(tests: list[dict[str, Any]]) -> list[str]:
+    """What the whole record holds that the model does not (``whole_record``): harmonics to
+    10X, lines at other frequencies, the 1X against the noise and the replay's own error."""
+    if not tests:
+        return []
+    found = [t for t in tests if t["structure"]]
+    if not found:
+        return [f"<p>The whole record accounted for: no harmonic to 10X, no line between the "
+                f"harmonics and no 1X error above the noise (largest: "
+                f"{html.escape(tests[0]['text'])}).</p>"]
+    rows = [{"test": t["test"], "channel": t["channel"], "frequency Hz": t.get("freq_hz"),
+             "size": t.get("amplitude", t["size"]), "unit": t.get("unit", ""), "sd": t["z"],
+             "what": t["text"]} for t in found]
+    return ["<p><b>In the record, not in the model</b> (the verdict cannot be "
+            "\"explained\"):</p>",
+            _table(rows, ["test", "channel", "frequency Hz", "size", "unit", "sd", "what"])]
 
 
 def write_report(diag: Diagnosis, out_dir: Path, extended_model_path: str | None) -> Path:

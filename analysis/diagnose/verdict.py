@@ -213,6 +213,18 @@ class Verdict:
     #: the structure the final model leaves over the baseline's (excess chi-square over the
     #: noise, ``residual_structure.excess_chi2``); NaN where the baseline had none
     structure_left_share: float = math.nan
+    #: the whole record's tests (``whole_record.account``: harmonics to 10X, lines between
+    #: them, the 1X against the noise and the replay's own error), largest first
+    record_tests: list[dict[str, Any]] = field(default_factory=list)
+    #: the 1X pattern the whole record shows beyond the noise (``fundamental_at_noise``'s
+    #: excess chi-square) that the findings leave of the baseline's; 0 where none is left
+    record_1x_left_share: float = 0.0
+
+    @property
+    def record(self) -> list[dict[str, Any]]:
+        """The whole record's tests that found something the model does not account for
+        (each makes the verdict at least "unexplained")."""
+        return [t for t in self.record_tests if t["structure"]]
 
     @property
     def structure_mostly_explained(self) -> bool:
@@ -239,6 +251,8 @@ class Verdict:
                 "missing": self.missing, "structure": self.structure,
                 "structure_tests": self.structure_tests,
                 "structure_threshold_sd": Z_STRUCTURE,
+                "record": self.record, "record_tests": self.record_tests,
+                "record_1x_left_share": self.record_1x_left_share,
                 "structure_left_share": self.structure_left_share}
 
 
@@ -276,7 +290,8 @@ def refinement_share(before: SignalFit, after: SignalFit,
 def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: list[Segment],
           noise_ms_of: dict[str, float], first: Residuals | None = None,
           structure_tests: list[dict[str, Any]] | None = None,
-          baseline_excess: float | None = None) -> Verdict:
+          baseline_excess: float | None = None,
+          record_tests: list[dict[str, Any]] | None = None) -> Verdict:
     """Judge the baseline and the final model against the held-out signal.
 
     The baseline is adequate when it explains at least ``ADEQUATE`` of the signal above the
@@ -291,7 +306,9 @@ def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: lis
     residual above its own noise (``structure_tests``, ``residual_structure``: the dynamic
     stiffness's error varying with amplitude, time, frequency or temperature, a repeated dwell
     that changed, harmonics or the other axis's response) is unexplained however small a
-    share of the signal it is.
+    share of the signal it is; so is anything the whole record holds that the model does not
+    account for (``record_tests``, ``whole_record``: a harmonic up to 10X, a line at another
+    frequency, the 1X beyond the noise and the replay's own error).
     """
     fb = signal_fit(records, base, segs, noise_ms_of)
     ff = signal_fit(records, final, segs, noise_ms_of)
@@ -303,7 +320,7 @@ def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: lis
         adequate = math.isfinite(one) and one >= ADEQUATE
     beyond_noise = bool(ff.noise_rms > 0 and ff.residual_rms > NOISE_MARGIN * ff.noise_rms)
     tests = list(structure_tests or [])
-    structured = any(t["structure"] for t in tests)
+    structured = any(t["structure"] for t in tests + list(record_tests or []))
     signal_left = final_x < 1.0 - UNEXPLAINED_SHARE or beyond_noise
     unexplained = signal_left or structured
     left = math.nan
@@ -322,4 +339,5 @@ def judge(records: list[RunRecord], base: Residuals, final: Residuals, segs: lis
                     if math.isfinite(d["explained_fraction"]) else 2.0),
             }
     return Verdict(fb, ff, adequate, unexplained, missing, structure_tests=tests,
-                   signal_unexplained=signal_left, structure_left_share=left)
+                   signal_unexplained=signal_left, structure_left_share=left,
+                   record_tests=list(record_tests or []))

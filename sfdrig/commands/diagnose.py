@@ -191,6 +191,9 @@ def _run(args: argparse.Namespace) -> int:
         if len(structure) > _STRUCTURE_SHOWN:
             print(f"  ... and {len(structure) - _STRUCTURE_SHOWN} more tests above the noise "
                   "(JSON verdict.structure)")
+        # the whole record: harmonics to 10X, lines between them, the 1X at the noise
+        for row in diag.verdict.record:
+            print(f"  in the record, not in the model: {row['text']}")
     if diag.amplitude is not None:
         print(f"amplitude dependence: {diag.amplitude.text}")
         for lv in diag.amplitude.levels:

@@ -129,6 +129,7 @@ def record(rig: Rig, dwells: list[Dwell], seed: int,
     time_s = np.arange(n_total) / FS_HZ
     cols = {c: np.zeros(n_total) for c in CHANNELS}
     cols["time_s"], cols["freq_hz"] = time_s, np.zeros(n_total)
+    floor = _floor_response(rig, time_s)
     for r in solved:
         sl = slice(r.first_sample, r.first_sample + r.n_samples)
         t_local = np.arange(r.n_samples) / FS_HZ
@@ -140,12 +141,32 @@ def record(rig: Rig, dwells: list[Dwell], seed: int,
         series = {"fx_N": force, "fy_N": np.zeros(q.shape[1]), "x_m": q[0], "y_m": q[1],
                   "ax_mps2": -((nh * w) ** 2) * (q[0] + frame), "ay_mps2": -((nh * w) ** 2) * q[1]}
         for name, harmonics in series.items():
-            cols[name][sl] = sensors.record(name, t_local, harmonics, w, rng)
+            extra = floor[name][sl] if name in floor else None
+            cols[name][sl] = sensors.record(name, t_local, harmonics, w, rng, extra)
         cols["freq_hz"][sl] = r.dwell.freq_hz
     # the oil temperature drifts continuously (the film's damping follows it per dwell)
     temp = rig.oil_temp_c(time_s / (n_total / FS_HZ))  # linear in the run's fraction
     cols["oil_temp_C"] = sensors.finish("oil_temp_C", temp, rng)
     return Recording(cols, solved, rig, sensors)
+
+
+def _floor_response(rig: Rig, time_s: np.ndarray) -> dict[str, np.ndarray]:
+    """The response to the floor's unmeasured input (``Hidden.floor``) over the run, per
+    response channel (the rig's linear dynamic stiffness at its frequency, the parameters of
+    the run's middle; superposed on the dwells' balance, which is exact for a linear rig)."""
+    floor = rig.hidden.floor
+    if floor is None:
+        return {}
+    m_, c_, k_ = rig.matrices(0.5)
+    w = 2 * math.pi * floor.freq_hz
+    force = np.zeros(rig.n_dof, dtype=np.complex128)
+    force[0] = floor.force_n
+    q = np.linalg.solve(k_ - w * w * m_ + 1j * w * c_, force)
+    phase = np.exp(1j * w * time_s)
+    frame = q[2] if rig.n_dof > 2 else 0.0
+    return {"x_m": (q[0] * phase).real, "y_m": (q[1] * phase).real,
+            "ax_mps2": (-(w**2) * (q[0] + frame) * phase).real,
+            "ay_mps2": (-(w**2) * q[1] * phase).real}
 
 
 def import_run(rec: Recording, tmp: Path, name: str) -> Path:

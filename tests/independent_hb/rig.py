@@ -74,6 +74,33 @@ class BoucWen:
 
 
 @dataclass(frozen=True)
+class Iwan:
+    """A Masing/Iwan joint (outside the library's Bouc-Wen family): ``elements`` Jenkins
+    elements in parallel, each a spring ``stiffness_n_per_m / elements`` in series with a
+    Coulomb slider, their slip displacements spread uniformly over (0, ``max_slip_m``]. Its
+    backbone is ``k_j z (1 - z / (2 z_max))`` up to full slip (a parabola, not the exponential
+    of a Dahl/Bouc-Wen element of exponent 1) and it unloads along the backbone scaled twice
+    (Masing's rule), so its loss grows with the cube of the amplitude at small amplitude."""
+
+    stiffness_n_per_m: float = 2.4e5
+    max_slip_m: float = 60e-6
+    elements: int = 40
+
+    def slips_m(self) -> np.ndarray:
+        return self.max_slip_m * (np.arange(self.elements) + 0.5) / self.elements
+
+
+@dataclass(frozen=True)
+class FloorInput:
+    """An input nobody measured: a nearby machine shaking the rig through the floor, a force of
+    ``force_n`` at ``freq_hz`` on the housing along x, all run long (its phase runs on from the
+    run's start). The load cell is between the shaker and the housing: it does not see it."""
+
+    freq_hz: float = 24.7
+    force_n: float = 0.1
+
+
+@dataclass(frozen=True)
 class Hidden:
     """Effects hidden in the rig (all off by default); each is switchable on its own.
 
@@ -91,6 +118,10 @@ class Hidden:
     bouc_wen: BoucWen | None = None
     probe_gain_x: float = 1.0
     probe_delay_x_s: float = 0.0
+    #: an even spring on x alone, F = k2 z_x^2 (its 2X, and through the motion 3X, ...)
+    quadratic_k2_n_per_m2: float = 0.0
+    iwan: Iwan | None = None
+    floor: FloorInput | None = None
 
 
 @dataclass(frozen=True)
@@ -151,7 +182,8 @@ class Rig:
     def nonlinear(self, omega: float, amplitude_m: float) -> NonlinearForces | None:
         """The nonlinear forces (seal, cubic spring) on the housing, reacting on the frame."""
         h = self.hidden
-        if not (h.seal_friction_n or h.cubic_k3_n_per_m3 or h.bouc_wen):
+        if not (h.seal_friction_n or h.cubic_k3_n_per_m3 or h.bouc_wen
+                or h.quadratic_k2_n_per_m2 or h.iwan):
             return None
         v_eps = self.friction_smoothing * omega * amplitude_m
         has_frame = h.frame is not None
@@ -166,6 +198,10 @@ class Rig:
                 out[:, :2] += h.cubic_k3_n_per_m3 * np.sum(zxy**2, axis=1, keepdims=True) * zxy
             if h.bouc_wen is not None:
                 out[:, :2] += bouc_wen_force(zxy, h.bouc_wen)
+            if h.quadratic_k2_n_per_m2:  # even in x: pushes one way on both half cycles
+                out[:, 0] += h.quadratic_k2_n_per_m2 * zxy[:, 0] ** 2
+            if h.iwan is not None:
+                out[:, :2] += iwan_force(zxy, h.iwan)
             if has_frame:
                 out[:, 2] = -out[:, 0]
             return out
@@ -191,6 +227,27 @@ def bouc_wen_force(z: np.ndarray, law: BoucWen, max_periods: int = 40,
         if np.max(np.abs(w - w_start)) < tol:
             break
     return law.force_n * out
+
+
+def iwan_force(z: np.ndarray, law: Iwan) -> np.ndarray:
+    """The periodic steady state of the Iwan joint's force per axis over one period.
+
+    ``z``: ``(..., n_time)``. Each Jenkins element's slider follows the spring's end when its
+    force would exceed its slip force; after one period every element that slipped has
+    forgotten its start (one that never slips carries no force in steady state, its slider
+    resting where the spring is unstressed at the period's mean), so the second period is the
+    steady state."""
+    slip = law.slips_m()  # per element: the spring's stretch at which it slips
+    k_e = law.stiffness_n_per_m / law.elements
+    mean = np.mean(z, axis=-1, keepdims=True)
+    u = np.broadcast_to(mean, z.shape[:-1] + (1,)) + np.zeros(slip.shape)  # slider positions
+    out = np.empty_like(z)
+    for _ in range(2):
+        for k in range(z.shape[-1]):
+            zk = z[..., k : k + 1]
+            u = np.clip(u, zk - slip, zk + slip)
+            out[..., k] = k_e * np.sum(zk - u, axis=-1)
+    return out
 
 
 def _bouc_wen_step(w: np.ndarray, dz: np.ndarray, kappa: float) -> np.ndarray:

@@ -49,12 +49,15 @@ class SensorModel:
         return complex(self.gain.get(name, 1.0) * phasor * np.exp(-1j * omega * self.lag_s(name)))
 
     def record(self, name: str, t_s: np.ndarray, harmonics: np.ndarray, omega: float,
-               rng: np.random.Generator) -> np.ndarray:
+               rng: np.random.Generator, extra: np.ndarray | None = None) -> np.ndarray:
         """Samples at ``t_s`` (the dwell's own time, phase 0 at 0) of the true series
         ``Re(sum_n harmonics[n] exp(i n omega t))``: a polynomial in exp(i omega t), summed by
-        Horner's rule (one complex exponential a sample, not one a sample and harmonic)."""
+        Horner's rule (one complex exponential a sample, not one a sample and harmonic);
+        ``extra``: true samples added to it (an input at another frequency)."""
         z = np.exp(1j * omega * (t_s - self.lag_s(name)))
         clean = np.polyval(np.asarray(harmonics, dtype=np.complex128)[::-1], z).real
+        if extra is not None:
+            clean = clean + extra
         values = self.gain.get(name, 1.0) * clean + self.offset.get(name, 0.0)
         return self.finish(name, values, rng)
 

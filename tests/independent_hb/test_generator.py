@@ -14,7 +14,7 @@ import pytest
 from tests.independent_hb.balance import solve, to_harmonics, to_time
 from tests.independent_hb.cases import THRESHOLD_SIGMAS, cases, signature, threshold_friction
 from tests.independent_hb.generate import AMPS_M, FREQS_HZ, Dwell, plan, record
-from tests.independent_hb.rig import BoucWen, Frame, Hidden, Rig, bouc_wen_force
+from tests.independent_hb.rig import BoucWen, Frame, Hidden, Iwan, Rig, bouc_wen_force, iwan_force
 from tests.independent_hb.sensors import SensorModel
 
 # the report's lubricated rig, written out again for the closed forms (not read from rig.py)
@@ -124,6 +124,27 @@ def test_bouc_wen_loop_pre_slides_at_k0_and_saturates() -> None:
     assert np.max(np.abs(f)) == pytest.approx(20.0, rel=0.01)
     area = np.sum(f * np.diff(z, append=z[:1]))  # the work done on the seal per cycle
     assert 0 < area < 4 * 20.0 * 38e-6
+
+
+@pytest.mark.parametrize("amplitude_m", [13e-6, 38e-6])
+def test_iwan_loop_is_masing_with_its_closed_form_peak_and_dissipation(amplitude_m: float) -> None:
+    """One period of a Masing/Iwan joint at amplitude A: each Jenkins element (stiffness k_e,
+    slip displacement d_i) either sticks (force k_e A at the peak, no loss) or slips (force
+    k_e d_i, dissipating 4 k_e d_i (A - d_i) a cycle), so the peak force is sum k_e min(A, d_i)
+    and the loop's area sum 4 k_e d_i max(A - d_i, 0); its falling branch is the rising one
+    turned about the origin."""
+    law = Iwan(stiffness_n_per_m=2.4e5, max_slip_m=60e-6, elements=40)
+    theta = np.linspace(0, 2 * np.pi, 4096, endpoint=False)
+    z = amplitude_m * np.cos(theta)
+    f = iwan_force(z[None, :], law)[0]
+    k_e, d = law.stiffness_n_per_m / law.elements, law.slips_m()
+    assert f[0] == pytest.approx(float(np.sum(k_e * np.minimum(amplitude_m, d))), rel=1e-9)
+    # the loop's area by the trapezoid rule (the force is piecewise smooth in z)
+    area = float(np.sum(0.5 * (f + np.roll(f, -1)) * np.diff(z, append=z[:1])))
+    want = float(np.sum(4 * k_e * d * np.maximum(amplitude_m - d, 0.0)))
+    assert area == pytest.approx(want, rel=1e-3)
+    half = len(theta) // 2
+    assert f[half:] == pytest.approx(-f[:half], abs=1e-9 * float(np.max(np.abs(f))))
 
 
 def test_plan_is_the_grid_shuffled_with_the_first_repeated() -> None:

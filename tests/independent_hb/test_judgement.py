@@ -78,6 +78,9 @@ def test_diagnose_names_what_the_hb_generator_hid(name: str, tmp_path: Path,
         for row in f["evidence"].get("describing_function", []):
             assert "  " + describing_function_text(row) in text.splitlines(), \
                 f"{name}: describing-function row {row} not in the CLI's text"
+    for row in said_json["verdict"]["record"]:  # what the whole record holds beyond the model
+        assert f"  in the record, not in the model: {row['text']}" in text.splitlines(), \
+            f"{name}: {row['text']!r} not in the CLI's text"
     ok, said = judge(case, said_json, total)
     assert ok, f"{name} (signature {total:.0f} sigma over the run): {said}"
 
