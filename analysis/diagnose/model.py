@@ -194,15 +194,19 @@ class Evaluator:
             if self.periodic_chunk(seg):
                 out.append((seg.run, seg.start, seg.stop, [seg]))
                 continue
+            warm = int(self.warmup_s * self.records[seg.run].sample_rate_hz)
+            a = max(0, seg.start - warm)
             if from_run_start:
-                if out and out[-1][0] == seg.run and out[-1][1] == self._memory_start(seg.run):
+                # from the drive's start, or a warm-up before a segment that lies before it
+                # (a record whose drive grows from nothing: the silverbox's first held-out
+                # block started before it, and its replay held no samples)
+                if out and out[-1][0] == seg.run and out[-1][3][0].start < seg.start \
+                        and not self.periodic_chunk(out[-1][3][-1]):
                     run, wa, wb, lst = out[-1]
                     out[-1] = (run, wa, max(wb, seg.stop), [*lst, seg])
                 else:
-                    out.append((seg.run, self._memory_start(seg.run), seg.stop, [seg]))
+                    out.append((seg.run, min(self._memory_start(seg.run), a), seg.stop, [seg]))
                 continue
-            warm = int(self.warmup_s * self.records[seg.run].sample_rate_hz)
-            a = max(0, seg.start - warm)
             if (out and out[-1][0] == seg.run and a <= out[-1][2]
                     and not self.periodic_chunk(out[-1][3][-1])):
                 run, wa, wb, lst = out[-1]
