@@ -20,7 +20,7 @@ from tests.independent_hb.cases import cases, generate, judge, signature_of
 from tests.independent_hb.generate import import_run
 
 SEED = 1
-#: every case runs in CI at this seed (each one diagnose of 16 dwells, about 20-25 s CPU:
+#: every case runs in CI at this seed (each one diagnose of 16 dwells, 15-50 s CPU under load:
 #: benchmarks/bench_diagnose_hb.py); a case diagnose gets wrong is a strict xfail, so a fix or a
 #: regression shows
 #: what today's diagnose says where it is wrong (seed 1, 2026-11-26; right since session 10:
