@@ -539,7 +539,7 @@ def _judged(pb: Problem, base: Baseline, cand: Candidate,
 
 #: the starts of the two-mode order refined with every parameter, of the second mode's starts
 #: ranked by their training error
-TWO_MODE_KEEP = 1
+TWO_MODE_KEEP = 3
 
 
 def _two_modes(pb: Problem, ctx: Context, one: Baseline, rules: _Rules,

@@ -545,10 +545,7 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
         # a fitted baseline follows each screened term (its parameters to first order): it
         # absorbed part of every term when it was fitted alone (``fitting.Following``)
         follow = following(pb.ev, current, base.free, pb.fit_train, pb.scale_m, pb.step)
-        judged_in_order = _judged_in_order(base) if not findings else {}
-        cands, unfitted = _screen(pb, ctx, [e for e in lib if e.id not in judged_in_order],
-                                  findings, current, len(free), follow, say)
-        unfitted += [{"effect": e, "not_a_finding": why} for e, why in judged_in_order.items()]
+        cands, unfitted = _screen(pb, ctx, lib, findings, current, len(free), follow, say)
         cur_train = train_sse(pb.ev, current, pb.fit_train)[0]
         cands, rejected = _drop_non_findings(cands, cur_train, band, "")
         rejected += unfitted
@@ -643,25 +640,6 @@ def _search_effects(pb: Problem, ctx: Context, lib: list[Effect], base: Baseline
         free = free + top.variant.params
         current, cur_test, cur_crit = top.fit.model, top.test, top.criterion
     return _Search(findings, rounds, current, cur_test)
-
-
-def _judged_in_order(base: Baseline) -> dict[str, str]:
-    """The library's terms the fitted baseline's order has judged on the baseline itself, and
-    why they are not tried again in the first round: a second mode, fitted there from the
-    library's starts with every baseline parameter and judged by the rules a finding meets,
-    where the order kept the one-mode, uncoupled baseline (on a coupled one it was not tried).
-    Its first-round screen (its own parameters, the baseline's following to first order) is a
-    smaller fit of the same model against the same held-out data (4.7 s of the 23 s CPU of
-    the harmonic-balance generator's clean case)."""
-    chosen = next((r for r in base.order if r.get("chosen")), None)
-    if chosen is None or chosen["modes_per_axis"] != 1 or chosen["coupled_axes"]:
-        return {}
-    two = next((r for r in base.order if r["modes_per_axis"] == 2 and not r["coupled_axes"]
-                and "extra_mode" not in r and "criterion" in r), None)
-    if two is None:
-        return {}
-    return {"second_mode": "judged in the baseline's order on held-out data (two modes per "
-                           f"axis, every parameter fitted): {two.get('not_chosen')}"}
 
 
 @dataclass(frozen=True)
