@@ -537,17 +537,23 @@ def _judged(pb: Problem, base: Baseline, cand: Candidate,
     return row, why
 
 
+#: the starts of the two-mode order refined with every parameter, of the second mode's starts
+#: ranked by their training error
+TWO_MODE_KEEP = 3
+
+
 def _two_modes(pb: Problem, ctx: Context, one: Baseline, rules: _Rules,
                say: Any) -> tuple[Baseline | None, dict[str, Any] | None]:
     """The two-mode baseline if chosen (None: one mode), and its row (None: not fitted)."""
     best: tuple[FitResult, Variant] | None = None
+    t0 = time.process_time()
     try:
         for var in LIBRARY["second_mode"].variants(ctx, one.model):
             # the best starts (the second mode added to the one-mode fit) refined with every
             # parameter: the first mode moves once the second takes its share of the response
             k = len(one.free) + len(var.params)
             res = fit(pb.ev, var.starts, one.free + var.params, pb.fit_train, pb.scale_m,
-                      step=pb.step, keep=var.keep, max_nfev=30 * (k + 1))
+                      step=pb.step, keep=TWO_MODE_KEEP, max_nfev=30 * (k + 1))
             if best is None or res.train_sse < best[0].train_sse:
                 best = (res, var)
         if best is None:
@@ -563,7 +569,8 @@ def _two_modes(pb: Problem, ctx: Context, one: Baseline, rules: _Rules,
     row, why = _judged(pb, one, two, rules)
     say(f"baseline order: {'two modes' if why is None else 'one mode'} per axis (two modes: "
         f"held-out {two.test_rms:.4g}, gain {row['gain']:.3g} [{row['gain_interval'][0]:.3g}, "
-        f"{row['gain_interval'][1]:.3g}]{'' if why is None else '; ' + why})")
+        f"{row['gain_interval'][1]:.3g}]{'' if why is None else '; ' + why}; "
+        f"{time.process_time() - t0:.1f} s CPU, {res.nfev} evaluations)")
     row = {"modes_per_axis": 2, "coupled_axes": False, **row}
     if why is not None:
         return None, row

@@ -53,7 +53,12 @@ def apply(model: Model, params: list[Param], values: np.ndarray) -> Model:
 
 
 def _finite(r: np.ndarray) -> np.ndarray:
-    # a diverging simulation (an unstable trial parameter) scores as a very bad fit
+    # a diverging simulation (an unstable trial parameter) scores as a very bad fit; one pass
+    # over the (10^5-sample) residual where it is all finite and in range, as it nearly always
+    # is (NaN and inf fail the comparison)
+    with np.errstate(invalid="ignore"):
+        if r.size == 0 or float(np.max(np.abs(r))) <= 1e6:
+            return r
     return np.nan_to_num(np.clip(r, -1e6, 1e6), nan=1e6)
 
 

@@ -18,7 +18,7 @@ Replay details, stated:
   starts instead (`Evaluator._memory_start`).
   With ``steady_state_dwells``, a dwell is replayed after whole periods of its own force
   instead (its initial state is then the steady state the dwell was recorded in, whatever came
-  before it in the file).
+  before it in the file), for as long as the model takes to forget its start (``lead.py``).
 - Each response channel's mean offset (probe gap, amplifier offset) is fitted in closed form on
   the training segments and applied unchanged to held-out segments.
 - Data from elsewhere (a run without a rig description) come from accelerometers behind an
@@ -48,6 +48,7 @@ from scipy.signal import resample_poly
 
 from analysis.diagnose.data import RunRecord, Segment
 from analysis.diagnose.extra_modes import ExtraMode, modal_response
+from analysis.diagnose.lead import steady_lead
 from analysis.diagnose.oil import DriftCourse
 from rig_model import physics
 from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
@@ -153,14 +154,14 @@ class Evaluator:
         self._cache: dict[tuple[bytes, tuple, int, int, int], np.ndarray] = {}
         self._cache_bytes = 0
         self.cache_limit_bytes = 400 * 2**20  # simulations kept for measurement-only changes
-        self._up_cache: dict[tuple[int, int, int], np.ndarray] = {}
+        self._up_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
         # per steady-state window: the oversampled force the extra modes see (`_modal_force`)
         self._modal_up: dict[tuple[int, int, int, int], np.ndarray] = {}
         # per run: its whole force oversampled, and the extra modes' response over the whole
         # run of the last models asked about (`_extra_over_run`)
         self._run_force_up: dict[tuple[int, int], np.ndarray] = {}
         self._extra_runs: dict[tuple, np.ndarray] = {}
-        # per window: its force with the lead (the same for every model)
+        # per window and lead: its force with the lead (a few leads a window: `lead.py`)
         self._force_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
         self._memory_starts: dict[int, int] = {}  # per run: `_memory_start`
         # the replay inputs of the last model asked about (a prediction asks per window)
@@ -193,15 +194,19 @@ class Evaluator:
             if self.periodic_chunk(seg):
                 out.append((seg.run, seg.start, seg.stop, [seg]))
                 continue
+            warm = int(self.warmup_s * self.records[seg.run].sample_rate_hz)
+            a = max(0, seg.start - warm)
             if from_run_start:
-                if out and out[-1][0] == seg.run and out[-1][1] == self._memory_start(seg.run):
+                # from the drive's start, or a warm-up before a segment that lies before it
+                # (a record whose drive grows from nothing: the silverbox's first held-out
+                # block started before it, and its replay held no samples)
+                if out and out[-1][0] == seg.run and out[-1][3][0].start < seg.start \
+                        and not self.periodic_chunk(out[-1][3][-1]):
                     run, wa, wb, lst = out[-1]
                     out[-1] = (run, wa, max(wb, seg.stop), [*lst, seg])
                 else:
-                    out.append((seg.run, self._memory_start(seg.run), seg.stop, [seg]))
+                    out.append((seg.run, min(self._memory_start(seg.run), a), seg.stop, [seg]))
                 continue
-            warm = int(self.warmup_s * self.records[seg.run].sample_rate_hz)
-            a = max(0, seg.start - warm)
             if (out and out[-1][0] == seg.run and a <= out[-1][2]
                     and not self.periodic_chunk(out[-1][3][-1])):
                 run, wa, wb, lst = out[-1]
@@ -229,7 +234,9 @@ class Evaluator:
         return hit
 
     def _lead(self, run: int, a: int, b: int) -> int:
-        """Samples of periodic lead-in before window [a, b) (0: replay from rest at a)."""
+        """Samples of periodic lead-in before window [a, b) (0: replay from rest at a): whole
+        periods spanning the warm-up (the extra modes', and the most the kernel's takes:
+        `_kernel_truth`)."""
         seg = Segment(run, a, b, "", self._freq.get((run, a, b)))
         chunk = self.periodic_chunk(seg)
         if not chunk:
@@ -263,7 +270,8 @@ class Evaluator:
 
     def _window_force(self, run: int, a: int, b: int, lead: int) -> np.ndarray:
         """The measured force of [a, b) with ``lead`` samples of its first whole periods
-        repeated before it (steady state), shape (2, lead + b - a); made once per window."""
+        repeated before it (steady state: the repeats' last ``lead`` samples, which run on
+        into the window's first), shape (2, lead + b - a); made once per window and lead."""
         key = (run, a, b, lead)
         hit = self._force_cache.get(key)
         if hit is not None:
@@ -271,7 +279,8 @@ class Evaluator:
         f = self.records[run].force_n[:, a:b]
         if lead:
             chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
-            f = np.hstack([np.tile(f[:, :chunk], (1, lead // chunk)), f])
+            reps = -(-lead // chunk)
+            f = np.hstack([np.tile(f[:, :chunk], (1, reps))[:, reps * chunk - lead:], f])
         f = np.ascontiguousarray(f, dtype=np.float64)
         self._force_cache[key] = f
         return f
@@ -325,6 +334,10 @@ class Evaluator:
         rec = self.records[run]
         visc = self._viscosity_scale(model, run, a, b)
         if lead:
+            # the kernel's own lead: as long as the model takes to forget its start (`lead.py`)
+            per = rec.sample_rate_hz / (self._freq.get((run, a, b)) or rec.sample_rate_hz)
+            lead = steady_lead(kp, self._fill(rec), float(visc[0]), rec.sample_rate_hz, per,
+                               lead)
             visc = np.concatenate([np.full(lead, visc[0]), visc])
         up = self.oversample.get(run, 1)
         self.simulations += 1
@@ -440,7 +453,7 @@ class Evaluator:
         return hit, chunk * up
 
     def _upsampled(self, run: int, a: int, b: int, up: int, lead: int = 0) -> np.ndarray:
-        key = (run, a, b)
+        key = (run, a, b, lead)
         hit = self._up_cache.get(key)
         if hit is None:
             hit = resample_poly(self._window_force(run, a, b, lead), up, 1, axis=1)

@@ -359,3 +359,62 @@ def test_cli_bad_input_exits_2(tmp_path, capsys):
     rc = main(["diagnose", str(tmp_path / "missing.h5")])
     assert rc == 2
     assert "missing.h5" in capsys.readouterr().err
+
+
+def _joint_rig() -> RigParams:
+    rig = RigParams()
+    data = rig.model_dump()
+    data["effects"]["joint_microslip"].update(enabled=True, stiffness_n_per_m=2e5,
+                                              slip_force_n=5.0)
+    return RigParams.model_validate(data)
+
+
+def test_a_model_with_memory_replays_a_segment_before_the_drive_starts():
+    """A record whose drive grows from nothing (the silverbox's arrow) has held-out samples
+    before the drive's start, where a model with memory starts its replay: they are replayed
+    from a warm-up before them, every sample (the window had started after them: no
+    prediction, and every joint fit on the silverbox failed with a broadcast error)."""
+    fs, n = 1000.0, 3000
+    t = np.arange(n) / fs
+    force = np.vstack([np.where(t > 1.0, 40 * np.sin(2 * np.pi * 30 * t), 0.0), np.zeros(n)])
+    force[0] += 1e-3 * np.sin(2 * np.pi * 7 * t)  # the quiet start: not nothing
+    rec = records_from_arrays(force, {"x": 1e-6 * np.sin(2 * np.pi * 30 * t)}, fs)
+    ev = Evaluator([rec], warmup_s=0.5)
+    assert ev._memory_start(0) > 100  # the drive starts after the first held-out block
+    early, late = Segment(0, 100, 600, "block", None), Segment(0, 1200, 2400, "block", None)
+    model = Model(rig=_joint_rig())
+    res = residuals(ev, model, [late], [early, late])
+    assert {s: v["x"].size for s, v in res.per_segment.items()} == {early: 500, late: 1200}
+    assert math.isfinite(res.rms())
+
+
+def test_a_steady_dwell_is_led_in_as_long_as_the_model_takes_to_forget_its_start():
+    """A well-damped model's steady-state dwell is replayed after a lead of 20 of its decay
+    times (`lead.py`), not the fixed warm-up (here the dwell's whole 1 s): the same response,
+    to 1e-9 of its amplitude, as after the fixed warm-up; a joint (no bound on how long its
+    loop takes to centre) keeps the fixed warm-up."""
+    from analysis.diagnose.lead import slowest_decay_s
+    from rig_model.rig import kernel_params, simulate_response
+
+    fs, n, f_hz = 5000.0, 5000, 20.0
+    t = np.arange(n) / fs
+    force = np.vstack([40 * np.sin(2 * np.pi * f_hz * t), np.zeros(n)])
+    base = RigParams()
+    # damping ratio 0.72 (the harmonic-balance generator's lubricated housing): 6.6 ms
+    rig = base.model_copy(update={
+        "seal": base.seal.model_copy(update={"enabled": False}),
+        "structure": base.structure.model_copy(update={"residual_damping_ns_per_m": 4000.0})})
+    rec = records_from_arrays(force, {"x": 1e-6 * np.sin(2 * np.pi * f_hz * t)}, fs, rig=rig)
+    rec.segments = [Segment(0, 0, n, "dwell", f_hz)]
+    ev = Evaluator([rec], warmup_s=0.5, steady_state_dwells=True)
+    assert ev._lead(0, 0, n) == n  # the fixed warm-up: the dwell's whole-period chunk
+    tau = slowest_decay_s(kernel_params(rig, fs), ev._fill(rec), 1.0)
+    short = ev.truth(Model(rig=rig), 0, 0, n)[0]
+    lead = next(k[3] for k in ev._force_cache)
+    assert lead < n / 4 and lead >= 20 * tau * fs
+    # the fixed warm-up's replay: the dwell's force twice, the second scored
+    ref, _ = simulate_response(np.hstack([force, force]), rig, fs, ev._fill(rec), 1.0)
+    amp = float(np.max(np.abs(ref.x_m[n:])))
+    assert float(np.max(np.abs(short - ref.x_m[n:]))) < 1e-9 * amp
+    joint = _joint_rig().model_copy(update={"seal": rig.seal})
+    assert slowest_decay_s(kernel_params(joint, fs), 1.0, 1.0) == math.inf

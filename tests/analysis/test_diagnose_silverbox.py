@@ -44,7 +44,10 @@ def test_silverbox_nonlinear_stiffness_is_found(shared_dir, tmp_path):
     k3 = doc["findings"][0]["parameters"]["k3_N_per_m3"]
     assert k3 > 0  # a hardening spring
     final = doc["findings"][-1]["error_after"]
-    assert final <= 0.0005  # target: 0.5 mV or less on the held-out arrow test (0.32 mV seen)
+    assert final <= 0.0005  # target: 0.5 mV or less on the held-out arrow test
+    # the micro-slip refinement after the polynomial (0.399 -> 0.327 mV, 2026-11-28): without
+    # it (its every fit failed on the held-out block before the arrow's drive starts) 0.40 mV
+    assert "joint_microslip" in names and final < 0.00035
     assert doc["findings"][0]["gain_interval"][0] > 10
     assert not doc["unexplained"]
     assert doc["verdict"]["verdict"] == "explained"

@@ -20,7 +20,7 @@ from tests.independent_hb.cases import cases, generate, judge, signature_of
 from tests.independent_hb.generate import import_run
 
 SEED = 1
-#: every case runs in CI at this seed (each one diagnose of 16 dwells, about 20-25 s CPU:
+#: every case runs in CI at this seed (each one diagnose of 16 dwells, 15-50 s CPU under load:
 #: benchmarks/bench_diagnose_hb.py); a case diagnose gets wrong is a strict xfail, so a fix or a
 #: regression shows
 #: what today's diagnose says where it is wrong (seed 1, 2026-11-26; right since session 10:
@@ -59,11 +59,17 @@ def _params() -> list:
 @pytest.mark.parametrize("name", _params())
 def test_diagnose_names_what_the_hb_generator_hid(name: str, tmp_path: Path,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    check_case(name, SEED, tmp_path, capsys)
+
+
+def check_case(name: str, seed: int, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Case ``name`` recorded on ``seed``'s plan, imported, diagnosed and judged
+    (``cases.judge``); the CLI's text holds every finding the JSON does."""
     from analysis.diagnose.hysteresis import describing_function_text
     from sfdrig.cli import main
 
-    case = cases(SEED)[name]
-    rec = generate(case, SEED)
+    case = cases(seed)[name]
+    rec = generate(case, seed)
     total = signature_of(rec.dwells, rec.sensors).total
     run = import_run(rec, tmp_path, name)
     out = tmp_path / "diagnose.json"
