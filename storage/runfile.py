@@ -469,9 +469,12 @@ class RunWriter:
                 if self._closed:
                     return
                 try:
+                    # a step or an event is on disk before its interval is up: a client that
+                    # saw it on the wire finds it in the file even after a kill -9 (one a dwell)
+                    records = bool(self._records)
                     self._write_records()
                     self._write_pending(whole_chunks_only=True)
-                    if time.monotonic() - self._last_flush >= interval:
+                    if records or time.monotonic() - self._last_flush >= interval:
                         if self._unflushed():
                             self._flush_locked()
                         else:
