@@ -264,10 +264,12 @@ def judged_right(effect: str, doc: dict[str, Any],
             return False, (f"found {found}, {main} = {got:.4g} (truth {want:.4g}, off "
                            f"{got / want - 1:+.3%}, tolerance {tolerance:.2%}), verdict {verdict}")
     if ok and "channel" in truth_channel_of(effect):
-        # the faulty sensor named, or the pair it cannot tell apart said so
+        # the faulty sensor named, and nothing it cannot be told from: the probes' x and the
+        # accelerometer's ax measure one motion independently, so a fault on x alone is told
+        # apart (a list that merely holds x would pass any answer)
         named = first["parameters"].get("channel")
         alike = first["evidence"].get("cannot_tell_from", [])
-        ok = truth_channel_of(effect)["channel"] in (named, *alike)
+        ok = named == truth_channel_of(effect)["channel"] and not alike
         return ok, f"found {found} on channel {named} (cannot tell from {alike}), verdict {verdict}"
     return ok, f"found {found}, verdict {verdict}"
 
