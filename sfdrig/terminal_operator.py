@@ -16,6 +16,7 @@ import time
 from typing import Any, TextIO
 
 from control.wire.client import CommandClient
+from control.wire.heartbeat import AskedQuestion
 from control.wire.protocol import renew_every_s
 
 POLL_S = 0.2  # how often the daemon's status is read while waiting [s]
@@ -27,7 +28,7 @@ SHOWN = {"ok": "Enter accept", "repeat": "r repeat", "skip": "s skip", "abort": 
          "reject": "n reject", "double": "d double hit", "overload": "o overload"}
 
 
-def describe(q: dict[str, Any]) -> str:
+def describe(q: AskedQuestion) -> str:
     """The question as the terminal shows it."""
     lines = [f"[{q['where']}] #{q['id']}", f"  {q['prompt']}"]
     lines += [f"  {line}" for line in q.get("info", [])]
@@ -46,7 +47,7 @@ def describe(q: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def interpret(line: str, q: dict[str, Any]) -> tuple[str, str]:
+def interpret(line: str, q: AskedQuestion) -> tuple[str, str]:
     """(choice, text) for a typed line: a choice key or word, else the entry's text. The daemon
     checks and logs it (an unknown word is sent as it is, so its refusal is in the run)."""
     word = line.strip().lower()
@@ -75,7 +76,7 @@ def run_test(client: CommandClient, test: str, spec: dict[str, Any], operator: s
     lease = reply.data.get("lease", "")
     every_s = renew_every_s(float(reply.data.get("lease_s", 0.0)))
     renew_at = time.monotonic() + every_s
-    shown: dict[str, Any] | None = None
+    shown: AskedQuestion | None = None
     steps = 0
     closed = False  # the abort is sent (or input ended): nothing more is read
     answered = 0  # the last question this terminal answered
@@ -86,14 +87,13 @@ def run_test(client: CommandClient, test: str, spec: dict[str, Any], operator: s
             renew_at = time.monotonic() + every_s
         st = client.status()
         if st["run_id"] != run_id:
-            last = dict(st.get("last_run") or {})
-            if last.get("run_id") == run_id:
-                last["steps"] = steps
-                return last
+            if st["last_run"].get("run_id") == run_id:
+                return {**st["last_run"], "steps": steps}
             time.sleep(POLL_S)  # between the run's end and the daemon's record of it
             continue
-        steps = int(st.get("progress", {}).get("steps_done", steps))
-        q = st.get("question")
+        done = st["progress"].get("steps_done", steps)
+        steps = done if isinstance(done, int) else steps
+        q = st["question"]
         if q is not None and (shown is None or q["id"] != shown["id"]):
             print(describe(q), file=out)
             print("> ", end="", file=out, flush=True)

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel
 
 from control.run.engine import RunSpec
+from control.wire.heartbeat import RecoveredRun
 from daq.board import Board
 from daq.channels import ChannelMap
 from storage.records import run_file_status
@@ -120,7 +121,7 @@ def _locked(err: BaseException) -> bool:
 
 
 def recover_interrupted(runs_dir: Path, lock_wait_s: float = LOCK_WAIT_S,
-                        wait: Callable[[float], None] = time.sleep) -> list[dict[str, Any]]:
+                        wait: Callable[[float], None] = time.sleep) -> list[RecoveredRun]:
     """Close the runs a dead writer left "running" in ``runs_dir`` as "interrupted", with the
     last sample on disk, so that every reader opens them. A file whose writer may still be alive
     (`storage.recovery.writer_gone`) is left alone; one a reader holds open (a web server
@@ -135,7 +136,7 @@ def recover_interrupted(runs_dir: Path, lock_wait_s: float = LOCK_WAIT_S,
     from storage.recovery import close_interrupted, writer_gone
     from storage.run_index import record_run
 
-    out: list[dict[str, Any]] = []
+    out: list[RecoveredRun] = []
     try:
         candidates = select_runs(runs_dir, RunFilter(statuses=("running", "interrupted"),
                                                      top_only=True)).rows

@@ -13,7 +13,6 @@ import sys
 import time
 from collections import deque
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -56,12 +55,10 @@ def table(names: list[str], data: np.ndarray, units: dict[str, str], header: str
 
 def _watch_stream(args: argparse.Namespace) -> int:
     with subscriber(args, topics=["block", "step", "status"]) as sub:
-        st = sub.wait_connected(timeout_s=args.timeout)["status"]
-        units = st.get("units", {})
+        st = sub.wait_connected(timeout_s=args.timeout)
         blocks: deque[np.ndarray] = deque()
         names: list[str] = []
-        fs = float(st.get("sample_rate_hz", 1.0))
-        progress: dict[str, Any] = dict(st.get("progress") or {})  # from the first heartbeat
+        fs = st["sample_rate_hz"]
         shown, next_table, malformed = 0, time.monotonic() + args.interval, 0
         while args.count == 0 or shown < args.count:
             try:
@@ -80,10 +77,7 @@ def _watch_stream(args: argparse.Namespace) -> int:
                                 args.window * fs:
                             blocks.popleft()
                     elif msg.topic == "status":
-                        new_st = dict(msg.header["status"])
-                        progress = dict(new_st.get("progress", {}))
-                        units = dict(new_st.get("units", units))
-                        st = new_st
+                        st = msg.heartbeat()
                     elif msg.topic == "step":
                         print(step_line(StepRecord.from_wire(msg.header["step"])), flush=True)
             except (ValueError, KeyError, TypeError, AttributeError) as err:
@@ -98,12 +92,13 @@ def _watch_stream(args: argparse.Namespace) -> int:
             next_table += args.interval
             shown += 1
             lost = sum(sub.lost.values())
-            head = (f"state {st.get('state', '?')}  run {st.get('run_id') or '-'}  "
-                    + progress_text(progress)
+            head = (f"state {st['state']}  run {st['run_id'] or '-'}  "
+                    + progress_text(st["progress"])
                     + (f"  lost {lost} messages" if lost else "")
                     + (f"  skipped {malformed} malformed" if malformed else ""))
             if blocks:
-                print(table(names, np.concatenate(list(blocks), axis=1), units, head), flush=True)
+                print(table(names, np.concatenate(list(blocks), axis=1), st["units"], head),
+                      flush=True)
             else:
                 print(head + "\n  (no samples: no run in progress)", flush=True)
     return 0

@@ -61,3 +61,12 @@ if __name__ == "__main__":  # writes the golden description (once, from the unty
     import tempfile
     with tempfile.TemporaryDirectory() as tmp:
         GOLDEN.write_text(json.dumps(_statuses(Path(tmp)), indent=1) + "\n")
+
+
+def test_the_asked_question_has_the_questions_fields() -> None:
+    """The daemon sends a `Question` as its JSON dump, typed `AskedQuestion` for the readers."""
+    from control.run.programs.operator import Entry, Question
+    from control.wire.heartbeat import AskedEntry, AskedQuestion
+
+    assert list(AskedQuestion.__annotations__) == list(Question.model_fields)
+    assert list(AskedEntry.__annotations__) == list(Entry.model_fields)
