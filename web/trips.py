@@ -21,11 +21,14 @@ import csv
 import io
 import math
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from web.view import finite
+
+if TYPE_CHECKING:  # storage (h5py) is imported at first use
+    from storage.reader import RunData
 
 INCIDENTS = ("trip", "e-stop", "watchdog", "contact", "interrupted", "failed")
 PEAK_BEFORE_S = 1.0
@@ -113,7 +116,7 @@ def where_of(sample: int, steps: list[dict[str, Any]], planned: list[float], fs:
     return f"{step}, {at}" if at else step
 
 
-def peaks_around(run: Any, sample: int) -> tuple[float | None, float | None]:
+def peaks_around(run: RunData, sample: int) -> tuple[float | None, float | None]:
     """The largest orbit radius [um] and load [N] from `PEAK_BEFORE_S` before ``sample`` to
     `PEAK_AFTER_S` after (None where the run has no such signal)."""
     fs = run.sample_rate_hz
@@ -136,7 +139,7 @@ def peaks_around(run: Any, sample: int) -> tuple[float | None, float | None]:
     return orbit, load
 
 
-def incidents_of_run(run: Any, status: str, file: str, changed_at: float
+def incidents_of_run(run: RunData, status: str, file: str, changed_at: float
                      ) -> list[dict[str, Any]]:
     """Every incident of one open run (`storage.reader.RunData`) whose status is ``status``;
     ``changed_at`` is the file's last change [s since the epoch], the time of an interruption

@@ -15,7 +15,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 
@@ -29,6 +29,19 @@ UM = 1e-6
 STALE_AFTER_S = 1.0  # traces older than this are drawn grey, with the time of their data
 TWO_AXIS = ("circular_forward", "circular_backward", "elliptical")
 TRACE_UNITS = ("N", "m", "m/s^2")  # drawn as traces; the rest (pressure, flow, oil) as means
+
+
+class Link(TypedDict):
+    """How the page's link to the daemon is (`web.feed.DaemonLink` judges it): ``state``
+    ("connecting", "live", "late", "lost") and why, the endpoints followed, the daemon's pid
+    (None: not known), how often the link followed a restarted daemon."""
+
+    state: str
+    message: str
+    command: NotRequired[str]
+    data: NotRequired[str]
+    pid: NotRequired[int | None]
+    reconnects: NotRequired[int]
 
 
 def _mean_z(harmonics: Mapping[str, tuple[complex, ...]],
@@ -165,7 +178,7 @@ class LiveView:
         self._peak_n = 0.0
         self._contact = ""
         # the link to the daemon (`web.feed.DaemonLink` says how it is) and the last heartbeat
-        self._link: dict[str, Any] = {"state": "connecting", "message": ""}
+        self._link: Link = {"state": "connecting", "message": ""}
         self._heartbeat_at: float | None = None
         self._malformed = 0
         self._malformed_last = ""
@@ -207,10 +220,10 @@ class LiveView:
                 return None
             return (time.time() if now is None else now) - self._heartbeat_at
 
-    def set_link(self, link: dict[str, Any]) -> None:
+    def set_link(self, link: Link) -> None:
         """How the link to the daemon is (`web.feed.DaemonLink`)."""
         with self._lock:
-            self._link = dict(link)
+            self._link = link.copy()
 
     def note_malformed(self, count: int, what: str) -> None:
         """A message the feed could not use (skipped): counted and shown."""
@@ -353,7 +366,7 @@ class LiveView:
         hb = None if self._heartbeat_at is None else max(0.0, now - self._heartbeat_at)
         data_at = self._t_acquired if self._t_acquired > 0 else None
         data_age = None if data_at is None else max(0.0, now - data_at)
-        live = self._link.get("state") in ("live", "late")
+        live = self._link["state"] in ("live", "late")
         return {**self._link, "heartbeat_age_s": hb, "data_age_s": data_age,
                 "last_data_time": data_at,
                 "stale": not live or data_age is None or data_age > STALE_AFTER_S,

@@ -23,7 +23,7 @@ import shlex
 import signal
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from threadpoolctl import threadpool_limits
 
@@ -38,6 +38,10 @@ from daq.locks import AlreadyRunning, InstanceLock
 from sfdrig.commands._board import grpc_target_error, hold_board
 from sfdrig.commands._client_args import DEFAULT_RUNS_DIR, STATE_FILE_NAME
 from sfdrig.commands._native_memory import pin_mmap_threshold
+
+if TYPE_CHECKING:  # imported where the backend is chosen
+    from daq.backend import DaqBackend
+    from rig_model.params import RigParams
 from sfdrig.commands._priority import LEVELS, PriorityError, apply_priority
 
 NAME = "daemon"
@@ -116,8 +120,8 @@ def ao_ring_s(args: argparse.Namespace) -> float | None:
     return float(max(DEFAULT_RING_S, math.ceil(args.watchdog_s + RING_OVER_WATCHDOG_S)))
 
 
-def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[Any, ChannelMap,
-                                                                               Any]:
+def build_backend(args: argparse.Namespace, channel_map: ChannelMap
+                  ) -> tuple[DaqBackend, ChannelMap, RigParams | None]:
     """(backend, channel map, rig config or None), chosen from the arguments."""
     ring = ao_ring_s(args)
     if args.backend == "nidaqmx":
@@ -216,8 +220,10 @@ def run(args: argparse.Namespace) -> int:
         hands = None
         if args.backend == "sim":  # on the real rig a person's hands do these
             from sfdrig.simulated_operator import SimulatedHands
+            from simulated_hw.backend import SimulatedBackend
 
-            hands = SimulatedHands(backend, seed=args.seed)
+            if isinstance(backend, SimulatedBackend):  # what build_backend made for "sim"
+                hands = SimulatedHands(backend, seed=args.seed)
         daemon = Daemon(backend, channel_map, config, hands=hands)
     except (PermissionError, DaqError, ChannelConfigError) as err:
         # e.g. --backend nidaqmx without the NI-DAQmx driver: one line, no traceback
@@ -261,7 +267,7 @@ def take_locks(args: argparse.Namespace, channel_map: ChannelMap) -> list[Instan
     return locks
 
 
-def _close_quietly(backend: Any) -> None:
+def _close_quietly(backend: DaqBackend) -> None:
     try:
         backend.close()
     except Exception:  # noqa: BLE001 - already failing; the first error is the one shown

@@ -22,7 +22,7 @@ import time
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -182,11 +182,11 @@ def progress_text(progress: dict[str, Any]) -> str:
     return "  ".join(f"{k}={v}" for k, v in progress.items())
 
 
-def _fmt(v: Any) -> str:
+def _fmt(v: object) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
-def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: float = 30.0,
+def follow(sub: Subscriber, run_id: str, out: TextIO = sys.stdout, idle_timeout_s: float = 30.0,
            total: int | None = None, steps: list[StepRecord] | None = None,
            ) -> tuple[str, str, list[StepRecord]]:
     """Print progress and step results of ``run_id`` until it ends.
