@@ -37,7 +37,7 @@ import time
 from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, cast
 
 import zmq
 from pydantic import BaseModel, ValidationError
@@ -78,6 +78,7 @@ from control.wire.protocol import (
     RequestError,
     ResetRequest,
     ResumeRequest,
+    RunListing,
     StartRequest,
     StartTestRequest,
     StatusRequest,
@@ -727,7 +728,7 @@ class Daemon:
             "pid": os.getpid(),
         }
 
-    def list_runs(self, limit: int = 500) -> list[dict[str, Any]]:
+    def list_runs(self, limit: int = 500) -> list[RunListing]:
         """The run files in the runs directory, newest first, with their status."""
         return list_runs(self.cfg.runs_dir, self.job.path if self.job is not None else None,
                          limit)

@@ -11,12 +11,13 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from pydantic import BaseModel
 
 from control.run.engine import RunSpec
 from control.wire.heartbeat import RecoveredRun
+from control.wire.protocol import RunListing
 from daq.board import Board
 from daq.channels import ChannelMap
 from storage.records import run_file_status
@@ -75,11 +76,11 @@ def create_run_writer(path: str | Path, kind: str, channel_map: ChannelMap, *, r
     )
 
 
-def list_runs(runs_dir: Path, active: Path | None, limit: int = 500) -> list[dict[str, Any]]:
+def list_runs(runs_dir: Path, active: Path | None, limit: int = 500) -> list[RunListing]:
     """The run files in ``runs_dir``, newest first, with their status (``active`` is running)."""
     from storage.reader import open_run
 
-    out: list[dict[str, Any]] = []
+    out: list[RunListing] = []
     paths = sorted(runs_dir.glob("*.h5"), key=lambda p: p.stat().st_mtime, reverse=True)
     for p in paths[:limit]:
         if p == active:

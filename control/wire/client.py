@@ -26,11 +26,14 @@ from typing import Any, NoReturn
 
 import numpy as np
 import zmq
+from pydantic import TypeAdapter, ValidationError
 from zmq.utils.monitor import recv_monitor_message
 
 from control.wire.heartbeat import Heartbeat, heartbeat_from_wire
-from control.wire.protocol import TOPICS, Reply, decode_block
+from control.wire.protocol import TOPICS, Reply, RunListing, decode_block
 from control.wire.security import ClientKeys, secure_client_socket
+
+_RUN_LISTINGS: TypeAdapter[list[RunListing]] = TypeAdapter(list[RunListing])
 
 
 def process_gone(pid: object) -> bool:
@@ -206,8 +209,12 @@ class CommandClient:
         except ValueError as err:
             raise DaemonUnavailable(f"not a daemon's status: {err}") from None
 
-    def list_runs(self) -> list[dict[str, Any]]:
-        return list(self.request("list_runs").data["runs"])
+    def list_runs(self) -> list[RunListing]:
+        """The daemon's run files, newest first (DaemonUnavailable: an answer that is none)."""
+        try:
+            return _RUN_LISTINGS.validate_python(self.request("list_runs").data.get("runs"))
+        except ValidationError as err:
+            raise DaemonUnavailable(f"not a daemon's list of runs: {err.errors()[0]}") from None
 
     def reset(self) -> Reply:
         return self.request("reset")
