@@ -19,7 +19,7 @@ import numpy as np
 from control.wire.client import DaemonUnavailable
 from sfdrig.commands._client_args import add_connection_arguments, subscriber
 from sfdrig.commands.sweep import progress_text, step_line
-from storage.records import StepRecord
+from storage.records import BlockHeader, StepRecord
 
 NAME = "watch"
 HELP = "show live per-channel amplitudes and the current step (or follow a run file)"
@@ -65,7 +65,7 @@ def _watch_stream(args: argparse.Namespace) -> int:
                 msg = sub.recv(timeout_s=args.interval)
                 if msg is not None:
                     if msg.topic == "block" and msg.array is not None:
-                        new_names = list(msg.header["channels"])
+                        new_names = list(BlockHeader.from_wire(msg.header).channels)
                         if len(new_names) != msg.array.shape[0]:
                             raise ValueError(f"{len(new_names)} channel names for "
                                              f"{msg.array.shape[0]} rows")
