@@ -12,7 +12,6 @@ from typing import Any
 
 from control.daemon.daemon import Daemon
 from control.wire.client import CommandClient, Subscriber
-# test_daemon's fixture (a daemon in process with a scripted engine), under a name of its own
 from tests.control.daemon.test_daemon import daemon as daemon_in_process  # noqa: F401
 
 GOLDEN = Path(__file__).parents[2] / "storage" / "golden" / "heartbeat.json"
@@ -41,6 +40,7 @@ def _statuses(d: Daemon) -> dict[str, Any]:
 
 
 def test_the_status_keeps_its_keys_on_the_wire(daemon_in_process: Daemon) -> None:  # noqa: F811
+    """``daemon_in_process``: test_daemon's fixture (a daemon with a scripted engine)."""
     got = _statuses(daemon_in_process)
     want = json.loads(GOLDEN.read_text())
     assert got == want
