@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from web.transfer import COHERENCE_LOW, axes_of, from_segments, segments_of
-from web.trips import idle_rows, incidents_of_run, select
+from web.trips import TripRow, idle_rows, incidents_of_run, select
 from web.view import finite, step_point
 
 if TYPE_CHECKING:  # storage (h5py) is imported at first use
@@ -219,12 +219,12 @@ class RunHistory:
         from storage.incident_log import LOG_NAME, read_incidents
         from storage.reader import open_run
 
-        rows: list[dict[str, Any]] = []
+        rows: list[TripRow] = []
         unreadable = 0
         with self._catalog() as index:
             page = index.select(_filter(statuses=("aborted", "failed", "interrupted")))
             kept = index.derived(INCIDENTS_KEPT)
-            made: list[tuple[Path, tuple[int, int], Any]] = []
+            made: list[tuple[Path, tuple[int, int], list[TripRow]]] = []
             for r in page.rows:
                 try:
                     st = os.stat(r.file)
