@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import select
 import time
-from typing import Any, TextIO
+from typing import Any, NamedTuple, TextIO
 
 from control.wire.client import CommandClient
-from control.wire.heartbeat import AskedQuestion
+from control.wire.heartbeat import AskedQuestion, LastRun
 from control.wire.protocol import renew_every_s
 
 POLL_S = 0.2  # how often the daemon's status is read while waiting [s]
@@ -66,10 +66,17 @@ def _read_line(inp: TextIO, timeout_s: float) -> str | None:
     return inp.readline()
 
 
+class EndOfTest(NamedTuple):
+    """How a structure test ended: the daemon's record of it, and the steps it recorded."""
+
+    run: LastRun
+    steps: int
+
+
 def run_test(client: CommandClient, test: str, spec: dict[str, Any], operator: str,
-             notes: str, inp: TextIO, out: TextIO) -> dict[str, Any]:
-    """Start ``test`` on the daemon, be its operator until it ends; the daemon's last-run record
-    (run_id, path, status, reason) plus ``steps``."""
+             notes: str, inp: TextIO, out: TextIO) -> EndOfTest:
+    """Start ``test`` on the daemon, be its operator until it ends: the daemon's record of how
+    it ended (run_id, path, status, reason) and the steps it recorded."""
     reply = client.request("start_test", test=test, spec=spec, operator=operator, notes=notes)
     run_id = reply.data["run_id"]
     print(f"{test}: run {run_id} started: {reply.data['path']}", file=out, flush=True)
@@ -88,7 +95,7 @@ def run_test(client: CommandClient, test: str, spec: dict[str, Any], operator: s
         st = client.status()
         if st["run_id"] != run_id:
             if st["last_run"].get("run_id") == run_id:
-                return {**st["last_run"], "steps": steps}
+                return EndOfTest(st["last_run"], steps)
             time.sleep(POLL_S)  # between the run's end and the daemon's record of it
             continue
         done = st["progress"].get("steps_done", steps)
@@ -136,4 +143,4 @@ def run_test(client: CommandClient, test: str, spec: dict[str, Any], operator: s
             print(f"  = {choice}" + (f" {text}" if text else ""), file=out, flush=True)
 
 
-__all__ = ["describe", "interpret", "run_test"]
+__all__ = ["EndOfTest", "describe", "interpret", "run_test"]

@@ -222,10 +222,11 @@ def run(args: argparse.Namespace) -> int:
                 except ClientLost as lost:
                     _abort_lost(client, test, lost.how, lost.hung_up)
                     return lost.exit_code
-                why = f": {end['reason']}" if end.get("reason") else ""
-                print(f"{test}: {end['steps']} steps, {end['status']}{why} -> {end['path']}",
+                status, reason = end.run.get("status", "?"), end.run.get("reason", "")
+                why = f": {reason}" if reason else ""
+                print(f"{test}: {end.steps} steps, {status}{why} -> {end.run.get('path', '?')}",
                       flush=True)
-                if end["status"] != "completed":
+                if status != "completed":
                     failed = True
                     break
     except (CommandRefused, DaemonUnavailable) as err:
