@@ -6,7 +6,7 @@
   fitting, every dial-gauge entry is held against what the probes read at that point (with the
   gain in use): an entry whose sign, or whose size beyond a factor of 2, disagrees
   (`0.0010 in` typed while the probes read -76 um) is questioned and left out of the fit
-  unless kept (``keep_steps``).
+  unless kept (``keep_steps``: step numbers counted from 1, as the messages show them).
 - A **static** run loaded by the shakers: the load cell's force against the drive's volts, per
   axis, is the amplifier and shaker's gain, the drive's ``nominal_force_n_per_v``. Loaded by
   hand, each force-gauge entry is held against the probes' displacement times the rods'
@@ -53,7 +53,11 @@ class FlowBack:
 def calibration_flow_back(run: RunData, cm: ChannelMap,
                           keep_steps: Collection[int] = ()) -> FlowBack:
     """The corrections of ``cm`` that ``run`` supports; raises ValueError for a run that holds
-    no calibration."""
+    no calibration, or for a kept step (counted from 1) the run does not have."""
+    bad = sorted(n for n in keep_steps if not 1 <= n <= len(run.steps))
+    if bad and run.kind == "probe_calibration":
+        raise ValueError(f"{run.path}: --keep-step {bad[0]}: no such step (the run has "
+                         f"{len(run.steps)}, counted from 1)")
     if run.kind == "probe_calibration":
         return _probes(run, cm, keep_steps)
     if run.kind == "static":
@@ -83,13 +87,14 @@ def _probes(run: RunData, cm: ChannelMap, keep: Collection[int]) -> FlowBack:
         scale = _UNITS_M.get(unit, 1e-6)
         shown = ", ".join(f"{p} {v * 1e6:+.1f}" for p, v in reads.items())
         what = "the sign and the size" if ref * z < 0 else "the size"
-        kept = idx in keep
+        n = idx + 1  # steps are counted from 1, as everywhere the operator reads them
+        kept = n in keep
         fb.questions.append(
-            f"{label} step {idx} ({axis}): the gauge entry {text!r} ({ref * 1e6:+.1f} um) while "
+            f"{label} step {n} ({axis}): the gauge entry {text!r} ({ref * 1e6:+.1f} um) while "
             f"the probes read {z * 1e6:+.1f} um ({shown} um): {what} disagree ("
             f"{z / scale:+.4g} {unit if unit in _UNITS_M else 'um'} would match); "
             + ("kept in the fit (--keep-step)" if kept else
-               f"left out of the fit (--keep-step {idx} keeps it)"))
+               f"left out of the fit (--keep-step {n} keeps it)"))
         if not kept:
             questioned.add(idx)
     skipped: list[Skipped] = []

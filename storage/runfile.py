@@ -57,6 +57,8 @@ from storage.run_row import RunRow, motion_of, seal_of
 
 #: the root attributes naming the board that recorded a run (`board_attrs`)
 BOARD_ATTRS = ("board", "backend", "device", "grpc_target")
+# At most this long a step or an event waits to be on disk before `on_step`/`on_event` return.
+RECORD_WAIT_S = 2.0
 
 
 def board_attrs(board: Mapping[str, str] | None) -> dict[str, str]:
@@ -216,6 +218,8 @@ class RunWriter:
         # steps and events handed over, not yet written (with the I/O thread: it writes them,
         # each after the samples before it, and flushes; the caller never waits on the disk)
         self._records: list[tuple[str, Any]] = []
+        self._records_handed = 0   # steps and events handed over so far (under _buf_lock)
+        self._records_written = 0  # of those, written and flushed (under _flushed)
         # gzip chunks are shuffled and deflated in threads (zlib releases the GIL) and handed
         # to HDF5 ready-made; HDF5's own filter pipeline would run them one by one.
         self._pool: ThreadPoolExecutor | None = None
@@ -374,8 +378,21 @@ class RunWriter:
         with self._buf_lock:
             self._check_open()
             self._records.append((kind, record))
+            self._records_handed += 1
+            seq = self._records_handed
         if self._io_thread is not None:
             self._wake.set()
+            # Wait until it is on disk: the publisher announces it after this returns, and a
+            # client that saw it on the wire must find it in the file even after a kill -9.
+            # One step a dwell, so the wait (milliseconds) costs the control loop nothing; a
+            # stalled disk is bounded by RECORD_WAIT_S (the AO ring covers it) and then reported
+            # by the next call as a flush error, as for samples.
+            with self._flushed:
+                self._flushed.wait_for(
+                    lambda: (self._records_written >= seq or self._closed
+                             or self.flush_error is not None),
+                    RECORD_WAIT_S,
+                )
             return
         with self._io_lock:
             self._check_open()
@@ -387,6 +404,7 @@ class RunWriter:
         _io_lock)."""
         with self._buf_lock:
             records, self._records = self._records, []
+            handed = self._records_handed
         if not records:
             return
         self._write_pending()
@@ -408,6 +426,9 @@ class RunWriter:
                 self._events[i] = record
                 self._n_events = i + 1
         self._flush_locked()
+        with self._flushed:
+            self._records_written = handed
+            self._flushed.notify_all()
 
     # --- flushing -----------------------------------------------------------------------------
     @property
@@ -469,12 +490,9 @@ class RunWriter:
                 if self._closed:
                     return
                 try:
-                    # a step or an event is on disk before its interval is up: a client that
-                    # saw it on the wire finds it in the file even after a kill -9 (one a dwell)
-                    records = bool(self._records)
-                    self._write_records()
+                    self._write_records()  # (flushes: see `_hand_over`)
                     self._write_pending(whole_chunks_only=True)
-                    if records or time.monotonic() - self._last_flush >= interval:
+                    if time.monotonic() - self._last_flush >= interval:
                         if self._unflushed():
                             self._flush_locked()
                         else:

@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cal.add_argument("--out", metavar="NEW.toml",
                      help="write the corrected map here instead of over MAP.toml")
     cal.add_argument("--keep-step", type=int, action="append", default=[], metavar="N",
-                     help="keep a questioned gauge entry (step N) in the fit")
+                     help="keep a questioned gauge entry in the fit (step N, from 1)")
     live = sub.choices["live"]
     live.add_argument("--once", action="store_true", help="one table, then exit")
     live.add_argument("--record-s", type=float, default=0.1,

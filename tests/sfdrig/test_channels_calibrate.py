@@ -72,10 +72,10 @@ def test_probe_gains_flow_back_and_the_wrong_entry_is_questioned(
     assert main(["channels", "calibrate", str(probe_run), "--map", str(map_path), "--yes"]) == 0
     out = capsys.readouterr().out
     (question,) = [line for line in out.splitlines() if line.startswith("QUESTION")]
-    m = re.search(r"step 0 \(x\): the gauge entry '0.0010 in' \(\+25.4 um\) while the probes "
+    m = re.search(r"step 1 \(x\): the gauge entry '0.0010 in' \(\+25.4 um\) while the probes "
                   r"read (-\d+\.\d) um \(x1 -\d+\.\d, x2 -\d+\.\d um\): the sign and the size "
                   r"disagree \((-0\.00\d+) in would match\); left out of the fit "
-                  r"\(--keep-step 0 keeps it\)", question)
+                  r"\(--keep-step 1 keeps it\)", question)
     assert m, question
     # -60 N on 788 kN/m is -76.1 um; x1 reads it 10 % high: the probes' mean is -79.9 um
     assert float(m.group(1)) == pytest.approx(-79.9, abs=1.5)
@@ -97,7 +97,7 @@ def test_keeping_the_wrong_entry_spoils_the_fit(probe_run: Path, tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     map_path = _map(tmp_path)
     assert main(["channels", "calibrate", str(probe_run), "--map", str(map_path), "--yes",
-                 "--keep-step", "0"]) == 0
+                 "--keep-step", "1"]) == 0
     out = capsys.readouterr().out
     assert "kept in the fit (--keep-step)" in out
     (x1,) = [line for line in out.splitlines() if line.startswith("note x1:")]
@@ -154,3 +154,21 @@ def test_bad_inputs_are_one_line_exit_2(tmp_path: Path, capsys: pytest.CaptureFi
     assert main(["channels", "calibrate", *args, "--map", str(EXAMPLE)]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and re.match(line, err), err
+
+
+@pytest.mark.parametrize("kept,line", [
+    ("0", r"channels calibrate: .*probe_cal\.h5: --keep-step 0: no such step \(the run has "
+          r"\d+, counted from 1\)"),
+    ("99", r"channels calibrate: .*probe_cal\.h5: --keep-step 99: no such step"),
+])
+def test_a_kept_step_the_run_lacks_is_refused(probe_run: Path, tmp_path: Path, kept: str,
+                                              line: str,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """Steps are counted from 1, as the QUESTION lines show them; 0 or past the last is a typo,
+    refused before anything is fitted or written."""
+    map_path = _map(tmp_path)
+    assert main(["channels", "calibrate", str(probe_run), "--map", str(map_path), "--yes",
+                 "--keep-step", kept]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and re.match(line, err), err
+    assert map_path.read_text() == EXAMPLE.read_text()

@@ -349,6 +349,23 @@ def test_background_flush_makes_a_lone_block_visible(tmp_path: Path) -> None:
         w.close()
 
 
+def test_a_step_and_an_event_are_in_the_file_when_their_calls_return(tmp_path: Path) -> None:
+    """The publisher announces a step after `on_step` returns: a client that saw it must find it
+    in the file even if the daemon is killed the next moment, whatever the flush interval."""
+    path = tmp_path / "durable.h5"
+    w = _make(path, flush_interval_s=3600.0, chunk_samples=4096)
+    try:
+        w.on_block(0, np.ones((4, 300)), np.zeros((2, 300)))
+        w.on_step(StepRecord.from_wire(_step(0, 0, 300, ["fx"], [])))
+        with open_run(path) as run:  # at once: no wait, no flush asked for
+            assert len(run.steps) == 1 and run.n_samples == 300
+        w.on_event("note", "a note", 300)
+        with open_run(path) as run:
+            assert [e["message"] for e in run.events] == ["a note"]
+    finally:
+        w.close()
+
+
 # --- SWMR: live reading ----------------------------------------------------------------------
 def test_swmr_reader_in_same_process_sees_growth(tmp_path: Path) -> None:
     path = tmp_path / "live.h5"

@@ -8,12 +8,16 @@ converges or says why not (a target the shakers cannot reach, the soft limit).
 
 from __future__ import annotations
 
+import tomllib
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from control.run.listener import RecordingListener
 from control.run.pump import PumpRelay
 from control.run.safety import AxisSignals, SafetyLimits
+from control.run.sweep.approach import RAISE_STOP
 from control.run.sweep.engine import SweepEngine, SweepSpec
 from control.signal.synthesis import SineSynthesizer
 from daq.channels import default_channel_map
@@ -21,6 +25,7 @@ from rig_model.params import RigParams
 from tests.control.conftest import make_backend
 
 LIMIT_M = SafetyLimits().displacement_limit_m  # 63.5 um
+EXAMPLE_LUBRICATED = Path(__file__).parents[3] / "examples" / "lubricated_x.toml"
 FRAME = {"effects": {"second_mode": {"enabled": True, "frequency_hz": 39.0}}}
 
 
@@ -123,6 +128,29 @@ def test_lubricated_displacement_matrix(motion: str):
     ok, n, reasons = _matrix_case(spec, frame=False)
     assert n == 18 and ok >= 15
     assert all("load limit" in r for r in reasons), reasons
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "open finding: at 30 Hz the first correction asks about twice the drive the target needs "
+    "(25 um: 2.2 V from the secant through 0.85 V -> 9.6 um, where 1.18 V holds it: the seal "
+    "slipping more as the drive rises makes the orbit grow 2-3x faster than the drive); the "
+    "watched raise stops it only at RAISE_STOP (1.2x the target) and its latency's drive "
+    "(20 %) plays on: 1.55x (13 um), 1.42x (25 um), 1.37x (38 um, 52 of the 63.5 um limit). "
+    "Judging the orbit's own growth in the raise gave 1.06-1.23x but slowed steps where a step "
+    "had converged (50 Hz 1.86x ideal against 1.45) and left dry X 30 um at 45 Hz "
+    "unconverged; a correction from the orbit's log-log slope is the likely fix"))
+@pytest.mark.parametrize("amp_m", [13e-6, 25e-6, 38e-6])
+def test_the_readme_lubricated_sweep_moves_no_further_than_its_target(amp_m):
+    """The README's lubricated X sweep (examples/lubricated_x.toml, one level at a time): no
+    approach drives the orbit past `RAISE_STOP` (1.2) of its target, where a watched raise is to
+    stop, with 0.05 for the probes' noise and the orbit's harmonics. Before the raise judged the
+    orbit's own growth, the seal slipping more as the drive rose made the orbit grow faster than
+    the drive: 30 Hz ran to 1.55x (13 um), 1.42x (25 um), 1.37x (38 um)."""
+    spec = SweepSpec.model_validate(
+        {**tomllib.loads(EXAMPLE_LUBRICATED.read_text()), "amplitude_m": [amp_m]})
+    out, rec = _sweep(spec)
+    assert out.status == "completed" and all(s.converged for s in out.steps), out.reason
+    assert rec.peak_m <= (RAISE_STOP + 0.05) * amp_m, (rec.peak_m, amp_m)
 
 
 def test_a_load_whose_orbit_would_pass_the_margin_stops_with_that_reason():
