@@ -44,6 +44,16 @@ def _legend(ax: plt.Axes, fontsize: int) -> None:
         ax.legend(fontsize=fontsize)
 
 
+def _one_axes_figure(fig: plt.Figure, ax: plt.Axes, xlabel: str, ylabel: str, fontsize: int,
+                     out_dir: Path, name: str, caption: str) -> Figure:
+    """A figure of one axes labelled, its legend and grid drawn, saved as ``name``."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    _legend(ax, fontsize)
+    ax.grid(alpha=0.3)
+    return _save(fig, out_dir, name), caption
+
+
 def _safe(label: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in label.split(" (")[0])[:40]
 
@@ -213,12 +223,10 @@ def _dynamic_stiffness_figure(lub: LubResult, groups: dict[tuple[str, float], li
         ax.plot(ff, (fit.k_n_per_m - w2 * fit.m_t_kg) / 1e6, "-", lw=0.8,
                 label=f"fit K={fit.k_n_per_m / 1e3:.0f} kN/m, M_T={fit.m_t_kg:.1f} kg, "
                       f"R2={fit.r2:.2f}")
-    ax.set_xlabel("excitation frequency [Hz]")
-    ax.set_ylabel("K - w^2 M_T = Re(F/Z) [MN/m]")
-    _legend(ax, 6)
-    ax.grid(alpha=0.3)
-    return (_save(fig, out_dir, "dynamic_stiffness.png"),
-            "Dynamic stiffness from unidirectional tests and its fit (cf. Figure 30).")
+    return _one_axes_figure(
+        fig, ax, "excitation frequency [Hz]", "K - w^2 M_T = Re(F/Z) [MN/m]", 6, out_dir,
+        "dynamic_stiffness.png",
+        "Dynamic stiffness from unidirectional tests and its fit (cf. Figure 30).")
 
 
 def _damping_vs_frequency_figure(groups: dict[tuple[str, float], list[LubPoint]],
@@ -294,12 +302,9 @@ def _added_mass_figure(lub: LubResult, preds: dict[str, Any], out_dir: Path) -> 
                             [f.u_added_mass_kg for f in fits], fmt="o-", capsize=2,
                             label=f"D_{axis}{axis} ({method})")
     ax.axhline(preds["eq15_added_mass_kg"], color="k", ls="--", label="eq. 15")
-    ax.set_xlabel("displacement amplitude [um]")
-    ax.set_ylabel("added mass D [kg]")
-    _legend(ax, 7)
-    ax.grid(alpha=0.3)
-    return (_save(fig, out_dir, "added_mass_vs_amplitude.png"),
-            "Added mass against amplitude (cf. Figure F1, Table F1).")
+    return _one_axes_figure(fig, ax, "displacement amplitude [um]", "added mass D [kg]", 7,
+                            out_dir, "added_mass_vs_amplitude.png",
+                            "Added mass against amplitude (cf. Figure F1, Table F1).")
 
 
 def orbits(ident: Identification, out_dir: Path, max_plots: int = 4) -> list[Figure]:
