@@ -195,10 +195,10 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
         groups[(p.axis, round(p.target_m, 7))].append(p)
     preds = ident.predictions()
     figs = [_dynamic_stiffness_figure(lub, groups, out_dir),
-            _damping_vs_frequency_figure(groups, preds, out_dir),
+            _damping_vs_frequency_figure(groups, preds["eq16_centred_Ns_per_m"], out_dir),
             _damping_vs_amplitude_figure(lub, preds, out_dir)]
     if lub.mass_fits:
-        figs.append(_added_mass_figure(lub, preds, out_dir))
+        figs.append(_added_mass_figure(lub, preds["eq15_added_mass_kg"], out_dir))
     return figs
 
 
@@ -230,8 +230,9 @@ def _dynamic_stiffness_figure(lub: LubResult, groups: dict[tuple[str, float], li
 
 
 def _damping_vs_frequency_figure(groups: dict[tuple[str, float], list[LubPoint]],
-                                 preds: dict[str, Any], out_dir: Path) -> Figure:
-    """Figures 31-34, E2: the system's and the film's damping against frequency."""
+                                 eq16_centred: float, out_dir: Path) -> Figure:
+    """Figures 31-34, E2: the system's and the film's damping against frequency, with eq. 16's
+    centred damping ``eq16_centred`` [N.s/m]."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for (axis, _), ps in sorted(groups.items()):
         ps = sorted(ps, key=lambda p: p.freq_hz)
@@ -244,7 +245,7 @@ def _damping_vs_frequency_figure(groups: dict[tuple[str, float], list[LubPoint]]
         axes[1].errorbar(freqs, [p.c_sfd_ss / 1e3 for p in ps], [p.u_c_sfd_ss / 1e3 for p in ps],
                          fmt="x--", ms=4, capsize=2,
                          label=f"C_{axis}{axis} {amp:.0f} um (stick-slip)")
-    axes[1].axhline(preds["eq16_centred_Ns_per_m"] / 1e3, color="k", ls="--",
+    axes[1].axhline(eq16_centred / 1e3, color="k", ls="--",
                     label="eq. 16, centred")
     axes[0].set_ylabel("system damping C_t [kN.s/m]")
     axes[1].set_ylabel("SFD damping C = C_t - C_seal - C_rv [kN.s/m]")
@@ -257,7 +258,8 @@ def _damping_vs_frequency_figure(groups: dict[tuple[str, float], list[LubPoint]]
             "(cf. Figures 31-34, E2).")
 
 
-def _damping_vs_amplitude_figure(lub: LubResult, preds: dict[str, Any], out_dir: Path) -> Figure:
+def _damping_vs_amplitude_figure(lub: LubResult, preds: dict[str, Any],
+                                 out_dir: Path) -> Figure:
     """Figures 35-37, E1: the system's and the film's damping against amplitude, with eq. 16."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     by_f: dict[tuple[str, float], list] = defaultdict(list)
@@ -289,8 +291,8 @@ def _damping_vs_amplitude_figure(lub: LubResult, preds: dict[str, Any], out_dir:
             "35-37, E1).")
 
 
-def _added_mass_figure(lub: LubResult, preds: dict[str, Any], out_dir: Path) -> Figure:
-    """Figure F1: the added mass against amplitude, with eq. 15."""
+def _added_mass_figure(lub: LubResult, eq15_added_mass_kg: float, out_dir: Path) -> Figure:
+    """Figure F1: the added mass against amplitude, with eq. 15's ``eq15_added_mass_kg``."""
     fig, ax = plt.subplots(figsize=(6, 4))
     for axis in ("x", "y"):
         for method in ("eq9", "stick_slip"):
@@ -301,7 +303,7 @@ def _added_mass_figure(lub: LubResult, preds: dict[str, Any], out_dir: Path) -> 
                             [f.added_mass_kg for f in fits],
                             [f.u_added_mass_kg for f in fits], fmt="o-", capsize=2,
                             label=f"D_{axis}{axis} ({method})")
-    ax.axhline(preds["eq15_added_mass_kg"], color="k", ls="--", label="eq. 15")
+    ax.axhline(eq15_added_mass_kg, color="k", ls="--", label="eq. 15")
     return _one_axes_figure(fig, ax, "displacement amplitude [um]", "added mass D [kg]", 7,
                             out_dir, "added_mass_vs_amplitude.png",
                             "Added mass against amplitude (cf. Figure F1, Table F1).")
