@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -18,6 +19,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from analysis.identify import Identification  # noqa: E402
+from analysis.lubricated import LubPoint, LubResult  # noqa: E402
 from analysis.sync import synthesize  # noqa: E402
 
 UM = 1e6
@@ -40,6 +42,16 @@ def _legend(ax: plt.Axes, fontsize: int) -> None:
     """A legend only where something is labelled (matplotlib warns otherwise)."""
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=fontsize)
+
+
+def _one_axes_figure(fig: plt.Figure, ax: plt.Axes, xlabel: str, ylabel: str, fontsize: int,
+                     out_dir: Path, name: str, caption: str) -> Figure:
+    """A figure of one axes labelled, its legend and grid drawn, saved as ``name``."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    _legend(ax, fontsize)
+    ax.grid(alpha=0.3)
+    return _save(fig, out_dir, name), caption
 
 
 def _safe(label: str) -> str:
@@ -178,11 +190,21 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
     lub = ident.lubricated
     if lub is None:
         return []
-    figs = []
-    groups: dict[tuple[str, float], list] = defaultdict(list)
+    groups: dict[tuple[str, float], list[LubPoint]] = defaultdict(list)
     for p in lub.points:
         groups[(p.axis, round(p.target_m, 7))].append(p)
-    # dynamic stiffness with fit
+    preds = ident.predictions()
+    figs = [_dynamic_stiffness_figure(lub, groups, out_dir),
+            _damping_vs_frequency_figure(groups, preds["eq16_centred_Ns_per_m"], out_dir),
+            _damping_vs_amplitude_figure(lub, preds, out_dir)]
+    if lub.mass_fits:
+        figs.append(_added_mass_figure(lub, preds["eq15_added_mass_kg"], out_dir))
+    return figs
+
+
+def _dynamic_stiffness_figure(lub: LubResult, groups: dict[tuple[str, float], list[LubPoint]],
+                              out_dir: Path) -> Figure:
+    """Figure 30: the dynamic stiffness against frequency with its fit, per axis and level."""
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     for fit in lub.mass_fits:
         if fit.method != "eq9":
@@ -201,13 +223,16 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
         ax.plot(ff, (fit.k_n_per_m - w2 * fit.m_t_kg) / 1e6, "-", lw=0.8,
                 label=f"fit K={fit.k_n_per_m / 1e3:.0f} kN/m, M_T={fit.m_t_kg:.1f} kg, "
                       f"R2={fit.r2:.2f}")
-    ax.set_xlabel("excitation frequency [Hz]")
-    ax.set_ylabel("K - w^2 M_T = Re(F/Z) [MN/m]")
-    _legend(ax, 6)
-    ax.grid(alpha=0.3)
-    figs.append((_save(fig, out_dir, "dynamic_stiffness.png"),
-                  "Dynamic stiffness from unidirectional tests and its fit (cf. Figure 30)."))
-    # damping against frequency: system and SFD
+    return _one_axes_figure(
+        fig, ax, "excitation frequency [Hz]", "K - w^2 M_T = Re(F/Z) [MN/m]", 6, out_dir,
+        "dynamic_stiffness.png",
+        "Dynamic stiffness from unidirectional tests and its fit (cf. Figure 30).")
+
+
+def _damping_vs_frequency_figure(groups: dict[tuple[str, float], list[LubPoint]],
+                                 eq16_centred: float, out_dir: Path) -> Figure:
+    """Figures 31-34, E2: the system's and the film's damping against frequency, with eq. 16's
+    centred damping ``eq16_centred`` [N.s/m]."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for (axis, _), ps in sorted(groups.items()):
         ps = sorted(ps, key=lambda p: p.freq_hz)
@@ -220,8 +245,7 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
         axes[1].errorbar(freqs, [p.c_sfd_ss / 1e3 for p in ps], [p.u_c_sfd_ss / 1e3 for p in ps],
                          fmt="x--", ms=4, capsize=2,
                          label=f"C_{axis}{axis} {amp:.0f} um (stick-slip)")
-    preds = ident.predictions()
-    axes[1].axhline(preds["eq16_centred_Ns_per_m"] / 1e3, color="k", ls="--",
+    axes[1].axhline(eq16_centred / 1e3, color="k", ls="--",
                     label="eq. 16, centred")
     axes[0].set_ylabel("system damping C_t [kN.s/m]")
     axes[1].set_ylabel("SFD damping C = C_t - C_seal - C_rv [kN.s/m]")
@@ -229,10 +253,14 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
         ax.set_xlabel("excitation frequency [Hz]")
         _legend(ax, 6)
         ax.grid(alpha=0.3)
-    figs.append((_save(fig, out_dir, "damping_vs_frequency.png"),
-                 "System and squeeze-film damping against frequency, with 95 % uncertainty "
-                 "(cf. Figures 31-34, E2)."))
-    # against amplitude
+    return (_save(fig, out_dir, "damping_vs_frequency.png"),
+            "System and squeeze-film damping against frequency, with 95 % uncertainty "
+            "(cf. Figures 31-34, E2).")
+
+
+def _damping_vs_amplitude_figure(lub: LubResult, preds: dict[str, Any],
+                                 out_dir: Path) -> Figure:
+    """Figures 35-37, E1: the system's and the film's damping against amplitude, with eq. 16."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     by_f: dict[tuple[str, float], list] = defaultdict(list)
     for p in lub.points:
@@ -258,28 +286,27 @@ def lubricated_figures(ident: Identification, out_dir: Path) -> list[Figure]:
         ax.set_xlabel("displacement amplitude [um]")
         _legend(ax, 6)
         ax.grid(alpha=0.3)
-    figs.append((_save(fig, out_dir, "damping_vs_amplitude.png"),
-                 "System and squeeze-film damping against amplitude with eq. 16 (cf. Figures "
-                 "35-37, E1)."))
-    if lub.mass_fits:
-        fig, ax = plt.subplots(figsize=(6, 4))
-        for axis in ("x", "y"):
-            for method in ("eq9", "stick_slip"):
-                fits = sorted((f for f in lub.mass_fits if f.axis == axis and f.method == method),
-                              key=lambda f: f.amplitude_m)
-                if fits:
-                    ax.errorbar([f.amplitude_m * UM for f in fits],
-                                [f.added_mass_kg for f in fits],
-                                [f.u_added_mass_kg for f in fits], fmt="o-", capsize=2,
-                                label=f"D_{axis}{axis} ({method})")
-        ax.axhline(preds["eq15_added_mass_kg"], color="k", ls="--", label="eq. 15")
-        ax.set_xlabel("displacement amplitude [um]")
-        ax.set_ylabel("added mass D [kg]")
-        _legend(ax, 7)
-        ax.grid(alpha=0.3)
-        figs.append((_save(fig, out_dir, "added_mass_vs_amplitude.png"),
-                     "Added mass against amplitude (cf. Figure F1, Table F1)."))
-    return figs
+    return (_save(fig, out_dir, "damping_vs_amplitude.png"),
+            "System and squeeze-film damping against amplitude with eq. 16 (cf. Figures "
+            "35-37, E1).")
+
+
+def _added_mass_figure(lub: LubResult, eq15_added_mass_kg: float, out_dir: Path) -> Figure:
+    """Figure F1: the added mass against amplitude, with eq. 15's ``eq15_added_mass_kg``."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for axis in ("x", "y"):
+        for method in ("eq9", "stick_slip"):
+            fits = sorted((f for f in lub.mass_fits if f.axis == axis and f.method == method),
+                          key=lambda f: f.amplitude_m)
+            if fits:
+                ax.errorbar([f.amplitude_m * UM for f in fits],
+                            [f.added_mass_kg for f in fits],
+                            [f.u_added_mass_kg for f in fits], fmt="o-", capsize=2,
+                            label=f"D_{axis}{axis} ({method})")
+    ax.axhline(eq15_added_mass_kg, color="k", ls="--", label="eq. 15")
+    return _one_axes_figure(fig, ax, "displacement amplitude [um]", "added mass D [kg]", 7,
+                            out_dir, "added_mass_vs_amplitude.png",
+                            "Added mass against amplitude (cf. Figure F1, Table F1).")
 
 
 def orbits(ident: Identification, out_dir: Path, max_plots: int = 4) -> list[Figure]:

@@ -13,7 +13,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import h5py
 import numpy as np
@@ -299,9 +299,10 @@ def identify(paths: Sequence[str | Path], analyses: Iterable[str] | None = None,
     return ident
 
 
-def _identify_runs(runs: list[RunData], ident: Identification, asked: set[str],
-                   velocity_harmonics: int) -> None:
-    params = ident.params
+def _by_analysis(runs: list[RunData], ident: Identification,
+                 asked: set[str]) -> dict[str, list[RunData]]:
+    """The runs by the analysis each calls for, each listed in ``ident.runs``; a run whose
+    analysis was not asked for is skipped with why, an aborted or failed one noted."""
     by_analysis: dict[str, list[RunData]] = {a: [] for a in ANALYSES}
     for r in runs:
         want = wanted_analysis(r)
@@ -321,6 +322,55 @@ def _identify_runs(runs: list[RunData], ident: Identification, asked: set[str],
                                          f"(asked: {sorted(asked)})"))
             continue
         by_analysis[want].append(r)
+    return by_analysis
+
+
+class _SealAndDamping(NamedTuple):
+    """The seal's friction [N] and the residual damping [N.s/m] a lubricated analysis removes,
+    with their uncertainties and where the friction comes from (NaN: not known, to be fitted
+    to the lubricated dwells)."""
+
+    f_mu: float
+    u_f_mu: float
+    c_rv: float
+    u_c_rv: float
+    source: str
+
+
+def _seal_and_damping(ident: Identification, declared: SealSetting) -> _SealAndDamping:
+    """From the runs' stated seal, the dry runs, the rig configuration or the report's Table 4,
+    in that order (`analysis.seal_setting`)."""
+    params = ident.params
+    c_rv = params.structure.residual_damping_ns_per_m if ident.rig_described \
+        else REPORT_C_RV_NS_PER_M
+    u_c_rv = 0.1 * c_rv
+    if ident.dry is not None:
+        c_rv, u_c_rv = ident.dry.c_rv_ns_per_m, ident.dry.u_c_rv_ns_per_m
+    if declared.state in ("none", "given"):
+        f_mu = declared.f_mu_n or 0.0
+        u_f_mu = 0.1 * f_mu
+        source = declared.source
+    elif ident.dry is not None:
+        f_mu, u_f_mu = ident.dry.f_mu_n, ident.dry.u_f_mu_n
+        source = "identified from the dry runs (energy balance, eq. 2-4)"
+    elif declared.state == "unknown":
+        f_mu, u_f_mu, source = math.nan, 0.0, declared.source  # fitted once dwells load
+    elif ident.simulated or ident.rig_described:
+        f_mu = params.seal.friction_force_n if params.seal.enabled else 0.0
+        c_rv = params.structure.residual_damping_ns_per_m
+        u_f_mu, u_c_rv = 0.1 * f_mu, 0.1 * c_rv
+        source = "rig configuration (no dry run given)"
+    else:
+        f_mu, c_rv = REPORT_F_MU_N, REPORT_C_RV_NS_PER_M
+        u_f_mu, u_c_rv = 0.1 * f_mu, 0.1 * c_rv
+        source = "report's Table 4 (no dry run given)"
+    return _SealAndDamping(f_mu, u_f_mu, c_rv, u_c_rv, source)
+
+
+def _identify_runs(runs: list[RunData], ident: Identification, asked: set[str],
+                   velocity_harmonics: int) -> None:
+    params = ident.params
+    by_analysis = _by_analysis(runs, ident, asked)
     # structure and instruments first: their results feed the dynamic analyses
     for r in by_analysis["probe_calibration"]:
         ident.probe.extend(identify_probe_calibration(r, ident.skipped))
@@ -350,29 +400,7 @@ def _identify_runs(runs: list[RunData], ident: Identification, asked: set[str],
         ident.skipped.append(Skipped("-", "lubricated", str(err)))
         by_analysis["lubricated"] = []
         declared = SealSetting("", None, "")
-    c_rv = params.structure.residual_damping_ns_per_m if ident.rig_described \
-        else REPORT_C_RV_NS_PER_M
-    u_c_rv = 0.1 * c_rv
-    if ident.dry is not None:
-        c_rv, u_c_rv = ident.dry.c_rv_ns_per_m, ident.dry.u_c_rv_ns_per_m
-    if declared.state in ("none", "given"):
-        f_mu = declared.f_mu_n or 0.0
-        u_f_mu = 0.1 * f_mu
-        source = declared.source
-    elif ident.dry is not None:
-        f_mu, u_f_mu = ident.dry.f_mu_n, ident.dry.u_f_mu_n
-        source = "identified from the dry runs (energy balance, eq. 2-4)"
-    elif declared.state == "unknown":
-        f_mu, u_f_mu, source = math.nan, 0.0, declared.source  # fitted below, once dwells load
-    elif ident.simulated or ident.rig_described:
-        f_mu = params.seal.friction_force_n if params.seal.enabled else 0.0
-        c_rv = params.structure.residual_damping_ns_per_m
-        u_f_mu, u_c_rv = 0.1 * f_mu, 0.1 * c_rv
-        source = "rig configuration (no dry run given)"
-    else:
-        f_mu, c_rv = REPORT_F_MU_N, REPORT_C_RV_NS_PER_M
-        u_f_mu, u_c_rv = 0.1 * f_mu, 0.1 * c_rv
-        source = "report's Table 4 (no dry run given)"
+    f_mu, u_f_mu, c_rv, u_c_rv, source = _seal_and_damping(ident, declared)
     # lubricated sweeps
     lub_dwells: list[Dwell] = []
     for r in by_analysis["lubricated"]:

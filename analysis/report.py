@@ -46,6 +46,33 @@ def _pm(v: float | None, u: float | None, scale: float = 1.0, digits: int = 4) -
 
 def tables_html(doc: dict[str, Any]) -> str:
     """Every table of the JSON document as HTML."""
+    parts = _structure_tables(doc)
+    dry = doc.get("dry")
+    if dry:
+        t4 = dry["table4"]
+        ide = t4["identified"]
+        parts.append(_table(
+            "Table 4 – dry friction force and residual damping (energy balance, eq. 2-4)",
+            ["test, load", "F_µ [N]", "C_rv [N.s/m]", "r²", "dwells"],
+            [[r["label"], _pm(r["F_mu_N"], r["U_F_mu_N"]),
+              _pm(r["C_rv_Ns_per_m"], r["U_C_rv_Ns_per_m"]), r["r2"], r["n_points"]]
+             for r in t4["rows"]] + [["all (identified)", _pm(ide["F_mu_N"], ide["U_F_mu_N"]),
+                                      _pm(ide["C_rv_Ns_per_m"], ide["U_C_rv_Ns_per_m"]),
+                                      ide["r2"], ""]],
+            "Uncertainty: regression (95 %), instruments (App. B) and scatter across tests."))
+    lub = doc.get("lubricated")
+    if lub:
+        parts += _lubricated_tables(lub)
+    ref = doc.get("simulated_reference")
+    if ref:
+        parts.append(_table("Simulated rig (true values)", ["quantity", "value"],
+                            [[k, v] for k, v in ref.items() if not isinstance(v, list)]))
+    return "\n".join(parts)
+
+
+def _structure_tables(doc: dict[str, Any]) -> list[str]:
+    """The structure's and the instruments' tables: Table 2 (static), Table 3 (impact),
+    Table A1 (probe gains) and the flow against pressure."""
     parts = []
     if doc["static_table2"]:
         parts.append(_table(
@@ -83,74 +110,61 @@ def tables_html(doc: dict[str, Any]) -> str:
             f"{fr['viscosity_fit_pa_s'] * 1e3:.3f} cP; eq. 1 at {fr['mean_temperature_c']:.1f} "
             f"°C = {fr['viscosity_eq1_pa_s'] * 1e3:.3f} cP; rig configuration = "
             f"{fr['viscosity_config_pa_s'] * 1e3:.3f} cP."))
-    dry = doc.get("dry")
-    if dry:
-        t4 = dry["table4"]
-        ide = t4["identified"]
-        parts.append(_table(
-            "Table 4 – dry friction force and residual damping (energy balance, eq. 2-4)",
-            ["test, load", "F_µ [N]", "C_rv [N.s/m]", "r²", "dwells"],
-            [[r["label"], _pm(r["F_mu_N"], r["U_F_mu_N"]),
-              _pm(r["C_rv_Ns_per_m"], r["U_C_rv_Ns_per_m"]), r["r2"], r["n_points"]]
-             for r in t4["rows"]] + [["all (identified)", _pm(ide["F_mu_N"], ide["U_F_mu_N"]),
-                                      _pm(ide["C_rv_Ns_per_m"], ide["U_C_rv_Ns_per_m"]),
-                                      ide["r2"], ""]],
-            "Uncertainty: regression (95 %), instruments (App. B) and scatter across tests."))
-    lub = doc.get("lubricated")
-    if lub:
-        parts.append(_table(
-            "Table 6 / Table F1 – total and added mass (dynamic stiffness against w²)",
-            ["axis", "amplitude [µm]", "seal removed by", "K fit [kN/m]", "M_T [kg]", "R²",
-             "D [kg]", "M_T, K static [kg]", "R² (K static)", "D (K static) [kg]"],
-            [[f["axis"], f["amplitude_m"] * UM, f["method"],
-              _pm(f["k_n_per_m"], f["u_k_n_per_m"], 1e-3), _pm(f["m_t_kg"], f["u_m_t_kg"]),
-              f["r2"], _pm(f["added_mass_kg"], f["u_added_mass_kg"]), f["m_t_fixed_k_kg"],
-              f["r2_fixed_k"], f["added_mass_fixed_k_kg"]]
-             for f in lub["table6_and_appendix_E"]],
-            f"Predicted added mass (eq. 15): {lub['predictions']['eq15_added_mass_kg']:.2f} kg."
-            " D = M_T - M - M_f. 'eq9': the report's procedure (the seal's in-phase force stays "
-            "in K - w²M_T); 'stick_slip': the seal force rebuilt from the measured cycle, with "
-            "sticking, removed first. K static: "
-            + ", ".join(f"{k} {v / 1e3:.0f} kN/m" for k, v in lub["k_static_N_per_m"].items())
-            + "."))
-        preds = {(r["axis"], round(r["amplitude_m"], 8)): r
-                 for r in lub["predictions"]["by_amplitude"]}
-        rows = []
-        for g in lub["sfd_damping_by_amplitude"]:
-            pr = preds.get((g["axis"], round(g["amplitude_m"], 8)), {})
-            e9, ss = g["eq9"], g["stick_slip"]
-            rows.append([g["axis"], g["amplitude_m"] * UM, g["C_t_mean_Ns_per_m"],
-                         g["dC_t_df_Ns_per_m_per_Hz"],
-                         _pm(e9["C_sfd_mean_Ns_per_m"], e9["U_C_sfd_Ns_per_m"]),
-                         e9["C_sfd_rel_spread"],
-                         _pm(ss["C_sfd_mean_Ns_per_m"], ss["U_C_sfd_Ns_per_m"]),
-                         ss["C_sfd_rel_spread"], pr.get("eq16_at_eps_Ns_per_m"),
-                         pr.get("simulated_energy_equivalent_Ns_per_m")])
-        parts.append(_table(
-            "Squeeze-film damping by amplitude (Appendix F), mean over frequency",
-            ["axis", "amplitude [µm]", "C_t mean", "dC_t/df [N.s/m/Hz]", "C_sfd (eq. 9)",
-             "spread/mean", "C_sfd (stick-slip)", "spread/mean", "eq. 16 at ε=A/c",
-             "simulator (energy equiv.)"], rows,
-            f"C_sfd = C_t - C_seal - C_rv with F_µ = {lub['seal_friction_N']:.2f} N "
-            f"({lub['seal_friction_source']}), C_rv = {lub['C_rv_Ns_per_m']:.0f} N.s/m. Eq. 16 "
-            f"centred: {lub['predictions']['eq16_centred_Ns_per_m']:.0f} N.s/m. Damping in "
-            "N.s/m."))
-        parts.append(_table(
-            "Identified coefficients per dwell (eq. 14, eq. 9)",
-            ["run", "step", "axis", "f [Hz]", "|Z| [µm]", "C_t [N.s/m]", "K-w²M_T [kN/m]",
-             "C_seal eq. 9", "C_sfd eq. 9", "C_seal stick-slip", "C_sfd stick-slip",
-             "sticking"],
-            [[p["run"].split(" (")[0], p["step"], p["axis"], p["freq_hz"],
-              p["amplitude_m"] * UM, _pm(p["C_t_Ns_per_m"], p["U_C_t_Ns_per_m"]),
-              _pm(p["K_dyn_N_per_m"], p["U_K_dyn_N_per_m"], 1e-3), p["C_seal_Ns_per_m"],
-              _pm(p["C_sfd_Ns_per_m"], p["U_C_sfd_Ns_per_m"]), p["C_seal_stick_slip_Ns_per_m"],
-              _pm(p["C_sfd_stick_slip_Ns_per_m"], p["U_C_sfd_stick_slip_Ns_per_m"]),
-              p["stick_fraction"]] for p in lub["points"]]))
-    ref = doc.get("simulated_reference")
-    if ref:
-        parts.append(_table("Simulated rig (true values)", ["quantity", "value"],
-                            [[k, v] for k, v in ref.items() if not isinstance(v, list)]))
-    return "\n".join(parts)
+    return parts
+
+
+def _lubricated_tables(lub: dict[str, Any]) -> list[str]:
+    """The lubricated analysis's tables: Table 6 / F1 (total and added mass), the film's
+    damping by amplitude (Appendix F) and the coefficients per dwell."""
+    parts = [_table(
+        "Table 6 / Table F1 – total and added mass (dynamic stiffness against w²)",
+        ["axis", "amplitude [µm]", "seal removed by", "K fit [kN/m]", "M_T [kg]", "R²",
+         "D [kg]", "M_T, K static [kg]", "R² (K static)", "D (K static) [kg]"],
+        [[f["axis"], f["amplitude_m"] * UM, f["method"],
+          _pm(f["k_n_per_m"], f["u_k_n_per_m"], 1e-3), _pm(f["m_t_kg"], f["u_m_t_kg"]),
+          f["r2"], _pm(f["added_mass_kg"], f["u_added_mass_kg"]), f["m_t_fixed_k_kg"],
+          f["r2_fixed_k"], f["added_mass_fixed_k_kg"]]
+         for f in lub["table6_and_appendix_E"]],
+        f"Predicted added mass (eq. 15): {lub['predictions']['eq15_added_mass_kg']:.2f} kg."
+        " D = M_T - M - M_f. 'eq9': the report's procedure (the seal's in-phase force stays "
+        "in K - w²M_T); 'stick_slip': the seal force rebuilt from the measured cycle, with "
+        "sticking, removed first. K static: "
+        + ", ".join(f"{k} {v / 1e3:.0f} kN/m" for k, v in lub["k_static_N_per_m"].items())
+        + ".")]
+    preds = {(r["axis"], round(r["amplitude_m"], 8)): r
+             for r in lub["predictions"]["by_amplitude"]}
+    rows = []
+    for g in lub["sfd_damping_by_amplitude"]:
+        pr = preds.get((g["axis"], round(g["amplitude_m"], 8)), {})
+        e9, ss = g["eq9"], g["stick_slip"]
+        rows.append([g["axis"], g["amplitude_m"] * UM, g["C_t_mean_Ns_per_m"],
+                     g["dC_t_df_Ns_per_m_per_Hz"],
+                     _pm(e9["C_sfd_mean_Ns_per_m"], e9["U_C_sfd_Ns_per_m"]),
+                     e9["C_sfd_rel_spread"],
+                     _pm(ss["C_sfd_mean_Ns_per_m"], ss["U_C_sfd_Ns_per_m"]),
+                     ss["C_sfd_rel_spread"], pr.get("eq16_at_eps_Ns_per_m"),
+                     pr.get("simulated_energy_equivalent_Ns_per_m")])
+    parts.append(_table(
+        "Squeeze-film damping by amplitude (Appendix F), mean over frequency",
+        ["axis", "amplitude [µm]", "C_t mean", "dC_t/df [N.s/m/Hz]", "C_sfd (eq. 9)",
+         "spread/mean", "C_sfd (stick-slip)", "spread/mean", "eq. 16 at ε=A/c",
+         "simulator (energy equiv.)"], rows,
+        f"C_sfd = C_t - C_seal - C_rv with F_µ = {lub['seal_friction_N']:.2f} N "
+        f"({lub['seal_friction_source']}), C_rv = {lub['C_rv_Ns_per_m']:.0f} N.s/m. Eq. 16 "
+        f"centred: {lub['predictions']['eq16_centred_Ns_per_m']:.0f} N.s/m. Damping in "
+        "N.s/m."))
+    parts.append(_table(
+        "Identified coefficients per dwell (eq. 14, eq. 9)",
+        ["run", "step", "axis", "f [Hz]", "|Z| [µm]", "C_t [N.s/m]", "K-w²M_T [kN/m]",
+         "C_seal eq. 9", "C_sfd eq. 9", "C_seal stick-slip", "C_sfd stick-slip",
+         "sticking"],
+        [[p["run"].split(" (")[0], p["step"], p["axis"], p["freq_hz"],
+          p["amplitude_m"] * UM, _pm(p["C_t_Ns_per_m"], p["U_C_t_Ns_per_m"]),
+          _pm(p["K_dyn_N_per_m"], p["U_K_dyn_N_per_m"], 1e-3), p["C_seal_Ns_per_m"],
+          _pm(p["C_sfd_Ns_per_m"], p["U_C_sfd_Ns_per_m"]), p["C_seal_stick_slip_Ns_per_m"],
+          _pm(p["C_sfd_stick_slip_Ns_per_m"], p["U_C_sfd_stick_slip_Ns_per_m"]),
+          p["stick_fraction"]] for p in lub["points"]]))
+    return parts
 
 
 _CSS = """body{font-family:sans-serif;max-width:1150px;margin:auto;padding:1em}

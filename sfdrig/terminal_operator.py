@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import select
 import time
-from typing import Any, TextIO
+from typing import Any, NamedTuple, TextIO
 
 from control.wire.client import CommandClient
+from control.wire.heartbeat import AskedQuestion, LastRun
 from control.wire.protocol import renew_every_s
 
 POLL_S = 0.2  # how often the daemon's status is read while waiting [s]
@@ -27,7 +28,7 @@ SHOWN = {"ok": "Enter accept", "repeat": "r repeat", "skip": "s skip", "abort": 
          "reject": "n reject", "double": "d double hit", "overload": "o overload"}
 
 
-def describe(q: dict[str, Any]) -> str:
+def describe(q: AskedQuestion) -> str:
     """The question as the terminal shows it."""
     lines = [f"[{q['where']}] #{q['id']}", f"  {q['prompt']}"]
     lines += [f"  {line}" for line in q.get("info", [])]
@@ -46,7 +47,7 @@ def describe(q: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def interpret(line: str, q: dict[str, Any]) -> tuple[str, str]:
+def interpret(line: str, q: AskedQuestion) -> tuple[str, str]:
     """(choice, text) for a typed line: a choice key or word, else the entry's text. The daemon
     checks and logs it (an unknown word is sent as it is, so its refusal is in the run)."""
     word = line.strip().lower()
@@ -65,17 +66,24 @@ def _read_line(inp: TextIO, timeout_s: float) -> str | None:
     return inp.readline()
 
 
+class EndOfTest(NamedTuple):
+    """How a structure test ended: the daemon's record of it, and the steps it recorded."""
+
+    run: LastRun
+    steps: int
+
+
 def run_test(client: CommandClient, test: str, spec: dict[str, Any], operator: str,
-             notes: str, inp: TextIO, out: TextIO) -> dict[str, Any]:
-    """Start ``test`` on the daemon, be its operator until it ends; the daemon's last-run record
-    (run_id, path, status, reason) plus ``steps``."""
+             notes: str, inp: TextIO, out: TextIO) -> EndOfTest:
+    """Start ``test`` on the daemon, be its operator until it ends: the daemon's record of how
+    it ended (run_id, path, status, reason) and the steps it recorded."""
     reply = client.request("start_test", test=test, spec=spec, operator=operator, notes=notes)
     run_id = reply.data["run_id"]
     print(f"{test}: run {run_id} started: {reply.data['path']}", file=out, flush=True)
     lease = reply.data.get("lease", "")
     every_s = renew_every_s(float(reply.data.get("lease_s", 0.0)))
     renew_at = time.monotonic() + every_s
-    shown: dict[str, Any] | None = None
+    shown: AskedQuestion | None = None
     steps = 0
     closed = False  # the abort is sent (or input ended): nothing more is read
     answered = 0  # the last question this terminal answered
@@ -86,14 +94,13 @@ def run_test(client: CommandClient, test: str, spec: dict[str, Any], operator: s
             renew_at = time.monotonic() + every_s
         st = client.status()
         if st["run_id"] != run_id:
-            last = dict(st.get("last_run") or {})
-            if last.get("run_id") == run_id:
-                last["steps"] = steps
-                return last
+            if st["last_run"].get("run_id") == run_id:
+                return EndOfTest(st["last_run"], steps)
             time.sleep(POLL_S)  # between the run's end and the daemon's record of it
             continue
-        steps = int(st.get("progress", {}).get("steps_done", steps))
-        q = st.get("question")
+        done = st["progress"].get("steps_done", steps)
+        steps = done if isinstance(done, int) else steps
+        q = st["question"]
         if q is not None and (shown is None or q["id"] != shown["id"]):
             print(describe(q), file=out)
             print("> ", end="", file=out, flush=True)
@@ -136,4 +143,4 @@ def run_test(client: CommandClient, test: str, spec: dict[str, Any], operator: s
             print(f"  = {choice}" + (f" {text}" if text else ""), file=out, flush=True)
 
 
-__all__ = ["describe", "interpret", "run_test"]
+__all__ = ["EndOfTest", "describe", "interpret", "run_test"]

@@ -26,6 +26,18 @@ def until(condition: Callable[[], bool], timeout_s: float = 10.0) -> float:
     return time.monotonic() - t0
 
 
+def heartbeat(**fields: Any) -> dict[str, Any]:
+    """An idle daemon's status, every field of `Heartbeat`, with ``fields`` over it."""
+    return {"state": "idle", "allowed": ["start"], "run_id": "", "run_path": "", "progress": {},
+            "samples": 0, "samples_flushed": 0, "pump_on": False, "film_drains_for_s": 0.0,
+            "safety": {"radial_clearance_m": 63.5e-6, "displacement_limit_m": 50e-6,
+                       "load_limit_n": 448.0, "drive_limit_v": 5.0},
+            "tolerance": None, "fault_reason": "", "idle_incidents": 0, "question": None,
+            "operator_lease": None, "last_run": {}, "recovered_at_start": [], "next_seq": {},
+            "dropped_in_daemon": 0, "sample_rate_hz": 10000.0, "channels": [], "units": {},
+            "drives": [], "input_ranges": {}, "endpoints": {}, "board": {}, "pid": 0, **fields}
+
+
 class FakeDaemon:
     """Heartbeats on a PUB socket every 50 ms and status replies on a ROUTER, until stopped;
     ``raw(frames)`` publishes anything."""
@@ -51,7 +63,8 @@ class FakeDaemon:
         self._thread.start()
 
     def status(self) -> dict[str, Any]:
-        return {"state": "idle", "run_id": "", "who": self.name, "allowed": ["start"]}
+        return heartbeat(who=self.name,
+                         endpoints={"command": self.command, "data": self.data})
 
     def send(self, topic: str, header: dict[str, Any], payload: bytes = b"") -> None:
         with self._lock:

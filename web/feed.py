@@ -35,6 +35,7 @@ from control.wire.client import (
     Subscriber,
     process_gone,
 )
+from control.wire.protocol import Reply
 from control.wire.security import ClientKeys
 from web.view import LiveView
 
@@ -164,7 +165,7 @@ class DaemonLink:
         self.view.set_status(status)
         self._report("late", f"{silent} on {self.data_endpoint}, but the daemon answers status")
 
-    def _reconnect(self, command: str, data: str, pid: Any) -> None:
+    def _reconnect(self, command: str, data: str, pid: object) -> None:
         with self._cmd_lock:
             self._client.close()
             self._client = CommandClient(command, timeout_s=self.timeout_s, keys=self.keys)
@@ -191,7 +192,7 @@ class DaemonLink:
                             "pid": self._pid, "reconnects": self.reconnects})
 
     # --- commands -------------------------------------------------------------------------
-    def command(self, cmd: str, **fields: Any) -> Any:
+    def command(self, cmd: str, **fields: Any) -> Reply:
         """Send one command; return the reply (`CommandRefused`/`DaemonUnavailable` raise)."""
         with self._cmd_lock:
             return self._client.request(cmd, **fields)

@@ -30,11 +30,16 @@ import time
 import zipfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from web.transfer import COHERENCE_LOW, axes_of, from_segments, segments_of
-from web.trips import idle_rows, incidents_of_run, select
+from web.trips import TripRow, idle_rows, incidents_of_run, select
 from web.view import finite, step_point
+
+if TYPE_CHECKING:  # storage (h5py) is imported at first use
+    from storage.reader import RunData
+    from storage.records import StepRecord
+    from storage.run_index import RunFilter, RunIndex, RunPage
 
 FORMATS = ("h5", "mat", "csv", "tdms")
 PAGE_RUNS = 100  # a page of the run list, newest first
@@ -73,17 +78,17 @@ class RunHistory:
         self._transfers: dict[tuple[str, int], list[dict[str, Any]]] = {}
 
     # --- the list -------------------------------------------------------------------------
-    def _page(self, **fixed: Any) -> Any:
+    def _page(self, **fixed: object) -> RunPage:
         """The catalog's rows of the files directly in the directory (`storage.catalog`:
         from the run index, brought in line with the files first), as ``fixed`` filters them."""
         return self._select({}, **fixed)
 
-    def _select(self, query: Mapping[str, str], **fixed: Any) -> Any:
+    def _select(self, query: Mapping[str, str], **fixed: object) -> RunPage:
         with self._catalog() as index:
             return index.select(_filter(query, **fixed))
 
     @contextlib.contextmanager
-    def _catalog(self) -> Iterator[Any]:
+    def _catalog(self) -> Iterator[RunIndex]:
         """The run index of the directory, in line with its files (`storage.catalog`)."""
         from storage.catalog import open_catalog
 
@@ -187,11 +192,11 @@ class RunHistory:
         pending = 0
         try:
             with open_run(path) as run:
-                steps, n, fs = run.steps, run.n_samples, run.sample_rate_hz
+                steps, n, fs = run.step_records, run.n_samples, run.sample_rate_hz
                 for step in steps:
-                    key = (str(path), int(step["index"]))
+                    key = (str(path), step.index)
                     if key not in self._transfers:
-                        if int(step["last_sample"]) > n:
+                        if step.last_sample > n:
                             pending += 1
                             continue
                         if len(self._transfers) >= MAX_CACHED_STEPS:
@@ -214,12 +219,12 @@ class RunHistory:
         from storage.incident_log import LOG_NAME, read_incidents
         from storage.reader import open_run
 
-        rows: list[dict[str, Any]] = []
+        rows: list[TripRow] = []
         unreadable = 0
         with self._catalog() as index:
             page = index.select(_filter(statuses=("aborted", "failed", "interrupted")))
             kept = index.derived(INCIDENTS_KEPT)
-            made: list[tuple[Path, tuple[int, int], Any]] = []
+            made: list[tuple[Path, tuple[int, int], list[TripRow]]] = []
             for r in page.rows:
                 try:
                     st = os.stat(r.file)
@@ -336,13 +341,12 @@ class RunHistory:
         return notes
 
 
-def _step_transfer(run: Any, step: dict[str, Any], fs: float) -> list[dict[str, Any]]:
+def _step_transfer(run: RunData, step: StepRecord, fs: float) -> list[dict[str, Any]]:
     """One step's points, one per driven axis that has a force and a displacement signal."""
-    first, last = int(step["first_sample"]), int(step["last_sample"])
-    freq = float(step["freq_hz"])
+    first, last, freq = step.first_sample, step.last_sample, step.freq_hz
     spans = segments_of(last - first, freq, fs) if freq > 0 and fs > 0 else []
     out = []
-    for axis in axes_of(str(step.get("motion", ""))):
+    for axis in axes_of(step.motion):
         if not (run.has_signal(f"f{axis}") and run.has_signal(axis)):
             continue
         # read segment by segment: a long record is never in memory whole
@@ -352,14 +356,14 @@ def _step_transfer(run: Any, step: dict[str, Any], fs: float) -> list[dict[str, 
         if t is None:
             continue
         coh = t["coherence"]
-        out.append({"index": int(step["index"]), "freq_hz": float(step["freq_hz"]),
+        out.append({"index": step.index, "freq_hz": freq,
                     "axis": axis, **{k: finite(v) if isinstance(v, float) else v
                                      for k, v in t.items()},
                     "low_coherence": coh is not None and coh < COHERENCE_LOW})
     return out
 
 
-def _filter(query: Mapping[str, str] | None = None, **fixed: Any) -> Any:
+def _filter(query: Mapping[str, str] | None = None, **fixed: object) -> RunFilter:
     """The catalog's filter of the files directly in the directory (400 for a bad value)."""
     from storage.catalog import parse_filter
 
@@ -374,7 +378,7 @@ def _notice(message: str) -> None:
     log.warning("%s", message)
 
 
-def _status(status: str, attrs: Any, path: Path) -> str:
+def _status(status: str, attrs: Mapping[str, object], path: Path) -> str:
     """A file left "running" by a writer that is gone reads as interrupted (as in the catalog)."""
     from storage.recovery import writer_gone
 

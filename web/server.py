@@ -391,7 +391,7 @@ class WebApp:
                                                                   "message": str(err)}]})
         else:
             spec = body.get("spec")
-        safety = self.view.status.get("safety") or {}
+        safety = self.view.status["safety"] if self.view.status is not None else None
         out = await asyncio.get_running_loop().run_in_executor(
             None, sweep_form.check, spec, safety)
         return web.json_response({**out, "spec": spec})

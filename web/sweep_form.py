@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from control.wire.heartbeat import SafetyEnvelope
 from control.wire.sweep_spec import SweepSpec, field_units
 from daq.config_files import to_toml
 
@@ -53,7 +54,7 @@ def _property(s: dict[str, Any], path: str) -> dict[str, Any]:
     return node
 
 
-def check(spec: Any, safety: dict[str, Any] | None = None) -> dict[str, Any]:
+def check(spec: object, safety: SafetyEnvelope | None = None) -> dict[str, Any]:
     """``{"ok", "errors": [{"field", "message"}], "summary", "toml"}`` for a sweep's fields;
     ``safety``: the daemon's limits (its status's ``safety``) for the summary."""
     from pydantic import ValidationError
@@ -73,12 +74,12 @@ def check(spec: Any, safety: dict[str, Any] | None = None) -> dict[str, Any]:
             errors.append({"field": ".".join(str(p) for p in e["loc"]),
                            "message": message + got})
         return {"ok": False, "errors": errors, "summary": None, "toml": ""}
-    return {"ok": True, "errors": [], "summary": summary(s, safety or {}),
+    return {"ok": True, "errors": [], "summary": summary(s, safety),
             "toml": to_toml(s.model_dump(mode="json", exclude_defaults=True))}
 
 
-def summary(s: SweepSpec, safety: dict[str, Any]) -> dict[str, Any]:
-    """What the operator confirms before the start."""
+def summary(s: SweepSpec, safety: SafetyEnvelope | None) -> dict[str, Any]:
+    """What the operator confirms before the start (``limits`` None before the first status)."""
     freqs = s.frequencies()
     unit, power = shown_unit(field_units()["amplitude_m" if s.target_kind == "displacement"
                                            else "load_n"])
@@ -101,6 +102,6 @@ def summary(s: SweepSpec, safety: dict[str, Any]) -> dict[str, Any]:
         "tolerance_amplitude_pct": s.tolerance_amplitude_pct,
         "tolerance_phase_deg": s.tolerance_phase_deg,
         "on_not_converged": s.on_not_converged,
-        "limits": {k: safety.get(k) for k in ("displacement_limit_m", "load_limit_n",
-                                              "drive_limit_v", "radial_clearance_m")},
+        "limits": dict(safety) if safety is not None else dict.fromkeys(
+            ("displacement_limit_m", "load_limit_n", "drive_limit_v", "radial_clearance_m")),
     }

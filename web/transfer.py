@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -73,8 +73,20 @@ def segments_of(n_samples: int, freq_hz: float, fs: float,
     return out
 
 
+class Transfer(TypedDict):
+    """One step's transfer at its drive frequency: |X/F| [um/kN] and its phase [deg], the
+    dynamic stiffness F/X [MN/m], the coherence (None for one segment), the segments used."""
+
+    h_um_per_kn: float
+    phase_deg: float
+    k_re_mn_per_m: float
+    k_im_mn_per_m: float
+    coherence: float | None
+    segments: int
+
+
 def transfer(force: np.ndarray, disp: np.ndarray, freq_hz: float, fs: float
-             ) -> dict[str, Any] | None:
+             ) -> Transfer | None:
     """The receptance X/F, the dynamic stiffness F/X and the coherence of one step's record.
 
     Parameters
@@ -98,7 +110,7 @@ def transfer(force: np.ndarray, disp: np.ndarray, freq_hz: float, fs: float
 
 
 def from_segments(segments: Iterable[tuple[np.ndarray, np.ndarray]], freq_hz: float,
-                  fs: float) -> dict[str, Any] | None:
+                  fs: float) -> Transfer | None:
     """`transfer` over (force, displacement) segments given one at a time (a long record is
     read segment by segment, never whole)."""
     bases: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # by length: segments share one
@@ -123,7 +135,7 @@ def from_segments(segments: Iterable[tuple[np.ndarray, np.ndarray]], freq_hz: fl
     coherence = abs(sxf) ** 2 / (sxx * sff) if len(pairs) > 1 else None
     return {
         "h_um_per_kn": abs(h) * 1e9,
-        "phase_deg": math.degrees(np.angle(h)),
+        "phase_deg": math.degrees(float(np.angle(h))),
         "k_re_mn_per_m": k.real / 1e6,
         "k_im_mn_per_m": k.imag / 1e6,
         "coherence": coherence,

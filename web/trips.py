@@ -21,11 +21,15 @@ import csv
 import io
 import math
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
 from web.view import finite
+
+if TYPE_CHECKING:  # storage (h5py) is imported at first use
+    from storage.reader import RunData
+    from storage.records import StepRecord
 
 INCIDENTS = ("trip", "e-stop", "watchdog", "contact", "interrupted", "failed")
 PEAK_BEFORE_S = 1.0
@@ -34,6 +38,23 @@ PEAK_AFTER_S = 0.2
 IDLE_WHERE = "between runs (no run going)"
 CSV_COLUMNS = ("time_utc", "run_id", "incident", "what", "where", "run_time_s",
                "peak_orbit_um", "peak_load_n", "run_status", "file")
+
+
+class TripRow(TypedDict):
+    """One row of the trips table (and of its CSV, `CSV_COLUMNS`): when, which run ("" for
+    none), which incident (`INCIDENTS`), its message, where in the run, the run time [s], the
+    peak orbit [um] and load [N] around it (None: not known), the run's status and its file."""
+
+    time_utc: str
+    run_id: str
+    incident: str
+    what: str
+    where: str
+    run_time_s: float | None
+    peak_orbit_um: float | None
+    peak_load_n: float | None
+    run_status: str
+    file: str
 
 
 def incident_of(kind: str, message: str) -> str | None:
@@ -87,25 +108,25 @@ def _planned(test_spec: dict[str, Any] | None) -> list[float]:
         return []
 
 
-def where_of(sample: int, steps: list[dict[str, Any]], planned: list[float], fs: float) -> str:
+def where_of(sample: int, steps: list[StepRecord], planned: list[float], fs: float) -> str:
     """``step 3/12 at 90.0 Hz, 1.200 s into the run``: the step whose record holds ``sample``,
     or the one running after the last recorded (its frequency from the plan); for a test of no
     steps the run time alone."""
     at = f"{sample / fs:.3f} s into the run" if fs > 0 and sample >= 0 else ""
     index = None
     for s in steps:
-        if int(s["first_sample"]) <= sample < int(s["last_sample"]):
-            index = int(s["index"])
+        if s.first_sample <= sample < s.last_sample:
+            index = s.index
             break
     if index is None:
-        done = [s for s in steps if int(s["last_sample"]) <= sample]
-        index = int(done[-1]["index"]) + 1 if done else 0
+        done = [s for s in steps if s.last_sample <= sample]
+        index = done[-1].index + 1 if done else 0
     of = f"/{len(planned)}" if planned else ""
     freq: float | None = None
     if index < len(planned):
         freq = planned[index]
     else:
-        recorded = [float(s["freq_hz"]) for s in steps if int(s["index"]) == index]
+        recorded = [s.freq_hz for s in steps if s.index == index]
         freq = recorded[0] if recorded else None
     if not planned and not steps:  # a test without dwells: its time alone
         return at
@@ -113,7 +134,7 @@ def where_of(sample: int, steps: list[dict[str, Any]], planned: list[float], fs:
     return f"{step}, {at}" if at else step
 
 
-def peaks_around(run: Any, sample: int) -> tuple[float | None, float | None]:
+def peaks_around(run: RunData, sample: int) -> tuple[float | None, float | None]:
     """The largest orbit radius [um] and load [N] from `PEAK_BEFORE_S` before ``sample`` to
     `PEAK_AFTER_S` after (None where the run has no such signal)."""
     fs = run.sample_rate_hz
@@ -136,13 +157,13 @@ def peaks_around(run: Any, sample: int) -> tuple[float | None, float | None]:
     return orbit, load
 
 
-def incidents_of_run(run: Any, status: str, file: str, changed_at: float
-                     ) -> list[dict[str, Any]]:
+def incidents_of_run(run: RunData, status: str, file: str, changed_at: float
+                     ) -> list[TripRow]:
     """Every incident of one open run (`storage.reader.RunData`) whose status is ``status``;
     ``changed_at`` is the file's last change [s since the epoch], the time of an interruption
     not yet closed by a daemon (as `storage.recovery.close_interrupted` will record it)."""
     fs = run.sample_rate_hz
-    steps = run.steps
+    steps = run.step_records
     planned = _planned(run.test_spec) if run.kind == "sweep" else []
     found: list[tuple[str, str, str, int]] = []
     for e in run.events:
@@ -157,7 +178,7 @@ def incidents_of_run(run: Any, status: str, file: str, changed_at: float
                       reason or "the run was interrupted (its writer is gone)", last))
     elif status == "failed" and not found:
         found.append(("failed", run.stop_time or changed, reason or "the run failed", last))
-    rows = []
+    rows: list[TripRow] = []
     for what, time, message, sample in found:
         sample = last if sample < 0 else sample
         orbit, load = peaks_around(run, sample)
@@ -172,7 +193,7 @@ def incidents_of_run(run: Any, status: str, file: str, changed_at: float
     return rows
 
 
-def idle_rows(records: list[dict[str, Any]], file: str) -> list[dict[str, Any]]:
+def idle_rows(records: list[dict[str, Any]], file: str) -> list[TripRow]:
     """The rows of the daemon's incident log (`storage.incident_log`): incidents while no run
     was going (an emergency stop pressed or released between runs, the board's watchdog), in
     no run file."""
@@ -181,8 +202,8 @@ def idle_rows(records: list[dict[str, Any]], file: str) -> list[dict[str, Any]]:
              "peak_load_n": None, "run_status": "", "file": file} for r in records]
 
 
-def select(rows: list[dict[str, Any]], incidents: set[str] | None,
-           since: datetime | None) -> list[dict[str, Any]]:
+def select(rows: list[TripRow], incidents: set[str] | None,
+           since: datetime | None) -> list[TripRow]:
     """The rows of those incidents (all for None), from ``since`` on, newest first."""
     out = [r for r in rows if (incidents is None or r["incident"] in incidents)
            and (since is None or ((w := _when(r["time_utc"])) is not None and w >= since))]
@@ -209,17 +230,17 @@ def parse_incidents(text: str) -> set[str] | None:
     return set(names)
 
 
-def to_csv(rows: list[dict[str, Any]]) -> str:
+def to_csv(rows: list[TripRow]) -> str:
     """The rows as CSV (a header of `CSV_COLUMNS`; text quoted; no value read as a formula)."""
     buf = io.StringIO()
     w = csv.writer(buf, quoting=csv.QUOTE_NONNUMERIC, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
     for r in rows:
-        w.writerow([_cell(r[c]) for c in CSV_COLUMNS])
+        w.writerow([_cell(r.get(c)) for c in CSV_COLUMNS])
     return buf.getvalue()
 
 
-def _cell(v: Any) -> Any:
+def _cell(v: object) -> object:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return ""
     if isinstance(v, str) and v[:1] in ("=", "+", "-", "@"):

@@ -15,12 +15,13 @@ import threading
 import time
 from collections import deque
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 
 from control.wire.client import Message
 from control.wire.harmonics import LockIn
+from control.wire.heartbeat import Heartbeat
 from control.wire.summary_lines import CONTACT, peak_line
 from storage.records import BlockHeader, EventRecord, StepRecord
 
@@ -28,6 +29,19 @@ UM = 1e-6
 STALE_AFTER_S = 1.0  # traces older than this are drawn grey, with the time of their data
 TWO_AXIS = ("circular_forward", "circular_backward", "elliptical")
 TRACE_UNITS = ("N", "m", "m/s^2")  # drawn as traces; the rest (pressure, flow, oil) as means
+
+
+class Link(TypedDict):
+    """How the page's link to the daemon is (`web.feed.DaemonLink` judges it): ``state``
+    ("connecting", "live", "late", "lost") and why, the endpoints followed, the daemon's pid
+    (None: not known), how often the link followed a restarted daemon."""
+
+    state: str
+    message: str
+    command: NotRequired[str]
+    data: NotRequired[str]
+    pid: NotRequired[int | None]
+    reconnects: NotRequired[int]
 
 
 def _mean_z(harmonics: Mapping[str, tuple[complex, ...]],
@@ -150,7 +164,7 @@ class LiveView:
         self._last_sample = -1  # run sample index of the newest sample
         self._t_acquired = 0.0  # daemon's time.time() of the newest block
         self._block_seq = -1
-        self.status: dict[str, Any] = {}
+        self.status: Heartbeat | None = None  # the latest heartbeat (None before the first)
         self.steps: list[dict[str, Any]] = []
         self._step_times: list[float] = []
         self._run_started: float | None = None
@@ -164,7 +178,7 @@ class LiveView:
         self._peak_n = 0.0
         self._contact = ""
         # the link to the daemon (`web.feed.DaemonLink` says how it is) and the last heartbeat
-        self._link: dict[str, Any] = {"state": "connecting", "message": ""}
+        self._link: Link = {"state": "connecting", "message": ""}
         self._heartbeat_at: float | None = None
         self._malformed = 0
         self._malformed_last = ""
@@ -191,7 +205,7 @@ class LiveView:
                         and not self._contact):
                     self._contact = ev.message
             elif msg.topic == "status":
-                self._on_status(h["status"], msg.received_at)
+                self._on_status(msg.heartbeat(), msg.received_at)
                 self._heartbeat_at = msg.received_at
 
     def note_heartbeat(self, now: float | None = None) -> None:
@@ -206,10 +220,10 @@ class LiveView:
                 return None
             return (time.time() if now is None else now) - self._heartbeat_at
 
-    def set_link(self, link: dict[str, Any]) -> None:
+    def set_link(self, link: Link) -> None:
         """How the link to the daemon is (`web.feed.DaemonLink`)."""
         with self._lock:
-            self._link = dict(link)
+            self._link = link.copy()
 
     def note_malformed(self, count: int, what: str) -> None:
         """A message the feed could not use (skipped): counted and shown."""
@@ -217,10 +231,10 @@ class LiveView:
             self._malformed = count
             self._malformed_last = what[:300]
 
-    def set_status(self, status: dict[str, Any], now: float | None = None) -> None:
+    def set_status(self, status: Heartbeat, now: float | None = None) -> None:
         """A status reply (late join) or heartbeat."""
         with self._lock:
-            if status.get("run_id") and status["run_id"] != self.run_id:
+            if status["run_id"] and status["run_id"] != self.run_id:
                 self._new_run(status["run_id"])
             self._on_status(status, time.time() if now is None else now)
 
@@ -238,14 +252,12 @@ class LiveView:
         self._peak_m = self._peak_n = 0.0
         self._contact = ""
 
-    def _on_status(self, status: dict[str, Any], now: float) -> None:
-        if not isinstance(status, dict):  # the frame reads it as one
-            raise ValueError(f"a status must be an object, not {type(status).__name__}")
+    def _on_status(self, status: Heartbeat, now: float) -> None:
         self.status = status
-        tol = status.get("tolerance")
+        tol = status["tolerance"]
         if tol:
-            self.tolerance = (float(tol["amplitude_pct"]), float(tol["phase_deg"]))
-        if status.get("run_id") and self._run_started is None:
+            self.tolerance = (tol["amplitude_pct"], tol["phase_deg"])
+        if status["run_id"] and self._run_started is None:
             self._run_started = now
 
     def _on_block(self, h: BlockHeader, seq: int, block: np.ndarray) -> None:
@@ -291,12 +303,12 @@ class LiveView:
         if loads:
             self._peak_n = max(self._peak_n, float(max(loads)))
 
-    def _peaks(self, status: dict[str, Any]) -> dict[str, Any] | None:
+    def _peaks(self, status: Heartbeat | None) -> dict[str, Any] | None:
         """The run's peaks for the page: the daemon's summary once the run has ended (every
         block counted), else what this view has seen so far (blocks may be dropped)."""
-        last = status.get("last_run") or {}
+        last = status["last_run"] if status is not None else {}
         summary = last.get("summary")
-        if (not status.get("run_id") and isinstance(summary, dict) and summary
+        if (status is not None and not status["run_id"] and summary
                 and last.get("run_id") == self.run_id):
             return {"run_id": self.run_id, "final": True, "text": peak_line(summary),
                     "peak_displacement_m": finite(summary["peak_displacement_m"]),
@@ -305,8 +317,7 @@ class LiveView:
                     "tripped": bool(summary.get("tripped_at"))}
         if not self.run_id or self._last_sample < 0:
             return None
-        safety = status.get("safety") or {}
-        limit = safety.get("displacement_limit_m")
+        limit = status["safety"]["displacement_limit_m"] if status is not None else None
         text = f"peak orbit {self._peak_m / UM:.1f} um" + (
             f" of the {limit / UM:.4g} um limit" if limit else "") + (
             f", peak load {self._peak_n:.1f} N; ") + (self._contact or f"no {CONTACT}")
@@ -331,7 +342,7 @@ class LiveView:
         now = time.time() if now is None else now
         with self._lock:
             traces = self._traces() if self._buf is not None and self._write else None
-            status = dict(self.status)
+            status = self.status
             link = self._link_now(now)
             return {
                 "type": "frame",
@@ -339,7 +350,7 @@ class LiveView:
                 "t_acquired": self._t_acquired,
                 "block_seq": self._block_seq,
                 "link": link,
-                "status": status,
+                "status": dict(status) if status is not None else {},
                 "time_left_s": self._time_left(status, now)
                 if link["state"] in ("live", "late") else None,
                 "peaks": self._peaks(status),
@@ -355,17 +366,18 @@ class LiveView:
         hb = None if self._heartbeat_at is None else max(0.0, now - self._heartbeat_at)
         data_at = self._t_acquired if self._t_acquired > 0 else None
         data_age = None if data_at is None else max(0.0, now - data_at)
-        live = self._link.get("state") in ("live", "late")
+        live = self._link["state"] in ("live", "late")
         return {**self._link, "heartbeat_age_s": hb, "data_age_s": data_age,
                 "last_data_time": data_at,
                 "stale": not live or data_age is None or data_age > STALE_AFTER_S,
                 "malformed": self._malformed, "malformed_last": self._malformed_last}
 
-    def _time_left(self, status: dict[str, Any], now: float) -> float | None:
+    def _time_left(self, status: Heartbeat | None, now: float) -> float | None:
         """Remaining steps times the mean duration of the finished ones (None before the first)."""
-        p = status.get("progress") or {}
-        total, done = int(p.get("steps_total") or 0), len(self.steps)
-        if not status.get("run_id") or not total or not done or self._run_started is None:
+        if status is None or not status["run_id"]:
+            return None
+        total, done = status["progress"].get("steps_total"), len(self.steps)
+        if not isinstance(total, int) or not total or not done or self._run_started is None:
             return None
         per_step = (self._step_times[-1] - self._run_started) / done
         return max(0.0, per_step * (total - done) - (now - self._step_times[-1]))
@@ -378,7 +390,8 @@ class LiveView:
         fs = self._fs
         names = self._channels
         drives = names[self._n_ai:]
-        freq = float((self.status.get("progress") or {}).get("freq_hz") or 0.0)
+        progress_freq = self.status["progress"].get("freq_hz") if self.status else None
+        freq = float(progress_freq) if isinstance(progress_freq, int | float) else 0.0
         # trigger on the first drive that moves: `cycles` drive periods starting at an upward
         # crossing, so the picture stands still
         start, stop, triggered = max(0, m - int(0.1 * fs)), m, False
@@ -397,7 +410,7 @@ class LiveView:
         dec = window[:, ::step]
         t_ms = (np.arange(dec.shape[1]) * step / fs * 1e3).round(3)
         rows = {name: dec[i] for i, name in enumerate(names)}
-        units = self.status.get("units") or {}
+        units = self.status["units"] if self.status is not None else {}
         drawn = [n for n in names if n in drives or units.get(n, "N") in TRACE_UNITS]
         ai_means = window[: self._n_ai].mean(axis=1) if n else np.full(self._n_ai, math.nan)
         means = {name: finite(float(v)) for name, v in zip(names[: self._n_ai], ai_means,
@@ -428,7 +441,7 @@ class LiveView:
         """Per input over the shown window: RMS about the mean, peak |value| and how much of
         the input range the samples reach [%] (from the range's middle to the nearer end;
         100 % is the ADC's limit), when the status gives the range."""
-        ranges = self.status.get("input_ranges") or {}
+        ranges = self.status["input_ranges"] if self.status is not None else {}
         rms = np.sqrt(np.mean((ai - means[:, None]) ** 2, axis=1))
         lo_v, hi_v = ai.min(axis=1), ai.max(axis=1)
         out: dict[str, dict[str, float | None]] = {}

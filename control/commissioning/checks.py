@@ -45,11 +45,16 @@ from __future__ import annotations
 import cmath
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
-from daq.channels import AnalogInput, ChannelKind, ChannelMap
+from daq.channels import (
+    AnalogInput,
+    AnalogOutput,
+    ChannelKind,
+    ChannelMap,
+    EmergencyStopInput,
+)
 from daq.device_check import LiveValues
 from daq.map_edits import Correction
 
@@ -110,11 +115,12 @@ class Verdict:
         return [f for f in self.findings if f.level == "fail"]
 
 
-def where(ch: Any) -> str:
+def where(ch: AnalogInput | AnalogOutput | EmergencyStopInput) -> str:
     return f"{ch.name} ({ch.physical_channel})"
 
 
-def exchanged(group: str, a: Any, b: Any, why: str) -> list[Correction]:
+def exchanged(group: str, a: AnalogInput | AnalogOutput, b: AnalogInput | AnalogOutput,
+              why: str) -> list[Correction]:
     """The corrections that exchange the ``physical_channel`` of ``a`` and ``b`` (of ``group``,
     "ai" or "ao"); ``why`` formats each one's name and the terminal it is found on."""
     return [Correction(group, p.name, "physical_channel", q.physical_channel,

@@ -37,10 +37,10 @@ import time
 from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, cast
 
 import zmq
-from pydantic import BaseModel, JsonValue, ValidationError
+from pydantic import BaseModel, ValidationError
 
 from control.daemon.acquisition import AcquisitionLoop, RunJob
 from control.daemon.lease import OperatorLease
@@ -63,7 +63,7 @@ from control.run.files import (
 )
 from control.run.listener import FanOut
 from control.wire.errors import TargetError
-from control.wire.heartbeat import Heartbeat
+from control.wire.heartbeat import AskedQuestion, Heartbeat, LastRun
 from control.wire.protocol import (
     AbortRequest,
     AliveRequest,
@@ -78,6 +78,7 @@ from control.wire.protocol import (
     RequestError,
     ResetRequest,
     ResumeRequest,
+    RunListing,
     StartRequest,
     StartTestRequest,
     StatusRequest,
@@ -168,7 +169,7 @@ class Daemon:
 
         self.sm = StateMachine(self._state_changed)
         self.job: RunJob | None = None
-        self._last_run: dict[str, JsonValue] = {}
+        self._last_run: LastRun = {}
         self.fault_reason = ""
         self._stop_reason = ""
         self._stop = threading.Event()
@@ -727,7 +728,7 @@ class Daemon:
             "pid": os.getpid(),
         }
 
-    def list_runs(self, limit: int = 500) -> list[dict[str, Any]]:
+    def list_runs(self, limit: int = 500) -> list[RunListing]:
         """The run files in the runs directory, newest first, with their status."""
         return list_runs(self.cfg.runs_dir, self.job.path if self.job is not None else None,
                          limit)
@@ -781,7 +782,8 @@ class Daemon:
         tmp.replace(self.cfg.state_file)
 
 
-def _question(job: RunJob | None) -> dict[str, JsonValue] | None:
+def _question(job: RunJob | None) -> AskedQuestion | None:
     desk = job.engine.desk if job is not None else None
     q = desk.pending() if desk is not None else None
-    return q.model_dump(mode="json") if q is not None else None
+    # the same fields (tests/control/daemon/test_heartbeat_golden.py holds them together)
+    return cast("AskedQuestion", q.model_dump(mode="json")) if q is not None else None

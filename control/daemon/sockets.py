@@ -3,9 +3,8 @@ security when keys are given (and required beyond this computer)."""
 
 from __future__ import annotations
 
-from typing import Any
-
 import zmq
+from zmq.auth.thread import ThreadAuthenticator
 
 from control.wire.protocol import MAX_FRAME_BYTES
 from control.wire.security import (
@@ -20,7 +19,7 @@ from control.wire.security import (
 
 def bind_sockets(ctx: zmq.Context, command_endpoint: str, data_endpoint: str,
                  keys: ServerKeys | None, sndhwm: int
-                 ) -> tuple[zmq.Socket, zmq.Socket, dict[str, str], Any]:
+                 ) -> tuple[zmq.Socket, zmq.Socket, dict[str, str], ThreadAuthenticator | None]:
     """(command socket, data socket, their endpoints as bound, the ZAP authenticator or None).
     ``sndhwm``: the PUB socket's send high-water mark [messages]; 0 = unlimited."""
     for ep in (command_endpoint, data_endpoint):

@@ -9,6 +9,8 @@ from typing import Any, Literal, Protocol
 
 from pydantic import BaseModel, JsonValue
 
+from control.wire.heartbeat import RunSummary, Tolerance
+
 #: how a run ended: "failed" when the rig or the software failed, "aborted" when a trip, an
 #: interlock or a person stopped it
 RunStatus = Literal["completed", "aborted", "failed"]
@@ -67,8 +69,8 @@ class Engine(Protocol):
         ...
 
     @property
-    def summary(self) -> dict[str, Any]:
-        """JSON-safe: the run's peaks, contact and trip (`control.run.summary`); {} if none."""
+    def summary(self) -> RunSummary | None:
+        """JSON-safe: the run's peaks, contact and trip (`control.run.summary`), or None."""
         ...
 
     @property
@@ -93,6 +95,6 @@ class Engine(Protocol):
         """Where the run is now, JSON-safe, for the daemon's status (any thread)."""
         ...
 
-    def tolerance(self) -> dict[str, float] | None:
+    def tolerance(self) -> Tolerance | None:
         """The tolerances a display draws the steps against, or None."""
         ...

@@ -11,11 +11,13 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from pydantic import BaseModel
 
 from control.run.engine import RunSpec
+from control.wire.heartbeat import RecoveredRun
+from control.wire.protocol import RunListing
 from daq.board import Board
 from daq.channels import ChannelMap
 from storage.records import run_file_status
@@ -74,11 +76,11 @@ def create_run_writer(path: str | Path, kind: str, channel_map: ChannelMap, *, r
     )
 
 
-def list_runs(runs_dir: Path, active: Path | None, limit: int = 500) -> list[dict[str, Any]]:
+def list_runs(runs_dir: Path, active: Path | None, limit: int = 500) -> list[RunListing]:
     """The run files in ``runs_dir``, newest first, with their status (``active`` is running)."""
     from storage.reader import open_run
 
-    out: list[dict[str, Any]] = []
+    out: list[RunListing] = []
     paths = sorted(runs_dir.glob("*.h5"), key=lambda p: p.stat().st_mtime, reverse=True)
     for p in paths[:limit]:
         if p == active:
@@ -120,7 +122,7 @@ def _locked(err: BaseException) -> bool:
 
 
 def recover_interrupted(runs_dir: Path, lock_wait_s: float = LOCK_WAIT_S,
-                        wait: Callable[[float], None] = time.sleep) -> list[dict[str, Any]]:
+                        wait: Callable[[float], None] = time.sleep) -> list[RecoveredRun]:
     """Close the runs a dead writer left "running" in ``runs_dir`` as "interrupted", with the
     last sample on disk, so that every reader opens them. A file whose writer may still be alive
     (`storage.recovery.writer_gone`) is left alone; one a reader holds open (a web server
@@ -135,7 +137,7 @@ def recover_interrupted(runs_dir: Path, lock_wait_s: float = LOCK_WAIT_S,
     from storage.recovery import close_interrupted, writer_gone
     from storage.run_index import record_run
 
-    out: list[dict[str, Any]] = []
+    out: list[RecoveredRun] = []
     try:
         candidates = select_runs(runs_dir, RunFilter(statuses=("running", "interrupted"),
                                                      top_only=True)).rows

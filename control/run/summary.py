@@ -9,11 +9,12 @@ in its status's ``last_run`` and the CLI and the page show (`control.wire.summar
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import cast
 
 import numpy as np
 
 from control.run.safety import AxisSignals
+from control.wire.heartbeat import RunPlace, RunSummary
 from control.wire.summary_lines import CONTACT
 from storage.records import StepRecord
 
@@ -29,24 +30,24 @@ class RunPeaks:
         self.max_load_n = max_load_n
         self.peak_displacement_m = 0.0
         self.peak_load_n = 0.0
-        self.where_displacement: dict[str, Any] = {}
-        self.where_load: dict[str, Any] = {}
+        self.where_displacement: RunPlace = {}
+        self.where_load: RunPlace = {}
         self.contact = ""
-        self.tripped_at: dict[str, Any] | None = None
-        #: where the run is (step index from 0, steps, frequency, target, unit, motion)
-        self.where: dict[str, Any] = {}
+        self.tripped_at: RunPlace | None = None
+        #: where the run is (step index from 0, steps, frequency, target, motion)
+        self.where: RunPlace = {}
         #: whose drive plays at a sample (the stream's `DriveStream.owner_at`: a step's `where`
         #: from its first own drive command, the fade and ring-down of the drive before and a
         #: late host's replay of it still the step before's); None: `where`, as the engine
         #: keeps it up to date
-        self.playing: Callable[[int], Any] | None = None
+        self.playing: Callable[[int], object] | None = None
 
-    def _where(self, sample: int) -> dict[str, Any]:
+    def _where(self, sample: int) -> RunPlace:
         """Where the run was at ``sample``: the step whose drive played it."""
         if self.playing is None:
             return self.where
         owner = self.playing(sample)
-        return owner if isinstance(owner, dict) else {}
+        return cast("RunPlace", owner) if isinstance(owner, dict) else {}
 
     def on_block(self, first_sample: int, ai: np.ndarray, ao: np.ndarray) -> None:
         d = self.signals.displacement(ai)
@@ -59,7 +60,7 @@ class RunPeaks:
         k = int(np.argmax(load))
         if float(load[k]) > self.peak_load_n:
             self.peak_load_n = float(load[k])
-            self.where_load = dict(self._where(first_sample + k))
+            self.where_load = {**self._where(first_sample + k)}
 
     def on_step(self, step: StepRecord) -> None:
         pass
@@ -71,7 +72,7 @@ class RunPeaks:
             self.tripped_at = {**self._where(sample), "message": message, "sample": sample}
 
     @property
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> RunSummary:
         return {
             "peak_displacement_m": self.peak_displacement_m,
             "peak_displacement_at": self.where_displacement,

@@ -26,10 +26,14 @@ from typing import Any, NoReturn
 
 import numpy as np
 import zmq
+from pydantic import TypeAdapter, ValidationError
 from zmq.utils.monitor import recv_monitor_message
 
-from control.wire.protocol import TOPICS, Reply, decode_block
+from control.wire.heartbeat import Heartbeat, heartbeat_from_wire
+from control.wire.protocol import TOPICS, Reply, RunListing, decode_block
 from control.wire.security import ClientKeys, secure_client_socket
+
+_RUN_LISTINGS: TypeAdapter[list[RunListing]] = TypeAdapter(list[RunListing])
 
 
 def process_gone(pid: object) -> bool:
@@ -193,13 +197,24 @@ class CommandClient:
     def pump(self, on: bool) -> Reply:
         return self.request("pump", on=on)
 
-    def status(self) -> dict[str, Any]:
-        """The daemon's status: state, run id, progress, sequence numbers, endpoints."""
-        reply = self.request("status")
-        return {"state": reply.state.value, **reply.data}
+    def status(self) -> Heartbeat:
+        """The daemon's status: state, run id, progress, sequence numbers, endpoints.
 
-    def list_runs(self) -> list[dict[str, Any]]:
-        return list(self.request("list_runs").data["runs"])
+        Raises DaemonUnavailable when the answer is no daemon's status (a field missing or
+        of the wrong type: another program, or a daemon of another version)."""
+        reply = self.request("status")
+        try:
+            return heartbeat_from_wire({"state": reply.state.value, **reply.data},
+                                       self.endpoint)
+        except ValueError as err:
+            raise DaemonUnavailable(f"not a daemon's status: {err}") from None
+
+    def list_runs(self) -> list[RunListing]:
+        """The daemon's run files, newest first (DaemonUnavailable: an answer that is none)."""
+        try:
+            return _RUN_LISTINGS.validate_python(self.request("list_runs").data.get("runs"))
+        except ValidationError as err:
+            raise DaemonUnavailable(f"not a daemon's list of runs: {err.errors()[0]}") from None
 
     def reset(self) -> Reply:
         return self.request("reset")
@@ -219,7 +234,8 @@ class CommandClient:
 
 @dataclass
 class Message:
-    """One live-data message. ``array`` is the block (rows = ``header["channels"]``) or None."""
+    """One live-data message. ``array`` is the block (rows = ``header["channels"]``) or None;
+    a ``status`` message's heartbeat is `heartbeat`."""
 
     topic: str
     header: dict[str, Any]
@@ -231,6 +247,13 @@ class Message:
         if self.array is None:
             raise ValueError(f"{self.topic} message carries no samples")
         return self.array[self.header["channels"].index(name)]
+
+    def heartbeat(self) -> Heartbeat:
+        """A ``status`` message's heartbeat, every field checked (ValueError names the one
+        that is wrong)."""
+        if self.topic != "status":
+            raise ValueError(f"a {self.topic} message carries no heartbeat")
+        return heartbeat_from_wire(self.header.get("status"), "the status topic")
 
 
 @dataclass
@@ -293,28 +316,31 @@ class Subscriber:
         self.gaps = GapCounter()
         self.received = 0
 
-    def wait_connected(self, timeout_s: float = 10.0) -> dict[str, Any]:
+    def wait_connected(self, timeout_s: float = 10.0) -> Heartbeat:
         """Wait for the first status heartbeat (the subscription is then live); return it.
-        Messages that cannot be decoded are passed over on the way.
+        Messages that cannot be decoded, and statuses that are no heartbeat, are passed over
+        on the way.
 
         Raises
         ------
         DaemonUnavailable
-            if no heartbeat arrives within ``timeout_s``.
+            if no heartbeat arrives within ``timeout_s`` (naming the last status passed over).
         """
         deadline = time.monotonic() + timeout_s
+        passed_over = ""
         while True:
             left = deadline - time.monotonic()
             try:
                 msg = self._recv_any(max(left, 0.0)) if left > 0 else None
-            except (ValueError, KeyError, TypeError):
-                continue  # not a message of ours: waited past, as any other topic is
+                if msg is not None and msg.topic == "status":
+                    return msg.heartbeat()
+            except (ValueError, KeyError, TypeError) as err:
+                passed_over = f" ({err})"  # not a message of ours: waited past
+                continue
             if msg is None:
                 raise DaemonUnavailable(
                     f"no status heartbeat from {self.endpoint} within {timeout_s:g} s"
-                )
-            if msg.topic == "status":
-                return msg.header
+                    + passed_over)
 
     def recv(self, timeout_s: float | None = None) -> Message | None:
         """The next message of the subscribed topics, or None after ``timeout_s`` (None: wait)."""

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import json
 from enum import StrEnum
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, NotRequired
 
 import numpy as np
 from pydantic import (
@@ -38,6 +38,7 @@ from pydantic import (
     ValidationError,
     field_validator,
 )
+from typing_extensions import TypedDict  # pydantic reads this one (not typing's) on Python 3.11
 
 from control.wire.text import RequestId, SafeReason, SafeRequestId, Text, safe_json, safe_text
 from daq.config_files import unknown_field_hint
@@ -170,6 +171,23 @@ class StatusRequest(_Request):
 
 class ListRunsRequest(_Request):
     cmd: Literal["list_runs"]
+
+
+class RunListing(TypedDict):
+    """One run file of the ``list_runs`` reply's ``runs`` (newest first): the run being
+    written only with its path, id and "running"; an unreadable one with why
+    (``status_reason``)."""
+
+    path: str
+    run_id: str
+    #: the file's status, "running" for the daemon's current run, "unreadable"
+    status: str
+    kind: NotRequired[str]
+    status_reason: NotRequired[str]
+    start_time: NotRequired[str]
+    stop_time: NotRequired[str]
+    n_samples: NotRequired[int]
+    n_steps: NotRequired[int]
 
 
 class ResetRequest(_Request):

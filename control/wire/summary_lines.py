@@ -5,40 +5,39 @@ same lines."""
 
 from __future__ import annotations
 
-from typing import Any
+from control.wire.heartbeat import RunPlace, RunSummary
 
 #: the safety monitor's and the engine's words for a contact
 CONTACT = "journal-housing contact"
 
 
-def _at(where: dict[str, Any] | None) -> str:
+def _at(where: RunPlace | None) -> str:
     if not where or where.get("step_index", -1) < 0:
         return ""
     of = f"/{where['steps_total']}" if where.get("steps_total") else ""
     return f"step {where['step_index'] + 1}{of}, {where.get('freq_hz', float('nan')):.1f} Hz"
 
 
-def peak_line(summary: dict[str, Any]) -> str:
+def peak_line(summary: RunSummary) -> str:
     """``peak orbit 52.0 um of the 63.5 um limit (step 1/1, 150.0 Hz), peak load 402.1 N of
     448 N; no journal-housing contact``."""
     d, lim = summary["peak_displacement_m"] * 1e6, summary["displacement_limit_m"] * 1e6
-    at_d, at_f = _at(summary.get("peak_displacement_at")), _at(summary.get("peak_load_at"))
+    at_d, at_f = _at(summary["peak_displacement_at"]), _at(summary["peak_load_at"])
     line = (f"peak orbit {d:.1f} um of the {lim:.4g} um limit" + (f" ({at_d})" if at_d else "")
             + f", peak load {summary['peak_load_n']:.1f} N of {summary['max_load_n']:g} N"
             + (f" ({at_f})" if at_f else ""))
-    contact = summary.get("contact") or ""
+    contact = summary["contact"]
     return line + (f"; {contact}" if contact else f"; no {CONTACT}")
 
 
-def lateness_line(summary: dict[str, Any] | None) -> str:
+def lateness_line(summary: RunSummary | None) -> str:
     """When the computer fell behind the AO and that cost the run time, what it cost and what
     to do (`SweepEngine.summary`'s ``host_late``); "" when it kept up."""
-    late = (summary or {}).get("host_late") or {}
-    played = float(late.get("played_from_ring_s") or 0.0)
-    if not late.get("events") or played <= 0:
+    late = summary.get("host_late") if summary else None
+    if late is None or not late["events"] or late["played_from_ring_s"] <= 0:
         return ""
     return (f"the computer fell behind the drive {late['events']} times (at worst "
-            f"{float(late.get('worst_ms') or 0.0):.1f} ms late): {played:.3f} s of drive played "
+            f"{late['worst_ms']:.1f} ms late): {late['played_from_ring_s']:.3f} s of drive played "
             "from the AO ring meanwhile, time the controller waited for the drive it asked for. "
             "What to do: ease the machine's load, or start the daemon with --priority high.")
 
@@ -58,11 +57,11 @@ def _advice(message: str, contact: bool) -> str:
 
 
 def end_line(run_id: str, status: str, reason: str, steps: int,
-             summary: dict[str, Any] | None) -> str:
+             summary: RunSummary | None) -> str:
     """The CLI's last line: how the run ended; after a trip, what tripped, at which step and
     frequency, the peak, and what to do."""
     line = f"run {run_id} {status}" + (f": {reason}" if reason else "") + f" ({steps} steps)"
-    trip = (summary or {}).get("tripped_at")
+    trip = summary["tripped_at"] if summary is not None else None
     if "-200290" in reason:  # not a trip: the computer did not keep the AO fed
         return (line + ". What to do: the AO stream ran dry (the computer fell behind its 30 ms "
                 "lead; the drives ramped to zero): ease the machine's load or start the daemon "
@@ -71,10 +70,10 @@ def end_line(run_id: str, status: str, reason: str, steps: int,
         return line
     at = _at(trip)
     target = f" ({trip.get('motion', '')} {trip['target']})" if trip.get("target") else ""
-    contact = summary.get("contact") or ""
+    contact = summary["contact"]
     peak = (f"peak orbit {summary['peak_displacement_m'] * 1e6:.1f} um of the "
             f"{summary['displacement_limit_m'] * 1e6:.4g} um limit"
             + (f", {contact}" if contact else ""))
     return (f"run {run_id} {status} by a limit trip" + (f" at {at}{target}" if at else "")
-            + f": {trip['message']}; {peak}; the drives were cut to 0 V ({steps} steps "
-            f"recorded). What to do: {_advice(trip['message'], bool(contact))}.")
+            + f": {trip.get('message', '')}; {peak}; the drives were cut to 0 V ({steps} steps "
+            f"recorded). What to do: {_advice(trip.get('message', ''), bool(contact))}.")

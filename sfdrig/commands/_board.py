@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
-from typing import Any
 
 from daq.board import Board, board_lock, grpc_target_problem
 from daq.locks import AlreadyRunning, InstanceLock
@@ -26,7 +25,7 @@ def grpc_target_error(command: str, target: str | None) -> str:
     return f"{command}: --grpc-target {target!r}: {problem}" if problem else ""
 
 
-def hold_board(board: Board, **info: Any) -> InstanceLock | None:
+def hold_board(board: Board, **info: str | bool) -> InstanceLock | None:
     """Take ``board``'s lock until `InstanceLock.release` or the end of this process (None: the
     simulated rig in process has none). Raises `AlreadyRunning` naming the holder's pid and
     command line, or `OSError` when the lock directory cannot be used."""

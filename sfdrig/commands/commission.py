@@ -11,10 +11,16 @@ import dataclasses
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from daq.board import NIDAQMX, SIM, Board
 from sfdrig.commands._board import BoardBusy, board_held, grpc_target_error
+
+if TYPE_CHECKING:  # imported where the board is chosen
+    from control.commissioning.procedure import CommissionSpec, Operator
+    from daq.backend import DaqBackend
+    from daq.channels import ChannelMap
+    from rig_model.params import RigParams
 
 NAME = "commission"
 HELP = ("guided first power-up: inputs at rest, the e-stop and the watchdog with the operator, "
@@ -131,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
 
 
-def describe_board(board: Board, cm: Any) -> str:
+def describe_board(board: Board, cm: ChannelMap) -> str:
     """The board commissioning runs on, for its output, report and record (`daq.board.Board`'s
     sentence), "simulated" before a device that says it is one (an NI simulated device, or
     `sfdrig sim-server`): a rehearsal never reads as the rig."""
@@ -140,7 +146,7 @@ def describe_board(board: Board, cm: Any) -> str:
     return board.describe()
 
 
-def _device_is_simulated(cm: Any) -> bool:
+def _device_is_simulated(cm: ChannelMap) -> bool:
     """What the device says (DAQmx's DevIsSimulated), asked in a session of its own before the
     tasks exist; a device or driver that cannot say is taken as a real board."""
     from daq.errors import DaqError
@@ -158,7 +164,8 @@ def _device_is_simulated(cm: Any) -> bool:
         session.close()
 
 
-def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
+def _backend(args: argparse.Namespace, cm: ChannelMap
+             ) -> tuple[DaqBackend, Operator, RigParams | None]:
     if args.backend == "nidaqmx":
         from daq.nidaqmx_backend import NidaqmxBackend
 
@@ -180,8 +187,9 @@ def _backend(args: argparse.Namespace, cm: Any) -> tuple[Any, Any, Any]:
     return backend, SimulatedCommissioner(backend), params
 
 
-def _commission(args: argparse.Namespace, cm: Any, spec: Any, backend: Any, operator: Any,
-                rig: Any, board: str) -> int:
+def _commission(args: argparse.Namespace, cm: ChannelMap, spec: CommissionSpec,
+                backend: DaqBackend, operator: Operator, rig: RigParams | None,
+                board: str) -> int:
     from control.commissioning.procedure import (
         Commissioning,
         CommissionInterrupted,

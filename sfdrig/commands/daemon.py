@@ -23,7 +23,7 @@ import shlex
 import signal
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from threadpoolctl import threadpool_limits
 
@@ -38,6 +38,10 @@ from daq.locks import AlreadyRunning, InstanceLock
 from sfdrig.commands._board import grpc_target_error, hold_board
 from sfdrig.commands._client_args import DEFAULT_RUNS_DIR, STATE_FILE_NAME
 from sfdrig.commands._native_memory import pin_mmap_threshold
+
+if TYPE_CHECKING:  # imported where the backend is chosen
+    from daq.backend import DaqBackend
+    from rig_model.params import RigParams
 from sfdrig.commands._priority import LEVELS, PriorityError, apply_priority
 
 NAME = "daemon"
@@ -116,8 +120,8 @@ def ao_ring_s(args: argparse.Namespace) -> float | None:
     return float(max(DEFAULT_RING_S, math.ceil(args.watchdog_s + RING_OVER_WATCHDOG_S)))
 
 
-def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[Any, ChannelMap,
-                                                                               Any]:
+def build_backend(args: argparse.Namespace, channel_map: ChannelMap
+                  ) -> tuple[DaqBackend, ChannelMap, RigParams | None]:
     """(backend, channel map, rig config or None), chosen from the arguments."""
     ring = ao_ring_s(args)
     if args.backend == "nidaqmx":
@@ -134,51 +138,56 @@ def build_backend(args: argparse.Namespace, channel_map: ChannelMap) -> tuple[An
     return backend, channel_map, params
 
 
-def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+def argument_error(args: argparse.Namespace) -> str | None:
+    """The first argument out of its range or at odds with another, as the line to print."""
     if args.grpc_target is not None and args.backend != "nidaqmx":
-        print("daemon: --grpc-target needs --backend nidaqmx", file=sys.stderr)
-        return 2
+        return "daemon: --grpc-target needs --backend nidaqmx"
     if line := grpc_target_error("daemon", args.grpc_target):
-        print(line, file=sys.stderr)
-        return 2
+        return line
     if not (args.watchdog_s == 0 or 0.05 <= args.watchdog_s <= 60):
-        print(f"daemon: --watchdog-s {args.watchdog_s:g} must be 0 (none) or 0.05..60 s",
-              file=sys.stderr)
-        return 2
+        return f"daemon: --watchdog-s {args.watchdog_s:g} must be 0 (none) or 0.05..60 s"
     if not 0 <= args.film_drain_s <= 3600:
-        print(f"daemon: --film-drain-s {args.film_drain_s:g} must be 0..3600 s", file=sys.stderr)
-        return 2
+        return f"daemon: --film-drain-s {args.film_drain_s:g} must be 0..3600 s"
     low, high = LEASE_RANGE_S
     if not low <= args.operator_lease_s <= high:
-        print(f"daemon: --operator-lease-s {args.operator_lease_s:g} must be {low:g}..{high:g} s",
-              file=sys.stderr)
-        return 2
+        return (f"daemon: --operator-lease-s {args.operator_lease_s:g} must be "
+                f"{low:g}..{high:g} s")
     ring = ao_ring_s(args)
     if ring is not None and not 0.5 <= ring <= 60:
-        print(f"daemon: --ao-ring-s {ring:g} must be 0 (non-regenerating) or 0.5..60 s",
-              file=sys.stderr)
-        return 2
+        return f"daemon: --ao-ring-s {ring:g} must be 0 (non-regenerating) or 0.5..60 s"
     if ring is not None and args.backend == "nidaqmx" and \
             (args.watchdog_s <= 0 or args.watchdog_s + RING_OVER_WATCHDOG_S > ring):
-        print(f"daemon: --ao-ring-s {ring:g} needs the board's watchdog, at most "
-              f"{ring - RING_OVER_WATCHDOG_S:g} s (--watchdog-s {args.watchdog_s:g}): a ring "
-              "repeats its drive for as long as a hung host leaves it", file=sys.stderr)
-        return 2
+        return (f"daemon: --ao-ring-s {ring:g} needs the board's watchdog, at most "
+                f"{ring - RING_OVER_WATCHDOG_S:g} s (--watchdog-s {args.watchdog_s:g}): a ring "
+                "repeats its drive for as long as a hung host leaves it")
+    return None
+
+
+def _settle_the_process(priority: str) -> None:
+    """One BLAS thread, sample arrays freed to the kernel, and the scheduling asked for
+    (`PriorityError` when it cannot be had)."""
     # One BLAS thread: OpenBLAS started its worker when numpy was imported, before the priority
     # below, so the worker stays at normal priority; a SCHED_FIFO acquisition thread whose
     # lock-in product waited on it was delayed by every other process (underflows at load 2-4)
     threadpool_limits(limits=1, user_api="blas")
     # Freed sample arrays go back to the kernel, not scattered over the malloc arenas: RSS flat
     # over days of sweeps (sfdrig.commands._native_memory)
-    logging.getLogger("sfdrig.daemon").info("%s", pin_mmap_threshold())
+    log = logging.getLogger("sfdrig.daemon")
+    log.info("%s", pin_mmap_threshold())
+    log.info("scheduling: %s", apply_priority(priority))
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    if line := argument_error(args):
+        print(line, file=sys.stderr)
+        return 2
     try:
-        scheduling = apply_priority(args.priority)
+        _settle_the_process(args.priority)
     except PriorityError as err:
         print(f"daemon: {err}", file=sys.stderr)
         return 2
-    logging.getLogger("sfdrig.daemon").info("scheduling: %s", scheduling)
     try:
         channel_map = load_channel_map(args.channels) if args.channels else default_channel_map()
         keys = load_server_keys(args.keys) if args.keys else None
@@ -216,8 +225,10 @@ def run(args: argparse.Namespace) -> int:
         hands = None
         if args.backend == "sim":  # on the real rig a person's hands do these
             from sfdrig.simulated_operator import SimulatedHands
+            from simulated_hw.backend import SimulatedBackend
 
-            hands = SimulatedHands(backend, seed=args.seed)
+            if isinstance(backend, SimulatedBackend):  # what build_backend made for "sim"
+                hands = SimulatedHands(backend, seed=args.seed)
         daemon = Daemon(backend, channel_map, config, hands=hands)
     except (PermissionError, DaqError, ChannelConfigError) as err:
         # e.g. --backend nidaqmx without the NI-DAQmx driver: one line, no traceback
@@ -261,7 +272,7 @@ def take_locks(args: argparse.Namespace, channel_map: ChannelMap) -> list[Instan
     return locks
 
 
-def _close_quietly(backend: Any) -> None:
+def _close_quietly(backend: DaqBackend) -> None:
     try:
         backend.close()
     except Exception:  # noqa: BLE001 - already failing; the first error is the one shown

@@ -36,27 +36,28 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(st, indent=2))
         return 0
-    print(f"board      {(st.get('board') or {}).get('description', '?')}")
+    print(f"board      {st['board'].get('description', '?')}")
     print(f"state      {st['state']}")
     print(f"pump       {'on' if st['pump_on'] else 'off'}")
     if st["run_id"]:
-        p = st.get("progress", {})
+        p = st["progress"]
         print(f"run        {st['run_id']}  ({st['run_path']})")
         print(f"samples    {st['samples']} at {st['sample_rate_hz']:g} S/s")
         if p:
             print("progress   " + progress_text(p))
-        lease = st.get("operator_lease")
+        lease = st["operator_lease"]
         if lease:  # a structure test: aborted if its client is silent for the lease
             print(f"operator   last heard {lease['silent_s']:.1f} s ago (the test is aborted "
                   f"after {lease['lease_s']:g} s without)")
-    if st.get("fault_reason") or st["state"] == "fault":
-        print(f"fault      {st.get('fault_reason') or '?'} (once its cause is cleared, reset it "
+    if st["fault_reason"] or st["state"] == "fault":
+        print(f"fault      {st['fault_reason'] or '?'} (once its cause is cleared, reset it "
               "with `sfdrig status --reset`)")
-    last = st.get("last_run") or {}
+    last = st["last_run"]
     if last:
-        print(f"last run   {last['run_id']}: {last['status']}"
+        print(f"last run   {last.get('run_id', '?')}: {last.get('status', '?')}"
               + (f" ({last['reason']})" if last.get("reason") else ""))
-        if isinstance(last.get("summary"), dict) and last["summary"]:
-            print(f"           {peak_line(last['summary'])}")
+        summary = last.get("summary")
+        if summary:
+            print(f"           {peak_line(summary)}")
     print(f"endpoints  command={st['endpoints']['command']} data={st['endpoints']['data']}")
     return 0

@@ -22,7 +22,7 @@ import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from control.run.files import create_run_writer
 from control.run.programs.procedures import (
@@ -35,7 +35,7 @@ from control.run.programs.procedures import (
     run_probe_calibration,
     run_static_test,
 )
-from control.wire.client import CommandRefused, DaemonUnavailable
+from control.wire.client import CommandClient, CommandRefused, DaemonUnavailable
 from daq.channels import default_channel_map, load_channel_map
 from daq.errors import ConfigFileError
 from rig_model.params import RigParams, rig_params_named_or_file
@@ -50,6 +50,9 @@ from sfdrig.commands.sweep import sweep_fields
 from sfdrig.simulated_operator import SimulatedHands, StandInOperator
 from sfdrig.terminal_operator import run_test
 from simulated_hw.backend import SimulatedBackend
+
+if TYPE_CHECKING:
+    from storage.runfile import RunWriter
 
 NAME = "structure"
 HELP = ("run the static, impact, probe-calibration and flow tests on the daemon's rig with this "
@@ -153,7 +156,7 @@ def run_structure_tests(out_dir: Path, params: RigParams, channels_path: Path | 
     return written
 
 
-def _close_failed(writer: Any, reason: str) -> None:
+def _close_failed(writer: RunWriter, reason: str) -> None:
     """Close ``writer`` as failed after an error in its run. After a failed write `close`
     still records the status and reason, and then raises what went wrong: the caller
     reports that error already."""
@@ -161,11 +164,11 @@ def _close_failed(writer: Any, reason: str) -> None:
         writer.close("failed", reason)
 
 
-def _logged_to(writer: Any) -> Callable[[str, str], None]:
+def _logged_to(writer: RunWriter) -> Callable[[str, str], None]:
     return lambda kind, message: writer.on_event(kind, message, writer.samples_received)
 
 
-def _abort_lost(client: Any, test: str, how: str, hung_up: bool) -> None:
+def _abort_lost(client: CommandClient, test: str, how: str, hung_up: bool) -> None:
     """Send the abort first (refused only when no test runs), then say so where the terminal
     still is."""
     hold_further_signals()
@@ -219,10 +222,11 @@ def run(args: argparse.Namespace) -> int:
                 except ClientLost as lost:
                     _abort_lost(client, test, lost.how, lost.hung_up)
                     return lost.exit_code
-                why = f": {end['reason']}" if end.get("reason") else ""
-                print(f"{test}: {end['steps']} steps, {end['status']}{why} -> {end['path']}",
+                status, reason = end.run.get("status", "?"), end.run.get("reason", "")
+                why = f": {reason}" if reason else ""
+                print(f"{test}: {end.steps} steps, {status}{why} -> {end.run.get('path', '?')}",
                       flush=True)
-                if end["status"] != "completed":
+                if status != "completed":
                     failed = True
                     break
     except (CommandRefused, DaemonUnavailable) as err:

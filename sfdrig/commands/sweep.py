@@ -22,11 +22,12 @@ import time
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
 from control.wire.client import CommandClient, CommandRefused, DaemonUnavailable, Subscriber
+from control.wire.heartbeat import RunSummary
 from control.wire.summary_lines import end_line, lateness_line, peak_line
 from sfdrig.commands._client_args import (
     add_connection_arguments,
@@ -181,11 +182,11 @@ def progress_text(progress: dict[str, Any]) -> str:
     return "  ".join(f"{k}={v}" for k, v in progress.items())
 
 
-def _fmt(v: Any) -> str:
+def _fmt(v: object) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
-def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: float = 30.0,
+def follow(sub: Subscriber, run_id: str, out: TextIO = sys.stdout, idle_timeout_s: float = 30.0,
            total: int | None = None, steps: list[StepRecord] | None = None,
            ) -> tuple[str, str, list[StepRecord]]:
     """Print progress and step results of ``run_id`` until it ends.
@@ -237,14 +238,14 @@ def follow(sub: Subscriber, run_id: str, out: Any = sys.stdout, idle_timeout_s: 
                 return status, reason, steps
 
 
-def run_summary(client: CommandClient, run_id: str) -> dict[str, Any] | None:
+def run_summary(client: CommandClient, run_id: str) -> RunSummary | None:
     """The ended run's summary from the daemon's status (peaks, contact, trip), or None."""
     try:
-        last = client.status().get("last_run") or {}
+        last = client.status()["last_run"]
     except (CommandRefused, DaemonUnavailable):
         return None
     summary = last.get("summary") if last.get("run_id") == run_id else None
-    return summary if isinstance(summary, dict) and summary else None
+    return summary or None
 
 
 def _located(problems: list[str], args: argparse.Namespace) -> list[str]:

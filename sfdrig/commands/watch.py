@@ -13,14 +13,13 @@ import sys
 import time
 from collections import deque
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from control.wire.client import DaemonUnavailable
 from sfdrig.commands._client_args import add_connection_arguments, subscriber
 from sfdrig.commands.sweep import progress_text, step_line
-from storage.records import StepRecord
+from storage.records import BlockHeader, StepRecord
 
 NAME = "watch"
 HELP = "show live per-channel amplitudes and the current step (or follow a run file)"
@@ -56,19 +55,17 @@ def table(names: list[str], data: np.ndarray, units: dict[str, str], header: str
 
 def _watch_stream(args: argparse.Namespace) -> int:
     with subscriber(args, topics=["block", "step", "status"]) as sub:
-        st = sub.wait_connected(timeout_s=args.timeout)["status"]
-        units = st.get("units", {})
+        st = sub.wait_connected(timeout_s=args.timeout)
         blocks: deque[np.ndarray] = deque()
         names: list[str] = []
-        fs = float(st.get("sample_rate_hz", 1.0))
-        progress: dict[str, Any] = dict(st.get("progress") or {})  # from the first heartbeat
+        fs = st["sample_rate_hz"]
         shown, next_table, malformed = 0, time.monotonic() + args.interval, 0
         while args.count == 0 or shown < args.count:
             try:
                 msg = sub.recv(timeout_s=args.interval)
                 if msg is not None:
                     if msg.topic == "block" and msg.array is not None:
-                        new_names = list(msg.header["channels"])
+                        new_names = list(BlockHeader.from_wire(msg.header).channels)
                         if len(new_names) != msg.array.shape[0]:
                             raise ValueError(f"{len(new_names)} channel names for "
                                              f"{msg.array.shape[0]} rows")
@@ -80,10 +77,7 @@ def _watch_stream(args: argparse.Namespace) -> int:
                                 args.window * fs:
                             blocks.popleft()
                     elif msg.topic == "status":
-                        new_st = dict(msg.header["status"])
-                        progress = dict(new_st.get("progress", {}))
-                        units = dict(new_st.get("units", units))
-                        st = new_st
+                        st = msg.heartbeat()
                     elif msg.topic == "step":
                         print(step_line(StepRecord.from_wire(msg.header["step"])), flush=True)
             except (ValueError, KeyError, TypeError, AttributeError) as err:
@@ -98,12 +92,13 @@ def _watch_stream(args: argparse.Namespace) -> int:
             next_table += args.interval
             shown += 1
             lost = sum(sub.lost.values())
-            head = (f"state {st.get('state', '?')}  run {st.get('run_id') or '-'}  "
-                    + progress_text(progress)
+            head = (f"state {st['state']}  run {st['run_id'] or '-'}  "
+                    + progress_text(st["progress"])
                     + (f"  lost {lost} messages" if lost else "")
                     + (f"  skipped {malformed} malformed" if malformed else ""))
             if blocks:
-                print(table(names, np.concatenate(list(blocks), axis=1), units, head), flush=True)
+                print(table(names, np.concatenate(list(blocks), axis=1), st["units"], head),
+                      flush=True)
             else:
                 print(head + "\n  (no samples: no run in progress)", flush=True)
     return 0

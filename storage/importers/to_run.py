@@ -18,7 +18,7 @@ from storage.importers.conditions import Conditions
 from storage.importers.csv_format import read_csv
 from storage.importers.mat_format import read_mat
 from storage.importers.restore import export_metadata, restore_export
-from storage.importers.segments import segment_record
+from storage.importers.segments import Segmentation, segment_record
 from storage.importers.tdms_format import read_tdms
 from storage.layout import KINDS, utc_now_iso
 from storage.records import StepRecord
@@ -126,19 +126,7 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
     source = Path(source)
     cond = conditions or Conditions(sources={k: "not stated" for k in
                                              ("lubricated", "motion", "seal", "rig")})
-    if kind not in KINDS:
-        raise ImportDataError(f"--kind {kind!r} is not one of {KINDS}")
-    if out.exists() and not overwrite:
-        raise ImportDataError(f"{out}: exists already (choose another --out or overwrite)")
-    if not out.parent.is_dir():
-        raise ImportDataError(f"{out.parent}: output directory does not exist")
-    if require_steps and data.freq_hz is None and data.step is None:
-        raise ImportDataError(
-            f"{source}: no frequency column (freq_hz) and no step column (step), so no steps "
-            "(dwells) can be made of it: map the excitation frequency with --map "
-            "freq_hz=COLUMN or the dwell number with --map step=COLUMN, give --freq-hz HZ for "
-            "a record at one frequency, or --no-steps to import it without steps (diagnose "
-            "judges it in blocks; identify needs steps)")
+    _refuse_what_cannot_be_written(data, out, source, kind, overwrite, require_steps)
     seg = segment_record(data.signals, data.fs_hz, data.freq_hz, data.step, cond.motion)
     derived = derive_displacement(data, seg.steps)
     channels = []
@@ -151,24 +139,7 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
                          "sensor": f"imported: {data.sources.get(canon, canon)}",
                          "physical_channel": ""})
         order.append(canon)
-    cond_json = cond.to_json()
-    cond_json["motion_per_step"] = [
-        {"step": st["index"], "motion": st["motion"],
-         "source": ("inferred from the x/y phase: " + why) if why else cond.sources["motion"]}
-        for st, why in zip(seg.steps, seg.motion_evidence, strict=True)]
-    spec_json = {
-        "source_file": str(source.resolve()), "source_format": data.source_format,
-        "source_sha256": file_sha256(source), "imported_at": utc_now_iso(),
-        "signals": {c: data.sources.get(c, "") for c in order}, "time_offset_s":
-        data.time_offset_s, "n_samples": data.n_samples, "conditions": cond_json,
-        "sweeps": seg.sweeps, "derived": derived,
-        "segmentation": ("step column " + data.sources.get("step", "") if data.step is not None
-                         else "frequency column, amplitude and motion changes"
-                         if data.freq_hz is not None else "none (no frequency or step column)"),
-    }
-    if data.freq_hz is not None:
-        spec_json["freq_source"] = data.sources.get("freq_hz", "")
-    spec_json.update(extra_spec or {})
+    spec_json = {**_import_spec(data, source, cond, seg, derived, order), **(extra_spec or {})}
     run_id = run_id or f"imported-{datetime.now(UTC):%Y%m%dT%H%M%SZ}-{out.stem}"
     # A hidden unique name beside the target (same file system, so the rename is atomic);
     # created by HDF5 itself so it gets the usual permissions (mkstemp would make it 0600).
@@ -197,6 +168,50 @@ def write_imported_run(data: MeasuredData, out: str | Path, source: str | Path, 
         tmp.unlink(missing_ok=True)
         raise
     return out
+
+
+def _refuse_what_cannot_be_written(data: MeasuredData, out: Path, source: Path, kind: str,
+                                   overwrite: bool, require_steps: bool) -> None:
+    """ImportDataError for a kind, an output or (with ``require_steps``) data that cannot
+    make the run file asked for."""
+    if kind not in KINDS:
+        raise ImportDataError(f"--kind {kind!r} is not one of {KINDS}")
+    if out.exists() and not overwrite:
+        raise ImportDataError(f"{out}: exists already (choose another --out or overwrite)")
+    if not out.parent.is_dir():
+        raise ImportDataError(f"{out.parent}: output directory does not exist")
+    if require_steps and data.freq_hz is None and data.step is None:
+        raise ImportDataError(
+            f"{source}: no frequency column (freq_hz) and no step column (step), so no steps "
+            "(dwells) can be made of it: map the excitation frequency with --map "
+            "freq_hz=COLUMN or the dwell number with --map step=COLUMN, give --freq-hz HZ for "
+            "a record at one frequency, or --no-steps to import it without steps (diagnose "
+            "judges it in blocks; identify needs steps)")
+
+
+def _import_spec(data: MeasuredData, source: Path, cond: Conditions, seg: Segmentation,
+                 derived: list[str], order: list[str]) -> dict[str, Any]:
+    """The imported run's ``test_spec``: where it came from, its signals, its conditions with
+    their sources (per step, the motion and why), its sweeps, what was derived, how it was
+    cut into steps."""
+    cond_json = cond.to_json()
+    cond_json["motion_per_step"] = [
+        {"step": st["index"], "motion": st["motion"],
+         "source": ("inferred from the x/y phase: " + why) if why else cond.sources["motion"]}
+        for st, why in zip(seg.steps, seg.motion_evidence, strict=True)]
+    spec_json = {
+        "source_file": str(source.resolve()), "source_format": data.source_format,
+        "source_sha256": file_sha256(source), "imported_at": utc_now_iso(),
+        "signals": {c: data.sources.get(c, "") for c in order}, "time_offset_s":
+        data.time_offset_s, "n_samples": data.n_samples, "conditions": cond_json,
+        "sweeps": seg.sweeps, "derived": derived,
+        "segmentation": ("step column " + data.sources.get("step", "") if data.step is not None
+                         else "frequency column, amplitude and motion changes"
+                         if data.freq_hz is not None else "none (no frequency or step column)"),
+    }
+    if data.freq_hz is not None:
+        spec_json["freq_source"] = data.sources.get("freq_hz", "")
+    return spec_json
 
 
 def with_dwell_frequency(data: MeasuredData, freq_hz: float, where: str) -> MeasuredData:

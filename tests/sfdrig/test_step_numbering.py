@@ -9,7 +9,7 @@ import pytest
 
 from control.wire.sweep_spec import SweepSpec
 from sfdrig.cli import main
-from tests.fake_daemon import FakeDaemon
+from tests.fake_daemon import FakeDaemon, heartbeat
 
 PROGRESS = {"state": "running", "step_index": 1, "steps_total": 2, "freq_hz": 80.0,
             "target_value": 40.0, "updates": 3, "sample": 9000, "steps_done": 1,
@@ -20,9 +20,9 @@ class RunningDaemon(FakeDaemon):
     """A stand-in daemon in the second of two steps."""
 
     def status(self) -> dict[str, Any]:
-        return {"state": "running", "run_id": "R1", "run_path": "runs/R1.h5", "pump_on": False,
-                "samples": 9000, "sample_rate_hz": 10000.0, "progress": PROGRESS,
-                "endpoints": {"command": self.command, "data": self.data}}
+        return heartbeat(state="running", run_id="R1", run_path="runs/R1.h5", samples=9000,
+                         progress=PROGRESS,
+                         endpoints={"command": self.command, "data": self.data})
 
 
 def test_a_steps_description_counts_from_one_of_the_total():

@@ -67,8 +67,9 @@ class _Client:
 
 
 def test_the_summary_comes_from_the_daemons_last_run_of_this_run_only():
-    summary = {"peak_displacement_m": 52e-6, "displacement_limit_m": 63.5e-6,
-               "peak_load_n": 400.0, "max_load_n": 448.0, "contact": "", "tripped_at": None}
+    summary = {"peak_displacement_m": 52e-6, "peak_displacement_at": {},
+               "displacement_limit_m": 63.5e-6, "peak_load_n": 400.0, "peak_load_at": {},
+               "max_load_n": 448.0, "contact": "", "tripped_at": None}
     client = _Client({"run_id": "R1", "status": "completed", "summary": summary})
     assert sweep_cmd.run_summary(client, "R1") == summary  # type: ignore[arg-type]
     assert sweep_cmd.run_summary(client, "R0") is None  # type: ignore[arg-type]

@@ -266,7 +266,8 @@ def test_what_an_event_is():
     assert incident_of("fault", "journal-housing contact at 120.0 Hz") == "contact"
     assert incident_of("abort", "operator abort from sfdrig web") is None
     assert incident_of("info", "watchdog fed") is None
-    steps = [{"index": 0, "freq_hz": 50.0, "first_sample": 0, "last_sample": 500}]
+    steps = [StepRecord(index=0, freq_hz=50.0, target_kind="displacement", target_value=2e-5,
+                        motion="x", first_sample=0, last_sample=500)]
     assert where_of(250, steps, [50.0, 60.0], FS) == "step 1/2 at 50.0 Hz, 0.250 s into the run"
     assert where_of(900, steps, [], FS) == "step 2, 0.900 s into the run"  # no plan known
     assert where_of(100, steps, [], 0.0) == "step 1 at 50.0 Hz"

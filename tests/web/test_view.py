@@ -10,6 +10,7 @@ import pytest
 
 from control.wire.client import Message
 from storage.records import StepRecord
+from tests.fake_daemon import heartbeat
 from web.view import LiveView, step_point, upward_crossings
 
 FS = 10_000.0
@@ -39,7 +40,7 @@ def blocks(freq_hz: float, n_blocks: int, n: int = 250, amp_m: float = 20e-6,
 
 def test_traces_are_triggered_whole_cycles_decimated_with_orbit_and_harmonics():
     view = LiveView(buffer_s=0.5, cycles=3, points=200)
-    view.set_status({"run_id": "R1", "progress": {"freq_hz": 20.0}})
+    view.set_status(heartbeat(run_id="R1", progress={"freq_hz": 20.0}))
     for m in blocks(20.0, 40):  # 1 s of data through a 0.5 s ring: it wraps
         view.on_message(m)
     tr = view.frame(now=2000.0)["traces"]
@@ -140,8 +141,8 @@ def test_step_point_drive_level_and_stiffness_of_a_circular_step():
 
 def test_steps_and_time_left_from_the_finished_steps():
     view = LiveView()
-    view.set_status({"run_id": "R1", "progress": {"steps_total": 5},
-                     "tolerance": {"amplitude_pct": 2.0, "phase_deg": 3.0}}, now=100.0)
+    view.set_status(heartbeat(run_id="R1", progress={"steps_total": 5},
+                              tolerance={"amplitude_pct": 2.0, "phase_deg": 3.0}), now=100.0)
     for i in range(2):
         view.on_message(Message("step", {"run_id": "R1", "seq": i,
                                          "step": circular_step(i, 20.0 + i, 1e-5, -90)},
@@ -173,7 +174,7 @@ def test_memory_held_for_the_harmonics_stays_bounded_over_a_sweep():
     view = LiveView(buffer_s=0.5, cycles=3, points=200)
     held = []
     for i, f in enumerate(np.linspace(20.0, 60.0, 41)):
-        view.set_status({"run_id": "R1", "progress": {"freq_hz": float(f)}})
+        view.set_status(heartbeat(run_id="R1", progress={"freq_hz": float(f)}))
         for m in blocks(float(f), 12, seed=i):
             view.on_message(m)
         assert view.frame(now=2000.0)["traces"]["triggered"]
@@ -189,7 +190,8 @@ def test_the_runs_peak_orbit_load_and_contact_live_then_the_daemons_summary():
     sees it) and load while it runs, any journal-housing contact, and the daemon's summary (every
     block counted) once it has ended."""
     view = LiveView(buffer_s=0.5)
-    view.set_status({"run_id": "R1", "safety": {"displacement_limit_m": 63.5e-6}})
+    view.set_status(heartbeat(run_id="R1", safety={**heartbeat()["safety"],
+                                                   "displacement_limit_m": 63.5e-6}))
     assert view.frame()["peaks"] is None  # nothing measured yet
     for m in blocks(20.0, 8):  # radius: 20 um (+5 um offset on x, +5 % 3X) -> 26 um at most
         view.on_message(m)
@@ -209,8 +211,8 @@ def test_the_runs_peak_orbit_load_and_contact_live_then_the_daemons_summary():
                "peak_displacement_at": {"step_index": 0, "steps_total": 1, "freq_hz": 150.0},
                "peak_load_n": 119.8, "max_load_n": 448.0, "peak_load_at": {},
                "contact": contact, "tripped_at": {"message": "displacement 64.7 um ..."}}
-    view.set_status({"run_id": "", "last_run": {"run_id": "R1", "status": "aborted",
-                                                "summary": summary}})
+    view.set_status(heartbeat(run_id="", last_run={"run_id": "R1", "status": "aborted",
+                                                   "summary": summary}))
     pk = view.frame()["peaks"]
     assert pk["final"] and pk["tripped"]
     assert pk["text"] == ("peak orbit 125.0 um of the 63.5 um limit (step 1/1, 150.0 Hz), "
@@ -221,8 +223,8 @@ def test_per_input_rms_peak_and_range_used():
     """fx = 40 cos: RMS 40/sqrt(2) N, peak 40 N; of a +/-100 N range it uses 40 %, of a
     -20..180 N range (middle 80 N) it reaches 120 N below the middle: 120 %, past the end."""
     view = LiveView(buffer_s=0.5, cycles=3, points=200)
-    view.set_status({"run_id": "R1", "progress": {"freq_hz": 20.0},
-                     "input_ranges": {"fx": [-100.0, 100.0], "fy": [-20.0, 180.0]}})
+    view.set_status(heartbeat(run_id="R1", progress={"freq_hz": 20.0},
+                              input_ranges={"fx": [-100.0, 100.0], "fy": [-20.0, 180.0]}))
     for m in blocks(20.0, 40):
         view.on_message(m)
     levels = view.frame(now=2000.0)["traces"]["levels"]

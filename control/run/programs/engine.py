@@ -90,8 +90,8 @@ class ProgramEngine:
         return self.progress
 
     @property
-    def summary(self) -> dict[str, Any]:
-        return {}  # peaks are a sweep's: a programme's drive is a DC level the operator sets
+    def summary(self) -> None:
+        return None  # peaks are a sweep's: a programme's drive is a DC level the operator sets
 
     def tolerance(self) -> None:
         return None

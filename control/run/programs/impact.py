@@ -14,12 +14,11 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from control.run.listener import Listener
-from control.run.programs.operator import Question
+from control.run.programs.operator import OperatorDesk, Question
 from control.run.programs.specs import ImpactSpec
 from control.run.programs.stream import (
     ProgramError,
@@ -34,6 +33,7 @@ from control.run.programs.stream import (
     signal,
 )
 from daq.backend import DaqBackend
+from daq.channels import ChannelMap
 from storage.records import JsonValue, StepRecord
 
 REST_DISPLACEMENT_M = 5e-6  # peak-to-peak over 0.1 s below which the housing is at rest
@@ -50,7 +50,7 @@ class HitCheck:
     rejection: str
 
 
-def input_limits(cm: Any) -> dict[str, tuple[float, float]]:
+def input_limits(cm: ChannelMap) -> dict[str, tuple[float, float]]:
     """Each AI channel's input range in engineering units."""
     out = {}
     for ch in cm.ai:
@@ -59,7 +59,8 @@ def input_limits(cm: Any) -> dict[str, tuple[float, float]]:
     return out
 
 
-def check_hit(cm: Any, record: np.ndarray, pre: int, fs: float, spec: ImpactSpec) -> HitCheck:
+def check_hit(cm: ChannelMap, record: np.ndarray, pre: int, fs: float,
+              spec: ImpactSpec) -> HitCheck:
     """Overload and double-hit checks of one record (AI rows, trigger at column ``pre``)."""
     h = ai_row(cm, record, spec.hammer_channel)
     h = h if spec.slope == "rising" else -h
@@ -124,7 +125,7 @@ def describe_average(hits: list[tuple[np.ndarray, np.ndarray]], fs: float) -> st
     return text
 
 
-def run_impact_test(backend: DaqBackend, listener: Listener, operator: Any,
+def run_impact_test(backend: DaqBackend, listener: Listener, operator: OperatorDesk,
                     spec: ImpactSpec | None = None, *,
                     hands: RigHands | None = None) -> ProgramOutcome:
     """Impact test of each axis (see the module's description); ``operator`` an `OperatorDesk`.

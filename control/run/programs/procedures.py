@@ -18,7 +18,6 @@ Drives always end ramped to zero, whatever happens (`program_stream.run_program`
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
 
 import numpy as np
 
@@ -42,6 +41,7 @@ from control.run.programs.stream import (
     signal,
 )
 from daq.backend import DaqBackend
+from daq.channels import ChannelMap
 from storage.records import JsonValue, StepRecord
 
 DIAL_GAUGE_RANGE_M = 2.5e-3  # a dial gauge reading beyond +/-0.1 in is a typing error here
@@ -53,7 +53,7 @@ Held = tuple[float, dict[str, JsonValue]]
 AfterHold = Callable[[str, float, str], "Held | str | None"]
 
 
-def _drive_for(cm: Any, axis: str, force_n: float, gain: Mapping[str, float]) -> np.ndarray:
+def _drive_for(cm: ChannelMap, axis: str, force_n: float, gain: Mapping[str, float]) -> np.ndarray:
     v = np.zeros(len(cm.ao))
     v[cm.ao_for_axis(axis)] = force_n / gain[axis]
     return v

@@ -18,7 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -30,6 +30,7 @@ from control.run.programs.specs import ProgramSpec
 from control.run.stream import DriveStream
 from control.signal.synthesis import SineSynthesizer
 from daq.backend import DaqBackend
+from daq.channels import ChannelMap
 from daq.errors import EmergencyStopError
 from storage.records import JsonValue, StepRecord
 
@@ -227,11 +228,11 @@ class Stream:
         self.drive.shutdown(ramp_s, cut=cut)
 
 
-def ai_row(cm: Any, ai: np.ndarray, name: str) -> np.ndarray:
+def ai_row(cm: ChannelMap, ai: np.ndarray, name: str) -> np.ndarray:
     return ai[cm.ai_index(name)]
 
 
-def signal(cm: Any, ai: np.ndarray, name: str) -> np.ndarray:
+def signal(cm: ChannelMap, ai: np.ndarray, name: str) -> np.ndarray:
     """Canonical signal from a block: the channel, or the mean of probes x1, x2..."""
     if name in cm.ai_names:
         return ai_row(cm, ai, name)
@@ -363,7 +364,7 @@ class Steadiness:
     rel_tol: float = 0.005
 
 
-def unsteady(cm: Any, ai: np.ndarray, checks: Sequence[Steadiness]) -> list[str]:
+def unsteady(cm: ChannelMap, ai: np.ndarray, checks: Sequence[Steadiness]) -> list[str]:
     """What is not steady in ``ai`` (one clause per signal), empty if all are."""
     out = []
     for c in checks:

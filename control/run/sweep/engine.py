@@ -33,6 +33,7 @@ from control.run.sweep.dwell_states import DwellState
 from control.run.sweep.states import FINAL, State, StateMachine
 from control.signal.synthesis import SineSynthesizer
 from control.wire.errors import TargetError
+from control.wire.heartbeat import RunSummary, Tolerance
 from control.wire.step_plan import StepPlan
 from control.wire.summary_lines import peak_line
 from control.wire.sweep_spec import (
@@ -91,8 +92,9 @@ class SweepOutcome:
     samples : int
         Samples acquired in the run.
     sample_rate_hz : float
-    summary : dict
-        `control.run.summary.RunPeaks.summary`: peak orbit and load, contact, where a trip came.
+    summary : RunSummary or None
+        `control.run.summary.RunPeaks.summary`: peak orbit and load, contact, where a trip came
+        (None: the run ended before it started).
     """
 
     status: RunStatus
@@ -100,7 +102,7 @@ class SweepOutcome:
     steps: list[StepResult] = field(default_factory=list)
     samples: int = 0
     sample_rate_hz: float = 0.0
-    summary: dict[str, Any] = field(default_factory=dict)
+    summary: RunSummary | None = None
 
     @property
     def rig_time_s(self) -> float:
@@ -172,7 +174,7 @@ class SweepEngine:
     def steps_total(self) -> int:
         return len(self.plan)
 
-    def tolerance(self) -> dict[str, float]:
+    def tolerance(self) -> Tolerance:
         return {"amplitude_pct": self.spec.tolerance_amplitude_pct,
                 "phase_deg": self.spec.tolerance_phase_deg}
 
@@ -181,12 +183,12 @@ class SweepEngine:
         return self._machine.state
 
     @property
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> RunSummary | None:
         """The run's peaks, contact and trip (`RunPeaks.summary`) and, once it streams, how the
         host kept the AO lead (``host_late``: times late, the drive the ring played meanwhile
-        [s]); {} before it started."""
+        [s]); None before it started."""
         if self.peaks is None:
-            return {}
+            return None
         out = self.peaks.summary
         if self._stream is not None:
             w, fs = self._stream.writer, self._stream.cm.sample_rate_hz
