@@ -55,7 +55,7 @@ CATCH_UP_BLOCKS = 25
 #: Ring mode: while the caller holds the drive and needs nothing before a later sample (a
 #: lock-in window, a recording: `advance_to` ``held``), the ring holds what plays (the
 #: prediction), and the last block kept its orbit and loads
-#: well inside the limits (`StreamMonitor.headroom`), a cycle reads up to this many blocks in
+#: under a third of the limits (`StreamMonitor.headroom`), a cycle reads up to this many blocks in
 #: one backend read, and checks, records and publishes them as one. Through gRPC a read is a
 #: round trip whatever its length: one a block was most of a paced daemon's CPU. Every sample is
 #: still checked, at most this many blocks after it was taken: a trip's 0 V comes within the

@@ -601,17 +601,18 @@ class ReadSizes(SimulatedBackend):
 
 
 def test_a_held_drive_is_read_several_blocks_at_a_time_and_every_sample_checked():
-    """A recording at a held drive is read up to 5 blocks a read (through gRPC a read costs
-    the same round trip whatever its length); every sample still reaches the record and the
-    limit check: a gain rise during the recording trips at the first sample over the limit,
-    and the drives are at 0 V within 5 blocks of it (the 100 ms budget)."""
+    """A recording at a held drive, its orbit under a third of the limit, is read up to 5
+    blocks a read (through gRPC a read costs the same round trip whatever its length); every
+    sample still reaches the record and the limit check: a gain rise x8 during the recording
+    trips at the first sample over the limit, and the drives are at 0 V within 5 blocks of it
+    (the 100 ms budget). At over a third of the limit the blocks are read one a read."""
     from control.run.sweep.engine import SweepEngine
     from tests.control.conftest import GainKnob
 
     be = ReadSizes()
     be.configure(CM)
     rec = RecordingListener()
-    out = SweepEngine(be, {"motion": "x", "load_n": [30.0], "freq_hz": [30.0]},
+    out = SweepEngine(be, {"motion": "x", "amplitude_m": [15e-6], "freq_hz": [30.0]},
                       listener=rec).run()
     assert out.status == "completed", out.reason
     assert sum(be.reads) == out.samples == rec.ai().shape[1]  # every sample, once, in order
@@ -621,8 +622,8 @@ def test_a_held_drive_is_read_several_blocks_at_a_time_and_every_sample_checked(
 
     be = ReadSizes()
     be.configure(CM)
-    knob = GainKnob(lambda: be.rig, factor=3.0, ramp_s=0.3, at_s=2.2)
-    out = SweepEngine(be, {"motion": "x", "load_n": [30.0], "freq_hz": [30.0],
+    knob = GainKnob(lambda: be.rig, factor=8.0, ramp_s=0.3, at_s=2.2)
+    out = SweepEngine(be, {"motion": "x", "amplitude_m": [15e-6], "freq_hz": [30.0],
                            "record_cycles": 200}, listener=knob).run()
     assert out.status == "aborted" and "exceeds the 63.5 um limit" in out.reason
     k = knob.events_of("limit_trip")[0][2]
@@ -633,3 +634,11 @@ def test_a_held_drive_is_read_several_blocks_at_a_time_and_every_sample_checked(
     assert r[k] > 63.5e-6 and np.all(r[:k] <= 63.5e-6)  # stamped at the first sample over
     assert max(be.reads[:-10]) == 5 * BLOCK  # it was reading the recording 5 blocks a read
     assert np.all(knob.ao()[:, k + 5 * BLOCK:] == 0)
+
+    be = ReadSizes()
+    be.configure(CM)
+    out = SweepEngine(be, {"motion": "x", "amplitude_m": [30e-6], "freq_hz": [30.0]}).run()
+    assert out.status == "completed", out.reason
+    ends = np.cumsum(be.reads)
+    recording = np.array(be.reads)[ends > out.steps[0].first_sample]
+    assert recording.size > 100 and np.all(recording == BLOCK)  # 47 % of the limit
