@@ -144,6 +144,8 @@ def main() -> int:
                 print(f"  {name}, {busy} busy: {r.wall_s:.2f} s, {r.status}, "
                       f"{r.converged}/{r.steps} converged, daemon {r.cpu_pct:.1f} % of a core; "
                       f"load average {os.getloadavg()[0]:.1f}", flush=True)
+        if client.status().get("state") == "fault":
+            client.reset()  # the last level faulted (its watchdog switched the pump off)
         client.pump(False)
     daemon.terminate()
     daemon.wait(60)

@@ -61,6 +61,7 @@ from daq.errors import (
     EmergencyStopError,
     error_for_code,
 )
+from daq.nidaqmx_packed import PackedWriter, packed_reads
 from daq.nidaqmx_session import NidaqmxSession, _nidaqmx, close_task, translate_errors
 
 __all__ = ["NidaqmxBackend", "terminal_configuration", "translate_errors"]
@@ -157,6 +158,7 @@ class NidaqmxBackend(BackendBase):
         self._estop_reader: Any = None
         self._reader: Any = None
         self._writer: Any = None
+        self._packed: PackedWriter | None = None  # the AO write with packed samples (gRPC)
         self._do_writer: Any = None
         self._do_state: np.ndarray = np.zeros(0, dtype=bool)
         self._ao_written = 0
@@ -287,7 +289,10 @@ class NidaqmxBackend(BackendBase):
 
     def _write_many(self, arr: np.ndarray) -> None:
         with translate_errors(f"writing {arr.shape[1]} AO samples"):
-            written = self._writer.write_many_sample(arr, timeout=self.buffer_s)
+            if self._packed is not None and self._packed.available:
+                written = self._packed.write(arr, self.buffer_s)
+            else:
+                written = self._writer.write_many_sample(arr, timeout=self.buffer_s)
         self._ao_written += int(written)
         if written != arr.shape[1]:
             raise error_for_code(
@@ -449,6 +454,7 @@ class NidaqmxBackend(BackendBase):
                 continue
             close_task(task)
         self._reader = self._writer = self._do_writer = self._estop_reader = None
+        self._packed = None
         self._running = False
         self._ring = None
         if self._session is not None:
@@ -497,6 +503,7 @@ class NidaqmxBackend(BackendBase):
             )
         self._reader = nidaqmx.stream_readers.AnalogMultiChannelReader(self._ai.in_stream)
         self._reader.verify_array_shape = False
+        packed_reads(self._ai)  # through gRPC: the samples as one array, not a float each
         # AO, on the AI clock and start trigger
         if cm.ao:
             self._ao = self._new_task(nidaqmx, "ao")
@@ -515,6 +522,7 @@ class NidaqmxBackend(BackendBase):
             self._writer = nidaqmx.stream_writers.AnalogMultiChannelWriter(
                 self._ao.out_stream, auto_start=False)
             self._writer.verify_array_shape = False
+            self._packed = PackedWriter(self._ao)
         # DO, one channel per relay line
         if cm.do:
             self._do = self._new_task(nidaqmx, "do")

@@ -52,6 +52,15 @@ PREDICT_RESTART_BLOCKS = 30
 #: A cycle reads at most this many blocks more while the backend holds AI read ahead (a host
 #: catching up): 0.25 s of 10 ms blocks.
 CATCH_UP_BLOCKS = 25
+#: Ring mode: while the caller holds the drive and needs nothing before a later sample (a
+#: lock-in window, a recording: `advance_to` ``held``), the ring holds what plays (the
+#: prediction), and the last block kept its orbit and loads
+#: under a third of the limits (`StreamMonitor.headroom`), a cycle reads up to this many blocks in
+#: one backend read, and checks, records and publishes them as one. Through gRPC a read is a
+#: round trip whatever its length: one a block was most of a paced daemon's CPU. Every sample is
+#: still checked, at most this many blocks after it was taken: a trip's 0 V comes within the
+#: 100 ms budget (`control.run.safety.SHUTDOWN_BUDGET_S`) on a board that drops its queue.
+HELD_READ_BLOCKS = 5
 
 
 class StreamMonitor(Protocol):
@@ -60,6 +69,8 @@ class StreamMonitor(Protocol):
     (`control.run.programs.stream`)."""
 
     last_ao: np.ndarray | None
+    #: the last AI block checked left room to read several at a time (`HELD_READ_BLOCKS`)
+    headroom: bool
 
     def check_ao(self, block: np.ndarray, first_sample: int) -> None: ...
 
@@ -265,12 +276,14 @@ class DriveStream:
         self._fifo.append(ao)
         self._states.append(state)
 
-    def cycle(self) -> None:
+    def cycle(self, upto: int | None = None) -> None:
         """Write the next drive block(s), read the next AI block, publish and check it.
 
         Without a ring: one block. With one: first, if the host is late, skip the samples the
         ring plays (or is about to) and record what it plays there; then write while the lead
-        is short (one block when on time; up to the whole lead after a skip)."""
+        is short (one block when on time; up to the whole lead after a skip). ``upto``: the
+        caller needs nothing before that sample, so a held drive may be read several blocks at
+        once up to it (`HELD_READ_BLOCKS`)."""
         self._catch_up()
         restarted = False
         while self.writer.wants_write():
@@ -292,7 +305,7 @@ class DriveStream:
                 break
         if self.writer.regenerating and not restarted:
             self._predict()  # extended once a command has lasted a cycle
-        self._read_one(check=self.check_limits)
+        self._read_one(check=self.check_limits, blocks=self._held_blocks(upto))
         if self.interrupt is not None:
             self.interrupt()
         # a host behind the board (it read ahead, `ai_on_host`, or the ring's generation is
@@ -302,13 +315,35 @@ class DriveStream:
         # block a cycle never caught up with a host that stalls as often as it reads (the AI
         # buffer overflowed, -200279), and the raises, slowed by the lag, took minutes
         extra = 0
-        while extra < CATCH_UP_BLOCKS and len(self._fifo) > 1 and (
-                self.backend.ai_on_host() >= self.block
-                or self.writer.generated - self.sample >= 2 * self.block):
+        while extra < CATCH_UP_BLOCKS and len(self._fifo) > 1 and self._behind():
             self._read_one(check=self.check_limits)
             if self.interrupt is not None:
                 self.interrupt()
             extra += 1
+
+    def _behind(self) -> bool:
+        """The host is behind the board: it read ahead (`ai_on_host`), or the ring's
+        generation is blocks past the reading."""
+        return (self.backend.ai_on_host() >= self.block
+                or self.writer.generated - self.sample >= 2 * self.block)
+
+    def _held_blocks(self, upto: int | None) -> int:
+        """How many blocks the next read takes: one, or while the drive is held (the ring holds
+        the next ones as predicted), the caller waits for a later sample ``upto`` and the last
+        block left `StreamMonitor.headroom`, up to `HELD_READ_BLOCKS`. The blocks beyond the
+        lead are queued first (the ring has them already: no write), so that the lead still
+        holds when the longer read returns."""
+        most = 1 if upto is None else min(HELD_READ_BLOCKS, (upto - self.sample) // self.block)
+        if most <= 1 or not self.writer.regenerating or not self.check_limits or \
+                not self.monitor.headroom or self.synth.is_ramping or self._behind():
+            return 1  # (a host behind the board catches up as it always has: below)
+        while len(self._fifo) < most + self.ahead_blocks and self._predicted(self.block):
+            self._take_claim()
+            state = _snapshot(self.synth)
+            ao = self.synth.next_block(self.block)
+            self._write(ao, state, check=True)
+            self._played_block(self.synth.sample - ao.shape[1], as_meant=True)
+        return max(1, min(most, len(self._fifo) - self.ahead_blocks))
 
     def _predicted(self, n: int) -> bool:
         """Whether the ring already holds the next ``n`` samples as the synthesiser will make
@@ -456,21 +491,28 @@ class DriveStream:
         the host was and what the ring repeated), in words."""
         return self.writer.report(self.cm.sample_rate_hz)
 
-    def advance_to(self, sample: int) -> None:
-        """Cycle until every sample before ``sample`` has been read."""
+    def advance_to(self, sample: int, held: bool = False) -> None:
+        """Cycle until every sample before ``sample`` has been read. ``held``: the caller holds
+        the drive and needs nothing before ``sample`` (a lock-in window, a recording): the
+        blocks may be read several at a time (`HELD_READ_BLOCKS`)."""
         while self.sample < sample:
-            self.cycle()
+            self.cycle(sample if held else None)
 
-    def _read_one(self, check: bool) -> None:
-        volts = self.backend.read_ai(self.block)
+    def _read_one(self, check: bool, blocks: int = 1) -> None:
+        """Read the next ``blocks`` blocks in one read; record, publish and check them as one
+        (the soft limit block by block)."""
+        n = blocks * self.block
+        volts = self.backend.read_ai(n)
         eng = self.cm.to_engineering(volts)
         ao = self._fifo.popleft()
-        if self._states:
+        if blocks > 1:
+            ao = np.concatenate([ao, *(self._fifo.popleft() for _ in range(blocks - 1))], axis=1)
+        for _ in range(min(blocks, len(self._states))):
             self._states.popleft()
         first = self.sample
-        self.sample += self.block
+        self.sample += n
         self._hist.append((first, eng, ao))
-        self._hist_len += self.block
+        self._hist_len += n
         while self._hist_len - self._hist[0][1].shape[1] >= self.keep:
             old = self._hist.popleft()
             self._hist_len -= old[1].shape[1]
@@ -483,13 +525,23 @@ class DriveStream:
         if check:
             self.monitor.check_ai(eng, first)
             if self.guard is not None:
-                why = self.guard(eng) if self.guard_event is None else ""
-                if why:
-                    # halve both drives within a block, from what is generated next (the AO
-                    # already written still plays): the trip level is not reached
-                    self.synth.ramp_to(self.synth.phasors * GUARD_CUT, None,
-                                       self.block / self.cm.sample_rate_hz)
-                    self.guard_event = (first, why)
+                for k in range(0, n, self.block):
+                    why = self.guard(eng[:, k:k + self.block]) if self.guard_event is None else ""
+                    if why:
+                        self._halve()
+                        self.guard_event = (first + k, why)
+                        break
+
+    def _halve(self) -> None:
+        """The soft limit: halve both drives within a block, from what is generated next (the
+        AO already written still plays): the trip level is not reached. A queue longer than the
+        lead (a held drive read several blocks at a time) is dropped beyond the generation plus
+        the margin first, so the halving plays as soon as it would have with one."""
+        if self.writer.regenerating and len(self._fifo) > self.ahead_blocks + 1:
+            self._catch_up()
+            self._truncate_to_margin()
+        self.synth.ramp_to(self.synth.phasors * GUARD_CUT, None,
+                           self.block / self.cm.sample_rate_hz)
 
     @property
     def kept_samples(self) -> int:

@@ -95,6 +95,7 @@ class _NoDriveLimits:
     after every block (after the operator's abort, as the programmes always have)."""
 
     last_ao: np.ndarray | None = None
+    headroom = False  # a programme's AI is read block by block
 
     def check_ao(self, block: np.ndarray, first_sample: int) -> None:
         pass

@@ -148,7 +148,7 @@ class StepRunner(Approach):
     def _measure(self, plan: StepPlan, first: int, last: int) -> tuple[np.ndarray, ...]:
         """Lock-in of [first, last): controlled (2,), other (2,), drive (2,) in the run's frame,
         and the standard errors of controlled and other (2,) each."""
-        self.stream.advance_to(last)
+        self.stream.advance_to(last, held=True)
         ai, ao = self.stream.window(first, last)
         f = plan.freq_hz
         other_kind = "load" if plan.target_kind == "displacement" else "displacement"
@@ -409,7 +409,7 @@ class StepRunner(Approach):
             feed(first, ai, ao)
         self.stream.taps.append(feed)
         try:
-            self.stream.advance_to(last)
+            self.stream.advance_to(last, held=True)
         finally:
             self.stream.taps.remove(feed)
         harm, _, sigma = acc.result()

@@ -296,7 +296,7 @@ class SweepEngine:
                     f"{lim.min_inlet_pressure_pa / 1e3:.2f} kPa after {lim.pressure_wait_s:g} s "
                     "with the pump on"
                 )
-        stream.advance_to(stream.sample + int(lim.film_prime_s * fs))
+        stream.advance_to(stream.sample + int(lim.film_prime_s * fs), held=True)
         assert self._monitor is not None
         self._monitor.pressure_row = row  # from now on, losing the pressure trips
 

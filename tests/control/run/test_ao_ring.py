@@ -586,3 +586,59 @@ def test_a_host_behind_the_board_reads_what_the_board_holds_in_one_cycle():
     assert cycles <= 2, cycles  # 30 before: one block a cycle
     assert listener.samples == stream.sample  # gapless, in order (RecordingListener checks)
     stream.shutdown(0.04)
+
+
+class ReadSizes(SimulatedBackend):
+    """The in-process rig with a 2 s ring (the daemon's), keeping the size of every AI read."""
+
+    def __init__(self) -> None:
+        super().__init__(seed=0, ao_ring_s=2.0)
+        self.reads: list[int] = []
+
+    def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
+        self.reads.append(n)
+        return super().read_ai(n, timeout_s)
+
+
+def test_a_held_drive_is_read_several_blocks_at_a_time_and_every_sample_checked():
+    """A recording at a held drive, its orbit under a third of the limit, is read up to 5
+    blocks a read (through gRPC a read costs the same round trip whatever its length); every
+    sample still reaches the record and the limit check: a gain rise x8 during the recording
+    trips at the first sample over the limit, and the drives are at 0 V within 5 blocks of it
+    (the 100 ms budget). At over a third of the limit the blocks are read one a read."""
+    from control.run.sweep.engine import SweepEngine
+    from tests.control.conftest import GainKnob
+
+    be = ReadSizes()
+    be.configure(CM)
+    rec = RecordingListener()
+    out = SweepEngine(be, {"motion": "x", "amplitude_m": [15e-6], "freq_hz": [30.0]},
+                      listener=rec).run()
+    assert out.status == "completed", out.reason
+    assert sum(be.reads) == out.samples == rec.ai().shape[1]  # every sample, once, in order
+    # the 40-cycle recording (1.33 s) and the lock-in windows: most samples in 5-block reads
+    assert sum(n for n in be.reads if n == 5 * BLOCK) > 0.4 * out.samples, be.reads
+    assert len(be.reads) < 0.6 * out.samples / BLOCK
+
+    be = ReadSizes()
+    be.configure(CM)
+    knob = GainKnob(lambda: be.rig, factor=8.0, ramp_s=0.3, at_s=2.2)
+    out = SweepEngine(be, {"motion": "x", "amplitude_m": [15e-6], "freq_hz": [30.0],
+                           "record_cycles": 200}, listener=knob).run()
+    assert out.status == "aborted" and "exceeds the 63.5 um limit" in out.reason
+    k = knob.events_of("limit_trip")[0][2]
+    ai = knob.ai()
+    x = ai[[CM.ai_index("x1"), CM.ai_index("x2")]].mean(axis=0)
+    y = ai[[CM.ai_index("y1"), CM.ai_index("y2")]].mean(axis=0)
+    r = np.hypot(x, y)
+    assert r[k] > 63.5e-6 and np.all(r[:k] <= 63.5e-6)  # stamped at the first sample over
+    assert max(be.reads[:-10]) == 5 * BLOCK  # it was reading the recording 5 blocks a read
+    assert np.all(knob.ao()[:, k + 5 * BLOCK:] == 0)
+
+    be = ReadSizes()
+    be.configure(CM)
+    out = SweepEngine(be, {"motion": "x", "amplitude_m": [30e-6], "freq_hz": [30.0]}).run()
+    assert out.status == "completed", out.reason
+    ends = np.cumsum(be.reads)
+    recording = np.array(be.reads)[ends > out.steps[0].first_sample]
+    assert recording.size > 100 and np.all(recording == BLOCK)  # 47 % of the limit
