@@ -110,6 +110,13 @@ def simulate_response(
     return physics.Truth.from_kernel(out, force, np.zeros(n)), s
 
 
+def warm_up(params: RigParams, sample_rate_hz: float) -> None:
+    """Compile (or load) the physics the rig ``params`` runs, with the journal in and out (a
+    commissioning step takes it out), so that no paced block waits for the JIT."""
+    physics.warm_up(*(kernel_params(params.model_copy(update={"journal_in": j}), sample_rate_hz)
+                      for j in (True, False)))
+
+
 NOISE_TABLE_SIZE = 1 << 20  # standard normal draws reused with random offsets (4 MiB)
 REST_HORIZON_S = 120.0  # `RigModel.rest` follows the oil this long (24 drain time constants)
 
@@ -137,6 +144,7 @@ class RigModel:
         self._rng = np.random.default_rng(seed)
         self._rng.bit_generator.state = after  # as if it had drawn the table itself
         self._kp = kernel_params(params, self.fs)
+        self._integrate = physics.kernel_for(self._kp)
         self._state = np.zeros(physics.N_STATE)
         self.sample_index = 0
         # shakers: first-order drive dynamics, one filter state per axis
@@ -183,6 +191,7 @@ class RigModel:
         if not installed:
             self._fill = 0.0
         self._kp = kernel_params(self.params, self.fs)
+        self._integrate = physics.kernel_for(self._kp)
 
     def schedule_impact(self, axis: str, peak_force_n: float, duration_s: float = 0.002,
                         delay_s: float = 0.0) -> None:
@@ -258,7 +267,7 @@ class RigModel:
                              sh.max_force_n, self._shaker_state, self._hammer_block(n),
                              self._push, self.sample_index, force, external, sig[_HAMMER])
         fill, visc, *_ = self._oil_block(n, sig)
-        physics.integrate(external, fill, visc, self._kp, self._state, sig[:physics.N_OUT])
+        self._integrate(external, fill, visc, self._kp, self._state, sig[:physics.N_OUT])
         self.last_truth = physics.Truth.from_kernel(sig[:physics.N_OUT], force, sig[_HAMMER])
         film = self.params.film
         physics.eq5_flow(sig[_P_IN], sig[_P_REC], visc, self._flow_numerator, self._mu_ref,
