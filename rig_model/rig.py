@@ -118,6 +118,7 @@ def warm_up(params: RigParams, sample_rate_hz: float) -> None:
 
 
 NOISE_TABLE_SIZE = 1 << 20  # standard normal draws reused with random offsets (4 MiB)
+_STARTS_AHEAD = 64  # blocks of noise-table starts drawn at once (`RigModel._noise_starts`)
 REST_HORIZON_S = 120.0  # `RigModel.rest` follows the oil this long (24 drain time constants)
 
 
@@ -143,6 +144,8 @@ class RigModel:
         self._noise, after = _noise_table(seed)
         self._rng = np.random.default_rng(seed)
         self._rng.bit_generator.state = after  # as if it had drawn the table itself
+        self._starts = np.empty((0, 0), dtype=np.int64)  # `_noise_starts`' draws to come
+        self._next_start = 0
         self._kp = kernel_params(params, self.fs)
         self._integrate = physics.kernel_for(self._kp)
         self._state = np.zeros(physics.N_STATE)
@@ -175,7 +178,7 @@ class RigModel:
         film = params.film
         self._flow_numerator = math.pi * film.diameter_m * film.clearance_m**3  # eq. 5
         self._build_sensor_tables()
-        self.last_truth: physics.Truth | None = None
+        self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # `last_truth`'s
 
     # --- operator-side actions ------------------------------------------------------------
     def set_relay(self, name: str, value: bool) -> None:
@@ -268,20 +271,38 @@ class RigModel:
                              self._push, self.sample_index, force, external, sig[_HAMMER])
         fill, visc, *_ = self._oil_block(n, sig)
         self._integrate(external, fill, visc, self._kp, self._state, sig[:physics.N_OUT])
-        self.last_truth = physics.Truth.from_kernel(sig[:physics.N_OUT], force, sig[_HAMMER])
+        self._last = (sig[:physics.N_OUT], force, sig[_HAMMER])
         film = self.params.film
         physics.eq5_flow(sig[_P_IN], sig[_P_REC], visc, self._flow_numerator, self._mu_ref,
                          film.length_m, sig[_FLOW])
         for j, (i, d) in enumerate(self._delays.items()):
             sig[_N_BASE + j] = self._delay(i, sig[self._source_rows[i]], d)
         self.sample_index += n
-        starts = self._rng.integers(0, self._noise.size, size=len(self._source))
+        starts = self._noise_starts()
         volts = np.empty((len(self._source), n))
         physics.sensor_volts(sig, self._source, self._gain, self._offset, self._noise, starts,
                              self._sigma, self._lsb, self._lo, self._hi, volts)
         return volts
 
+    @property
+    def last_truth(self) -> physics.Truth | None:
+        """The true signals of the last block `process` ran (None before the first)."""
+        return None if self._last is None else physics.Truth.from_kernel(*self._last)
+
     # --- internals ------------------------------------------------------------------------
+    def _noise_starts(self) -> np.ndarray:
+        """Each channel's start in the noise table for the next block: the generator's next
+        draws, taken `_STARTS_AHEAD` blocks at a time (the same numbers as one draw a block,
+        at a fraction of the calls)."""
+        if self._next_start >= self._starts.shape[0]:
+            k = len(self._source)
+            self._starts = self._rng.integers(0, self._noise.size,
+                                              size=_STARTS_AHEAD * k).reshape(_STARTS_AHEAD, k)
+            self._next_start = 0
+        starts = self._starts[self._next_start]
+        self._next_start += 1
+        return starts
+
     def _hammer_block(self, n: int) -> np.ndarray:
         hammer = np.zeros((2, n))
         keep = []
