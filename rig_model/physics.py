@@ -550,10 +550,10 @@ def kernel_switches(p: np.ndarray) -> Switches:
     """The switches `_make_kernel` compiles for, read from the parameter vector ``p``: the
     frame mode, the seal's friction (0 none, 1 Coulomb, 2 compliant), the eccentricity law,
     the air, the film's cross terms."""
-    friction = 0 if not p[P_FMU] > 0.0 else (2 if p[P_SEAL_KT] > 0.0 else 1)
-    cross = bool(p[P_CXY] != 0.0 or p[P_CYX] != 0.0 or p[P_DXY] != 0.0 or p[P_DYX] != 0.0)
-    return (bool(p[P_FRAME_ON] > 0.5), friction, bool(p[P_ECC] > 0.5), bool(p[P_AIR_K] > 0.0),
-            cross)
+    q = p.tolist()  # Python floats: read at every `integrate`, this costs ~1 us
+    friction = 0 if not q[P_FMU] > 0.0 else (2 if q[P_SEAL_KT] > 0.0 else 1)
+    cross = q[P_CXY] != 0.0 or q[P_CYX] != 0.0 or q[P_DXY] != 0.0 or q[P_DYX] != 0.0
+    return q[P_FRAME_ON] > 0.5, friction, q[P_ECC] > 0.5, q[P_AIR_K] > 0.0, cross
 
 
 @functools.cache
