@@ -28,6 +28,8 @@ acceleration uses its velocity moved from the half-step like the housing's.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numba
@@ -54,21 +56,22 @@ N_STATE = 17
 N_OUT = 12
 
 
-@numba.njit(cache=True, inline="always")
-def _coefficients(x, y, fi, visc_i, vbar, p):  # noqa: ANN001, ANN202
+@numba.njit(cache=True)
+def _coefficients(x, y, fi, visc_i, vbar, p, inv_c2, ecc_on, air_on):  # noqa: ANN001, ANN202
     """Housing mass matrix and damping matrix at this instant (film fill, eccentricity, air);
     the Y diagonal differs from X by the structure's own per-axis mass and damping. The mass
     matrix is the total M + f (M_f + D); its part that acts on the acceleration relative to the
-    journal, the film's added mass, is [[da, m12], [m21, da]] (the cross terms are all film)."""
-    clear = p[P_CLEAR]
-    ecc2 = (x * x + y * y) / (clear * clear)
-    if ecc2 > 0.9025:  # eps capped at 0.95: the formula diverges at contact
-        ecc2 = 0.9025
+    journal, the film's added mass, is [[da, m12], [m21, da]] (the cross terms are all film).
+    ``inv_c2`` = 1 / c^2; ``ecc_on``, ``air_on``: the eccentricity law and the air (constants
+    of the compiled kernel, see `kernel_for`)."""
     efac = 1.0
-    if p[P_ECC] > 0.5:
+    if ecc_on:
+        ecc2 = (x * x + y * y) * inv_c2
+        if ecc2 > 0.9025:  # eps capped at 0.95: the formula diverges at contact
+            ecc2 = 0.9025
         efac = (1.0 + 2.0 * ecc2) / ((1.0 - ecc2) * (1.0 - ecc2))
     afac = 1.0
-    if p[P_AIR_K] > 0.0:
+    if air_on:
         alpha = p[P_AIR_K] * vbar
         if alpha > p[P_AIR_MAX]:
             alpha = p[P_AIR_MAX]
@@ -86,7 +89,7 @@ def _coefficients(x, y, fi, visc_i, vbar, p):  # noqa: ANN001, ANN202
     return m11, m12, m21, m22, c11, c12, c21, c22, cfilm, da
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _schur(a11, a12, a21, a22, b11, b12, b21, b22, e11, e12, e21, e22):  # noqa: ANN001, ANN202
     """For the 2x2-block system [[A, B], [B, D]] (housing, frame) with E = D^-1: G = B E and
     the Schur complement S = A - G B, which eliminate the frame: S vh = r1 - G r2."""
@@ -101,15 +104,18 @@ def _schur(a11, a12, a21, a22, b11, b12, b21, b22, e11, e12, e21, e22):  # noqa:
     return g11, g12, g21, g22, s11, s12, s21, s22
 
 
-@numba.njit(cache=True, inline="always")
-def _kick_matrices(x, y, fi, visc_i, vbar, p, hh, frame_on):  # noqa: ANN001, ANN202
+@numba.njit(cache=True)
+def _kick_matrices(x, y, fi, visc_i, vbar, p, hh, inv_c2, frame_on, ecc_on, air_on,  # noqa: ANN001, ANN202, E501
+                   cross):
     """What the implicit kick needs of the coefficients at this instant: the mass and damping
     matrices (`_coefficients`), the frame's coupling B and inverse block E = D^-1 with
     G = B E, the inverse S^-1 of the housing's (Schur complement) block, and the impulse maps
     Q (housing) and R (frame). They depend on the state only through the eccentricity law and
     the air, so without those `integrate` computes them once per sample, not per substep
-    (the same operations on the same numbers: the same bits)."""
-    m11, m12, m21, m22, c11, c12, c21, c22, _, da = _coefficients(x, y, fi, visc_i, vbar, p)
+    (the same operations on the same numbers: the same bits). Without the frame and the
+    film's cross terms (``cross`` False) the matrices are diagonal and inverted as such."""
+    m11, m12, m21, m22, c11, c12, c21, c22, _, da = _coefficients(x, y, fi, visc_i, vbar, p,
+                                                                  inv_c2, ecc_on, air_on)
     a11 = m11 + hh * c11
     a12 = m12 + hh * c12
     a21 = m21 + hh * c21
@@ -148,8 +154,11 @@ def _kick_matrices(x, y, fi, visc_i, vbar, p, hh, frame_on):  # noqa: ANN001, AN
         rr22 = -(e21 * u12 + e22 * u22)
     else:
         b11 = b12 = b21 = b22 = e11 = e12 = e21 = e22 = g11 = g12 = g21 = g22 = 0.0
-        det = a11 * a22 - a12 * a21
-        i11, i12, i21, i22 = a22 / det, -a12 / det, -a21 / det, a11 / det
+        if cross:
+            det = a11 * a22 - a12 * a21
+            i11, i12, i21, i22 = a22 / det, -a12 / det, -a21 / det, a11 / det
+        else:
+            i11, i12, i21, i22 = 1.0 / a11, 0.0, 0.0, 1.0 / a22
         q11, q12, q21, q22 = i11, i12, i21, i22
         rr11 = rr12 = rr21 = rr22 = 0.0
     return (m11, m12, m21, m22, c11, c12, c21, c22, da, b11, b12, b21, b22, e11, e12, e21,
@@ -157,7 +166,7 @@ def _kick_matrices(x, y, fi, visc_i, vbar, p, hh, frame_on):  # noqa: ANN001, AN
             rr22)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _elastic(x, y, fx_in, fy_in, p):  # noqa: ANN001, ANN202
     """External force minus the structure's restoring force (linear and nonlinear); the
     cross stiffness k_xy (rods whose principal axes are turned from x and y) is symmetric, as
@@ -167,7 +176,7 @@ def _elastic(x, y, fx_in, fy_in, p):  # noqa: ANN001, ANN202
     return fx, fy
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _compliant_seal(x, y, wx, wy, kt, kty, fmu):  # noqa: ANN001, ANN202
     """Seal force on the housing from a contact of tangential stiffness kt (kty along Y) in
     series with a Coulomb slider at (wx, wy): -kt (r - w), the slider moving (plastic slip) so
@@ -184,7 +193,7 @@ def _compliant_seal(x, y, wx, wy, kt, kty, fmu):  # noqa: ANN001, ANN202
     return -fx, -fy, wx, wy
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _joint_step(f, dz, k, fs, shape):  # noqa: ANN001, ANN202
     """The joint's force [N] after a displacement step dz [m]: a Bouc-Wen law of exponent 1 with
     beta + gamma = 1 and ``shape`` = beta - gamma in [0, 1]. With u = sgn(dz) F / F_s and
@@ -214,25 +223,35 @@ def _joint_step(f, dz, k, fs, shape):  # noqa: ANN001, ANN202
     return sign * fs * (1.0 - (1.0 - u) * np.exp(-s))
 
 
-@numba.njit(cache=True, fastmath=False)
-def integrate(
-    force: np.ndarray,  # (2, n) external force on the housing [N]
-    fill: np.ndarray,  # (n,) film fill fraction 0..1
-    visc: np.ndarray,  # (n,) film damping C0 scale (viscosity / reference viscosity)
-    p: np.ndarray,  # (N_PARAMS,)
-    s: np.ndarray,  # (N_STATE,) updated in place
-    out: np.ndarray,  # (N_OUT, n)
-) -> None:
-    """Leapfrog (kick, drift) with the damping implicit (trapezoidal) in the kick and Coulomb
-    friction as an implicit velocity projection.
+def _make_kernel(frame_on: bool, friction: int, ecc_on: bool, air_on: bool,
+                 cross: bool) -> Callable[..., None]:
+    """`integrate` compiled for one set of the model's switches (`kernel_switches`), each a
+    constant of the compiled code: a part that is off costs no branch and no work on its zeros,
+    and the common rig (no frame mode, no film cross terms) has diagonal matrices (~1.4x
+    faster than one kernel for all). ``friction``: 0 none, 1 Coulomb (implicit), 2 the
+    compliant seal. The wall, the joint and the relaxing stiffness stay switches read from
+    ``p`` (as constants they gain little, and each set of constants is ~2 s of compiling)."""
 
-    Outputs are at the sample instants t_i: positions directly, velocities moved from the
-    half-step, accelerations and film forces evaluated at t_i."""
+    @numba.njit(cache=True, fastmath=False)
+    def kernel(force, fill, visc, p, s, out):  # noqa: ANN001, ANN202
+        _integrate_body(force, fill, visc, p, s, out, frame_on, friction, p[P_CONTACT_ON] > 0.5,
+                        int(p[P_JOINT_ON]), p[P_RELAX_KX] > 0.0 or p[P_RELAX_KY] > 0.0,
+                        ecc_on, air_on, cross)
+
+    return kernel
+
+
+@numba.njit(cache=True, fastmath=False)
+def _integrate_body(force, fill, visc, p, s, out, frame_on, friction, contact_on,  # noqa: ANN001, ANN202
+                    joint, relax, ecc_on, air_on, cross):
+    """`integrate`'s loop, the model's switches as arguments (`_make_kernel`'s constants)."""
     n = force.shape[1]
     nsub = int(p[P_NSUB])
     h = p[P_DT] / nsub
     hh = 0.5 * h
-    frame_on = p[P_FRAME_ON] > 0.5
+    inv_c2 = 1.0 / (p[P_CLEAR] * p[P_CLEAR])
+    # no frame: the relative velocity is the housing's, the friction's compliance W = A^-1
+    diagonal = not frame_on and not cross  # and the matrices are diagonal
     x, y, vx, vy = s[S_X], s[S_Y], s[S_VX], s[S_VY]
     xf, yf, vxf, vyf, vbar = s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR]
     fmu0 = p[P_FMU]
@@ -240,22 +259,19 @@ def integrate(
     fmu = fmu0
     kt = p[P_SEAL_KT]
     kty = p[P_SEAL_KTY] if p[P_SEAL_KTY] > 0.0 else kt
-    compliant = kt > 0.0 and fmu0 > 0.0
+    compliant = friction == 2
     wx, wy = s[S_WX], s[S_WY]
-    contact_on = p[P_CONTACT_ON] > 0.5
     clear = p[P_CLEAR]
     rest = p[P_RESTITUTION]
     cmu = p[P_CONTACT_MU]
     air_alpha_k = h / p[P_AIR_TAU]
     fpx, fpy = s[S_FPX], s[S_FPY]
-    joint = int(p[P_JOINT_ON])  # 0: none, 1: on the housing's spring, 2: on the frame's
     kj, fsj = p[P_JOINT_K], p[P_JOINT_FS]
     kjy, fsjy = p[P_JOINT_KY], p[P_JOINT_FSY]  # the joint along Y (the rig sets X's by default)
     gjx, gjy = s[S_JX], s[S_JY]  # the joint's force (it resists the motion of its mode)
     jshape = p[P_JOINT_SHAPE]  # its Bouc-Wen shape (1: Dahl, 0: elastic unloading)
     # the relaxing stiffness (a Maxwell element beside the rods: spring k_r in series with a
     # dashpot k_r tau): its force, integrated exactly over a step at constant velocity
-    relax = p[P_RELAX_KX] > 0.0 or p[P_RELAX_KY] > 0.0
     grx, gry = s[S_RX], s[S_RY]
     relax_a = np.exp(-h / p[P_RELAX_TAU]) if relax else 1.0
     relax_bx = p[P_RELAX_KX] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
@@ -264,8 +280,9 @@ def integrate(
         return
     # the eccentricity law and the air make the kick's matrices depend on the state; the first
     # sample's are those its first substep computed before
-    per_substep = p[P_ECC] > 0.5 or p[P_AIR_K] > 0.0
-    kick = _kick_matrices(x, y, fill[0], visc[0], vbar, p, hh, frame_on)
+    per_substep = ecc_on or air_on
+    kick = _kick_matrices(x, y, fill[0], visc[0], vbar, p, hh, inv_c2, frame_on, ecc_on,
+                          air_on, cross)
     kick_fi, kick_visc = fill[0], visc[0]
     for i in range(n):
         # sample i is taken at the end of the interval; the force ramps from the previous sample
@@ -274,21 +291,22 @@ def integrate(
         fi = fill[i]
         fmu = max(0.0, fmu0 + fi * fmu_wet) if fmu0 > 0.0 else 0.0
         frx = fry = 0.0
-        rax = ray = 0.0
-        rafx = rafy = 0.0
+        pvx, pvy, pvxf, pvyf = vx, vy, vxf, vyf  # the velocities a substep before
         contact_n = 0.0
         bounced = False
         bounce_r = bounce_nx = bounce_ny = 0.0
         # the kick's matrices: per sample where the state does not enter them (recomputed
         # only when the fill or the viscosity changes), per substep otherwise
         if not per_substep and (fi != kick_fi or visc[i] != kick_visc):
-            kick = _kick_matrices(x, y, fi, visc[i], vbar, p, hh, frame_on)
+            kick = _kick_matrices(x, y, fi, visc[i], vbar, p, hh, inv_c2, frame_on, ecc_on,
+                                  air_on, cross)
             kick_fi = fi
             kick_visc = visc[i]
         for k in range(nsub):
             # the kick uses the force at the start of the substep, where x is (leapfrog)
             if per_substep:
-                kick = _kick_matrices(x, y, fi, visc[i], vbar, p, hh, frame_on)
+                kick = _kick_matrices(x, y, fi, visc[i], vbar, p, hh, inv_c2, frame_on, ecc_on,
+                                      air_on, cross)
             (m11, m12, m21, m22, c11, c12, c21, c22, da, b11, b12, b21, b22, e11, e12, e21,
              e22, g11, g12, g21, g22, i11, i12, i21, i22, q11, q12, q21, q22, rr11, rr12, rr21,
              rr22) = kick
@@ -311,10 +329,14 @@ def integrate(
             # with M the absolute part. Housing block A = M + Da + h/2 C (the total mass matrix
             # m), coupling B = -(Da + h/2 C) both ways, frame block D = m2 + Da + h/2 (C + cf)
             # (`_kick_matrices`).
-            vhx = vx + vxf  # absolute housing velocity (x, vx are relative to the frame)
-            vhy = vy + vyf
-            r1x = m11 * vhx + m12 * vhy + h * ex - hh * (c11 * vx + c12 * vy)
-            r1y = m21 * vhx + m22 * vhy + h * ey - hh * (c21 * vx + c22 * vy)
+            if diagonal:  # as below, without the terms that are zero
+                r1x = m11 * vx + h * ex - hh * (c11 * vx)
+                r1y = m22 * vy + h * ey - hh * (c22 * vy)
+            else:
+                vhx = vx + vxf  # absolute housing velocity (x, vx are relative to the frame)
+                vhy = vy + vyf
+                r1x = m11 * vhx + m12 * vhy + h * ex - hh * (c11 * vx + c12 * vy)
+                r1y = m21 * vhx + m22 * vhy + h * ey - hh * (c21 * vx + c22 * vy)
             if frame_on:
                 m2 = p[P_FRAME_M]
                 cf = p[P_FRAME_C]
@@ -340,6 +362,10 @@ def integrate(
                 ty = r2y - (b21 * vhx + b22 * vhy)
                 nvxf = e11 * tx + e12 * ty
                 nvyf = e21 * tx + e22 * ty
+            elif diagonal:
+                vhx = i11 * r1x
+                vhy = i22 * r1y
+                nvxf = nvyf = 0.0
             else:
                 vhx = i11 * r1x + i12 * r1y
                 vhy = i21 * r1x + i22 * r1y
@@ -348,26 +374,36 @@ def integrate(
             tx = vhx - nvxf
             ty = vhy - nvyf
             jx = jy = 0.0
-            if fmu > 0.0 and not compliant:
-                w11 = q11 - rr11
-                w12 = q12 - rr12
-                w21 = q21 - rr21
-                w22 = q22 - rr22
-                wdet = w11 * w22 - w12 * w21
-                # impulse that would stop the relative motion
-                sx = -(w22 * tx - w12 * ty) / wdet
-                sy = -(-w21 * tx + w11 * ty) / wdet
-                smag = np.sqrt(sx * sx + sy * sy)
-                if smag <= fmu * h:
+            if friction == 1 and fmu > 0.0:
+                # the impulse that would stop the relative motion: -W^-1 t; without the frame
+                # W = A^-1 and t = A^-1 r1, so it is -r1
+                if frame_on:
+                    w11 = q11 - rr11
+                    w12 = q12 - rr12
+                    w21 = q21 - rr21
+                    w22 = q22 - rr22
+                    wdet = w11 * w22 - w12 * w21
+                    sx = -(w22 * tx - w12 * ty) / wdet
+                    sy = -(-w21 * tx + w11 * ty) / wdet
+                else:
+                    sx = -r1x
+                    sy = -r1y
+                fh = fmu * h
+                if sx * sx + sy * sy <= fh * fh:
                     jx, jy = sx, sy  # stick
                 else:
-                    tmag = np.sqrt(tx * tx + ty * ty)
-                    jx = -fmu * h * tx / tmag
-                    jy = -fmu * h * ty / tmag
-            vhx += q11 * jx + q12 * jy
-            vhy += q21 * jx + q22 * jy
-            nvxf += rr11 * jx + rr12 * jy
-            nvyf += rr21 * jx + rr22 * jy
+                    scale = -fh / np.sqrt(tx * tx + ty * ty)
+                    jx = scale * tx
+                    jy = scale * ty
+                if diagonal:
+                    vhx += q11 * jx
+                    vhy += q22 * jy
+                else:
+                    vhx += q11 * jx + q12 * jy
+                    vhy += q21 * jx + q22 * jy
+                if frame_on:
+                    nvxf += rr11 * jx + rr12 * jy
+                    nvyf += rr21 * jx + rr22 * jy
             if not compliant:
                 frx = jx / h
                 fry = jy / h
@@ -411,10 +447,7 @@ def integrate(
                             contact_n = -jn / h
             nvx = vhx - nvxf
             nvy = vhy - nvyf
-            rax = (nvx - vx) / h  # relative acceleration over this substep
-            ray = (nvy - vy) / h
-            rafx = (nvxf - vxf) / h  # the frame's
-            rafy = (nvyf - vyf) / h
+            pvx, pvy, pvxf, pvyf = vx, vy, vxf, vyf
             vx = nvx
             vy = nvy
             vxf = nvxf
@@ -434,8 +467,9 @@ def integrate(
                     scale = clear / np.sqrt(r2)
                     x *= scale
                     y *= scale
-            xf += h * vxf
-            yf += h * vyf
+            if frame_on:
+                xf += h * vxf
+                yf += h * vyf
             if joint == 1:
                 gjx = _joint_step(gjx, h * vx, kj, fsj, jshape)
                 gjy = _joint_step(gjy, h * vy, kjy, fsjy, jshape)
@@ -445,14 +479,20 @@ def integrate(
             if relax:
                 grx = relax_a * grx + relax_bx * vx
                 gry = relax_a * gry + relax_by * vy
-            vbar += air_alpha_k * (np.sqrt(vx * vx + vy * vy) - vbar)
+            if air_on:  # the mean |v| the air follows (not needed without it)
+                vbar += air_alpha_k * (np.sqrt(vx * vx + vy * vy) - vbar)
         fpx = force[0, i]
         fpy = force[1, i]
         # the state at t_i: the velocity moved from the half-step, then the forces there
+        rax = (vx - pvx) / h  # relative acceleration over the last substep
+        ray = (vy - pvy) / h
+        rafx = (vxf - pvxf) / h  # the frame's
+        rafy = (vyf - pvyf) / h
         vox = vx + 0.5 * h * rax
         voy = vy + 0.5 * h * ray
         m11, m12, m21, m22, c11, c12, c21, c22, cfilm, da = _coefficients(x, y, fi, visc[i],
-                                                                          vbar, p)
+                                                                          vbar, p, inv_c2,
+                                                                          ecc_on, air_on)
         ex, ey = _elastic(x, y, fpx, fpy, p)
         if compliant:
             frx, fry, _, _ = _compliant_seal(x, y, wx, wy, kt, kty, fmu)
@@ -501,6 +541,48 @@ def integrate(
     s[S_WX], s[S_WY] = wx, wy
     s[S_JX], s[S_JY] = gjx, gjy
     s[S_RX], s[S_RY] = grx, gry
+
+
+Switches = tuple[bool, int, bool, bool, bool]
+
+
+def kernel_switches(p: np.ndarray) -> Switches:
+    """The switches `_make_kernel` compiles for, read from the parameter vector ``p``: the
+    frame mode, the seal's friction (0 none, 1 Coulomb, 2 compliant), the eccentricity law,
+    the air, the film's cross terms."""
+    q = p.tolist()  # Python floats: read at every `integrate`, this costs ~1 us
+    friction = 0 if not q[P_FMU] > 0.0 else (2 if q[P_SEAL_KT] > 0.0 else 1)
+    cross = q[P_CXY] != 0.0 or q[P_CYX] != 0.0 or q[P_DXY] != 0.0 or q[P_DYX] != 0.0
+    return q[P_FRAME_ON] > 0.5, friction, q[P_ECC] > 0.5, q[P_AIR_K] > 0.0, cross
+
+
+@functools.cache
+def _kernel(switches: Switches) -> Callable[..., None]:
+    return _make_kernel(*switches)
+
+
+def kernel_for(p: np.ndarray) -> Callable[..., None]:
+    """The compiled `integrate` for the parameter vector ``p`` (one per set of switches,
+    compiled at its first call and cached on disk): call it as `integrate` (a caller that
+    integrates many blocks under one ``p`` keeps it rather than choosing it per call)."""
+    return _kernel(kernel_switches(p))
+
+
+def integrate(
+    force: np.ndarray,  # (2, n) external force on the housing [N]
+    fill: np.ndarray,  # (n,) film fill fraction 0..1
+    visc: np.ndarray,  # (n,) film damping C0 scale (viscosity / reference viscosity)
+    p: np.ndarray,  # (N_PARAMS,)
+    s: np.ndarray,  # (N_STATE,) updated in place
+    out: np.ndarray,  # (N_OUT, n)
+) -> None:
+    """Leapfrog (kick, drift) with the damping implicit (trapezoidal) in the kick and Coulomb
+    friction as an implicit velocity projection.
+
+    Outputs are at the sample instants t_i: positions directly, velocities moved from the
+    half-step, accelerations and film forces evaluated at t_i. The work is done by the kernel
+    compiled for ``p``'s switches (`kernel_for`)."""
+    kernel_for(p)(force, fill, visc, p, s, out)
 
 
 @numba.njit(cache=True)
@@ -601,13 +683,14 @@ def oil_block(decay: np.ndarray, t: np.ndarray, pressures: np.ndarray, targets: 
         exponent[i] = neg_slope * (temp[i] - t_ref)
 
 
-def warm_up() -> None:
+def warm_up(*kernel_params: np.ndarray) -> None:
     """Compile (or load from the on-disk cache) every kernel now, on scratch data, so the first
-    real block of a paced run does not stall for the JIT."""
+    real block of a paced run does not stall for the JIT: `integrate` for each parameter
+    vector given (the rig's, with the journal in and out)."""
     n = 4
     out = np.empty((N_OUT, n))
-    integrate(np.zeros((2, n)), np.ones(n), np.ones(n), np.full(N_PARAMS, 1.0), np.zeros(N_STATE),
-              out)
+    for p in kernel_params:
+        kernel_for(p)(np.zeros((2, n)), np.ones(n), np.ones(n), p, np.zeros(N_STATE), out)
     block_forces(np.zeros((2, n)), np.array([0, -1]), 1.0, 0.5, 1.0, np.zeros(2),
                  np.zeros((2, n)), np.ones((2, 4)), 0, np.empty((2, n)), np.empty((2, n)),
                  np.empty(n))
@@ -657,3 +740,4 @@ class Truth:
             film_x_n=out[O_FILMX], film_y_n=out[O_FILMY],
             film_damping_ns_per_m=out[O_CFILM], hammer_n=hammer_n, contact_n=out[O_CONTACT],
         )
+

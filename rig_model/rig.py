@@ -110,7 +110,15 @@ def simulate_response(
     return physics.Truth.from_kernel(out, force, np.zeros(n)), s
 
 
+def warm_up(params: RigParams, sample_rate_hz: float) -> None:
+    """Compile (or load) the physics the rig ``params`` runs, with the journal in and out (a
+    commissioning step takes it out), so that no paced block waits for the JIT."""
+    physics.warm_up(*(kernel_params(params.model_copy(update={"journal_in": j}), sample_rate_hz)
+                      for j in (True, False)))
+
+
 NOISE_TABLE_SIZE = 1 << 20  # standard normal draws reused with random offsets (4 MiB)
+_STARTS_AHEAD = 64  # blocks of noise-table starts drawn at once (`RigModel._noise_starts`)
 REST_HORIZON_S = 120.0  # `RigModel.rest` follows the oil this long (24 drain time constants)
 
 
@@ -136,7 +144,10 @@ class RigModel:
         self._noise, after = _noise_table(seed)
         self._rng = np.random.default_rng(seed)
         self._rng.bit_generator.state = after  # as if it had drawn the table itself
+        self._starts = np.empty((0, 0), dtype=np.int64)  # `_noise_starts`' draws to come
+        self._next_start = 0
         self._kp = kernel_params(params, self.fs)
+        self._integrate = physics.kernel_for(self._kp)
         self._state = np.zeros(physics.N_STATE)
         self.sample_index = 0
         # shakers: first-order drive dynamics, one filter state per axis
@@ -167,7 +178,7 @@ class RigModel:
         film = params.film
         self._flow_numerator = math.pi * film.diameter_m * film.clearance_m**3  # eq. 5
         self._build_sensor_tables()
-        self.last_truth: physics.Truth | None = None
+        self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # `last_truth`'s
 
     # --- operator-side actions ------------------------------------------------------------
     def set_relay(self, name: str, value: bool) -> None:
@@ -183,6 +194,7 @@ class RigModel:
         if not installed:
             self._fill = 0.0
         self._kp = kernel_params(self.params, self.fs)
+        self._integrate = physics.kernel_for(self._kp)
 
     def schedule_impact(self, axis: str, peak_force_n: float, duration_s: float = 0.002,
                         delay_s: float = 0.0) -> None:
@@ -258,21 +270,39 @@ class RigModel:
                              sh.max_force_n, self._shaker_state, self._hammer_block(n),
                              self._push, self.sample_index, force, external, sig[_HAMMER])
         fill, visc, *_ = self._oil_block(n, sig)
-        physics.integrate(external, fill, visc, self._kp, self._state, sig[:physics.N_OUT])
-        self.last_truth = physics.Truth.from_kernel(sig[:physics.N_OUT], force, sig[_HAMMER])
+        self._integrate(external, fill, visc, self._kp, self._state, sig[:physics.N_OUT])
+        self._last = (sig[:physics.N_OUT], force, sig[_HAMMER])
         film = self.params.film
         physics.eq5_flow(sig[_P_IN], sig[_P_REC], visc, self._flow_numerator, self._mu_ref,
                          film.length_m, sig[_FLOW])
         for j, (i, d) in enumerate(self._delays.items()):
             sig[_N_BASE + j] = self._delay(i, sig[self._source_rows[i]], d)
         self.sample_index += n
-        starts = self._rng.integers(0, self._noise.size, size=len(self._source))
+        starts = self._noise_starts()
         volts = np.empty((len(self._source), n))
         physics.sensor_volts(sig, self._source, self._gain, self._offset, self._noise, starts,
                              self._sigma, self._lsb, self._lo, self._hi, volts)
         return volts
 
+    @property
+    def last_truth(self) -> physics.Truth | None:
+        """The true signals of the last block `process` ran (None before the first)."""
+        return None if self._last is None else physics.Truth.from_kernel(*self._last)
+
     # --- internals ------------------------------------------------------------------------
+    def _noise_starts(self) -> np.ndarray:
+        """Each channel's start in the noise table for the next block: the generator's next
+        draws, taken `_STARTS_AHEAD` blocks at a time (the same numbers as one draw a block,
+        at a fraction of the calls)."""
+        if self._next_start >= self._starts.shape[0]:
+            k = len(self._source)
+            self._starts = self._rng.integers(0, self._noise.size,
+                                              size=_STARTS_AHEAD * k).reshape(_STARTS_AHEAD, k)
+            self._next_start = 0
+        starts = self._starts[self._next_start]
+        self._next_start += 1
+        return starts
+
     def _hammer_block(self, n: int) -> np.ndarray:
         hammer = np.zeros((2, n))
         keep = []

@@ -4,7 +4,7 @@ child processes (the daemon, servers and subscribers must all be shut down by th
 Tests against the wall clock, and the pytest-xdist workers (`./dev test` runs one per core):
 
 - a test marked ``paced`` (it runs against the wall clock: a paced rig, board or watchdog, a
-  timing bound) runs at normal priority beside the other worker's tests: the product's promise
+  timing bound) runs at normal priority beside the other workers' tests: the product's promise
   (issue 21) is that a busy PC makes the host late, never the AO underflow (the regenerating
   ring), so these tests check it on a machine whose both cores are busy. The paced tests form
   one group (one worker, one after the other), so no two of them compete with each other.

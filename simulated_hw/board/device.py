@@ -22,9 +22,8 @@ from daq.errors import (
     SAMPLE_RATE_TOO_HIGH,
     WRITE_FAILED_WATCHDOG_EXPIRED,
 )
-from rig_model import physics
 from rig_model.params import RigParams
-from rig_model.rig import RigModel
+from rig_model.rig import RigModel, warm_up
 from simulated_hw.board import ao_stream, counters, thermocouple, triggers
 from simulated_hw.board import digital as digital_io
 from simulated_hw.board.codes import (
@@ -121,9 +120,9 @@ class SimDevice:
         self.carried: tuple[RigModel, float] | None = None
         self._reset_acquisition()
         self.press_estop(False)  # the emergency-stop loop is closed: released
-        # load the compiled physics now, not during the first paced read (it takes ~0.5 s);
+        # load the compiled physics now, not during the first paced read (~0.5 s; more to compile);
         # the rig from the board's start on (see `carried`) has not moved yet
-        physics.warm_up()
+        warm_up(params, wiring.sample_rate_hz)
         self.carried = (RigModel(params, wiring, seed), self.now())
 
     def _physical_names(self) -> dict[str, tuple[str, str]]:

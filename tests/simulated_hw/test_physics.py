@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from daq import default_channel_map
-from rig_model import RigParams, simulate_response
+from rig_model import RigParams, physics, simulate_response
 from rig_model.params import Film, Oil, Seal
+from rig_model.rig import kernel_params
 from simulated_hw import SimulatedBackend
 
 FS = 10_000.0
@@ -478,3 +479,33 @@ def test_cross_stiffness_static_deflection_is_the_2x2_stiffness_solution():
     tr, _ = simulate_response(np.vstack([np.zeros(t.size), ramp]), params, FS, fill=0.0)
     assert tr.x_m[-1] == pytest.approx(-k_xy / det * force_n, rel=1e-6)
     assert tr.y_m[-1] == pytest.approx(k_x / det * force_n, rel=1e-6)
+
+
+def test_the_diagonal_kernel_is_the_general_one_with_the_cross_terms_at_zero():
+    """The kernel compiled for a rig without the frame mode and the film's cross terms (the
+    report's rig) inverts diagonal matrices and takes the friction's stopping impulse as the
+    kick's momentum; the one compiled for cross terms does the 2x2 algebra. With the cross
+    terms zero they are the same equations: the responses agree to round-off through a stuck,
+    a slipping seal and bounces on the journal (eccentricity law on)."""
+    p = kernel_params(RigParams(), FS)
+    switches = physics.kernel_switches(p)
+    assert switches == (False, 1, True, False, False)  # no frame, Coulomb, eps law, no air/cross
+    n = int(0.3 * FS)
+    t = np.arange(n) / FS
+    circle = np.vstack([np.cos(2 * np.pi * 40 * t), np.sin(2 * np.pi * 40 * t)])
+    push = np.vstack([np.minimum(t / 0.1, 1.0) * 400.0, np.zeros(n)])  # 0.5 mm static: the wall
+    force = np.hstack([10.0 * circle, 150.0 * circle, push + 150.0 * circle])
+    fill, visc = np.ones(force.shape[1]), np.ones(force.shape[1])
+    outs = []
+    for kernel in (physics.kernel_for(p), physics._make_kernel(*switches[:4], True)):
+        out = np.empty((physics.N_OUT, force.shape[1]))
+        kernel(force, fill, visc, p, np.zeros(physics.N_STATE), out)
+        outs.append(out)
+    diagonal, general = outs
+    assert np.all(np.isfinite(diagonal))
+    assert diagonal[physics.O_CONTACT].max() > 0  # the wall was met
+    stuck = slice(n // 2, n)
+    assert np.abs(diagonal[physics.O_VX, stuck]).max() < 1e-9  # held by the seal
+    assert np.abs(diagonal[physics.O_VX, n:2 * n]).max() > 1e-3  # then slipping
+    scale = np.abs(general).max(axis=1) + 1e-300
+    assert np.all(np.abs(diagonal - general).max(axis=1) <= 1e-8 * scale)
