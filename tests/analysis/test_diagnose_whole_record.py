@@ -25,7 +25,8 @@ NOISE_M = 0.25e-6
 
 def _record(seed: int, line: tuple[float, float] | None = None, second: float = 0.0,
             pattern: float = 0.0, mass_kg: float = 0.0,
-            model_line: tuple[float, float, int] | None = None) -> tuple[list[RunRecord], Residuals, list[Segment]]:
+            model_line: tuple[float, float, int] | None = None
+            ) -> tuple[list[RunRecord], Residuals, list[Segment]]:
     """A run of ten 1 s dwells (x driven) whose residual on x is white noise of 0.25 um plus,
     if asked, a line (frequency, amplitude) running through the whole run, a 2X of
     ``second`` x the 1X, a 1X error of ``pattern`` x (f / 60 Hz)^4 of the 1X in phase with
