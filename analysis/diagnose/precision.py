@@ -4,14 +4,21 @@ At the final model, the Jacobian ``J`` of the fit's own objective (the training 
 decimated and scaled as the fit sees it) over every free parameter together (the baseline's
 and all findings'), so that a parameter's deviation includes what its correlation with the
 others leaves undetermined. ``C = (J'J)^-1`` is the Gauss-Newton covariance per unit of
-residual variance; the residual's own noise sets the scale, in two ways, the larger kept:
+residual variance; the residual's own noise sets the scale, in three ways, the largest kept:
 
 - *per sample*: ``s^2 C``, ``s^2`` the residual's mean square (noise and any misfit, taken as
   independent from sample to sample);
 - *per segment* (the sandwich over training segments, ``C (sum_s J_s' r_s r_s' J_s) C``): a
   misfit that pulls the parameter one way on some dwells and the other way on others, and noise
   correlated within a segment, count as the doubt they are. It is an estimate from the few
-  segments there are, so it only ever raises the per-sample one.
+  segments there are, so it only ever raises the per-sample one;
+- *per frequency* (``coloured_spread``): the sandwich over frequency, ``C J'SJ C`` with ``S``
+  the residual's own periodogram about each frequency, per segment and channel: the residual
+  is the model's response to the load cell's noise, a low-pass, stronger under the dwells'
+  1X, where a size's columns lie, than its mean square says (the harmonic-balance
+  generator's threshold friction at seed 5101: +19 % off with a per-sample sd of 3.8 %,
+  6.5 % per frequency; checked on AR(1) noise in ``tests/analysis/test_diagnose_precision``,
+  where it gives the scatter to 5 % and the per-sample one 2.4x under it).
 
 A finding's size is *determined* when its main parameter's doubt, the deviation and how far
 it moved when the later findings were refitted jointly with it (added in quadrature: a size
