@@ -1,7 +1,7 @@
 """How well the data determine a finding's size (``analysis.diagnose.precision``): the
 parameters' standard deviations from the Jacobian and the residual's own noise, per sample,
-per segment and per frequency (coloured noise), and the rule that a size not pinned down to its effect's tolerance is no
-confident finding (issue 24 deliverable 2)."""
+per segment and per frequency (coloured noise), and the rule that a size not pinned down to
+its effect's tolerance is no confident finding (issue 24 deliverable 2)."""
 
 from __future__ import annotations
 
