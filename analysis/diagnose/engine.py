@@ -918,7 +918,7 @@ def _sizes(pb: Problem, base: Baseline, findings: list[Finding], search: _Search
     params = list(base.free) + [p for f in findings for p in f.variant.params]
     prec = parameter_sd(pb.ev, search.model, params, pb.fit_train, pb.scale_m, pb.step)
     sds = dict(zip(map(id, params), zip(prec.sd, prec.per_sample, prec.per_segment,
-                                        strict=True), strict=True))
+                                        prec.per_spectrum, strict=True), strict=True))
     for f in findings:
         eff = LIBRARY[f.effect]
         found = dict(f.parameters)
@@ -928,11 +928,12 @@ def _sizes(pb: Problem, base: Baseline, findings: list[Finding], search: _Search
         main = next((p for p in f.variant.params if p.name == eff.main), f.variant.params[0])
         value = f.parameters[main.name]
         shift = {p.name: f.parameters[p.name] - float(found[p.name]) for p in f.variant.params}
-        sd, per_sample, per_segment = sds[id(main)]
+        sd, per_sample, per_segment, per_spectrum = sds[id(main)]
         ok = determined(value, sd, shift[main.name], eff.tolerance)
         f.evidence["size"] = {
             "main": main.name, "sd": {p.name: sds[id(p)][0] for p in f.variant.params},
             "sd_per_sample": per_sample, "sd_per_segment": per_segment,
+            "sd_per_spectrum": per_spectrum,
             "when_found": {p.name: found[p.name] for p in f.variant.params},
             "shift_on_joint_refit": shift,
             "relative_doubt": doubt(sd, shift[main.name]) / max(abs(value), 1e-300),

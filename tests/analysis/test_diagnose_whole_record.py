@@ -24,13 +24,16 @@ NOISE_M = 0.25e-6
 
 
 def _record(seed: int, line: tuple[float, float] | None = None, second: float = 0.0,
-            pattern: float = 0.0,
-            mass_kg: float = 0.0) -> tuple[list[RunRecord], Residuals, list[Segment]]:
+            pattern: float = 0.0, mass_kg: float = 0.0,
+            model_line: tuple[float, float, int] | None = None
+            ) -> tuple[list[RunRecord], Residuals, list[Segment]]:
     """A run of ten 1 s dwells (x driven) whose residual on x is white noise of 0.25 um plus,
     if asked, a line (frequency, amplitude) running through the whole run, a 2X of
     ``second`` x the 1X, a 1X error of ``pattern`` x (f / 60 Hz)^4 of the 1X in phase with
-    it (a mode above the band's shape) and one of a mass ``mass_kg`` the model lacks; y
-    records noise."""
+    it (a mode above the band's shape) and one of a mass ``mass_kg`` the model lacks, and a
+    line (frequency, amplitude, dwell) in the model's own response on one dwell, growing over
+    it (a self-excited oscillation), which the residual holds a quarter of; y records
+    noise."""
     rng = np.random.default_rng(seed)
     n = int(DWELL_S * FS)
     dwells = [(f, a) for f in FREQS for a in AMPS]
@@ -51,6 +54,11 @@ def _record(seed: int, line: tuple[float, float] | None = None, second: float = 
         # a mass the model lacks: e = -w^2 dM / K_dyn, R1 = -e Z1
         e_mass = -w * w * mass_kg / (788e3 - w * w * 18.0 + 1j * w * 5400.0)
         res_x[sl] += np.real(-e_mass * a * np.exp(1j * w * t[sl]))
+        if model_line is not None and model_line[2] == k:
+            grow = model_line[1] * np.exp(3.0 * (t[sl] - t[sl][-1]))
+            own = grow * np.sin(2 * math.pi * model_line[0] * t[sl])
+            x[sl] += own
+            res_x[sl] += 0.25 * grow * np.sin(2 * math.pi * model_line[0] * t[sl] + 0.5)
         segs.append(Segment(0, k * n, (k + 1) * n, f"d{k}", f, "x"))
     y = rng.normal(0.0, NOISE_M, total)
     force = np.zeros((2, total))
@@ -101,6 +109,27 @@ def test_a_line_at_another_frequency_is_named_an_unmeasured_input() -> None:
     assert row["freq_hz"] == pytest.approx(24.7, abs=1.0)
     assert row["amplitude"] == pytest.approx(0.05e-6, rel=0.35)
     assert "input the record did not measure" in row["text"]
+
+
+def test_a_line_the_models_own_response_holds_is_no_input_and_hides_no_other() -> None:
+    # the model's own growing response at 43.5 Hz on the 60 Hz, 38 um dwell (8 um at its
+    # end), the residual a quarter of it (8 x the noise at the end, as the hidden-effect
+    # generator's air entrainment at seed 43): the model responds there to the force it was
+    # given, no input is missing; a floor's line at 24.7 Hz the model lacks is still found
+    records, res, segs = _record(101, line=(24.7, 0.05e-6), model_line=(43.5, 8e-6, 9))
+    row = next(r for r in account(records, res, segs) if r["test"] == "unmeasured_input"
+               and r["channel"] == "x")
+    assert row["structure"], row["text"]
+    assert row["freq_hz"] == pytest.approx(24.7, abs=1.0)
+    assert row["model_line_hz"] == pytest.approx(43.5, abs=1.0)
+    assert row["model_line_z"] > row["threshold_sd"]
+    assert "not an input" in row["text"]
+    # the model's line alone: no input named
+    records, res, segs = _record(101, model_line=(43.5, 8e-6, 9))
+    row = next(r for r in account(records, res, segs) if r["test"] == "unmeasured_input"
+               and r["channel"] == "x")
+    assert not row["structure"], row["text"]
+    assert row["model_line_z"] > row["threshold_sd"]
 
 
 def test_a_second_harmonic_under_the_replays_resolution_is_found() -> None:
