@@ -395,11 +395,12 @@ class Evaluator:
     def _periodic_truth(self, model: Model, run: int, a: int, b: int, kp: np.ndarray,
                         visc: np.ndarray) -> np.ndarray | None:
         """The kernel's response (6, b - a) of steady dwell [a, b) after an endless lead of its
-        whole periods, where the model is linear over it (`periodic`: no lead replayed); None
-        where it is not (a nonlinear term, the viscosity changing over the window, a force
-        oversampled for the replay), and the lead is replayed."""
+        whole periods at its first sample's viscosity, where the model is linear (`periodic`):
+        its whole periods from their spectrum where the viscosity holds over the window, the
+        rest replayed from their periodic state. None where the model is not linear or the
+        force is oversampled for the replay: the lead is replayed."""
         rec = self.records[run]
-        if self.oversample.get(run, 1) > 1 or np.ptp(visc) != 0.0:
+        if self.oversample.get(run, 1) > 1:
             return None
         fill = self._fill(rec)
         key = (kp.tobytes(), fill, float(visc[0]))
@@ -412,25 +413,30 @@ class Evaluator:
             return None
         self.simulations += 1
         chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
-        spectrum = self._spectra.get((run, a, b))
-        if spectrum is None:
-            spectrum = self._spectra[(run, a, b)] = np.fft.rfft(
-                self._window_force(run, a, b, 0)[:, :chunk], axis=1)
         force = self._window_force(run, a, b, 0)
+        offset = np.asarray(model.force_offset_n)
         if any(model.force_offset_n):
-            force = force + np.asarray(model.force_offset_n)[:, None]
-            spectrum = spectrum.copy()
-            spectrum[:, 0] += chunk * np.asarray(model.force_offset_n)
-        rows = sm.periodic(spectrum, chunk)
-        if chunk < b - a:
-            # the samples after the last whole period: replayed from the periodic state
-            tr, _ = simulate_response(force[:, chunk:], model.rig, rec.sample_rate_hz, fill,
-                                      visc[chunk:], state=sm.periodic_state(force[:, :chunk]),
+            force = force + offset[:, None]
+        parts = []
+        if np.ptp(visc) == 0.0:
+            spectrum = self._spectra.get((run, a, b))
+            if spectrum is None:
+                spectrum = self._spectra[(run, a, b)] = np.fft.rfft(
+                    self._window_force(run, a, b, 0)[:, :chunk], axis=1)
+            if any(model.force_offset_n):
+                spectrum = spectrum.copy()
+                spectrum[:, 0] += chunk * offset
+            parts.append(sm.periodic(spectrum, chunk))
+        done = chunk if parts else 0
+        if done < b - a:
+            # the samples after the last whole period, or the whole window where the viscosity
+            # changes over it: replayed from the periodic state
+            tr, _ = simulate_response(force[:, done:], model.rig, rec.sample_rate_hz, fill,
+                                      visc[done:], state=sm.periodic_state(force[:, :chunk]),
                                       kernel=kp)
-            rest = np.vstack([tr.x_m, tr.y_m, tr.vx_m_per_s, tr.vy_m_per_s, tr.ax_m_per_s2,
-                              tr.ay_m_per_s2])
-            rows = np.hstack([rows, rest])
-        return rows
+            parts.append(np.vstack([tr.x_m, tr.y_m, tr.vx_m_per_s, tr.vy_m_per_s,
+                                    tr.ax_m_per_s2, tr.ay_m_per_s2]))
+        return parts[0] if len(parts) == 1 else np.hstack(parts)
 
     def _plus_extra_modes(self, model: Model, run: int, a: int, b: int, lead: int,
                           xy: np.ndarray) -> np.ndarray:
