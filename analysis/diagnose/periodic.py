@@ -95,11 +95,11 @@ class StepMap:
 
     def periodic_state(self, force: np.ndarray) -> np.ndarray:
         """The kernel's whole state (N_STATE,) at the start (and so at the end) of ``force``
-        (2, n) repeated forever: s_0 = sum_i (I - A^n)^-1 A^(n-1-i) B f_i."""
+        (2, n) repeated forever: s_0 = V (1/n) sum_k (z_k I - Lambda)^-1 V^-1 B F_k."""
         n = force.shape[1]
-        u = self.wb @ force  # (modes, n)
-        powers = self.lam[:, None] ** np.arange(n - 1, -1, -1)[None, :]
-        q = np.sum(powers * u, axis=1) / (1.0 - self.lam**n)
+        z = np.exp(2j * math.pi * np.arange(n) / n)
+        u = self.wb @ np.fft.fft(force, axis=1)  # (modes, n)
+        q = np.sum(u / (z[None, :] - self.lam[:, None]), axis=1) / n
         s = np.zeros(ph.N_STATE)
         s[self.states] = np.real(self.v @ q)
         return s
