@@ -50,6 +50,7 @@ from analysis.diagnose.data import RunRecord, Segment
 from analysis.diagnose.extra_modes import ExtraMode, modal_response
 from analysis.diagnose.lead import steady_lead
 from analysis.diagnose.oil import DriftCourse
+from analysis.diagnose.periodic import StepMap, step_map
 from rig_model import physics
 from rig_model.params import VISCOSITY_SLOPE_PER_C, RigParams
 from rig_model.rig import kernel_params, simulate_response
@@ -164,6 +165,11 @@ class Evaluator:
         # per window and lead: its force with the lead (a few leads a window: `lead.py`)
         self._force_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
         self._memory_starts: dict[int, int] = {}  # per run: `_memory_start`
+        self._visc_cache: dict[tuple, np.ndarray] = {}  # `_viscosity_scale`
+        # per steady window: the spectrum of its force's whole periods (`_periodic_truth`)
+        self._spectra: dict[tuple[int, int, int], np.ndarray] = {}
+        # per kernel parameters, fill and viscosity: a linear model's step (`periodic`)
+        self._step_maps: dict[tuple[bytes, float, float], StepMap | None] = {}
         # the replay inputs of the last model asked about (a prediction asks per window)
         self._inputs_of: tuple[Model, dict[int, tuple[np.ndarray, tuple]]] | None = None
         self.simulations = 0
@@ -249,6 +255,17 @@ class Evaluator:
         return 1.0 if rec.lubricated else 0.0
 
     def _viscosity_scale(self, model: Model, run: int, a: int, b: int) -> np.ndarray:
+        """The film's viscosity scale over [a, b) under ``model``: the same for every model of
+        one viscosity law (`_inputs`), so kept per window and law."""
+        key = (run, a, b, self._inputs(model, run)[1][0])
+        hit = self._visc_cache.get(key)
+        if hit is None:
+            if len(self._visc_cache) >= 4 * max(1, len(self._freq)):
+                self._visc_cache.clear()
+            hit = self._visc_cache[key] = self._viscosity_law(model, run, a, b)
+        return hit
+
+    def _viscosity_law(self, model: Model, run: int, a: int, b: int) -> np.ndarray:
         rec = self.records[run]
         t = np.arange(a, b) / rec.sample_rate_hz
         oil = model.rig.oil
@@ -334,6 +351,9 @@ class Evaluator:
         rec = self.records[run]
         visc = self._viscosity_scale(model, run, a, b)
         if lead:
+            exact = self._periodic_truth(model, run, a, b, kp, visc)
+            if exact is not None:
+                return exact
             # the kernel's own lead: as long as the model takes to forget its start (`lead.py`)
             per = rec.sample_rate_hz / (self._freq.get((run, a, b)) or rec.sample_rate_hz)
             lead = steady_lead(kp, self._fill(rec), float(visc[0]), rec.sample_rate_hz, per,
@@ -371,6 +391,52 @@ class Evaluator:
             acc = [tr.ax_m_per_s2[idx], tr.ay_m_per_s2[idx]]
         rows = [x, y, tr.vx_m_per_s[idx], tr.vy_m_per_s[idx], *acc]
         return np.vstack([r[lead:] for r in rows])
+
+    def _periodic_truth(self, model: Model, run: int, a: int, b: int, kp: np.ndarray,
+                        visc: np.ndarray) -> np.ndarray | None:
+        """The kernel's response (6, b - a) of steady dwell [a, b) after an endless lead of its
+        whole periods at its first sample's viscosity, where the model is linear (`periodic`):
+        its whole periods from their spectrum where the viscosity holds over the window, the
+        rest replayed from their periodic state. None where the model is not linear or the
+        force is oversampled for the replay: the lead is replayed."""
+        rec = self.records[run]
+        if self.oversample.get(run, 1) > 1:
+            return None
+        fill = self._fill(rec)
+        key = (kp.tobytes(), fill, float(visc[0]))
+        if key not in self._step_maps:
+            if len(self._step_maps) >= 64:
+                self._step_maps.clear()
+            self._step_maps[key] = step_map(kp, fill, float(visc[0]))
+        sm = self._step_maps[key]
+        if sm is None:
+            return None
+        self.simulations += 1
+        chunk = self.periodic_chunk(Segment(run, a, b, "", self._freq.get((run, a, b))))
+        force = self._window_force(run, a, b, 0)
+        offset = np.asarray(model.force_offset_n)
+        if any(model.force_offset_n):
+            force = force + offset[:, None]
+        parts = []
+        if np.ptp(visc) == 0.0:
+            spectrum = self._spectra.get((run, a, b))
+            if spectrum is None:
+                spectrum = self._spectra[(run, a, b)] = np.fft.rfft(
+                    self._window_force(run, a, b, 0)[:, :chunk], axis=1)
+            if any(model.force_offset_n):
+                spectrum = spectrum.copy()
+                spectrum[:, 0] += chunk * offset
+            parts.append(sm.periodic(spectrum, chunk))
+        done = chunk if parts else 0
+        if done < b - a:
+            # the samples after the last whole period, or the whole window where the viscosity
+            # changes over it: replayed from the periodic state
+            tr, _ = simulate_response(force[:, done:], model.rig, rec.sample_rate_hz, fill,
+                                      visc[done:], state=sm.periodic_state(force[:, :chunk]),
+                                      kernel=kp)
+            parts.append(np.vstack([tr.x_m, tr.y_m, tr.vx_m_per_s, tr.vy_m_per_s,
+                                    tr.ax_m_per_s2, tr.ay_m_per_s2]))
+        return parts[0] if len(parts) == 1 else np.hstack(parts)
 
     def _plus_extra_modes(self, model: Model, run: int, a: int, b: int, lead: int,
                           xy: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ signal is the noise floor (non-periodic content) of that dwell.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -25,16 +26,29 @@ N_HARMONICS = 5
 def harmonics(sig: np.ndarray, start: int, fs: float, freq_hz: float,
               n_harm: int = N_HARMONICS) -> tuple[np.ndarray, float, float]:
     """Complex amplitudes (n_harm,), mean, and RMS of what the fit leaves (noise) of ``sig``."""
-    t = (start + np.arange(sig.size)) / fs
+    a, pinv = _design(start, sig.size, fs, freq_hz, n_harm)
+    coef = pinv @ sig
+    rest = sig - a @ coef
+    z = coef[1::2] - 1j * coef[2::2]
+    return z, float(coef[0]), float(np.sqrt(np.mean(rest**2)))
+
+
+@functools.lru_cache(maxsize=48)
+def _design(start: int, n: int, fs: float, freq_hz: float,
+            n_harm: int) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares design of `harmonics` (mean, then cos and sin of each harmonic at the
+    run's time of each sample) and its pseudo-inverse: one dwell is decomposed for every
+    channel and every model judged on it."""
+    t = (start + np.arange(n)) / fs
     cols = [np.ones_like(t)]
     for k in range(1, n_harm + 1):
         w = 2 * math.pi * k * freq_hz
         cols += [np.cos(w * t), np.sin(w * t)]
     a = np.column_stack(cols)
-    coef, *_ = np.linalg.lstsq(a, sig, rcond=None)
-    rest = sig - a @ coef
-    z = coef[1::2] - 1j * coef[2::2]
-    return z, float(coef[0]), float(np.sqrt(np.mean(rest**2)))
+    pinv = np.linalg.pinv(a)
+    a.flags.writeable = False
+    pinv.flags.writeable = False
+    return a, pinv
 
 
 def dwell_table(records: list[RunRecord], res: Residuals, segs: list[Segment]) -> list[dict]:

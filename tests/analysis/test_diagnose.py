@@ -418,3 +418,64 @@ def test_a_steady_dwell_is_led_in_as_long_as_the_model_takes_to_forget_its_start
     assert float(np.max(np.abs(short - ref.x_m[n:]))) < 1e-9 * amp
     joint = _joint_rig().model_copy(update={"seal": rig.seal})
     assert slowest_decay_s(kernel_params(joint, fs), 1.0, 1.0) == math.inf
+
+
+def test_a_linear_models_steady_dwell_is_its_periodic_state_however_slowly_it_decays():
+    """A linear model's steady-state dwell is the kernel's periodic steady state itself
+    (`periodic`), not a replay after a lead: with a frame mode of 0.5 % damping at 47 Hz
+    (coupled to the film: 44 Hz, decay time 0.09 s) the fixed warm-up's 1 s lead left 3e-6 of
+    the amplitude; the dwell matches a 40 s lead (440 decay times) to 1e-10 of it, in x and in
+    the y the film's cross terms drive, with the oil warming over the window; a remainder
+    after the last whole period follows its periodic state."""
+    from rig_model.rig import simulate_response
+
+    fs, n, f_hz = 5000.0, 5000, 20.0
+    t = np.arange(n) / fs
+    rng = np.random.default_rng(7)
+    force = np.vstack([40 * np.sin(2 * np.pi * f_hz * t) + rng.normal(0.0, 2.0, n),
+                       rng.normal(0.0, 2.0, n)])
+    base = RigParams()
+    eff = base.effects
+    rig = base.model_copy(update={
+        "seal": base.seal.model_copy(update={"enabled": False}),
+        "contact": base.contact.model_copy(update={"enabled": False}),
+        "film": base.film.model_copy(update={"eccentricity_law": False}),
+        "effects": eff.model_copy(update={
+            "second_mode": eff.second_mode.model_copy(update={
+                "enabled": True, "frequency_hz": 47.0, "damping_ratio": 0.005,
+                "modal_mass_kg": 60.0}),
+            "cross_coupling": eff.cross_coupling.model_copy(update={
+                "enabled": True, "c_xy_ns_per_m": 300.0, "c_yx_ns_per_m": -200.0})})})
+    rec = records_from_arrays(force, {"x": np.zeros(n), "y": np.zeros(n)}, fs, rig=rig,
+                              lubricated=True)
+    rec.segments = [Segment(0, 0, n, "dwell", f_hz)]
+    ev = Evaluator([rec], warmup_s=0.5, steady_state_dwells=True)
+    got = ev.truth(Model(rig=rig), 0, 0, n)
+    assert all(k[3] == 0 for k in ev._force_cache)  # no lead replayed
+    # the oil warms over the window (the rig's configured warming): the lead at the
+    # viscosity of the window's first sample
+    visc = ev._viscosity_scale(Model(rig=rig), 0, 0, n)
+    assert np.ptp(visc) > 0.0
+    ref, _ = simulate_response(np.tile(force, (1, 41)), rig, fs, 1.0,
+                               np.concatenate([np.full(40 * n, visc[0]), visc]))
+    for row, z in ((0, ref.x_m), (1, ref.y_m), (4, ref.ax_m_per_s2)):
+        amp = float(np.max(np.abs(z[-n:])))
+        assert float(np.max(np.abs(got[row] - z[-n:]))) < 1e-10 * amp, row
+    # what the 1 s lead gave
+    assert float(np.max(np.abs(ref.x_m[n:2 * n] - ref.x_m[-n:]))) > 1e-6 * float(
+        np.max(np.abs(ref.x_m[-n:])))
+    # a dwell of 4.1 periods: its 4 whole periods periodic, the rest replayed after them
+    m = int(4.1 * fs / f_hz)
+    rec.segments = [Segment(0, 0, m, "dwell", f_hz)]
+    ev = Evaluator([rec], warmup_s=0.5, steady_state_dwells=True)
+    chunk = ev.periodic_chunk(rec.segments[0])
+    assert chunk == 4 * int(fs / f_hz)
+    still = Model(rig=rig.model_copy(update={"oil": rig.oil.model_copy(
+        update={"warming_c_per_hour": 0.0})}))
+    part = ev.truth(still, 0, 0, m)
+    visc = ev._viscosity_scale(still, 0, 0, m)
+    assert np.ptp(visc) == 0.0
+    ref, _ = simulate_response(np.hstack([np.tile(force[:, :chunk], (1, 40)), force[:, :m]]),
+                               still.rig, fs, 1.0, float(visc[0]))
+    amp = float(np.max(np.abs(ref.x_m[-m:])))
+    assert float(np.max(np.abs(part[0] - ref.x_m[-m:]))) < 1e-10 * amp
