@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from control.run.stream import HELD_READ_BLOCKS
 from control.wire.client import CommandClient, Message, Subscriber
 from storage.reader import open_run
 
@@ -245,5 +246,21 @@ def test_a_subscriber_that_stops_reading_loses_messages_not_the_run(daemon_facto
     assert len(blocks) < n_blocks
     with open_run(reply.data["path"]) as run:
         assert run.status == "completed"
-        # the run file got every block the stream numbered, lost or not
-        assert run.n_samples == n_blocks * blocks[0].header["n_samples"]
+        # the run file got every block the stream numbered, lost or not: a block message holds
+        # one control block or, read while the drive is held, up to `HELD_READ_BLOCKS` of them
+        # (its header says how many samples), so the file's samples lie between those bounds;
+        # every block the slow reader got is in the file, sample for sample, where its header
+        # says, and blocks numbered one after the other follow one another without a gap
+        block = min(int(m.header["n_samples"]) for m in blocks)
+        assert n_blocks * block <= run.n_samples <= n_blocks * HELD_READ_BLOCKS * block
+        n_ai = int(blocks[0].header["n_ai"])
+        for m in blocks:
+            first, n = int(m.header["first_sample"]), int(m.header["n_samples"])
+            assert first + n <= run.n_samples
+            for name in m.header["channels"][:n_ai]:
+                np.testing.assert_array_equal(run.channel(name, first, first + n), m.row(name),
+                                              err_msg=name)
+        for a, b in zip(blocks, blocks[1:], strict=False):
+            if b.header["seq"] == a.header["seq"] + 1:
+                assert b.header["first_sample"] == (a.header["first_sample"]
+                                                    + a.header["n_samples"])
