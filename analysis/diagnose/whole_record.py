@@ -325,14 +325,17 @@ def _line_rows(ch: str, dw: list[_Dwell], spectra: list, lo_hz: float, top_hz: f
                 f"input; ")
         more = {"model_line_hz": hz_own, "model_line_z": z_own,
                 "model_line_amplitude": amp_own, "model_own_amplitude": held}
-    text = said + (
-        f"{ch}: a line at {hz:.4g} Hz, neither the drive's frequency nor a harmonic of it, "
-        f"in {n_seen} dwells, about {amp:.3g} {unit}: an input the record did not "
-        f"measure (not fitted)" if structure else
-        f"no other line between the harmonics from {float(band_f[0]):.4g} to "
-        f"{float(band_f[-1]):.4g} Hz (the largest at {hz:.4g} Hz)" if said else
-        f"{ch}: no line between the harmonics from {float(band_f[0]):.4g} to "
-        f"{float(band_f[-1]):.4g} Hz (the largest at {hz:.4g} Hz)")
+    span = (f"between the harmonics from {float(band_f[0]):.4g} to {float(band_f[-1]):.4g} Hz "
+            f"(the largest at {hz:.4g} Hz)")
+    if structure:
+        found = (f"{ch}: a line at {hz:.4g} Hz, neither the drive's frequency nor a harmonic of "
+                 f"it, in {n_seen} dwells, about {amp:.3g} {unit}: an input the record did not "
+                 "measure (not fitted)")
+    elif said:
+        found = f"no other line {span}"
+    else:
+        found = f"{ch}: no line {span}"
+    text = said + found
     return [_row("unmeasured_input", ch, z, amp, text, threshold=z_line, freq_hz=hz,
                  amplitude=amp, unit=unit, bins_searched=n_bins, **more)]
 
