@@ -5,8 +5,9 @@ time open it.
 device server it is reached through (None: the local driver). `Board.describe` is the one
 sentence every place shows (the daemon's first line, ``sfdrig status``, ``daemon.json``, the
 page's header, run files, the commissioning report): "simulated rig (in process)", "nidaqmx
-device Dev1 (local driver)", "nidaqmx device Dev1 via gRPC 127.0.0.1:31763". Each backend names
-its own (`daq.backend.DaqBackend.board`).
+device Dev1 (local driver)", "nidaqmx device Dev1 via gRPC 127.0.0.1:31763" ("simulated nidaqmx
+device ..." once the device has said it is one). Each backend names its own
+(`daq.backend.DaqBackend.board`).
 
 `board_lock`: one tool per board. Every command that opens a board (the daemon, ``commission``,
 ``channels check`` and ``channels live``) takes it before it touches the board; a second is
@@ -65,8 +66,8 @@ class Board:
         ``host:port`` of the NI gRPC device server; None for the local driver (and the
         simulated rig).
     simulated : bool
-        The device answered DAQmx's DevIsSimulated yes (asked where a tool can; see
-        `sfdrig.commands.commission.describe_board`).
+        The device answered DAQmx's DevIsSimulated yes (`NidaqmxBackend` asks it at
+        ``configure``): an NI simulated device, or `sfdrig sim-server`.
     """
 
     backend: str

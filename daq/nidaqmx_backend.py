@@ -163,12 +163,16 @@ class NidaqmxBackend(BackendBase):
         self._do_state: np.ndarray = np.zeros(0, dtype=bool)
         self._ao_written = 0
         self._running = False
+        #: the device said it is simulated (DevIsSimulated, asked at `configure`): a rehearsal
+        #: on an NI simulated device or `sfdrig sim-server` never reads as the rig
+        self._simulated = False
 
     # --- protocol -------------------------------------------------------------------------
     @property
     def board(self) -> Board:
         """The map's device, through the local driver or the gRPC device server."""
-        return Board(NIDAQMX, self.channel_map.device.name, self.grpc_target)
+        return Board(NIDAQMX, self.channel_map.device.name, self.grpc_target,
+                     simulated=self._simulated)
 
     @property
     def grpc_target(self) -> str | None:
@@ -234,6 +238,7 @@ class NidaqmxBackend(BackendBase):
         self._ao_written = self._written_end = 0
         try:
             self._create_tasks(channel_map)
+            self._simulated = self._connection().device_is_simulated(channel_map.device.name)
         except BaseException:
             self.close()
             self._map = channel_map

@@ -132,6 +132,18 @@ class NidaqmxSession:
                 return nidaqmx.Task(name)
             return nidaqmx.Task(name, grpc_options=options)
 
+    def device_is_simulated(self, device_name: str) -> bool:
+        """What the device says of itself (DAQmx's DevIsSimulated): an NI simulated device, or
+        `sfdrig sim-server`, answers yes. A device or driver that cannot say is taken as a real
+        board (so nothing reads as a rehearsal that might be the rig)."""
+        try:
+            from nidaqmx.system import Device
+
+            with translate_errors(f"asking {device_name}{self.where} whether it is simulated"):
+                return bool(Device(device_name, grpc_options=self.grpc_options()).is_simulated)
+        except (DaqError, ImportError):
+            return False
+
     def close(self) -> None:
         """Close the gRPC channel (safe to call twice; tasks are the caller's to close)."""
         if self._channel is not None:

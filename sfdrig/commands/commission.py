@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -121,8 +120,11 @@ def run(args: argparse.Namespace) -> int:
         with board_held("commission", board):
             try:
                 try:
-                    described = describe_board(board, cm)
                     backend.configure(cm)
+                    # after configure: a device that says it is simulated (an NI simulated
+                    # device, or `sfdrig sim-server`) is named so; a rehearsal never reads as
+                    # the rig
+                    described = backend.board.describe()
                 except DaqError as err:
                     hint = (" (install NI-DAQmx, or give --grpc-target HOST:PORT)"
                             if isinstance(err, DaqConnectionError) and cm.grpc_target is None
@@ -135,33 +137,6 @@ def run(args: argparse.Namespace) -> int:
     except BoardBusy as err:
         print(err, file=sys.stderr)
         return 2
-
-
-def describe_board(board: Board, cm: ChannelMap) -> str:
-    """The board commissioning runs on, for its output, report and record (`daq.board.Board`'s
-    sentence), "simulated" before a device that says it is one (an NI simulated device, or
-    `sfdrig sim-server`): a rehearsal never reads as the rig."""
-    if board.backend == NIDAQMX:
-        board = dataclasses.replace(board, simulated=_device_is_simulated(cm))
-    return board.describe()
-
-
-def _device_is_simulated(cm: ChannelMap) -> bool:
-    """What the device says (DAQmx's DevIsSimulated), asked in a session of its own before the
-    tasks exist; a device or driver that cannot say is taken as a real board."""
-    from daq.errors import DaqError
-    from daq.nidaqmx_session import NidaqmxSession, translate_errors
-
-    session = NidaqmxSession(cm.grpc_target)
-    try:
-        from nidaqmx.system import Device
-
-        with translate_errors(f"asking {cm.device.name}{session.where} whether it is simulated"):
-            return bool(Device(cm.device.name, grpc_options=session.grpc_options()).is_simulated)
-    except (DaqError, ImportError):
-        return False
-    finally:
-        session.close()
 
 
 def _backend(args: argparse.Namespace, cm: ChannelMap

@@ -70,7 +70,11 @@ def test_the_backends_name_their_boards(fast_server):
     cm: ChannelMap = on_server(fast_server)
     backend.configure(cm)
     try:
-        assert backend.board.describe() == f"nidaqmx device Dev1 via gRPC {fast_server.address}"
+        # the sim-server's device says it is simulated (DevIsSimulated), as an NI simulated
+        # device does: the daemon, its run files and the page name a rehearsal as one
+        assert backend.board.describe() == (f"simulated nidaqmx device Dev1 via gRPC "
+                                            f"{fast_server.address}")
+        assert backend.board.simulated
     finally:
         backend.close()
     # --grpc-target overrides the map's

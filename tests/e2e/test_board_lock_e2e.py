@@ -46,12 +46,13 @@ def _own_locks(tmp_path, monkeypatch):
 
 def test_a_daemon_idle_on_the_board_refuses_every_other_tool(server, tmp_path):
     addr = server.address
-    board = f"nidaqmx device Dev1 via gRPC {addr}"
+    board = f"nidaqmx device Dev1 via gRPC {addr}"  # as a tool names it before it connects
+    named = f"simulated {board}"  # once connected: the sim-server's device says it is simulated
     runs = tmp_path / "runs"
     daemon = start_daemon(runs, "--backend", "nidaqmx", "--grpc-target", addr, "--channels",
                           str(EXAMPLE), "--watchdog-s", "0", fast=False)
     try:
-        assert daemon.board == board  # its first line
+        assert daemon.board == named  # its first line
         holder = (f"pid {daemon.proc.pid} (sfdrig daemon --runs-dir {runs} --backend nidaqmx "
                   f"--grpc-target {addr} --channels {EXAMPLE} --watchdog-s 0), "
                   f"command={daemon.command} data={daemon.data}, runs dir {runs}")
@@ -74,9 +75,9 @@ def test_a_daemon_idle_on_the_board_refuses_every_other_tool(server, tmp_path):
         st = json.loads(status.stdout)
         assert (st["state"], st["pid"]) == ("idle", daemon.proc.pid)
         assert st["board"] == {"backend": "nidaqmx", "device": "Dev1", "grpc_target": addr,
-                               "description": board}
+                               "description": named}
         text = sfdrig("status", "--runs-dir", str(runs)).stdout.splitlines()
-        assert text[0] == f"board      {board}"
+        assert text[0] == f"board      {named}"
         assert json.loads((runs / "daemon.json").read_text())["board"] == st["board"]
     finally:
         assert daemon.terminate() == 0
@@ -122,9 +123,10 @@ def test_a_tool_that_is_not_a_daemon_holds_the_board_too(server, tmp_path):
         live.send_signal(signal.SIGINT)
         _, err = live.communicate(timeout=30)
     assert (live.returncode, err) == (0, "channels live: stopped\n")
-    # free again: the daemon starts, and names its board
+    # free again: the daemon starts, and names its board as the device says it is (the
+    # sim-server's device answers DevIsSimulated yes: a rehearsal never reads as the rig)
     daemon = start_daemon(tmp_path / "runs2", "--backend", "nidaqmx", "--grpc-target", addr,
                           "--watchdog-s", "0", fast=False)
-    assert daemon.board == f"nidaqmx device Dev1 via gRPC {addr}"
+    assert daemon.board == f"simulated nidaqmx device Dev1 via gRPC {addr}"
     assert daemon.terminate() == 0
     daemon.proc.communicate(timeout=10)

@@ -53,8 +53,8 @@ def test_status_reset_after_a_fault_and_the_next_sweep_runs(tmp_path, monkeypatc
         server.next_line("emergency stop released", timeout_s=10)
         out = sfdrig("status", "--reset", *conn)
         assert out.returncode == 0, out
-        assert out.stdout.startswith("fault acknowledged\nboard      nidaqmx device Dev1 via "
-                                     "gRPC "), out.stdout
+        assert out.stdout.startswith("fault acknowledged\nboard      simulated nidaqmx device "
+                                     "Dev1 via gRPC "), out.stdout
         assert "\nstate      idle\n" in out.stdout, out.stdout
         for freq in (40.0, 50.0):  # every later sweep runs, not only the first
             out = sfdrig("sweep", "--set", "motion='x'", "--set", "load_n=[30.0]", "--set",
