@@ -44,7 +44,7 @@ import numpy as np
 
 from daq.backend import AoCut, BackendBase, ring_samples
 from daq.board import SIM, Board
-from daq.channels import ChannelMap
+from daq.channels import ChannelMap, TerminalConfig
 from daq.errors import (
     OUTPUT_UNDERFLOW,
     DaqError,
@@ -58,8 +58,14 @@ from simulated_hw.board.codes import (
     MODE_CONTINUOUS,
     REGEN_ALLOW,
     REGEN_DONT_ALLOW,
+    TERM_DEFAULT,
+    TERM_DIFF,
+    TERM_NRSE,
+    TERM_PSEUDO_DIFF,
+    TERM_RSE,
     WRITE_REL_CURR_POS,
     WRITE_REL_FIRST_SAMPLE,
+    terminal_config_error,
 )
 from simulated_hw.board.device import SimDevice
 from simulated_hw.board.tasks import SimChannel, SimTask
@@ -72,6 +78,11 @@ CUT_MARGIN_S = 0.002
 FAST_AI_BUFFER_S = 0.1
 #: how long a non-regenerating write waits for room in the board's buffer [s]
 WRITE_TIMEOUT_S = 10.0
+#: the map's terminal configurations as DAQmx's codes: the in-process rig refuses what the
+#: board refuses (its channels are differential only, as the report rig's PXIe-6358's are)
+_TERM_CODES = {TerminalConfig.DEFAULT: TERM_DEFAULT, TerminalConfig.DIFFERENTIAL: TERM_DIFF,
+               TerminalConfig.RSE: TERM_RSE, TerminalConfig.NRSE: TERM_NRSE,
+               TerminalConfig.PSEUDO_DIFFERENTIAL: TERM_PSEUDO_DIFF}
 
 
 class SimulatedBackend(BackendBase):
@@ -140,6 +151,10 @@ class SimulatedBackend(BackendBase):
     def configure(self, channel_map: ChannelMap) -> None:
         if self._running:
             raise DaqError("cannot reconfigure while running; stop first")
+        for c in channel_map.ai:  # as the board refuses it (-200077), before anything is made
+            if err := terminal_config_error(_TERM_CODES[c.terminal_config], [c.physical_channel],
+                                            f"creating AI channel {c.name}"):
+                raise err
         wiring = self.wiring if self.wiring is not None else channel_map
         if self.device is None or self.device.wiring != wiring:
             if self.device is not None:

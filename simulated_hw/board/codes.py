@@ -7,6 +7,7 @@ from daq.errors import (
     CANT_RESET_EXPIRED_WATCHDOG,
     DEVICE_NOT_FOUND,
     INPUT_BUFFER_OVERWRITTEN,
+    INVALID_ATTRIBUTE_VALUE,
     OUTPUT_UNDERFLOW,
     READ_TIMEOUT,
     RESOURCE_RESERVED,
@@ -127,6 +128,21 @@ SERVICE_NAME = "nidaqmx_grpc.NiDAQmx"
 
 
 MAX_CHUNK = 100_000  # samples the rig runs in one go (bounds memory when a reader lags)
+
+
+def terminal_config_error(cfg: int, physical: list[str], where: str) -> DaqError | None:
+    """The error for an AI terminal configuration the device's channels do not allow (DAQmx
+    -200077 naming the property, as the driver reports it), or None when it is allowed. One
+    rule for the gRPC board and the simulated rig in process (`simulated_hw.backend`)."""
+    if cfg in (TERM_DEFAULT, 0) or cfg in AI_TERM_CFGS:  # 0: a request that left it unset
+        return None
+    allowed = ", ".join(TERM_NAMES[c] for c in AI_TERM_CFGS)
+    return daq_error(
+        INVALID_ATTRIBUTE_VALUE,
+        f"{where}: Requested value is not a supported value for this property. Property: "
+        f"AI.TermCfg, requested value: {TERM_NAMES.get(cfg, cfg)}, possible values: {allowed} "
+        f"(physical channel {', '.join(physical)})",
+    )
 
 
 def daq_error(code: int, message: str, samps_per_chan_read: int | None = None) -> DaqError:

@@ -34,7 +34,6 @@ from simulated_hw.board import (
 from simulated_hw.board.chan_attrs import ATTR_TASK_DEVICES, ChannelAttrRpcs, task_devices
 from simulated_hw.board.codes import (
     _ERROR_TEXT,
-    AI_TERM_CFGS,
     AO_FIFO_SAMPLES,
     ATTR_AI_MEAS_TYPE,
     ATTR_AO_IDLE_OUTPUT,
@@ -90,11 +89,11 @@ from simulated_hw.board.codes import (
     REGEN_DONT_ALLOW,
     REPEATED_PHYSICAL_CHAN,
     TERM_DEFAULT,
-    TERM_NAMES,
     WRITE_NUM_CHANS_MISMATCH,
     WRITE_REL_CURR_POS,
     WRITE_REL_FIRST_SAMPLE,
     daq_error,
+    terminal_config_error,
 )
 from simulated_hw.board.device import SimDevice
 from simulated_hw.board.device_rpcs import DeviceRpcs, _unsupported, attribute
@@ -166,18 +165,10 @@ def _chan_handler(kind: str, channel_field: str, name_field: str) -> Callable[..
 
 
 def _check_terminal_config(request: Any, physical: list[str], where: str) -> None:
-    """An AI channel's terminal configuration must be one the device's channels allow (DAQmx
-    -200077 naming the property, as the driver reports it)."""
+    """An AI channel's terminal configuration must be one the device's channels allow."""
     cfg = getattr(request, "terminal_config_raw", TERM_DEFAULT)
-    if cfg in (TERM_DEFAULT, 0) or cfg in AI_TERM_CFGS:  # 0: a request that left it unset
-        return
-    allowed = ", ".join(TERM_NAMES[c] for c in AI_TERM_CFGS)
-    raise daq_error(
-        INVALID_ATTRIBUTE_VALUE,
-        f"{where}: Requested value is not a supported value for this property. Property: "
-        f"AI.TermCfg, requested value: {TERM_NAMES.get(cfg, cfg)}, possible values: {allowed} "
-        f"(physical channel {', '.join(physical)})",
-    )
+    if err := terminal_config_error(cfg, physical, where):
+        raise err
 
 
 # Which Create*Chan RPCs the simulated device serves: rpc -> (kind, channel field, name field).

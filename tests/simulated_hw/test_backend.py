@@ -12,7 +12,7 @@ from daq import (
     DaqUnderflowError,
     default_channel_map,
 )
-from daq.errors import DaqError
+from daq.errors import INVALID_ATTRIBUTE_VALUE, DaqError
 from rig_model import RigParams, load_rig_params
 from rig_model.params import RigParamsError, rig_params_from_dict
 from simulated_hw import SimulatedBackend
@@ -98,6 +98,27 @@ def test_ao_outside_range_and_bad_shapes_refused():
         be.write_ao(np.zeros((3, 10)))
     with pytest.raises(KeyError, match="no relay named 'heater'"):
         be.set_do("heater", True)
+
+
+@pytest.mark.parametrize("config", ["rse", "nrse", "pseudo_differential"])
+def test_a_terminal_configuration_the_board_lacks_is_refused_in_process_too(config):
+    """The in-process rig refuses what the PXIe-6358 (differential only) and the sim-server
+    refuse: DAQmx -200077 naming the channel, its terminal and the property, at configure; a
+    map rehearsed here never first fails on the board. The default and differential pass."""
+    data = CM.model_dump(mode="json")
+    data["ai"][4]["terminal_config"] = config
+    be = SimulatedBackend(seed=1)
+    with pytest.raises(DaqError) as err:
+        be.configure(type(CM).model_validate(data))
+    assert err.value.code == INVALID_ATTRIBUTE_VALUE
+    name = data["ai"][4]["name"]
+    assert str(err.value).startswith(f"creating AI channel {name}: Requested value is not a "
+                                     "supported value for this property. Property: AI.TermCfg")
+    assert f"possible values: differential (physical channel {data['ai'][4]['physical_channel']})" \
+        in str(err.value)
+    for accepted in ("default", "differential"):
+        data["ai"][4]["terminal_config"] = accepted
+        be.configure(type(CM).model_validate(data))
 
 
 def test_use_before_configure_names_the_problem():
