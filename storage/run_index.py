@@ -36,7 +36,7 @@ log = logging.getLogger("sfdrig.storage")
 #: the index's file name in the runs directory (hidden: no listing shows it)
 INDEX_NAME = ".sfdrig-runs.sqlite"
 #: the table's layout; an index of another layout is made again
-SCHEMA = "2"
+SCHEMA = "3"
 #: a row read less than this after its file's last change is read again at the next look [ns]
 RACY_NS = 2_000_000_000
 #: rows written per transaction while (re)building
@@ -49,7 +49,7 @@ SUFFIXES = (".h5", ".hdf5")
 T = TypeVar("T")
 
 _FIELDS = ("id", "date", "kind", "steps", "status", "duration_s", "error", "lubricated",
-           "seal", "motion")
+           "seal", "motion", "stop_time", "n_samples", "status_reason")
 _COLUMNS = ("file", "top", "mtime_ns", "size", "racy", "date_key", "seal_n", *_FIELDS)
 _CREATE = f"""
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -61,7 +61,8 @@ CREATE TABLE IF NOT EXISTS runs (
     date_key TEXT NOT NULL,         -- the start time in UTC, sortable ('' when unknown)
     seal_n REAL,                    -- the seal's friction force [N] (NULL: unknown, not stated)
     {", ".join(f"{f} {t}" for f, t in zip(_FIELDS, (
-        "TEXT", "TEXT", "TEXT", "INTEGER", "TEXT", "REAL", "TEXT", "INTEGER", "TEXT", "TEXT"),
+        "TEXT", "TEXT", "TEXT", "INTEGER", "TEXT", "REAL", "TEXT", "INTEGER", "TEXT", "TEXT",
+        "TEXT", "INTEGER", "TEXT"),
         strict=True))});
 CREATE INDEX IF NOT EXISTS runs_date ON runs (date_key);
 CREATE INDEX IF NOT EXISTS runs_id ON runs (id);
@@ -355,14 +356,17 @@ def _record(rel: str, mtime_ns: int, size: int, racy: bool, row: RunRow) -> tupl
     return (rel, "/" not in rel, mtime_ns, size, racy, date_key(row.date),
             seal_n if seal_n == seal_n else None,  # NaN: unknown
             row.id, row.date, row.kind, row.steps, row.status, row.duration_s, row.error,
-            row.lubricated, row.seal, row.motion)
+            row.lubricated, row.seal, row.motion, row.stop_time, row.n_samples,
+            row.status_reason)
 
 
 def _row(directory: Path, r: tuple[Any, ...]) -> RunRow:
-    rel, run_id, date, kind, steps, status, duration, error, lub, seal, motion = r
+    (rel, run_id, date, kind, steps, status, duration, error, lub, seal, motion, stop_time,
+     n_samples, reason) = r
     return RunRow(id=run_id, date=date, kind=kind, steps=int(steps), status=status,
                   duration_s=float(duration), file=str(directory / rel), error=error,
-                  lubricated=None if lub is None else bool(lub), seal=seal, motion=motion)
+                  lubricated=None if lub is None else bool(lub), seal=seal, motion=motion,
+                  stop_time=stop_time, n_samples=int(n_samples), status_reason=reason)
 
 
 def _where(flt: RunFilter) -> tuple[str, list[Any]]:

@@ -47,6 +47,12 @@ class RunRow:
     motion : str
         The motion driven (`motion_of`): x, y, circular_forward, circular_backward,
         elliptical; several joined by commas; "" when none is recorded.
+    stop_time : str
+        When the run ended, ISO 8601 UTC ("" while running, or unknown).
+    n_samples : int
+        Samples recorded per channel.
+    status_reason : str
+        Why the run did not complete, as its file says ("" when it did, or is running).
     """
 
     id: str
@@ -60,6 +66,9 @@ class RunRow:
     lubricated: bool | None = None
     seal: str = ""
     motion: str = ""
+    stop_time: str = ""
+    n_samples: int = 0
+    status_reason: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -121,7 +130,9 @@ def read_row(path: Path, now: float | None = None) -> RunRow:
                           lubricated=bool(run.attrs.get("lubricated", False)),
                           seal=seal_of(run.test_spec, run.rig_config),
                           motion=motion_of((str(s.get("motion", "")) for s in steps),
-                                           run.test_spec))
+                                           run.test_spec),
+                          stop_time=run.stop_time, n_samples=int(run.n_samples),
+                          status_reason=str(run.attrs.get("status_reason", "")))
     except RunFileError as err:
         return RunRow(id="", date="", kind="", steps=0, status="unreadable", duration_s=0.0,
                       file=str(path), error=str(err))

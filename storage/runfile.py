@@ -575,11 +575,11 @@ class RunWriter:
             error = error or err
         self.status = status
         if error is None:  # (else the file may hold less than this writer knows: read it)
-            self._record(status)
+            self._record(status, final["stop_time"], final["status_reason"])
         if error is not None:
             raise OSError(f"{self.path}: run closed with errors: {error}") from error
 
-    def _record(self, status: str) -> None:
+    def _record(self, status: str, stop_time: str = "", reason: str = "") -> None:
         """The run's row in its directory's run index (`storage.run_index.record_run`): when
         it starts, and when it has ended (the file changes no more)."""
         start, lubricated, spec_text, rig_text = self._conditions
@@ -590,7 +590,8 @@ class RunWriter:
                          steps=self._n_steps if status != "running" else 0, status=status,
                          duration_s=round(self._samples_flushed / self.sample_rate_hz, 6),
                          file=str(self.path), lubricated=lubricated, seal=seal_of(spec, rig),
-                         motion=motion_of(self._motions, spec))
+                         motion=motion_of(self._motions, spec), stop_time=stop_time,
+                         n_samples=self._samples_flushed, status_reason=reason)
         except (ValueError, TypeError):  # a spec the index cannot state: the next look reads
             return  # the file (an index never fails a run)
         record_run(self.path, row, final=status != "running")

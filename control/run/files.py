@@ -77,26 +77,28 @@ def create_run_writer(path: str | Path, kind: str, channel_map: ChannelMap, *, r
 
 
 def list_runs(runs_dir: Path, active: Path | None, limit: int = 500) -> list[RunListing]:
-    """The run files in ``runs_dir``, newest first, with their status (``active`` is running)."""
-    from storage.reader import open_run
+    """The run files in ``runs_dir`` (not its subfolders), newest first by start time, with
+    their status (``active`` is running). From the run index (`storage.catalog`): only the files
+    new or changed since the last look are read, so a client asking on every refresh costs the
+    daemon, mid-sweep, no header reads of a year of runs."""
+    from storage.catalog import select_runs
+    from storage.run_index import RunFilter
 
+    page = select_runs(runs_dir, RunFilter(top_only=True, newest_first=True, limit=limit),
+                       notice=log.info)
     out: list[RunListing] = []
-    paths = sorted(runs_dir.glob("*.h5"), key=lambda p: p.stat().st_mtime, reverse=True)
-    for p in paths[:limit]:
-        if p == active:
-            out.append({"path": str(p), "run_id": p.stem, "status": "running"})
-            continue
-        try:
-            with open_run(p) as run:
-                a = run.attrs
-                out.append({"path": str(p), "run_id": str(a.get("run_id", p.stem)),
-                            "kind": str(a.get("kind", "")), "status": run.status,
-                            "status_reason": str(a.get("status_reason", "")),
-                            "start_time": run.start_time, "stop_time": run.stop_time,
-                            "n_samples": int(run.n_samples), "n_steps": len(run.steps)})
-        except Exception as err:  # a broken file is listed with why it is broken
-            out.append({"path": str(p), "run_id": p.stem, "status": "unreadable",
-                        "status_reason": str(err)})
+    for row in page.rows:
+        path = Path(row.file)
+        if path == active:
+            out.append({"path": row.file, "run_id": path.stem, "status": "running"})
+        elif row.status == "unreadable":  # a broken file is listed with why it is broken
+            out.append({"path": row.file, "run_id": path.stem, "status": "unreadable",
+                        "status_reason": row.error})
+        else:
+            out.append({"path": row.file, "run_id": row.id or path.stem, "kind": row.kind,
+                        "status": row.status, "status_reason": row.status_reason,
+                        "start_time": row.date, "stop_time": row.stop_time,
+                        "n_samples": row.n_samples, "n_steps": row.steps})
     return out
 
 

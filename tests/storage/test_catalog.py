@@ -84,7 +84,8 @@ def test_runs_command_json_and_env(runs_dir: Path, monkeypatch, capsys) -> None:
     rows = json.loads(capsys.readouterr().out)
     assert [r["id"] for r in rows] == ["static-a", "sweep-b", "sweep-c", ""]
     assert set(rows[0]) == {"id", "date", "kind", "steps", "status", "duration_s", "file",
-                            "error", "lubricated", "seal", "motion"}
+                            "error", "lubricated", "seal", "motion", "stop_time", "n_samples",
+                            "status_reason"}
     monkeypatch.setenv("SFDRIG_RUNS_DIR", str(runs_dir))
     assert main(["runs"]) == 0
     out = capsys.readouterr().out

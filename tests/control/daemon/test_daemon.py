@@ -182,6 +182,56 @@ def test_sweep_streams_every_block_and_the_file_matches(daemon: Daemon):
         np.testing.assert_array_equal(run.h5["drive/shaker_x"][:], streamed[len(names)])
 
 
+def test_list_runs_answers_from_the_run_index(daemon: Daemon, monkeypatch):
+    """``list_runs`` reads a run file's header only when the file is new or changed since the
+    last look (the run index): a client asking at every refresh costs the daemon no header
+    reads of a year of runs, mid-sweep. What it answers is what the files say."""
+    import storage.run_index
+
+    read: list[str] = []
+    real = storage.run_index.read_row
+    monkeypatch.setattr(storage.run_index, "read_row",
+                        lambda path, now=None: read.append(path.name) or real(path, now))
+    ep = daemon.endpoints
+    with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
+        sub.wait_connected()
+        assert c.list_runs() == []
+        ids = []
+        for spec in ({"blocks": 8, "block_size": 400}, {"blocks": 10, "hold_after": 3}):
+            run_id = c.start_sweep(spec).data["run_id"]
+            ids.append(run_id)
+            if "hold_after" in spec:
+                assert ScriptEngine.last.held.wait(10)
+                c.abort("the operator stopped it")
+            while True:  # the run's end, on the stream
+                msg = sub.recv(timeout_s=10)
+                assert msg is not None
+                if msg.topic == "event" and msg.header["message"].startswith(f"run {run_id}"):
+                    break
+            wait_state(c, sub, "idle")
+        runs = c.list_runs()
+        # a file from elsewhere (copied in): read once, at the next look only
+        copied = daemon.cfg.runs_dir / "copied.h5"
+        copied.write_bytes(Path(runs[1]["path"]).read_bytes())
+        again = c.list_runs()
+        assert [r["run_id"] for r in again] == [ids[1], ids[0], ids[0]]
+        assert {r["path"] for r in again[1:]} == {runs[1]["path"], str(copied)}
+        assert c.list_runs() == again
+    # the writer recorded both runs in the index as they ended: no header read for them; the
+    # copied file is read at each look until its change is 2 s old (`RACY_NS`: coarse clocks)
+    assert read and set(read) == {"copied.h5"}
+    assert [r["run_id"] for r in runs] == ids[::-1]  # newest first
+    for listed in runs:
+        with open_run(listed["path"]) as run:
+            assert listed == {"path": str(run.path), "run_id": run.run_id, "kind": run.kind,
+                              "status": run.status,
+                              "status_reason": str(run.attrs.get("status_reason", "")),
+                              "start_time": run.start_time, "stop_time": run.stop_time,
+                              "n_samples": run.n_samples, "n_steps": len(run.steps)}
+    assert (runs[1]["status"], runs[1]["n_samples"], runs[1]["n_steps"]) == ("completed", 3200, 2)
+    assert runs[0]["status"] == "aborted" and "the operator stopped it" in runs[0]["status_reason"]
+
+
 def test_forbidden_requests_leave_the_state_unchanged(daemon: Daemon):
     ep = daemon.endpoints
     with CommandClient(ep["command"]) as c, Subscriber(ep["data"], rcvhwm=0) as sub:
