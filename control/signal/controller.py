@@ -451,14 +451,19 @@ class DrivePredictor:
 
     Prediction, in order of preference: (1) a converged step at the same frequency: move along
     its tangent, ``D = D_i + J_i^-1 (A - A_i)`` (exact for an affine plant such as a housing with
-    dry friction), its size from the friction law through two or three steps there when they
-    had targets of this shape (`_friction_law`); (2) the two nearest converged frequencies at the same target: linear
-    extrapolation of the drive in frequency; (3) the nearest frequency's tangent; (4) nothing:
-    the caller's prior.
+    dry friction); for orbit targets (``orbit``) its size from the friction law through two or
+    three steps there whose targets had this shape (`_friction_law`); (2) the two nearest
+    converged frequencies at the same target: linear extrapolation of the drive in frequency;
+    (3) the nearest frequency's tangent; (4) nothing: the caller's prior.
+
+    ``orbit``: the targets are orbits (displacement), which friction makes grow unlike the
+    drive; a load follows the drive in proportion (the shaker's force), and its tangent is
+    exact.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, orbit: bool = True) -> None:
         self._points: list[_Point] = []
+        self.orbit = orbit
 
     def __len__(self) -> int:
         return len(self._points)
@@ -558,7 +563,7 @@ class DrivePredictor:
         if here:
             best = min(here, key=lambda p: float(np.linalg.norm(p.shape - s)))
             drive = tangent(best)
-            size = self._friction_law(here, s)
+            size = self._friction_law(here, s) if self.orbit else None
             if size is not None and float(np.linalg.norm(drive)) > 0:
                 drive *= size / float(np.linalg.norm(drive))  # the tangent's direction
             return drive, best.jacobian.copy()
