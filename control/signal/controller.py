@@ -313,9 +313,14 @@ class AmplitudeController:
         step = np.linalg.solve(j, (target - r)[a])
         now_n = float(np.linalg.norm(d[a]))
         q = float(np.linalg.norm(d[a] + step)) / now_n if now_n > 0 else 1.0
-        if first and self.elasticity > 1.0 and q > 1.0:
-            # the secant through the origin assumes a proportional response: raise by q^(1/e)
-            step *= (q ** (1.0 / self.elasticity) - 1.0) / (q - 1.0)
+        if first and self.elasticity > 1.0:
+            if q > 1.0:
+                # the secant through the origin assumes a proportional response: raise by q^(1/e)
+                step *= (q ** (1.0 / self.elasticity) - 1.0) / (q - 1.0)
+            # and J is the tangent at the measured point, e times the secant: what bounds the
+            # response below and what this step passes on if it converges now (the next
+            # amplitude's prediction, the next frequency's elasticity)
+            self.jacobian = self.jacobian * self.elasticity
         raising = float(np.linalg.norm(d[a] + step)) > float(np.linalg.norm(d[a]))
         probing = probing and raising
         growth = self.breakaway_growth if probing else self.max_growth

@@ -207,6 +207,9 @@ def test_the_first_correction_at_a_new_frequency_raises_by_the_elasticity_measur
     d1 = np.array([0.85, 0.0], dtype=complex)
     new = ctl.update(d1, at30(d1))
     assert abs(at30(new)[0]) == pytest.approx(25e-6, rel=1e-9)
+    # J is the tangent at the measured point, not the secant: a step that converges on this
+    # correction passes it on (the secant made the next amplitude's tangent ask 18 % too much)
+    assert ctl.jacobian[0, 0] == pytest.approx(e * at30(d1)[0] / d1[0], rel=1e-9)
     # with nothing remembered: proportional, the secant through the origin as before
     assert DrivePredictor().elasticity(30.0, s) == 1.0
 
