@@ -297,7 +297,7 @@ class AmplitudeController:
                 self.calibrate_from_ratio(d - d0, r - r0)
             else:
                 self.calibrate_from_ratio(d, r)
-        first = self.rescale_first
+        secant = False  # J was just made the secant through the origin at (d, r)
         if self.rescale_first:
             self.rescale_first = False
             jd = self.jacobian[np.ix_(a, a)] @ d[a]
@@ -307,13 +307,13 @@ class AmplitudeController:
                 if c != 0 and math.isfinite(abs(c)):
                     self.jacobian = self.jacobian * c
                     self._last = None
+                    secant = True
         self.learn(d, r)
         target = self.target_for(r)
         j = self.jacobian[np.ix_(a, a)]
         step = np.linalg.solve(j, (target - r)[a])
-        now_n = float(np.linalg.norm(d[a]))
-        q = float(np.linalg.norm(d[a] + step)) / now_n if now_n > 0 else 1.0
-        if first and self.elasticity > 1.0:
+        if secant and self.elasticity > 1.0:
+            q = float(np.linalg.norm(d[a] + step)) / float(np.linalg.norm(d[a]))
             if q > 1.0:
                 # the secant through the origin assumes a proportional response: raise by q^(1/e)
                 step *= (q ** (1.0 / self.elasticity) - 1.0) / (q - 1.0)
