@@ -188,6 +188,7 @@ class Approach:
                 plan.shape, jac, self.spec.tolerance, max_drive_v=self.limits.max_drive_v,
                 max_growth=cfg.max_growth, prior_only=pred is None and displacement,
                 rescale_first=pred is not None and not self.predictor.knows(plan.freq_hz),
+                elasticity=self.predictor.elasticity(plan.freq_hz, plan.shape),
                 response_limit=self._response_cap(plan.target_kind),
                 limit_on_orbit=displacement, breakaway_growth=cfg.breakaway_growth,
             )

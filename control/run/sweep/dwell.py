@@ -74,7 +74,7 @@ class StepRunner(Approach):
         self.fs = self.cm.sample_rate_hz
         self.lockin = LockIn(self.fs)
         self.signals = AxisSignals.from_channel_map(self.cm)
-        self.predictor = DrivePredictor()
+        self.predictor = DrivePredictor(orbit=spec.target_kind == "displacement")
         self.cfg = spec.control
         # drive row of each axis, and the nominal shaker gains [N/V]
         self.ao_row = [self.cm.ao_for_axis("x"), self.cm.ao_for_axis("y")]

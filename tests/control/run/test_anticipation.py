@@ -130,22 +130,15 @@ def test_lubricated_displacement_matrix(motion: str):
     assert all("load limit" in r for r in reasons), reasons
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "open finding: at 30 Hz the first correction asks about twice the drive the target needs "
-    "(25 um: 2.2 V from the secant through 0.85 V -> 9.6 um, where 1.18 V holds it: the seal "
-    "slipping more as the drive rises makes the orbit grow 2-3x faster than the drive); the "
-    "watched raise stops it only at RAISE_STOP (1.2x the target) and its latency's drive "
-    "(20 %) plays on: 1.55x (13 um), 1.42x (25 um), 1.37x (38 um, 52 of the 63.5 um limit). "
-    "Judging the orbit's own growth in the raise gave 1.06-1.23x but slowed steps where a step "
-    "had converged (50 Hz 1.86x ideal against 1.45) and left dry X 30 um at 45 Hz "
-    "unconverged; a correction from the orbit's log-log slope is the likely fix"))
 @pytest.mark.parametrize("amp_m", [13e-6, 25e-6, 38e-6])
 def test_the_readme_lubricated_sweep_moves_no_further_than_its_target(amp_m):
     """The README's lubricated X sweep (examples/lubricated_x.toml, one level at a time): no
     approach drives the orbit past `RAISE_STOP` (1.2) of its target, where a watched raise is to
-    stop, with 0.05 for the probes' noise and the orbit's harmonics. Before the raise judged the
-    orbit's own growth, the seal slipping more as the drive rose made the orbit grow faster than
-    the drive: 30 Hz ran to 1.55x (13 um), 1.42x (25 um), 1.37x (38 um)."""
+    stop, with 0.05 for the probes' noise and the orbit's harmonics. The seal slipping more as the
+    drive rises makes the orbit grow 2-4x faster than the drive; while the first correction at a
+    new frequency took the secant through the origin (twice the drive the target needed), 30 Hz
+    ran to 1.55x (13 um), 1.42x (25 um), 1.37x (38 um); raised by the elasticity measured at the
+    last frequency, 0.96x, 1.01x, 1.08x."""
     spec = SweepSpec.model_validate(
         {**tomllib.loads(EXAMPLE_LUBRICATED.read_text()), "amplitude_m": [amp_m]})
     out, rec = _sweep(spec)

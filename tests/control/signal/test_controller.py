@@ -183,3 +183,60 @@ def test_predictor_extrapolates_along_frequency_at_the_same_target():
     pred2.remember(21.0, s, s, np.array([1.0, 0]), np.eye(2, dtype=complex))
     d2, _ = pred2.predict(30.0, s)
     np.testing.assert_allclose(d2, [1.0, 0])
+
+
+def test_the_first_correction_at_a_new_frequency_raises_by_the_elasticity_measured_before():
+    """A seal slipping more as the drive rises: the orbit grows as |D|^2.5. The step converged
+    at 20 Hz tells that slope (its tangent over its secant); at 30 Hz the first measurement
+    holds 44 % of the target, and the secant through the origin would ask 2.3x the drive (the
+    orbit 2.3^2.5 = 7.9x the target). Raised by (A/R)^(1/e) it lands on the target."""
+    e, s = 2.5, motion_shape("x", 25e-6)
+
+    def plant(c: float):  # R = c |D|^e along X, in phase with the drive
+        return lambda d: np.array([c * abs(d[0]) ** e * np.exp(1j * np.angle(d[0])), 0.0])
+
+    d20 = np.array([0.98, 0.0], dtype=complex)
+    at20 = plant(25e-6 / 0.98 ** e)
+    j20 = np.diag([e * at20(d20)[0] / d20[0], 40e-6])  # the tangent at the converged step
+    pred = DrivePredictor()
+    pred.remember(20.0, s, at20(d20), d20, j20)
+    assert pred.elasticity(30.0, s) == pytest.approx(e)
+    at30 = plant(25e-6 / 1.18 ** e)  # 1.18 V holds the target at 30 Hz
+    ctl = AmplitudeController(s, j20, max_drive_v=9.0, rescale_first=True,
+                              elasticity=pred.elasticity(30.0, s))
+    d1 = np.array([0.85, 0.0], dtype=complex)
+    new = ctl.update(d1, at30(d1))
+    assert abs(at30(new)[0]) == pytest.approx(25e-6, rel=1e-9)
+    # J is the tangent at the measured point, not the secant: a step that converges on this
+    # correction passes it on (the secant made the next amplitude's tangent ask 18 % too much)
+    assert ctl.jacobian[0, 0] == pytest.approx(e * at30(d1)[0] / d1[0], rel=1e-9)
+    # with nothing remembered: proportional, the secant through the origin as before
+    assert DrivePredictor().elasticity(30.0, s) == 1.0
+
+
+def test_a_known_frequencys_drive_follows_the_friction_law_through_its_converged_steps():
+    """A linear housing with Coulomb friction: |D|^2 = a A^2 + b A + c. Three converged steps
+    at 40 Hz, each with a tangent J 30 % off (a last correction of a few millivolts): the drive
+    for the next amplitude up is the law's, not the tangent's; two steps give the straight line
+    through them."""
+    a, b, c = 2.0e9, 2.0e4, 0.16  # |Z|/gain 0.045 V/um, friction 0.4 V; b^2 < 4ac: C < |Z|
+
+    def size(amp: float) -> float:
+        return float(np.sqrt(a * amp**2 + b * amp + c))
+
+    pred = DrivePredictor()
+    for amp in (13e-6, 19e-6, 25e-6):
+        slope = 2 * size(amp) / (2 * a * amp + b)  # dA/d|D|, the true tangent
+        j = np.diag([1.3 * slope, 40e-6]).astype(complex)
+        s = motion_shape("x", amp)
+        pred.remember(40.0, s, s, np.array([size(amp), 0.0], dtype=complex), j)
+    d, _ = pred.predict(40.0, motion_shape("x", 32e-6))
+    assert abs(d[0]) == pytest.approx(size(32e-6), rel=1e-9)
+    two = DrivePredictor()
+    for amp in (13e-6, 19e-6):
+        s = motion_shape("x", amp)
+        two.remember(40.0, s, s, np.array([size(amp), 0.0], dtype=complex),
+                     np.diag([40e-6, 40e-6]).astype(complex))
+    d2, _ = two.predict(40.0, motion_shape("x", 25e-6))
+    line = size(19e-6) + (size(19e-6) - size(13e-6)) * (25 - 19) / (19 - 13)
+    assert abs(d2[0]) == pytest.approx(line, rel=1e-9)
