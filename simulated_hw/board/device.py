@@ -753,16 +753,15 @@ class SimDevice:
             if task is not self.ai_task:
                 raise daq_error(TASK_NOT_RUNNING, f"read from {task.name!r}: task stopped "
                                 "while waiting", samps_per_chan_read=0)
+            taken: np.ndarray | None = None
             if self.fast:  # the samples not yet taken, exactly these: straight to the reader
-                data = self._advance(need, hand_over=self.generated == self.read_pos)
+                taken = self._advance(need, hand_over=self.generated == self.read_pos)
             else:
-                data = None
                 self._advance(max(need, self._due()))
             if task.error is not None:
                 raise task.error
             assert self.ring is not None
-            if data is None:
-                data = self.ring.get(self.read_pos, n)
+            data = self.ring.get(self.read_pos, n) if taken is None else taken
             self.read_pos = need
             if task.finite and need >= task.samps_per_chan:
                 task.done = True
