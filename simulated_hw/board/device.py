@@ -810,8 +810,9 @@ class SimDevice:
                     )
         with self.lock:
             self.catch_up()
-            self.safe.refuse_locked(f"write to {task.name!r}",
-                                    [p for ch in task.channels for p in ch.physical])
+            if self.locked_ao or self.locked_do:  # an expired watchdog holds some
+                self.safe.refuse_locked(f"write to {task.name!r}",
+                                        [p for ch in task.channels for p in ch.physical])
         if task.rate_hz is None:  # on-demand: the outputs take the last value at once
             if not task.running and not auto_start:
                 raise daq_error(TASK_NOT_RUNNING, f"write to {task.name!r}: task not running")
