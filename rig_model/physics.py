@@ -231,6 +231,19 @@ def _joint_step(f, dz, k, fs, shape):  # noqa: ANN001, ANN202
     return sign * fs * (1.0 - (1.0 - u) * np.exp(-s))
 
 
+@numba.njit(cache=True)
+def _joint_and_relaxing(ex, ey, joint, gjx, gjy, relax, grx, gry):  # noqa: ANN001, ANN202
+    """The force ``(ex, ey)`` on the housing less the housing's joint (``joint`` 1: its force
+    ``gjx, gjy``) and the relaxing stiffness (``relax``: its force ``grx, gry``)."""
+    if joint == 1:
+        ex -= gjx
+        ey -= gjy
+    if relax:
+        ex -= grx
+        ey -= gry
+    return ex, ey
+
+
 def _make_kernel(frame_on: bool, friction: int, ecc_on: bool, air_on: bool,
                  cross: bool) -> Callable[..., None]:
     """`integrate` compiled for one set of the model's switches (`kernel_switches`), each a
@@ -317,12 +330,7 @@ def _make_kernel(frame_on: bool, friction: int, ecc_on: bool, air_on: bool,
                     frx, fry, wx, wy = _compliant_seal(x, y, wx, wy, kt, kty, fmu)
                     ex += frx
                     ey += fry
-                if joint == 1:
-                    ex -= gjx
-                    ey -= gjy
-                if relax:
-                    ex -= grx
-                    ey -= gry
+                ex, ey = _joint_and_relaxing(ex, ey, joint, gjx, gjy, relax, grx, gry)
                 # Kick with the damping implicit (trapezoidal) between housing and frame; the film's
                 # added mass Da acts on the relative acceleration (its reaction on the frame):
                 #   M (vh' - vh) + Da (v_rel' - v_rel) = h E  - h/2 C (v_rel + v_rel')
@@ -499,12 +507,7 @@ def _make_kernel(frame_on: bool, friction: int, ecc_on: bool, air_on: bool,
             ex, ey = _elastic(x, y, fpx, fpy, p)
             if compliant:
                 frx, fry, _, _ = _compliant_seal(x, y, wx, wy, kt, kty, fmu)
-            if joint == 1:
-                ex -= gjx
-                ey -= gjy
-            if relax:
-                ex -= grx
-                ey -= gry
+            ex, ey = _joint_and_relaxing(ex, ey, joint, gjx, gjy, relax, grx, gry)
             gx = ex - (c11 * vox + c12 * voy) + frx  # the force on the housing
             gy = ey - (c21 * vox + c22 * voy) + fry
             s11, s12, s21, s22 = m11, m12, m21, m22
