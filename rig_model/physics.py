@@ -583,7 +583,12 @@ def _compile_lock(name: str) -> Iterator[None]:
     compiling it too."""
     here = hashlib.sha1(os.path.abspath(__file__).encode()).hexdigest()[:12]
     path = os.path.join(tempfile.gettempdir(), f"sfdrig-numba-{here}-{name}.lock")
-    with open(path, "a") as lock:
+    try:
+        lock = open(path, "a")  # noqa: SIM115 (closed below)
+    except OSError:  # no lock to be had (a read-only temp dir): compile without one
+        yield
+        return
+    with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
             yield
