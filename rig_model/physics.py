@@ -28,8 +28,13 @@ acceleration uses its velocity moved from the half-step like the housing's.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import functools
-from collections.abc import Callable
+import hashlib
+import os
+import tempfile
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numba
@@ -56,7 +61,10 @@ N_STATE = 17
 N_OUT = 12
 
 
-@numba.njit(cache=True)
+# `_coefficients` and `_kick_matrices` are compiled for each kernel's switches (constants) and
+# into it: not cached on their own (the kernel's cache holds them; one index for all the sets,
+# written by several processes at once, lost entries and could pair one with another's code)
+@numba.njit
 def _coefficients(x, y, fi, visc_i, vbar, p, inv_c2, ecc_on, air_on):  # noqa: ANN001, ANN202
     """Housing mass matrix and damping matrix at this instant (film fill, eccentricity, air);
     the Y diagonal differs from X by the structure's own per-axis mass and damping. The mass
@@ -104,7 +112,7 @@ def _schur(a11, a12, a21, a22, b11, b12, b21, b22, e11, e12, e21, e22):  # noqa:
     return g11, g12, g21, g22, s11, s12, s21, s22
 
 
-@numba.njit(cache=True)
+@numba.njit
 def _kick_matrices(x, y, fi, visc_i, vbar, p, hh, inv_c2, frame_on, ecc_on, air_on,  # noqa: ANN001, ANN202, E501
                    cross):
     """What the implicit kick needs of the coefficients at this instant: the mass and damping
@@ -223,324 +231,326 @@ def _joint_step(f, dz, k, fs, shape):  # noqa: ANN001, ANN202
     return sign * fs * (1.0 - (1.0 - u) * np.exp(-s))
 
 
+@numba.njit(cache=True)
+def _joint_and_relaxing(ex, ey, joint, gjx, gjy, relax, grx, gry):  # noqa: ANN001, ANN202
+    """The force ``(ex, ey)`` on the housing less the housing's joint (``joint`` 1: its force
+    ``gjx, gjy``) and the relaxing stiffness (``relax``: its force ``grx, gry``)."""
+    if joint == 1:
+        ex -= gjx
+        ey -= gjy
+    if relax:
+        ex -= grx
+        ey -= gry
+    return ex, ey
+
+
 def _make_kernel(frame_on: bool, friction: int, ecc_on: bool, air_on: bool,
                  cross: bool) -> Callable[..., None]:
     """`integrate` compiled for one set of the model's switches (`kernel_switches`), each a
-    constant of the compiled code: a part that is off costs no branch and no work on its zeros,
-    and the common rig (no frame mode, no film cross terms) has diagonal matrices (~1.4x
-    faster than one kernel for all). ``friction``: 0 none, 1 Coulomb (implicit), 2 the
-    compliant seal. The wall, the joint and the relaxing stiffness stay switches read from
-    ``p`` (as constants they gain little, and each set of constants is ~2 s of compiling)."""
+    constant of the compiled code (a closure's variables are): a part that is off costs no
+    branch and no work on its zeros, and the common rig (no frame mode, no film cross terms)
+    has diagonal matrices (~1.4x faster than one kernel for all; as arguments read from ``p``
+    the air and the cross terms alone cost 6 % and 14 %). ``friction``: 0 none, 1 Coulomb
+    (implicit), 2 the compliant seal. The wall, the joint and the relaxing stiffness are
+    switches read from ``p`` (as constants they gain little, and each set of constants is ~2 s
+    of compiling). Each set has a name of its own, so its own file in numba's cache
+    (`_kernel`)."""
 
-    @numba.njit(cache=True, fastmath=False)
-    def kernel(force, fill, visc, p, s, out):  # noqa: ANN001, ANN202
-        _integrate_body(force, fill, visc, p, s, out, frame_on, friction, p[P_CONTACT_ON] > 0.5,
-                        int(p[P_JOINT_ON]), p[P_RELAX_KX] > 0.0 or p[P_RELAX_KY] > 0.0,
-                        ecc_on, air_on, cross)
-
-    return kernel
-
-
-@numba.njit(cache=True, fastmath=False)
-def _integrate_body(force, fill, visc, p, s, out, frame_on, friction, contact_on,  # noqa: ANN001, ANN202
-                    joint, relax, ecc_on, air_on, cross):
-    """`integrate`'s loop, the model's switches as arguments (`_make_kernel`'s constants)."""
-    n = force.shape[1]
-    nsub = int(p[P_NSUB])
-    h = p[P_DT] / nsub
-    hh = 0.5 * h
-    inv_c2 = 1.0 / (p[P_CLEAR] * p[P_CLEAR])
-    # no frame: the relative velocity is the housing's, the friction's compliance W = A^-1
-    diagonal = not frame_on and not cross  # and the matrices are diagonal
-    x, y, vx, vy = s[S_X], s[S_Y], s[S_VX], s[S_VY]
-    xf, yf, vxf, vyf, vbar = s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR]
-    fmu0 = p[P_FMU]
-    fmu_wet = p[P_FMU_WET]  # the seal's added friction with the film full (oil pressure on it)
-    fmu = fmu0
-    kt = p[P_SEAL_KT]
-    kty = p[P_SEAL_KTY] if p[P_SEAL_KTY] > 0.0 else kt
-    compliant = friction == 2
-    wx, wy = s[S_WX], s[S_WY]
-    clear = p[P_CLEAR]
-    rest = p[P_RESTITUTION]
-    cmu = p[P_CONTACT_MU]
-    air_alpha_k = h / p[P_AIR_TAU]
-    fpx, fpy = s[S_FPX], s[S_FPY]
-    kj, fsj = p[P_JOINT_K], p[P_JOINT_FS]
-    kjy, fsjy = p[P_JOINT_KY], p[P_JOINT_FSY]  # the joint along Y (the rig sets X's by default)
-    gjx, gjy = s[S_JX], s[S_JY]  # the joint's force (it resists the motion of its mode)
-    jshape = p[P_JOINT_SHAPE]  # its Bouc-Wen shape (1: Dahl, 0: elastic unloading)
-    # the relaxing stiffness (a Maxwell element beside the rods: spring k_r in series with a
-    # dashpot k_r tau): its force, integrated exactly over a step at constant velocity
-    grx, gry = s[S_RX], s[S_RY]
-    relax_a = np.exp(-h / p[P_RELAX_TAU]) if relax else 1.0
-    relax_bx = p[P_RELAX_KX] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
-    relax_by = p[P_RELAX_KY] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
-    if n == 0:  # nothing to integrate: the state stays as it is
-        return
-    # the eccentricity law and the air make the kick's matrices depend on the state; the first
-    # sample's are those its first substep computed before
-    per_substep = ecc_on or air_on
-    kick = _kick_matrices(x, y, fill[0], visc[0], vbar, p, hh, inv_c2, frame_on, ecc_on,
-                          air_on, cross)
-    kick_fi, kick_visc = fill[0], visc[0]
-    for i in range(n):
-        # sample i is taken at the end of the interval; the force ramps from the previous sample
-        dfx = (force[0, i] - fpx) / nsub
-        dfy = (force[1, i] - fpy) / nsub
-        fi = fill[i]
-        fmu = max(0.0, fmu0 + fi * fmu_wet) if fmu0 > 0.0 else 0.0
-        frx = fry = 0.0
-        pvx, pvy, pvxf, pvyf = vx, vy, vxf, vyf  # the velocities a substep before
-        contact_n = 0.0
-        bounced = False
-        bounce_r = bounce_nx = bounce_ny = 0.0
-        # the kick's matrices: per sample where the state does not enter them (recomputed
-        # only when the fill or the viscosity changes), per substep otherwise
-        if not per_substep and (fi != kick_fi or visc[i] != kick_visc):
-            kick = _kick_matrices(x, y, fi, visc[i], vbar, p, hh, inv_c2, frame_on, ecc_on,
-                                  air_on, cross)
-            kick_fi = fi
-            kick_visc = visc[i]
-        for k in range(nsub):
-            # the kick uses the force at the start of the substep, where x is (leapfrog)
-            if per_substep:
+    def kernel(force, fill, visc, p, s, out):  # noqa: ANN001, ANN202, C901, PLR0912, PLR0915
+        contact_on = p[P_CONTACT_ON] > 0.5
+        joint = int(p[P_JOINT_ON])
+        relax = p[P_RELAX_KX] > 0.0 or p[P_RELAX_KY] > 0.0
+        n = force.shape[1]
+        nsub = int(p[P_NSUB])
+        h = p[P_DT] / nsub
+        hh = 0.5 * h
+        inv_c2 = 1.0 / (p[P_CLEAR] * p[P_CLEAR])
+        # no frame: the relative velocity is the housing's, the friction's compliance W = A^-1
+        diagonal = not frame_on and not cross  # and the matrices are diagonal
+        x, y, vx, vy = s[S_X], s[S_Y], s[S_VX], s[S_VY]
+        xf, yf, vxf, vyf, vbar = s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR]
+        fmu0 = p[P_FMU]
+        fmu_wet = p[P_FMU_WET]  # the seal's added friction with the film full (oil pressure on it)
+        fmu = fmu0
+        kt = p[P_SEAL_KT]
+        kty = p[P_SEAL_KTY] if p[P_SEAL_KTY] > 0.0 else kt
+        compliant = friction == 2
+        wx, wy = s[S_WX], s[S_WY]
+        clear = p[P_CLEAR]
+        rest = p[P_RESTITUTION]
+        cmu = p[P_CONTACT_MU]
+        air_alpha_k = h / p[P_AIR_TAU]
+        fpx, fpy = s[S_FPX], s[S_FPY]
+        kj, fsj = p[P_JOINT_K], p[P_JOINT_FS]
+        kjy, fsjy = p[P_JOINT_KY], p[P_JOINT_FSY]  # the joint along Y (the rig sets X's by default)
+        gjx, gjy = s[S_JX], s[S_JY]  # the joint's force (it resists the motion of its mode)
+        jshape = p[P_JOINT_SHAPE]  # its Bouc-Wen shape (1: Dahl, 0: elastic unloading)
+        # the relaxing stiffness (a Maxwell element beside the rods: spring k_r in series with a
+        # dashpot k_r tau): its force, integrated exactly over a step at constant velocity
+        grx, gry = s[S_RX], s[S_RY]
+        relax_a = np.exp(-h / p[P_RELAX_TAU]) if relax else 1.0
+        relax_bx = p[P_RELAX_KX] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
+        relax_by = p[P_RELAX_KY] * p[P_RELAX_TAU] * (1.0 - relax_a) if relax else 0.0
+        if n == 0:  # nothing to integrate: the state stays as it is
+            return
+        # the eccentricity law and the air make the kick's matrices depend on the state; the first
+        # sample's are those its first substep computed before
+        per_substep = ecc_on or air_on
+        kick = _kick_matrices(x, y, fill[0], visc[0], vbar, p, hh, inv_c2, frame_on, ecc_on,
+                              air_on, cross)
+        kick_fi, kick_visc = fill[0], visc[0]
+        for i in range(n):
+            # sample i is taken at the end of the interval; the force ramps from the previous sample
+            dfx = (force[0, i] - fpx) / nsub
+            dfy = (force[1, i] - fpy) / nsub
+            fi = fill[i]
+            fmu = max(0.0, fmu0 + fi * fmu_wet) if fmu0 > 0.0 else 0.0
+            frx = fry = 0.0
+            pvx, pvy, pvxf, pvyf = vx, vy, vxf, vyf  # the velocities a substep before
+            contact_n = 0.0
+            bounced = False
+            bounce_r = bounce_nx = bounce_ny = 0.0
+            # the kick's matrices: per sample where the state does not enter them (recomputed
+            # only when the fill or the viscosity changes), per substep otherwise
+            if not per_substep and (fi != kick_fi or visc[i] != kick_visc):
                 kick = _kick_matrices(x, y, fi, visc[i], vbar, p, hh, inv_c2, frame_on, ecc_on,
                                       air_on, cross)
-            (m11, m12, m21, m22, c11, c12, c21, c22, da, b11, b12, b21, b22, e11, e12, e21,
-             e22, g11, g12, g21, g22, i11, i12, i21, i22, q11, q12, q21, q22, rr11, rr12, rr21,
-             rr22) = kick
-            ex, ey = _elastic(x, y, fpx + k * dfx, fpy + k * dfy, p)
-            if compliant:
-                frx, fry, wx, wy = _compliant_seal(x, y, wx, wy, kt, kty, fmu)
-                ex += frx
-                ey += fry
-            if joint == 1:
-                ex -= gjx
-                ey -= gjy
-            if relax:
-                ex -= grx
-                ey -= gry
-            # Kick with the damping implicit (trapezoidal) between housing and frame; the film's
-            # added mass Da acts on the relative acceleration (its reaction on the frame):
-            #   M (vh' - vh) + Da (v_rel' - v_rel) = h E  - h/2 C (v_rel + v_rel')
-            #   m2 (vf' - vf) - Da (v_rel' - v_rel) = h Ef + h/2 C (v_rel + v_rel')
-            #                                         - h/2 cf (vf + vf')      v_rel = vh - vf
-            # with M the absolute part. Housing block A = M + Da + h/2 C (the total mass matrix
-            # m), coupling B = -(Da + h/2 C) both ways, frame block D = m2 + Da + h/2 (C + cf)
-            # (`_kick_matrices`).
-            if diagonal:  # as below, without the terms that are zero
-                r1x = m11 * vx + h * ex - hh * (c11 * vx)
-                r1y = m22 * vy + h * ey - hh * (c22 * vy)
-            else:
-                vhx = vx + vxf  # absolute housing velocity (x, vx are relative to the frame)
-                vhy = vy + vyf
-                r1x = m11 * vhx + m12 * vhy + h * ex - hh * (c11 * vx + c12 * vy)
-                r1y = m21 * vhx + m22 * vhy + h * ey - hh * (c21 * vx + c22 * vy)
-            if frame_on:
-                m2 = p[P_FRAME_M]
-                cf = p[P_FRAME_C]
-                fx_in = fpx + k * dfx
-                fy_in = fpy + k * dfy
-                r2x = (m2 * vxf + h * (-p[P_FRAME_K] * xf - (ex - fx_in))
-                       + hh * (c11 * vx + c12 * vy) - hh * cf * vxf)
-                r2y = (m2 * vyf + h * (-p[P_FRAME_K] * yf - (ey - fy_in))
-                       + hh * (c21 * vx + c22 * vy) - hh * cf * vyf)
-                if joint == 2:
-                    r2x -= h * gjx
-                    r2y -= h * gjy
-                # the added mass's momentum: -Da vf on the housing's side, -Da v_rel on the frame's
-                r1x -= da * vxf + m12 * vyf
-                r1y -= m21 * vxf + da * vyf
-                r2x -= da * vx + m12 * vy
-                r2y -= m21 * vx + da * vy
-                rx = r1x - (g11 * r2x + g12 * r2y)
-                ry = r1y - (g21 * r2x + g22 * r2y)
-                vhx = i11 * rx + i12 * ry
-                vhy = i21 * rx + i22 * ry
-                tx = r2x - (b11 * vhx + b12 * vhy)
-                ty = r2y - (b21 * vhx + b22 * vhy)
-                nvxf = e11 * tx + e12 * ty
-                nvyf = e21 * tx + e22 * ty
-            elif diagonal:
-                vhx = i11 * r1x
-                vhy = i22 * r1y
-                nvxf = nvyf = 0.0
-            else:
-                vhx = i11 * r1x + i12 * r1y
-                vhy = i21 * r1x + i22 * r1y
-                nvxf = nvyf = 0.0
-            # dry friction: implicit, on the relative velocity (compliance W = Q - R)
-            tx = vhx - nvxf
-            ty = vhy - nvyf
-            jx = jy = 0.0
-            if friction == 1 and fmu > 0.0:
-                # the impulse that would stop the relative motion: -W^-1 t; without the frame
-                # W = A^-1 and t = A^-1 r1, so it is -r1
+                kick_fi = fi
+                kick_visc = visc[i]
+            for k in range(nsub):
+                # the kick uses the force at the start of the substep, where x is (leapfrog)
+                if per_substep:
+                    kick = _kick_matrices(x, y, fi, visc[i], vbar, p, hh, inv_c2, frame_on, ecc_on,
+                                          air_on, cross)
+                (m11, m12, m21, m22, c11, c12, c21, c22, da, b11, b12, b21, b22, e11, e12, e21,
+                 e22, g11, g12, g21, g22, i11, i12, i21, i22, q11, q12, q21, q22, rr11, rr12, rr21,
+                 rr22) = kick
+                ex, ey = _elastic(x, y, fpx + k * dfx, fpy + k * dfy, p)
+                if compliant:
+                    frx, fry, wx, wy = _compliant_seal(x, y, wx, wy, kt, kty, fmu)
+                    ex += frx
+                    ey += fry
+                ex, ey = _joint_and_relaxing(ex, ey, joint, gjx, gjy, relax, grx, gry)
+                # Kick with the damping implicit (trapezoidal) between housing and frame; the film's
+                # added mass Da acts on the relative acceleration (its reaction on the frame):
+                #   M (vh' - vh) + Da (v_rel' - v_rel) = h E  - h/2 C (v_rel + v_rel')
+                #   m2 (vf' - vf) - Da (v_rel' - v_rel) = h Ef + h/2 C (v_rel + v_rel')
+                #                                         - h/2 cf (vf + vf')      v_rel = vh - vf
+                # with M the absolute part. Housing block A = M + Da + h/2 C (the total mass matrix
+                # m), coupling B = -(Da + h/2 C) both ways, frame block D = m2 + Da + h/2 (C + cf)
+                # (`_kick_matrices`).
+                if diagonal:  # as below, without the terms that are zero
+                    r1x = m11 * vx + h * ex - hh * (c11 * vx)
+                    r1y = m22 * vy + h * ey - hh * (c22 * vy)
+                else:
+                    vhx = vx + vxf  # absolute housing velocity (x, vx are relative to the frame)
+                    vhy = vy + vyf
+                    r1x = m11 * vhx + m12 * vhy + h * ex - hh * (c11 * vx + c12 * vy)
+                    r1y = m21 * vhx + m22 * vhy + h * ey - hh * (c21 * vx + c22 * vy)
                 if frame_on:
-                    w11 = q11 - rr11
-                    w12 = q12 - rr12
-                    w21 = q21 - rr21
-                    w22 = q22 - rr22
-                    wdet = w11 * w22 - w12 * w21
-                    sx = -(w22 * tx - w12 * ty) / wdet
-                    sy = -(-w21 * tx + w11 * ty) / wdet
+                    m2 = p[P_FRAME_M]
+                    cf = p[P_FRAME_C]
+                    fx_in = fpx + k * dfx
+                    fy_in = fpy + k * dfy
+                    r2x = (m2 * vxf + h * (-p[P_FRAME_K] * xf - (ex - fx_in))
+                           + hh * (c11 * vx + c12 * vy) - hh * cf * vxf)
+                    r2y = (m2 * vyf + h * (-p[P_FRAME_K] * yf - (ey - fy_in))
+                           + hh * (c21 * vx + c22 * vy) - hh * cf * vyf)
+                    if joint == 2:
+                        r2x -= h * gjx
+                        r2y -= h * gjy
+                    # the added mass's momentum: -Da vf on the housing's side, -Da v_rel on the
+                    # frame's
+                    r1x -= da * vxf + m12 * vyf
+                    r1y -= m21 * vxf + da * vyf
+                    r2x -= da * vx + m12 * vy
+                    r2y -= m21 * vx + da * vy
+                    rx = r1x - (g11 * r2x + g12 * r2y)
+                    ry = r1y - (g21 * r2x + g22 * r2y)
+                    vhx = i11 * rx + i12 * ry
+                    vhy = i21 * rx + i22 * ry
+                    tx = r2x - (b11 * vhx + b12 * vhy)
+                    ty = r2y - (b21 * vhx + b22 * vhy)
+                    nvxf = e11 * tx + e12 * ty
+                    nvyf = e21 * tx + e22 * ty
+                elif diagonal:
+                    vhx = i11 * r1x
+                    vhy = i22 * r1y
+                    nvxf = nvyf = 0.0
                 else:
-                    sx = -r1x
-                    sy = -r1y
-                fh = fmu * h
-                if sx * sx + sy * sy <= fh * fh:
-                    jx, jy = sx, sy  # stick
-                else:
-                    scale = -fh / np.sqrt(tx * tx + ty * ty)
-                    jx = scale * tx
-                    jy = scale * ty
-                if diagonal:
-                    vhx += q11 * jx
-                    vhy += q22 * jy
-                else:
-                    vhx += q11 * jx + q12 * jy
-                    vhy += q21 * jx + q22 * jy
-                if frame_on:
-                    nvxf += rr11 * jx + rr12 * jy
-                    nvyf += rr21 * jx + rr22 * jy
-            if not compliant:
-                frx = jx / h
-                fry = jy / h
-            if contact_on:
-                # the journal: land on the wall at r = c, reflect the excess approach speed
-                ux = vhx - nvxf
-                uy = vhy - nvyf
-                r = np.sqrt(x * x + y * y)
-                if r > 0.0:
-                    nx = x / r
-                    ny = y / r
-                    un = ux * nx + uy * ny
-                    gap = clear - r
-                    if un * h > gap:
+                    vhx = i11 * r1x + i12 * r1y
+                    vhy = i21 * r1x + i22 * r1y
+                    nvxf = nvyf = 0.0
+                # dry friction: implicit, on the relative velocity (compliance W = Q - R)
+                tx = vhx - nvxf
+                ty = vhy - nvyf
+                jx = jy = 0.0
+                if friction == 1 and fmu > 0.0:
+                    # the impulse that would stop the relative motion: -W^-1 t; without the frame
+                    # W = A^-1 and t = A^-1 r1, so it is -r1
+                    if frame_on:
                         w11 = q11 - rr11
                         w12 = q12 - rr12
                         w21 = q21 - rr21
                         w22 = q22 - rr22
-                        un_new = -rest * un if un > 0.0 else 0.0
-                        # where the wall is met within the step: the drift below is corrected
-                        # to that bounce (event-exact in the normal direction)
-                        tau = gap / un if un > 0.0 and gap > 0.0 else 0.0
-                        bounce_r = clear + un_new * (h - tau)
-                        bounce_nx = nx
-                        bounce_ny = ny
-                        bounced = True
-                        wnn = nx * (w11 * nx + w12 * ny) + ny * (w21 * nx + w22 * ny)
-                        jn = (un_new - un) / wnn  # < 0: towards the centre
-                        ut = -ux * ny + uy * nx
-                        wtt = ny * (w11 * ny - w12 * nx) - nx * (w21 * ny - w22 * nx)
-                        jt = -ut / wtt
-                        if abs(jt) > -cmu * jn:
-                            jt = -cmu * jn * (1.0 if jt > 0 else -1.0)
-                        cjx = jn * nx - jt * ny
-                        cjy = jn * ny + jt * nx
-                        vhx += q11 * cjx + q12 * cjy
-                        vhy += q21 * cjx + q22 * cjy
-                        nvxf += rr11 * cjx + rr12 * cjy
-                        nvyf += rr21 * cjx + rr22 * cjy
-                        if -jn / h > contact_n:
-                            contact_n = -jn / h
-            nvx = vhx - nvxf
-            nvy = vhy - nvyf
-            pvx, pvy, pvxf, pvyf = vx, vy, vxf, vyf
-            vx = nvx
-            vy = nvy
-            vxf = nvxf
-            vyf = nvyf
-            x += h * vx
-            y += h * vy
-            if bounced:
-                bounced = False
-                shift = bounce_r - (x * bounce_nx + y * bounce_ny)
-                if shift < 0.0:
-                    x += shift * bounce_nx
-                    y += shift * bounce_ny
-            if contact_on:
-                # sliding along the wall, the straight drift ends slightly outside the circle
-                r2 = x * x + y * y
-                if r2 > clear * clear:
-                    scale = clear / np.sqrt(r2)
-                    x *= scale
-                    y *= scale
+                        wdet = w11 * w22 - w12 * w21
+                        sx = -(w22 * tx - w12 * ty) / wdet
+                        sy = -(-w21 * tx + w11 * ty) / wdet
+                    else:
+                        sx = -r1x
+                        sy = -r1y
+                    fh = fmu * h
+                    if sx * sx + sy * sy <= fh * fh:
+                        jx, jy = sx, sy  # stick
+                    else:
+                        scale = -fh / np.sqrt(tx * tx + ty * ty)
+                        jx = scale * tx
+                        jy = scale * ty
+                    if diagonal:
+                        vhx += q11 * jx
+                        vhy += q22 * jy
+                    else:
+                        vhx += q11 * jx + q12 * jy
+                        vhy += q21 * jx + q22 * jy
+                    if frame_on:
+                        nvxf += rr11 * jx + rr12 * jy
+                        nvyf += rr21 * jx + rr22 * jy
+                if not compliant:
+                    frx = jx / h
+                    fry = jy / h
+                if contact_on:
+                    # the journal: land on the wall at r = c, reflect the excess approach speed
+                    ux = vhx - nvxf
+                    uy = vhy - nvyf
+                    r = np.sqrt(x * x + y * y)
+                    if r > 0.0:
+                        nx = x / r
+                        ny = y / r
+                        un = ux * nx + uy * ny
+                        gap = clear - r
+                        if un * h > gap:
+                            w11 = q11 - rr11
+                            w12 = q12 - rr12
+                            w21 = q21 - rr21
+                            w22 = q22 - rr22
+                            un_new = -rest * un if un > 0.0 else 0.0
+                            # where the wall is met within the step: the drift below is corrected
+                            # to that bounce (event-exact in the normal direction)
+                            tau = gap / un if un > 0.0 and gap > 0.0 else 0.0
+                            bounce_r = clear + un_new * (h - tau)
+                            bounce_nx = nx
+                            bounce_ny = ny
+                            bounced = True
+                            wnn = nx * (w11 * nx + w12 * ny) + ny * (w21 * nx + w22 * ny)
+                            jn = (un_new - un) / wnn  # < 0: towards the centre
+                            ut = -ux * ny + uy * nx
+                            wtt = ny * (w11 * ny - w12 * nx) - nx * (w21 * ny - w22 * nx)
+                            jt = -ut / wtt
+                            if abs(jt) > -cmu * jn:
+                                jt = -cmu * jn * (1.0 if jt > 0 else -1.0)
+                            cjx = jn * nx - jt * ny
+                            cjy = jn * ny + jt * nx
+                            vhx += q11 * cjx + q12 * cjy
+                            vhy += q21 * cjx + q22 * cjy
+                            nvxf += rr11 * cjx + rr12 * cjy
+                            nvyf += rr21 * cjx + rr22 * cjy
+                            if -jn / h > contact_n:
+                                contact_n = -jn / h
+                nvx = vhx - nvxf
+                nvy = vhy - nvyf
+                pvx, pvy, pvxf, pvyf = vx, vy, vxf, vyf
+                vx = nvx
+                vy = nvy
+                vxf = nvxf
+                vyf = nvyf
+                x += h * vx
+                y += h * vy
+                if bounced:
+                    bounced = False
+                    shift = bounce_r - (x * bounce_nx + y * bounce_ny)
+                    if shift < 0.0:
+                        x += shift * bounce_nx
+                        y += shift * bounce_ny
+                if contact_on:
+                    # sliding along the wall, the straight drift ends slightly outside the circle
+                    r2 = x * x + y * y
+                    if r2 > clear * clear:
+                        scale = clear / np.sqrt(r2)
+                        x *= scale
+                        y *= scale
+                if frame_on:
+                    xf += h * vxf
+                    yf += h * vyf
+                if joint == 1:
+                    gjx = _joint_step(gjx, h * vx, kj, fsj, jshape)
+                    gjy = _joint_step(gjy, h * vy, kjy, fsjy, jshape)
+                elif joint == 2:
+                    gjx = _joint_step(gjx, h * vxf, kj, fsj, jshape)
+                    gjy = _joint_step(gjy, h * vyf, kjy, fsjy, jshape)
+                if relax:
+                    grx = relax_a * grx + relax_bx * vx
+                    gry = relax_a * gry + relax_by * vy
+                if air_on:  # the mean |v| the air follows (not needed without it)
+                    vbar += air_alpha_k * (np.sqrt(vx * vx + vy * vy) - vbar)
+            fpx = force[0, i]
+            fpy = force[1, i]
+            # the state at t_i: the velocity moved from the half-step, then the forces there
+            rax = (vx - pvx) / h  # relative acceleration over the last substep
+            ray = (vy - pvy) / h
+            rafx = (vxf - pvxf) / h  # the frame's
+            rafy = (vyf - pvyf) / h
+            vox = vx + 0.5 * h * rax
+            voy = vy + 0.5 * h * ray
+            m11, m12, m21, m22, c11, c12, c21, c22, cfilm, da = _coefficients(x, y, fi, visc[i],
+                                                                              vbar, p, inv_c2,
+                                                                              ecc_on, air_on)
+            ex, ey = _elastic(x, y, fpx, fpy, p)
+            if compliant:
+                frx, fry, _, _ = _compliant_seal(x, y, wx, wy, kt, kty, fmu)
+            ex, ey = _joint_and_relaxing(ex, ey, joint, gjx, gjy, relax, grx, gry)
+            gx = ex - (c11 * vox + c12 * voy) + frx  # the force on the housing
+            gy = ey - (c21 * vox + c22 * voy) + fry
+            s11, s12, s21, s22 = m11, m12, m21, m22
             if frame_on:
-                xf += h * vxf
-                yf += h * vyf
-            if joint == 1:
-                gjx = _joint_step(gjx, h * vx, kj, fsj, jshape)
-                gjy = _joint_step(gjy, h * vy, kjy, fsjy, jshape)
-            elif joint == 2:
-                gjx = _joint_step(gjx, h * vxf, kj, fsj, jshape)
-                gjy = _joint_step(gjy, h * vyf, kjy, fsjy, jshape)
-            if relax:
-                grx = relax_a * grx + relax_bx * vx
-                gry = relax_a * gry + relax_by * vy
-            if air_on:  # the mean |v| the air follows (not needed without it)
-                vbar += air_alpha_k * (np.sqrt(vx * vx + vy * vy) - vbar)
-        fpx = force[0, i]
-        fpy = force[1, i]
-        # the state at t_i: the velocity moved from the half-step, then the forces there
-        rax = (vx - pvx) / h  # relative acceleration over the last substep
-        ray = (vy - pvy) / h
-        rafx = (vxf - pvxf) / h  # the frame's
-        rafy = (vyf - pvyf) / h
-        vox = vx + 0.5 * h * rax
-        voy = vy + 0.5 * h * ray
-        m11, m12, m21, m22, c11, c12, c21, c22, cfilm, da = _coefficients(x, y, fi, visc[i],
-                                                                          vbar, p, inv_c2,
-                                                                          ecc_on, air_on)
-        ex, ey = _elastic(x, y, fpx, fpy, p)
-        if compliant:
-            frx, fry, _, _ = _compliant_seal(x, y, wx, wy, kt, kty, fmu)
-        if joint == 1:
-            ex -= gjx
-            ey -= gjy
-        if relax:
-            ex -= grx
-            ey -= gry
-        gx = ex - (c11 * vox + c12 * voy) + frx  # the force on the housing
-        gy = ey - (c21 * vox + c22 * voy) + fry
-        s11, s12, s21, s22 = m11, m12, m21, m22
-        if frame_on:
-            # the housing's absolute acceleration with the frame's: m a_h - Da a_f = g and
-            # -Da a_h + (m2 + Da) a_f = gf (the reaction of g's interface part and the frame's
-            # spring and damping), the frame eliminated: S a_h = g - G gf
-            m2 = p[P_FRAME_M]
-            gfx = fpx - gx - p[P_FRAME_K] * xf - p[P_FRAME_C] * (vxf + 0.5 * h * rafx)
-            gfy = fpy - gy - p[P_FRAME_K] * yf - p[P_FRAME_C] * (vyf + 0.5 * h * rafy)
-            if joint == 2:
-                gfx -= gjx
-                gfy -= gjy
-            n11 = m2 + da
-            ndet = n11 * n11 - m12 * m21
-            e11, e12, e21, e22 = n11 / ndet, -m12 / ndet, -m21 / ndet, n11 / ndet
-            g11, g12, g21, g22, s11, s12, s21, s22 = _schur(
-                m11, m12, m21, m22, -da, -m12, -m21, -da, e11, e12, e21, e22)
-            gx -= g11 * gfx + g12 * gfy
-            gy -= g21 * gfx + g22 * gfy
-        det = s11 * s22 - s12 * s21
-        out[O_X, i] = x
-        out[O_Y, i] = y
-        out[O_VX, i] = vox
-        out[O_VY, i] = voy
-        out[O_AX, i] = (s22 * gx - s12 * gy) / det
-        out[O_AY, i] = (-s21 * gx + s11 * gy) / det
-        out[O_FRICX, i] = frx
-        out[O_FRICY, i] = fry
-        out[O_FILMX, i] = -cfilm * vox - (c12 * voy)
-        out[O_FILMY, i] = -cfilm * voy - (c21 * vox)
-        out[O_CFILM, i] = cfilm
-        out[O_CONTACT, i] = contact_n
-    s[S_X], s[S_Y], s[S_VX], s[S_VY] = x, y, vx, vy
-    s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR] = xf, yf, vxf, vyf, vbar
-    s[S_FPX], s[S_FPY] = fpx, fpy
-    s[S_WX], s[S_WY] = wx, wy
-    s[S_JX], s[S_JY] = gjx, gjy
-    s[S_RX], s[S_RY] = grx, gry
+                # the housing's absolute acceleration with the frame's: m a_h - Da a_f = g and
+                # -Da a_h + (m2 + Da) a_f = gf (the reaction of g's interface part and the frame's
+                # spring and damping), the frame eliminated: S a_h = g - G gf
+                m2 = p[P_FRAME_M]
+                gfx = fpx - gx - p[P_FRAME_K] * xf - p[P_FRAME_C] * (vxf + 0.5 * h * rafx)
+                gfy = fpy - gy - p[P_FRAME_K] * yf - p[P_FRAME_C] * (vyf + 0.5 * h * rafy)
+                if joint == 2:
+                    gfx -= gjx
+                    gfy -= gjy
+                n11 = m2 + da
+                ndet = n11 * n11 - m12 * m21
+                e11, e12, e21, e22 = n11 / ndet, -m12 / ndet, -m21 / ndet, n11 / ndet
+                g11, g12, g21, g22, s11, s12, s21, s22 = _schur(
+                    m11, m12, m21, m22, -da, -m12, -m21, -da, e11, e12, e21, e22)
+                gx -= g11 * gfx + g12 * gfy
+                gy -= g21 * gfx + g22 * gfy
+            det = s11 * s22 - s12 * s21
+            out[O_X, i] = x
+            out[O_Y, i] = y
+            out[O_VX, i] = vox
+            out[O_VY, i] = voy
+            out[O_AX, i] = (s22 * gx - s12 * gy) / det
+            out[O_AY, i] = (-s21 * gx + s11 * gy) / det
+            out[O_FRICX, i] = frx
+            out[O_FRICY, i] = fry
+            out[O_FILMX, i] = -cfilm * vox - (c12 * voy)
+            out[O_FILMY, i] = -cfilm * voy - (c21 * vox)
+            out[O_CFILM, i] = cfilm
+            out[O_CONTACT, i] = contact_n
+        s[S_X], s[S_Y], s[S_VX], s[S_VY] = x, y, vx, vy
+        s[S_XF], s[S_YF], s[S_VXF], s[S_VYF], s[S_VBAR] = xf, yf, vxf, vyf, vbar
+        s[S_FPX], s[S_FPY] = fpx, fpy
+        s[S_WX], s[S_WY] = wx, wy
+        s[S_JX], s[S_JY] = gjx, gjy
+        s[S_RX], s[S_RY] = grx, gry
+
+    kernel.__name__ = kernel.__qualname__ = _kernel_name((frame_on, friction, ecc_on, air_on,
+                                                           cross))
+    return numba.njit(cache=True, fastmath=False)(kernel)
 
 
 Switches = tuple[bool, int, bool, bool, bool]
@@ -556,9 +566,43 @@ def kernel_switches(p: np.ndarray) -> Switches:
     return q[P_FRAME_ON] > 0.5, friction, q[P_ECC] > 0.5, q[P_AIR_K] > 0.0, cross
 
 
+#: the types `RigModel` and `simulate_response` call a kernel with (C-contiguous float64)
+_SIGNATURE = "void(f8[:, ::1], f8[::1], f8[::1], f8[::1], f8[::1], f8[:, ::1])"
+
+
+def _kernel_name(switches: Switches) -> str:
+    frame_on, friction, ecc_on, air_on, cross = switches
+    return (f"kernel_frame{int(frame_on)}_friction{friction}_ecc{int(ecc_on)}_air{int(air_on)}"
+            f"_cross{int(cross)}")
+
+
+@contextlib.contextmanager
+def _compile_lock(name: str) -> Iterator[None]:
+    """One process at a time loads or compiles the kernel ``name`` (pytest-xdist workers start
+    on the same rigs): the others wait, then load what it saved in numba's cache instead of
+    compiling it too."""
+    here = hashlib.sha1(os.path.abspath(__file__).encode()).hexdigest()[:12]
+    path = os.path.join(tempfile.gettempdir(), f"sfdrig-numba-{here}-{name}.lock")
+    try:
+        lock = open(path, "a")  # noqa: SIM115 (closed below)
+    except OSError:  # no lock to be had (a read-only temp dir): compile without one
+        yield
+        return
+    with lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
 @functools.cache
 def _kernel(switches: Switches) -> Callable[..., None]:
-    return _make_kernel(*switches)
+    """The kernel for ``switches``, loaded from numba's cache or compiled (and saved) now."""
+    kernel = _make_kernel(*switches)
+    with _compile_lock(_kernel_name(switches)):
+        kernel.compile(_SIGNATURE)  # type: ignore[attr-defined]
+    return kernel
 
 
 def kernel_for(p: np.ndarray) -> Callable[..., None]:
@@ -645,10 +689,12 @@ def sensor_volts(true: np.ndarray, source: np.ndarray, gain: np.ndarray, offset:
         j = starts[c]
         while i < n:  # up to the table's end, then on from its start: loops without a branch
             k = min(n - i, m - j)
+            # on 1-D views from 0: the loop vectorises (2x faster than indexing from i and j)
+            r, z, dst = row[i:i + k], noise[j:j + k], out[c, i:i + k]
             for q in range(k):
-                v = row[i + q] * g + o + noise[j + q] * sd
+                v = r[q] * g + o + z[q] * sd
                 v = np.round(v / lsb) * lsb
-                out[c, i + q] = min(max(v, low), high)
+                dst[q] = min(max(v, low), high)
             i += k
             j = 0
 

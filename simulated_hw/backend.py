@@ -67,7 +67,7 @@ from simulated_hw.board.codes import (
     WRITE_REL_FIRST_SAMPLE,
     terminal_config_error,
 )
-from simulated_hw.board.device import SimDevice
+from simulated_hw.board.device import SimDevice, rows_index
 from simulated_hw.board.tasks import SimChannel, SimTask
 from simulated_hw.board.watchdog import Watchdog
 
@@ -131,6 +131,7 @@ class SimulatedBackend(BackendBase):
         #: what the AO terminals showed at the samples not yet read (map rows), per block
         self._played: list[np.ndarray] = []
         self._ao_terminals: list[int] = []  # the map's AO rows among the board's terminals
+        self._ao_index: slice | list[int] = []
 
     # --- protocol -------------------------------------------------------------------------
     @property
@@ -166,6 +167,7 @@ class SimulatedBackend(BackendBase):
         self._map = channel_map
         ao_all = self.device.spec.ao_channels()
         self._ao_terminals = [ao_all.index(c.physical_channel) for c in channel_map.ao]
+        self._ao_index = rows_index(self._ao_terminals)  # a slice (a view) when in order
         fs = channel_map.sample_rate_hz
         buffer = max(int(round(self.buffer_s * fs)), 2)
         if not self.realtime:  # the board takes only what is read: a small buffer stays in cache
@@ -271,13 +273,13 @@ class SimulatedBackend(BackendBase):
                 self._prefill[:, idx] = arr
             else:
                 ao.write_offset = at % ring
-                dev.write_ao(ao, arr, False, WRITE_TIMEOUT_S, [ai])
+                dev.write_ao(ao, arr, False, WRITE_TIMEOUT_S, [ai], in_range=True)
             self._written_end = max(self._written_end, at + arr.shape[1])
             return
         if at is not None and at != self._written_end:
             raise ValueError(f"a non-regenerating AO stream writes at sample "
                              f"{self._written_end}, not {at}")
-        dev.write_ao(ao, arr, False, WRITE_TIMEOUT_S, [ai])
+        dev.write_ao(ao, arr, False, WRITE_TIMEOUT_S, [ai], in_range=True)  # checked above
         self._written_end += arr.shape[1]
 
     def read_ai(self, n: int, timeout_s: float = 10.0) -> np.ndarray:
@@ -305,7 +307,7 @@ class SimulatedBackend(BackendBase):
 
     def _on_terminals(self, first: int, terminals: np.ndarray) -> None:
         """The board's hook: every AO terminal at AI samples ``first..``; kept in map rows."""
-        self._played.append(terminals[self._ao_terminals])
+        self._played.append(terminals[self._ao_index])
 
     def _take_played(self, n: int) -> np.ndarray:
         """What the AO terminals showed at the ``n`` samples just read (map rows)."""

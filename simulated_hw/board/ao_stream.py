@@ -89,12 +89,12 @@ def freeze_regeneration(task: SimTask) -> None:
         task.ao.freeze()
 
 
-def take(task: SimTask, n: int) -> np.ndarray:
-    """The next ``n`` samples the task's terminals show, shape (n_ch, n). Past the end of the
-    generation (underflow: the error is set on the task; end of a finite task: ``done``) the
-    terminals show their idle values."""
+def take(task: SimTask, n: int, into: np.ndarray | None = None) -> np.ndarray:
+    """The next ``n`` samples the task's terminals show, shape (n_ch, n) (written to ``into``
+    when given). Past the end of the generation (underflow: the error is set on the task; end
+    of a finite task: ``done``) the terminals show their idle values."""
     stream = task.ao
-    out = np.empty((len(task.channels), n))
+    out = np.empty((len(task.channels), n)) if into is None else into
     limit = n if generating(task) else 0
     if task.finite:
         limit = min(limit, max(task.samps_per_chan - stream.generated, 0))

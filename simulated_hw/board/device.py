@@ -55,6 +55,13 @@ GAP_DYNAMIC_S = 1.0
 INTERNAL_AO = re.compile(r"_ao(\d+)_vs_aognd", re.IGNORECASE)
 
 
+def rows_index(rows: list[int]) -> slice | list[int]:
+    """``rows`` as an index: a slice (a view, no copy) when they are consecutive ascending."""
+    if rows and rows == list(range(rows[0], rows[0] + len(rows))):
+        return slice(rows[0], rows[0] + len(rows))
+    return rows
+
+
 def _same_rig(a: ChannelMap, b: ChannelMap) -> bool:
     """Whether a rig built for ``a`` converts exactly as one built for ``b``."""
     return (a.sample_rate_hz, a.ai, a.ao, a.do) == (b.sample_rate_hz, b.ai, b.ao, b.do)
@@ -115,6 +122,7 @@ class SimDevice:
         self._ao_all = self.spec.ao_channels()  # the AO terminals, in the device's order
         #: the AO terminal each of the rig's drives is wired to
         self._wired_ao = [self._ao_all.index(c.physical_channel) for c in wiring.ao]
+        self._wired_index = rows_index(self._wired_ao)  # a slice when they are in order
         #: the rig as last simulated, and the device time up to which it was: the next
         #: acquisition's rig continues from it (the rig keeps moving between tasks)
         self.carried: tuple[RigModel, float] | None = None
@@ -385,6 +393,8 @@ class SimDevice:
         digital = task.kind == "do"
         task.wired_rows = [] if digital else [(row, ao_all.index(ch.physical[0]))
                                                for row, ch in enumerate(task.channels)]
+        terms = rows_index([term for _, term in task.wired_rows])
+        task.wired_slice = terms if isinstance(terms, slice) else None
         task.ao.generated = 0
         task.ao.last = np.array([
             digital_io.channel_value(self, task, ch) if digital
@@ -587,16 +597,20 @@ class SimDevice:
     def stopping(self) -> bool:
         return self._stopping.is_set()
 
-    def _advance(self, target: int) -> None:
-        """Take samples ``generated..target``: run the AO, the rig, fill the AI buffer."""
+    def _advance(self, target: int, hand_over: bool = False) -> np.ndarray | None:
+        """Take samples ``generated..target``: run the AO, the rig, fill the AI buffer.
+        ``hand_over`` (a fast-mode read of exactly these samples): when they come in one piece
+        they go straight to the reader, returned, and only counted in the buffer (a copy in and
+        out of it saved per block); None otherwise."""
         task, ring, rig = self.ai_task, self.ring, self.rig
         assert task is not None and ring is not None and rig is not None
         if task.finite:
             target = min(target, task.samps_per_chan)
         if task.error is not None:  # overwritten: the acquisition is dead until restarted
             self.generated = max(self.generated, target)
-            return
-        wired = self._wired_ao
+            return None
+        wired = self._wired_index
+        hand_over = hand_over and 0 < target - self.generated <= MAX_CHUNK
         while self.generated < target:
             n = min(target - self.generated, MAX_CHUNK)
             terminals = self._terminals(self.generated, n)
@@ -613,6 +627,9 @@ class SimDevice:
                     else:
                         out[i] = (rig_out if source[0] == "rig" else terminals)[source[1]]
             self.generated += n
+            if hand_over:
+                ring.skip(n)
+                return out
             ring.put(out)
             behind = self.generated - self.read_pos
             if behind > ring.capacity and task.error is None:
@@ -623,6 +640,7 @@ class SimDevice:
                     f"{self.read_pos}..{self.generated - ring.capacity - 1} were overwritten)",
                     samps_per_chan_read=0,
                 )
+        return None
 
     def _rig_rows_in_order(self, n: int) -> list[tuple[str, int] | None]:
         """The sources of an acquisition whose channels are the rig's ``n`` rows in order."""
@@ -649,11 +667,16 @@ class SimDevice:
     def _terminals(self, first: int, n: int) -> np.ndarray:
         """Every AO terminal's voltage at AI samples ``first..first+n``, shape (ao_count, n)."""
         ao_all = self._ao_all
-        out = np.repeat(np.array([self.terminal_value(p) for p in ao_all])[:, None], n, axis=1)
+        out = np.empty((len(ao_all), n))
+        out[:] = np.array([self.terminal_value(p) for p in ao_all])[:, None]
         for task in self.ao_tasks:
             if task.t_start is None:  # on the AI sample clock
                 k0 = max(first, task.first_sample)
                 if k0 >= first + n:
+                    continue
+                rows = task.wired_slice
+                if rows is not None:  # the task's rows are terminals in order: generated there
+                    ao_stream.take(task, first + n - k0, into=out[rows, k0 - first:])
                     continue
                 block = ao_stream.take(task, first + n - k0)
                 for row, term in task.wired_rows:
@@ -671,9 +694,10 @@ class SimDevice:
                 value[fresh] = block[row, index[fresh] - before]
                 value[index < 0] = out[term, 0]
                 out[term] = value
-        for term, p in enumerate(ao_all):
-            if p in self.locked_ao:
-                out[term] = self.locked_ao[p]
+        if self.locked_ao:
+            for term, p in enumerate(ao_all):
+                if p in self.locked_ao:
+                    out[term] = self.locked_ao[p]
         return out
 
     # --- reading --------------------------------------------------------------------------
@@ -729,11 +753,15 @@ class SimDevice:
             if task is not self.ai_task:
                 raise daq_error(TASK_NOT_RUNNING, f"read from {task.name!r}: task stopped "
                                 "while waiting", samps_per_chan_read=0)
-            self._advance(need if self.fast else max(need, self._due()))
+            taken: np.ndarray | None = None
+            if self.fast:  # the samples not yet taken, exactly these: straight to the reader
+                taken = self._advance(need, hand_over=self.generated == self.read_pos)
+            else:
+                self._advance(max(need, self._due()))
             if task.error is not None:
                 raise task.error
             assert self.ring is not None
-            data = self.ring.get(self.read_pos, n)
+            data = self.ring.get(self.read_pos, n) if taken is None else taken
             self.read_pos = need
             if task.finite and need >= task.samps_per_chan:
                 task.done = True
@@ -767,8 +795,10 @@ class SimDevice:
 
     # --- writing --------------------------------------------------------------------------
     def write_ao(self, task: SimTask, block: np.ndarray, auto_start: bool, timeout_s: float,
-                 others: list[SimTask]) -> int:
-        if task.kind == "ao" and block.size:  # each row's extremes, in two passes
+                 others: list[SimTask], in_range: bool = False) -> int:
+        """Write ``block`` (n_ch, n) to an output task. ``in_range``: the caller has checked it
+        against the channels' ranges already (the in-process backend, with its own words)."""
+        if task.kind == "ao" and block.size and not in_range:  # each row's extremes, 2 passes
             low, high = block.min(axis=1), block.max(axis=1)
             for row, ch in enumerate(task.channels):
                 if low[row] < ch.min_v or high[row] > ch.max_v:
@@ -780,8 +810,9 @@ class SimDevice:
                     )
         with self.lock:
             self.catch_up()
-            self.safe.refuse_locked(f"write to {task.name!r}",
-                                    [p for ch in task.channels for p in ch.physical])
+            if self.locked_ao or self.locked_do:  # an expired watchdog holds some
+                self.safe.refuse_locked(f"write to {task.name!r}",
+                                        [p for ch in task.channels for p in ch.physical])
         if task.rate_hz is None:  # on-demand: the outputs take the last value at once
             if not task.running and not auto_start:
                 raise daq_error(TASK_NOT_RUNNING, f"write to {task.name!r}: task not running")

@@ -68,6 +68,7 @@ class SimTask:
     t_start: float | None = None  # AO on its own clock: device time of sample 0
     first_sample: int = 0  # AO on the AI clock: the AI sample its sample 0 is generated at
     wired_rows: list[tuple[int, int]] = field(default_factory=list)  # (task row, rig drive row)
+    wired_slice: slice | None = None  # the terminals of ``wired_rows`` when they are in order
     auto_started: bool = False  # started implicitly by a read (stops at the end of a finite one)
     watchdog: Any = None  # a `simulated_hw.board.watchdog.Watchdog` for a watchdog task
     run_id: int = 0  # counts the task's starts (event streams restart their counts with it)
@@ -136,6 +137,11 @@ class AiRing:
         first = min(keep, self.capacity - start)
         self.data[:, start:start + first] = block[:, n - keep:n - keep + first]
         self.data[:, : keep - first] = block[:, n - keep + first:]
+        self.written += n
+
+    def skip(self, n: int) -> None:
+        """Count ``n`` samples the reader took straight from the acquisition (never read from
+        here: their place holds older samples)."""
         self.written += n
 
     def grow(self, capacity: int) -> None:
