@@ -351,8 +351,14 @@ class RunWriter:
             self._pending.append(np.concatenate((ai, ao)) if n_ao else ai.copy())
             self._pending_n += n
             self._next_sample += n
+            # a chunk completed: the I/O thread compresses and writes it (it writes nothing
+            # else until a flush, which it wakes for on its own, so waking it for every block
+            # cost a thread switch and its loop per 10 ms block for nothing)
+            chunk_done = (first_sample // self.chunk_samples
+                          != self._next_sample // self.chunk_samples)
         if self._io_thread is not None:
-            self._wake.set()
+            if chunk_done:
+                self._wake.set()
             return
         with self._io_lock:  # no I/O thread: write completed chunks now
             self._check_open()
