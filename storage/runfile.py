@@ -5,8 +5,8 @@ SWMR forbids creating objects or attributes once it is switched on, so everythin
 the final status and stop time are written after the SWMR session is closed (file reopened r+).
 
 `RunWriter` implements the sweep listener (contract A): ``on_block``, ``on_step``, ``on_event``.
-``on_block`` only copies the block and hands it to a background I/O thread, which appends whole
-chunks (`storage.chunks.ChunkWriter`: gzip chunks are shuffled and deflated in a small thread
+``on_block`` only copies the block and hands it to a background I/O thread (woken when a chunk
+is complete, not for every block), which appends whole chunks (`storage.chunks.ChunkWriter`: gzip chunks are shuffled and deflated in a small thread
 pool, then written directly) and
 flushes at least every ``flush_interval_s`` seconds; ``on_step`` and ``on_event`` check their
 rows and hand them over too, and the thread writes each after the samples before it and flushes
