@@ -6,8 +6,8 @@ the final status and stop time are written after the SWMR session is closed (fil
 
 `RunWriter` implements the sweep listener (contract A): ``on_block``, ``on_step``, ``on_event``.
 ``on_block`` only copies the block and hands it to a background I/O thread (woken when a chunk
-is complete, not for every block), which appends whole chunks (`storage.chunks.ChunkWriter`: gzip chunks are shuffled and deflated in a small thread
-pool, then written directly) and
+is complete, not for every block), which appends whole chunks (`storage.chunks.ChunkWriter`:
+gzip chunks are shuffled and deflated in a small thread pool, then written directly) and
 flushes at least every ``flush_interval_s`` seconds; ``on_step`` and ``on_event`` check their
 rows and hand them over too, and the thread writes each after the samples before it and flushes
 (the one I/O thread of a run: the caller, the acquisition loop, never waits on the disk). A writer
