@@ -20,6 +20,7 @@ Targets (issue 41): beside 6 busy processes at most 1.5x the idle time, beside 3
 every step converged; the daemon at most 8 % of a core on the nidaqmx path.
 
 Usage: .venv/bin/python benchmarks/bench_busy_sweep.py [--backend sim|nidaqmx] [--busy 3 6]
+(``--busy`` with no counts: the idle level alone)
 """
 
 from __future__ import annotations
@@ -102,8 +103,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--backend", choices=["sim", "nidaqmx"], default="sim",
                     help="nidaqmx: through the nidaqmx package against `sfdrig sim-server`")
-    ap.add_argument("--busy", type=int, nargs="+", default=[3, 6],
-                    help="busy-process counts to run beside (after the idle run)")
+    ap.add_argument("--busy", type=int, nargs="*", default=[3, 6],
+                    help="busy-process counts to run beside (after the idle run); none: the "
+                         "idle run alone (the daemon's CPU)")
     args = ap.parse_args()
     if any(b < 1 for b in args.busy):
         print("bench_busy_sweep: --busy counts must be >= 1", file=sys.stderr)

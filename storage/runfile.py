@@ -5,9 +5,9 @@ SWMR forbids creating objects or attributes once it is switched on, so everythin
 the final status and stop time are written after the SWMR session is closed (file reopened r+).
 
 `RunWriter` implements the sweep listener (contract A): ``on_block``, ``on_step``, ``on_event``.
-``on_block`` only copies the block and hands it to a background I/O thread, which appends whole
-chunks (`storage.chunks.ChunkWriter`: gzip chunks are shuffled and deflated in a small thread
-pool, then written directly) and
+``on_block`` only copies the block and hands it to a background I/O thread (woken when a chunk
+is complete, not for every block), which appends whole chunks (`storage.chunks.ChunkWriter`:
+gzip chunks are shuffled and deflated in a small thread pool, then written directly) and
 flushes at least every ``flush_interval_s`` seconds; ``on_step`` and ``on_event`` check their
 rows and hand them over too, and the thread writes each after the samples before it and flushes
 (the one I/O thread of a run: the caller, the acquisition loop, never waits on the disk). A writer
@@ -351,8 +351,14 @@ class RunWriter:
             self._pending.append(np.concatenate((ai, ao)) if n_ao else ai.copy())
             self._pending_n += n
             self._next_sample += n
+            # a chunk completed: the I/O thread compresses and writes it (it writes nothing
+            # else until a flush, which it wakes for on its own, so waking it for every block
+            # cost a thread switch and its loop per 10 ms block for nothing)
+            chunk_done = (first_sample // self.chunk_samples
+                          != self._next_sample // self.chunk_samples)
         if self._io_thread is not None:
-            self._wake.set()
+            if chunk_done:
+                self._wake.set()
             return
         with self._io_lock:  # no I/O thread: write completed chunks now
             self._check_open()

@@ -109,6 +109,25 @@ def test_metadata_blocks_steps_events_round_trip(tmp_path: Path, flush_interval_
         assert ds.shuffle and run.h5["drive/shaker_x"].compression == "gzip"
 
 
+def test_the_io_thread_is_woken_once_a_chunk_not_once_a_block(tmp_path: Path) -> None:
+    """A paced run hands over a 10 ms block at a time: the I/O thread has work only when a
+    chunk is complete (and at its flushes, which it keeps to on its own), so on_block wakes it
+    only then; every sample still reaches the file."""
+    wakes = []
+    rng = np.random.default_rng(41)
+    data = rng.normal(size=(len(CHANNELS) + 2, 2500))
+    with _make(tmp_path / "w.h5", chunk_samples=1000, flush_interval_s=60.0) as w:
+        real_set = w._wake.set
+        w._wake.set = lambda: (wakes.append(w._next_sample), real_set())
+        for k in range(0, 2500, 100):  # 25 blocks of 100 samples
+            w.on_block(k, data[:len(CHANNELS), k:k + 100], data[len(CHANNELS):, k:k + 100])
+        assert wakes == [1000, 2000]  # the blocks that completed the 1st and 2nd chunk
+    with open_run(tmp_path / "w.h5") as run:
+        for i, c in enumerate(CHANNELS):
+            np.testing.assert_array_equal(run.channel(c["name"]), data[i])
+        np.testing.assert_array_equal(run.h5["drive/shaker_y"][:], data[-1])
+
+
 def test_lzf_option(tmp_path: Path) -> None:
     data = np.arange(30.0).reshape(3, 10)
     with RunWriter.create(tmp_path / "l.h5", "l", "sweep", ["a", "b"], ["d"], 10.0,
