@@ -345,11 +345,12 @@ class NidaqmxBackend(BackendBase):
         calls instead of one per block (the e-stop and the gRPC round trip with each). What
         is read ahead is handed out by the next `read_ai` calls without a call.
 
-        Not on a board whose generation count is seen not to follow the host's clock (the
-        sim-server's fast mode): there a read moves the board's clock, and reading ahead of
-        what a late host has written underflows the AO."""
+        Only on a board whose generation count has been seen to follow the host's clock
+        (`_gen_paced`, from the first 0.2 s of a run on): on one that does not (the
+        sim-server's fast mode) a read moves the board's clock, and reading ahead of what a
+        late host has written underflows the AO, also before the first answers are in."""
         fs = self.channel_map.sample_rate_hz
-        if self._gen_answers and not self._gen_paced(fs):
+        if not self._gen_answers or not self._gen_paced(fs):
             return need
         held = int((self._clock() - self._ai_started_at) * fs) - self._ai_taken - have
         extra = min(held - 2 * need, int(AI_CATCH_UP_S * fs))
