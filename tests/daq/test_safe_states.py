@@ -350,7 +350,7 @@ def test_a_late_host_reads_no_further_than_it_wrote_on_a_board_its_reads_move(
     start and its first read (its own clock says 10,000 samples are waiting) once read 2,600
     ahead and ran the generation past the 300 it had written: -200290 'reached sample 400' in
     the force-trip test at load 7-9, 4 of 6 runs. It reads what it asks until the board's
-    count is seen to follow its clock."""
+    count is seen to follow its clock, or the board's count says it holds them."""
     backend = NidaqmxBackend(watchdog_timeout_s=None, clock=fake_clock.now)
     try:
         backend.configure(on_server(fast_server))
