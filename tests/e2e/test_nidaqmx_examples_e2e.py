@@ -30,8 +30,10 @@ pytestmark = [pytest.mark.e2e, pytest.mark.paced, pytest.mark.needs_shared]
 
 RUNNER = Path(__file__).with_name("nidaqmx_example_runner.py")
 LANE = Path(__file__).with_name("nidaqmx_example_lane.py")
-#: lanes of examples run at once (one after another on one server they took 150 s of the paced
-#: tests' sequence, which runs on one worker; three lanes: about a third of that)
+#: lanes of examples run at once: one after another on one server they took 99-150 s of the
+#: paced tests' sequence (one worker), 41 s of it CPU (each example's Python and nidaqmx), the
+#: rest waiting on the paced board; in three lanes 86 s against 99 s at load 7 (9 s more CPU:
+#: two more servers)
 LANES = 3
 TEST = "test_nis_example_runs_or_is_refused_as_the_board_does"
 REPO_ROOT = Path(__file__).resolve().parents[2]
