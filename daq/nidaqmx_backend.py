@@ -342,6 +342,14 @@ class NidaqmxBackend(BackendBase):
         (t0, c0), (t1, c1) = self._gen_answers[0], self._gen_answers[-1]
         return t1 - t0 >= 0.2 and abs((c1 - c0) / (t1 - t0) - fs) < 0.1 * fs
 
+    def _gen_unpaced(self, fs: float) -> bool:
+        """Whether the board's answers, over at least 0.2 s, are seen not to follow the host's
+        clock (the sim-server's fast mode)."""
+        if not self._gen_answers:
+            return False
+        (t0, _), (t1, _) = self._gen_answers[0], self._gen_answers[-1]
+        return t1 - t0 >= 0.2 and not self._gen_paced(fs)
+
     def _ai_read_size(self, need: int, have: int) -> int:
         """How many samples the next gRPC read takes: ``need``, or, when the board holds
         more (its sample clock, counted on the host's monotonic clock, has run ahead of the
@@ -352,11 +360,19 @@ class NidaqmxBackend(BackendBase):
 
         Not on a board whose generation count is seen not to follow the host's clock (the
         sim-server's fast mode): there a read moves the board's clock, and reading ahead of
-        what a late host has written underflows the AO."""
+        what a late host has written underflows the AO. Until the count is seen to follow it
+        (the first 0.2 s of a run, or a host that never asks it), a host whose clock says it
+        is behind asks the board's count (AO and AI share the sample clock), which says what
+        the board holds: a busy host's first read on the fast board ran the generation past
+        what was written (-200290)."""
         fs = self.channel_map.sample_rate_hz
-        if self._gen_answers and not self._gen_paced(fs):
+        if self._gen_unpaced(fs):
             return need
         held = int((self._clock() - self._ai_started_at) * fs) - self._ai_taken - have
+        if held < 3 * need:  # on time: no read-ahead, no question
+            return need
+        if not self._gen_answers or not self._gen_paced(fs):
+            held = min(held, self.ao_generated() - self._ai_taken - have)
         extra = min(held - 2 * need, int(AI_CATCH_UP_S * fs))
         return need + need * max(extra // need, 0)
 

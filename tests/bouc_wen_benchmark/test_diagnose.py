@@ -13,16 +13,26 @@ import json
 import math
 from pathlib import Path
 
-from tests.bouc_wen_benchmark.oscillator import FORCES_N, M_KG, dwells, write_csv
+import pytest
+
+from tests.bouc_wen_benchmark.oscillator import FORCES_N, M_KG, Dwell, dwells, write_csv
 
 SEED = 3
 
 
-def _dwell_spans() -> dict[float, tuple[tuple[float, float], tuple[float, float]]]:
+@pytest.fixture(scope="module")
+def recorded() -> list[Dwell]:
+    """The stepped sine, integrated once by the worker that runs this module (13 s of DOP853:
+    at import it cost every xdist worker, and every collection, that time)."""
+    return dwells()
+
+
+def _dwell_spans(recorded: list[Dwell]
+                 ) -> dict[float, tuple[tuple[float, float], tuple[float, float]]]:
     """Per force level: the (min, max) of its dwells' equivalent natural frequency [Hz] and
     damping ratio (each dwell's dynamic stiffness at its own amplitude, the true mass)."""
     spans: dict[float, tuple[list[float], list[float]]] = {f: ([], []) for f in FORCES_N}
-    for d in _DWELLS:
+    for d in recorded:
         w, z = 2 * math.pi * d.freq_hz, d.dynamic_stiffness()
         k = z.real + M_KG * w * w
         spans[d.force_n][0].append(math.sqrt(k / M_KG) / (2 * math.pi))
@@ -30,14 +40,11 @@ def _dwell_spans() -> dict[float, tuple[tuple[float, float], tuple[float, float]
     return {f: ((min(fn), max(fn)), (min(ze), max(ze))) for f, (fn, ze) in spans.items()}
 
 
-_DWELLS = dwells()
-
-
 def test_the_bouc_wen_benchmark_is_unexplained_with_its_hardening_reported(
-        tmp_path: Path) -> None:
+        recorded: list[Dwell], tmp_path: Path) -> None:
     from sfdrig.cli import main
 
-    csv = write_csv(_DWELLS, tmp_path / "bouc_wen.csv", SEED)
+    csv = write_csv(recorded, tmp_path / "bouc_wen.csv", SEED)
     run = tmp_path / "bouc_wen.h5"
     assert main(["import", str(csv), "--out", str(run), "--dry", "--motion", "x",
                  "--seal", "none"]) == 0
@@ -54,7 +61,7 @@ def test_the_bouc_wen_benchmark_is_unexplained_with_its_hardening_reported(
     amp = said["amplitude_dependence"]
     assert amp["natural_frequency_trend"]["x"]["verdict"] == "hardening", amp
     assert amp["damping_trend"]["x"]["verdict"] == "rising", amp
-    spans = _dwell_spans()
+    spans = _dwell_spans(recorded)
     levels = sorted((lv for lv in amp["levels"] if lv["axis"] == "x"),
                     key=lambda lv: lv["force_amplitude_N"])
     assert len(levels) == len(FORCES_N), levels

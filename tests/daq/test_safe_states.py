@@ -342,3 +342,25 @@ def test_a_force_trip_in_a_test_programme_stops_the_board_s_ao_at_once(
     assert np.abs(shown[0, trip - 1]) > 1.0 and np.all(shown[:, trip:] == 0)
     assert shown.shape[1] >= trip + 600  # the motion read out (queue + 40 ms ramp)
     assert fast_server.device.ao_hold == {"Dev1/ao0": 0.0, "Dev1/ao1": 0.0}
+
+
+def test_a_late_host_reads_no_further_than_it_wrote_on_a_board_its_reads_move(
+        fast_server: SimulatedDeviceServer, fake_clock: FakeClock) -> None:
+    """The fast board's clock moves only with the reads. A host busy for a second between the
+    start and its first read (its own clock says 10,000 samples are waiting) once read 2,600
+    ahead and ran the generation past the 300 it had written: -200290 'reached sample 400' in
+    the force-trip test at load 7-9, 4 of 6 runs. It reads what it asks until the board's
+    count is seen to follow its clock, or the board's count says it holds them."""
+    backend = NidaqmxBackend(watchdog_timeout_s=None, clock=fake_clock.now)
+    try:
+        backend.configure(on_server(fast_server))
+        backend.write_ao(_drive(1.0, 300))
+        backend.start()
+        fake_clock.advance(1.0)  # the host was busy elsewhere
+        assert backend.read_ai(100).shape == (14, 100)
+        assert fast_server.device.samples_due() == 100  # the board moved as far as was read
+        backend.write_ao(_drive(1.0, 100))  # no underflow: 400 written, 100 generated
+        fx = _fx_volts(backend, 300)
+        assert np.median(fx[100:]) == pytest.approx(1.0, abs=0.02)
+    finally:
+        backend.close()

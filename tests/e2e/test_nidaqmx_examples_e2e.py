@@ -4,7 +4,10 @@ driver) gives for what it asks, never gRPC UNIMPLEMENTED, INTERNAL or a server t
 
 Each example runs in a process of its own through `nidaqmx_example_runner.py`, which supplies
 only the session and the device names (and the user's Ctrl+C / Enter). The table below is the
-expected outcome of each, with what is checked of what it prints.
+expected outcome of each, with what is checked of what it prints. They mostly wait on the paced
+board, so they run in `LANES` lanes at once (`nidaqmx_example_lane.py`), each lane one example
+after another on a sim-server of its own, all started with the module; each test judges its
+example's output when it has ended.
 """
 
 from __future__ import annotations
@@ -26,6 +29,13 @@ from tests.conftest import SHARED
 pytestmark = [pytest.mark.e2e, pytest.mark.paced, pytest.mark.needs_shared]
 
 RUNNER = Path(__file__).with_name("nidaqmx_example_runner.py")
+LANE = Path(__file__).with_name("nidaqmx_example_lane.py")
+#: lanes of examples run at once: one after another on one server they took 99-150 s of the
+#: paced tests' sequence (one worker), 41 s of it CPU (each example's Python and nidaqmx), the
+#: rest waiting on the paced board; in three lanes 86 s against 99 s at load 7 (9 s more CPU:
+#: two more servers)
+LANES = 3
+TEST = "test_nis_example_runs_or_is_refused_as_the_board_does"
 REPO_ROOT = Path(__file__).resolve().parents[2]
 NUMBER = re.compile(r"-?\d+\.\d+(?:e[-+]?\d+)?")
 
@@ -296,47 +306,102 @@ def _stop_server(server: subprocess.Popen[str]) -> None:
 
 
 @pytest.fixture(scope="module")
-def server_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The sim-server's working directory (where a relative log file path lands)."""
-    return tmp_path_factory.mktemp("sim-server")
-
-
-@pytest.fixture(scope="module")
-def sim_server(server_dir: Path) -> Iterator[str]:
-    server = _start_server(server_dir)
-    try:
-        yield _address(server)
-    finally:
-        _stop_server(server)
+def selected(request: pytest.FixtureRequest) -> list[str]:
+    """The examples whose test this session runs (``-k`` may choose a few), sorted. None
+    without ../shared (the tests then skip, or fail on CI, through ``shared_dir``)."""
+    if not SHARED.is_dir():
+        return []
+    return sorted({item.callspec.params["example"] for item in request.session.items
+                   if getattr(item, "originalname", None) == TEST})
 
 
 def _example(shared_dir: Path, example: str) -> Path:
     return shared_dir / "reference" / "nidaqmx-python-examples" / example
 
 
-def _start(sim_server: str, path: Path, expected: Runs | Refused,
-           server_dir: Path | None = None) -> subprocess.Popen[str]:
+def _argv(address: str, path: Path, expected: Runs | Refused) -> list[str]:
     loops = expected.loops if isinstance(expected, Runs) else 3
     patience = expected.patience_s if isinstance(expected, Runs) else 30.0
-    in_server_dir = isinstance(expected, Runs) and expected.in_server_dir
     enter_after = expected.enter_after_s if isinstance(expected, Runs) else 0.0
-    return subprocess.Popen([sys.executable, str(RUNNER), sim_server, str(path), "--loops",
-                             str(loops), "--patience", str(patience), "--enter-after",
-                             str(enter_after)],
-                            cwd=server_dir if in_server_dir else path.parent,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return [sys.executable, str(RUNNER), address, str(path), "--loops", str(loops),
+            "--patience", str(patience), "--enter-after", str(enter_after)]
+
+
+def _waits(expected: Runs | Refused) -> bool:
+    return isinstance(expected, Refused) and expected.waits_s > 0
+
+
+class _Lanes:
+    """The examples dealt over lanes, each lane (`nidaqmx_example_lane.py`) running its share
+    one after another on its own server; `result` reads the example's lane up to its line."""
+
+    def __init__(self, lanes: list[subprocess.Popen[str]], lane_of: dict[str, int]) -> None:
+        self.lanes, self.lane_of = lanes, lane_of
+        self.ended: dict[str, dict] = {}
+
+    def result(self, example: str) -> tuple[str, str]:
+        """The example's stdout and stderr, once it has ended."""
+        lane = self.lanes[self.lane_of[example]]
+        while example not in self.ended:
+            line = lane.stdout.readline()  # type: ignore[union-attr]
+            assert line, f"lane {self.lane_of[example]} ended before {example} had run: " \
+                         + lane.stderr.read()[-2000:]  # type: ignore[union-attr]
+            said = json.loads(line)
+            self.ended[said["name"]] = said
+        said = self.ended[example]
+        assert said["returncode"] is not None, f"{example} did not end within 120 s: " \
+            + said["stdout"][-2000:] + said["stderr"][-2000:]
+        return said["stdout"], said["stderr"]
 
 
 @pytest.fixture(scope="module")
-def waiting_runs() -> Iterator[dict[str, subprocess.Popen[str]]]:
-    """The examples that wait on the board (a read's timeout), all started with the module: they
-    only wait, so overlapping them costs one wait, not one each. One board cannot run two that
-    hold the same input (the examples of one folder use the same one: ai0, ctr0), so each
-    server takes at most one example of each folder. None without ../shared (the tests then
-    skip, or fail on CI, through ``shared_dir``)."""
+def example_lanes(selected: list[str], tmp_path_factory: pytest.TempPathFactory
+                  ) -> Iterator[_Lanes]:
+    """The selected examples that do not wait on the board, dealt in their sorted order over
+    `LANES` lanes, so each lane keeps the table's order (the analog inputs read the rig at rest
+    before an analog output moves it: the rig keeps moving between tasks). Each lane's server
+    runs in a directory of its own (where a relative log file path lands)."""
+    names = [n for n in selected if not _waits(EXPECTED[n])]
+    shares = [names[i::LANES] for i in range(min(LANES, len(names)))]
+    servers: list[subprocess.Popen[str]] = []
+    lanes: list[subprocess.Popen[str]] = []
+    try:
+        server_dirs = [tmp_path_factory.mktemp("sim-server") for _ in shares]
+        servers += [_start_server(d) for d in server_dirs]  # they start at once
+        for share, server, server_dir in zip(shares, servers, server_dirs, strict=True):
+            address = _address(server)
+            jobs = []
+            for name in share:
+                expected, path = EXPECTED[name], _example(SHARED, name)
+                if isinstance(expected, Runs) and expected.own_dir:  # unchanged, byte for byte
+                    path = Path(shutil.copy(path, tmp_path_factory.mktemp("own") / path.name))
+                in_server_dir = isinstance(expected, Runs) and expected.in_server_dir
+                jobs.append({"name": name, "argv": _argv(address, path, expected),
+                             "cwd": str(server_dir if in_server_dir else path.parent)})
+            jobs_file = server_dir / "lane.json"
+            jobs_file.write_text(json.dumps(jobs))
+            lanes.append(subprocess.Popen([sys.executable, str(LANE), str(jobs_file), "--timeout",
+                                           "120"], stdout=subprocess.PIPE,
+                                          stderr=subprocess.PIPE, text=True))
+        yield _Lanes(lanes, {n: i for i, share in enumerate(shares) for n in share})
+    finally:
+        for lane in lanes:  # a lane a failed test left running: stopped, its pipes closed
+            if lane.poll() is None:
+                lane.kill()
+            lane.communicate()
+        for server in servers:
+            _stop_server(server)
+
+
+@pytest.fixture(scope="module")
+def waiting_runs(selected: list[str]) -> Iterator[dict[str, subprocess.Popen[str]]]:
+    """The selected examples that wait on the board (a read's timeout), all started with the
+    module: they only wait, so overlapping them costs one wait, not one each. One board cannot
+    run two that hold the same input (the examples of one folder use the same one: ai0, ctr0),
+    so each server takes at most one example of each folder."""
     by_folder: dict[str, list[str]] = {}
-    for name, expected in EXPECTED.items():
-        if isinstance(expected, Refused) and expected.waits_s > 0 and SHARED.is_dir():
+    for name in selected:
+        if _waits(EXPECTED[name]):
             by_folder.setdefault(name.split("/")[0], []).append(name)
     lanes = [[names[i] for names in by_folder.values() if i < len(names)]
              for i in range(max(map(len, by_folder.values()), default=0))]
@@ -345,10 +410,12 @@ def waiting_runs() -> Iterator[dict[str, subprocess.Popen[str]]]:
         runs = {}
         for lane, server in zip(lanes, servers, strict=True):
             address = _address(server)
-            runs.update({name: _start(address, _example(SHARED, name), EXPECTED[name])
-                         for name in lane})
+            runs.update({name: subprocess.Popen(
+                _argv(address, _example(SHARED, name), EXPECTED[name]),
+                cwd=_example(SHARED, name).parent, stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE, text=True) for name in lane})
         yield runs
-        for run in runs.values():  # those a deselected test left: stopped, their pipes closed
+        for run in runs.values():  # those a failed test left: stopped, their pipes closed
             if run.stdout is not None and not run.stdout.closed:
                 run.kill()
                 run.communicate()
@@ -365,14 +432,13 @@ def test_the_table_covers_every_example(shared_dir: Path) -> None:
 
 @pytest.mark.parametrize("example", sorted(EXPECTED))
 def test_nis_example_runs_or_is_refused_as_the_board_does(
-        example: str, sim_server: str, server_dir: Path, shared_dir: Path, tmp_path: Path,
-        waiting_runs: dict[str, subprocess.Popen[str]]) -> None:
+        example: str, shared_dir: Path, waiting_runs: dict[str, subprocess.Popen[str]],
+        example_lanes: _Lanes) -> None:
     expected = EXPECTED[example]
-    path = _example(shared_dir, example)
-    if isinstance(expected, Runs) and expected.own_dir:  # unchanged, byte for byte
-        path = Path(shutil.copy(path, tmp_path / path.name))
-    run = waiting_runs.get(example) or _start(sim_server, path, expected, server_dir)
-    stdout, stderr = run.communicate(timeout=120)
+    if example in waiting_runs:
+        stdout, stderr = waiting_runs[example].communicate(timeout=120)
+    else:
+        stdout, stderr = example_lanes.result(example)
     lines = [line for line in stdout.splitlines() if line.startswith("RESULT ")]
     assert lines, stdout[-2000:] + stderr[-2000:]
     result = json.loads(lines[-1].removeprefix("RESULT "))

@@ -121,11 +121,15 @@ def daemon(tmp_path: Path):
 
 
 def wait_state(client: CommandClient, sub: Subscriber, state: str) -> None:
-    """Wait on the PUB stream (no sleeps) until a status heartbeat shows ``state``."""
+    """Wait on the PUB stream (no sleeps) until a status heartbeat shows ``state`` and the
+    daemon, asked, is in it: a heartbeat queued before the request that left ``state`` shows
+    it still (an idle one from before a start, when the test took more than a heartbeat's
+    0.25 s to start: on a loaded PC)."""
     while True:
         msg = sub.recv(timeout_s=10)
         assert msg is not None, f"no message while waiting for state {state}"
-        if msg.topic == "status" and msg.header["status"]["state"] == state:
+        if msg.topic == "status" and msg.header["status"]["state"] == state \
+                and client.status()["state"] == state:
             return
 
 
