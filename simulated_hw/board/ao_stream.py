@@ -106,8 +106,8 @@ def take(task: SimTask, n: int, into: np.ndarray | None = None) -> np.ndarray:
             task.error = daq_error(
                 OUTPUT_UNDERFLOW,
                 f"task {task.name!r}: the AO generation reached sample {stream.generated} "
-                f"but only {stream.written} samples were written; the outputs went to their "
-                "idle state",
+                "since its start, the end of the samples written (the next ones came too "
+                "late); the outputs went to their idle state",
             )
         out[:, got:] = idle_values(task)[:, None]
     return out
