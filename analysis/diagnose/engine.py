@@ -43,6 +43,8 @@ Procedure
    not tell from it (its excess squared error, the replay's resolution taken off, under 5 sd
    of the noise floor, and so among dwells of one frequency: ``distinguish``), one on dwells
    beside structure left whose own signature is under 5 sd (a stand-in for part of a misfit),
+   one whose own signature does not stand above the largest structure left by its effect's
+   tolerance (that misfit could have moved its size by more: ``_misfit_left_sd``),
    and a refinement: a term found once the model already left
    nothing unexplained (no structure above the noise either), explaining less than 0.5 % of the
    signal and, on dwells, a signature under 5 sd of their own noise (elsewhere less than 3/4

@@ -37,7 +37,10 @@ def sensor_pair_check(pb: Problem, ctx: Context, free_base: list[Param],
     and the inverse gain error of the accelerometer, the structure scaled with it, fit alike on
     a fitted baseline; a configured baseline, or a delay (never negative), tells them apart. A
     partner whose held-out squared error does not stand ``Z_DISTINCT`` sd of the noise above
-    the final model's (``distinguish``) cannot be told from the finding's channel.
+    the final model's (``distinguish``) cannot be told from the finding's channel. A gain's
+    partner starts at the finding's reciprocal gain and is fitted to convergence: on a fitted
+    baseline a probe's gain and its accelerometer's reciprocal fit the same data, and a
+    partner stopped short of its best would be "told apart" by the fit alone.
     """
     ch = f.parameters.get("channel")
     axis_of: dict[str, int] = {}
