@@ -92,6 +92,12 @@ def check_case(name: str, seed: int, tmp_path: Path, capsys: pytest.CaptureFixtu
     for row in said_json["verdict"]["record"]:  # what the whole record holds beyond the model
         assert f"  in the record, not in the model: {row['text']}" in text.splitlines(), \
             f"{name}: {row['text']!r} not in the CLI's text"
+    # a second mode the order fitted (with every baseline parameter) and did not choose is
+    # screened again in the first round only: later rounds cost a full replay per start
+    if any(r.get("modes_per_axis") == 2 and not r["coupled_axes"]
+           for r in said_json["baseline"]["order_selection"]):
+        later = [row["effect"] for rnd in said_json["candidates"][1:] for row in rnd]
+        assert "second_mode" not in later, f"{name}: second_mode screened after round 1"
     ok, said = judge(case, said_json, total, own_signatures(case, seed))
     assert ok, f"{name} (signature {total:.0f} sigma over the run): {said}"
 
