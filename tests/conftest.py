@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import threading
 import time
 from pathlib import Path
@@ -33,6 +34,14 @@ from hypothesis import HealthCheck, settings
 from threadpoolctl import threadpool_limits
 
 from tests.ci import on_ci
+
+# A shell without job control starts a background command (`./dev test &`, `nohup ... &` in a
+# script) with SIGINT ignored, and every child inherits that: the tests' `sfdrig` processes
+# would then shrug off the Ctrl-C the tests send them as an operator's keyboard would (a
+# sweep ran to its end, `channels live` never stopped). Ctrl-C is what those tests check, so
+# the suite's processes take it as a terminal's user would.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # One BLAS thread in the test process and the processes it starts (as the daemon, `sfdrig web`
 # and diagnose already limit themselves): the workers already fill the cores, and OpenBLAS's
